@@ -1,0 +1,5 @@
+//! filmscope's no_std core (placeholder doc, rewritten later).
+#![cfg_attr(not(feature = "std"), no_std)]
+
+pub mod colour;
+pub mod optics;

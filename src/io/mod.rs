@@ -1,0 +1,1 @@
+//! File formats: ENVI cubes and capture descriptions.

@@ -1,0 +1,7 @@
+//! filmscope (placeholder doc, rewritten later).
+#![cfg_attr(not(feature = "std"), no_std)]
+
+pub use filmscope_core::*;
+
+#[cfg(feature = "std")]
+pub mod io;
