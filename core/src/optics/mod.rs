@@ -1,4 +1,26 @@
-//! Thin-film optics: Snell, Fresnel, the Airy sum of one film on a substrate, dispersion, passbands.
+//! Thin-film optics: Snell, Fresnel, the Airy sum of one film on a substrate, dispersion and
+//! band averaging through the LCTF passband.
+//!
+//! Conventions: wavelengths are vacuum wavelengths in nm, angles in degrees, thicknesses in
+//! nm, indices real. The model is validated against the Python `tmm` package
+//! (`tests/optics_tmm.rs`) and analytic limits (unit tests below).
+
+mod airy;
+mod complex;
+mod dispersion;
+mod film;
+mod fresnel;
+mod passband;
+
+pub use airy::{film_reflectance, FilmAtAngle, Indices};
+pub use complex::Complex;
+pub use dispersion::{materials, Dispersion};
+pub use film::{BandModel, FilmStack};
+pub use fresnel::{fresnel_r, fresnel_r_real, normal_component, refraction_deg, snell_invariant};
+pub use passband::{Passband, DEFAULT_NODES, HALF_WIDTH_FWHM, MAX_NODES};
+
+#[cfg(test)]
+mod tests;
 
 /// Polarisation of the light that reaches the camera.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

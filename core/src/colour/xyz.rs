@@ -1,0 +1,201 @@
+//! Reflectance spectrum -> CIE 1931 XYZ under D65 (5 nm rectangle-rule sum).
+
+use super::tables::{
+    CIE1931_XBAR, CIE1931_YBAR, CIE1931_ZBAR, D65_SPD, GRID_LEN, GRID_START_NM, GRID_STEP_NM,
+};
+
+/// CIE 1931 tristimulus values (2-degree observer), on the scale where the
+/// reference white has `Y = 100` (dimensionless).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Xyz {
+    /// Tristimulus X.
+    pub x: f64,
+    /// Tristimulus Y (luminance factor x 100 for reflecting samples).
+    pub y: f64,
+    /// Tristimulus Z.
+    pub z: f64,
+}
+
+impl Xyz {
+    /// All three components NaN: the result for invalid input.
+    pub const NAN: Xyz = Xyz {
+        x: f64::NAN,
+        y: f64::NAN,
+        z: f64::NAN,
+    };
+}
+
+/// Sum of D65 x y-bar over the grid; `100 / DENOM` is the normalising constant k.
+const DENOM: f64 = {
+    let mut sum = 0.0;
+    let mut i = 0;
+    while i < GRID_LEN {
+        sum += D65_SPD[i] * CIE1931_YBAR[i];
+        i += 1;
+    }
+    sum
+};
+
+/// Rectangle-rule ("Integration") sum over the 5 nm grid:
+/// `X = k * sum R(l) S(l) xbar(l)` (same for Y, Z), `k = 100 / sum S(l) ybar(l)`.
+/// The single summation used by every public entry point (and by the const white).
+const fn integrate(reflectance: &[f64; GRID_LEN]) -> Xyz {
+    let mut sx = 0.0;
+    let mut sy = 0.0;
+    let mut sz = 0.0;
+    let mut i = 0;
+    while i < GRID_LEN {
+        let rs = reflectance[i] * D65_SPD[i];
+        sx += rs * CIE1931_XBAR[i];
+        sy += rs * CIE1931_YBAR[i];
+        sz += rs * CIE1931_ZBAR[i];
+        i += 1;
+    }
+    let k = 100.0 / DENOM;
+    Xyz {
+        x: k * sx,
+        y: k * sy,
+        z: k * sz,
+    }
+}
+
+/// XYZ of the perfect reflector (R = 1 at every wavelength) under D65, computed
+/// from the tables with the same sum as [`reflectance_to_xyz`]:
+/// about (95.043, 100, 108.880). This is the white point for [`Xyz::to_lab`].
+pub const D65_WHITE_XYZ: Xyz = integrate(&[1.0; GRID_LEN]);
+
+/// Function form of [`D65_WHITE_XYZ`].
+pub const fn d65_white() -> Xyz {
+    D65_WHITE_XYZ
+}
+
+/// Wavelength of grid sample `i`, in nanometres (380, 385, ..., 780).
+fn grid_nm(i: usize) -> f64 {
+    GRID_START_NM + i as f64 * GRID_STEP_NM
+}
+
+/// Linearly interpolates `(wavelength_nm, reflectance)` onto the 5 nm grid,
+/// holding the edge values outside the sampled range (like `numpy.interp`).
+/// `None` if the lengths differ, are zero, or the wavelengths are not finite
+/// and strictly increasing.
+fn resample_to_grid(wavelength_nm: &[f64], reflectance: &[f64]) -> Option<[f64; GRID_LEN]> {
+    let n = wavelength_nm.len();
+    if n == 0 || n != reflectance.len() {
+        return None;
+    }
+    if wavelength_nm.iter().any(|w| !w.is_finite())
+        || wavelength_nm.windows(2).any(|w| w[1] <= w[0])
+    {
+        return None;
+    }
+    let (first_nm, last_nm) = (wavelength_nm[0], wavelength_nm[n - 1]);
+    let mut out = [0.0; GRID_LEN];
+    // Invariant inside the range: wavelength_nm[j] <= g < wavelength_nm[j + 1].
+    let mut j = 0;
+    for (i, o) in out.iter_mut().enumerate() {
+        let g = grid_nm(i);
+        *o = if g <= first_nm {
+            reflectance[0]
+        } else if g >= last_nm {
+            reflectance[n - 1]
+        } else {
+            while wavelength_nm[j + 1] <= g {
+                j += 1;
+            }
+            let (w0, w1) = (wavelength_nm[j], wavelength_nm[j + 1]);
+            let (r0, r1) = (reflectance[j], reflectance[j + 1]);
+            r0 + (g - w0) / (w1 - w0) * (r1 - r0)
+        };
+    }
+    Some(out)
+}
+
+/// XYZ under D65 (2-degree observer, `Y = 100` for a perfect reflector) of a
+/// reflectance spectrum sampled at `wavelength_nm` (nanometres, strictly
+/// increasing, any spacing; e.g. camera bands 420..720 nm).
+///
+/// The spectrum is linearly interpolated onto the CIE grid 380..=780 nm every
+/// 5 nm; outside the sampled range the nearest edge value is held. The XYZ is
+/// then the plain sum over the grid (see [`reflectance_fn_to_xyz`]).
+///
+/// Returns [`Xyz::NAN`] (never panics) if the slices are empty, of different
+/// lengths, or the wavelengths are not finite and strictly increasing.
+pub fn reflectance_to_xyz(wavelength_nm: &[f64], reflectance: &[f64]) -> Xyz {
+    match resample_to_grid(wavelength_nm, reflectance) {
+        Some(grid) => integrate(&grid),
+        None => Xyz::NAN,
+    }
+}
+
+/// XYZ under D65 (2-degree observer, `Y = 100` for a perfect reflector) of a
+/// reflectance given as a function of wavelength in nanometres, evaluated at
+/// the 81 grid wavelengths 380, 385, ..., 780 nm.
+///
+/// `X = k * sum R(l) S(l) xbar(l)` (likewise Y, Z) with `S` = D65 and
+/// `k = 100 / sum S(l) ybar(l)`: the rectangle ("Integration") rule.
+pub fn reflectance_fn_to_xyz(f: impl Fn(f64) -> f64) -> Xyz {
+    let mut grid = [0.0; GRID_LEN];
+    for (i, r) in grid.iter_mut().enumerate() {
+        *r = f(grid_nm(i));
+    }
+    integrate(&grid)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn perfect_reflector_has_y_100() {
+        let w = reflectance_fn_to_xyz(|_| 1.0);
+        assert_eq!(w, D65_WHITE_XYZ);
+        assert!((w.y - 100.0).abs() < 1e-12);
+        // Well-known D65 2-degree white from the 5 nm tables.
+        assert!((w.x - 95.04).abs() < 0.01, "{w:?}");
+        assert!((w.z - 108.88).abs() < 0.01, "{w:?}");
+    }
+
+    #[test]
+    fn sampled_constant_matches_closure() {
+        let wl = [420.0, 500.0, 720.0];
+        let r = [0.5, 0.5, 0.5];
+        let a = reflectance_to_xyz(&wl, &r);
+        let b = reflectance_fn_to_xyz(|_| 0.5);
+        assert_eq!(a, b);
+    }
+
+    #[test]
+    fn single_sample_is_constant() {
+        let a = reflectance_to_xyz(&[550.0], &[0.25]);
+        let b = reflectance_fn_to_xyz(|_| 0.25);
+        assert_eq!(a, b);
+    }
+
+    #[test]
+    fn interpolation_and_edge_hold_match_closure() {
+        // A linear ramp sampled every 10 nm over 420..=720 equals the closure
+        // that clamps to the same ramp.
+        let ramp = |l: f64| 0.1 + 0.002 * (l.clamp(420.0, 720.0) - 420.0);
+        let wl: Vec<f64> = (0..=30).map(|i| 420.0 + 10.0 * i as f64).collect();
+        let r: Vec<f64> = wl.iter().map(|&l| ramp(l)).collect();
+        let a = reflectance_to_xyz(&wl, &r);
+        let b = reflectance_fn_to_xyz(ramp);
+        for (p, q) in [(a.x, b.x), (a.y, b.y), (a.z, b.z)] {
+            assert!((p - q).abs() < 1e-12, "{a:?} {b:?}");
+        }
+    }
+
+    #[test]
+    fn invalid_input_gives_nan() {
+        for (wl, r) in [
+            (&[][..], &[][..]),
+            (&[400.0, 500.0][..], &[0.1][..]),
+            (&[500.0, 400.0][..], &[0.1, 0.2][..]),
+            (&[500.0, 500.0][..], &[0.1, 0.2][..]),
+            (&[f64::NAN][..], &[0.1][..]),
+        ] {
+            let x = reflectance_to_xyz(wl, r);
+            assert!(x.x.is_nan() && x.y.is_nan() && x.z.is_nan());
+        }
+    }
+}

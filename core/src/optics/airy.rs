@@ -1,0 +1,172 @@
+//! The Airy sum: reflectance of one film on a substrate (method.md eqs. 2-5).
+//!
+//! `r = (r12 + r23 e^{i Delta}) / (1 + r12 r23 e^{i Delta})`, `Delta = 4 pi d kz2 / lambda` with
+//! `kz2 = n2 cos(theta2)`, and `R = |r|^2`. The reflection phases are carried by the signs of
+//! `r12` and `r23`, so a film whose index is above the substrate's (ZnS on PET) gets its
+//! half-order peaks, `(m + 1/2) lambda = phi`, by construction: nothing here assumes where the
+//! peaks sit.
+
+use super::complex::Complex;
+use super::fresnel::{fresnel_r, fresnel_r_real, normal_component, snell_invariant};
+use super::Polarization;
+
+/// The three real indices of an ambient / film / substrate stack at one wavelength.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Indices {
+    /// Ambient medium (air = 1.0).
+    pub ambient: f64,
+    /// The film.
+    pub film: f64,
+    /// The substrate (semi-infinite).
+    pub substrate: f64,
+}
+
+/// Reflectance of the stack for one pure polarisation (S or P), general case: evanescent waves
+/// (total internal reflection) are handled through complex normal components.
+fn reflectance_pure(
+    idx: Indices,
+    thickness_nm: f64,
+    incidence_deg: f64,
+    wavelength_nm: f64,
+    pol: Polarization,
+) -> f64 {
+    let beta = snell_invariant(idx.ambient, incidence_deg);
+    let kz1 = normal_component(idx.ambient, beta);
+    let kz2 = normal_component(idx.film, beta);
+    let kz3 = normal_component(idx.substrate, beta);
+    let r12 = fresnel_r(pol, idx.ambient, idx.film, kz1, kz2);
+    let r23 = fresnel_r(pol, idx.film, idx.substrate, kz2, kz3);
+    // i * Delta, with Delta = 4 pi d kz2 / lambda (complex when the film wave is evanescent).
+    let k = 4.0 * core::f64::consts::PI * thickness_nm / wavelength_nm;
+    let i_delta = Complex::new(-kz2.im * k, kz2.re * k);
+    let phase = i_delta.exp();
+    let one = Complex::real(1.0);
+    let r = (r12 + r23 * phase) / (one + r12 * r23 * phase);
+    r.norm_sqr()
+}
+
+/// Reflectance `R` of a film of `thickness_nm` on its substrate, for light arriving at
+/// `incidence_deg` from the ambient medium, at vacuum wavelength `wavelength_nm`.
+///
+/// `Unpolarized` is the mean of the S and P reflectances. Valid for any real indices and any
+/// angle in `[0, 90)` degrees, total internal reflection included. `thickness_nm = 0` gives the
+/// bare ambient/substrate interface.
+pub fn film_reflectance(
+    idx: Indices,
+    thickness_nm: f64,
+    incidence_deg: f64,
+    wavelength_nm: f64,
+    pol: Polarization,
+) -> f64 {
+    match pol {
+        Polarization::Unpolarized => {
+            0.5 * (reflectance_pure(
+                idx,
+                thickness_nm,
+                incidence_deg,
+                wavelength_nm,
+                Polarization::S,
+            ) + reflectance_pure(
+                idx,
+                thickness_nm,
+                incidence_deg,
+                wavelength_nm,
+                Polarization::P,
+            ))
+        }
+        p => reflectance_pure(idx, thickness_nm, incidence_deg, wavelength_nm, p),
+    }
+}
+
+/// The interface coefficients of one film at one angle, precomputed for fast evaluation over
+/// many thicknesses and wavelengths (real indices, propagating waves only).
+///
+/// For real `r12`, `r23` the Airy sum reduces to
+/// `R = (r12^2 + r23^2 + 2 r12 r23 cos Delta) / (1 + r12^2 r23^2 + 2 r12 r23 cos Delta)`, a
+/// monotonic function of `cos Delta`: peaks sit at `cos Delta = +1` when `r12 r23 > 0` and at
+/// `cos Delta = -1` when `r12 r23 < 0` (see [`FilmAtAngle::peak_phase_offset`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FilmAtAngle {
+    /// `n2 cos(theta2)`: the optical path is `phi = 2 d kz_film`.
+    pub kz_film: f64,
+    /// `(r12, r23)` for S, then P (P used only for unpolarised light).
+    coeffs: [(f64, f64); 2],
+    /// 1 for S or P, 2 for unpolarised (mean of both).
+    n_pol: usize,
+}
+
+impl FilmAtAngle {
+    /// Precomputes the stack at one angle; `None` when a wave is evanescent in the film or the
+    /// substrate (use [`film_reflectance`] there).
+    pub fn new(idx: Indices, incidence_deg: f64, pol: Polarization) -> Option<Self> {
+        let beta = snell_invariant(idx.ambient, incidence_deg);
+        let k1 = idx.ambient * idx.ambient - beta * beta;
+        let k2 = idx.film * idx.film - beta * beta;
+        let k3 = idx.substrate * idx.substrate - beta * beta;
+        if k1 <= 0.0 || k2 <= 0.0 || k3 <= 0.0 {
+            return None;
+        }
+        let (kz1, kz2, kz3) = (libm::sqrt(k1), libm::sqrt(k2), libm::sqrt(k3));
+        let pair = |p| {
+            (
+                fresnel_r_real(p, idx.ambient, idx.film, kz1, kz2),
+                fresnel_r_real(p, idx.film, idx.substrate, kz2, kz3),
+            )
+        };
+        let (coeffs, n_pol) = match pol {
+            Polarization::Unpolarized => ([pair(Polarization::S), pair(Polarization::P)], 2),
+            p => ([pair(p), pair(p)], 1),
+        };
+        Some(Self {
+            kz_film: kz2,
+            coeffs,
+            n_pol,
+        })
+    }
+
+    /// The optical path difference `phi = 2 d n2 cos(theta2)` in nm (eq. 8).
+    #[inline]
+    pub fn optical_path_nm(&self, thickness_nm: f64) -> f64 {
+        2.0 * thickness_nm * self.kz_film
+    }
+
+    /// Reflectance at phase `Delta = 2 pi phi / lambda`.
+    #[inline]
+    pub fn reflectance_at_phase(&self, delta: f64) -> f64 {
+        let c = libm::cos(delta);
+        let mut sum = 0.0;
+        for &(r12, r23) in &self.coeffs[..self.n_pol] {
+            let b = 2.0 * r12 * r23 * c;
+            sum += (r12 * r12 + r23 * r23 + b) / (1.0 + r12 * r12 * r23 * r23 + b);
+        }
+        sum / self.n_pol as f64
+    }
+
+    /// Reflectance of a film of `thickness_nm` at vacuum wavelength `wavelength_nm`.
+    #[inline]
+    pub fn reflectance(&self, thickness_nm: f64, wavelength_nm: f64) -> f64 {
+        let delta =
+            2.0 * core::f64::consts::PI * self.optical_path_nm(thickness_nm) / wavelength_nm;
+        self.reflectance_at_phase(delta)
+    }
+
+    /// Where the reflectance peaks sit: `0.0` when peaks are at `phi = m lambda` (both
+    /// reflections flip phase, or neither), `0.5` when they are at `phi = (m + 1/2) lambda`
+    /// (film index above the substrate's, for S light). Valleys sit half an order away.
+    /// Decided by the sign of `r12 r23` of the first polarisation (S for unpolarised light,
+    /// whose S part dominates the fringe contrast away from normal incidence).
+    pub fn peak_phase_offset(&self) -> f64 {
+        let (r12, r23) = self.coeffs[0];
+        if r12 * r23 >= 0.0 {
+            0.0
+        } else {
+            0.5
+        }
+    }
+
+    /// Fringe contrast: `R_max - R_min` over a full order (zero when the film is index-matched
+    /// to either neighbour: no fringes to find).
+    pub fn fringe_contrast(&self) -> f64 {
+        (self.reflectance_at_phase(0.0) - self.reflectance_at_phase(core::f64::consts::PI)).abs()
+    }
+}
