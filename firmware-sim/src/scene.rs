@@ -1,0 +1,430 @@
+//! Scene files: the film, the rig and the sensor that the software camera renders.
+//!
+//! A scene is a TOML file (see `config/scenes/`). Everything is validated on load and a bad
+//! file gets one line naming the file and the problem.
+
+use std::path::{Path, PathBuf};
+
+use filmscope_core::optics::{materials, Dispersion, FilmStack, Passband, Polarization};
+use serde::Deserialize;
+
+use crate::rng::Rng;
+
+/// A scene file that cannot be used, with the file it came from.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {problem}")]
+pub struct SceneError {
+    /// The scene file.
+    pub path: PathBuf,
+    /// What is wrong, in one line.
+    pub problem: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    name: Option<String>,
+    description: Option<String>,
+    seed: Option<u64>,
+    ambient_index: Option<f64>,
+    polarization: Option<String>,
+    film: FilmFile,
+    substrate: SubstrateFile,
+    rig: RigFile,
+    sensor: Option<SensorFile>,
+    search: Option<SearchFile>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FilmFile {
+    index: Option<f64>,
+    dispersion: Option<DispersionFile>,
+    thickness: ThicknessFile,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, tag = "model", rename_all = "lowercase")]
+enum DispersionFile {
+    Cauchy {
+        a: f64,
+        b_um2: f64,
+        #[serde(default)]
+        c_um4: f64,
+    },
+    Sellmeier {
+        #[serde(default = "one")]
+        a: f64,
+        b: Vec<f64>,
+        c_um: Vec<f64>,
+    },
+    Material {
+        name: String,
+    },
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ThicknessFile {
+    base_nm: f64,
+    /// Total change across the image, `[left to right, top to bottom]`.
+    #[serde(default)]
+    gradient_nm: [f64; 2],
+    #[serde(default)]
+    random_bumps: Option<RandomBumps>,
+    #[serde(default)]
+    bumps: Vec<Bump>,
+    #[serde(default)]
+    steps: Vec<Step>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RandomBumps {
+    count: usize,
+    height_nm: f64,
+    sigma: f64,
+}
+
+#[derive(Debug, Deserialize, Clone, Copy)]
+#[serde(deny_unknown_fields)]
+struct Bump {
+    x: f64,
+    y: f64,
+    sigma: f64,
+    height_nm: f64,
+}
+
+#[derive(Debug, Deserialize, Clone, Copy)]
+#[serde(deny_unknown_fields)]
+struct Step {
+    x: f64,
+    height_nm: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SubstrateFile {
+    index: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RigFile {
+    angles_deg: Vec<f64>,
+    bands_nm: [f64; 3],
+    fwhm_nm: f64,
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct SensorFile {
+    width: Option<usize>,
+    height: Option<usize>,
+    bit_depth: Option<u32>,
+    white_counts: Option<f64>,
+    gain_e_per_count: Option<f64>,
+    read_noise_counts: Option<f64>,
+    dark_counts: Option<f64>,
+    white_frames: Option<u32>,
+    vignetting: Option<f64>,
+    dead_pixels: Option<usize>,
+    hot_pixels: Option<usize>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SearchFile {
+    index_range: Option<[f64; 2]>,
+    thickness_range_nm: Option<[f64; 2]>,
+}
+
+/// The simulated sensor.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sensor {
+    /// Pixels per row.
+    pub width: usize,
+    /// Rows per frame.
+    pub height: usize,
+    /// ADC bits (12 for the paper's camera): counts saturate at `2^bits - 1`.
+    pub bit_depth: u32,
+    /// Mean counts above dark that a perfect white gives at mid-band in the image centre.
+    pub white_counts: f64,
+    /// Electrons per count: sets the shot noise.
+    pub gain_e_per_count: f64,
+    /// Read noise, counts (1 sigma).
+    pub read_noise_counts: f64,
+    /// Dark level, counts.
+    pub dark_counts: f64,
+    /// Frames averaged into the white and dark references.
+    pub white_frames: u32,
+    /// Fractional illumination fall-off at the image corners (0 = none).
+    pub vignetting: f64,
+    /// Pixels that read dark-level always.
+    pub dead_pixels: usize,
+    /// Pixels that read saturated always.
+    pub hot_pixels: usize,
+}
+
+impl Sensor {
+    /// The largest count the ADC gives.
+    pub fn saturation_counts(&self) -> f64 {
+        f64::from((1u32 << self.bit_depth) - 1)
+    }
+}
+
+/// A validated scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Short name (file stem unless given).
+    pub name: String,
+    /// Free text.
+    pub description: String,
+    /// Seed for the thickness map and the noise.
+    pub seed: u64,
+    /// The film stack and the polarisation the camera sees.
+    pub stack: FilmStack,
+    /// Stage angles, degrees, in the order the sweep visits them.
+    pub angles_deg: Vec<f64>,
+    /// LCTF band centres, nm.
+    pub bands_nm: Vec<f64>,
+    /// LCTF passband FWHM, nm (the same for every band).
+    pub fwhm_nm: f64,
+    /// The sensor.
+    pub sensor: Sensor,
+    /// Film thickness per pixel, row-major, nm.
+    pub thickness_nm: Vec<f32>,
+    /// Search bounds written into the capture, if the scene gives them.
+    pub index_range: Option<[f64; 2]>,
+    /// Search bounds written into the capture, if the scene gives them.
+    pub thickness_range_nm: Option<[f64; 2]>,
+}
+
+impl Scene {
+    /// Loads and validates a scene file.
+    pub fn load(path: &Path) -> Result<Self, SceneError> {
+        let err = |problem: String| SceneError {
+            path: path.to_owned(),
+            problem,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
+        let file: SceneFile = toml::from_str(&text)
+            .map_err(|e| err(e.message().replace('\n', " ").trim().to_owned()))?;
+        let stem = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "scene".into());
+        Self::from_file(file, stem).map_err(err)
+    }
+
+    /// Parses a scene from TOML text (for tests); `name` stands in for the file stem.
+    pub fn from_toml(text: &str, name: &str) -> Result<Self, SceneError> {
+        let err = |problem: String| SceneError {
+            path: PathBuf::from(name),
+            problem,
+        };
+        let file: SceneFile =
+            toml::from_str(text).map_err(|e| err(e.message().replace('\n', " ")))?;
+        Self::from_file(file, name.to_owned()).map_err(err)
+    }
+
+    fn from_file(f: SceneFile, stem: String) -> Result<Self, String> {
+        let film = match (f.film.index, f.film.dispersion) {
+            (Some(n), None) => Dispersion::constant(n),
+            (None, Some(d)) => dispersion(d)?,
+            (Some(_), Some(_)) => return Err("[film] gives both `index` and `dispersion`".into()),
+            (None, None) => return Err("[film] needs `index` or `dispersion`".into()),
+        };
+        let polarization = match f.polarization.as_deref() {
+            None => Polarization::S,
+            Some(p) => Polarization::from_name(p).ok_or_else(|| {
+                format!("polarization must be \"s\", \"p\" or \"unpolarized\", not {p:?}")
+            })?,
+        };
+        let stack = FilmStack {
+            ambient_index: f.ambient_index.unwrap_or(1.0),
+            film,
+            substrate: Dispersion::constant(f.substrate.index),
+            polarization,
+        };
+        for (what, n) in [
+            ("ambient_index", stack.ambient_index),
+            ("substrate index", f.substrate.index),
+            ("film index at 550 nm", film.index_at(550.0)),
+        ] {
+            if !(n.is_finite() && (1.0..=5.0).contains(&n)) {
+                return Err(format!("{what} {n} is outside 1..5"));
+            }
+        }
+        let rig = f.rig;
+        if rig.angles_deg.len() < 2 {
+            return Err(format!(
+                "[rig] angles_deg needs at least two angles, has {}",
+                rig.angles_deg.len()
+            ));
+        }
+        for &a in &rig.angles_deg {
+            if !(a.is_finite() && (0.0..89.0).contains(&a)) {
+                return Err(format!("[rig] angle {a} deg is outside 0..89"));
+            }
+        }
+        let [start, stop, step] = rig.bands_nm;
+        if !(start > 0.0 && stop > start && step > 0.0 && (stop - start) / step <= 4096.0) {
+            return Err(format!(
+                "[rig] bands_nm = [start, stop, step] must be increasing with a positive step and at most 4096 bands, got {:?}",
+                rig.bands_nm
+            ));
+        }
+        let n_bands = ((stop - start) / step + 1e-9).floor() as usize + 1;
+        let bands_nm: Vec<f64> = (0..n_bands).map(|i| start + step * i as f64).collect();
+        if !(rig.fwhm_nm.is_finite() && rig.fwhm_nm >= 0.0 && rig.fwhm_nm < 100.0) {
+            return Err(format!("[rig] fwhm_nm {} is outside 0..100", rig.fwhm_nm));
+        }
+        let s = f.sensor.unwrap_or_default();
+        let sensor = Sensor {
+            width: s.width.unwrap_or(96),
+            height: s.height.unwrap_or(64),
+            bit_depth: s.bit_depth.unwrap_or(12),
+            white_counts: s.white_counts.unwrap_or(3400.0),
+            gain_e_per_count: s.gain_e_per_count.unwrap_or(1.5),
+            read_noise_counts: s.read_noise_counts.unwrap_or(2.0),
+            dark_counts: s.dark_counts.unwrap_or(64.0),
+            white_frames: s.white_frames.unwrap_or(16),
+            vignetting: s.vignetting.unwrap_or(0.15),
+            dead_pixels: s.dead_pixels.unwrap_or(0),
+            hot_pixels: s.hot_pixels.unwrap_or(0),
+        };
+        if sensor.width == 0 || sensor.height == 0 || sensor.width * sensor.height > 1 << 24 {
+            return Err(format!(
+                "[sensor] {}x{} pixels: need 1..16M",
+                sensor.width, sensor.height
+            ));
+        }
+        if !(8..=16).contains(&sensor.bit_depth) {
+            return Err(format!(
+                "[sensor] bit_depth {} is outside 8..16",
+                sensor.bit_depth
+            ));
+        }
+        if !(sensor.white_counts > 0.0
+            && sensor.white_counts + sensor.dark_counts <= sensor.saturation_counts())
+        {
+            return Err(
+                "[sensor] white_counts + dark_counts must be positive and below saturation".into(),
+            );
+        }
+        if !(sensor.gain_e_per_count > 0.0
+            && sensor.read_noise_counts >= 0.0
+            && sensor.white_frames >= 1)
+        {
+            return Err(
+                "[sensor] gain must be positive, read noise non-negative, white_frames >= 1".into(),
+            );
+        }
+        if !(0.0..0.9).contains(&sensor.vignetting) {
+            return Err(format!(
+                "[sensor] vignetting {} is outside 0..0.9",
+                sensor.vignetting
+            ));
+        }
+        let seed = f.seed.unwrap_or(1);
+        let thickness_nm = thickness_map(&f.film.thickness, sensor.width, sensor.height, seed)?;
+        let (index_range, thickness_range_nm) = match f.search {
+            Some(s) => (s.index_range, s.thickness_range_nm),
+            None => (None, None),
+        };
+        Ok(Self {
+            name: f.name.unwrap_or(stem),
+            description: f.description.unwrap_or_default(),
+            seed,
+            stack,
+            angles_deg: rig.angles_deg,
+            bands_nm,
+            fwhm_nm: rig.fwhm_nm,
+            sensor,
+            thickness_nm,
+            index_range,
+            thickness_range_nm,
+        })
+    }
+
+    /// The passband of band `b`.
+    pub fn passband(&self, b: usize) -> Passband {
+        Passband::gaussian(self.bands_nm[b], self.fwhm_nm)
+    }
+}
+
+fn dispersion(d: DispersionFile) -> Result<Dispersion, String> {
+    Ok(match d {
+        DispersionFile::Cauchy { a, b_um2, c_um4 } => Dispersion::Cauchy { a, b_um2, c_um4 },
+        DispersionFile::Sellmeier { a, b, c_um } => {
+            if b.len() != c_um.len() || b.is_empty() || b.len() > 3 {
+                return Err(
+                    "[film.dispersion] sellmeier needs 1 to 3 `b` and as many `c_um`".into(),
+                );
+            }
+            let mut bb = [0.0; 3];
+            let mut cc = [0.0; 3];
+            bb[..b.len()].copy_from_slice(&b);
+            cc[..c_um.len()].copy_from_slice(&c_um);
+            Dispersion::Sellmeier { a, b: bb, c_um: cc }
+        }
+        DispersionFile::Material { name } => match name.as_str() {
+            "zns-debenham" => materials::zns_debenham(),
+            "mgf2-dodge" => materials::MGF2_DODGE_O,
+            other => {
+                return Err(format!(
+                    "[film.dispersion] unknown material {other:?} (known: zns-debenham, mgf2-dodge)"
+                ))
+            }
+        },
+    })
+}
+
+/// Renders the thickness map: base + linear gradient + Gaussian bumps + steps, in nm.
+fn thickness_map(t: &ThicknessFile, w: usize, h: usize, seed: u64) -> Result<Vec<f32>, String> {
+    let mut bumps = t.bumps.clone();
+    if let Some(r) = &t.random_bumps {
+        if r.count > 64 {
+            return Err("[film.thickness] random_bumps.count is at most 64".into());
+        }
+        let mut rng = Rng::from_words(&[seed, 0xB0B5]);
+        for _ in 0..r.count {
+            let sign = if rng.uniform() < 0.5 { -1.0 } else { 1.0 };
+            bumps.push(Bump {
+                x: rng.uniform(),
+                y: rng.uniform(),
+                sigma: r.sigma * (0.6 + 0.8 * rng.uniform()),
+                height_nm: sign * r.height_nm * (0.5 + 0.5 * rng.uniform()),
+            });
+        }
+    }
+    let mut map = Vec::with_capacity(w * h);
+    for row in 0..h {
+        for col in 0..w {
+            let x = (col as f64 + 0.5) / w as f64;
+            let y = (row as f64 + 0.5) / h as f64;
+            let mut d = t.base_nm + t.gradient_nm[0] * (x - 0.5) + t.gradient_nm[1] * (y - 0.5);
+            for b in &bumps {
+                let r2 = (x - b.x).powi(2) + (y - b.y).powi(2);
+                d += b.height_nm * (-0.5 * r2 / (b.sigma * b.sigma)).exp();
+            }
+            for s in &t.steps {
+                if x >= s.x {
+                    d += s.height_nm;
+                }
+            }
+            if !(d.is_finite() && d >= 0.0) {
+                return Err(format!(
+                    "[film.thickness] thickness {d:.1} nm at pixel ({col}, {row}) is negative"
+                ));
+            }
+            map.push(d as f32);
+        }
+    }
+    Ok(map)
+}

@@ -1,0 +1,66 @@
+//! The Airy model against the Python `tmm` package (an independent transfer-matrix code):
+//! `tests/fixtures/optics/gen_tmm.py` made the fixtures once; see its docstring.
+
+use filmscope::optics::{film_reflectance, Dispersion, FilmStack, Indices, Passband, Polarization};
+
+fn rows(name: &str) -> Vec<Vec<String>> {
+    let path = format!("{}/tests/fixtures/optics/{name}", env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
+    text.lines()
+        .skip(1)
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| l.split(',').map(str::to_owned).collect())
+        .collect()
+}
+
+fn num(s: &str) -> f64 {
+    s.parse().unwrap_or_else(|e| panic!("bad number {s:?}: {e}"))
+}
+
+fn pol(s: &str) -> Polarization {
+    Polarization::from_name(s).unwrap_or_else(|| panic!("bad polarisation {s:?}"))
+}
+
+#[test]
+fn airy_reflectance_matches_tmm_to_1e9() {
+    let rows = rows("tmm_airy.csv");
+    assert!(rows.len() > 300, "fixture has {} rows", rows.len());
+    let mut worst = 0.0f64;
+    let mut high_index = 0;
+    for r in &rows {
+        let idx = Indices {
+            ambient: num(&r[0]),
+            film: num(&r[1]),
+            substrate: num(&r[2]),
+        };
+        high_index += usize::from(idx.film > idx.substrate);
+        let got = film_reflectance(idx, num(&r[3]), num(&r[4]), num(&r[5]), pol(&r[6]));
+        let want = num(&r[7]);
+        let err = (got - want).abs();
+        worst = worst.max(err);
+        assert!(err < 1e-9, "row {r:?}: got {got}, tmm {want}");
+    }
+    assert!(high_index > 100, "high-index films must be covered");
+    eprintln!("worst |R - R_tmm| over {} rows: {worst:.3e}", rows.len());
+}
+
+#[test]
+fn band_averaged_reflectance_matches_tmm_passband_to_1e6() {
+    let rows = rows("tmm_passband.csv");
+    assert!(rows.len() > 100);
+    let mut worst = 0.0f64;
+    for r in &rows {
+        let stack = FilmStack {
+            ambient_index: num(&r[0]),
+            film: Dispersion::cauchy(num(&r[1]), num(&r[2])),
+            substrate: Dispersion::constant(num(&r[3])),
+            polarization: pol(&r[8]),
+        };
+        let band = Passband::gaussian(num(&r[6]), num(&r[7]));
+        let got = stack.band_reflectance(num(&r[4]), num(&r[5]), &band);
+        let want = num(&r[9]);
+        worst = worst.max((got - want).abs());
+        assert!((got - want).abs() < 1e-6, "row {r:?}: got {got}, tmm {want}");
+    }
+    eprintln!("worst band-average error over {} rows: {worst:.3e}", rows.len());
+}
