@@ -3,3 +3,4 @@
 
 pub mod colour;
 pub mod optics;
+pub mod track;

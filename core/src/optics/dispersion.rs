@@ -94,8 +94,8 @@ pub mod materials {
     }
 
     /// MgF2 ordinary ray, Dodge 1984 (Appl. Opt. 23, 1980), 0.2-7 um:
-    /// `n^2 - 1 = 0.48755108 l^2/(l^2-0.04338408^2) + 0.39875031 l^2/(l^2-0.09461442^2)
-    /// + 2.3120353 l^2/(l^2-23.793604^2)`. n = 1.3790 at 550 nm (bulk crystal; evaporated
+    /// `n^2 - 1 = 0.48755108 l^2/(l^2-0.04338408^2) + 0.39875031 l^2/(l^2-0.09461442^2) +
+    /// 2.3120353 l^2/(l^2-23.793604^2)`. n = 1.3790 at 550 nm (bulk crystal; evaporated
     /// films are less dense, the paper uses 1.37).
     pub const MGF2_DODGE_O: Dispersion = Dispersion::Sellmeier {
         a: 1.0,

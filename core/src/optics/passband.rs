@@ -52,7 +52,7 @@ impl Passband {
     /// A Gaussian band with `nodes` Simpson nodes (made odd and clamped to `3..=MAX_NODES`).
     /// A zero or non-finite width gives [`Passband::monochromatic`].
     pub fn gaussian_with_nodes(center_nm: f64, fwhm_nm: f64, nodes: usize) -> Self {
-        if !(fwhm_nm > 0.0) || !fwhm_nm.is_finite() {
+        if fwhm_nm.is_nan() || fwhm_nm <= 0.0 || !fwhm_nm.is_finite() {
             return Self::monochromatic(center_nm);
         }
         let mut n = nodes.clamp(3, MAX_NODES);

@@ -1,0 +1,71 @@
+use super::*;
+
+fn run(samples: impl Iterator<Item = f32>) -> (ExtremaList, PixelTracker) {
+    let mut t = PixelTracker::default();
+    let mut out = ExtremaList::new();
+    for (b, v) in samples.enumerate() {
+        t.push(b as u16, v, &mut out);
+    }
+    (out, t)
+}
+
+#[test]
+fn finds_the_extrema_of_a_clean_cosine_to_a_tenth_of_a_band() {
+    // Period 40 bands: peaks at 20, 60, 100; valleys at 40, 80.
+    let f = |b: f32| 0.1 + 0.05 * libm::cosf(2.0 * core::f32::consts::PI * (b - 20.0) / 40.0);
+    let (out, _) = run((0..120).map(|b| f(b as f32)));
+    let want = [
+        (20.0, Kind::Peak),
+        (40.0, Kind::Valley),
+        (60.0, Kind::Peak),
+        (80.0, Kind::Valley),
+        (100.0, Kind::Peak),
+    ];
+    assert_eq!(out.len(), want.len(), "{out:?}");
+    for (e, (pos, kind)) in out.iter().zip(want) {
+        assert_eq!(e.kind, kind);
+        assert!((e.band - pos).abs() < 0.1, "{e:?} vs {pos}");
+    }
+}
+
+#[test]
+fn noise_on_a_broad_top_does_not_split_the_peak() {
+    let mut seed = 7u32;
+    let mut noise = || {
+        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        // Sum of 4 uniforms: roughly normal, sigma ~ 0.003.
+        let mut s = 0.0;
+        for _ in 0..4 {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            s += (seed >> 8) as f32 / (1u32 << 24) as f32 - 0.5;
+        }
+        s * 0.0052
+    };
+    // One broad fringe (period 200 bands), amplitude 0.03, peak at 80, valley at 180.
+    let f = |b: f32| 0.05 + 0.03 * libm::cosf(2.0 * core::f32::consts::PI * (b - 80.0) / 200.0);
+    let (out, t) = run((0..170).map(|b| f(b as f32) + noise()));
+    assert!(
+        (t.noise_sigma() - 0.003).abs() < 0.001,
+        "sigma {}",
+        t.noise_sigma()
+    );
+    assert_eq!(out.len(), 1, "{out:?}");
+    assert_eq!(out[0].kind, Kind::Peak);
+    assert!((out[0].band - 80.0).abs() < 12.0, "{:?}", out[0]);
+}
+
+#[test]
+fn edges_are_not_extrema_and_bad_samples_are_counted() {
+    let (out, t) = run((0..60).map(|b| if b == 30 { f32::NAN } else { b as f32 * 0.01 }));
+    assert!(out.is_empty(), "{out:?}");
+    assert_eq!(t.bad_samples, 1);
+}
+
+#[test]
+fn state_size_is_fixed() {
+    assert!(
+        core::mem::size_of::<PixelTracker>() <= 72,
+        "{}",
+        core::mem::size_of::<PixelTracker>()
+    );
+}
