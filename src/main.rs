@@ -1,1 +1,2 @@
+//! The `filmscope` command line (placeholder, rewritten below).
 fn main() {}

@@ -4,7 +4,10 @@
 use filmscope::optics::{film_reflectance, Dispersion, FilmStack, Indices, Passband, Polarization};
 
 fn rows(name: &str) -> Vec<Vec<String>> {
-    let path = format!("{}/tests/fixtures/optics/{name}", env!("CARGO_MANIFEST_DIR"));
+    let path = format!(
+        "{}/tests/fixtures/optics/{name}",
+        env!("CARGO_MANIFEST_DIR")
+    );
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
     text.lines()
         .skip(1)
@@ -14,7 +17,8 @@ fn rows(name: &str) -> Vec<Vec<String>> {
 }
 
 fn num(s: &str) -> f64 {
-    s.parse().unwrap_or_else(|e| panic!("bad number {s:?}: {e}"))
+    s.parse()
+        .unwrap_or_else(|e| panic!("bad number {s:?}: {e}"))
 }
 
 fn pol(s: &str) -> Polarization {
@@ -60,7 +64,13 @@ fn band_averaged_reflectance_matches_tmm_passband_to_1e6() {
         let got = stack.band_reflectance(num(&r[4]), num(&r[5]), &band);
         let want = num(&r[9]);
         worst = worst.max((got - want).abs());
-        assert!((got - want).abs() < 1e-6, "row {r:?}: got {got}, tmm {want}");
+        assert!(
+            (got - want).abs() < 1e-6,
+            "row {r:?}: got {got}, tmm {want}"
+        );
     }
-    eprintln!("worst band-average error over {} rows: {worst:.3e}", rows.len());
+    eprintln!(
+        "worst band-average error over {} rows: {worst:.3e}",
+        rows.len()
+    );
 }
