@@ -133,11 +133,29 @@ impl FilmAtAngle {
     /// Reflectance at phase `Delta = 2 pi phi / lambda`.
     #[inline]
     pub fn reflectance_at_phase(&self, delta: f64) -> f64 {
-        let c = libm::cos(delta);
+        self.reflectance_at_cos(libm::cos(delta))
+    }
+
+    /// Reflectance as a function of `c = cos(Delta)` (or of a passband-damped `D cos(Delta)`).
+    #[inline]
+    pub fn reflectance_at_cos(&self, c: f64) -> f64 {
         let mut sum = 0.0;
         for &(r12, r23) in &self.coeffs[..self.n_pol] {
             let b = 2.0 * r12 * r23 * c;
             sum += (r12 * r12 + r23 * r23 + b) / (1.0 + r12 * r12 * r23 * r23 + b);
+        }
+        sum / self.n_pol as f64
+    }
+
+    /// `d R / d c` at `c = cos(Delta)`.
+    #[inline]
+    pub fn reflectance_slope_at_cos(&self, c: f64) -> f64 {
+        let mut sum = 0.0;
+        for &(r12, r23) in &self.coeffs[..self.n_pol] {
+            let b = 2.0 * r12 * r23;
+            let (a, e) = (r12 * r12 + r23 * r23, r12 * r12 * r23 * r23);
+            let den = 1.0 + e + b * c;
+            sum += b * (1.0 + e - a) / (den * den);
         }
         sum / self.n_pol as f64
     }

@@ -1,0 +1,108 @@
+//! The streaming estimator: one shared film index and a thickness per pixel, solved with
+//! fixed per-pixel memory while the sweep streams past.
+//!
+//! How the evidence flows (each step a pure function of state the caller owns):
+//!
+//! 1. [`crate::track`] finds each pixel's extrema at each angle as the bands stream.
+//! 2. At the end of each angle, [`index`] pools every pixel's extremum shifts between the
+//!    first angle and this one into a histogram of wavelength ratios (one ratio per
+//!    pixel and same-kind extremum pair): its mode is the one index all pixels share
+//!    (method.md eq. 12 with every pixel voting, robust to the pixels whose fringes were
+//!    matched wrongly). This is only the starting point.
+//! 3. Once an index exists, [`order`] gives each pixel its integer interference order from all
+//!    its extrema (parity from the model's reflection phase: half orders for a film above the
+//!    substrate), with neighbours breaking ties, and so a first thickness.
+//! 4. From then on every band sample adds to a few per-pixel Gauss-Newton sums ([`refine`]):
+//!    the full spectrum, not just its extrema, pins the thickness to a fraction of a nm, and
+//!    the sums' cross terms, pooled over all pixels (Schur complement), move the shared index.
+//!    Two more sums score the neighbouring orders, so a wrong order shows up as a better fit
+//!    one order away: that pixel is flagged, never reported.
+//!
+//! [`shard`] holds the per-pixel state of a band of rows (the pipeline gives each core one)
+//! and [`sweep`] the global state and the reductions between shards.
+
+pub mod index;
+pub mod order;
+pub mod refine;
+pub mod shard;
+pub mod sweep;
+
+pub use shard::{state_bytes_per_pixel, PixelResult, PixelState, Shard};
+pub use sweep::{AngleReport, SweepSolver, SweepSpec};
+
+/// Why a pixel has no thickness, or what to know about the one it has (bit flags).
+pub mod flags {
+    /// No interference extremum inside the band at any angle: the film is too thin (or too
+    /// index-matched) for fringes to be seen.
+    pub const NO_FRINGE: u16 = 1 << 0;
+    /// Two interference orders explain the extrema about equally well and no neighbour
+    /// decided it.
+    pub const AMBIGUOUS_ORDER: u16 = 1 << 1;
+    /// More than a tenth of the samples were saturated.
+    pub const SATURATED: u16 = 1 << 2;
+    /// More than a tenth of the samples had no usable white reference (dead pixel).
+    pub const DEAD: u16 = 1 << 3;
+    /// The thickness is outside the search range.
+    pub const OUT_OF_RANGE: u16 = 1 << 4;
+    /// The full-spectrum fit is much worse than the image's typical fit.
+    pub const POOR_FIT: u16 = 1 << 5;
+    /// A neighbouring order fits the full spectrum better than the chosen one.
+    pub const ORDER_REJECTED: u16 = 1 << 6;
+    /// More extrema than the tracker can hold at one angle.
+    pub const TRACKER_OVERFLOW: u16 = 1 << 7;
+    /// Only extrema were available (no full-spectrum refinement: too few angles).
+    pub const NOT_REFINED: u16 = 1 << 8;
+    /// The order was taken from a neighbour.
+    pub const ORDER_FROM_NEIGHBOUR: u16 = 1 << 9;
+
+    /// Flags that make the thickness unreliable (NaN in the map).
+    pub const INVALID: u16 =
+        NO_FRINGE | AMBIGUOUS_ORDER | SATURATED | DEAD | OUT_OF_RANGE | POOR_FIT | ORDER_REJECTED;
+
+    /// Names of the flags, for reports.
+    pub const NAMES: [(u16, &str); 10] = [
+        (NO_FRINGE, "no_fringe"),
+        (AMBIGUOUS_ORDER, "ambiguous_order"),
+        (SATURATED, "saturated"),
+        (DEAD, "dead"),
+        (OUT_OF_RANGE, "out_of_range"),
+        (POOR_FIT, "poor_fit"),
+        (ORDER_REJECTED, "order_rejected"),
+        (TRACKER_OVERFLOW, "tracker_overflow"),
+        (NOT_REFINED, "not_refined"),
+        (ORDER_FROM_NEIGHBOUR, "order_from_neighbour"),
+    ];
+}
+
+/// The film index model the solver works with: Cauchy `n = a + b_um2 / lambda_um^2`
+/// (`b_um2 = 0`: a constant index).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IndexModel {
+    /// Constant term.
+    pub a: f64,
+    /// Dispersion term, um^2.
+    pub b_um2: f64,
+}
+
+impl IndexModel {
+    /// A constant index.
+    pub const fn constant(n: f64) -> Self {
+        Self { a: n, b_um2: 0.0 }
+    }
+
+    /// The index at `wavelength_nm`.
+    #[inline]
+    pub fn at(&self, wavelength_nm: f64) -> f64 {
+        let l = wavelength_nm * 1e-3;
+        self.a + self.b_um2 / (l * l)
+    }
+
+    /// As an optics dispersion.
+    pub fn dispersion(&self) -> crate::optics::Dispersion {
+        if self.b_um2 == 0.0 {
+            crate::optics::Dispersion::constant(self.a)
+        } else {
+            crate::optics::Dispersion::cauchy(self.a, self.b_um2)
+        }
+    }
+}

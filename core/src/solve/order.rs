@@ -1,0 +1,234 @@
+//! The integer interference order of a pixel, from all its extrema and the model.
+//!
+//! With the index known, an extremum at `lambda` and incidence `x = (n0 sin theta)^2` sits at
+//! order `q = d u`, `u = 2 sqrt(n(lambda)^2 - x) / lambda`, and `q` must be `o + m` for a peak
+//! and `o + m + 1/2` for a valley (`o = 1/2` when one reflection flips phase and the other does
+//! not: a film above the substrate's index). Each candidate order of one extremum gives a
+//! thickness; every extremum of every angle then votes on it (how far its own `q` is from an
+//! allowed value) and so does the number of extrema the candidate predicts inside the band.
+
+use crate::track::Kind;
+
+use super::IndexModel;
+
+/// Most candidate orders tried per pixel.
+const MAX_CANDIDATES: usize = 48;
+
+/// Cost of each extremum predicted but not seen, or seen but not predicted, inside the
+/// reliable part of the band.
+const COUNT_PENALTY: f64 = 0.5;
+
+/// One extremum with what the order search needs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    /// Wavelength, nm.
+    pub wavelength_nm: f64,
+    /// Peak or valley.
+    pub kind: Kind,
+    /// Which angle of the pair (0 or 1) it belongs to.
+    pub angle: usize,
+}
+
+/// What the order search knows besides the extrema.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OrderContext {
+    /// The index model.
+    pub index: IndexModel,
+    /// `x = (n0 sin theta)^2` of the (up to two) angles the observations come from.
+    pub x: [f64; 2],
+    /// How many of `x` are in use.
+    pub angles: usize,
+    /// Order offset of peaks at each angle: 0 or 0.5 (see
+    /// [`crate::optics::FilmAtAngle::peak_phase_offset`]).
+    pub peak_offset: [f64; 2],
+    /// Thickness search range, nm.
+    pub thickness_range_nm: [f64; 2],
+    /// Wavelength range in which the tracker reliably finds extrema, nm.
+    pub reliable_nm: [f64; 2],
+}
+
+/// The best order's thickness and how clearly it won.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OrderChoice {
+    /// Thickness of the best order, nm (least squares over all extrema).
+    pub thickness_nm: f64,
+    /// Its cost (sum of squared order misfits plus count penalties).
+    pub cost: f64,
+    /// Thickness and cost of the best candidate of another order (`INFINITY` cost if none).
+    pub runner_up_nm: f64,
+    /// See `runner_up_nm`.
+    pub runner_up_cost: f64,
+    /// The thickness change that moves every extremum by one order, nm.
+    pub order_step_nm: f64,
+}
+
+impl OrderContext {
+    fn u(&self, o: &Observation) -> f64 {
+        let n = self.index.at(o.wavelength_nm);
+        2.0 * libm::sqrt((n * n - self.x[o.angle]).max(1e-9)) / o.wavelength_nm
+    }
+
+    fn parity(&self, kind: Kind, angle: usize) -> f64 {
+        match kind {
+            Kind::Peak => self.peak_offset[angle],
+            Kind::Valley => self.peak_offset[angle] + 0.5,
+        }
+    }
+
+    /// Extrema a film of `thickness_nm` shows at angle `a` inside the reliable range.
+    fn predicted_count(&self, thickness_nm: f64, a: usize) -> i64 {
+        let at = |l: f64| {
+            let n = self.index.at(l);
+            thickness_nm * 2.0 * libm::sqrt((n * n - self.x[a]).max(1e-9)) / l
+        };
+        let (q_lo, q_hi) = (at(self.reliable_nm[1]), at(self.reliable_nm[0]));
+        // Extrema sit at q = peak_offset + k / 2.
+        let offset = self.peak_offset[a];
+        let first = libm::ceil((q_lo - offset) * 2.0) as i64;
+        let last = libm::floor((q_hi - offset) * 2.0) as i64;
+        let first = first.max(1 - (2.0 * offset) as i64);
+        (last - first + 1).max(0)
+    }
+
+    /// Scores the thickness `d0`: assigns each extremum its nearest allowed order, refits the
+    /// thickness by least squares and returns `(thickness, cost)`.
+    fn score(&self, d0: f64, obs: &[Observation]) -> (f64, f64) {
+        let (mut suq, mut suu) = (0.0, 0.0);
+        for o in obs {
+            let u = self.u(o);
+            let p = self.parity(o.kind, o.angle);
+            let q = p + libm::round(d0 * u - p);
+            suq += u * q;
+            suu += u * u;
+        }
+        let d = suq / suu;
+        let mut cost = 0.0;
+        for o in obs {
+            let u = self.u(o);
+            let p = self.parity(o.kind, o.angle);
+            let e = d * u - p;
+            let r = e - libm::round(e);
+            cost += r * r;
+        }
+        for a in 0..self.angles {
+            let seen = obs
+                .iter()
+                .filter(|o| {
+                    o.angle == a
+                        && o.wavelength_nm >= self.reliable_nm[0]
+                        && o.wavelength_nm <= self.reliable_nm[1]
+                })
+                .count() as i64;
+            cost += COUNT_PENALTY * (self.predicted_count(d, a) - seen).abs() as f64;
+        }
+        (d, cost)
+    }
+
+    /// Finds the best order for the observations; `None` without observations.
+    pub fn resolve(&self, obs: &[Observation]) -> Option<OrderChoice> {
+        // Candidates from the longest-wavelength extremum (the lowest order).
+        let anchor = obs
+            .iter()
+            .max_by(|a, b| a.wavelength_nm.total_cmp(&b.wavelength_nm))?;
+        let u0 = self.u(anchor);
+        let p0 = self.parity(anchor.kind, anchor.angle);
+        let mean_u = obs.iter().map(|o| self.u(o)).sum::<f64>() / obs.len() as f64;
+        let order_step_nm = 1.0 / mean_u;
+        let [d_lo, d_hi] = self.thickness_range_nm;
+        let mut best = (f64::NAN, f64::INFINITY);
+        let mut second = (f64::NAN, f64::INFINITY);
+        let mut m = libm::ceil(d_lo * u0 - p0 - 0.5).max(0.0);
+        let mut tried = 0;
+        while tried < MAX_CANDIDATES {
+            let q = p0 + m;
+            m += 1.0;
+            if q <= 0.0 {
+                continue;
+            }
+            let d0 = q / u0;
+            if d0 > d_hi * 1.05 + order_step_nm {
+                break;
+            }
+            tried += 1;
+            let (d, cost) = self.score(d0, obs);
+            if !(d.is_finite() && d > 0.0) {
+                continue;
+            }
+            if (d - best.0).abs() < 0.5 * order_step_nm {
+                if cost < best.1 {
+                    best = (d, cost);
+                }
+            } else if cost < best.1 {
+                second = best;
+                best = (d, cost);
+            } else if cost < second.1 && (d - best.0).abs() >= 0.5 * order_step_nm {
+                second = (d, cost);
+            }
+        }
+        best.0.is_finite().then_some(OrderChoice {
+            thickness_nm: best.0,
+            cost: best.1,
+            runner_up_nm: second.0,
+            runner_up_cost: second.1,
+            order_step_nm,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn observe(ctx: &OrderContext, d: f64, offset: f64) -> heapless::Vec<Observation, 32> {
+        // Exact extrema of a film of thickness d inside 420..720.
+        let mut out = heapless::Vec::new();
+        for a in 0..ctx.angles {
+            for k in 0..80 {
+                let q = offset + 0.5 * k as f64;
+                if q <= 0.0 {
+                    continue;
+                }
+                // Solve d u(lambda) = q for lambda (constant index).
+                let n = ctx.index.a;
+                let l = 2.0 * d * libm::sqrt(n * n - ctx.x[a]) / q;
+                if (ctx.reliable_nm[0]..=ctx.reliable_nm[1]).contains(&l) {
+                    let kind = if k % 2 == 0 { Kind::Peak } else { Kind::Valley };
+                    let _ = out.push(Observation {
+                        wavelength_nm: l,
+                        kind,
+                        angle: a,
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    fn ctx(n: f64, offset: f64) -> OrderContext {
+        let x = |deg: f64| libm::sin(deg.to_radians()).powi(2);
+        OrderContext {
+            index: IndexModel::constant(n),
+            x: [x(10.0), x(40.0)],
+            angles: 2,
+            peak_offset: [offset; 2],
+            thickness_range_nm: [50.0, 2000.0],
+            reliable_nm: [430.0, 700.0],
+        }
+    }
+
+    #[test]
+    fn recovers_the_thickness_of_exact_extrema() {
+        for (n, offset) in [(1.37, 0.0), (2.37, 0.5)] {
+            let c = ctx(n, offset);
+            for d in [250.0, 400.0, 600.0, 1234.0, 1900.0] {
+                let obs = observe(&c, d, offset);
+                if obs.is_empty() {
+                    continue;
+                }
+                let r = c.resolve(&obs).expect("a choice");
+                assert!((r.thickness_nm - d).abs() < 1e-6, "n {n} d {d}: {r:?}");
+                assert!(r.runner_up_cost > r.cost + 0.2, "n {n} d {d}: {r:?}");
+            }
+        }
+    }
+}

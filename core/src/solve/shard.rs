@@ -1,0 +1,417 @@
+//! Per-pixel state of a band of rows, and the shard-local passes of the solver.
+
+use crate::track::{ExtremaList, PixelTracker};
+
+use super::flags;
+use super::index::{accumulate_window, RatioHistogram, RatioSums};
+use super::order::{Observation, OrderChoice, OrderContext};
+use super::refine::GnSums;
+use super::sweep::{RmsHistogram, SchurSums, SweepSolver};
+
+/// Cost margin below which two orders are a tie (squared order misfits).
+const AMBIGUITY_MARGIN: f64 = 0.08;
+/// A pixel whose RMS residual is this many times the image's median (plus
+/// [`OUTLIER_FLOOR`]) is an outlier.
+const OUTLIER_RMS: f32 = 3.0;
+/// Absolute allowance on the outlier limit, so a noise-free capture does not call its best
+/// pixels outliers.
+const OUTLIER_FLOOR: f32 = 2e-3;
+/// Chi-square advantage (in units of the noise variance) the chosen order needs over its
+/// neighbours to be trusted.
+const ORDER_CHI2: f64 = 16.0;
+/// Largest share of unusable samples a valid pixel may have.
+const BAD_SHARE: f64 = 0.1;
+
+/// Everything the solver keeps about one pixel; its size is fixed whatever the number of
+/// bands, angles and sweeps (see `state_bytes_per_pixel`).
+#[derive(Clone, Debug)]
+pub struct PixelState {
+    /// This angle's extremum tracker.
+    pub tracker: PixelTracker,
+    /// Extrema at the reference (first) angle.
+    pub anchor: ExtremaList,
+    /// Extrema at the current angle.
+    pub current: ExtremaList,
+    /// Thickness (the Gauss-Newton linearisation point), NaN until the order is known.
+    pub thickness_nm: f32,
+    /// Thickness change of one interference order, nm.
+    pub order_step_nm: f32,
+    /// Full-spectrum sums.
+    pub gn: GnSums,
+    /// Samples seen.
+    pub samples: u16,
+    /// Saturated samples (`+inf` from calibration).
+    pub saturated: u16,
+    /// Samples without a usable reference (NaN from calibration).
+    pub dead: u16,
+    /// Extrema seen over all angles.
+    pub extrema_seen: u8,
+    /// Flags (see [`flags`]).
+    pub flags: u16,
+}
+
+impl Default for PixelState {
+    fn default() -> Self {
+        Self {
+            tracker: PixelTracker::default(),
+            anchor: ExtremaList::new(),
+            current: ExtremaList::new(),
+            thickness_nm: f32::NAN,
+            order_step_nm: f32::NAN,
+            gn: GnSums::default(),
+            samples: 0,
+            saturated: 0,
+            dead: 0,
+            extrema_seen: 0,
+            flags: 0,
+        }
+    }
+}
+
+/// Bytes of solver state per pixel.
+pub const fn state_bytes_per_pixel() -> usize {
+    core::mem::size_of::<PixelState>()
+}
+
+/// The per-pixel states of rows `first_row..first_row + pixels.len() / width`.
+pub struct Shard<'a> {
+    /// First image row of the shard.
+    pub first_row: usize,
+    /// Pixels per row.
+    pub width: usize,
+    /// Row-major pixel states.
+    pub pixels: &'a mut [PixelState],
+}
+
+/// A pixel's final result.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelResult {
+    /// Thickness, nm (NaN when invalid).
+    pub thickness_nm: f32,
+    /// Confidence in 0..1 (0 when invalid).
+    pub confidence: f32,
+    /// Flags.
+    pub flags: u16,
+}
+
+impl<'a> Shard<'a> {
+    /// A shard over caller-owned states.
+    pub fn new(first_row: usize, width: usize, pixels: &'a mut [PixelState]) -> Self {
+        Self {
+            first_row,
+            width,
+            pixels,
+        }
+    }
+
+    /// Rows held.
+    pub fn rows(&self) -> usize {
+        if self.width == 0 {
+            0
+        } else {
+            self.pixels.len() / self.width
+        }
+    }
+
+    /// Whether image row `row` belongs to this shard.
+    pub fn holds(&self, row: usize) -> bool {
+        row >= self.first_row && row < self.first_row + self.rows()
+    }
+
+    /// Starts an angle: resets the trackers and the current extrema.
+    pub fn begin_angle(&mut self) {
+        for p in self.pixels.iter_mut() {
+            p.tracker.reset();
+            p.current.clear();
+        }
+    }
+
+    /// Feeds one row of calibrated reflectance of band `band` (`values.len() == width`;
+    /// `+inf` marks a saturated sample, NaN one without a usable reference).
+    pub fn feed_row(&mut self, solver: &SweepSolver, band: usize, row: usize, values: &[f32]) {
+        if !self.holds(row) || values.len() != self.width {
+            return;
+        }
+        let start = (row - self.first_row) * self.width;
+        let coef = solver.coef(band);
+        let band16 = band as u16;
+        for (p, &v) in self.pixels[start..start + self.width]
+            .iter_mut()
+            .zip(values)
+        {
+            p.samples = p.samples.saturating_add(1);
+            if !v.is_finite() {
+                if v.is_nan() {
+                    p.dead = p.dead.saturating_add(1);
+                } else {
+                    p.saturated = p.saturated.saturating_add(1);
+                }
+            }
+            p.tracker.push(band16, v, &mut p.current);
+            if let Some(c) = coef {
+                if v.is_finite() && p.thickness_nm.is_finite() {
+                    p.gn.add(
+                        c,
+                        f64::from(p.thickness_nm),
+                        f64::from(p.order_step_nm),
+                        f64::from(v),
+                    );
+                }
+            }
+        }
+    }
+
+    /// Angle-end pass 1: every pixel's extremum ratios against the reference angle.
+    pub fn vote(&self, solver: &SweepSolver) -> RatioHistogram {
+        let mut h = RatioHistogram::default();
+        if let Some(g) = solver.pair_geometry() {
+            let spec = solver.spec();
+            for p in self.pixels.iter() {
+                h.vote(g, &p.anchor, &p.current, |b| spec.wavelength_at(b));
+            }
+        }
+        h
+    }
+
+    /// Angle-end pass 2: sums of the ratios inside the accepted window.
+    pub fn window_sums(&self, solver: &SweepSolver) -> RatioSums {
+        let mut s = RatioSums::default();
+        if let (Some(g), Some(w)) = (solver.pair_geometry(), solver.ratio_window()) {
+            let spec = solver.spec();
+            for p in self.pixels.iter() {
+                accumulate_window(&mut s, g, w, &p.anchor, &p.current, |b| {
+                    spec.wavelength_at(b)
+                });
+            }
+        }
+        s
+    }
+
+    /// Angle-end pass 3: the RMS residuals of the refined pixels.
+    pub fn fit_histogram(&self) -> RmsHistogram {
+        let mut h = RmsHistogram::default();
+        for p in self.pixels.iter().filter(|p| p.gn.samples > 0) {
+            h.add(p.gn.rms());
+        }
+        h
+    }
+
+    fn trusted(p: &PixelState, rms_limit: f32) -> bool {
+        p.thickness_nm.is_finite() && p.gn.samples > 2 && p.gn.h_dd > 0.0 && p.gn.rms() <= rms_limit
+    }
+
+    /// Angle-end pass 4: the pixels' contributions to the shared index step (their own
+    /// thickness eliminated), outliers left out.
+    pub fn schur(&self, solver: &SweepSolver) -> SchurSums {
+        let mut s = SchurSums::default();
+        let limit = solver
+            .rms_median()
+            .map_or(f32::INFINITY, |m| OUTLIER_RMS * m);
+        for p in self.pixels.iter().filter(|p| Self::trusted(p, limit)) {
+            let g = &p.gn;
+            let (h_dd, h_dn) = (f64::from(g.h_dd), f64::from(g.h_dn));
+            s.h_nn += f64::from(g.h_nn);
+            s.g_n += f64::from(g.g_n);
+            s.q_g += h_dn * f64::from(g.g_d) / h_dd;
+            s.q_h += h_dn * h_dn / h_dd;
+            s.pixels += 1.0;
+            s.sse += f64::from(g.sse) - f64::from(g.g_d) * f64::from(g.g_d) / h_dd;
+            s.samples += f64::from(g.samples);
+        }
+        s
+    }
+
+    /// Angle-end pass 5: steps every refined pixel's thickness (with the index step), gives
+    /// newly resolvable pixels their order, and keeps the first angle's extrema.
+    pub fn update(&mut self, solver: &SweepSolver) {
+        let dn = solver.pending_index_step();
+        let first_angle = solver.anchor_deg().is_none();
+        for p in self.pixels.iter_mut() {
+            p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
+            if p.tracker.overflow {
+                p.flags |= flags::TRACKER_OVERFLOW;
+            }
+            if p.thickness_nm.is_finite() && p.gn.samples > 0 && p.gn.h_dd > 0.0 {
+                let g = p.gn;
+                let step = f64::from(p.order_step_nm);
+                let dd = ((f64::from(g.g_d) - f64::from(g.h_dn) * dn) / f64::from(g.h_dd))
+                    .clamp(-0.25 * step, 0.25 * step);
+                p.thickness_nm = (f64::from(p.thickness_nm) + dd) as f32;
+                p.gn.shift(dd, dn);
+            } else if p.thickness_nm.is_finite() {
+                // Not refined yet: follow the index change at constant optical path.
+                if let (Some(old), Some(new)) = (solver.index(), solver.next_index()) {
+                    let mid = solver.spec().bands_nm[solver.spec().bands_nm.len() / 2];
+                    let ratio = old.at(mid) / new.at(mid);
+                    p.thickness_nm = (f64::from(p.thickness_nm) * ratio) as f32;
+                }
+            }
+            if first_angle {
+                p.anchor = p.current.clone();
+            }
+        }
+        if !first_angle {
+            self.resolve_orders(solver);
+        }
+    }
+
+    fn order_context(solver: &SweepSolver) -> Option<OrderContext> {
+        let index = solver.next_index()?;
+        let spec = solver.spec();
+        let anchor = solver.anchor_deg()?;
+        let cur = solver.angle_deg();
+        Some(OrderContext {
+            index,
+            x: [spec.x_of(anchor), spec.x_of(cur)],
+            angles: 2,
+            peak_offset: [
+                solver.peak_offset(index, anchor),
+                solver.peak_offset(index, cur),
+            ],
+            thickness_range_nm: spec.thickness_range_nm,
+            reliable_nm: spec.reliable_range_nm(),
+        })
+    }
+
+    fn choose(&self, solver: &SweepSolver, ctx: &OrderContext, i: usize) -> Option<OrderChoice> {
+        let p = &self.pixels[i];
+        let spec = solver.spec();
+        let mut obs: heapless::Vec<Observation, { 2 * crate::track::MAX_EXTREMA }> =
+            heapless::Vec::new();
+        for (angle, list) in [(0, &p.anchor), (1, &p.current)] {
+            for e in list.iter() {
+                let _ = obs.push(Observation {
+                    wavelength_nm: spec.wavelength_at(e.band),
+                    kind: e.kind,
+                    angle,
+                });
+            }
+        }
+        ctx.resolve(&obs)
+    }
+
+    /// Gives unresolved pixels their order: clear winners directly, ties by a resolved
+    /// neighbour (left or above on a forward pass, right or below on a backward one).
+    fn resolve_orders(&mut self, solver: &SweepSolver) {
+        let Some(ctx) = Self::order_context(solver) else {
+            return;
+        };
+        let w = self.width;
+        let n = self.pixels.len();
+        let mut pending = false;
+        for i in 0..n {
+            if self.pixels[i].thickness_nm.is_finite() {
+                continue;
+            }
+            let Some(c) = self.choose(solver, &ctx, i) else {
+                continue;
+            };
+            if c.runner_up_cost - c.cost >= AMBIGUITY_MARGIN {
+                self.set_thickness(i, c.thickness_nm, c.order_step_nm, 0);
+            } else {
+                let left = (i % w > 0).then(|| i - 1);
+                let up = (i >= w).then(|| i - w);
+                if !self.from_neighbour(i, &c, [left, up]) {
+                    pending = true;
+                }
+            }
+        }
+        if pending {
+            for i in (0..n).rev() {
+                if self.pixels[i].thickness_nm.is_finite() {
+                    continue;
+                }
+                if let Some(c) = self.choose(solver, &ctx, i) {
+                    let right = (i % w + 1 < w).then_some(i + 1);
+                    let down = (i + w < n).then_some(i + w);
+                    self.from_neighbour(i, &c, [right, down]);
+                }
+            }
+        }
+    }
+
+    fn from_neighbour(
+        &mut self,
+        i: usize,
+        c: &OrderChoice,
+        neighbours: [Option<usize>; 2],
+    ) -> bool {
+        for j in neighbours.into_iter().flatten() {
+            let d_n = f64::from(self.pixels[j].thickness_nm);
+            if !d_n.is_finite() {
+                continue;
+            }
+            for cand in [c.thickness_nm, c.runner_up_nm] {
+                if cand.is_finite() && (cand - d_n).abs() < 0.3 * c.order_step_nm {
+                    self.set_thickness(i, cand, c.order_step_nm, flags::ORDER_FROM_NEIGHBOUR);
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
+    fn set_thickness(&mut self, i: usize, d: f64, step: f64, flag: u16) {
+        let p = &mut self.pixels[i];
+        p.thickness_nm = d as f32;
+        p.order_step_nm = step as f32;
+        p.flags |= flag;
+        p.gn = GnSums::default();
+    }
+
+    /// The final result of every pixel, row-major, after the last angle.
+    pub fn finish(&self, solver: &SweepSolver, out: &mut [PixelResult]) {
+        let sigma2 = solver.residual_sigma().map_or(f64::NAN, |s| s * s);
+        let rms_limit = solver
+            .rms_median()
+            .map_or(f32::INFINITY, |m| OUTLIER_RMS * m);
+        let [d_lo, d_hi] = solver.spec().thickness_range_nm;
+        for (p, o) in self.pixels.iter().zip(out.iter_mut()) {
+            let mut f = p.flags;
+            let total = f64::from(p.samples.max(1));
+            if f64::from(p.saturated) > BAD_SHARE * total {
+                f |= flags::SATURATED;
+            }
+            if f64::from(p.dead) > BAD_SHARE * total {
+                f |= flags::DEAD;
+            }
+            let d = f64::from(p.thickness_nm);
+            let mut confidence = 0.0f32;
+            if !d.is_finite() {
+                f |= if p.extrema_seen == 0 {
+                    flags::NO_FRINGE
+                } else {
+                    flags::AMBIGUOUS_ORDER
+                };
+            } else if p.gn.samples == 0 {
+                f |= flags::NOT_REFINED;
+                confidence = 0.5;
+            } else {
+                let g = &p.gn;
+                let best = f64::from(g.sse);
+                let alt = f64::from(g.sse_minus.min(g.sse_plus));
+                let chi2 = if sigma2 > 0.0 {
+                    (alt - best) / sigma2
+                } else {
+                    0.0
+                };
+                if chi2 < ORDER_CHI2 {
+                    f |= flags::ORDER_REJECTED;
+                }
+                if g.rms() > rms_limit {
+                    f |= flags::POOR_FIT;
+                }
+                confidence = (chi2 / (chi2 + 4.0 * ORDER_CHI2)).clamp(0.0, 1.0) as f32;
+            }
+            if d.is_finite() && !(d_lo..=d_hi).contains(&d) {
+                f |= flags::OUT_OF_RANGE;
+            }
+            let valid = f & flags::INVALID == 0;
+            *o = PixelResult {
+                thickness_nm: if valid { d as f32 } else { f32::NAN },
+                confidence: if valid { confidence } else { 0.0 },
+                flags: f,
+            };
+        }
+    }
+}

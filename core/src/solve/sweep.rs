@@ -1,0 +1,446 @@
+//! The sweep's global state and the reductions between shards at each angle's end.
+//!
+//! Per angle: [`SweepSolver::begin_angle`], then every shard's rows, then the angle-end
+//! phases in this order (each a shard-local pass whose results are merged here):
+//! `vote` -> [`SweepSolver::set_votes`], `window_sums` -> [`SweepSolver::set_window_sums`],
+//! `fit_histogram` -> [`SweepSolver::set_fit_histogram`], `schur` -> [`SweepSolver::set_schur`],
+//! `update`, then [`SweepSolver::end_angle`]. [`SweepSolver::end_angle_all`] runs them for
+//! shards on one thread; the pipeline runs each phase on all cores.
+
+use heapless::Vec as HVec;
+
+use crate::optics::{FilmAtAngle, Indices, Polarization};
+
+use super::index::{combine, pair_estimate, PairEstimate, PairGeometry, RatioHistogram, RatioSums};
+use super::refine::BandCoef;
+use super::shard::Shard;
+use super::IndexModel;
+
+/// Most bands per angle.
+pub const MAX_BANDS: usize = 1024;
+/// Most angles per sweep whose pair estimates are kept for the report.
+pub const MAX_PAIRS: usize = 64;
+/// Largest index change one Gauss-Newton step may make.
+const MAX_INDEX_STEP: f64 = 0.05;
+
+/// What the solver must know about a sweep before it starts.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SweepSpec {
+    /// Pixels per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Band centres in streaming order, nm.
+    pub bands_nm: HVec<f64, MAX_BANDS>,
+    /// Band FWHM, nm (one per band).
+    pub fwhm_nm: HVec<f64, MAX_BANDS>,
+    /// Ambient index.
+    pub ambient_index: f64,
+    /// Substrate index.
+    pub substrate_index: f64,
+    /// Polarisation of the measured light.
+    pub polarization: Polarization,
+    /// Film index search range.
+    pub index_range: [f64; 2],
+    /// Thickness search range, nm.
+    pub thickness_range_nm: [f64; 2],
+}
+
+impl SweepSpec {
+    /// Wavelength of a fractional band position (linear between band centres).
+    #[inline]
+    pub fn wavelength_at(&self, band: f32) -> f64 {
+        let b = self.bands_nm.as_slice();
+        if b.len() < 2 {
+            return b.first().copied().unwrap_or(f64::NAN);
+        }
+        let x = f64::from(band).clamp(0.0, (b.len() - 1) as f64);
+        let i = (x as usize).min(b.len() - 2);
+        b[i] + (b[i + 1] - b[i]) * (x - i as f64)
+    }
+
+    /// `(n_ambient sin theta)^2`.
+    pub fn x_of(&self, incidence_deg: f64) -> f64 {
+        let s = self.ambient_index * libm::sin(incidence_deg.to_radians());
+        s * s
+    }
+
+    /// The wavelength range in which the tracker reliably finds extrema (clear of the
+    /// smoothing window at either end).
+    pub fn reliable_range_nm(&self) -> [f64; 2] {
+        let n = self.bands_nm.len();
+        let half = crate::track::WINDOW as f32;
+        let a = self.wavelength_at(half);
+        let b = self.wavelength_at((n as f32 - 1.0 - half).max(0.0));
+        [a.min(b), a.max(b)]
+    }
+}
+
+/// Histogram of per-pixel RMS residuals (log bins), merged over shards.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RmsHistogram {
+    /// Pixels per bin; bin `i` covers `10^(-6 + i / 32)`.
+    pub counts: [u32; 192],
+}
+
+impl Default for RmsHistogram {
+    fn default() -> Self {
+        Self { counts: [0; 192] }
+    }
+}
+
+impl RmsHistogram {
+    /// Adds one pixel's RMS residual.
+    pub fn add(&mut self, rms: f32) {
+        if rms.is_finite() && rms > 0.0 {
+            let b = ((libm::log10f(rms) + 6.0) * 32.0).clamp(0.0, 191.0) as usize;
+            self.counts[b] += 1;
+        }
+    }
+
+    /// Adds another shard's histogram.
+    pub fn merge(&mut self, o: &Self) {
+        for (a, b) in self.counts.iter_mut().zip(o.counts.iter()) {
+            *a += *b;
+        }
+    }
+
+    /// The median RMS, or `None` if empty.
+    pub fn median(&self) -> Option<f32> {
+        let total: u64 = self.counts.iter().map(|&c| u64::from(c)).sum();
+        if total == 0 {
+            return None;
+        }
+        let mut acc = 0;
+        for (i, &c) in self.counts.iter().enumerate() {
+            acc += u64::from(c);
+            if 2 * acc >= total {
+                return Some(libm::powf(10.0, (i as f32 + 0.5) / 32.0 - 6.0));
+            }
+        }
+        None
+    }
+}
+
+/// Sums for the shared index's Gauss-Newton step, merged over shards.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SchurSums {
+    /// Sum of `h_nn`.
+    pub h_nn: f64,
+    /// Sum of `g_n`.
+    pub g_n: f64,
+    /// Sum of `h_dn g_d / h_dd`.
+    pub q_g: f64,
+    /// Sum of `h_dn^2 / h_dd`.
+    pub q_h: f64,
+    /// Pixels included.
+    pub pixels: f64,
+    /// Sum of squared residuals of the pixels included.
+    pub sse: f64,
+    /// Samples of the pixels included.
+    pub samples: f64,
+}
+
+impl SchurSums {
+    /// Adds another shard's sums.
+    pub fn merge(&mut self, o: &Self) {
+        self.h_nn += o.h_nn;
+        self.g_n += o.g_n;
+        self.q_g += o.q_g;
+        self.q_h += o.q_h;
+        self.pixels += o.pixels;
+        self.sse += o.sse;
+        self.samples += o.samples;
+    }
+}
+
+/// What one angle added, for progress reports.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AngleReport {
+    /// The angle, degrees.
+    pub incidence_deg: f64,
+    /// The index after this angle (if any yet).
+    pub index: Option<f64>,
+    /// Its standard error.
+    pub index_sigma: f64,
+    /// The extrema-only pair estimate of this angle against the reference angle.
+    pub pair: Option<PairEstimate>,
+    /// Whether the full-spectrum step moved the index.
+    pub refined: bool,
+}
+
+/// The global state of one sweep.
+#[derive(Clone, Debug)]
+pub struct SweepSolver {
+    spec: SweepSpec,
+    index: Option<IndexModel>,
+    index_sigma: f64,
+    anchor_deg: Option<f64>,
+    angle_deg: f64,
+    angles_done: usize,
+    coefs: HVec<Option<BandCoef>, MAX_BANDS>,
+    pair_geom: Option<PairGeometry>,
+    window: Option<(f64, f64)>,
+    pairs: HVec<PairEstimate, MAX_PAIRS>,
+    last_pair: Option<PairEstimate>,
+    rms_median: Option<f32>,
+    pending_dn: f64,
+    next_index: Option<IndexModel>,
+    refined_steps: usize,
+    last_refined: bool,
+    residual_sigma: Option<f64>,
+    spectral_dn: f64,
+}
+
+impl SweepSolver {
+    /// A solver for a sweep of `spec`; `prior` seeds the index (e.g. the last sweep's) so the
+    /// full-spectrum refinement can start at the first angle.
+    pub fn new(spec: SweepSpec, prior: Option<IndexModel>) -> Self {
+        Self {
+            spec,
+            index: prior,
+            index_sigma: f64::INFINITY,
+            anchor_deg: None,
+            angle_deg: f64::NAN,
+            angles_done: 0,
+            coefs: HVec::new(),
+            pair_geom: None,
+            window: None,
+            pairs: HVec::new(),
+            last_pair: None,
+            rms_median: None,
+            pending_dn: 0.0,
+            next_index: None,
+            refined_steps: 0,
+            last_refined: false,
+            residual_sigma: None,
+            spectral_dn: 0.0,
+        }
+    }
+
+    /// The sweep's description.
+    pub fn spec(&self) -> &SweepSpec {
+        &self.spec
+    }
+
+    /// The current index model, if one has been estimated.
+    pub fn index(&self) -> Option<IndexModel> {
+        self.index
+    }
+
+    /// Standard error of the index.
+    pub fn index_sigma(&self) -> f64 {
+        self.index_sigma
+    }
+
+    /// The index from extrema shifts alone (all pairs pooled), for comparison.
+    pub fn extrema_index(&self) -> Option<(f64, f64)> {
+        combine(&self.pairs)
+    }
+
+    /// Full-spectrum index steps taken.
+    pub fn refined_steps(&self) -> usize {
+        self.refined_steps
+    }
+
+    /// Angles completed.
+    pub fn angles_done(&self) -> usize {
+        self.angles_done
+    }
+
+    /// The typical per-pixel RMS residual of the full-spectrum fit (the noise level).
+    pub fn residual_sigma(&self) -> Option<f64> {
+        self.residual_sigma
+    }
+
+    /// The model coefficients of `band` at the current angle, if the index is known.
+    #[inline]
+    pub fn coef(&self, band: usize) -> Option<&BandCoef> {
+        self.coefs.get(band).and_then(Option::as_ref)
+    }
+
+    /// The reference (first) angle, degrees.
+    pub fn anchor_deg(&self) -> Option<f64> {
+        self.anchor_deg
+    }
+
+    /// The current angle, degrees.
+    pub fn angle_deg(&self) -> f64 {
+        self.angle_deg
+    }
+
+    /// The pair geometry of the current angle against the reference, if votes are taken.
+    pub fn pair_geometry(&self) -> Option<&PairGeometry> {
+        self.pair_geom.as_ref()
+    }
+
+    /// The accepted ratio window of the current pair.
+    pub fn ratio_window(&self) -> Option<(f64, f64)> {
+        self.window
+    }
+
+    /// The median RMS residual of the last angle (for outlier rejection).
+    pub fn rms_median(&self) -> Option<f32> {
+        self.rms_median
+    }
+
+    /// The index step decided at this angle's end.
+    pub fn pending_index_step(&self) -> f64 {
+        self.pending_dn
+    }
+
+    /// The index model shards must use in `update` (the one after this angle).
+    pub fn next_index(&self) -> Option<IndexModel> {
+        self.next_index
+    }
+
+    /// Order offset of the peaks (0 or 1/2) at `incidence_deg` with index `index`.
+    pub fn peak_offset(&self, index: IndexModel, incidence_deg: f64) -> f64 {
+        let mid = self.spec.bands_nm[self.spec.bands_nm.len() / 2];
+        FilmAtAngle::new(
+            Indices {
+                ambient: self.spec.ambient_index,
+                film: index.at(mid),
+                substrate: self.spec.substrate_index,
+            },
+            incidence_deg,
+            self.spec.polarization,
+        )
+        .map_or(0.0, |f| f.peak_phase_offset())
+    }
+
+    /// Starts an angle: builds the band models at the current index.
+    pub fn begin_angle(&mut self, incidence_deg: f64) {
+        self.angle_deg = incidence_deg;
+        self.coefs.clear();
+        if let Some(index) = self.index {
+            for (i, &l) in self.spec.bands_nm.iter().enumerate() {
+                let c = BandCoef::new(
+                    index,
+                    self.spec.ambient_index,
+                    self.spec.substrate_index,
+                    self.spec.polarization,
+                    incidence_deg,
+                    l,
+                    self.spec.fwhm_nm[i],
+                );
+                // Capacity equals MAX_BANDS, the spec's own capacity.
+                let _ = self.coefs.push(c);
+            }
+        }
+        self.pair_geom = self.anchor_deg.and_then(|a| {
+            PairGeometry::new(
+                self.spec.ambient_index,
+                a,
+                incidence_deg,
+                self.spec.index_range,
+            )
+        });
+        self.window = None;
+        self.last_pair = None;
+        self.next_index = None;
+        self.pending_dn = 0.0;
+    }
+
+    /// Merged votes of the current pair: fixes the window around their mode.
+    pub fn set_votes(&mut self, hist: &RatioHistogram) {
+        self.window = self.pair_geom.as_ref().and_then(|g| hist.mode_window(g));
+    }
+
+    /// Merged window sums: the pair's extrema-only index estimate.
+    pub fn set_window_sums(&mut self, sums: &RatioSums) {
+        let est = self.pair_geom.as_ref().and_then(|g| pair_estimate(g, sums));
+        if let Some(e) = est {
+            let _ = self.pairs.push(e);
+        }
+        self.last_pair = est;
+    }
+
+    /// Merged fit-quality histogram.
+    pub fn set_fit_histogram(&mut self, hist: &RmsHistogram) {
+        if let Some(m) = hist.median() {
+            self.rms_median = Some(m);
+        }
+    }
+
+    /// Merged Schur sums: decides the index step and the index shards use in `update`.
+    ///
+    /// The index comes from the pooled extremum shifts ([`super::index`]): they measure it
+    /// through fringe positions alone, which a model's amplitude errors cannot bias. The
+    /// full-spectrum sums pin each pixel's thickness; their index information (a pixel's own
+    /// thickness eliminated) is kept as a check, [`SweepSolver::spectral_index_step`], because
+    /// from the one or two angles left after the orders are known it rests mostly on fringe
+    /// amplitudes. When the index moves, each refined pixel's thickness follows through its
+    /// cross term (`update`).
+    pub fn set_schur(&mut self, s: &SchurSums) {
+        let denom = s.h_nn - s.q_h;
+        self.last_refined = false;
+        if s.pixels >= 16.0 && denom > 0.0 && s.samples > s.pixels * 2.0 {
+            let sigma2 = s.sse / (s.samples - s.pixels - 1.0).max(1.0);
+            self.residual_sigma = Some(libm::sqrt(sigma2));
+            self.spectral_dn = ((s.g_n - s.q_g) / denom).clamp(-MAX_INDEX_STEP, MAX_INDEX_STEP);
+            self.last_refined = true;
+            self.refined_steps += 1;
+        }
+        self.next_index = match combine(&self.pairs) {
+            Some((n, sigma)) => {
+                self.index_sigma = sigma;
+                Some(IndexModel::constant(n))
+            }
+            None => self.index,
+        };
+        self.pending_dn = match (self.index, self.next_index) {
+            (Some(a), Some(b)) => b.a - a.a,
+            _ => 0.0,
+        };
+    }
+
+    /// The index step the full-spectrum sums alone would take (a consistency check).
+    pub fn spectral_index_step(&self) -> f64 {
+        self.spectral_dn
+    }
+
+    /// Ends the angle (after every shard's `update`).
+    pub fn end_angle(&mut self) -> AngleReport {
+        if self.anchor_deg.is_none() {
+            self.anchor_deg = Some(self.angle_deg);
+        }
+        self.index = self.next_index.or(self.index);
+        self.angles_done += 1;
+        AngleReport {
+            incidence_deg: self.angle_deg,
+            index: self.index.map(|m| m.a),
+            index_sigma: self.index_sigma,
+            pair: self.last_pair,
+            refined: self.last_refined,
+        }
+    }
+
+    /// Runs the angle-end phases over shards on this thread.
+    pub fn end_angle_all(&mut self, shards: &mut [Shard<'_>]) -> AngleReport {
+        let mut hist = RatioHistogram::default();
+        for s in shards.iter() {
+            hist.merge(&s.vote(self));
+        }
+        self.set_votes(&hist);
+        let mut sums = RatioSums::default();
+        for s in shards.iter() {
+            sums.merge(&s.window_sums(self));
+        }
+        self.set_window_sums(&sums);
+        let mut rms = RmsHistogram::default();
+        for s in shards.iter() {
+            rms.merge(&s.fit_histogram());
+        }
+        self.set_fit_histogram(&rms);
+        let mut schur = SchurSums::default();
+        for s in shards.iter() {
+            schur.merge(&s.schur(self));
+        }
+        self.set_schur(&schur);
+        for s in shards.iter_mut() {
+            s.update(self);
+        }
+        self.end_angle()
+    }
+}
