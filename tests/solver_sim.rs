@@ -4,7 +4,7 @@ use filmscope::calibrate::calibrate_row;
 use filmscope::solve::{PixelResult, PixelState, Shard, SweepSolver, SweepSpec};
 use firmware_sim::{Scene, SoftwareCamera};
 
-fn run(scene: &str) -> (Scene, SweepSolver, Vec<PixelResult>) {
+fn run(scene: &str) -> (Scene, SweepSolver, Vec<PixelResult>, Vec<PixelState>) {
     let path = format!("{}/config/scenes/{scene}.toml", env!("CARGO_MANIFEST_DIR"));
     let scene = Scene::load(std::path::Path::new(&path)).expect("scene");
     let cam = SoftwareCamera::new(scene.clone());
@@ -79,11 +79,12 @@ fn run(scene: &str) -> (Scene, SweepSolver, Vec<PixelResult>) {
     let (o1, o2) = out.split_at_mut(w * (h / 2));
     shards[0].finish(&solver, o1);
     shards[1].finish(&solver, o2);
-    (scene, solver, out)
+    drop(shards);
+    (scene, solver, out, pixels)
 }
 
 fn report(scene: &str) -> (f64, f64, f64, f64) {
-    let (scene, solver, out) = run(scene);
+    let (scene, solver, out, pixels) = run(scene);
     let truth_n = scene.stack.film.index_at(550.0);
     let n = solver.index().map_or(f64::NAN, |m| m.at(550.0));
     let mut errs = Vec::new();
@@ -100,6 +101,18 @@ fn report(scene: &str) -> (f64, f64, f64, f64) {
     let mae = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
     let valid = errs.len() as f64 / out.len() as f64;
     let silent = f64::from(silent) / out.len() as f64;
+    if std::env::var("FS_DEBUG").is_ok() {
+        let mut shown = 0;
+        for (i, (r, &t)) in out.iter().zip(&scene.thickness_nm).enumerate() {
+            let bad = (r.thickness_nm.is_finite() && (f64::from(r.thickness_nm - t)).abs() > 20.0)
+                || r.flags & 32 != 0;
+            if bad && shown < 12 {
+                shown += 1;
+                let p = &pixels[i];
+                eprintln!("px {i}: truth {t} got {} flags {} conf {} | d {} step {} rms {} sse {} -{} +{} n {} anchor {:?} cur {:?}", r.thickness_nm, r.flags, r.confidence, p.thickness_nm, p.order_step_nm, p.gn.rms(), p.gn.sse, p.gn.sse_minus, p.gn.sse_plus, p.gn.samples, p.anchor, p.current);
+            }
+        }
+    }
     let mut flagcount = std::collections::BTreeMap::new();
     for r in &out {
         *flagcount.entry(r.flags).or_insert(0) += 1;

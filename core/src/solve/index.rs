@@ -102,14 +102,15 @@ impl Default for RatioHistogram {
     }
 }
 
-/// Running sums of the ratios inside the accepted window.
+/// Running sums of the log ratios inside the accepted window (logs, so that the noise of the
+/// two wavelengths biases neither way).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RatioSums {
     /// Count.
     pub n: f64,
-    /// Sum of ratios.
+    /// Sum of `ln(rho)`.
     pub sum: f64,
-    /// Sum of squared ratios.
+    /// Sum of `ln(rho)^2`.
     pub sum_sq: f64,
 }
 
@@ -233,9 +234,10 @@ pub fn accumulate_window(
 ) {
     for_each_ratio(geom, reference, current, wavelength_nm, |rho| {
         if rho >= window.0 && rho <= window.1 {
+            let l = libm::log(rho);
             sums.n += 1.0;
-            sums.sum += rho;
-            sums.sum_sq += rho * rho;
+            sums.sum += l;
+            sums.sum_sq += l * l;
         }
     });
 }
@@ -256,9 +258,10 @@ pub fn pair_estimate(geom: &PairGeometry, sums: &RatioSums) -> Option<PairEstima
     if sums.n < 8.0 {
         return None;
     }
-    let mean = sums.sum / sums.n;
-    let var = (sums.sum_sq / sums.n - mean * mean).max(0.0);
-    let se = libm::sqrt(var / sums.n);
+    let mean_log = sums.sum / sums.n;
+    let var = (sums.sum_sq / sums.n - mean_log * mean_log).max(0.0);
+    let mean = libm::exp(mean_log);
+    let se = mean * libm::sqrt(var / sums.n);
     let index = geom.index_from_ratio(mean)?;
     let sigma = libm::fabs(geom.index_slope(mean)) * se;
     Some(PairEstimate {

@@ -385,6 +385,11 @@ impl<'a> Shard<'a> {
                 };
             } else if p.gn.samples == 0 {
                 f |= flags::NOT_REFINED;
+                // Its neighbours were refined and it could not be: it was ambiguous until the
+                // last angle, so its order rests on one pair of spectra.
+                if solver.refined_steps() > 0 {
+                    f |= flags::AMBIGUOUS_ORDER;
+                }
                 confidence = 0.5;
             } else {
                 let g = &p.gn;

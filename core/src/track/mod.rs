@@ -28,7 +28,7 @@ const SG_CURV: [f32; WINDOW] = [28.0, 7.0, -8.0, -17.0, -20.0, -17.0, -8.0, 7.0,
 const SG_CURV_NORM: f32 = 462.0;
 
 /// Prominence of an extremum, in units of the pixel's noise (1 sigma).
-pub const PROMINENCE_SIGMA: f32 = 4.0;
+pub const PROMINENCE_SIGMA: f32 = 6.0;
 
 /// Most extrema kept per pixel and angle.
 pub const MAX_EXTREMA: usize = 8;
@@ -76,7 +76,8 @@ pub struct PixelTracker {
     /// Current running extreme (smoothed value) and its fractional band.
     ext_val: f32,
     ext_pos: f32,
-    /// In `Start` mode: the running minimum (the running maximum is in `ext_*`).
+    /// In `Start` mode: the running minimum (the running maximum is in `ext_*`); a NaN
+    /// position marks an extreme still at the band edge.
     min_val: f32,
     min_pos: f32,
     /// Sum of |second difference| and its count, for the noise estimate.
@@ -150,13 +151,13 @@ impl PixelTracker {
         match self.mode {
             Mode::Start => {
                 if usize::from(self.seen) == WINDOW {
+                    // The first smoothed sample: an extreme here is the band edge, not a fringe.
                     self.ext_val = s;
-                    self.ext_pos = vertex;
+                    self.ext_pos = f32::NAN;
                     self.min_val = s;
-                    self.min_pos = vertex;
+                    self.min_pos = f32::NAN;
                     return;
                 }
-                let first = f32::from(band) - (self.seen as f32 - 1.0) + HALF as f32;
                 if s > self.ext_val {
                     self.ext_val = s;
                     self.ext_pos = vertex;
@@ -166,15 +167,15 @@ impl PixelTracker {
                     self.min_pos = vertex;
                 }
                 if s >= self.min_val + tau {
-                    // Rising: the minimum behind us is a valley unless it is the first sample.
-                    if self.min_pos > first + 0.5 {
+                    // Rising: the minimum behind us is a valley unless it is the band edge.
+                    if self.min_pos.is_finite() {
                         self.emit(self.min_pos, Kind::Valley, out);
                     }
                     self.mode = Mode::SeekMax;
                     self.ext_val = s;
                     self.ext_pos = vertex;
                 } else if s <= self.ext_val - tau {
-                    if self.ext_pos > first + 0.5 {
+                    if self.ext_pos.is_finite() {
                         self.emit(self.ext_pos, Kind::Peak, out);
                     }
                     self.mode = Mode::SeekMin;
