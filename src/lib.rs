@@ -4,4 +4,8 @@
 pub use filmscope_core::*;
 
 #[cfg(feature = "std")]
+pub mod baseline;
+#[cfg(feature = "std")]
 pub mod io;
+#[cfg(feature = "std")]
+pub mod sweep;

@@ -1,0 +1,1 @@
+//! Whole-cube baselines: the paper's method and brute force.

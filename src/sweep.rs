@@ -1,0 +1,97 @@
+//! A sweep held whole in memory, and what every estimation method returns.
+//!
+//! The streaming estimator never needs [`SweepCube`]: it exists for the whole-cube baselines
+//! (`paper`, `brute`), for evaluation and for the equivalence tests.
+
+use filmscope_core::optics::Polarization;
+use filmscope_core::solve::IndexModel;
+
+/// Calibrated reflectance of every angle, band and pixel of one sweep.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SweepCube {
+    /// Pixels per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Band centres, nm.
+    pub bands_nm: Vec<f64>,
+    /// Band FWHM, nm (one per band).
+    pub fwhm_nm: Vec<f64>,
+    /// Incidence angle of each cube, degrees (any order).
+    pub angles_deg: Vec<f64>,
+    /// Ambient index.
+    pub ambient_index: f64,
+    /// Substrate index.
+    pub substrate_index: f64,
+    /// Polarisation of the measured light.
+    pub polarization: Polarization,
+    /// Film index search range.
+    pub index_range: [f64; 2],
+    /// Thickness search range, nm.
+    pub thickness_range_nm: [f64; 2],
+    /// Reflectance per angle, BSQ: `data[angle][(band * height + row) * width + col]`; `+inf`
+    /// marks a saturated sample, NaN one without a usable reference.
+    pub data: Vec<Vec<f32>>,
+}
+
+impl SweepCube {
+    /// The spectrum of pixel `(col, row)` at angle `angle`, into `out` (one value per band).
+    pub fn spectrum_into(&self, angle: usize, col: usize, row: usize, out: &mut [f32]) {
+        let plane = self.width * self.height;
+        let cube = &self.data[angle];
+        for (b, o) in out.iter_mut().enumerate() {
+            *o = cube[b * plane + row * self.width + col];
+        }
+    }
+}
+
+/// Which estimator to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// The streaming estimator (default).
+    Filmscope,
+    /// Kobayashi et al.'s method, faithfully: eq. 12 from pairs of angles, eqs. 13-14.
+    Paper,
+    /// Least squares over an (n, d) grid: the paper's O(m N^2) baseline.
+    Brute,
+}
+
+impl Method {
+    /// Parses `filmscope`, `paper` or `brute`.
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "filmscope" => Some(Self::Filmscope),
+            "paper" => Some(Self::Paper),
+            "brute" => Some(Self::Brute),
+            _ => None,
+        }
+    }
+
+    /// The method's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Filmscope => "filmscope",
+            Self::Paper => "paper",
+            Self::Brute => "brute",
+        }
+    }
+}
+
+/// The maps and the index one method produced.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MethodResult {
+    /// Which method.
+    pub method: Method,
+    /// The film index model (`b_um2 = 0` unless the method chose dispersion).
+    pub index: IndexModel,
+    /// Standard error of the index, when the method gives one.
+    pub index_sigma: Option<f64>,
+    /// Thickness per pixel, row-major, nm; NaN where the pixel has no reliable estimate.
+    pub thickness_nm: Vec<f32>,
+    /// Confidence per pixel in 0..1.
+    pub confidence: Vec<f32>,
+    /// Flags per pixel (see [`filmscope_core::solve::flags`]).
+    pub flags: Vec<u16>,
+    /// Free-form notes for the summary (e.g. what the method decided).
+    pub notes: Vec<String>,
+}
