@@ -1,2 +1,5 @@
-//! The `filmscope` command line (placeholder, rewritten below).
-fn main() {}
+//! The `filmscope` command line: parse, run, print a one-line error, set the exit code.
+
+fn main() -> std::process::ExitCode {
+    filmscope::cli::main()
+}

@@ -1,1 +1,15 @@
 //! Whole-cube baselines: the paper's method and brute force.
+//!
+//! Both take a whole [`SweepCube`](crate::sweep::SweepCube) in memory and return a
+//! [`MethodResult`](crate::sweep::MethodResult):
+//!
+//! - [`paper`]: Kobayashi et al.'s method as published (peak wavelengths, eq. 12 from pairs of
+//!   angles, integer orders chosen by least squares), with its weaknesses kept;
+//! - [`brute`]: least squares over an `(n, d)` grid per pixel, the paper's O(m N^2) baseline.
+
+mod brute;
+mod common;
+mod paper;
+
+pub use brute::{brute, BruteGrid, DEFAULT_INDEX_STEP};
+pub use paper::paper;

@@ -206,7 +206,7 @@ impl<'a> Shard<'a> {
         let mut s = SchurSums::default();
         let limit = solver
             .rms_median()
-            .map_or(f32::INFINITY, |m| OUTLIER_RMS * m);
+            .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR);
         for p in self.pixels.iter().filter(|p| Self::trusted(p, limit)) {
             let g = &p.gn;
             let (h_dd, h_dn) = (f64::from(g.h_dd), f64::from(g.h_dn));
@@ -364,7 +364,7 @@ impl<'a> Shard<'a> {
         let sigma2 = solver.residual_sigma().map_or(f64::NAN, |s| s * s);
         let rms_limit = solver
             .rms_median()
-            .map_or(f32::INFINITY, |m| OUTLIER_RMS * m);
+            .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR);
         let [d_lo, d_hi] = solver.spec().thickness_range_nm;
         for (p, o) in self.pixels.iter().zip(out.iter_mut()) {
             let mut f = p.flags;

@@ -1,0 +1,152 @@
+//! What the baselines share: cube checks, pixel defect flags, medians, the model stack.
+
+use filmscope_core::optics::{Dispersion, FilmStack, Passband};
+use filmscope_core::solve::{flags, IndexModel};
+
+use crate::sweep::{Method, MethodResult, SweepCube};
+
+/// Fraction of non-finite samples above which a pixel is not used (flagged SATURATED / DEAD).
+pub(crate) const MAX_BAD_FRACTION: f64 = 0.1;
+
+/// Checks that the cube's arrays agree with its sizes, so that indexing cannot go out of
+/// bounds; `Err` names the first problem.
+pub(crate) fn check_cube(cube: &SweepCube) -> Result<(), String> {
+    let plane = cube.width * cube.height;
+    let bands = cube.bands_nm.len();
+    if plane == 0 {
+        return Err(format!("empty image ({}x{})", cube.width, cube.height));
+    }
+    if bands < 3 {
+        return Err(format!("{bands} bands: at least 3 are needed"));
+    }
+    if cube.bands_nm.windows(2).any(|w| !(w[1] > w[0])) {
+        return Err("band centres must increase strictly".into());
+    }
+    if cube.fwhm_nm.len() != bands {
+        return Err(format!(
+            "{} band widths for {bands} bands",
+            cube.fwhm_nm.len()
+        ));
+    }
+    if cube.angles_deg.is_empty() || cube.data.len() != cube.angles_deg.len() {
+        return Err(format!(
+            "{} angle cubes for {} angles",
+            cube.data.len(),
+            cube.angles_deg.len()
+        ));
+    }
+    for (a, d) in cube.data.iter().enumerate() {
+        if d.len() != plane * bands {
+            return Err(format!(
+                "angle {a}: {} samples, expected {plane} x {bands}",
+                d.len()
+            ));
+        }
+    }
+    let ok = |x: &[f64]| x.iter().all(|v| v.is_finite());
+    if !ok(&cube.bands_nm) || !ok(&cube.angles_deg) || !ok(&cube.index_range) {
+        return Err("non-finite band, angle or index range".into());
+    }
+    if !(cube.thickness_range_nm[0].is_finite()
+        && cube.thickness_range_nm[1].is_finite()
+        && cube.thickness_range_nm[1] > cube.thickness_range_nm[0]
+        && cube.index_range[1] >= cube.index_range[0])
+    {
+        return Err("empty index or thickness range".into());
+    }
+    Ok(())
+}
+
+/// The result for a cube that cannot be processed: every pixel NaN and flagged DEAD.
+pub(crate) fn unusable(method: Method, cube: &SweepCube, problem: &str) -> MethodResult {
+    let n = cube.width * cube.height;
+    MethodResult {
+        method,
+        index: IndexModel::constant(f64::NAN),
+        index_sigma: None,
+        thickness_nm: vec![f32::NAN; n],
+        confidence: vec![0.0; n],
+        flags: vec![flags::DEAD; n],
+        notes: vec![format!("{}: unusable cube: {problem}", method.name())],
+    }
+}
+
+/// The angle indices sorted by incidence angle (smallest first).
+pub(crate) fn angles_by_incidence(cube: &SweepCube) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..cube.angles_deg.len()).collect();
+    order.sort_by(|&a, &b| cube.angles_deg[a].total_cmp(&cube.angles_deg[b]));
+    order
+}
+
+/// SATURATED or DEAD when more than [`MAX_BAD_FRACTION`] of `samples` are not finite
+/// (SATURATED when `+inf` samples are the majority of them), else 0.
+pub(crate) fn defect_flags(samples: &[f32]) -> u16 {
+    let inf = samples.iter().filter(|v| **v == f32::INFINITY).count();
+    let bad = samples.iter().filter(|v| !v.is_finite()).count();
+    if (bad as f64) <= MAX_BAD_FRACTION * samples.len() as f64 {
+        0
+    } else if 2 * inf >= bad {
+        flags::SATURATED
+    } else {
+        flags::DEAD
+    }
+}
+
+/// The median of the finite values (mean of the middle two for an even count).
+pub(crate) fn median(values: &mut [f64]) -> Option<f64> {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(values[n / 2]),
+        _ => Some(0.5 * (values[n / 2 - 1] + values[n / 2])),
+    }
+}
+
+/// The film stack of the cube with a constant film index `n`.
+pub(crate) fn stack(cube: &SweepCube, n: f64) -> FilmStack {
+    FilmStack {
+        ambient_index: cube.ambient_index,
+        film: Dispersion::constant(n),
+        substrate: Dispersion::constant(cube.substrate_index),
+        polarization: cube.polarization,
+    }
+}
+
+/// The passband of band `b`.
+pub(crate) fn passband(cube: &SweepCube, b: usize) -> Passband {
+    Passband::gaussian(cube.bands_nm[b], cube.fwhm_nm[b])
+}
+
+/// All spectra of pixel `(col, row)`, angle-major (`out[a * bands + b]`), in the cube's angle
+/// order.
+pub(crate) fn pixel_spectra(cube: &SweepCube, col: usize, row: usize, out: &mut [f32]) {
+    let bands = cube.bands_nm.len();
+    for (a, chunk) in out.chunks_exact_mut(bands).enumerate() {
+        cube.spectrum_into(a, col, row, chunk);
+    }
+}
+
+/// Fills a row-major table of `rows` rows (`table.len() / rows` values each) with
+/// `fill(row, out)`, the rows shared between two threads.
+pub(crate) fn fill_rows_parallel(
+    table: &mut [f32],
+    row_len: usize,
+    fill: impl Fn(usize, &mut [f32]) + Sync,
+) {
+    if row_len == 0 {
+        return;
+    }
+    let rows = table.len() / row_len;
+    let half = rows.div_ceil(2).max(1);
+    let fill = &fill;
+    std::thread::scope(|s| {
+        for (k, chunk) in table.chunks_mut(half * row_len).enumerate() {
+            s.spawn(move || {
+                for (i, out) in chunk.chunks_exact_mut(row_len).enumerate() {
+                    fill(k * half + i, out);
+                }
+            });
+        }
+    });
+}

@@ -1,0 +1,310 @@
+//! Kobayashi et al.'s method as the paper describes it (method.md "Method"), without any of
+//! filmscope's improvements, so that its weakness on high-index films stays visible.
+
+use filmscope_core::optics::{snell_invariant, BandModel};
+use filmscope_core::solve::{flags, IndexModel};
+
+use super::common::{
+    angles_by_incidence, check_cube, defect_flags, fill_rows_parallel, median, passband,
+    pixel_spectra, stack, unusable,
+};
+use crate::sweep::{Method, MethodResult, SweepCube};
+
+/// Finest spacing of the model-spectrum thickness table, nm.
+const TABLE_STEP_NM: f64 = 1.0;
+/// Most rows of the model-spectrum thickness table (coarser spacing for wider ranges).
+const TABLE_MAX_ROWS: usize = 4096;
+
+/// Kobayashi et al.'s method, faithfully: reflectance peaks, eq. 12 from pairs of angles,
+/// eqs. 13-14 for the thickness.
+///
+/// 1. **Peaks.** Each spectrum (pixel, angle) gets the light 3-tap moving average
+///    `(R[b-1] + R[b] + R[b+1]) / 3` (over its finite samples; the only smoothing done, the
+///    same for noisy and noise-free data), then every band whose smoothed value exceeds both
+///    neighbours' is a peak, located at that band's centre: no sub-band interpolation, no
+///    prominence test. Non-finite samples are ignored (never a peak nor a neighbour of one).
+/// 2. **Order tracking.** Angles are sorted by incidence; each peak at one angle is matched to
+///    the nearest peak at the next angle at a shorter-or-equal wavelength (same order `m`).
+/// 3. **Index (eq. 12).** Each matched pair of peaks at neighbouring angles gives
+///    `n = sqrt((l2^2 s1 - l1^2 s2) / (l2^2 - l1^2))` with `s = (n1 sin theta)^2`; the paper
+///    assumes one index for the whole image: the median of all pair estimates that are finite
+///    and inside `cube.index_range`.
+/// 4. **Thickness (eqs. 13-14).** At the smallest angle with a peak, the pixel's highest peak
+///    gives the candidates `d = m lambda / (2 sqrt(n^2 - s))` for *integer* `m = 1, 2, ...`
+///    inside `cube.thickness_range_nm`; the candidate whose model spectra (band-averaged Airy
+///    reflectance with the estimated constant index) are nearest, in least squares over all
+///    angles and bands, to the measured spectra wins.
+///
+/// The paper's order equation `m lambda = phi` ignores the half-order phase of a film whose
+/// index is above the substrate's (ZnS on PET: peaks at `(m + 1/2) lambda = phi`); this
+/// baseline keeps that flaw on purpose, so on such films every candidate thickness is off by
+/// about a quarter of a fringe and the least-squares choice only picks the least bad one.
+///
+/// The model spectra are tabulated once per run on a thickness grid (1 nm spacing, coarser
+/// when the range would need more than 4096 rows) and linearly interpolated between rows
+/// (error about 1e-4 in reflectance for the paper's films).
+///
+/// Pixels with no peak at any angle get NaN and `NO_FRINGE` (plus `SATURATED` or `DEAD` when
+/// more than a tenth of their samples are not finite), pixels with no candidate inside the
+/// range NaN and `OUT_OF_RANGE`. Solved pixels have confidence 1 and no flags (the paper has
+/// no confidence measure).
+pub fn paper(cube: &SweepCube) -> MethodResult {
+    if let Err(problem) = check_cube(cube) {
+        return unusable(Method::Paper, cube, &problem);
+    }
+    let (w, h) = (cube.width, cube.height);
+    let nb = cube.bands_nm.len();
+    let na = cube.angles_deg.len();
+    let nab = na * nb;
+    let order = angles_by_incidence(cube);
+    let s2: Vec<f64> = cube
+        .angles_deg
+        .iter()
+        .map(|&t| {
+            let beta = snell_invariant(cube.ambient_index, t);
+            beta * beta
+        })
+        .collect();
+
+    // Steps 1-3: peaks, pair estimates of the index, and each pixel's thickness anchor.
+    let mut spectra = vec![0f32; nab];
+    let mut smooth = vec![0f32; nb];
+    let mut peaks: Vec<Vec<usize>> = vec![Vec::new(); na];
+    let mut estimates: Vec<f64> = Vec::new();
+    let mut pairs_total = 0usize;
+    // Per pixel: (angle, band) of the peak that anchors the thickness candidates.
+    let mut anchors: Vec<Option<(usize, usize)>> = vec![None; w * h];
+    let mut pixel_flags = vec![0u16; w * h];
+    for row in 0..h {
+        for col in 0..w {
+            let p = row * w + col;
+            pixel_spectra(cube, col, row, &mut spectra);
+            pixel_flags[p] = defect_flags(&spectra);
+            for (a, list) in peaks.iter_mut().enumerate() {
+                smooth3(&spectra[a * nb..(a + 1) * nb], &mut smooth);
+                local_maxima(&smooth, list);
+            }
+            for pair in order.windows(2) {
+                let (a1, a2) = (pair[0], pair[1]);
+                for &b1 in &peaks[a1] {
+                    let l1 = cube.bands_nm[b1];
+                    // Nearest peak at the next angle at a shorter-or-equal wavelength.
+                    let matched = peaks[a2]
+                        .iter()
+                        .map(|&b| cube.bands_nm[b])
+                        .filter(|&l| l <= l1)
+                        .max_by(f64::total_cmp);
+                    let Some(l2) = matched else { continue };
+                    pairs_total += 1;
+                    let n = eq12(l1, l2, s2[a1], s2[a2]);
+                    if n.is_finite() && n >= cube.index_range[0] && n <= cube.index_range[1] {
+                        estimates.push(n);
+                    }
+                }
+            }
+            anchors[p] = order.iter().find_map(|&a| {
+                let spec = &spectra[a * nb..(a + 1) * nb];
+                smooth3(spec, &mut smooth);
+                peaks[a]
+                    .iter()
+                    .copied()
+                    .max_by(|&x, &y| smooth[x].total_cmp(&smooth[y]))
+                    .map(|b| (a, b))
+            });
+        }
+    }
+    let used = estimates.len();
+    let Some(n) = median(&mut estimates) else {
+        let mut result = unusable(Method::Paper, cube, "");
+        result.flags = vec![flags::NO_FRINGE; w * h];
+        result.notes = vec![format!(
+            "paper: no index: 0 usable eq. 12 pair estimates of {pairs_total} matched peak pairs"
+        )];
+        return result;
+    };
+    let mad = {
+        let mut dev: Vec<f64> = estimates.iter().map(|e| (e - n).abs()).collect();
+        median(&mut dev).unwrap_or(f64::NAN)
+    };
+
+    // Step 4: model spectra on a thickness grid, then the integer order per pixel.
+    let [d_lo, d_hi] = cube.thickness_range_nm;
+    let step = TABLE_STEP_NM.max((d_hi - d_lo) / (TABLE_MAX_ROWS - 1) as f64);
+    let rows = ((d_hi - d_lo) / step).ceil() as usize + 1;
+    let film = stack(cube, n);
+    let models: Vec<BandModel> = (0..na)
+        .flat_map(|a| (0..nb).map(move |b| (a, b)))
+        .map(|(a, b)| BandModel::new(film, cube.angles_deg[a], passband(cube, b)))
+        .collect();
+    let mut table = vec![0f32; rows * nab];
+    fill_rows_parallel(&mut table, nab, |j, out| {
+        let d = d_lo + step * j as f64;
+        for (o, m) in out.iter_mut().zip(&models) {
+            *o = m.reflectance(d) as f32;
+        }
+    });
+
+    let mut thickness = vec![f32::NAN; w * h];
+    let mut confidence = vec![0f32; w * h];
+    let (mut solved, mut no_peak, mut out_of_range) = (0usize, 0usize, 0usize);
+    for row in 0..h {
+        for col in 0..w {
+            let p = row * w + col;
+            let Some((a, b)) = anchors[p] else {
+                pixel_flags[p] |= flags::NO_FRINGE;
+                no_peak += 1;
+                continue;
+            };
+            pixel_spectra(cube, col, row, &mut spectra);
+            let kz = (n * n - s2[a]).sqrt();
+            let lambda = cube.bands_nm[b];
+            let mut best: Option<(f64, f64)> = None;
+            for m in 1.. {
+                let d = f64::from(m) * lambda / (2.0 * kz); // eq. 13, integer m
+                if d > d_hi || !d.is_finite() {
+                    break;
+                }
+                if d < d_lo {
+                    continue;
+                }
+                let bound = best.map_or(f64::INFINITY, |(s, _)| s);
+                let sse = interpolated_sse(&table, nab, (d - d_lo) / step, &spectra, bound);
+                if sse < bound {
+                    best = Some((sse, d));
+                }
+            }
+            match best {
+                Some((_, d)) => {
+                    thickness[p] = d as f32;
+                    confidence[p] = 1.0;
+                    pixel_flags[p] = 0;
+                    solved += 1;
+                }
+                None => {
+                    pixel_flags[p] |= flags::OUT_OF_RANGE;
+                    out_of_range += 1;
+                }
+            }
+        }
+    }
+
+    MethodResult {
+        method: Method::Paper,
+        index: IndexModel::constant(n),
+        index_sigma: None,
+        thickness_nm: thickness,
+        confidence,
+        flags: pixel_flags,
+        notes: vec![
+            format!(
+                "paper: n = {n:.4} = median of {used} eq. 12 pair estimates (of {pairs_total} \
+                 matched peak pairs; the rest non-finite or outside {:?}), MAD {mad:.4}",
+                cube.index_range
+            ),
+            format!(
+                "paper: {solved} pixels solved, {no_peak} without a peak, {out_of_range} \
+                 without an order inside {:?} nm",
+                cube.thickness_range_nm
+            ),
+            format!(
+                "paper: peaks = 3-point local maxima of a 3-tap moving average, at band \
+                 centres; integer orders only (no half-order phase); model table step \
+                 {step:.2} nm"
+            ),
+        ],
+    }
+}
+
+/// Eq. 12: the index from one order's peak wavelengths `l1`, `l2` at two angles whose squared
+/// Snell invariants are `s1`, `s2` (NaN or infinite when the pair says nothing).
+fn eq12(l1: f64, l2: f64, s1: f64, s2: f64) -> f64 {
+    let (q1, q2) = (l1 * l1, l2 * l2);
+    ((q2 * s1 - q1 * s2) / (q2 - q1)).sqrt()
+}
+
+/// The 3-tap moving average of the finite samples around each finite sample (NaN where the
+/// sample itself is not finite).
+fn smooth3(x: &[f32], out: &mut [f32]) {
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = if x[i].is_finite() {
+            let lo = i.saturating_sub(1);
+            let hi = (i + 2).min(x.len());
+            let (sum, count) = x[lo..hi]
+                .iter()
+                .filter(|v| v.is_finite())
+                .fold((0f32, 0f32), |(s, c), &v| (s + v, c + 1.0));
+            sum / count
+        } else {
+            f32::NAN
+        };
+    }
+}
+
+/// The bands whose value is finite and above both (finite) neighbours', into `out`.
+fn local_maxima(x: &[f32], out: &mut Vec<usize>) {
+    out.clear();
+    for (i, w) in x.windows(3).enumerate() {
+        if w.iter().all(|v| v.is_finite()) && w[1] > w[0] && w[1] > w[2] {
+            out.push(i + 1);
+        }
+    }
+}
+
+/// Sum of squared differences between the measured spectra (finite samples only) and the
+/// table's model spectra linearly interpolated at fractional row `x`; stops early (returning
+/// a value `>= bound`) once the sum reaches `bound`.
+fn interpolated_sse(table: &[f32], row_len: usize, x: f64, measured: &[f32], bound: f64) -> f64 {
+    let rows = table.len() / row_len;
+    let j = (x.floor().max(0.0) as usize).min(rows.saturating_sub(2));
+    let t = (x - j as f64).clamp(0.0, 1.0) as f32;
+    let r0 = &table[j * row_len..(j + 1) * row_len];
+    let r1 = &table[(j + 1).min(rows - 1) * row_len..((j + 1).min(rows - 1) + 1) * row_len];
+    let mut sse = 0.0;
+    let chunk = 64;
+    for ((c0, c1), cm) in r0
+        .chunks(chunk)
+        .zip(r1.chunks(chunk))
+        .zip(measured.chunks(chunk))
+    {
+        let mut part = 0f32;
+        for ((&a, &b), &m) in c0.iter().zip(c1).zip(cm) {
+            if m.is_finite() {
+                let e = a + t * (b - a) - m;
+                part += e * e;
+            }
+        }
+        sse += f64::from(part);
+        if sse >= bound {
+            break;
+        }
+    }
+    sse
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn eq12_recovers_the_index() {
+        let (n, d, m) = (1.5f64, 600.0, 3.0);
+        let s1 = 10f64.to_radians().sin().powi(2);
+        let s2 = 30f64.to_radians().sin().powi(2);
+        let l1 = 2.0 * d * (n * n - s1).sqrt() / m;
+        let l2 = 2.0 * d * (n * n - s2).sqrt() / m;
+        assert!((eq12(l1, l2, s1, s2) - n).abs() < 1e-9);
+        assert!(!eq12(l1, l1, s1, s2).is_finite() || eq12(l1, l1, s1, s2) > 1e6);
+    }
+
+    #[test]
+    fn peaks_ignore_non_finite_samples() {
+        let x = [0.1, 0.3, 0.2, f32::NAN, 0.5, 0.1, f32::INFINITY, 0.4, 0.2];
+        let mut s = [0f32; 9];
+        smooth3(&x, &mut s);
+        assert!(s[3].is_nan() && s[6].is_nan());
+        assert!((s[1] - 0.2).abs() < 1e-6);
+        let mut p = Vec::new();
+        local_maxima(&x, &mut p);
+        assert_eq!(p, vec![1]);
+    }
+}

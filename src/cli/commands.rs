@@ -1,0 +1,309 @@
+//! The commands behind the command line.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context, Result};
+use firmware_sim::{Scene, SoftwareCamera};
+
+use super::progress::rows_bar;
+use crate::baseline::BruteGrid;
+use crate::estimate::{run_method, write_outputs, Run, RunConfig};
+use crate::eval::{evaluate, EvalReport, Truth};
+use crate::io::{Capture, Interleave};
+use crate::pipeline::{CaptureSource, PipelineConfig, SimSource, Source};
+use crate::simulate::{write_capture, SimulateOptions};
+use crate::sweep::Method;
+
+/// The paper's samples, built in so `demo` runs from anywhere.
+const PAPER_SCENES: [(&str, &str); 3] = [
+    (
+        "paper-sample1",
+        include_str!("../../config/scenes/paper-sample1.toml"),
+    ),
+    (
+        "paper-sample2",
+        include_str!("../../config/scenes/paper-sample2.toml"),
+    ),
+    (
+        "paper-sample3",
+        include_str!("../../config/scenes/paper-sample3.toml"),
+    ),
+];
+
+/// The paper's Table 1: estimated index, thickness error (nm), mean dE*ab, RMSE.
+const PAPER_TABLE: [(f64, f64, f64, f64); 3] = [
+    (1.374, 30.0, 0.72, 0.04),
+    (1.367, 49.0, 1.21, 0.07),
+    (2.674, 41.0, 5.63, 0.18),
+];
+
+fn method(name: &str) -> Result<Method> {
+    Method::from_name(name)
+        .ok_or_else(|| anyhow!("unknown method {name:?}: use filmscope, paper or brute"))
+}
+
+fn rows_of(spec: &filmscope_core::solve::SweepSpec, angles: usize) -> u64 {
+    (spec.height * spec.bands_nm.len() * angles) as u64
+}
+
+fn run_with_bar(source: &mut dyn Source, config: &RunConfig, label: &str) -> Result<Run> {
+    let bar = rows_bar(rows_of(source.spec(), source.angles_deg().len()), label);
+    let run = run_method(source, config, &|n| bar.inc(n)).map_err(|e| anyhow!("{label}: {e}"))?;
+    bar.finish_and_clear();
+    Ok(run)
+}
+
+/// `filmscope simulate`.
+pub fn simulate(scene_path: &Path, out: &Path, noise_free: bool, interleave: &str) -> Result<()> {
+    let scene = Scene::load(scene_path)?;
+    let interleave = Interleave::from_name(interleave)
+        .ok_or_else(|| anyhow!("--interleave {interleave:?}: use bil, bsq or bip"))?;
+    let total = (scene.angles_deg.len() * scene.bands_nm.len() * scene.sensor.height) as u64;
+    let bar = rows_bar(total, &scene.name);
+    let toml = write_capture(
+        &scene,
+        out,
+        SimulateOptions {
+            noise_free,
+            interleave,
+        },
+        &|n| bar.inc(n),
+    )?;
+    bar.finish_and_clear();
+    println!(
+        "wrote {} ({}x{} px, {} bands, {} angles)",
+        toml.display(),
+        scene.sensor.width,
+        scene.sensor.height,
+        scene.bands_nm.len(),
+        scene.angles_deg.len()
+    );
+    Ok(())
+}
+
+/// `filmscope estimate`.
+pub fn estimate(
+    capture: &Path,
+    out: &Path,
+    method_name: &str,
+    workers: usize,
+    channel_capacity: usize,
+    brute: (usize, f64),
+) -> Result<()> {
+    let config = RunConfig {
+        method: method(method_name)?,
+        pipeline: PipelineConfig {
+            channel_capacity,
+            workers,
+        },
+        brute_grid: BruteGrid {
+            index_steps: brute.0,
+            thickness_step_nm: brute.1,
+        },
+    };
+    let cap = Capture::load(capture)?;
+    for key in &cap.unknown_keys {
+        eprintln!(
+            "filmscope: warning: {}: unknown key {key} (ignored)",
+            cap.path.display()
+        );
+    }
+    let label = cap.path.display().to_string();
+    let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
+    let run = run_with_bar(&mut source, &config, &label)?;
+    let summary = write_outputs(out, &run, &label)?;
+    println!(
+        "{}: n = {:.4}, thickness median {} nm, valid {:.1} %, {:.2} s; maps in {}",
+        config.method.name(),
+        run.result.index.at(550.0),
+        summary["thickness_nm"]["median"]
+            .as_f64()
+            .map_or("-".into(), |m| format!("{m:.1}")),
+        100.0 * summary["valid_fraction"].as_f64().unwrap_or(0.0),
+        run.seconds,
+        out.display()
+    );
+    Ok(())
+}
+
+enum Input {
+    Scene(Scene),
+    Capture(PathBuf),
+}
+
+fn input(path: &Path) -> Result<Input> {
+    if path.is_dir() {
+        Ok(Input::Capture(path.to_owned()))
+    } else if path.extension().is_some_and(|e| e == "toml")
+        && path.file_name().is_some_and(|n| n != "capture.toml")
+    {
+        Ok(Input::Scene(Scene::load(path)?))
+    } else if path.file_name().is_some_and(|n| n == "capture.toml") {
+        Ok(Input::Capture(
+            path.parent().unwrap_or(Path::new(".")).to_owned(),
+        ))
+    } else {
+        bail!(
+            "{}: neither a scene file (.toml) nor a capture directory",
+            path.display()
+        )
+    }
+}
+
+fn eval_one(path: &Path, config: &RunConfig) -> Result<EvalReport> {
+    match input(path)? {
+        Input::Scene(scene) => {
+            let truth = Truth::of_scene(&scene);
+            let name = scene.name.clone();
+            let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1)
+                .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+            let run = run_with_bar(&mut source, config, &name)?;
+            Ok(evaluate(&name, &truth, &run))
+        }
+        Input::Capture(dir) => {
+            let truth = Truth::of_capture_dir(&dir).map_err(|e| anyhow!(e))?;
+            let cap = Capture::load(&dir)?;
+            let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
+            let name = dir.display().to_string();
+            let run = run_with_bar(&mut source, config, &name)?;
+            Ok(evaluate(&name, &truth, &run))
+        }
+    }
+}
+
+/// `filmscope eval`.
+pub fn eval(inputs: &[PathBuf], method_name: &str, json: bool, brute: (usize, f64)) -> Result<()> {
+    if inputs.is_empty() {
+        bail!("eval needs at least one scene file or capture directory");
+    }
+    let config = RunConfig {
+        method: method(method_name)?,
+        brute_grid: BruteGrid {
+            index_steps: brute.0,
+            thickness_step_nm: brute.1,
+        },
+        ..RunConfig::default()
+    };
+    if !json {
+        println!(
+            "{:<22} {:<9} {:>8} {:>9} {:>8} {:>8} {:>7} {:>8} {:>7} {:>7} {:>7} {:>7}",
+            "scene",
+            "method",
+            "n",
+            "n err",
+            "MAE nm",
+            "RMSE nm",
+            "valid",
+            "silent",
+            "sp.RMSE",
+            "dE76",
+            "dE00",
+            "s"
+        );
+    }
+    for path in inputs {
+        let r = eval_one(path, &config).with_context(|| path.display().to_string())?;
+        if json {
+            println!("{}", serde_json::to_string(&r)?);
+        } else {
+            println!(
+                "{:<22} {:<9} {:>8.4} {:>+9.4} {:>8.2} {:>8.2} {:>6.1}% {:>7.2}% {:>7.4} {:>7.3} {:>7.3} {:>7.2}",
+                r.scene,
+                r.method,
+                r.index_estimated,
+                r.index_error,
+                r.thickness_mae_nm,
+                r.thickness_rmse_nm,
+                100.0 * r.valid_fraction,
+                100.0 * r.silent_failure_rate,
+                r.spectral_rmse,
+                r.delta_e76_mean,
+                r.delta_e2000_mean,
+                r.seconds
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `filmscope demo`.
+pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
+    println!("filmscope demo: the paper's three samples on the software rig (raw 12-bit counts, white/dark references, 5 angles x 151 bands), streamed through the pipeline.\n");
+    let mut rows = Vec::new();
+    for (i, (name, text)) in PAPER_SCENES.iter().enumerate() {
+        let scene = Scene::from_toml(text, name)?;
+        let truth = Truth::of_scene(&scene);
+        let mut source =
+            SimSource::new(SoftwareCamera::new(scene.clone()), false, 1).map_err(|e| anyhow!(e))?;
+        let run = run_with_bar(&mut source, &RunConfig::default(), name)?;
+        let dir = out.join(name);
+        write_outputs(&dir, &run, &format!("software camera, scene {name}"))?;
+        let ours = evaluate(name, &truth, &run);
+        let theirs = if with_paper {
+            let mut source = SimSource::new(SoftwareCamera::new(scene.clone()), false, 1)
+                .map_err(|e| anyhow!(e))?;
+            let cfg = RunConfig {
+                method: Method::Paper,
+                ..RunConfig::default()
+            };
+            let run = run_with_bar(&mut source, &cfg, &format!("{name} (paper)"))?;
+            write_outputs(
+                &out.join(format!("{name}-paper")),
+                &run,
+                &format!("software camera, scene {name}"),
+            )?;
+            Some(evaluate(name, &truth, &run))
+        } else {
+            None
+        };
+        rows.push((i, scene, ours, theirs, run));
+    }
+    println!(
+        "{:<14} {:>7} | {:>22} | {:>22} | {:>14} | {:>14} | {:>7} {:>7} {:>9}",
+        "sample",
+        "true n",
+        "estimated n",
+        "thickness error nm",
+        "mean dE*ab",
+        "spectral RMSE",
+        "valid",
+        "silent",
+        "latency"
+    );
+    println!("{:<14} {:>7} | {:>6} {:>7} {:>7} | {:>6} {:>7} {:>7} | {:>6} {:>7} | {:>6} {:>7} | {:>7} {:>7} {:>9}", "", "", "paper", "ours", "paper*", "paper", "ours", "paper*", "paper", "ours", "paper", "ours", "", "", "ms");
+    for (i, scene, ours, theirs, run) in &rows {
+        let (pn, pd, pe, pr) = PAPER_TABLE[*i];
+        let star = |v: Option<f64>, p: usize| v.map_or("-".to_owned(), |x| format!("{x:.p$}"));
+        println!(
+            "{:<14} {:>7.3} | {:>6.3} {:>7.4} {:>7} | {:>6.0} {:>7.2} {:>7} | {:>6.2} {:>7.3} | {:>6.2} {:>7.4} | {:>6.1}% {:>6.2}% {:>9.1}",
+            scene.name,
+            ours.index_true,
+            pn,
+            ours.index_estimated,
+            star(theirs.as_ref().map(|t| t.index_estimated), 3),
+            pd,
+            ours.thickness_mae_nm,
+            star(theirs.as_ref().map(|t| t.thickness_mae_nm), 1),
+            pe,
+            ours.delta_e76_mean,
+            pr,
+            ours.spectral_rmse,
+            100.0 * ours.valid_fraction,
+            100.0 * ours.silent_failure_rate,
+            run.solve_latency_ms.unwrap_or(f64::NAN)
+        );
+    }
+    println!("\npaper = Kobayashi et al., Table 1 (their rig); ours = filmscope on the simulated rig (thickness error: mean absolute error per pixel);");
+    if with_paper {
+        println!("paper* = the paper's method as implemented in filmscope (`--method paper`), on the same simulated data.");
+    } else {
+        println!(
+            "run `filmscope demo --with-paper` to add the paper's method run on the same data."
+        );
+    }
+    println!(
+        "Maps, previews and summary.json per sample in {}",
+        out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,137 @@
+//! The command line: argument parsing and the commands. `main.rs` only calls [`main`].
+
+mod commands;
+mod progress;
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+
+/// filmscope: thin-film index and thickness maps from hyperspectral angle sweeps.
+#[derive(Debug, Parser)]
+#[command(name = "filmscope", version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// The paper's three samples on the software rig, streamed through the pipeline, maps
+    /// written, and a table like the paper's Table 1.
+    Demo {
+        /// Output folder.
+        #[arg(long, default_value = "out/demo")]
+        out: PathBuf,
+        /// Also run the paper's method on the same data.
+        #[arg(long)]
+        with_paper: bool,
+    },
+    /// Writes a scene as a capture directory (ENVI cubes, capture.toml, truth).
+    Simulate {
+        /// Scene file (see config/scenes).
+        scene: PathBuf,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Float32 reflectance without noise, defects, vignetting or references.
+        #[arg(long)]
+        noise_free: bool,
+        /// Cube interleave: bil (default, the camera link's order), bsq or bip.
+        #[arg(long, default_value = "bil")]
+        interleave: String,
+    },
+    /// Estimates index and thickness maps from a capture.
+    Estimate {
+        /// A capture.toml or the directory holding one.
+        capture: PathBuf,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// filmscope (default), paper or brute.
+        #[arg(long, default_value = "filmscope")]
+        method: String,
+        /// Worker threads of the streaming method.
+        #[arg(long, default_value_t = 2)]
+        workers: usize,
+        /// Capacity of each pipeline channel, in messages.
+        #[arg(long, default_value_t = 64)]
+        channel_capacity: usize,
+        /// Brute force: number of index values over the search range (0: a 0.01 step).
+        #[arg(long, default_value_t = 0)]
+        brute_index_steps: usize,
+        /// Brute force: thickness grid step, nm.
+        #[arg(long, default_value_t = 2.0)]
+        brute_thickness_step: f64,
+    },
+    /// Accuracy against the truth on scene files or simulated capture directories.
+    Eval {
+        /// Scene files (.toml) or capture directories with truth.
+        inputs: Vec<PathBuf>,
+        /// filmscope (default), paper or brute.
+        #[arg(long, default_value = "filmscope")]
+        method: String,
+        /// One JSON object per input on stdout instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// Brute force: number of index values over the search range (0: a 0.01 step).
+        #[arg(long, default_value_t = 0)]
+        brute_index_steps: usize,
+        /// Brute force: thickness grid step, nm.
+        #[arg(long, default_value_t = 2.0)]
+        brute_thickness_step: f64,
+    },
+}
+
+/// Runs the command line; returns the process exit code.
+pub fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Demo { out, with_paper } => commands::demo(&out, with_paper),
+        Command::Simulate {
+            scene,
+            out,
+            noise_free,
+            interleave,
+        } => commands::simulate(&scene, &out, noise_free, &interleave),
+        Command::Estimate {
+            capture,
+            out,
+            method,
+            workers,
+            channel_capacity,
+            brute_index_steps,
+            brute_thickness_step,
+        } => commands::estimate(
+            &capture,
+            &out,
+            &method,
+            workers,
+            channel_capacity,
+            (brute_index_steps, brute_thickness_step),
+        ),
+        Command::Eval {
+            inputs,
+            method,
+            json,
+            brute_index_steps,
+            brute_thickness_step,
+        } => commands::eval(
+            &inputs,
+            &method,
+            json,
+            (brute_index_steps, brute_thickness_step),
+        ),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("filmscope: {}", one_line(&format!("{e:#}")));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}

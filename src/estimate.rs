@@ -1,0 +1,275 @@
+//! Running a method on a source and writing its outputs per capture-format.md.
+
+use std::path::Path;
+use std::time::Instant;
+
+use filmscope_core::solve::{flags, IndexModel, SweepSpec};
+use serde_json::json;
+
+use crate::baseline::{brute, paper, BruteGrid};
+use crate::export::png::{write_map_png, MapPreview};
+use crate::io::{write_atomic, write_f32_map, DataType, EnviHeader, EnviWriter, Interleave};
+use crate::pipeline::{
+    collect_sweep, run_sweep, PipelineConfig, PipelineError, Source, SweepOutput,
+};
+use crate::simulate::dispersion_json;
+use crate::sweep::{Method, MethodResult};
+
+/// How to run a method.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RunConfig {
+    /// Which estimator.
+    pub method: Method,
+    /// Pipeline shape (streaming method only).
+    pub pipeline: PipelineConfig,
+    /// Grid of the brute-force baseline.
+    pub brute_grid: BruteGrid,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        Self {
+            method: Method::Filmscope,
+            pipeline: PipelineConfig::default(),
+            brute_grid: BruteGrid::default(),
+        }
+    }
+}
+
+/// One method's run over one sweep.
+#[derive(Clone, Debug)]
+pub struct Run {
+    /// The maps and the index.
+    pub result: MethodResult,
+    /// The sweep.
+    pub spec: SweepSpec,
+    /// Incidence angles in streaming order, degrees.
+    pub angles_deg: Vec<f64>,
+    /// Wall time of the whole run, seconds.
+    pub seconds: f64,
+    /// Time from the last row to the maps (streaming method), ms.
+    pub solve_latency_ms: Option<f64>,
+    /// Bytes of per-pixel state (streaming method).
+    pub state_bytes_per_pixel: Option<usize>,
+    /// Band samples processed.
+    pub samples: u64,
+    /// Per-angle progress of the streaming solver, as JSON.
+    pub angle_reports: serde_json::Value,
+}
+
+/// The streaming estimator's output as a [`MethodResult`].
+pub fn result_from_sweep(out: &SweepOutput) -> MethodResult {
+    let mut notes = Vec::new();
+    if out.index.is_none() {
+        notes.push("no angle pair resolved the fringe shift: no index, no thickness".to_owned());
+    }
+    MethodResult {
+        method: Method::Filmscope,
+        index: out.index.unwrap_or(IndexModel::constant(f64::NAN)),
+        index_sigma: out.index.map(|_| out.index_sigma),
+        thickness_nm: out.results.iter().map(|r| r.thickness_nm).collect(),
+        confidence: out.results.iter().map(|r| r.confidence).collect(),
+        flags: out.results.iter().map(|r| r.flags).collect(),
+        notes,
+    }
+}
+
+/// Runs `config.method` on `source`; `on_rows` is told of rows streamed.
+pub fn run_method(
+    source: &mut dyn Source,
+    config: &RunConfig,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<Run, PipelineError> {
+    let spec = source.spec().clone();
+    let angles_deg = source.angles_deg();
+    let t0 = Instant::now();
+    match config.method {
+        Method::Filmscope => {
+            let out = run_sweep(source, config.pipeline, None, on_rows)?;
+            let reports: Vec<_> = out
+                .angles
+                .iter()
+                .map(|a| {
+                    json!({
+                        "incidence_deg": a.incidence_deg,
+                        "index": a.index,
+                        "index_sigma": if a.index_sigma.is_finite() { Some(a.index_sigma) } else { None },
+                        "pair_index": a.pair.map(|p| p.index),
+                        "refined": a.refined,
+                    })
+                })
+                .collect();
+            Ok(Run {
+                result: result_from_sweep(&out),
+                spec,
+                angles_deg,
+                seconds: t0.elapsed().as_secs_f64(),
+                solve_latency_ms: Some(out.solve_latency.as_secs_f64() * 1e3),
+                state_bytes_per_pixel: Some(out.state_bytes_per_pixel),
+                samples: out.samples,
+                angle_reports: serde_json::Value::Array(reports),
+            })
+        }
+        Method::Paper | Method::Brute => {
+            let cube = collect_sweep(source)?;
+            on_rows((cube.height * cube.bands_nm.len() * cube.angles_deg.len()) as u64);
+            let result = if config.method == Method::Paper {
+                paper(&cube)
+            } else {
+                brute(&cube, config.brute_grid)
+            };
+            let samples =
+                (cube.width * cube.height * cube.bands_nm.len() * cube.angles_deg.len()) as u64;
+            Ok(Run {
+                result,
+                spec,
+                angles_deg,
+                seconds: t0.elapsed().as_secs_f64(),
+                solve_latency_ms: None,
+                state_bytes_per_pixel: None,
+                samples,
+                angle_reports: serde_json::Value::Null,
+            })
+        }
+    }
+}
+
+/// Statistics of the finite values.
+pub fn stats(values: &[f32]) -> serde_json::Value {
+    let mut v: Vec<f64> = values
+        .iter()
+        .filter(|x| x.is_finite())
+        .map(|&x| f64::from(x))
+        .collect();
+    if v.is_empty() {
+        return json!({"mean": null, "median": null, "std": null, "min": null, "max": null});
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
+    let median = if v.len() % 2 == 1 {
+        v[v.len() / 2]
+    } else {
+        0.5 * (v[v.len() / 2 - 1] + v[v.len() / 2])
+    };
+    json!({"mean": mean, "median": median, "std": var.sqrt(), "min": v[0], "max": v[v.len() - 1]})
+}
+
+/// Counts of each flag over the map.
+pub fn flag_counts(map: &[u16]) -> serde_json::Value {
+    let mut o = serde_json::Map::new();
+    for (bit, name) in flags::NAMES {
+        let n = map.iter().filter(|&&f| f & bit != 0).count();
+        o.insert(name.to_owned(), json!(n));
+    }
+    serde_json::Value::Object(o)
+}
+
+/// An output that could not be written, naming the file.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct OutputError(pub String);
+
+/// Writes the maps, the preview and `summary.json` into `dir` (each file atomically, the
+/// summary last, so a complete summary means complete outputs). Returns the summary.
+pub fn write_outputs(
+    dir: &Path,
+    run: &Run,
+    source_label: &str,
+) -> Result<serde_json::Value, OutputError> {
+    let err = |p: &Path, e: &dyn std::fmt::Display| OutputError(format!("{}: {e}", p.display()));
+    std::fs::create_dir_all(dir).map_err(|e| err(dir, &e))?;
+    let (w, h) = (run.spec.width, run.spec.height);
+    let r = &run.result;
+    let thick = dir.join("thickness_nm.hdr");
+    write_f32_map(
+        &thick,
+        w,
+        h,
+        &r.thickness_nm,
+        Some("film thickness, nm (NaN: no reliable estimate)"),
+        &[],
+    )
+    .map_err(|e| err(&thick, &e))?;
+    let conf = dir.join("confidence.hdr");
+    write_f32_map(
+        &conf,
+        w,
+        h,
+        &r.confidence,
+        Some("confidence of the thickness, 0..1"),
+        &[],
+    )
+    .map_err(|e| err(&conf, &e))?;
+    let flags_path = dir.join("flags.hdr");
+    let mut fh = EnviHeader::new(w, h, 1, DataType::U16, Interleave::Bsq);
+    let names: Vec<String> = flags::NAMES
+        .iter()
+        .map(|(b, n)| format!("{b}={n}"))
+        .collect();
+    fh.description = Some(format!("filmscope pixel flags (bits): {}", names.join(" ")));
+    let mut fw = EnviWriter::create(&flags_path, &fh).map_err(|e| err(&flags_path, &e))?;
+    for row in 0..h {
+        let vals: Vec<f32> = r.flags[row * w..(row + 1) * w]
+            .iter()
+            .map(|&f| f32::from(f))
+            .collect();
+        fw.write_band_row(0, row, &vals)
+            .map_err(|e| err(&flags_path, &e))?;
+    }
+    fw.finish().map_err(|e| err(&flags_path, &e))?;
+    let png = dir.join("thickness_nm.png");
+    let title = format!(
+        "thickness, n = {:.4} ({})",
+        r.index.at(550.0),
+        r.method.name()
+    );
+    write_map_png(
+        &png,
+        &MapPreview {
+            width: w,
+            height: h,
+            values: &r.thickness_nm,
+            title: &title,
+            unit: "nm",
+            range: None,
+        },
+    )
+    .map_err(|e| err(&png, &e))?;
+    let valid = r.thickness_nm.iter().filter(|x| x.is_finite()).count();
+    let summary = json!({
+        "refractive_index": r.index.at(550.0),
+        "refractive_index_sigma": r.index_sigma,
+        "dispersion": dispersion_json(&r.index.dispersion()),
+        "index_model": if r.index.b_um2 == 0.0 { "constant" } else { "cauchy" },
+        "thickness_nm": stats(&r.thickness_nm),
+        "valid_fraction": valid as f64 / (w * h).max(1) as f64,
+        "width": w,
+        "height": h,
+        "method": r.method.name(),
+        "source": source_label,
+        "angles_deg": run.angles_deg,
+        "bands": run.spec.bands_nm.len(),
+        "flags": flag_counts(&r.flags),
+        "angle_reports": run.angle_reports,
+        "timing": {
+            "seconds": run.seconds,
+            "solve_latency_ms": run.solve_latency_ms,
+            "samples": run.samples,
+            "samples_per_s": run.samples as f64 / run.seconds.max(1e-9),
+        },
+        "state_bytes_per_pixel": run.state_bytes_per_pixel,
+        "notes": r.notes,
+        "files": {
+            "thickness": "thickness_nm.hdr",
+            "confidence": "confidence.hdr",
+            "flags": "flags.hdr",
+            "preview": "thickness_nm.png",
+        },
+    });
+    let path = dir.join("summary.json");
+    let text = serde_json::to_string_pretty(&summary).map_err(|e| err(&path, &e))?;
+    write_atomic(&path, text.as_bytes()).map_err(|e| err(&path, &e))?;
+    Ok(summary)
+}

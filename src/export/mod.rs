@@ -1,0 +1,3 @@
+//! Outputs: map previews and exports.
+pub mod colormap;
+pub mod png;

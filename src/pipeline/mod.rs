@@ -1,0 +1,18 @@
+//! The streaming pipeline: bounded stages on crossbeam channels.
+//!
+//! `source -> calibrate -> track + solve (one worker per shard of rows) -> maps`. The stages
+//! themselves are the core's state machines ([`filmscope_core::calibrate`],
+//! [`filmscope_core::solve`]); this module only wires them to threads and channels.
+
+mod msg;
+mod run;
+mod source;
+
+pub use msg::{RowBlock, Samples, StreamMsg};
+pub use run::{
+    calibrate_block, collect_sweep, end_angle_parallel, run_sweep, PipelineConfig, PipelineError,
+    SweepOutput,
+};
+pub use source::{
+    sweep_spec, CaptureSource, SimSource, Source, DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,
+};

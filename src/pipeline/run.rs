@@ -1,0 +1,501 @@
+//! Wires the stages to bounded channels and threads.
+//!
+//! ```text
+//! source thread -> [cap] -> calibrate thread -> [cap] -> worker 1 (rows of shard 1)
+//!                                            \-> [cap] -> worker 2 (rows of shard 2)
+//!                                  control --> coordinator (this thread): angle ends
+//! ```
+//!
+//! Every channel is bounded, so a slow stage slows the source and memory never grows with
+//! the stream. Each worker owns the per-pixel state of its rows while an angle streams; at
+//! the angle's end it hands the state to the coordinator, which runs the solver's angle-end
+//! passes on all cores (one scoped thread per shard) and hands it back with the next angle.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{bounded, Receiver, Sender};
+use filmscope_core::calibrate::calibrate_row;
+use filmscope_core::solve::index::{RatioHistogram, RatioSums};
+use filmscope_core::solve::sweep::{RmsHistogram, SchurSums};
+use filmscope_core::solve::{
+    AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
+};
+
+use super::msg::{Samples, StreamMsg};
+use super::source::Source;
+
+/// How to run the pipeline.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PipelineConfig {
+    /// Capacity of every channel, in messages.
+    pub channel_capacity: usize,
+    /// Worker threads (shards of rows).
+    pub workers: usize,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            channel_capacity: 64,
+            workers: 2,
+        }
+    }
+}
+
+/// What the pipeline produced for one sweep.
+#[derive(Clone, Debug)]
+pub struct SweepOutput {
+    /// The sweep.
+    pub spec: SweepSpec,
+    /// Per-pixel results, row-major.
+    pub results: Vec<PixelResult>,
+    /// The final index model.
+    pub index: Option<IndexModel>,
+    /// Its standard error.
+    pub index_sigma: f64,
+    /// The typical RMS residual of the full-spectrum fit.
+    pub residual_sigma: Option<f64>,
+    /// What each angle added.
+    pub angles: Vec<AngleReport>,
+    /// Wall time from the first message to the maps being ready.
+    pub stream_time: Duration,
+    /// Wall time from the last row of the last angle to the maps being ready.
+    pub solve_latency: Duration,
+    /// Band samples processed.
+    pub samples: u64,
+    /// Bytes of solver state per pixel.
+    pub state_bytes_per_pixel: usize,
+}
+
+/// A sweep that could not be completed.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct PipelineError(pub String);
+
+enum WorkerMsg {
+    Start(Vec<PixelState>, Arc<SweepSolver>),
+    Rows(u16, u32, u32, Vec<f32>),
+    End,
+}
+
+enum Control {
+    Angle(f64),
+    AngleEnd(Instant),
+    SweepEnd,
+    Abort(String),
+}
+
+/// Rows `first..first + n` of shard `i` of `workers` over `height` rows.
+fn shard_rows(height: usize, workers: usize, i: usize) -> (usize, usize) {
+    let first = height * i / workers;
+    let last = height * (i + 1) / workers;
+    (first, last - first)
+}
+
+/// Runs one sweep from `source` through the pipeline; `on_rows` is told of every block of
+/// rows calibrated (for progress bars). `prior` seeds the index (e.g. the last sweep's).
+pub fn run_sweep(
+    source: &mut dyn Source,
+    config: PipelineConfig,
+    prior: Option<IndexModel>,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<SweepOutput, PipelineError> {
+    let spec = source.spec().clone();
+    let (w, h) = (spec.width, spec.height);
+    let workers = config.workers.clamp(1, h.max(1));
+    let cap = config.channel_capacity.max(1);
+    let start = Instant::now();
+    let mut solver = SweepSolver::new(spec.clone(), prior);
+    let mut states: Vec<Option<Vec<PixelState>>> = (0..workers)
+        .map(|i| Some(vec![PixelState::default(); shard_rows(h, workers, i).1 * w]))
+        .collect();
+    let mut reports = Vec::new();
+    let mut samples = 0u64;
+    let mut last_row_at = Instant::now();
+
+    std::thread::scope(|scope| -> Result<(), PipelineError> {
+        let (src_tx, src_rx) = bounded::<StreamMsg>(cap);
+        let (ctl_tx, ctl_rx) = bounded::<Control>(cap);
+        let (done_tx, done_rx) = bounded::<(usize, Vec<PixelState>)>(workers);
+        let mut worker_txs = Vec::new();
+        for i in 0..workers {
+            let (tx, rx) = bounded::<WorkerMsg>(cap);
+            worker_txs.push(tx);
+            let done = done_tx.clone();
+            let (first, _) = shard_rows(h, workers, i);
+            scope.spawn(move || worker(i, first, w, rx, done));
+        }
+        drop(done_tx);
+        scope.spawn(move || source.stream(&src_tx));
+        let wtx = worker_txs.clone();
+        scope.spawn(move || calibrate_stage(src_rx, ctl_tx, wtx, w, h, workers, on_rows));
+
+        let mut abort = None;
+        for msg in ctl_rx.iter() {
+            match msg {
+                Control::Angle(deg) => {
+                    solver.begin_angle(deg);
+                    let snapshot = Arc::new(solver.clone());
+                    for (i, tx) in worker_txs.iter().enumerate() {
+                        let st = states[i].take().unwrap_or_default();
+                        if tx.send(WorkerMsg::Start(st, snapshot.clone())).is_err() {
+                            abort = Some("a worker stopped".to_owned());
+                        }
+                    }
+                }
+                Control::AngleEnd(at) => {
+                    last_row_at = at;
+                    for _ in 0..workers {
+                        match done_rx.recv() {
+                            Ok((i, st)) => states[i] = Some(st),
+                            Err(_) => abort = Some("a worker stopped".to_owned()),
+                        }
+                    }
+                    if abort.is_some() {
+                        break;
+                    }
+                    let mut owned: Vec<Vec<PixelState>> = states
+                        .iter_mut()
+                        .map(|s| s.take().unwrap_or_default())
+                        .collect();
+                    let mut shards: Vec<Shard<'_>> = owned
+                        .iter_mut()
+                        .enumerate()
+                        .map(|(i, st)| Shard::new(shard_rows(h, workers, i).0, w, st))
+                        .collect();
+                    reports.push(end_angle_parallel(&mut solver, &mut shards));
+                    samples += (w * h * spec.bands_nm.len()) as u64;
+                    drop(shards);
+                    for (i, st) in owned.into_iter().enumerate() {
+                        states[i] = Some(st);
+                    }
+                }
+                Control::SweepEnd => break,
+                Control::Abort(e) => {
+                    abort = Some(e);
+                    break;
+                }
+            }
+        }
+        for tx in &worker_txs {
+            let _ = tx.send(WorkerMsg::End);
+        }
+        drop(worker_txs);
+        match abort {
+            Some(e) => Err(PipelineError(e)),
+            None => Ok(()),
+        }
+    })?;
+
+    if solver.angles_done() < 2 {
+        return Err(PipelineError(format!(
+            "the stream ended after {} angle(s); at least two are needed",
+            solver.angles_done()
+        )));
+    }
+    let mut results = vec![
+        PixelResult {
+            thickness_nm: f32::NAN,
+            confidence: 0.0,
+            flags: 0
+        };
+        w * h
+    ];
+    let mut owned: Vec<Vec<PixelState>> =
+        states.into_iter().map(Option::unwrap_or_default).collect();
+    std::thread::scope(|scope| {
+        let mut rest = results.as_mut_slice();
+        for (i, st) in owned.iter_mut().enumerate() {
+            let (first, rows) = shard_rows(h, workers, i);
+            let (mine, tail) = rest.split_at_mut(rows * w);
+            rest = tail;
+            let solver = &solver;
+            scope.spawn(move || Shard::new(first, w, st).finish(solver, mine));
+        }
+    });
+    let done = Instant::now();
+    Ok(SweepOutput {
+        spec,
+        results,
+        index: solver.index(),
+        index_sigma: solver.index_sigma(),
+        residual_sigma: solver.residual_sigma(),
+        angles: reports,
+        stream_time: done - start,
+        solve_latency: done - last_row_at,
+        samples,
+        state_bytes_per_pixel: filmscope_core::solve::state_bytes_per_pixel(),
+    })
+}
+
+fn worker(
+    index: usize,
+    first_row: usize,
+    width: usize,
+    rx: Receiver<WorkerMsg>,
+    done: Sender<(usize, Vec<PixelState>)>,
+) {
+    let mut current: Option<(Vec<PixelState>, Arc<SweepSolver>)> = None;
+    for msg in rx.iter() {
+        match msg {
+            WorkerMsg::Start(mut st, solver) => {
+                Shard::new(first_row, width, &mut st).begin_angle();
+                current = Some((st, solver));
+            }
+            WorkerMsg::Rows(band, row, rows, values) => {
+                if let Some((st, solver)) = current.as_mut() {
+                    let mut shard = Shard::new(first_row, width, st);
+                    for k in 0..rows as usize {
+                        let r = row as usize + k;
+                        shard.feed_row(
+                            solver,
+                            usize::from(band),
+                            r,
+                            &values[k * width..(k + 1) * width],
+                        );
+                    }
+                }
+            }
+            WorkerMsg::End => {
+                if let Some((st, _)) = current.take() {
+                    if done.send((index, st)).is_err() {
+                        return;
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn calibrate_stage(
+    rx: Receiver<StreamMsg>,
+    control: Sender<Control>,
+    workers: Vec<Sender<WorkerMsg>>,
+    width: usize,
+    height: usize,
+    n_workers: usize,
+    on_rows: &(dyn Fn(u64) + Sync),
+) {
+    let owner = |row: usize| {
+        // The shard whose range holds `row`.
+        let mut i = (row * n_workers / height.max(1)).min(n_workers - 1);
+        while i > 0 && shard_rows(height, n_workers, i).0 > row {
+            i -= 1;
+        }
+        while i + 1 < n_workers && shard_rows(height, n_workers, i + 1).0 <= row {
+            i += 1;
+        }
+        i
+    };
+    let mut in_angle = false;
+    for msg in rx.iter() {
+        match msg {
+            StreamMsg::Angle { incidence_deg } => {
+                in_angle = true;
+                if control.send(Control::Angle(incidence_deg)).is_err() {
+                    return;
+                }
+            }
+            StreamMsg::Rows(block) => {
+                if !in_angle {
+                    let _ = control.send(Control::Abort("rows arrived outside an angle".into()));
+                    return;
+                }
+                let rows = block.rows as usize;
+                let first = block.first_row as usize;
+                if rows == 0 || first + rows > height {
+                    let _ = control.send(Control::Abort(format!(
+                        "row {} is outside the {height}-row frame",
+                        first + rows - 1
+                    )));
+                    return;
+                }
+                let values = calibrate_block(block.samples, rows, width);
+                if values.len() != rows * width {
+                    let _ = control.send(Control::Abort(format!(
+                        "a block of {rows} rows holds {} samples, not {}",
+                        values.len(),
+                        rows * width
+                    )));
+                    return;
+                }
+                // Split the block at shard boundaries.
+                let mut k = 0;
+                while k < rows {
+                    let i = owner(first + k);
+                    let (s_first, s_rows) = shard_rows(height, n_workers, i);
+                    let n = (s_first + s_rows - (first + k)).min(rows - k);
+                    let part = values[k * width..(k + n) * width].to_vec();
+                    if workers[i]
+                        .send(WorkerMsg::Rows(
+                            block.band,
+                            (first + k) as u32,
+                            n as u32,
+                            part,
+                        ))
+                        .is_err()
+                    {
+                        return;
+                    }
+                    k += n;
+                }
+                on_rows(rows as u64);
+            }
+            StreamMsg::AngleEnd => {
+                in_angle = false;
+                let at = Instant::now();
+                for tx in &workers {
+                    if tx.send(WorkerMsg::End).is_err() {
+                        return;
+                    }
+                }
+                if control.send(Control::AngleEnd(at)).is_err() {
+                    return;
+                }
+            }
+            StreamMsg::SweepEnd => {
+                let _ = control.send(Control::SweepEnd);
+                return;
+            }
+            StreamMsg::Abort(e) => {
+                let _ = control.send(Control::Abort(e));
+                return;
+            }
+        }
+    }
+    let _ = control.send(Control::Abort(
+        "the source stopped without ending the sweep".into(),
+    ));
+}
+
+/// Calibrated reflectance of a block of `rows` rows (raw counts calibrated, reflectance
+/// passed through).
+pub fn calibrate_block(samples: Samples, rows: usize, width: usize) -> Vec<f32> {
+    match samples {
+        Samples::Reflectance(v) => v,
+        Samples::Raw {
+            counts,
+            dark,
+            white,
+            white_reflectance,
+            saturation_counts,
+        } => {
+            let mut out = vec![f32::NAN; counts.len()];
+            if counts.len() != rows * width
+                || white.len() != counts.len()
+                || dark.as_ref().is_some_and(|d| d.len() != counts.len())
+            {
+                return out;
+            }
+            for k in 0..rows {
+                let s = k * width..(k + 1) * width;
+                calibrate_row(
+                    &counts[s.clone()],
+                    dark.as_ref().map(|d| &d[s.clone()]),
+                    &white[s.clone()],
+                    white_reflectance,
+                    saturation_counts,
+                    &mut out[s],
+                );
+            }
+            out
+        }
+    }
+}
+
+/// Streams `source` and keeps every calibrated sample: the whole sweep in memory, for the
+/// whole-cube baselines and for evaluation (not for the streaming estimator).
+pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube, PipelineError> {
+    let spec = source.spec().clone();
+    let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
+    let mut angles = Vec::new();
+    let mut data: Vec<Vec<f32>> = Vec::new();
+    let (tx, rx) = bounded::<StreamMsg>(64);
+    std::thread::scope(|scope| -> Result<(), PipelineError> {
+        scope.spawn(move || source.stream(&tx));
+        for msg in rx.iter() {
+            match msg {
+                StreamMsg::Angle { incidence_deg } => {
+                    angles.push(incidence_deg);
+                    data.push(vec![f32::NAN; w * h * nb]);
+                }
+                StreamMsg::Rows(b) => {
+                    let (band, first, rows) =
+                        (usize::from(b.band), b.first_row as usize, b.rows as usize);
+                    let cube = data
+                        .last_mut()
+                        .ok_or_else(|| PipelineError("rows arrived outside an angle".into()))?;
+                    if band >= nb || first + rows > h {
+                        return Err(PipelineError(format!(
+                            "band {band}, rows {first}..{} are outside the sweep",
+                            first + rows
+                        )));
+                    }
+                    let v = calibrate_block(b.samples, rows, w);
+                    let at = (band * h + first) * w;
+                    cube[at..at + rows * w].copy_from_slice(&v);
+                }
+                StreamMsg::AngleEnd => {}
+                StreamMsg::SweepEnd => return Ok(()),
+                StreamMsg::Abort(e) => return Err(PipelineError(e)),
+            }
+        }
+        Err(PipelineError(
+            "the source stopped without ending the sweep".into(),
+        ))
+    })?;
+    Ok(crate::sweep::SweepCube {
+        width: w,
+        height: h,
+        bands_nm: spec.bands_nm.to_vec(),
+        fwhm_nm: spec.fwhm_nm.to_vec(),
+        angles_deg: angles,
+        ambient_index: spec.ambient_index,
+        substrate_index: spec.substrate_index,
+        polarization: spec.polarization,
+        index_range: spec.index_range,
+        thickness_range_nm: spec.thickness_range_nm,
+        data,
+    })
+}
+
+/// The solver's angle-end passes, each run on all shards at once.
+pub fn end_angle_parallel(solver: &mut SweepSolver, shards: &mut [Shard<'_>]) -> AngleReport {
+    fn each<T: Send>(shards: &[Shard<'_>], f: impl Fn(&Shard<'_>) -> T + Sync) -> Vec<T> {
+        std::thread::scope(|s| {
+            let handles: Vec<_> = shards.iter().map(|sh| s.spawn(|| f(sh))).collect();
+            handles.into_iter().filter_map(|h| h.join().ok()).collect()
+        })
+    }
+    let mut hist = RatioHistogram::default();
+    for r in each(shards, |sh| sh.vote(solver)) {
+        hist.merge(&r);
+    }
+    solver.set_votes(&hist);
+    let mut sums = RatioSums::default();
+    for r in each(shards, |sh| sh.window_sums(solver)) {
+        sums.merge(&r);
+    }
+    solver.set_window_sums(&sums);
+    let mut rms = RmsHistogram::default();
+    for r in each(shards, |sh| sh.fit_histogram()) {
+        rms.merge(&r);
+    }
+    solver.set_fit_histogram(&rms);
+    let mut schur = SchurSums::default();
+    for r in each(shards, |sh| sh.schur(solver)) {
+        schur.merge(&r);
+    }
+    solver.set_schur(&schur);
+    {
+        let solver = &*solver;
+        std::thread::scope(|s| {
+            for sh in shards.iter_mut() {
+                s.spawn(move || sh.update(solver));
+            }
+        });
+    }
+    solver.end_angle()
+}

@@ -1,0 +1,218 @@
+//! `filmscope simulate`: writes a scene as a capture directory per capture-format.md, with
+//! its truth beside it.
+//!
+//! Layout: `capture.toml`; per angle `aNN.hdr/.img` (raw 12-bit counts as uint16, BIL, with
+//! `whiteNN` and `darkNN` float32 references averaged over the scene's `white_frames`), or,
+//! noise-free, float32 reflectance without references; `truth/thickness_nm.hdr/.img` and
+//! `truth.json`.
+
+use std::path::{Path, PathBuf};
+
+use filmscope_core::optics::Dispersion;
+use firmware_sim::{Scene, SoftwareCamera};
+use serde_json::json;
+
+use crate::io::{
+    write_atomic, write_f32_map, Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave,
+    Sample, Search,
+};
+
+/// A capture that could not be written, with the file at fault.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct SimulateError(pub String);
+
+/// How to write the capture.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SimulateOptions {
+    /// Float32 reflectance without noise, defects or vignetting (and no references).
+    pub noise_free: bool,
+    /// Interleave of the cubes.
+    pub interleave: Interleave,
+}
+
+impl Default for SimulateOptions {
+    fn default() -> Self {
+        Self {
+            noise_free: false,
+            interleave: Interleave::Bil,
+        }
+    }
+}
+
+/// The dispersion of a film as written in `truth.json` and `summary.json`.
+pub fn dispersion_json(d: &Dispersion) -> serde_json::Value {
+    match *d {
+        Dispersion::Constant { .. } => serde_json::Value::Null,
+        Dispersion::Cauchy { a, b_um2, c_um4 } => {
+            if c_um4 == 0.0 {
+                json!({"model": "cauchy", "a": a, "b_um2": b_um2})
+            } else {
+                json!({"model": "cauchy", "a": a, "b_um2": b_um2, "c_um4": c_um4})
+            }
+        }
+        Dispersion::Sellmeier { a, b, c_um } => {
+            json!({"model": "sellmeier", "a": a, "b": b, "c_um": c_um})
+        }
+    }
+}
+
+fn header(
+    scene: &Scene,
+    data_type: DataType,
+    interleave: Interleave,
+    description: &str,
+) -> EnviHeader {
+    let s = &scene.sensor;
+    let mut h = EnviHeader::new(
+        s.width,
+        s.height,
+        scene.bands_nm.len(),
+        data_type,
+        interleave,
+    );
+    h.wavelength_nm = Some(scene.bands_nm.clone());
+    h.fwhm_nm = Some(vec![scene.fwhm_nm; scene.bands_nm.len()]);
+    h.description = Some(description.to_owned());
+    h
+}
+
+/// Writes `scene` as a capture in `out_dir` (created if needed); returns the capture.toml
+/// path. `on_rows` is told of every band row written (for a progress bar).
+pub fn write_capture(
+    scene: &Scene,
+    out_dir: &Path,
+    opts: SimulateOptions,
+    on_rows: &dyn Fn(u64),
+) -> Result<PathBuf, SimulateError> {
+    let err = |p: &Path, e: &dyn std::fmt::Display| SimulateError(format!("{}: {e}", p.display()));
+    std::fs::create_dir_all(out_dir.join("truth")).map_err(|e| err(out_dir, &e))?;
+    let camera = SoftwareCamera::new(scene.clone());
+    let (w, h) = (camera.width(), camera.height());
+    let bands = scene.bands_nm.len();
+    let mut angles = Vec::new();
+    let mut raw16 = vec![0u16; w];
+    let mut row = vec![0f32; w];
+    let sat = format!("{}", scene.sensor.saturation_counts());
+    for (a, &deg) in scene.angles_deg.iter().enumerate() {
+        let tag = format!("{:02}", deg.round() as i64);
+        let cube_path = out_dir.join(format!("a{tag}.hdr"));
+        let desc = format!("filmscope simulate: {} at {deg} deg", scene.name);
+        if opts.noise_free {
+            let hd = header(scene, DataType::F32, opts.interleave, &desc);
+            let mut cube = EnviWriter::create(&cube_path, &hd).map_err(|e| err(&cube_path, &e))?;
+            for b in 0..bands {
+                for r in 0..h {
+                    camera.reflectance_row(a, b, r, &mut row);
+                    cube.write_band_row(b, r, &row)
+                        .map_err(|e| err(&cube_path, &e))?;
+                    on_rows(1);
+                }
+            }
+            cube.finish().map_err(|e| err(&cube_path, &e))?;
+            angles.push(Angle {
+                incidence_deg: deg,
+                cube: cube_path,
+                white: None,
+                dark: None,
+                white_reflectance: 1.0,
+            });
+        } else {
+            let mut hd = header(scene, DataType::U16, opts.interleave, &desc);
+            hd.extra.push(("saturation counts".into(), sat.clone()));
+            let white_path = out_dir.join(format!("white{tag}.hdr"));
+            let dark_path = out_dir.join(format!("dark{tag}.hdr"));
+            let href = header(
+                scene,
+                DataType::F32,
+                opts.interleave,
+                "white reference (averaged counts)",
+            );
+            let dref = header(
+                scene,
+                DataType::F32,
+                opts.interleave,
+                "dark reference (averaged counts)",
+            );
+            let mut cube = EnviWriter::create(&cube_path, &hd).map_err(|e| err(&cube_path, &e))?;
+            let mut white =
+                EnviWriter::create(&white_path, &href).map_err(|e| err(&white_path, &e))?;
+            let mut dark =
+                EnviWriter::create(&dark_path, &dref).map_err(|e| err(&dark_path, &e))?;
+            for b in 0..bands {
+                for r in 0..h {
+                    camera.raw_row(a, b, r, &mut raw16);
+                    for (o, &c) in row.iter_mut().zip(&raw16) {
+                        *o = f32::from(c);
+                    }
+                    cube.write_band_row(b, r, &row)
+                        .map_err(|e| err(&cube_path, &e))?;
+                    camera.white_row(a, b, r, &mut row);
+                    white
+                        .write_band_row(b, r, &row)
+                        .map_err(|e| err(&white_path, &e))?;
+                    camera.dark_row(a, b, r, &mut row);
+                    dark.write_band_row(b, r, &row)
+                        .map_err(|e| err(&dark_path, &e))?;
+                    on_rows(1);
+                }
+            }
+            cube.finish().map_err(|e| err(&cube_path, &e))?;
+            white.finish().map_err(|e| err(&white_path, &e))?;
+            dark.finish().map_err(|e| err(&dark_path, &e))?;
+            angles.push(Angle {
+                incidence_deg: deg,
+                cube: cube_path,
+                white: Some(white_path),
+                dark: Some(dark_path),
+                white_reflectance: 1.0,
+            });
+        }
+    }
+    let truth_map = out_dir.join("truth").join("thickness_nm.hdr");
+    write_f32_map(
+        &truth_map,
+        w,
+        h,
+        &scene.thickness_nm,
+        Some("true film thickness, nm"),
+        &[],
+    )
+    .map_err(|e| err(&truth_map, &e))?;
+    let toml_path = out_dir.join("capture.toml");
+    let capture = Capture {
+        path: toml_path.clone(),
+        sample: Sample {
+            ambient_index: scene.stack.ambient_index,
+            substrate_index: scene.stack.substrate.index_at(550.0),
+            polarization: scene.stack.polarization,
+        },
+        search: Search {
+            index_range: scene.index_range,
+            thickness_range_nm: scene.thickness_range_nm,
+        },
+        angles,
+        unknown_keys: Vec::new(),
+    };
+    capture
+        .write_toml(&toml_path)
+        .map_err(|e| SimulateError(e.to_string()))?;
+    let truth = json!({
+        "scene": scene.name,
+        "description": scene.description,
+        "refractive_index": scene.stack.film.index_at(550.0),
+        "dispersion": dispersion_json(&scene.stack.film),
+        "substrate_index": scene.stack.substrate.index_at(550.0),
+        "ambient_index": scene.stack.ambient_index,
+        "polarization": scene.stack.polarization.name(),
+        "angles_deg": scene.angles_deg,
+        "noise_free": opts.noise_free,
+        "thickness_map": "truth/thickness_nm.hdr",
+        "width": w,
+        "height": h,
+    });
+    let truth_path = out_dir.join("truth.json");
+    let text = serde_json::to_string_pretty(&truth).map_err(|e| err(&truth_path, &e))?;
+    write_atomic(&truth_path, text.as_bytes()).map_err(|e| err(&truth_path, &e))?;
+    Ok(toml_path)
+}
