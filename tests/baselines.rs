@@ -148,3 +148,27 @@ fn brute_solves_cropped_sample1_noise_free() {
     assert!(mae < 2.0 * grid.thickness_step_nm, "thickness MAE {mae} nm");
     assert_eq!(solved, 1.0);
 }
+
+#[test]
+#[ignore = "measurements for the record: prints, asserts nothing"]
+fn measure_baselines() {
+    for (scene, n, noisy, h) in [
+        ("paper-sample1", 1.37, true, 64),
+        ("paper-sample3", 2.37, false, 64),
+        ("paper-sample3", 2.37, true, 64),
+        ("paper-sample2", 1.37, false, 64),
+    ] {
+        let (cube, truth) = cube_from_scene(scene, 96, h, noisy);
+        let t = Instant::now();
+        let result = paper(&cube);
+        let label = format!("paper {scene} noisy={noisy} 96x{h}");
+        report(&label, &result, &truth, n, t.elapsed().as_secs_f64());
+    }
+    for (w, h) in [(1, 1), (24, 16)] {
+        let (cube, truth) = cube_from_scene("paper-sample1", w, h, false);
+        let t = Instant::now();
+        let result = brute(&cube, BruteGrid { index_steps: 91, thickness_step_nm: 4.0 });
+        let label = format!("brute sample1 noise-free {w}x{h} coarse");
+        report(&label, &result, &truth, 1.37, t.elapsed().as_secs_f64());
+    }
+}

@@ -2,7 +2,7 @@
 //! pixel by pixel (map colours, no-data grey, legend, sizes), and bad input must fail
 //! with a one-line error instead of panicking.
 //!
-//! `sample_previews_for_inspection` also leaves three PNGs in the system temp directory
+//! `sample_previews_for_inspection` also leaves four PNGs in the system temp directory
 //! (`filmscope-preview-sample*.png`) for a person to look at.
 
 #![cfg(feature = "std")]

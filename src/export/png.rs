@@ -188,7 +188,7 @@ pub fn render_map_png(p: &MapPreview) -> Result<Vec<u8>, PreviewError> {
     let bar_x = map_x + map_w + FRAME + LEGEND_GAP;
     let bar_y = map_y + half_label;
     let bar_h = map_h.saturating_sub(2 * half_label).max(MIN_BAR_HEIGHT);
-    let label_x = bar_x + BAR_WIDTH + FRAME + TICK_LEN + 4;
+    let label_x = bar_x + BAR_WIDTH + FRAME + TICK_LEN + TICK_GAP;
     let note_y = bar_y + bar_h + FRAME + half_label + GAP;
     let note_w = NOTE_SWATCH * NOTE_SCALE + 6 + text_width(NOTE, NOTE_SCALE);
     let legend_right = (label_x + label_w).max(bar_x + note_w);
@@ -368,7 +368,9 @@ const BAR_WIDTH: usize = 24;
 /// The colour bar is at least this tall, even beside a flat map.
 const MIN_BAR_HEIGHT: usize = 160;
 /// Length of the tick marks right of the colour bar.
-const TICK_LEN: usize = 6;
+const TICK_LEN: usize = 5;
+/// Space between a tick mark and its label (wide, so a tick never reads as a minus).
+const TICK_GAP: usize = 9;
 /// Where the tick labels sit along the bar (0 = low end, 1 = high end).
 const TICK_FRACTIONS: [f64; 5] = [0.0, 0.25, 0.5, 0.75, 1.0];
 /// Font scale of the title.
