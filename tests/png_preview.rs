@@ -247,7 +247,7 @@ fn infinities_flat_maps_and_odd_sizes_do_not_panic() -> TestResult {
 
     // A flat map, a single pixel, a 1000-pixel-wide strip, a tall thin column, a long
     // non-ASCII title and an empty unit.
-    let flat = vec![250.0f32; 16];
+    let flat = [250.0f32; 16];
     let one = [1.5f32];
     let strip: Vec<f32> = (0..1000).map(|i| i as f32).collect();
     let column: Vec<f32> = (0..3000).map(|i| (i as f32).sin()).collect();
@@ -433,5 +433,16 @@ fn sample_previews_for_inspection() -> TestResult {
         &std::env::temp_dir().join("filmscope-preview-sample-nan.png"),
         &p,
     )?;
+
+    // A 3x close-up of the thickness preview's legend, to judge the small text.
+    let img = decode(&std::fs::read(&path)?)?;
+    let (x0, y0) = (img.width() as usize - 190, img.height() as usize - 110);
+    let crop: Vec<[u8; 3]> = (y0..img.height() as usize)
+        .flat_map(|y| (x0..img.width() as usize).map(move |x| (x, y)))
+        .map(|(x, y)| px(&img, x, y))
+        .collect();
+    let (cw, ch) = (img.width() as usize - x0, img.height() as usize - y0);
+    let zoom = std::env::temp_dir().join("filmscope-preview-sample-legend-3x.png");
+    write_rgb_png(&zoom, cw, ch, &crop, 3)?;
     Ok(())
 }

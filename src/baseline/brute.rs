@@ -1,10 +1,10 @@
 //! Brute force: least squares over an `(n, d)` grid per pixel (method.md "Method", the paper's
 //! O(m N^2) baseline).
 
-use filmscope_core::optics::{BandModel, FilmAtAngle, Passband};
+
 use filmscope_core::solve::{flags, IndexModel};
 
-use super::common::{check_cube, defect_flags, fill_rows_parallel, pixel_spectra, stack, unusable};
+use super::common::{check_cube, defect_flags, model_table, pixel_spectra, unusable};
 use crate::sweep::{Method, MethodResult, SweepCube};
 
 /// Index grid spacing used when [`BruteGrid::index_steps`] is 0.
@@ -141,46 +141,10 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
             .fold(f64::INFINITY, f64::min);
         cube.fwhm_nm.iter().any(|&f| f > min_spacing)
     };
-    let mut table = vec![0f32; nd * nab];
-    let build = |n: f64, table: &mut [f32]| {
-        let film = stack(cube, n);
-        if band_averaged {
-            let models: Vec<BandModel> = (0..na)
-                .flat_map(|a| (0..nb).map(move |b| (a, b)))
-                .map(|(a, b)| {
-                    let band = Passband::gaussian_with_nodes(
-                        cube.bands_nm[b],
-                        cube.fwhm_nm[b],
-                        BAND_NODES,
-                    );
-                    BandModel::new(film, cube.angles_deg[a], band)
-                })
-                .collect();
-            fill_rows_parallel(table, nab, |j, out| {
-                for (o, m) in out.iter_mut().zip(&models) {
-                    *o = m.reflectance(thicknesses[j]) as f32;
-                }
-            });
-        } else {
-            let fast: Vec<Option<FilmAtAngle>> = cube
-                .angles_deg
-                .iter()
-                .map(|&t| FilmAtAngle::new(film.indices_at(550.0), t, cube.polarization))
-                .collect();
-            fill_rows_parallel(table, nab, |j, out| {
-                let d = thicknesses[j];
-                for (a, chunk) in out.chunks_exact_mut(nb).enumerate() {
-                    for (o, &l) in chunk.iter_mut().zip(&cube.bands_nm) {
-                        let r = match &fast[a] {
-                            Some(f) => f.reflectance(d, l),
-                            None => film.reflectance(d, cube.angles_deg[a], l),
-                        };
-                        *o = r as f32;
-                    }
-                }
-            });
-        }
-    };
+    let nodes = if band_averaged { BAND_NODES } else { 1 };
+    let d_lo = cube.thickness_range_nm[0];
+    let d_step = grid.thickness_step_for(cube.thickness_range_nm);
+    let build = |n: f64| model_table(cube, n, d_lo, d_step, nd, nodes);
 
     // Pass 1: the best (n, d) of every pixel.
     let start = Best {
@@ -190,7 +154,7 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
     };
     let mut best = vec![start; w * h];
     for (i, &n) in indices.iter().enumerate() {
-        build(n, &mut table);
+        let table = build(n);
         search_rows(
             &table,
             nab,
@@ -224,7 +188,7 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
     let n = indices[shared];
 
     // Pass 2: every pixel's best thickness at the shared index.
-    build(n, &mut table);
+    let table = build(n);
     let mut at_shared = vec![start; w * h];
     search_rows(
         &table,
@@ -246,7 +210,6 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
             pixel_flags[p] = flags::POOR_FIT;
         }
     }
-    let d_step = grid.thickness_step_for(cube.thickness_range_nm);
     let n_step = if indices.len() > 1 {
         indices[1] - indices[0]
     } else {
@@ -331,21 +294,33 @@ fn search_rows(
 }
 
 /// `sum weight (model - measured)^2`, abandoned (returning a value `>= bound`) once a partial
-/// sum reaches `bound`.
+/// sum reaches `bound`. Eight independent lanes so that the compiler can vectorise.
 fn weighted_sse(model: &[f32], measured: &[f32], weight: &[f32], bound: f64) -> f64 {
-    const CHUNK: usize = 64;
+    const LANES: usize = 8;
+    const CHUNK: usize = 8 * LANES;
     let mut sse = 0.0;
     for ((c, m), w) in model
         .chunks(CHUNK)
         .zip(measured.chunks(CHUNK))
         .zip(weight.chunks(CHUNK))
     {
-        let mut part = 0f32;
-        for ((&c, &m), &w) in c.iter().zip(m).zip(w) {
-            let e = c - m;
-            part += w * e * e;
+        let mut acc = [0f32; LANES];
+        let lanes = c
+            .chunks_exact(LANES)
+            .zip(m.chunks_exact(LANES))
+            .zip(w.chunks_exact(LANES));
+        for ((c, m), w) in lanes {
+            for i in 0..LANES {
+                let e = c[i] - m[i];
+                acc[i] += w[i] * e * e;
+            }
         }
-        sse += f64::from(part);
+        let tail = c.len() - c.len() % LANES;
+        for ((&c, &m), &w) in c[tail..].iter().zip(&m[tail..]).zip(&w[tail..]) {
+            let e = c - m;
+            acc[0] += w * e * e;
+        }
+        sse += f64::from(acc.iter().sum::<f32>());
         if sse >= bound {
             break;
         }

@@ -1,6 +1,6 @@
 //! What the baselines share: cube checks, pixel defect flags, medians, the model stack.
 
-use filmscope_core::optics::{Dispersion, FilmStack, Passband};
+use filmscope_core::optics::{Dispersion, FilmAtAngle, FilmStack, Passband};
 use filmscope_core::solve::{flags, IndexModel};
 
 use crate::sweep::{Method, MethodResult, SweepCube};
@@ -149,4 +149,70 @@ pub(crate) fn fill_rows_parallel(
             });
         }
     });
+}
+
+/// Model spectra of a film of constant index `n` on the cube's substrate, for the thicknesses
+/// `d_lo + step * j`, `j < rows`: row-major, `table[j * na * nb + a * nb + b]`, angles in the
+/// cube's order.
+///
+/// Each band is the passband-weighted mean of the monochromatic Airy reflectance over
+/// `nodes` Simpson nodes of a Gaussian of the band's FWHM (`nodes = 1`: the band centre only);
+/// with [`filmscope_core::optics::DEFAULT_NODES`] this is exactly what
+/// [`filmscope_core::optics::BandModel`] computes. Fast: with constant indices one
+/// [`FilmAtAngle`] per angle serves every band and node, and the phase `4 pi d kz / lambda`
+/// advances by a fixed rotation from one thickness to the next, so the table costs one
+/// complex multiplication and one rational function per node and entry (no cosines). Two
+/// threads share the bands.
+pub(crate) fn model_table(cube: &SweepCube, n: f64, d_lo: f64, step: f64, rows: usize, nodes: usize) -> Vec<f32> {
+    let nb = cube.bands_nm.len();
+    let na = cube.angles_deg.len();
+    let nab = na * nb;
+    let film = stack(cube, n);
+    let fast: Vec<Option<FilmAtAngle>> = cube
+        .angles_deg
+        .iter()
+        .map(|&t| FilmAtAngle::new(film.indices_at(cube.bands_nm[0]), t, cube.polarization))
+        .collect();
+    // Column-major first (one column per angle and band, along the thicknesses), then
+    // transposed.
+    let mut columns = vec![0f32; nab * rows];
+    fill_rows_parallel(&mut columns, rows, |ab, out| {
+        let (a, b) = (ab / nb, ab % nb);
+        let band = if nodes <= 1 {
+            Passband::monochromatic(cube.bands_nm[b])
+        } else {
+            Passband::gaussian_with_nodes(cube.bands_nm[b], cube.fwhm_nm[b], nodes)
+        };
+        let mut acc = vec![0f64; out.len()];
+        match &fast[a] {
+            Some(f) => {
+                for (l, wt) in band.nodes() {
+                    let k = 4.0 * core::f64::consts::PI * f.kz_film / l;
+                    let (mut c, mut s) = ((k * d_lo).cos(), (k * d_lo).sin());
+                    let (cr, sr) = ((k * step).cos(), (k * step).sin());
+                    for v in acc.iter_mut() {
+                        *v += wt * f.reflectance_at_cos(c);
+                        (c, s) = (c * cr - s * sr, c * sr + s * cr);
+                    }
+                }
+            }
+            None => {
+                // Evanescent wave in the film or substrate: the general Airy sum.
+                for (j, v) in acc.iter_mut().enumerate() {
+                    let d = d_lo + step * j as f64;
+                    *v = band.average(|l| film.reflectance(d, cube.angles_deg[a], l));
+                }
+            }
+        }
+        for (o, v) in out.iter_mut().zip(&acc) {
+            *o = *v as f32;
+        }
+    });
+    let mut table = vec![0f32; rows * nab];
+    for (ab, col) in columns.chunks_exact(rows.max(1)).enumerate() {
+        for (j, &v) in col.iter().enumerate() {
+            table[j * nab + ab] = v;
+        }
+    }
+    table
 }

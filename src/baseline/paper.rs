@@ -1,12 +1,11 @@
 //! Kobayashi et al.'s method as the paper describes it (method.md "Method"), without any of
 //! filmscope's improvements, so that its weakness on high-index films stays visible.
 
-use filmscope_core::optics::{snell_invariant, BandModel};
+use filmscope_core::optics::{snell_invariant, DEFAULT_NODES};
 use filmscope_core::solve::{flags, IndexModel};
 
 use super::common::{
-    angles_by_incidence, check_cube, defect_flags, fill_rows_parallel, median, passband,
-    pixel_spectra, stack, unusable,
+    angles_by_incidence, check_cube, defect_flags, median, model_table, pixel_spectra, unusable,
 };
 use crate::sweep::{Method, MethodResult, SweepCube};
 
@@ -40,9 +39,11 @@ const TABLE_MAX_ROWS: usize = 4096;
 /// baseline keeps that flaw on purpose, so on such films every candidate thickness is off by
 /// about a quarter of a fringe and the least-squares choice only picks the least bad one.
 ///
-/// The model spectra are tabulated once per run on a thickness grid (1 nm spacing, coarser
-/// when the range would need more than 4096 rows) and linearly interpolated between rows
-/// (error about 1e-4 in reflectance for the paper's films).
+/// The model spectra (the band-averaged reflectance of
+/// [`BandModel`](filmscope_core::optics::BandModel), same 33 nodes) are tabulated once per
+/// run on a thickness grid (1 nm spacing, coarser when the range would need more than 4096
+/// rows) and linearly interpolated between rows (error about 1e-4 in reflectance for the
+/// paper's films).
 ///
 /// Pixels with no peak at any angle get NaN and `NO_FRINGE` (plus `SATURATED` or `DEAD` when
 /// more than a tenth of their samples are not finite), pixels with no candidate inside the
@@ -131,18 +132,7 @@ pub fn paper(cube: &SweepCube) -> MethodResult {
     let [d_lo, d_hi] = cube.thickness_range_nm;
     let step = TABLE_STEP_NM.max((d_hi - d_lo) / (TABLE_MAX_ROWS - 1) as f64);
     let rows = ((d_hi - d_lo) / step).ceil() as usize + 1;
-    let film = stack(cube, n);
-    let models: Vec<BandModel> = (0..na)
-        .flat_map(|a| (0..nb).map(move |b| (a, b)))
-        .map(|(a, b)| BandModel::new(film, cube.angles_deg[a], passband(cube, b)))
-        .collect();
-    let mut table = vec![0f32; rows * nab];
-    fill_rows_parallel(&mut table, nab, |j, out| {
-        let d = d_lo + step * j as f64;
-        for (o, m) in out.iter_mut().zip(&models) {
-            *o = m.reflectance(d) as f32;
-        }
-    });
+    let table = model_table(cube, n, d_lo, step, rows, DEFAULT_NODES);
 
     let mut thickness = vec![f32::NAN; w * h];
     let mut confidence = vec![0f32; w * h];

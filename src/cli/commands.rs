@@ -127,7 +127,7 @@ pub fn estimate(
 }
 
 enum Input {
-    Scene(Scene),
+    Scene(Box<Scene>),
     Capture(PathBuf),
 }
 
@@ -137,7 +137,7 @@ fn input(path: &Path) -> Result<Input> {
     } else if path.extension().is_some_and(|e| e == "toml")
         && path.file_name().is_some_and(|n| n != "capture.toml")
     {
-        Ok(Input::Scene(Scene::load(path)?))
+        Ok(Input::Scene(Box::new(Scene::load(path)?)))
     } else if path.file_name().is_some_and(|n| n == "capture.toml") {
         Ok(Input::Capture(
             path.parent().unwrap_or(Path::new(".")).to_owned(),
@@ -155,7 +155,7 @@ fn eval_one(path: &Path, config: &RunConfig) -> Result<EvalReport> {
         Input::Scene(scene) => {
             let truth = Truth::of_scene(&scene);
             let name = scene.name.clone();
-            let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1)
+            let mut source = SimSource::new(SoftwareCamera::new(*scene), false, 1)
                 .map_err(|e| anyhow!("{}: {e}", path.display()))?;
             let run = run_with_bar(&mut source, config, &name)?;
             Ok(evaluate(&name, &truth, &run))

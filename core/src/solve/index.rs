@@ -81,7 +81,7 @@ impl PairGeometry {
 
     fn bin(&self, rho: f64) -> Option<usize> {
         let u = (rho - self.rho_lo) / (self.rho_hi - self.rho_lo);
-        (0.0..1.0).contains(&u).then(|| (u * BINS as f64) as usize)
+        (0.0..1.0).contains(&u).then_some((u * BINS as f64) as usize)
     }
 
     fn bin_centre(&self, bin: f64) -> f64 {

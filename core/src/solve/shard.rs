@@ -106,11 +106,7 @@ impl<'a> Shard<'a> {
 
     /// Rows held.
     pub fn rows(&self) -> usize {
-        if self.width == 0 {
-            0
-        } else {
-            self.pixels.len() / self.width
-        }
+        self.pixels.len().checked_div(self.width).unwrap_or(0)
     }
 
     /// Whether image row `row` belongs to this shard.
@@ -311,7 +307,7 @@ impl<'a> Shard<'a> {
             } else {
                 let left = (i % w > 0).then(|| i - 1);
                 let up = (i >= w).then(|| i - w);
-                if !self.from_neighbour(i, &c, [left, up]) {
+                if !self.adopt_neighbour(i, &c, [left, up]) {
                     pending = true;
                 }
             }
@@ -324,13 +320,13 @@ impl<'a> Shard<'a> {
                 if let Some(c) = self.choose(solver, &ctx, i) {
                     let right = (i % w + 1 < w).then_some(i + 1);
                     let down = (i + w < n).then_some(i + w);
-                    self.from_neighbour(i, &c, [right, down]);
+                    self.adopt_neighbour(i, &c, [right, down]);
                 }
             }
         }
     }
 
-    fn from_neighbour(
+    fn adopt_neighbour(
         &mut self,
         i: usize,
         c: &OrderChoice,

@@ -1,0 +1,138 @@
+//! `filmscope simulate`: the capture it writes follows the contract, and the noise-free
+//! capture matches an independent thin-film computation (Abeles characteristic matrices,
+//! written here, not filmscope's Airy code) averaged over the passband by Simpson's rule.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use filmscope::io::{read_cube, Capture, DataType, EnviReader};
+use filmscope::simulate::{write_capture, SimulateOptions};
+use firmware_sim::Scene;
+
+fn scene(name: &str) -> Scene {
+    let p = format!("{}/config/scenes/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+    Scene::load(Path::new(&p)).expect("scene loads")
+}
+
+fn tempdir() -> tempfile::TempDir {
+    tempfile::tempdir().expect("temp dir")
+}
+
+/// S-polarised reflectance of one film by the characteristic-matrix method.
+fn abeles_s(n0: f64, n1: f64, ns: f64, d_nm: f64, theta0_deg: f64, lambda_nm: f64) -> f64 {
+    let s0 = theta0_deg.to_radians().sin() * n0;
+    let eta = |n: f64| (n * n - s0 * s0).sqrt(); // n cos(theta), real here
+    let (e0, e1, es) = (eta(n0), eta(n1), eta(ns));
+    let delta = 2.0 * std::f64::consts::PI * e1 * d_nm / lambda_nm;
+    let (c, s) = (delta.cos(), delta.sin());
+    // M = [[c, i s / e1], [i e1 s, c]]; r = (e0 B - C) / (e0 B + C) with
+    // [B, C] = M [1, es]: B = c + i s es / e1, C = i e1 s + c es.
+    let (b_re, b_im) = (c, s * es / e1);
+    let (c_re, c_im) = (c * es, e1 * s);
+    let (num_re, num_im) = (e0 * b_re - c_re, e0 * b_im - c_im);
+    let (den_re, den_im) = (e0 * b_re + c_re, e0 * b_im + c_im);
+    (num_re * num_re + num_im * num_im) / (den_re * den_re + den_im * den_im)
+}
+
+/// Gaussian passband (FWHM, truncated at 1.5 FWHM) by Simpson's rule on 2001 points.
+fn band_average(f: impl Fn(f64) -> f64, centre: f64, fwhm: f64) -> f64 {
+    let n = 2001;
+    let (a, b) = (centre - 1.5 * fwhm, centre + 1.5 * fwhm);
+    let h = (b - a) / (n - 1) as f64;
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..n {
+        let l = a + h * i as f64;
+        let k = if i == 0 || i == n - 1 { 1.0 } else if i % 2 == 1 { 4.0 } else { 2.0 };
+        let w = k * (-4.0 * std::f64::consts::LN_2 * ((l - centre) / fwhm).powi(2)).exp();
+        num += w * f(l);
+        den += w;
+    }
+    num / den
+}
+
+#[test]
+fn noise_free_capture_matches_an_independent_thin_film_model_to_1e4() {
+    let sc = scene("paper-sample1");
+    let dir = tempdir();
+    let opts = SimulateOptions {
+        noise_free: true,
+        ..SimulateOptions::default()
+    };
+    let toml = write_capture(&sc, dir.path(), opts, &|_| {}).expect("capture written");
+    let cap = Capture::load(&toml).expect("capture loads");
+    assert_eq!(cap.angles.len(), 5);
+    let truth = read_cube(dir.path().join("truth/thickness_nm.hdr")).expect("truth map");
+    let (w, h) = (sc.sensor.width, sc.sensor.height);
+    let mut worst = 0.0f64;
+    for (a, angle) in cap.angles.iter().enumerate() {
+        let cube = read_cube(&angle.cube).expect("cube");
+        assert_eq!(cube.header.data_type, DataType::F32);
+        let wl = cube.header.wavelength_nm.clone().expect("wavelengths");
+        let fwhm = cube.header.fwhm_nm.clone().expect("fwhm");
+        for k in 0..12 {
+            let (col, row) = ((k * 37 + a * 11) % w, (k * 23 + a * 5) % h);
+            let d = f64::from(truth.get(0, row, col).expect("truth pixel"));
+            for b in (0..wl.len()).step_by(5) {
+                let want = band_average(|l| abeles_s(1.0, 1.37, 1.65, d, angle.incidence_deg, l), wl[b], fwhm[b]);
+                let got = f64::from(cube.get(b, row, col).expect("pixel"));
+                worst = worst.max((got - want).abs());
+                assert!((got - want).abs() < 1e-4, "angle {a} band {b} px ({col},{row}): {got} vs {want}");
+            }
+        }
+    }
+    eprintln!("worst |R_sim - R_independent| = {worst:.2e}");
+}
+
+#[test]
+fn raw_capture_has_counts_references_and_truth() {
+    let mut sc = scene("thin-80nm");
+    sc.angles_deg.truncate(2);
+    let dir = tempdir();
+    let toml = write_capture(&sc, dir.path(), SimulateOptions::default(), &|_| {}).expect("capture written");
+    let cap = Capture::load(&toml).expect("capture loads");
+    let info = cap.check().expect("cubes agree");
+    assert_eq!(info.data_type, DataType::U16);
+    for angle in &cap.angles {
+        assert!(angle.white.is_some() && angle.dark.is_some());
+        let r = EnviReader::open(&angle.cube).expect("cube opens");
+        assert!(r.header().extra.iter().any(|(k, v)| k.eq_ignore_ascii_case("saturation counts") && v == "4095"));
+    }
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("truth.json")).expect("truth.json")).expect("json");
+    for key in ["refractive_index", "dispersion", "substrate_index", "polarization"] {
+        assert!(truth.get(key).is_some(), "truth.json lacks {key}");
+    }
+    assert!((truth["refractive_index"].as_f64().expect("n") - 1.45).abs() < 1e-12);
+}
+
+fn filmscope() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_filmscope"))
+}
+
+#[test]
+fn bad_scene_files_get_one_line_naming_the_file() {
+    let dir = tempdir();
+    let cases: [(&str, &str); 4] = [
+        ("garbage.toml", "this is = = not toml"),
+        ("no-film.toml", "[substrate]\nindex = 1.65\n[rig]\nangles_deg = [10.0, 20.0]\nbands_nm = [420.0, 720.0, 2.0]\nfwhm_nm = 4.0\n"),
+        ("one-angle.toml", "[film]\nindex = 1.4\n[film.thickness]\nbase_nm = 300.0\n[substrate]\nindex = 1.65\n[rig]\nangles_deg = [10.0]\nbands_nm = [420.0, 720.0, 2.0]\nfwhm_nm = 4.0\n"),
+        ("empty.toml", ""),
+    ];
+    for (name, text) in cases {
+        let path: PathBuf = dir.path().join(name);
+        std::fs::write(&path, text).expect("write scene");
+        let out = filmscope()
+            .args(["simulate", path.to_str().expect("utf-8"), "--out"])
+            .arg(dir.path().join("out"))
+            .output()
+            .expect("run filmscope");
+        assert!(!out.status.success(), "{name} was accepted");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(err.trim_end().lines().count(), 1, "{name}: {err}");
+        assert!(err.contains(name), "{name}: {err}");
+        assert!(!err.contains("panicked"), "{name}: {err}");
+    }
+    let missing = filmscope().args(["simulate", "/nonexistent/scene.toml", "--out", "/tmp/x"]).output().expect("run");
+    assert!(!missing.status.success());
+    assert!(String::from_utf8_lossy(&missing.stderr).contains("/nonexistent/scene.toml"));
+}
