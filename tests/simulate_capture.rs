@@ -42,7 +42,13 @@ fn band_average(f: impl Fn(f64) -> f64, centre: f64, fwhm: f64) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
     for i in 0..n {
         let l = a + h * i as f64;
-        let k = if i == 0 || i == n - 1 { 1.0 } else if i % 2 == 1 { 4.0 } else { 2.0 };
+        let k = if i == 0 || i == n - 1 {
+            1.0
+        } else if i % 2 == 1 {
+            4.0
+        } else {
+            2.0
+        };
         let w = k * (-4.0 * std::f64::consts::LN_2 * ((l - centre) / fwhm).powi(2)).exp();
         num += w * f(l);
         den += w;
@@ -73,10 +79,17 @@ fn noise_free_capture_matches_an_independent_thin_film_model_to_1e4() {
             let (col, row) = ((k * 37 + a * 11) % w, (k * 23 + a * 5) % h);
             let d = f64::from(truth.get(0, row, col).expect("truth pixel"));
             for b in (0..wl.len()).step_by(5) {
-                let want = band_average(|l| abeles_s(1.0, 1.37, 1.65, d, angle.incidence_deg, l), wl[b], fwhm[b]);
+                let want = band_average(
+                    |l| abeles_s(1.0, 1.37, 1.65, d, angle.incidence_deg, l),
+                    wl[b],
+                    fwhm[b],
+                );
                 let got = f64::from(cube.get(b, row, col).expect("pixel"));
                 worst = worst.max((got - want).abs());
-                assert!((got - want).abs() < 1e-4, "angle {a} band {b} px ({col},{row}): {got} vs {want}");
+                assert!(
+                    (got - want).abs() < 1e-4,
+                    "angle {a} band {b} px ({col},{row}): {got} vs {want}"
+                );
             }
         }
     }
@@ -88,18 +101,30 @@ fn raw_capture_has_counts_references_and_truth() {
     let mut sc = scene("thin-80nm");
     sc.angles_deg.truncate(2);
     let dir = tempdir();
-    let toml = write_capture(&sc, dir.path(), SimulateOptions::default(), &|_| {}).expect("capture written");
+    let toml = write_capture(&sc, dir.path(), SimulateOptions::default(), &|_| {})
+        .expect("capture written");
     let cap = Capture::load(&toml).expect("capture loads");
     let info = cap.check().expect("cubes agree");
     assert_eq!(info.data_type, DataType::U16);
     for angle in &cap.angles {
         assert!(angle.white.is_some() && angle.dark.is_some());
         let r = EnviReader::open(&angle.cube).expect("cube opens");
-        assert!(r.header().extra.iter().any(|(k, v)| k.eq_ignore_ascii_case("saturation counts") && v == "4095"));
+        assert!(r
+            .header()
+            .extra
+            .iter()
+            .any(|(k, v)| k.eq_ignore_ascii_case("saturation counts") && v == "4095"));
     }
-    let truth: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("truth.json")).expect("truth.json")).expect("json");
-    for key in ["refractive_index", "dispersion", "substrate_index", "polarization"] {
+    let truth: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("truth.json")).expect("truth.json"),
+    )
+    .expect("json");
+    for key in [
+        "refractive_index",
+        "dispersion",
+        "substrate_index",
+        "polarization",
+    ] {
         assert!(truth.get(key).is_some(), "truth.json lacks {key}");
     }
     assert!((truth["refractive_index"].as_f64().expect("n") - 1.45).abs() < 1e-12);
@@ -132,7 +157,10 @@ fn bad_scene_files_get_one_line_naming_the_file() {
         assert!(err.contains(name), "{name}: {err}");
         assert!(!err.contains("panicked"), "{name}: {err}");
     }
-    let missing = filmscope().args(["simulate", "/nonexistent/scene.toml", "--out", "/tmp/x"]).output().expect("run");
+    let missing = filmscope()
+        .args(["simulate", "/nonexistent/scene.toml", "--out", "/tmp/x"])
+        .output()
+        .expect("run");
     assert!(!missing.status.success());
     assert!(String::from_utf8_lossy(&missing.stderr).contains("/nonexistent/scene.toml"));
 }

@@ -66,7 +66,11 @@ fn run(scene: &str) -> (Scene, SweepSolver, Vec<PixelResult>, Vec<PixelState>) {
             }
         }
         let rep = solver.end_angle_all(&mut shards);
-        eprintln!("{scene:?} angle {deg}: {rep:?}", scene = scene.name);
+        eprintln!(
+            "{scene:?} angle {deg}: {rep:?} fit {:?}",
+            solver.index_fit(),
+            scene = scene.name
+        );
     }
     let mut out = vec![
         PixelResult {
@@ -135,4 +139,16 @@ fn paper_sample1() {
 fn paper_sample3() {
     let (dn, mae, valid, silent) = report("paper-sample3");
     assert!(dn.abs() < 0.01 && mae < 3.0 && valid > 0.9 && silent < 0.001);
+}
+
+#[test]
+#[ignore = "diagnostic"]
+fn zns_dispersive() {
+    report("zns-dispersive");
+}
+
+#[test]
+#[ignore = "diagnostic"]
+fn paper_sample2() {
+    report("paper-sample2");
 }

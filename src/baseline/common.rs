@@ -19,7 +19,7 @@ pub(crate) fn check_cube(cube: &SweepCube) -> Result<(), String> {
     if bands < 3 {
         return Err(format!("{bands} bands: at least 3 are needed"));
     }
-    if cube.bands_nm.windows(2).any(|w| !(w[1] > w[0])) {
+    if cube.bands_nm.windows(2).any(|w| w[1] <= w[0]) {
         return Err("band centres must increase strictly".into());
     }
     if cube.fwhm_nm.len() != bands {
@@ -113,11 +113,6 @@ pub(crate) fn stack(cube: &SweepCube, n: f64) -> FilmStack {
     }
 }
 
-/// The passband of band `b`.
-pub(crate) fn passband(cube: &SweepCube, b: usize) -> Passband {
-    Passband::gaussian(cube.bands_nm[b], cube.fwhm_nm[b])
-}
-
 /// All spectra of pixel `(col, row)`, angle-major (`out[a * bands + b]`), in the cube's angle
 /// order.
 pub(crate) fn pixel_spectra(cube: &SweepCube, col: usize, row: usize, out: &mut [f32]) {
@@ -163,7 +158,14 @@ pub(crate) fn fill_rows_parallel(
 /// advances by a fixed rotation from one thickness to the next, so the table costs one
 /// complex multiplication and one rational function per node and entry (no cosines). Two
 /// threads share the bands.
-pub(crate) fn model_table(cube: &SweepCube, n: f64, d_lo: f64, step: f64, rows: usize, nodes: usize) -> Vec<f32> {
+pub(crate) fn model_table(
+    cube: &SweepCube,
+    n: f64,
+    d_lo: f64,
+    step: f64,
+    rows: usize,
+    nodes: usize,
+) -> Vec<f32> {
     let nb = cube.bands_nm.len();
     let na = cube.angles_deg.len();
     let nab = na * nb;
@@ -215,4 +217,78 @@ pub(crate) fn model_table(cube: &SweepCube, n: f64, d_lo: f64, step: f64, rows: 
         }
     }
     table
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use filmscope_core::optics::{BandModel, Polarization, DEFAULT_NODES};
+
+    fn cube(n_bands: usize) -> SweepCube {
+        let bands_nm: Vec<f64> = (0..n_bands).map(|b| 420.0 + 2.0 * b as f64).collect();
+        SweepCube {
+            width: 1,
+            height: 1,
+            fwhm_nm: vec![4.0; n_bands],
+            bands_nm,
+            angles_deg: vec![10.0, 50.0],
+            ambient_index: 1.0,
+            substrate_index: 1.65,
+            polarization: Polarization::S,
+            index_range: [1.2, 3.0],
+            thickness_range_nm: [50.0, 2000.0],
+            data: vec![vec![0.0; n_bands]; 2],
+        }
+    }
+
+    #[test]
+    fn model_table_is_the_band_model() {
+        let c = cube(151);
+        let (n, d_lo, step, rows) = (2.37, 50.0, 1.5, 1301);
+        let table = model_table(&c, n, d_lo, step, rows, DEFAULT_NODES);
+        let film = stack(&c, n);
+        let nab = 2 * 151;
+        let mut worst = 0f64;
+        for a in 0..2 {
+            for b in (0..151).step_by(10) {
+                let band = Passband::gaussian(c.bands_nm[b], 4.0);
+                let m = BandModel::new(film, c.angles_deg[a], band);
+                for j in (0..rows).step_by(97).chain([rows - 1]) {
+                    let exact = m.reflectance(d_lo + step * j as f64);
+                    let got = f64::from(table[j * nab + a * 151 + b]);
+                    worst = worst.max((exact - got).abs());
+                }
+            }
+        }
+        assert!(worst < 1e-6, "worst {worst}");
+    }
+
+    #[test]
+    fn nine_nodes_are_close_to_33() {
+        // ZnS up to 2 um: fringes down to ~19 nm period at 420 nm, 4 nm FWHM.
+        let c = cube(151);
+        let fine = model_table(&c, 2.37, 50.0, 2.0, 976, DEFAULT_NODES);
+        let coarse = model_table(&c, 2.37, 50.0, 2.0, 976, 9);
+        let worst = fine
+            .iter()
+            .zip(&coarse)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        assert!(worst < 1e-3, "worst {worst}");
+    }
+
+    #[test]
+    fn defects_and_medians() {
+        let mut s = [0.1f32; 20];
+        assert_eq!(defect_flags(&s), 0);
+        s[..2].fill(f32::NAN);
+        assert_eq!(defect_flags(&s), 0);
+        s[2] = f32::INFINITY;
+        assert_eq!(defect_flags(&s), flags::DEAD);
+        s[3..5].fill(f32::INFINITY);
+        assert_eq!(defect_flags(&s), flags::SATURATED);
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median(&mut [4.0, 1.0, 2.0, 3.0]), Some(2.5));
+        assert_eq!(median(&mut []), None);
+    }
 }

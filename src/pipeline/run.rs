@@ -73,11 +73,15 @@ pub struct SweepOutput {
 #[error("{0}")]
 pub struct PipelineError(pub String);
 
+/// Rows for a worker, on the data channel (from the calibrate stage).
 enum WorkerMsg {
-    Start(Vec<PixelState>, Arc<SweepSolver>),
     Rows(u16, u32, u32, Vec<f32>),
     End,
 }
+
+/// The state of an angle for a worker, on its own channel (from the coordinator): rows are
+/// read only after it, so rows of the next angle can never reach the previous one's state.
+type Start = (Vec<PixelState>, Arc<SweepSolver>);
 
 enum Control {
     Angle(f64),
@@ -119,17 +123,19 @@ pub fn run_sweep(
         let (ctl_tx, ctl_rx) = bounded::<Control>(cap);
         let (done_tx, done_rx) = bounded::<(usize, Vec<PixelState>)>(workers);
         let mut worker_txs = Vec::new();
+        let mut start_txs = Vec::new();
         for i in 0..workers {
             let (tx, rx) = bounded::<WorkerMsg>(cap);
+            let (start_tx, start_rx) = bounded::<Start>(1);
             worker_txs.push(tx);
+            start_txs.push(start_tx);
             let done = done_tx.clone();
             let (first, _) = shard_rows(h, workers, i);
-            scope.spawn(move || worker(i, first, w, rx, done));
+            scope.spawn(move || worker(i, first, w, start_rx, rx, done));
         }
         drop(done_tx);
         scope.spawn(move || source.stream(&src_tx));
-        let wtx = worker_txs.clone();
-        scope.spawn(move || calibrate_stage(src_rx, ctl_tx, wtx, w, h, workers, on_rows));
+        scope.spawn(move || calibrate_stage(src_rx, ctl_tx, worker_txs, w, h, workers, on_rows));
 
         let mut abort = None;
         for msg in ctl_rx.iter() {
@@ -137,9 +143,9 @@ pub fn run_sweep(
                 Control::Angle(deg) => {
                     solver.begin_angle(deg);
                     let snapshot = Arc::new(solver.clone());
-                    for (i, tx) in worker_txs.iter().enumerate() {
+                    for (i, tx) in start_txs.iter().enumerate() {
                         let st = states[i].take().unwrap_or_default();
-                        if tx.send(WorkerMsg::Start(st, snapshot.clone())).is_err() {
+                        if tx.send((st, snapshot.clone())).is_err() {
                             abort = Some("a worker stopped".to_owned());
                         }
                     }
@@ -178,10 +184,9 @@ pub fn run_sweep(
                 }
             }
         }
-        for tx in &worker_txs {
-            let _ = tx.send(WorkerMsg::End);
-        }
-        drop(worker_txs);
+        // Closing the start channels ends the workers.
+        drop(start_txs);
+        drop(ctl_rx);
         match abort {
             Some(e) => Err(PipelineError(e)),
             None => Ok(()),
@@ -233,37 +238,33 @@ fn worker(
     index: usize,
     first_row: usize,
     width: usize,
-    rx: Receiver<WorkerMsg>,
+    start: Receiver<Start>,
+    rows: Receiver<WorkerMsg>,
     done: Sender<(usize, Vec<PixelState>)>,
 ) {
-    let mut current: Option<(Vec<PixelState>, Arc<SweepSolver>)> = None;
-    for msg in rx.iter() {
-        match msg {
-            WorkerMsg::Start(mut st, solver) => {
-                Shard::new(first_row, width, &mut st).begin_angle();
-                current = Some((st, solver));
-            }
-            WorkerMsg::Rows(band, row, rows, values) => {
-                if let Some((st, solver)) = current.as_mut() {
-                    let mut shard = Shard::new(first_row, width, st);
-                    for k in 0..rows as usize {
+    for (mut st, solver) in start.iter() {
+        let mut shard = Shard::new(first_row, width, &mut st);
+        shard.begin_angle();
+        loop {
+            match rows.recv() {
+                Ok(WorkerMsg::Rows(band, row, n, values)) => {
+                    for k in 0..n as usize {
                         let r = row as usize + k;
                         shard.feed_row(
-                            solver,
+                            &solver,
                             usize::from(band),
                             r,
                             &values[k * width..(k + 1) * width],
                         );
                     }
                 }
+                Ok(WorkerMsg::End) => break,
+                // The calibrate stage stopped mid-angle: hand back what we have.
+                Err(_) => break,
             }
-            WorkerMsg::End => {
-                if let Some((st, _)) = current.take() {
-                    if done.send((index, st)).is_err() {
-                        return;
-                    }
-                }
-            }
+        }
+        if done.send((index, st)).is_err() {
+            return;
         }
     }
 }

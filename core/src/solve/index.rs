@@ -21,17 +21,20 @@ pub struct PairGeometry {
     x_cur: f64,
     rho_lo: f64,
     rho_hi: f64,
+    band_nm: [f64; 2],
 }
 
 impl PairGeometry {
     /// The pair (reference angle, current angle), both in degrees, for indices within
     /// `index_range` (widened a little so the true ratio is not at the histogram's edge).
-    /// `None` when the two angles are too close for a shift to be measured.
+    /// `None` when the two angles are too close for a shift to be measured. `band_nm` is the
+    /// wavelength span of the bands (for the per-wavelength sums).
     pub fn new(
         ambient_index: f64,
         ref_deg: f64,
         cur_deg: f64,
         index_range: [f64; 2],
+        band_nm: [f64; 2],
     ) -> Option<Self> {
         let sx = |deg: f64| {
             let s = ambient_index * libm::sin(deg.to_radians());
@@ -48,6 +51,7 @@ impl PairGeometry {
             x_cur,
             rho_lo: 0.0,
             rho_hi: 0.0,
+            band_nm,
         };
         let (a, b) = (g.ratio(lo_n), g.ratio(hi_n));
         g.rho_lo = a.min(b);
@@ -81,7 +85,9 @@ impl PairGeometry {
 
     fn bin(&self, rho: f64) -> Option<usize> {
         let u = (rho - self.rho_lo) / (self.rho_hi - self.rho_lo);
-        (0.0..1.0).contains(&u).then_some((u * BINS as f64) as usize)
+        (0.0..1.0)
+            .contains(&u)
+            .then_some((u * BINS as f64) as usize)
     }
 
     fn bin_centre(&self, bin: f64) -> f64 {
@@ -102,8 +108,40 @@ impl Default for RatioHistogram {
     }
 }
 
+/// Wavelength bins of the per-wavelength ratio sums (for dispersion).
+pub const LAMBDA_BINS: usize = 8;
+
+/// Sums of the log ratios of one wavelength bin.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BinSums {
+    /// Count.
+    pub n: f64,
+    /// Sum of `ln(rho)`.
+    pub sum: f64,
+    /// Sum of `ln(rho)^2`.
+    pub sum_sq: f64,
+    /// Sum of the reference wavelengths, nm.
+    pub sum_lambda: f64,
+}
+
+impl BinSums {
+    fn add(&mut self, l: f64, lambda: f64) {
+        self.n += 1.0;
+        self.sum += l;
+        self.sum_sq += l * l;
+        self.sum_lambda += lambda;
+    }
+
+    fn merge(&mut self, o: &Self) {
+        self.n += o.n;
+        self.sum += o.sum;
+        self.sum_sq += o.sum_sq;
+        self.sum_lambda += o.sum_lambda;
+    }
+}
+
 /// Running sums of the log ratios inside the accepted window (logs, so that the noise of the
-/// two wavelengths biases neither way).
+/// two wavelengths biases neither way), in total and per reference-wavelength bin.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RatioSums {
     /// Count.
@@ -112,6 +150,8 @@ pub struct RatioSums {
     pub sum: f64,
     /// Sum of `ln(rho)^2`.
     pub sum_sq: f64,
+    /// The same per wavelength bin of the reference extremum.
+    pub bins: [BinSums; LAMBDA_BINS],
 }
 
 impl RatioSums {
@@ -120,24 +160,27 @@ impl RatioSums {
         self.n += o.n;
         self.sum += o.sum;
         self.sum_sq += o.sum_sq;
+        for (a, b) in self.bins.iter_mut().zip(o.bins.iter()) {
+            a.merge(b);
+        }
     }
 }
 
-/// Calls `f(rho)` for every same-kind pairing of a pixel's extrema whose ratio the pair
+/// Calls `f(rho, lambda_ref_nm)` for every same-kind pairing of a pixel's extrema whose ratio the pair
 /// geometry allows. `wavelength_nm` maps a fractional band to its wavelength.
 pub fn for_each_ratio(
     geom: &PairGeometry,
     reference: &[Extremum],
     current: &[Extremum],
     wavelength_nm: impl Fn(f32) -> f64,
-    mut f: impl FnMut(f64),
+    mut f: impl FnMut(f64, f64),
 ) {
     for r in reference {
         let lr = wavelength_nm(r.band);
         for c in current.iter().filter(|c| c.kind == r.kind) {
             let rho = wavelength_nm(c.band) / lr;
             if rho > geom.rho_lo && rho < geom.rho_hi {
-                f(rho);
+                f(rho, lr);
             }
         }
     }
@@ -152,7 +195,7 @@ impl RatioHistogram {
         current: &[Extremum],
         wavelength_nm: impl Fn(f32) -> f64,
     ) {
-        for_each_ratio(geom, reference, current, wavelength_nm, |rho| {
+        for_each_ratio(geom, reference, current, wavelength_nm, |rho, _| {
             if let Some(b) = geom.bin(rho) {
                 self.counts[b] = self.counts[b].saturating_add(1);
             }
@@ -232,12 +275,16 @@ pub fn accumulate_window(
     current: &[Extremum],
     wavelength_nm: impl Fn(f32) -> f64,
 ) {
-    for_each_ratio(geom, reference, current, wavelength_nm, |rho| {
+    let [lo, hi] = geom.band_nm;
+    for_each_ratio(geom, reference, current, wavelength_nm, |rho, lambda| {
         if rho >= window.0 && rho <= window.1 {
             let l = libm::log(rho);
             sums.n += 1.0;
             sums.sum += l;
             sums.sum_sq += l * l;
+            let u = ((lambda - lo) / (hi - lo) * LAMBDA_BINS as f64)
+                .clamp(0.0, LAMBDA_BINS as f64 - 1.0);
+            sums.bins[u as usize].add(l, lambda);
         }
     });
 }
@@ -290,4 +337,221 @@ pub fn combine(estimates: &[PairEstimate]) -> Option<(f64, f64)> {
 /// Whether an extremum list has anything to vote with.
 pub fn has_kind(list: &[Extremum], kind: Kind) -> bool {
     list.iter().any(|e| e.kind == kind)
+}
+
+/// One pair's per-wavelength evidence, kept by the solver for the index fit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PairBins {
+    /// `(n0 sin theta)^2` at the reference angle.
+    pub x_ref: f64,
+    /// The same at the other angle.
+    pub x_cur: f64,
+    /// Per bin: `(mean reference wavelength nm, mean ln rho, standard error of ln rho, count)`.
+    pub bins: [(f64, f64, f64, f64); LAMBDA_BINS],
+}
+
+/// Fewest ratios a wavelength bin needs to enter the fit.
+const MIN_BIN_VOTES: f64 = 8.0;
+/// Floor on a bin's standard error (log units, about 0.15 nm at 500 nm): the extremum
+/// locations' systematic error, which averaging over pixels does not remove.
+const SE_FLOOR: f64 = 3e-4;
+
+impl PairBins {
+    /// Keeps the per-bin means of a pair's window sums.
+    pub fn from_sums(geom: &PairGeometry, sums: &RatioSums) -> Self {
+        let mut bins = [(0.0, 0.0, 0.0, 0.0); LAMBDA_BINS];
+        for (o, b) in bins.iter_mut().zip(sums.bins.iter()) {
+            if b.n >= MIN_BIN_VOTES {
+                let mean = b.sum / b.n;
+                let var = (b.sum_sq / b.n - mean * mean).max(0.0);
+                let se = libm::sqrt(var / b.n).max(SE_FLOOR);
+                *o = (b.sum_lambda / b.n, mean, se, b.n);
+            }
+        }
+        Self {
+            x_ref: geom.x_ref,
+            x_cur: geom.x_cur,
+            bins,
+        }
+    }
+}
+
+/// The log ratio a film of index model `model` predicts for an extremum at `lambda_nm` at the
+/// reference angle: the order is kept, so `lambda' = lambda sqrt((n(lambda')^2 - x') /
+/// (n(lambda)^2 - x))`, solved by fixed-point iteration.
+pub fn predicted_log_ratio(
+    model: super::IndexModel,
+    lambda_nm: f64,
+    x_ref: f64,
+    x_cur: f64,
+) -> f64 {
+    let n_ref = model.at(lambda_nm);
+    let base = n_ref * n_ref - x_ref;
+    let mut l = lambda_nm;
+    for _ in 0..8 {
+        let n = model.at(l);
+        l = lambda_nm * libm::sqrt(((n * n - x_cur) / base).max(1e-12));
+    }
+    libm::log(l / lambda_nm)
+}
+
+/// The index fitted to every pair's per-wavelength log ratios.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IndexFit {
+    /// The chosen model.
+    pub model: super::IndexModel,
+    /// Standard error of the index at 550 nm.
+    pub sigma: f64,
+    /// Chi-square of the best constant index.
+    pub chi2_constant: f64,
+    /// Chi-square of the best Cauchy model (NaN if not fitted).
+    pub chi2_cauchy: f64,
+    /// Wavelength bins used.
+    pub bins: usize,
+    /// Whether the Cauchy model was chosen.
+    pub dispersive: bool,
+}
+
+/// The test the Cauchy model must pass to replace a constant index (one more parameter): its
+/// chi-square improvement, in units of its own reduced chi-square (so scatter the model does
+/// not explain raises the bar, as in an F test), must exceed 25 (a 5-sigma improvement); the
+/// constant model must itself fail to explain the data (reduced chi-square above 2); and the
+/// fitted dispersion must be physical (normal, `0 <= b <= 0.2 um^2`, the index inside the
+/// search range across the band). The simpler model wins otherwise.
+pub const CAUCHY_DELTA_CHI2: f64 = 25.0;
+
+fn chi2(pairs: &[PairBins], model: super::IndexModel) -> (f64, usize) {
+    let mut c = 0.0;
+    let mut k = 0;
+    for p in pairs {
+        for &(lambda, mean, se, n) in &p.bins {
+            if n >= MIN_BIN_VOTES {
+                let r = (mean - predicted_log_ratio(model, lambda, p.x_ref, p.x_cur)) / se;
+                c += r * r;
+                k += 1;
+            }
+        }
+    }
+    (c, k)
+}
+
+/// Chooses between a constant index and a two-term Cauchy model fitted (Gauss-Newton) to the
+/// pairs' per-wavelength evidence, keeping the simpler one unless the richer is clearly
+/// better (see [`CAUCHY_DELTA_CHI2`]). The constant index is `constant = (n, sigma)`, the
+/// pooled estimate of all votes ([`combine`]): per-wavelength means weight the few bins that
+/// hold extrema too unevenly to estimate it better.
+pub fn fit_index(
+    pairs: &[PairBins],
+    constant: (f64, f64),
+    index_range: [f64; 2],
+    band_nm: [f64; 2],
+) -> Option<IndexFit> {
+    let (a, sigma) = constant;
+    let model = super::IndexModel::constant(a);
+    let (chi2_c, bins) = chi2(pairs, model);
+    if !a.is_finite() {
+        return None;
+    }
+    let dof_c = bins.saturating_sub(1).max(1) as f64;
+    let mut fit = IndexFit {
+        model,
+        sigma,
+        chi2_constant: chi2_c,
+        chi2_cauchy: f64::NAN,
+        bins,
+        dispersive: false,
+    };
+    // Cauchy needs bins spread over wavelength.
+    if bins < 4 {
+        return Some(fit);
+    }
+    let mut m = super::IndexModel { a, b_um2: 0.0 };
+    let mut cov = [[0.0; 2]; 2];
+    for _ in 0..30 {
+        let Some((step, c)) = normal_2d(pairs, m) else {
+            break;
+        };
+        cov = c;
+        m.a += step[0].clamp(-0.1, 0.1);
+        m.b_um2 += step[1].clamp(-0.05, 0.05);
+        if libm::fabs(step[0]) < 1e-9 && libm::fabs(step[1]) < 1e-9 {
+            break;
+        }
+    }
+    let (chi2_d, _) = chi2(pairs, m);
+    fit.chi2_cauchy = chi2_d;
+    let dof_d = bins.saturating_sub(2).max(1) as f64;
+    let scale = (chi2_d / dof_d).max(1.0);
+    let physical = (0.0..=0.2).contains(&m.b_um2)
+        && [band_nm[0], band_nm[1], 550.0]
+            .iter()
+            .all(|&l| (index_range[0]..=index_range[1]).contains(&m.at(l)));
+    if (chi2_c - chi2_d) / scale > CAUCHY_DELTA_CHI2 && chi2_c / dof_c > 2.0 && physical {
+        // Variance of n(550) = a + b / 0.3025.
+        let g = [1.0, 1.0 / 0.3025];
+        let var = g[0] * (cov[0][0] * g[0] + cov[0][1] * g[1])
+            + g[1] * (cov[1][0] * g[0] + cov[1][1] * g[1]);
+        fit.model = m;
+        fit.sigma = libm::sqrt((var * scale).max(0.0));
+        fit.dispersive = true;
+    }
+    Some(fit)
+}
+
+fn residuals_and_jacobian(
+    pairs: &[PairBins],
+    m: super::IndexModel,
+    mut f: impl FnMut(f64, [f64; 2]),
+) {
+    let h = 1e-6;
+    for p in pairs {
+        for &(lambda, mean, se, n) in &p.bins {
+            if n < MIN_BIN_VOTES {
+                continue;
+            }
+            let r0 = predicted_log_ratio(m, lambda, p.x_ref, p.x_cur);
+            let ra = predicted_log_ratio(
+                super::IndexModel { a: m.a + h, ..m },
+                lambda,
+                p.x_ref,
+                p.x_cur,
+            );
+            let rb = predicted_log_ratio(
+                super::IndexModel {
+                    b_um2: m.b_um2 + h,
+                    ..m
+                },
+                lambda,
+                p.x_ref,
+                p.x_cur,
+            );
+            f((mean - r0) / se, [(ra - r0) / h / se, (rb - r0) / h / se]);
+        }
+    }
+}
+
+fn normal_2d(pairs: &[PairBins], m: super::IndexModel) -> Option<([f64; 2], [[f64; 2]; 2])> {
+    let mut h = [[0.0; 2]; 2];
+    let mut g = [0.0; 2];
+    residuals_and_jacobian(pairs, m, |r, j| {
+        for i in 0..2 {
+            g[i] += j[i] * r;
+            for k in 0..2 {
+                h[i][k] += j[i] * j[k];
+            }
+        }
+    });
+    let det = h[0][0] * h[1][1] - h[0][1] * h[1][0];
+    if !(det.is_finite() && det > 0.0) {
+        return None;
+    }
+    let inv = [
+        [h[1][1] / det, -h[0][1] / det],
+        [-h[1][0] / det, h[0][0] / det],
+    ];
+    let step = [
+        inv[0][0] * g[0] + inv[0][1] * g[1],
+        inv[1][0] * g[0] + inv[1][1] * g[1],
+    ];
+    Some((step, inv))
 }

@@ -11,7 +11,10 @@ use heapless::Vec as HVec;
 
 use crate::optics::{FilmAtAngle, Indices, Polarization};
 
-use super::index::{combine, pair_estimate, PairEstimate, PairGeometry, RatioHistogram, RatioSums};
+use super::index::{
+    combine, fit_index, pair_estimate, IndexFit, PairBins, PairEstimate, PairGeometry,
+    RatioHistogram, RatioSums,
+};
 use super::refine::BandCoef;
 use super::shard::Shard;
 use super::IndexModel;
@@ -182,6 +185,8 @@ pub struct SweepSolver {
     pair_geom: Option<PairGeometry>,
     window: Option<(f64, f64)>,
     pairs: HVec<PairEstimate, MAX_PAIRS>,
+    pair_bins: HVec<PairBins, MAX_PAIRS>,
+    fit: Option<IndexFit>,
     last_pair: Option<PairEstimate>,
     rms_median: Option<f32>,
     pending_dn: f64,
@@ -207,6 +212,8 @@ impl SweepSolver {
             pair_geom: None,
             window: None,
             pairs: HVec::new(),
+            pair_bins: HVec::new(),
+            fit: None,
             last_pair: None,
             rms_median: None,
             pending_dn: 0.0,
@@ -334,12 +341,28 @@ impl SweepSolver {
                 a,
                 incidence_deg,
                 self.spec.index_range,
+                self.band_span_nm(),
             )
         });
         self.window = None;
         self.last_pair = None;
         self.next_index = None;
         self.pending_dn = 0.0;
+    }
+
+    fn band_span_nm(&self) -> [f64; 2] {
+        let b = &self.spec.bands_nm;
+        let (lo, hi) = b
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &l| {
+                (lo.min(l), hi.max(l))
+            });
+        [lo, hi]
+    }
+
+    /// The index fit over all pairs so far (model choice, chi-squares).
+    pub fn index_fit(&self) -> Option<IndexFit> {
+        self.fit
     }
 
     /// Merged votes of the current pair: fixes the window around their mode.
@@ -350,8 +373,9 @@ impl SweepSolver {
     /// Merged window sums: the pair's extrema-only index estimate.
     pub fn set_window_sums(&mut self, sums: &RatioSums) {
         let est = self.pair_geom.as_ref().and_then(|g| pair_estimate(g, sums));
-        if let Some(e) = est {
+        if let (Some(e), Some(g)) = (est, self.pair_geom.as_ref()) {
             let _ = self.pairs.push(e);
+            let _ = self.pair_bins.push(PairBins::from_sums(g, sums));
         }
         self.last_pair = est;
     }
@@ -382,10 +406,12 @@ impl SweepSolver {
             self.last_refined = true;
             self.refined_steps += 1;
         }
-        self.next_index = match combine(&self.pairs) {
-            Some((n, sigma)) => {
-                self.index_sigma = sigma;
-                Some(IndexModel::constant(n))
+        let (range, span) = (self.spec.index_range, self.band_span_nm());
+        self.fit = combine(&self.pairs).and_then(|c| fit_index(&self.pair_bins, c, range, span));
+        self.next_index = match self.fit {
+            Some(f) => {
+                self.index_sigma = f.sigma;
+                Some(f.model)
             }
             None => self.index,
         };
