@@ -217,7 +217,7 @@ fn baselines_flag_unusable_pixels() {
 }
 
 #[test]
-#[ignore = "measurements for the record: prints, asserts nothing"]
+#[ignore = "measurements for the record (slow: brute on whole images); prints, asserts nothing"]
 fn measure_baselines() {
     for (scene, n, noisy, h) in [
         ("paper-sample1", 1.37, true, 64),

@@ -17,6 +17,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::calibrate::calibrate_row;
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
+use filmscope_core::solve::refine::BandCoef;
 use filmscope_core::solve::sweep::{RmsHistogram, SchurSums};
 use filmscope_core::solve::{
     AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
@@ -81,7 +82,7 @@ enum WorkerMsg {
 
 /// The state of an angle for a worker, on its own channel (from the coordinator): rows are
 /// read only after it, so rows of the next angle can never reach the previous one's state.
-type Start = (Vec<PixelState>, Arc<SweepSolver>);
+type Start = (Vec<PixelState>, Arc<Vec<Option<BandCoef>>>);
 
 enum Control {
     Angle(f64),
@@ -110,7 +111,7 @@ pub fn run_sweep(
     let workers = config.workers.clamp(1, h.max(1));
     let cap = config.channel_capacity.max(1);
     let start = Instant::now();
-    let mut solver = SweepSolver::new(spec.clone(), prior);
+    let mut solver = Box::new(SweepSolver::new(spec.clone(), prior));
     let mut states: Vec<Option<Vec<PixelState>>> = (0..workers)
         .map(|i| Some(vec![PixelState::default(); shard_rows(h, workers, i).1 * w]))
         .collect();
@@ -142,7 +143,9 @@ pub fn run_sweep(
             match msg {
                 Control::Angle(deg) => {
                     solver.begin_angle(deg);
-                    let snapshot = Arc::new(solver.clone());
+                    let mut models = vec![None; spec.bands_nm.len()];
+                    solver.band_models(&mut models);
+                    let snapshot = Arc::new(models);
                     for (i, tx) in start_txs.iter().enumerate() {
                         let st = states[i].take().unwrap_or_default();
                         if tx.send((st, snapshot.clone())).is_err() {
@@ -242,7 +245,7 @@ fn worker(
     rows: Receiver<WorkerMsg>,
     done: Sender<(usize, Vec<PixelState>)>,
 ) {
-    for (mut st, solver) in start.iter() {
+    for (mut st, models) in start.iter() {
         let mut shard = Shard::new(first_row, width, &mut st);
         shard.begin_angle();
         loop {
@@ -251,7 +254,7 @@ fn worker(
                     for k in 0..n as usize {
                         let r = row as usize + k;
                         shard.feed_row(
-                            &solver,
+                            &models,
                             usize::from(band),
                             r,
                             &values[k * width..(k + 1) * width],
@@ -475,9 +478,19 @@ pub fn end_angle_parallel(solver: &mut SweepSolver, shards: &mut [Shard<'_>]) ->
         hist.merge(&r);
     }
     solver.set_votes(&hist);
+    // Per-row sums merged in row order: the same floating-point result for any sharding.
+    let mut rows: Vec<(usize, RatioSums)> = each(shards, |sh| {
+        let mut v = Vec::new();
+        sh.window_sums(solver, |r, s| v.push((r, s)));
+        v
+    })
+    .into_iter()
+    .flatten()
+    .collect();
+    rows.sort_by_key(|&(r, _)| r);
     let mut sums = RatioSums::default();
-    for r in each(shards, |sh| sh.window_sums(solver)) {
-        sums.merge(&r);
+    for (_, r) in &rows {
+        sums.merge(r);
     }
     solver.set_window_sums(&sums);
     let mut rms = RmsHistogram::default();
@@ -485,9 +498,18 @@ pub fn end_angle_parallel(solver: &mut SweepSolver, shards: &mut [Shard<'_>]) ->
         rms.merge(&r);
     }
     solver.set_fit_histogram(&rms);
+    let mut rows: Vec<(usize, SchurSums)> = each(shards, |sh| {
+        let mut v = Vec::new();
+        sh.schur(solver, |r, s| v.push((r, s)));
+        v
+    })
+    .into_iter()
+    .flatten()
+    .collect();
+    rows.sort_by_key(|&(r, _)| r);
     let mut schur = SchurSums::default();
-    for r in each(shards, |sh| sh.schur(solver)) {
-        schur.merge(&r);
+    for (_, r) in &rows {
+        schur.merge(r);
     }
     solver.set_schur(&schur);
     {
@@ -498,5 +520,6 @@ pub fn end_angle_parallel(solver: &mut SweepSolver, shards: &mut [Shard<'_>]) ->
             }
         });
     }
+    filmscope_core::solve::sweep::resolve_orders(solver, shards);
     solver.end_angle()
 }

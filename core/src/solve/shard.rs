@@ -5,7 +5,7 @@ use crate::track::{ExtremaList, PixelTracker};
 use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
 use super::order::{Observation, OrderChoice, OrderContext};
-use super::refine::GnSums;
+use super::refine::{BandCoef, GnSums};
 use super::sweep::{RmsHistogram, SchurSums, SweepSolver};
 
 /// Cost margin below which two orders are a tie (squared order misfits).
@@ -123,13 +123,20 @@ impl<'a> Shard<'a> {
     }
 
     /// Feeds one row of calibrated reflectance of band `band` (`values.len() == width`;
-    /// `+inf` marks a saturated sample, NaN one without a usable reference).
-    pub fn feed_row(&mut self, solver: &SweepSolver, band: usize, row: usize, values: &[f32]) {
+    /// `+inf` marks a saturated sample, NaN one without a usable reference). `models` are the
+    /// angle's band models ([`SweepSolver::band_models`]).
+    pub fn feed_row(
+        &mut self,
+        models: &[Option<BandCoef>],
+        band: usize,
+        row: usize,
+        values: &[f32],
+    ) {
         if !self.holds(row) || values.len() != self.width {
             return;
         }
         let start = (row - self.first_row) * self.width;
-        let coef = solver.coef(band);
+        let coef = models.get(band).and_then(Option::as_ref);
         let band16 = band as u16;
         for (p, &v) in self.pixels[start..start + self.width]
             .iter_mut()
@@ -169,18 +176,22 @@ impl<'a> Shard<'a> {
         h
     }
 
-    /// Angle-end pass 2: sums of the ratios inside the accepted window.
-    pub fn window_sums(&self, solver: &SweepSolver) -> RatioSums {
-        let mut s = RatioSums::default();
+    /// Angle-end pass 2: sums of the ratios inside the accepted window, one per image row
+    /// (`f(row, sums)`, rows in order), so that merging them in row order gives the same
+    /// floating-point result however the image is sharded.
+    pub fn window_sums(&self, solver: &SweepSolver, mut f: impl FnMut(usize, RatioSums)) {
         if let (Some(g), Some(w)) = (solver.pair_geometry(), solver.ratio_window()) {
             let spec = solver.spec();
-            for p in self.pixels.iter() {
-                accumulate_window(&mut s, g, w, &p.anchor, &p.current, |b| {
-                    spec.wavelength_at(b)
-                });
+            for (r, row) in self.pixels.chunks(self.width.max(1)).enumerate() {
+                let mut s = RatioSums::default();
+                for p in row {
+                    accumulate_window(&mut s, g, w, &p.anchor, &p.current, |b| {
+                        spec.wavelength_at(b)
+                    });
+                }
+                f(self.first_row + r, s);
             }
         }
-        s
     }
 
     /// Angle-end pass 3: the RMS residuals of the refined pixels.
@@ -197,28 +208,32 @@ impl<'a> Shard<'a> {
     }
 
     /// Angle-end pass 4: the pixels' contributions to the shared index step (their own
-    /// thickness eliminated), outliers left out.
-    pub fn schur(&self, solver: &SweepSolver) -> SchurSums {
-        let mut s = SchurSums::default();
+    /// thickness eliminated), outliers left out; one sum per image row, as in
+    /// [`Shard::window_sums`].
+    pub fn schur(&self, solver: &SweepSolver, mut f: impl FnMut(usize, SchurSums)) {
         let limit = solver
             .rms_median()
             .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR);
-        for p in self.pixels.iter().filter(|p| Self::trusted(p, limit)) {
-            let g = &p.gn;
-            let (h_dd, h_dn) = (f64::from(g.h_dd), f64::from(g.h_dn));
-            s.h_nn += f64::from(g.h_nn);
-            s.g_n += f64::from(g.g_n);
-            s.q_g += h_dn * f64::from(g.g_d) / h_dd;
-            s.q_h += h_dn * h_dn / h_dd;
-            s.pixels += 1.0;
-            s.sse += f64::from(g.sse) - f64::from(g.g_d) * f64::from(g.g_d) / h_dd;
-            s.samples += f64::from(g.samples);
+        for (r, row) in self.pixels.chunks(self.width.max(1)).enumerate() {
+            let mut s = SchurSums::default();
+            for p in row.iter().filter(|p| Self::trusted(p, limit)) {
+                let g = &p.gn;
+                let (h_dd, h_dn) = (f64::from(g.h_dd), f64::from(g.h_dn));
+                s.h_nn += f64::from(g.h_nn);
+                s.g_n += f64::from(g.g_n);
+                s.q_g += h_dn * f64::from(g.g_d) / h_dd;
+                s.q_h += h_dn * h_dn / h_dd;
+                s.pixels += 1.0;
+                s.sse += f64::from(g.sse) - f64::from(g.g_d) * f64::from(g.g_d) / h_dd;
+                s.samples += f64::from(g.samples);
+            }
+            f(self.first_row + r, s);
         }
-        s
     }
 
-    /// Angle-end pass 5: steps every refined pixel's thickness (with the index step), gives
-    /// newly resolvable pixels their order, and keeps the first angle's extrema.
+    /// Angle-end pass 5: steps every refined pixel's thickness (with the index step) and keeps
+    /// the first angle's extrema. Then, shard after shard, [`Shard::resolve_forward`] and, in
+    /// reverse, [`Shard::resolve_backward`].
     pub fn update(&mut self, solver: &SweepSolver) {
         let dn = solver.pending_index_step();
         let first_angle = solver.anchor_deg().is_none();
@@ -246,8 +261,21 @@ impl<'a> Shard<'a> {
                 p.anchor = p.current.clone();
             }
         }
-        if !first_angle {
-            self.resolve_orders(solver);
+    }
+
+    /// Thickness of the shard's first (`last = false`) or last row, for the neighbouring
+    /// shard's order resolution.
+    pub fn edge_row(&self, last: bool, out: &mut [f32]) {
+        let rows = self.rows();
+        if rows == 0 {
+            return;
+        }
+        let r = if last { rows - 1 } else { 0 };
+        for (o, p) in out
+            .iter_mut()
+            .zip(&self.pixels[r * self.width..(r + 1) * self.width])
+        {
+            *o = p.thickness_nm;
         }
     }
 
@@ -286,16 +314,19 @@ impl<'a> Shard<'a> {
         ctx.resolve(&obs)
     }
 
-    /// Gives unresolved pixels their order: clear winners directly, ties by a resolved
-    /// neighbour (left or above on a forward pass, right or below on a backward one).
-    fn resolve_orders(&mut self, solver: &SweepSolver) {
+    /// Angle-end pass 6, forward (shards in row order): gives unresolved pixels their order,
+    /// clear winners directly, ties by a resolved neighbour to the left or above (`above`:
+    /// the previous shard's last row). Returns whether ties remain.
+    pub fn resolve_forward(&mut self, solver: &SweepSolver, above: Option<&[f32]>) -> bool {
+        if solver.anchor_deg().is_none() {
+            return false;
+        }
         let Some(ctx) = Self::order_context(solver) else {
-            return;
+            return false;
         };
         let w = self.width;
-        let n = self.pixels.len();
         let mut pending = false;
-        for i in 0..n {
+        for i in 0..self.pixels.len() {
             if self.pixels[i].thickness_nm.is_finite() {
                 continue;
             }
@@ -304,36 +335,51 @@ impl<'a> Shard<'a> {
             };
             if c.runner_up_cost - c.cost >= AMBIGUITY_MARGIN {
                 self.set_thickness(i, c.thickness_nm, c.order_step_nm, 0);
+                continue;
+            }
+            let left = (i % w > 0).then(|| self.pixels[i - 1].thickness_nm);
+            let up = if i >= w {
+                Some(self.pixels[i - w].thickness_nm)
             } else {
-                let left = (i % w > 0).then(|| i - 1);
-                let up = (i >= w).then(|| i - w);
-                if !self.adopt_neighbour(i, &c, [left, up]) {
-                    pending = true;
-                }
+                above.and_then(|a| a.get(i).copied())
+            };
+            if !self.adopt_neighbour(i, &c, [left, up]) {
+                pending = true;
             }
         }
-        if pending {
-            for i in (0..n).rev() {
-                if self.pixels[i].thickness_nm.is_finite() {
-                    continue;
-                }
-                if let Some(c) = self.choose(solver, &ctx, i) {
-                    let right = (i % w + 1 < w).then_some(i + 1);
-                    let down = (i + w < n).then_some(i + w);
-                    self.adopt_neighbour(i, &c, [right, down]);
-                }
+        pending
+    }
+
+    /// Angle-end pass 6, backward (shards in reverse order): ties left by the forward pass,
+    /// by a resolved neighbour to the right or below (`below`: the next shard's first row).
+    pub fn resolve_backward(&mut self, solver: &SweepSolver, below: Option<&[f32]>) {
+        if solver.anchor_deg().is_none() {
+            return;
+        }
+        let Some(ctx) = Self::order_context(solver) else {
+            return;
+        };
+        let w = self.width;
+        let n = self.pixels.len();
+        for i in (0..n).rev() {
+            if self.pixels[i].thickness_nm.is_finite() {
+                continue;
+            }
+            if let Some(c) = self.choose(solver, &ctx, i) {
+                let right = (i % w + 1 < w).then(|| self.pixels[i + 1].thickness_nm);
+                let down = if i + w < n {
+                    Some(self.pixels[i + w].thickness_nm)
+                } else {
+                    below.and_then(|b| b.get(i % w).copied())
+                };
+                self.adopt_neighbour(i, &c, [right, down]);
             }
         }
     }
 
-    fn adopt_neighbour(
-        &mut self,
-        i: usize,
-        c: &OrderChoice,
-        neighbours: [Option<usize>; 2],
-    ) -> bool {
-        for j in neighbours.into_iter().flatten() {
-            let d_n = f64::from(self.pixels[j].thickness_nm);
+    fn adopt_neighbour(&mut self, i: usize, c: &OrderChoice, neighbours: [Option<f32>; 2]) -> bool {
+        for d_n in neighbours.into_iter().flatten() {
+            let d_n = f64::from(d_n);
             if !d_n.is_finite() {
                 continue;
             }

@@ -181,7 +181,6 @@ pub struct SweepSolver {
     anchor_deg: Option<f64>,
     angle_deg: f64,
     angles_done: usize,
-    coefs: HVec<Option<BandCoef>, MAX_BANDS>,
     pair_geom: Option<PairGeometry>,
     window: Option<(f64, f64)>,
     pairs: HVec<PairEstimate, MAX_PAIRS>,
@@ -208,7 +207,6 @@ impl SweepSolver {
             anchor_deg: None,
             angle_deg: f64::NAN,
             angles_done: 0,
-            coefs: HVec::new(),
             pair_geom: None,
             window: None,
             pairs: HVec::new(),
@@ -260,10 +258,23 @@ impl SweepSolver {
         self.residual_sigma
     }
 
-    /// The model coefficients of `band` at the current angle, if the index is known.
-    #[inline]
-    pub fn coef(&self, band: usize) -> Option<&BandCoef> {
-        self.coefs.get(band).and_then(Option::as_ref)
+    /// Fills `out` (one entry per band, caller-owned: about 650 bytes a band) with the band
+    /// models of the current angle at the current index; all `None` until an index exists.
+    pub fn band_models(&self, out: &mut [Option<BandCoef>]) {
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = match (self.index, self.spec.bands_nm.get(i)) {
+                (Some(index), Some(&l)) => BandCoef::new(
+                    index,
+                    self.spec.ambient_index,
+                    self.spec.substrate_index,
+                    self.spec.polarization,
+                    self.angle_deg,
+                    l,
+                    self.spec.fwhm_nm[i],
+                ),
+                _ => None,
+            };
+        }
     }
 
     /// The reference (first) angle, degrees.
@@ -316,25 +327,9 @@ impl SweepSolver {
         .map_or(0.0, |f| f.peak_phase_offset())
     }
 
-    /// Starts an angle: builds the band models at the current index.
+    /// Starts an angle (then fill the band models with [`SweepSolver::band_models`]).
     pub fn begin_angle(&mut self, incidence_deg: f64) {
         self.angle_deg = incidence_deg;
-        self.coefs.clear();
-        if let Some(index) = self.index {
-            for (i, &l) in self.spec.bands_nm.iter().enumerate() {
-                let c = BandCoef::new(
-                    index,
-                    self.spec.ambient_index,
-                    self.spec.substrate_index,
-                    self.spec.polarization,
-                    incidence_deg,
-                    l,
-                    self.spec.fwhm_nm[i],
-                );
-                // Capacity equals MAX_BANDS, the spec's own capacity.
-                let _ = self.coefs.push(c);
-            }
-        }
         self.pair_geom = self.anchor_deg.and_then(|a| {
             PairGeometry::new(
                 self.spec.ambient_index,
@@ -442,7 +437,8 @@ impl SweepSolver {
         }
     }
 
-    /// Runs the angle-end phases over shards on this thread.
+    /// Runs the angle-end phases over shards on this thread (the pipeline runs the same
+    /// phases on all cores: [`SweepSolver::merge_rows`] keeps the sums identical).
     pub fn end_angle_all(&mut self, shards: &mut [Shard<'_>]) -> AngleReport {
         let mut hist = RatioHistogram::default();
         for s in shards.iter() {
@@ -451,7 +447,7 @@ impl SweepSolver {
         self.set_votes(&hist);
         let mut sums = RatioSums::default();
         for s in shards.iter() {
-            sums.merge(&s.window_sums(self));
+            s.window_sums(self, |_, r| sums.merge(&r));
         }
         self.set_window_sums(&sums);
         let mut rms = RmsHistogram::default();
@@ -461,12 +457,42 @@ impl SweepSolver {
         self.set_fit_histogram(&rms);
         let mut schur = SchurSums::default();
         for s in shards.iter() {
-            schur.merge(&s.schur(self));
+            s.schur(self, |_, r| schur.merge(&r));
         }
         self.set_schur(&schur);
         for s in shards.iter_mut() {
             s.update(self);
         }
+        resolve_orders(self, shards);
         self.end_angle()
+    }
+}
+
+/// Order resolution over shards in row order, forward then backward, each shard seeing its
+/// neighbours' edge rows: the same result as one shard over the whole image.
+pub fn resolve_orders(solver: &SweepSolver, shards: &mut [Shard<'_>]) {
+    let w = solver.spec().width;
+    let mut edge = [0f32; 4096];
+    let mut have = false;
+    let mut pending = false;
+    for s in shards.iter_mut() {
+        let above = (have && w <= edge.len()).then(|| &edge[..w]);
+        pending |= s.resolve_forward(solver, above);
+        if w <= edge.len() {
+            s.edge_row(true, &mut edge[..w]);
+            have = true;
+        }
+    }
+    if !pending {
+        return;
+    }
+    have = false;
+    for s in shards.iter_mut().rev() {
+        let below = (have && w <= edge.len()).then(|| &edge[..w]);
+        s.resolve_backward(solver, below);
+        if w <= edge.len() {
+            s.edge_row(false, &mut edge[..w]);
+            have = true;
+        }
     }
 }

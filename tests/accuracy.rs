@@ -1,0 +1,87 @@
+//! The estimator's targets on the paper's scenes (issue: streaming estimator), through the
+//! real pipeline from the software camera: raw 12-bit counts with white and dark references,
+//! shot and read noise, a smoothly varying thickness map. Tolerances are the targets; the
+//! figures measured when this was written are in the README (`filmscope eval`).
+
+mod common;
+
+use filmscope::estimate::{run_method, RunConfig};
+use filmscope::eval::{evaluate, EvalReport, Truth};
+use filmscope::pipeline::SimSource;
+use filmscope::sweep::Method;
+use firmware_sim::SoftwareCamera;
+
+fn eval(name: &str, method: Method) -> EvalReport {
+    let scene = common::scene(name);
+    let truth = Truth::of_scene(&scene);
+    let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
+    let config = RunConfig {
+        method,
+        ..RunConfig::default()
+    };
+    let run = run_method(&mut source, &config, &|_| {}).expect("run");
+    let r = evaluate(name, &truth, &run);
+    eprintln!("{}", serde_json::to_string(&r).expect("json"));
+    r
+}
+
+fn check(r: &EvalReport, max_index_error: f64) {
+    assert!(
+        r.index_error.abs() <= max_index_error,
+        "{}: index error {}",
+        r.scene,
+        r.index_error
+    );
+    assert!(
+        r.thickness_mae_nm <= 3.0,
+        "{}: MAE {}",
+        r.scene,
+        r.thickness_mae_nm
+    );
+    assert!(
+        r.delta_e76_mean <= 0.5,
+        "{}: dE76 {}",
+        r.scene,
+        r.delta_e76_mean
+    );
+    assert!(
+        r.spectral_rmse <= 0.01,
+        "{}: RMSE {}",
+        r.scene,
+        r.spectral_rmse
+    );
+    assert!(
+        r.silent_failure_rate <= 0.001,
+        "{}: silent {}",
+        r.scene,
+        r.silent_failure_rate
+    );
+    assert!(
+        r.valid_fraction >= 0.98,
+        "{}: valid {}",
+        r.scene,
+        r.valid_fraction
+    );
+}
+
+#[test]
+fn paper_sample1_mgf2_400nm_meets_the_targets() {
+    check(&eval("paper-sample1", Method::Filmscope), 0.003);
+}
+
+#[test]
+fn paper_sample2_mgf2_600nm_meets_the_targets() {
+    check(&eval("paper-sample2", Method::Filmscope), 0.003);
+}
+
+#[test]
+fn paper_sample3_zns_500nm_meets_the_targets() {
+    check(&eval("paper-sample3", Method::Filmscope), 0.01);
+}
+
+#[test]
+fn a_film_without_fringes_is_flagged_not_guessed() {
+    let r = eval("thin-80nm", Method::Filmscope);
+    assert_eq!(r.silent_failure_rate, 0.0);
+    assert!(r.valid_fraction < 0.01, "valid {}", r.valid_fraction);
+}

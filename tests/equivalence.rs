@@ -1,0 +1,93 @@
+//! The same sweep gives the same maps whatever path it takes: streamed from the camera or
+//! replayed from a capture in any interleave, rows one at a time or in blocks, channels of
+//! capacity 1 or many, one worker or several.
+
+mod common;
+
+use filmscope::estimate::{run_method, RunConfig};
+use filmscope::io::{Capture, Interleave};
+use filmscope::pipeline::{CaptureSource, PipelineConfig, SimSource, Source};
+use filmscope::simulate::{write_capture, SimulateOptions};
+use filmscope::sweep::MethodResult;
+use firmware_sim::SoftwareCamera;
+
+fn run(source: &mut dyn Source, workers: usize, channel_capacity: usize) -> MethodResult {
+    let config = RunConfig {
+        pipeline: PipelineConfig {
+            channel_capacity,
+            workers,
+        },
+        ..RunConfig::default()
+    };
+    run_method(source, &config, &|_| {}).expect("run").result
+}
+
+fn same(a: &MethodResult, b: &MethodResult, what: &str) {
+    assert_eq!(
+        a.index.a.to_bits(),
+        b.index.a.to_bits(),
+        "{what}: index {} vs {}",
+        a.index.a,
+        b.index.a
+    );
+    assert_eq!(a.flags, b.flags, "{what}: flags differ");
+    for (i, (x, y)) in a.thickness_nm.iter().zip(&b.thickness_nm).enumerate() {
+        assert!(x.to_bits() == y.to_bits(), "{what}: pixel {i}: {x} vs {y}");
+    }
+}
+
+#[test]
+fn maps_do_not_depend_on_rows_per_message_workers_or_channel_capacity() {
+    let scene = common::tiny_scene();
+    let reference = run(
+        &mut SimSource::new(SoftwareCamera::new(scene.clone()), false, 1).expect("source"),
+        2,
+        64,
+    );
+    assert!(
+        reference
+            .thickness_nm
+            .iter()
+            .filter(|x| x.is_finite())
+            .count()
+            > 600,
+        "reference solves most pixels"
+    );
+    for (rows, workers, cap) in [(1, 1, 1), (5, 2, 1), (24, 3, 4), (7, 4, 64)] {
+        let mut src =
+            SimSource::new(SoftwareCamera::new(scene.clone()), false, rows).expect("source");
+        let got = run(&mut src, workers, cap);
+        same(
+            &reference,
+            &got,
+            &format!("rows {rows}, workers {workers}, capacity {cap}"),
+        );
+    }
+}
+
+#[test]
+fn replayed_captures_match_the_stream_in_every_interleave() {
+    let scene = common::tiny_scene();
+    for noise_free in [false, true] {
+        let streamed = run(
+            &mut SimSource::new(SoftwareCamera::new(scene.clone()), noise_free, 3).expect("source"),
+            2,
+            16,
+        );
+        for interleave in [Interleave::Bil, Interleave::Bsq, Interleave::Bip] {
+            let dir = common::tempdir();
+            let opts = SimulateOptions {
+                noise_free,
+                interleave,
+            };
+            write_capture(&scene, dir.path(), opts, &|_| {}).expect("capture");
+            let cap = Capture::load(dir.path()).expect("capture loads");
+            let replayed = run(&mut CaptureSource::new(cap).expect("source"), 2, 16);
+            same(
+                &streamed,
+                &replayed,
+                &format!("{interleave:?}, noise_free {noise_free}"),
+            );
+        }
+    }
+}
