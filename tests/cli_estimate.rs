@@ -1,0 +1,110 @@
+//! `filmscope estimate` per the contract: the outputs it writes, and one-line errors with a
+//! non-zero exit for captures that cannot be read.
+
+mod common;
+
+use std::path::Path;
+
+use common::{filmscope, s, tempdir};
+use filmscope::io::read_cube;
+use filmscope::simulate::{write_capture, SimulateOptions};
+
+fn capture(dir: &Path) {
+    write_capture(&common::tiny_scene(), dir, SimulateOptions::default(), &|_| {}).expect("capture");
+}
+
+#[test]
+fn estimate_writes_the_contract_outputs() {
+    let dir = tempdir();
+    let cap = dir.path().join("cap");
+    capture(&cap);
+    let out = dir.path().join("est");
+    let run = filmscope().args(["estimate", s(&cap), "--out", s(&out)]).output().expect("run");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary")).expect("json");
+    let n = summary["refractive_index"].as_f64().expect("index");
+    assert!((n - 2.1).abs() < 0.01, "n = {n}");
+    assert!(summary.get("dispersion").is_some());
+    for k in ["mean", "median", "std", "min", "max"] {
+        assert!(summary["thickness_nm"][k].is_number(), "thickness_nm.{k}");
+    }
+    let valid = summary["valid_fraction"].as_f64().expect("valid_fraction");
+    assert!(valid > 0.9, "valid {valid}");
+    assert_eq!(summary["width"], 32);
+    assert_eq!(summary["height"], 24);
+    let map = read_cube(out.join("thickness_nm.hdr")).expect("thickness map");
+    assert_eq!((map.samples, map.lines, map.bands), (32, 24, 1));
+    let finite = map.data.iter().filter(|x| x.is_finite()).count() as f64 / map.data.len() as f64;
+    assert!((finite - valid).abs() < 1e-12);
+    // The dead and hot pixels are NaN, never a number.
+    assert!(map.data.iter().filter(|x| x.is_nan()).count() >= 3);
+    let conf = read_cube(out.join("confidence.hdr")).expect("confidence map");
+    assert!(conf.data.iter().all(|c| (0.0..=1.0).contains(c)));
+    let flags = read_cube(out.join("flags.hdr")).expect("flags map");
+    assert_eq!(flags.data.len(), 32 * 24);
+    let png = std::fs::read(out.join("thickness_nm.png")).expect("preview");
+    assert_eq!(&png[1..4], b"PNG");
+    // No temporary files left behind.
+    for e in std::fs::read_dir(&out).expect("out dir") {
+        let name = e.expect("entry").file_name().to_string_lossy().into_owned();
+        assert!(!name.starts_with('.') && !name.contains("tmp"), "left over: {name}");
+    }
+}
+
+#[test]
+fn paper_and_brute_methods_run_from_the_command_line() {
+    let dir = tempdir();
+    let cap = dir.path().join("cap");
+    capture(&cap);
+    for (method, extra) in [("paper", vec![]), ("brute", vec!["--brute-index-steps", "41", "--brute-thickness-step", "4"])] {
+        let out = dir.path().join(method);
+        let run = filmscope()
+            .args(["estimate", s(&cap), "--out", s(&out), "--method", method])
+            .args(extra)
+            .output()
+            .expect("run");
+        assert!(run.status.success(), "{method}: {}", String::from_utf8_lossy(&run.stderr));
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary")).expect("json");
+        assert_eq!(summary["method"], method);
+    }
+}
+
+fn fails_with_one_line(args: &[&str], must_name: &str) {
+    let run = filmscope().args(args).output().expect("run");
+    assert!(!run.status.success(), "{args:?} succeeded");
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+    assert!(err.contains(must_name), "{args:?}: {err} does not name {must_name}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn unreadable_captures_fail_with_one_line_naming_the_file() {
+    let dir = tempdir();
+    let cap = dir.path().join("cap");
+    capture(&cap);
+    let out = dir.path().join("out");
+    // Missing capture.
+    fails_with_one_line(&["estimate", "/nonexistent/capture", "--out", s(&out)], "/nonexistent/capture");
+    // Truncated cube data.
+    let img = cap.join("a25.img");
+    let bytes = std::fs::read(&img).expect("cube");
+    std::fs::write(&img, &bytes[..bytes.len() / 2]).expect("truncate");
+    fails_with_one_line(&["estimate", s(&cap), "--out", s(&out)], "a25.img");
+    std::fs::write(&img, &bytes).expect("restore");
+    // A single angle.
+    let toml = cap.join("capture.toml");
+    let text = std::fs::read_to_string(&toml).expect("toml");
+    let first_angle_end = text.match_indices("[[angle]]").nth(1).map(|(i, _)| i).expect("two angles");
+    std::fs::write(&toml, &text[..first_angle_end]).expect("one angle");
+    fails_with_one_line(&["estimate", s(&cap), "--out", s(&out)], "capture.toml");
+    // Garbage.
+    std::fs::write(&toml, "[[[ not toml").expect("garbage");
+    fails_with_one_line(&["estimate", s(&cap), "--out", s(&out)], "capture.toml");
+    assert!(!out.join("summary.json").exists(), "no summary for a failed run");
+    // Unknown method.
+    std::fs::write(&toml, &text).expect("restore toml");
+    fails_with_one_line(&["estimate", s(&cap), "--out", s(&out), "--method", "magic"], "magic");
+}
