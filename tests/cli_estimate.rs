@@ -10,7 +10,13 @@ use filmscope::io::read_cube;
 use filmscope::simulate::{write_capture, SimulateOptions};
 
 fn capture(dir: &Path) {
-    write_capture(&common::tiny_scene(), dir, SimulateOptions::default(), &|_| {}).expect("capture");
+    write_capture(
+        &common::tiny_scene(),
+        dir,
+        SimulateOptions::default(),
+        &|_| {},
+    )
+    .expect("capture");
 }
 
 #[test]
@@ -19,10 +25,18 @@ fn estimate_writes_the_contract_outputs() {
     let cap = dir.path().join("cap");
     capture(&cap);
     let out = dir.path().join("est");
-    let run = filmscope().args(["estimate", s(&cap), "--out", s(&out)]).output().expect("run");
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let run = filmscope()
+        .args(["estimate", s(&cap), "--out", s(&out)])
+        .output()
+        .expect("run");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary")).expect("json");
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary"))
+            .expect("json");
     let n = summary["refractive_index"].as_f64().expect("index");
     assert!((n - 2.1).abs() < 0.01, "n = {n}");
     assert!(summary.get("dispersion").is_some());
@@ -48,7 +62,10 @@ fn estimate_writes_the_contract_outputs() {
     // No temporary files left behind.
     for e in std::fs::read_dir(&out).expect("out dir") {
         let name = e.expect("entry").file_name().to_string_lossy().into_owned();
-        assert!(!name.starts_with('.') && !name.contains("tmp"), "left over: {name}");
+        assert!(
+            !name.starts_with('.') && !name.contains("tmp"),
+            "left over: {name}"
+        );
     }
 }
 
@@ -57,16 +74,28 @@ fn paper_and_brute_methods_run_from_the_command_line() {
     let dir = tempdir();
     let cap = dir.path().join("cap");
     capture(&cap);
-    for (method, extra) in [("paper", vec![]), ("brute", vec!["--brute-index-steps", "41", "--brute-thickness-step", "4"])] {
+    for (method, extra) in [
+        ("paper", vec![]),
+        (
+            "brute",
+            vec!["--brute-index-steps", "41", "--brute-thickness-step", "4"],
+        ),
+    ] {
         let out = dir.path().join(method);
         let run = filmscope()
             .args(["estimate", s(&cap), "--out", s(&out), "--method", method])
             .args(extra)
             .output()
             .expect("run");
-        assert!(run.status.success(), "{method}: {}", String::from_utf8_lossy(&run.stderr));
-        let summary: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary")).expect("json");
+        assert!(
+            run.status.success(),
+            "{method}: {}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let summary: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join("summary.json")).expect("summary"),
+        )
+        .expect("json");
         assert_eq!(summary["method"], method);
     }
 }
@@ -76,7 +105,10 @@ fn fails_with_one_line(args: &[&str], must_name: &str) {
     assert!(!run.status.success(), "{args:?} succeeded");
     let err = String::from_utf8_lossy(&run.stderr);
     assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
-    assert!(err.contains(must_name), "{args:?}: {err} does not name {must_name}");
+    assert!(
+        err.contains(must_name),
+        "{args:?}: {err} does not name {must_name}"
+    );
     assert!(!err.contains("panicked"), "{err}");
 }
 
@@ -87,7 +119,10 @@ fn unreadable_captures_fail_with_one_line_naming_the_file() {
     capture(&cap);
     let out = dir.path().join("out");
     // Missing capture.
-    fails_with_one_line(&["estimate", "/nonexistent/capture", "--out", s(&out)], "/nonexistent/capture");
+    fails_with_one_line(
+        &["estimate", "/nonexistent/capture", "--out", s(&out)],
+        "/nonexistent/capture",
+    );
     // Truncated cube data.
     let img = cap.join("a25.img");
     let bytes = std::fs::read(&img).expect("cube");
@@ -97,14 +132,24 @@ fn unreadable_captures_fail_with_one_line_naming_the_file() {
     // A single angle.
     let toml = cap.join("capture.toml");
     let text = std::fs::read_to_string(&toml).expect("toml");
-    let first_angle_end = text.match_indices("[[angle]]").nth(1).map(|(i, _)| i).expect("two angles");
+    let first_angle_end = text
+        .match_indices("[[angle]]")
+        .nth(1)
+        .map(|(i, _)| i)
+        .expect("two angles");
     std::fs::write(&toml, &text[..first_angle_end]).expect("one angle");
     fails_with_one_line(&["estimate", s(&cap), "--out", s(&out)], "capture.toml");
     // Garbage.
     std::fs::write(&toml, "[[[ not toml").expect("garbage");
     fails_with_one_line(&["estimate", s(&cap), "--out", s(&out)], "capture.toml");
-    assert!(!out.join("summary.json").exists(), "no summary for a failed run");
+    assert!(
+        !out.join("summary.json").exists(),
+        "no summary for a failed run"
+    );
     // Unknown method.
     std::fs::write(&toml, &text).expect("restore toml");
-    fails_with_one_line(&["estimate", s(&cap), "--out", s(&out), "--method", "magic"], "magic");
+    fails_with_one_line(
+        &["estimate", s(&cap), "--out", s(&out), "--method", "magic"],
+        "magic",
+    );
 }
