@@ -96,6 +96,8 @@ pub fn run_method(
                         "index_sigma": if a.index_sigma.is_finite() { Some(a.index_sigma) } else { None },
                         "pair_index": a.pair.map(|p| p.index),
                         "refined": a.refined,
+                        "spectral_index_step": a.spectral_index_step,
+                        "dispersive": a.dispersive,
                     })
                 })
                 .collect();

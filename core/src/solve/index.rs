@@ -212,8 +212,8 @@ impl RatioHistogram {
     /// The ratio window around the histogram's mode: the mode of a 17-bin running sum, its
     /// half width where the smoothed votes fall halfway from the mode to the background (the
     /// lower quartile), doubled. `None` without enough votes, or when the votes do not pile up
-    /// clearly inside the range: a mode not well above the background, holding less than half
-    /// the votes, wider than a third of the range, or whose window is cut by its edge means the shift between the two angles is lost in the
+    /// clearly inside the range: a mode not well above the background, holding less than a
+    /// quarter of the votes or less than 1.5 times as high as any other peak, wider than a third of the range, or whose window is cut by its edge means the shift between the two angles is lost in the
     /// extremum noise, and this pair gives no index.
     pub fn mode_window(&self, geom: &PairGeometry) -> Option<(f64, f64)> {
         const K: usize = 8;
@@ -252,11 +252,22 @@ impl RatioHistogram {
         {
             return None;
         }
-        // Most votes must be in the mode: a broad hump with a noise spike on top is not one.
+        // The mode must stand out: hold a quarter of the votes, and tower over every other
+        // peak (a broad hump with a noise spike on top is not a mode; for thick films the
+        // pairings with the neighbouring orders pile up too, but smeared, since their ratio
+        // depends on the order).
         let a = (centre - 2.0 * half_width) as usize;
         let b = (centre + 2.0 * half_width) as usize;
         let inside: u64 = self.counts[a..=b].iter().map(|&c| u64::from(c)).sum();
-        if 2 * inside < total {
+        let guard = (2.0 * half_width) as usize;
+        let elsewhere = smooth
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| i + guard < a || i > b + guard)
+            .map(|(_, &v)| v)
+            .max()
+            .unwrap_or(0);
+        if 4 * inside < total || 2 * peak < 3 * elsewhere {
             return None;
         }
         Some((

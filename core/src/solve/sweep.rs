@@ -168,8 +168,12 @@ pub struct AngleReport {
     pub index_sigma: f64,
     /// The extrema-only pair estimate of this angle against the reference angle.
     pub pair: Option<PairEstimate>,
-    /// Whether the full-spectrum step moved the index.
+    /// Whether full-spectrum sums were available at this angle's end.
     pub refined: bool,
+    /// The index step the full-spectrum sums alone would take (a consistency check).
+    pub spectral_index_step: f64,
+    /// Whether the index model is dispersive (Cauchy) after this angle.
+    pub dispersive: bool,
 }
 
 /// The global state of one sweep.
@@ -434,6 +438,8 @@ impl SweepSolver {
             index_sigma: self.index_sigma,
             pair: self.last_pair,
             refined: self.last_refined,
+            spectral_index_step: self.spectral_dn,
+            dispersive: self.fit.is_some_and(|f| f.dispersive),
         }
     }
 
