@@ -160,15 +160,24 @@ impl SoftwareCamera {
                 None => {
                     let mean = self.mean_counts(band, col, row, r(col));
                     let signal = (mean - s.dark_counts).max(0.0);
-                    let mut acc = 0.0;
-                    for _ in 0..frames {
-                        let electrons = rng.poisson(signal * s.gain_e_per_count * 1.0);
+                    if frames == 1 {
+                        let electrons = rng.poisson(signal * s.gain_e_per_count);
                         let counts = s.dark_counts
                             + electrons / s.gain_e_per_count
                             + s.read_noise_counts * rng.normal();
-                        acc += counts.round().clamp(0.0, sat);
+                        counts.round().clamp(0.0, sat)
+                    } else {
+                        // The mean of `frames` exposures: shot and read noise shrink by
+                        // sqrt(frames); drawn at once (the central limit of the per-frame
+                        // Poisson and Gaussian draws) rather than frame by frame.
+                        let k = f64::from(frames);
+                        let shot = (signal / s.gain_e_per_count / k).sqrt();
+                        let read = s.read_noise_counts / k.sqrt();
+                        let counts = s.dark_counts
+                            + signal
+                            + (shot * shot + read * read).sqrt() * rng.normal();
+                        counts.clamp(0.0, sat)
                     }
-                    acc / f64::from(frames)
                 }
             };
             *o = value as f32;

@@ -13,6 +13,7 @@ use crate::io::{Capture, Interleave};
 use crate::pipeline::{CaptureSource, PipelineConfig, SimSource, Source};
 use crate::simulate::{write_capture, SimulateOptions};
 use crate::sweep::Method;
+use filmscope_core::solve::sweep::SolverOptions;
 
 /// The paper's samples, built in so `demo` runs from anywhere.
 const PAPER_SCENES: [(&str, &str); 3] = [
@@ -95,6 +96,7 @@ pub fn estimate(
         pipeline: PipelineConfig {
             channel_capacity,
             workers,
+            ..PipelineConfig::default()
         },
         brute_grid: BruteGrid {
             index_steps: brute.0,
@@ -171,8 +173,29 @@ fn eval_one(path: &Path, config: &RunConfig) -> Result<EvalReport> {
     }
 }
 
+/// Solver options with the named improvements switched off.
+fn ablated(list: &[String]) -> Result<SolverOptions> {
+    let mut o = SolverOptions::default();
+    for name in list {
+        match name.as_str() {
+            "refine" => o.refine = false,
+            "half-order" => o.half_order = false,
+            "neighbours" => o.neighbours = false,
+            "subband" => o.subband = false,
+            other => bail!("--ablate {other:?}: use refine, half-order, neighbours or subband"),
+        }
+    }
+    Ok(o)
+}
+
 /// `filmscope eval`.
-pub fn eval(inputs: &[PathBuf], method_name: &str, json: bool, brute: (usize, f64)) -> Result<()> {
+pub fn eval(
+    inputs: &[PathBuf],
+    method_name: &str,
+    json: bool,
+    brute: (usize, f64),
+    ablate: &[String],
+) -> Result<()> {
     if inputs.is_empty() {
         bail!("eval needs at least one scene file or capture directory");
     }
@@ -182,7 +205,10 @@ pub fn eval(inputs: &[PathBuf], method_name: &str, json: bool, brute: (usize, f6
             index_steps: brute.0,
             thickness_step_nm: brute.1,
         },
-        ..RunConfig::default()
+        pipeline: PipelineConfig {
+            solver: ablated(ablate)?,
+            ..PipelineConfig::default()
+        },
     };
     if !json {
         println!(

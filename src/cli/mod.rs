@@ -74,6 +74,10 @@ enum Command {
         /// One JSON object per input on stdout instead of a table.
         #[arg(long)]
         json: bool,
+        /// Switch off filmscope improvements to measure their worth: refine, half-order,
+        /// neighbours, subband (comma-separated).
+        #[arg(long, value_delimiter = ',')]
+        ablate: Vec<String>,
         /// Brute force: number of index values over the search range (0: a 0.01 step).
         #[arg(long, default_value_t = 0)]
         brute_index_steps: usize,
@@ -114,6 +118,7 @@ pub fn main() -> std::process::ExitCode {
             inputs,
             method,
             json,
+            ablate,
             brute_index_steps,
             brute_thickness_step,
         } => commands::eval(
@@ -121,6 +126,7 @@ pub fn main() -> std::process::ExitCode {
             &method,
             json,
             (brute_index_steps, brute_thickness_step),
+            &ablate,
         ),
     };
     match result {

@@ -18,6 +18,7 @@ use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::calibrate::calibrate_row;
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
 use filmscope_core::solve::refine::BandCoef;
+use filmscope_core::solve::sweep::SolverOptions;
 use filmscope_core::solve::sweep::{RmsHistogram, SchurSums};
 use filmscope_core::solve::{
     AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
@@ -33,6 +34,8 @@ pub struct PipelineConfig {
     pub channel_capacity: usize,
     /// Worker threads (shards of rows).
     pub workers: usize,
+    /// What the solver may use.
+    pub solver: SolverOptions,
 }
 
 impl Default for PipelineConfig {
@@ -40,6 +43,7 @@ impl Default for PipelineConfig {
         Self {
             channel_capacity: 64,
             workers: 2,
+            solver: SolverOptions::default(),
         }
     }
 }
@@ -106,7 +110,8 @@ pub fn run_sweep(
     prior: Option<IndexModel>,
     on_rows: &(dyn Fn(u64) + Sync),
 ) -> Result<SweepOutput, PipelineError> {
-    let spec = source.spec().clone();
+    let mut spec = source.spec().clone();
+    spec.options = config.solver;
     let (w, h) = (spec.width, spec.height);
     let workers = config.workers.clamp(1, h.max(1));
     let cap = config.channel_capacity.max(1);
@@ -132,7 +137,8 @@ pub fn run_sweep(
             start_txs.push(start_tx);
             let done = done_tx.clone();
             let (first, _) = shard_rows(h, workers, i);
-            scope.spawn(move || worker(i, first, w, start_rx, rx, done));
+            let options = spec.options;
+            scope.spawn(move || worker(i, first, w, options, start_rx, rx, done));
         }
         drop(done_tx);
         scope.spawn(move || source.stream(&src_tx));
@@ -241,6 +247,7 @@ fn worker(
     index: usize,
     first_row: usize,
     width: usize,
+    options: SolverOptions,
     start: Receiver<Start>,
     rows: Receiver<WorkerMsg>,
     done: Sender<(usize, Vec<PixelState>)>,
@@ -254,6 +261,7 @@ fn worker(
                     for k in 0..n as usize {
                         let r = row as usize + k;
                         shard.feed_row(
+                            options,
                             &models,
                             usize::from(band),
                             r,

@@ -69,6 +69,7 @@ pub fn sweep_spec(
         polarization,
         index_range,
         thickness_range_nm,
+        options: Default::default(),
     })
 }
 

@@ -6,7 +6,7 @@ use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
 use super::order::{Observation, OrderChoice, OrderContext};
 use super::refine::{BandCoef, GnSums};
-use super::sweep::{RmsHistogram, SchurSums, SweepSolver};
+use super::sweep::{RmsHistogram, SchurSums, SolverOptions, SweepSolver};
 
 /// Cost margin below which two orders are a tie (squared order misfits).
 const AMBIGUITY_MARGIN: f64 = 0.08;
@@ -81,6 +81,7 @@ pub struct Shard<'a> {
     pub width: usize,
     /// Row-major pixel states.
     pub pixels: &'a mut [PixelState],
+    use_neighbours: bool,
 }
 
 /// A pixel's final result.
@@ -101,6 +102,7 @@ impl<'a> Shard<'a> {
             first_row,
             width,
             pixels,
+            use_neighbours: true,
         }
     }
 
@@ -127,6 +129,7 @@ impl<'a> Shard<'a> {
     /// angle's band models ([`SweepSolver::band_models`]).
     pub fn feed_row(
         &mut self,
+        options: SolverOptions,
         models: &[Option<BandCoef>],
         band: usize,
         row: usize,
@@ -136,7 +139,10 @@ impl<'a> Shard<'a> {
             return;
         }
         let start = (row - self.first_row) * self.width;
-        let coef = models.get(band).and_then(Option::as_ref);
+        let coef = models
+            .get(band)
+            .and_then(Option::as_ref)
+            .filter(|_| options.refine);
         let band16 = band as u16;
         for (p, &v) in self.pixels[start..start + self.width]
             .iter_mut()
@@ -150,7 +156,7 @@ impl<'a> Shard<'a> {
                     p.saturated = p.saturated.saturating_add(1);
                 }
             }
-            p.tracker.push(band16, v, &mut p.current);
+            p.tracker.push(band16, v, options.subband, &mut p.current);
             if let Some(c) = coef {
                 if v.is_finite() && p.thickness_nm.is_finite() {
                     p.gn.add(
@@ -321,6 +327,7 @@ impl<'a> Shard<'a> {
         if solver.anchor_deg().is_none() {
             return false;
         }
+        self.use_neighbours = solver.spec().options.neighbours;
         let Some(ctx) = Self::order_context(solver) else {
             return false;
         };
@@ -356,6 +363,7 @@ impl<'a> Shard<'a> {
         if solver.anchor_deg().is_none() {
             return;
         }
+        self.use_neighbours = solver.spec().options.neighbours;
         let Some(ctx) = Self::order_context(solver) else {
             return;
         };
@@ -378,6 +386,9 @@ impl<'a> Shard<'a> {
     }
 
     fn adopt_neighbour(&mut self, i: usize, c: &OrderChoice, neighbours: [Option<f32>; 2]) -> bool {
+        if !self.use_neighbours {
+            return false;
+        }
         for d_n in neighbours.into_iter().flatten() {
             let d_n = f64::from(d_n);
             if !d_n.is_finite() {

@@ -47,6 +47,34 @@ pub struct SweepSpec {
     pub index_range: [f64; 2],
     /// Thickness search range, nm.
     pub thickness_range_nm: [f64; 2],
+    /// What the solver may use (all on by default; off only to measure what each is worth).
+    pub options: SolverOptions,
+}
+
+/// The solver's improvements over the published method, each switchable so its worth can be
+/// measured (`filmscope eval --ablate ...`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SolverOptions {
+    /// Full-spectrum Gauss-Newton refinement of the thickness (off: extrema only).
+    pub refine: bool,
+    /// The half-order reflection phase of films above the substrate's index (off: integer
+    /// orders, as the paper's eq. 9).
+    pub half_order: bool,
+    /// Neighbours decide orders a pixel alone cannot (off: such pixels stay unresolved).
+    pub neighbours: bool,
+    /// Extrema placed to a fraction of a band (off: at the band centre).
+    pub subband: bool,
+}
+
+impl Default for SolverOptions {
+    fn default() -> Self {
+        Self {
+            refine: true,
+            half_order: true,
+            neighbours: true,
+            subband: true,
+        }
+    }
 }
 
 impl SweepSpec {
@@ -318,6 +346,9 @@ impl SweepSolver {
 
     /// Order offset of the peaks (0 or 1/2) at `incidence_deg` with index `index`.
     pub fn peak_offset(&self, index: IndexModel, incidence_deg: f64) -> f64 {
+        if !self.spec.options.half_order {
+            return 0.0;
+        }
         let mid = self.spec.bands_nm[self.spec.bands_nm.len() / 2];
         FilmAtAngle::new(
             Indices {

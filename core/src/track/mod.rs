@@ -104,9 +104,10 @@ impl PixelTracker {
 
     /// Feeds the sample of band `band` (bands must come in increasing order, one per call).
     /// Non-finite samples (saturated, dead) are counted and bridged by repeating the last
-    /// good sample. Confirmed extrema are pushed to `out`.
+    /// good sample. Confirmed extrema are pushed to `out`, placed to a fraction of a band when
+    /// `subband` (else at the band of the smoothed extreme).
     #[inline]
-    pub fn push(&mut self, band: u16, value: f32, out: &mut ExtremaList) {
+    pub fn push(&mut self, band: u16, value: f32, subband: bool, out: &mut ExtremaList) {
         let v = if value.is_finite() {
             value
         } else {
@@ -141,7 +142,7 @@ impl PixelTracker {
         d1 /= SG_SLOPE_NORM;
         d2 /= SG_CURV_NORM;
         let centre = f32::from(band) - HALF as f32;
-        let vertex = if d2.abs() > 1e-12 {
+        let vertex = if subband && d2.abs() > 1e-12 {
             centre + (-d1 / (2.0 * d2)).clamp(-1.0, 1.0)
         } else {
             centre

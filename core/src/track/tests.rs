@@ -4,7 +4,7 @@ fn run(samples: impl Iterator<Item = f32>) -> (ExtremaList, PixelTracker) {
     let mut t = PixelTracker::default();
     let mut out = ExtremaList::new();
     for (b, v) in samples.enumerate() {
-        t.push(b as u16, v, &mut out);
+        t.push(b as u16, v, true, &mut out);
     }
     (out, t)
 }
