@@ -16,6 +16,7 @@ fn run(source: &mut dyn Source, workers: usize, channel_capacity: usize) -> Meth
         pipeline: PipelineConfig {
             channel_capacity,
             workers,
+            ..PipelineConfig::default()
         },
         ..RunConfig::default()
     };
