@@ -55,6 +55,8 @@ pub struct Run {
     pub samples: u64,
     /// Per-angle progress of the streaming solver, as JSON.
     pub angle_reports: serde_json::Value,
+    /// How the index model was chosen (streaming method), as JSON.
+    pub model_choice: serde_json::Value,
 }
 
 /// The streaming estimator's output as a [`MethodResult`].
@@ -110,6 +112,15 @@ pub fn run_method(
                 state_bytes_per_pixel: Some(out.state_bytes_per_pixel),
                 samples: out.samples,
                 angle_reports: serde_json::Value::Array(reports),
+                model_choice: out.index_fit.map_or(serde_json::Value::Null, |f| {
+                    json!({
+                        "chosen": if f.dispersive { "cauchy" } else { "constant" },
+                        "chi2_constant": f.chi2_constant,
+                        "chi2_cauchy": if f.chi2_cauchy.is_finite() { Some(f.chi2_cauchy) } else { None },
+                        "wavelength_bins": f.bins,
+                        "criterion": "Cauchy only if its chi-square gain, in units of its own reduced chi-square, exceeds 25, the constant model's reduced chi-square exceeds 2, and 0 <= b <= 0.2 um^2 with n inside the search range across the band",
+                    })
+                }),
             })
         }
         Method::Paper | Method::Brute => {
@@ -131,6 +142,7 @@ pub fn run_method(
                 state_bytes_per_pixel: None,
                 samples,
                 angle_reports: serde_json::Value::Null,
+                model_choice: serde_json::Value::Null,
             })
         }
     }
@@ -245,6 +257,7 @@ pub fn write_outputs(
         "refractive_index_sigma": r.index_sigma,
         "dispersion": dispersion_json(&r.index.dispersion()),
         "index_model": if r.index.b_um2 == 0.0 { "constant" } else { "cauchy" },
+        "index_model_choice": run.model_choice,
         "thickness_nm": stats(&r.thickness_nm),
         "valid_fraction": valid as f64 / (w * h).max(1) as f64,
         "width": w,

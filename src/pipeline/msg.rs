@@ -46,6 +46,12 @@ pub enum StreamMsg {
     },
     /// Rows of one band.
     Rows(RowBlock),
+    /// Every row of band `band` of the current angle has been sent (band-sequential sources
+    /// only: a line-interleaved source completes all bands together at `AngleEnd`).
+    BandEnd {
+        /// The band.
+        band: u16,
+    },
     /// The current angle is complete.
     AngleEnd,
     /// The sweep is complete.

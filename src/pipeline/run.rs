@@ -63,6 +63,8 @@ pub struct SweepOutput {
     pub residual_sigma: Option<f64>,
     /// What each angle added.
     pub angles: Vec<AngleReport>,
+    /// The final index fit: model choice and its evidence.
+    pub index_fit: Option<filmscope_core::solve::index::IndexFit>,
     /// Wall time from the first message to the maps being ready.
     pub stream_time: Duration,
     /// Wall time from the last row of the last angle to the maps being ready.
@@ -234,6 +236,7 @@ pub fn run_sweep(
         results,
         index: solver.index(),
         index_sigma: solver.index_sigma(),
+        index_fit: solver.index_fit(),
         residual_sigma: solver.residual_sigma(),
         angles: reports,
         stream_time: done - start,
@@ -355,6 +358,9 @@ fn calibrate_stage(
                 }
                 on_rows(rows as u64);
             }
+            // Band ends carry nothing the solver needs: each pixel's tracker sees its bands in
+            // order whatever the interleave.
+            StreamMsg::BandEnd { .. } => {}
             StreamMsg::AngleEnd => {
                 in_angle = false;
                 let at = Instant::now();
@@ -449,7 +455,7 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
                     let at = (band * h + first) * w;
                     cube[at..at + rows * w].copy_from_slice(&v);
                 }
-                StreamMsg::AngleEnd => {}
+                StreamMsg::AngleEnd | StreamMsg::BandEnd { .. } => {}
                 StreamMsg::SweepEnd => return Ok(()),
                 StreamMsg::Abort(e) => return Err(PipelineError(e)),
             }

@@ -175,6 +175,9 @@ impl Source for SimSource {
                     }
                     r0 += rows;
                 }
+                if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
+                    return;
+                }
             }
             if tx.send(StreamMsg::AngleEnd).is_err() {
                 return;
@@ -252,7 +255,17 @@ impl CaptureSource {
             None => None,
         };
         let mut buf = vec![0f32; w];
+        let band_sequential = cube.header().interleave == crate::io::Interleave::Bsq;
+        let mut last_band = None;
         while let Some(at) = cube.next_band_row(&mut buf).map_err(|e| e.to_string())? {
+            if band_sequential && last_band.is_some_and(|b| b != at.band) {
+                if let Some(b) = last_band {
+                    if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
+                        return Ok(false);
+                    }
+                }
+            }
+            last_band = Some(at.band);
             let samples = match white.as_mut() {
                 None => Samples::Reflectance(buf.clone()),
                 Some(wr) => {
@@ -286,6 +299,11 @@ impl CaptureSource {
                 samples,
             };
             if tx.send(StreamMsg::Rows(block)).is_err() {
+                return Ok(false);
+            }
+        }
+        if let (true, Some(b)) = (band_sequential, last_band) {
+            if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
                 return Ok(false);
             }
         }
