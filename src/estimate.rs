@@ -114,6 +114,8 @@ pub fn run_method(
                 angle_reports: serde_json::Value::Array(reports),
                 model_choice: out.index_fit.map_or(serde_json::Value::Null, |f| {
                     json!({
+                        "residual_sigma": out.residual_sigma,
+                        "noise_sigma": out.noise_sigma,
                         "chosen": if f.dispersive { "cauchy" } else { "constant" },
                         "chi2_constant": f.chi2_constant,
                         "chi2_cauchy": if f.chi2_cauchy.is_finite() { Some(f.chi2_cauchy) } else { None },

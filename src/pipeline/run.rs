@@ -19,7 +19,7 @@ use filmscope_core::calibrate::calibrate_row;
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
 use filmscope_core::solve::refine::BandCoef;
 use filmscope_core::solve::sweep::SolverOptions;
-use filmscope_core::solve::sweep::{RmsHistogram, SchurSums};
+use filmscope_core::solve::sweep::{FitStats, SchurSums};
 use filmscope_core::solve::{
     AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
 };
@@ -61,6 +61,8 @@ pub struct SweepOutput {
     pub index_sigma: f64,
     /// The typical RMS residual of the full-spectrum fit.
     pub residual_sigma: Option<f64>,
+    /// The image's typical noise, from the spectra themselves.
+    pub noise_sigma: Option<f32>,
     /// What each angle added.
     pub angles: Vec<AngleReport>,
     /// The final index fit: model choice and its evidence.
@@ -238,6 +240,7 @@ pub fn run_sweep(
         index_sigma: solver.index_sigma(),
         index_fit: solver.index_fit(),
         residual_sigma: solver.residual_sigma(),
+        noise_sigma: solver.noise_sigma(),
         angles: reports,
         stream_time: done - start,
         solve_latency: done - last_row_at,
@@ -507,7 +510,7 @@ pub fn end_angle_parallel(solver: &mut SweepSolver, shards: &mut [Shard<'_>]) ->
         sums.merge(r);
     }
     solver.set_window_sums(&sums);
-    let mut rms = RmsHistogram::default();
+    let mut rms = FitStats::default();
     for r in each(shards, |sh| sh.fit_histogram()) {
         rms.merge(&r);
     }

@@ -6,7 +6,7 @@ use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
 use super::order::{Observation, OrderChoice, OrderContext};
 use super::refine::{BandCoef, GnSums};
-use super::sweep::{RmsHistogram, SchurSums, SolverOptions, SweepSolver};
+use super::sweep::{FitStats, SchurSums, SolverOptions, SweepSolver};
 
 /// Cost margin below which two orders are a tie (squared order misfits).
 const AMBIGUITY_MARGIN: f64 = 0.08;
@@ -200,11 +200,14 @@ impl<'a> Shard<'a> {
         }
     }
 
-    /// Angle-end pass 3: the RMS residuals of the refined pixels.
-    pub fn fit_histogram(&self) -> RmsHistogram {
-        let mut h = RmsHistogram::default();
-        for p in self.pixels.iter().filter(|p| p.gn.samples > 0) {
-            h.add(p.gn.rms());
+    /// Angle-end pass 3: the RMS residuals of the refined pixels and every pixel's noise.
+    pub fn fit_histogram(&self) -> FitStats {
+        let mut h = FitStats::default();
+        for p in self.pixels.iter() {
+            if p.gn.samples > 0 {
+                h.rms.add(p.gn.rms());
+            }
+            h.noise.add(p.tracker.noise_sigma());
         }
         h
     }

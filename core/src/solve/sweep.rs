@@ -153,6 +153,23 @@ impl RmsHistogram {
     }
 }
 
+/// Fit quality and noise over pixels, merged over shards.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FitStats {
+    /// RMS residuals of the refined pixels' full-spectrum fits.
+    pub rms: RmsHistogram,
+    /// Every pixel's own noise estimate (from its spectrum's second differences).
+    pub noise: RmsHistogram,
+}
+
+impl FitStats {
+    /// Adds another shard's histograms.
+    pub fn merge(&mut self, o: &Self) {
+        self.rms.merge(&o.rms);
+        self.noise.merge(&o.noise);
+    }
+}
+
 /// Sums for the shared index's Gauss-Newton step, merged over shards.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SchurSums {
@@ -220,6 +237,7 @@ pub struct SweepSolver {
     fit: Option<IndexFit>,
     last_pair: Option<PairEstimate>,
     rms_median: Option<f32>,
+    noise_median: Option<f32>,
     pending_dn: f64,
     next_index: Option<IndexModel>,
     refined_steps: usize,
@@ -246,6 +264,7 @@ impl SweepSolver {
             fit: None,
             last_pair: None,
             rms_median: None,
+            noise_median: None,
             pending_dn: 0.0,
             next_index: None,
             refined_steps: 0,
@@ -411,10 +430,18 @@ impl SweepSolver {
     }
 
     /// Merged fit-quality histogram.
-    pub fn set_fit_histogram(&mut self, hist: &RmsHistogram) {
-        if let Some(m) = hist.median() {
+    pub fn set_fit_histogram(&mut self, hist: &FitStats) {
+        if let Some(m) = hist.rms.median() {
             self.rms_median = Some(m);
         }
+        if let Some(m) = hist.noise.median() {
+            self.noise_median = Some(m);
+        }
+    }
+
+    /// The image's typical noise (median of the pixels' own estimates at the last angle).
+    pub fn noise_sigma(&self) -> Option<f32> {
+        self.noise_median
     }
 
     /// Merged Schur sums: decides the index step and the index shards use in `update`.
@@ -487,7 +514,7 @@ impl SweepSolver {
             s.window_sums(self, |_, r| sums.merge(&r));
         }
         self.set_window_sums(&sums);
-        let mut rms = RmsHistogram::default();
+        let mut rms = FitStats::default();
         for s in shards.iter() {
             rms.merge(&s.fit_histogram());
         }
