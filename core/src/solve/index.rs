@@ -95,17 +95,53 @@ impl PairGeometry {
     }
 }
 
-/// Votes of one angle pair, summed over pixels (shards merge by adding).
+/// Votes of one angle pair, summed over pixels (shards merge by adding): in total, and per
+/// wavelength bin of the reference extremum (a dispersive film's ratio depends on it).
 #[derive(Clone, Debug, PartialEq)]
 pub struct RatioHistogram {
-    /// Votes per bin.
+    /// Votes per ratio bin.
     pub counts: [u32; BINS],
+    /// Votes per wavelength bin and ratio bin.
+    pub by_lambda: [[u32; BINS]; LAMBDA_BINS],
 }
 
 impl Default for RatioHistogram {
     fn default() -> Self {
-        Self { counts: [0; BINS] }
+        Self {
+            counts: [0; BINS],
+            by_lambda: [[0; BINS]; LAMBDA_BINS],
+        }
     }
+}
+
+/// The accepted ratio windows of one pair: around the overall mode, and around each
+/// wavelength bin's own mode near it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RatioWindows {
+    /// Around the mode of all votes.
+    pub all: (f64, f64),
+    /// Per wavelength bin of the reference extremum.
+    pub per_bin: [(f64, f64); LAMBDA_BINS],
+}
+
+impl PairGeometry {
+    /// The wavelength bin of a reference extremum at `lambda_nm`.
+    pub fn lambda_bin(&self, lambda_nm: f64) -> usize {
+        let [lo, hi] = self.band_nm;
+        ((lambda_nm - lo) / (hi - lo) * LAMBDA_BINS as f64).clamp(0.0, LAMBDA_BINS as f64 - 1.0) as usize
+    }
+}
+
+/// A 17-bin running sum.
+fn smoothed(counts: &[u32; BINS]) -> [u64; BINS] {
+    const K: usize = 8;
+    let mut smooth = [0u64; BINS];
+    for (i, s) in smooth.iter_mut().enumerate() {
+        let lo = i.saturating_sub(K);
+        let hi = (i + K).min(BINS - 1);
+        *s = counts[lo..=hi].iter().map(|&c| u64::from(c)).sum();
+    }
+    smooth
 }
 
 /// Wavelength bins of the per-wavelength ratio sums (for dispersion).
@@ -195,9 +231,11 @@ impl RatioHistogram {
         current: &[Extremum],
         wavelength_nm: impl Fn(f32) -> f64,
     ) {
-        for_each_ratio(geom, reference, current, wavelength_nm, |rho, _| {
+        for_each_ratio(geom, reference, current, wavelength_nm, |rho, lambda| {
             if let Some(b) = geom.bin(rho) {
                 self.counts[b] = self.counts[b].saturating_add(1);
+                let l = &mut self.by_lambda[geom.lambda_bin(lambda)][b];
+                *l = l.saturating_add(1);
             }
         });
     }
@@ -207,6 +245,40 @@ impl RatioHistogram {
         for (a, b) in self.counts.iter_mut().zip(o.counts.iter()) {
             *a = a.saturating_add(*b);
         }
+        for (la, lb) in self.by_lambda.iter_mut().zip(o.by_lambda.iter()) {
+            for (a, b) in la.iter_mut().zip(lb.iter()) {
+                *a = a.saturating_add(*b);
+            }
+        }
+    }
+
+    /// The overall window ([`RatioHistogram::mode_window`]) and, per wavelength bin with
+    /// enough votes, a window of the same width around that bin's own mode within a window's
+    /// width of the overall one (dispersion moves the ratio with wavelength; a single window
+    /// would cut the bins at either end of the band and bias their means).
+    pub fn windows(&self, geom: &PairGeometry) -> Option<RatioWindows> {
+        let all = self.mode_window(geom)?;
+        let to_bin = |rho: f64| (rho - geom.rho_lo) / (geom.rho_hi - geom.rho_lo) * BINS as f64 - 0.5;
+        let (a, b) = (to_bin(all.0), to_bin(all.1));
+        let width = b - a;
+        let mut per_bin = [all; LAMBDA_BINS];
+        for (w, counts) in per_bin.iter_mut().zip(self.by_lambda.iter()) {
+            let total: u32 = counts.iter().sum();
+            if total < 32 {
+                continue;
+            }
+            let smooth = smoothed(counts);
+            let lo = (a - width).max(0.0) as usize;
+            let hi = ((b + width) as usize).min(BINS - 1);
+            if let Some((best, _)) = smooth[lo..=hi].iter().enumerate().max_by_key(|&(_, v)| *v) {
+                let centre = (lo + best) as f64;
+                *w = (
+                    geom.bin_centre(centre - width / 2.0),
+                    geom.bin_centre(centre + width / 2.0),
+                );
+            }
+        }
+        Some(RatioWindows { all, per_bin })
     }
 
     /// The ratio window around the histogram's mode: the mode of a 17-bin running sum, its
@@ -216,17 +288,11 @@ impl RatioHistogram {
     /// quarter of the votes or less than 1.5 times as high as any other peak, wider than a third of the range, or whose window is cut by its edge means the shift between the two angles is lost in the
     /// extremum noise, and this pair gives no index.
     pub fn mode_window(&self, geom: &PairGeometry) -> Option<(f64, f64)> {
-        const K: usize = 8;
         let total: u64 = self.counts.iter().map(|&c| u64::from(c)).sum();
         if total < 32 {
             return None;
         }
-        let mut smooth = [0u64; BINS];
-        for (i, s) in smooth.iter_mut().enumerate() {
-            let lo = i.saturating_sub(K);
-            let hi = (i + K).min(BINS - 1);
-            *s = self.counts[lo..=hi].iter().map(|&c| u64::from(c)).sum();
-        }
+        let smooth = smoothed(&self.counts);
         let (best, &peak) = smooth.iter().enumerate().max_by_key(|&(_, v)| *v)?;
         let mut sorted = smooth;
         sorted.sort_unstable();
@@ -277,25 +343,27 @@ impl RatioHistogram {
     }
 }
 
-/// Adds a pixel's ratios inside `window` to `sums`.
+/// Adds a pixel's ratios to `sums`: to the totals inside the overall window, to the
+/// wavelength bins inside each bin's own window.
 pub fn accumulate_window(
     sums: &mut RatioSums,
     geom: &PairGeometry,
-    window: (f64, f64),
+    windows: &RatioWindows,
     reference: &[Extremum],
     current: &[Extremum],
     wavelength_nm: impl Fn(f32) -> f64,
 ) {
-    let [lo, hi] = geom.band_nm;
     for_each_ratio(geom, reference, current, wavelength_nm, |rho, lambda| {
-        if rho >= window.0 && rho <= window.1 {
-            let l = libm::log(rho);
+        let l = libm::log(rho);
+        if rho >= windows.all.0 && rho <= windows.all.1 {
             sums.n += 1.0;
             sums.sum += l;
             sums.sum_sq += l * l;
-            let u = ((lambda - lo) / (hi - lo) * LAMBDA_BINS as f64)
-                .clamp(0.0, LAMBDA_BINS as f64 - 1.0);
-            sums.bins[u as usize].add(l, lambda);
+        }
+        let k = geom.lambda_bin(lambda);
+        let window = windows.per_bin[k];
+        if rho >= window.0 && rho <= window.1 {
+            sums.bins[k].add(l, lambda);
         }
     });
 }

@@ -13,7 +13,7 @@ use crate::optics::{FilmAtAngle, Indices, Polarization};
 
 use super::index::{
     combine, fit_index, pair_estimate, IndexFit, PairBins, PairEstimate, PairGeometry,
-    RatioHistogram, RatioSums,
+    RatioHistogram, RatioSums, RatioWindows,
 };
 use super::refine::BandCoef;
 use super::shard::Shard;
@@ -231,7 +231,7 @@ pub struct SweepSolver {
     angle_deg: f64,
     angles_done: usize,
     pair_geom: Option<PairGeometry>,
-    window: Option<(f64, f64)>,
+    window: Option<RatioWindows>,
     pairs: HVec<PairEstimate, MAX_PAIRS>,
     pair_bins: HVec<PairBins, MAX_PAIRS>,
     fit: Option<IndexFit>,
@@ -343,9 +343,9 @@ impl SweepSolver {
         self.pair_geom.as_ref()
     }
 
-    /// The accepted ratio window of the current pair.
-    pub fn ratio_window(&self) -> Option<(f64, f64)> {
-        self.window
+    /// The accepted ratio windows of the current pair.
+    pub fn ratio_window(&self) -> Option<&RatioWindows> {
+        self.window.as_ref()
     }
 
     /// The median RMS residual of the last angle (for outlier rejection).
@@ -416,7 +416,7 @@ impl SweepSolver {
 
     /// Merged votes of the current pair: fixes the window around their mode.
     pub fn set_votes(&mut self, hist: &RatioHistogram) {
-        self.window = self.pair_geom.as_ref().and_then(|g| hist.mode_window(g));
+        self.window = self.pair_geom.as_ref().and_then(|g| hist.windows(g));
     }
 
     /// Merged window sums: the pair's extrema-only index estimate.
