@@ -128,7 +128,8 @@ impl PairGeometry {
     /// The wavelength bin of a reference extremum at `lambda_nm`.
     pub fn lambda_bin(&self, lambda_nm: f64) -> usize {
         let [lo, hi] = self.band_nm;
-        ((lambda_nm - lo) / (hi - lo) * LAMBDA_BINS as f64).clamp(0.0, LAMBDA_BINS as f64 - 1.0) as usize
+        ((lambda_nm - lo) / (hi - lo) * LAMBDA_BINS as f64).clamp(0.0, LAMBDA_BINS as f64 - 1.0)
+            as usize
     }
 }
 
@@ -258,7 +259,8 @@ impl RatioHistogram {
     /// would cut the bins at either end of the band and bias their means).
     pub fn windows(&self, geom: &PairGeometry) -> Option<RatioWindows> {
         let all = self.mode_window(geom)?;
-        let to_bin = |rho: f64| (rho - geom.rho_lo) / (geom.rho_hi - geom.rho_lo) * BINS as f64 - 0.5;
+        let to_bin =
+            |rho: f64| (rho - geom.rho_lo) / (geom.rho_hi - geom.rho_lo) * BINS as f64 - 0.5;
         let (a, b) = (to_bin(all.0), to_bin(all.1));
         let width = b - a;
         let mut per_bin = [all; LAMBDA_BINS];

@@ -54,13 +54,16 @@ pub mod flags {
     pub const NOT_REFINED: u16 = 1 << 8;
     /// The order was taken from a neighbour.
     pub const ORDER_FROM_NEIGHBOUR: u16 = 1 << 9;
+    /// The film model does not explain the image's spectra (fit residual well above the
+    /// noise): the thickness is kept but its confidence lowered.
+    pub const MODEL_MISMATCH: u16 = 1 << 10;
 
     /// Flags that make the thickness unreliable (NaN in the map).
     pub const INVALID: u16 =
         NO_FRINGE | AMBIGUOUS_ORDER | SATURATED | DEAD | OUT_OF_RANGE | POOR_FIT | ORDER_REJECTED;
 
     /// Names of the flags, for reports.
-    pub const NAMES: [(u16, &str); 10] = [
+    pub const NAMES: [(u16, &str); 11] = [
         (NO_FRINGE, "no_fringe"),
         (AMBIGUOUS_ORDER, "ambiguous_order"),
         (SATURATED, "saturated"),
@@ -71,6 +74,7 @@ pub mod flags {
         (TRACKER_OVERFLOW, "tracker_overflow"),
         (NOT_REFINED, "not_refined"),
         (ORDER_FROM_NEIGHBOUR, "order_from_neighbour"),
+        (MODEL_MISMATCH, "model_mismatch"),
     ];
 }
 

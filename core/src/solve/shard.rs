@@ -467,6 +467,14 @@ impl<'a> Shard<'a> {
             if d.is_finite() && !(d_lo..=d_hi).contains(&d) {
                 f |= flags::OUT_OF_RANGE;
             }
+            if solver.model_mismatch() {
+                f |= flags::MODEL_MISMATCH;
+                let (r, n) = (
+                    solver.residual_sigma().unwrap_or(1.0),
+                    solver.noise_sigma().unwrap_or(0.0),
+                );
+                confidence *= (f64::from(n) / r).clamp(0.0, 1.0) as f32;
+            }
             let valid = f & flags::INVALID == 0;
             *o = PixelResult {
                 thickness_nm: if valid { d as f32 } else { f32::NAN },

@@ -23,6 +23,11 @@ use super::IndexModel;
 pub const MAX_BANDS: usize = 1024;
 /// Most angles per sweep whose pair estimates are kept for the report.
 pub const MAX_PAIRS: usize = 64;
+/// A fit residual above this many times the pixels' noise (plus the floor) means the film
+/// model does not explain the spectra.
+pub const MISMATCH_RATIO: f64 = 1.5;
+/// Absolute allowance of the mismatch test (reflectance).
+pub const MISMATCH_FLOOR: f64 = 0.002;
 /// Largest index change one Gauss-Newton step may make.
 const MAX_INDEX_STEP: f64 = 0.05;
 
@@ -473,9 +478,20 @@ impl SweepSolver {
             None => self.index,
         };
         self.pending_dn = match (self.index, self.next_index) {
-            (Some(a), Some(b)) => b.a - a.a,
+            (Some(a), Some(b)) => b.at(550.0) - a.at(550.0),
             _ => 0.0,
         };
+    }
+
+    /// Whether the full-spectrum fit is much worse than the noise: residual RMS above
+    /// [`MISMATCH_RATIO`] times the pixels' median noise plus [`MISMATCH_FLOOR`]. The film
+    /// model (index, dispersion) then does not explain the spectra: every pixel is flagged
+    /// [`super::flags::MODEL_MISMATCH`] and its confidence scaled down.
+    pub fn model_mismatch(&self) -> bool {
+        match (self.residual_sigma, self.noise_median) {
+            (Some(r), Some(n)) => r > MISMATCH_RATIO * f64::from(n) + MISMATCH_FLOOR,
+            _ => false,
+        }
     }
 
     /// The index step the full-spectrum sums alone would take (a consistency check).
