@@ -61,7 +61,7 @@ fn check_valid(r: &EvalReport, max_index_error: f64, min_valid: f64) {
         r.silent_failure_rate
     );
     assert!(
-        r.valid_fraction >= 0.98,
+        r.valid_fraction >= min_valid,
         "{}: valid {}",
         r.scene,
         r.valid_fraction
