@@ -496,38 +496,42 @@ pub fn end_angle_parallel(solver: &mut SweepSolver, shards: &mut [Shard<'_>]) ->
     }
     solver.set_votes(&hist);
     // Per-row sums merged in row order: the same floating-point result for any sharding.
-    let mut rows: Vec<(usize, RatioSums)> = each(shards, |sh| {
-        let mut v = Vec::new();
-        sh.window_sums(solver, |r, s| v.push((r, s)));
-        v
-    })
-    .into_iter()
-    .flatten()
-    .collect();
-    rows.sort_by_key(|&(r, _)| r);
-    let mut sums = RatioSums::default();
-    for (_, r) in &rows {
-        sums.merge(r);
+    fn by_row<T: Send + Default>(
+        shards: &[Shard<'_>],
+        rows_of: impl Fn(&Shard<'_>, &mut Vec<(usize, T)>) + Sync,
+        merge: impl Fn(&mut T, &T),
+    ) -> T {
+        let mut rows: Vec<(usize, T)> = each(shards, |sh| {
+            let mut v = Vec::new();
+            rows_of(sh, &mut v);
+            v
+        })
+        .into_iter()
+        .flatten()
+        .collect();
+        rows.sort_by_key(|(r, _)| *r);
+        let mut total = T::default();
+        for (_, r) in &rows {
+            merge(&mut total, r);
+        }
+        total
     }
+    let sums = by_row(
+        shards,
+        |sh, v| sh.window_sums(solver, |r, s| v.push((r, s))),
+        RatioSums::merge,
+    );
     solver.set_window_sums(&sums);
     let mut rms = FitStats::default();
     for r in each(shards, |sh| sh.fit_histogram()) {
         rms.merge(&r);
     }
     solver.set_fit_histogram(&rms);
-    let mut rows: Vec<(usize, SchurSums)> = each(shards, |sh| {
-        let mut v = Vec::new();
-        sh.schur(solver, |r, s| v.push((r, s)));
-        v
-    })
-    .into_iter()
-    .flatten()
-    .collect();
-    rows.sort_by_key(|&(r, _)| r);
-    let mut schur = SchurSums::default();
-    for (_, r) in &rows {
-        schur.merge(r);
-    }
+    let schur = by_row(
+        shards,
+        |sh, v| sh.schur(solver, |r, s| v.push((r, s))),
+        SchurSums::merge,
+    );
     solver.set_schur(&schur);
     {
         let solver = &*solver;
