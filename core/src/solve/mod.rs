@@ -55,12 +55,18 @@ pub mod flags {
     /// The order was taken from a neighbour.
     pub const ORDER_FROM_NEIGHBOUR: u16 = 1 << 9;
     /// The film model does not explain the image's spectra (fit residual well above the
-    /// noise): the thickness is kept but its confidence lowered.
+    /// noise): the index, so every thickness, is unreliable.
     pub const MODEL_MISMATCH: u16 = 1 << 10;
 
     /// Flags that make the thickness unreliable (NaN in the map).
-    pub const INVALID: u16 =
-        NO_FRINGE | AMBIGUOUS_ORDER | SATURATED | DEAD | OUT_OF_RANGE | POOR_FIT | ORDER_REJECTED;
+    pub const INVALID: u16 = NO_FRINGE
+        | AMBIGUOUS_ORDER
+        | SATURATED
+        | DEAD
+        | OUT_OF_RANGE
+        | POOR_FIT
+        | ORDER_REJECTED
+        | MODEL_MISMATCH;
 
     /// Names of the flags, for reports.
     pub const NAMES: [(u16, &str); 11] = [
