@@ -25,7 +25,7 @@ pub const MAX_BANDS: usize = 1024;
 pub const MAX_PAIRS: usize = 64;
 /// A fit residual above this many times the pixels' noise (plus the floor) means the film
 /// model does not explain the spectra.
-pub const MISMATCH_RATIO: f64 = 1.5;
+pub const MISMATCH_RATIO: f64 = 2.0;
 /// Absolute allowance of the mismatch test (reflectance).
 pub const MISMATCH_FLOOR: f64 = 0.002;
 /// Largest index change one Gauss-Newton step may make.
