@@ -370,6 +370,9 @@ pub fn accumulate_window(
     });
 }
 
+/// Systematic error floor of a pair's mean ratio (see [`pair_estimate`]).
+pub const RATIO_FLOOR: f64 = 1e-3;
+
 /// One angle pair's index estimate.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PairEstimate {
@@ -391,7 +394,11 @@ pub fn pair_estimate(geom: &PairGeometry, sums: &RatioSums) -> Option<PairEstima
     let mean = libm::exp(mean_log);
     let se = mean * libm::sqrt(var / sums.n);
     let index = geom.index_from_ratio(mean)?;
-    let sigma = libm::fabs(geom.index_slope(mean)) * se;
+    // The spread's standard error, and a floor for what averaging cannot remove: a
+    // systematic error of the ratio of [`RATIO_FLOOR`] (about 0.5 nm in 500), which weighs
+    // a poorly conditioned pair (small angle difference, high index) down.
+    let sigma =
+        libm::fabs(geom.index_slope(mean)) * libm::sqrt(se * se + RATIO_FLOOR * RATIO_FLOOR);
     Some(PairEstimate {
         index,
         sigma: if sigma.is_finite() {

@@ -246,12 +246,19 @@ impl<'a> Shard<'a> {
     pub fn update(&mut self, solver: &SweepSolver) {
         let dn = solver.pending_index_step();
         let first_angle = solver.anchor_deg().is_none();
+        // An index that moved this much makes the orders chosen with the old one suspect:
+        // every pixel chooses again (with this angle's extrema) and its sums restart.
+        let reorder = solver.reorders();
         for p in self.pixels.iter_mut() {
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
             if p.tracker.overflow {
                 p.flags |= flags::TRACKER_OVERFLOW;
             }
-            if p.thickness_nm.is_finite() && p.gn.samples > 0 && p.gn.h_dd > 0.0 {
+            if reorder && p.thickness_nm.is_finite() {
+                p.thickness_nm = f32::NAN;
+                p.gn = GnSums::default();
+                p.flags &= !flags::ORDER_FROM_NEIGHBOUR;
+            } else if p.thickness_nm.is_finite() && p.gn.samples > 0 && p.gn.h_dd > 0.0 {
                 let g = p.gn;
                 let step = f64::from(p.order_step_nm);
                 let dd = ((f64::from(g.g_d) - f64::from(g.h_dn) * dn) / f64::from(g.h_dd))
@@ -443,7 +450,7 @@ impl<'a> Shard<'a> {
                 f |= flags::NOT_REFINED;
                 // Its neighbours were refined and it could not be: it was ambiguous until the
                 // last angle, so its order rests on one pair of spectra.
-                if solver.refined_steps() > 0 {
+                if solver.refined_steps() > 0 && !solver.reorders() {
                     f |= flags::AMBIGUOUS_ORDER;
                 }
                 confidence = 0.5;

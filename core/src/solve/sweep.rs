@@ -28,6 +28,8 @@ pub const MAX_PAIRS: usize = 64;
 pub const MISMATCH_RATIO: f64 = 2.0;
 /// Absolute allowance of the mismatch test (reflectance).
 pub const MISMATCH_FLOOR: f64 = 0.002;
+/// An index step above this at an angle's end makes every pixel choose its order again.
+pub const REORDER_INDEX_STEP: f64 = 0.01;
 /// Largest index change one Gauss-Newton step may make.
 const MAX_INDEX_STEP: f64 = 0.05;
 
@@ -481,6 +483,12 @@ impl SweepSolver {
             (Some(a), Some(b)) => b.at(550.0) - a.at(550.0),
             _ => 0.0,
         };
+    }
+
+    /// Whether the index moved so much at this angle's end (more than
+    /// [`REORDER_INDEX_STEP`]) that every pixel chooses its order again (its sums restart).
+    pub fn reorders(&self) -> bool {
+        libm::fabs(self.pending_dn) > REORDER_INDEX_STEP
     }
 
     /// Whether the full-spectrum fit is much worse than the noise: residual RMS above
