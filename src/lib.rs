@@ -1,4 +1,19 @@
-//! filmscope (placeholder doc, rewritten later).
+//! filmscope: thin-film index and thickness maps from hyperspectral angle sweeps, as a
+//! streaming processor.
+//!
+//! The no_std core ([`filmscope_core`], re-exported here: [`optics`], [`colour`],
+//! [`calibrate`], [`track`], [`solve`]) does the computing; this crate adds, behind the `std`
+//! feature, what touches the world:
+//!
+//! - [`io`]: ENVI cubes (all interleaves, types, byte orders; streamed row by row) and
+//!   `capture.toml`, with atomic writes;
+//! - [`pipeline`]: bounded stages on crossbeam channels (source, calibrate, tracker/solver
+//!   workers), sources for the software camera and for ENVI captures;
+//! - [`sweep`] and [`baseline`]: the whole-sweep types and the paper's and brute-force
+//!   methods;
+//! - [`estimate`], [`eval`], [`export`], [`simulate`]: outputs per the capture contract,
+//!   accuracy against the truth, PNG previews, writing simulated captures;
+//! - [`cli`]: the `filmscope` command line.
 #![cfg_attr(not(feature = "std"), no_std)]
 
 pub use filmscope_core::*;

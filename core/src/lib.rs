@@ -1,4 +1,17 @@
-//! filmscope's no_std core (placeholder doc, rewritten later).
+//! filmscope's core: everything that computes, nothing that does I/O. It needs only `core`,
+//! `libm` and `heapless` (`--no-default-features` builds it without std; the `std` feature
+//! only adds `std::error::Error` impls).
+//!
+//! From the light to the maps:
+//!
+//! - [`optics`]: Snell, Fresnel, the Airy sum of one film on a substrate (any polarisation,
+//!   total internal reflection included), dispersion (constant, Cauchy, Sellmeier) and the
+//!   LCTF passband. Validated against the Python `tmm` package and analytic limits.
+//! - [`colour`]: CIE 1931 tables, spectrum to XYZ to CIELAB, CIE76 and CIEDE2000, sRGB.
+//! - [`calibrate`]: raw counts to reflectance with white and dark references, row by row.
+//! - [`track`]: the per-pixel running extremum tracker (fixed state per pixel).
+//! - [`solve`]: the streaming estimator: shared index from pooled extremum shifts, order per
+//!   pixel, full-spectrum Gauss-Newton thickness, flags and confidence.
 #![cfg_attr(not(feature = "std"), no_std)]
 
 pub mod calibrate;

@@ -526,7 +526,7 @@ impl SweepSolver {
     }
 
     /// Runs the angle-end phases over shards on this thread (the pipeline runs the same
-    /// phases on all cores: [`SweepSolver::merge_rows`] keeps the sums identical).
+    /// phases on all cores, merging the per-row sums in row order, so the sums are identical).
     pub fn end_angle_all(&mut self, shards: &mut [Shard<'_>]) -> AngleReport {
         let mut hist = RatioHistogram::default();
         for s in shards.iter() {
