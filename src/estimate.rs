@@ -65,6 +65,13 @@ pub fn result_from_sweep(out: &SweepOutput) -> MethodResult {
     if out.index.is_none() {
         notes.push("no angle pair resolved the fringe shift: no index, no thickness".to_owned());
     }
+    if out.model_mismatch {
+        notes.push(format!(
+            "model mismatch: the film model leaves residuals of {:.4} against a noise of {:.4}; the index is unreliable and every pixel is flagged",
+            out.residual_sigma.unwrap_or(f64::NAN),
+            out.noise_sigma.map_or(f64::NAN, f64::from)
+        ));
+    }
     MethodResult {
         method: Method::Filmscope,
         index: out.index.unwrap_or(IndexModel::constant(f64::NAN)),

@@ -114,6 +114,9 @@ pub fn estimate(
     let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
     let run = run_with_bar(&mut source, &config, &label)?;
     let summary = write_outputs(out, &run, &label)?;
+    for note in &run.result.notes {
+        eprintln!("filmscope: note: {note}");
+    }
     println!(
         "{}: n = {:.4}, thickness median {} nm, valid {:.1} %, {:.2} s; maps in {}",
         config.method.name(),

@@ -67,6 +67,8 @@ pub struct SweepOutput {
     pub angles: Vec<AngleReport>,
     /// The final index fit: model choice and its evidence.
     pub index_fit: Option<filmscope_core::solve::index::IndexFit>,
+    /// Whether the film model failed to explain the spectra (every pixel flagged).
+    pub model_mismatch: bool,
     /// Wall time from the first message to the maps being ready.
     pub stream_time: Duration,
     /// Wall time from the last row of the last angle to the maps being ready.
@@ -239,6 +241,7 @@ pub fn run_sweep(
         index: solver.index(),
         index_sigma: solver.index_sigma(),
         index_fit: solver.index_fit(),
+        model_mismatch: solver.model_mismatch(),
         residual_sigma: solver.residual_sigma(),
         noise_sigma: solver.noise_sigma(),
         angles: reports,
