@@ -410,17 +410,49 @@ pub fn pair_estimate(geom: &PairGeometry, sums: &RatioSums) -> Option<PairEstima
     })
 }
 
-/// Inverse-variance mean of pair estimates: `(index, sigma)`.
+/// Inverse-variance mean of pair estimates, robust to a pair whose mode was the wrong one:
+/// `(index, sigma)`. An estimate more than [`OUTLIER_SIGMA`] of its own sigma from the mean of
+/// the others is left out (with two that disagree so, the better conditioned one is kept).
 pub fn combine(estimates: &[PairEstimate]) -> Option<(f64, f64)> {
-    let mut sw = 0.0;
-    let mut swx = 0.0;
-    for e in estimates.iter().filter(|e| e.sigma.is_finite()) {
-        let w = 1.0 / (e.sigma * e.sigma);
-        sw += w;
-        swx += w * e.index;
+    let mean_of = |skip: Option<usize>| -> Option<(f64, f64)> {
+        let mut sw = 0.0;
+        let mut swx = 0.0;
+        for (i, e) in estimates.iter().enumerate() {
+            if Some(i) == skip || !e.sigma.is_finite() {
+                continue;
+            }
+            let w = 1.0 / (e.sigma * e.sigma);
+            sw += w;
+            swx += w * e.index;
+        }
+        (sw > 0.0).then(|| (swx / sw, libm::sqrt(1.0 / sw)))
+    };
+    // Leave out the worst outlier, if any, once (pairs are few: one per angle).
+    let mut worst: Option<(usize, f64)> = None;
+    for (i, e) in estimates.iter().enumerate() {
+        if let Some((m, s)) = mean_of(Some(i)) {
+            let z = libm::fabs(e.index - m) / libm::sqrt(e.sigma * e.sigma + s * s);
+            if z > OUTLIER_SIGMA && worst.is_none_or(|(_, wz)| z > wz) {
+                worst = Some((i, z));
+            }
+        }
     }
-    (sw > 0.0).then(|| (swx / sw, libm::sqrt(1.0 / sw)))
+    match worst {
+        Some((i, _)) if estimates.len() >= 3 => mean_of(Some(i)),
+        Some(_) => {
+            // Two that disagree: keep the better conditioned.
+            let best = estimates
+                .iter()
+                .filter(|e| e.sigma.is_finite())
+                .min_by(|a, b| a.sigma.total_cmp(&b.sigma))?;
+            Some((best.index, best.sigma))
+        }
+        None => mean_of(None),
+    }
 }
+
+/// How far (in sigmas) a pair estimate may sit from the others' mean.
+pub const OUTLIER_SIGMA: f64 = 4.0;
 
 /// Whether an extremum list has anything to vote with.
 pub fn has_kind(list: &[Extremum], kind: Kind) -> bool {
@@ -642,4 +674,42 @@ fn normal_2d(pairs: &[PairBins], m: super::IndexModel) -> Option<([f64; 2], [[f6
         inv[1][0] * g[0] + inv[1][1] * g[1],
     ];
     Some((step, inv))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn est(index: f64, sigma: f64) -> PairEstimate {
+        PairEstimate {
+            index,
+            sigma,
+            votes: 1000.0,
+        }
+    }
+
+    #[test]
+    fn a_pair_that_locked_on_the_wrong_mode_is_left_out() {
+        // Seed 4 of paper-sample1: the 10/30 pair's mode was wrong.
+        let (n, _) = combine(&[
+            est(1.4513, 0.0129),
+            est(1.3694, 0.0054),
+            est(1.3703, 0.0031),
+        ])
+        .expect("estimate");
+        assert!((n - 1.3701).abs() < 5e-4, "{n}");
+        let (n, _) = combine(&[est(1.4513, 0.0129), est(1.3703, 0.0031)]).expect("estimate");
+        assert!((n - 1.3703).abs() < 1e-12, "{n}");
+        let (n, s) = combine(&[est(1.37, 0.002), est(1.372, 0.002)]).expect("estimate");
+        assert!((n - 1.371).abs() < 1e-12 && (s - 0.002 / 2f64.sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn predicted_ratio_of_a_constant_index_is_eq_12() {
+        let (xr, xc) = (0.03f64, 0.5f64);
+        let n = 1.5;
+        let l = predicted_log_ratio(super::super::IndexModel::constant(n), 550.0, xr, xc);
+        let want = 0.5 * ((n * n - xc) / (n * n - xr)).ln();
+        assert!((l - want).abs() < 1e-12);
+    }
 }
