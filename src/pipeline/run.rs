@@ -458,6 +458,13 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
                         )));
                     }
                     let v = calibrate_block(b.samples, rows, w);
+                    if v.len() != rows * w {
+                        return Err(PipelineError(format!(
+                            "a block of {rows} rows holds {} samples, not {}",
+                            v.len(),
+                            rows * w
+                        )));
+                    }
                     let at = (band * h + first) * w;
                     cube[at..at + rows * w].copy_from_slice(&v);
                 }
