@@ -491,3 +491,21 @@ impl<'a> Shard<'a> {
         }
     }
 }
+
+#[cfg(test)]
+mod size_tests {
+    use super::*;
+
+    #[test]
+    fn pixel_state_size_is_fixed_and_known() {
+        // Breakdown: tracker 64, two extremum lists 2 x 72, full-spectrum sums 36, the rest
+        // (thickness, order step, sample counters, flags) 20; 264 in all.
+        let sizes = [
+            core::mem::size_of::<PixelTracker>(),
+            core::mem::size_of::<ExtremaList>(),
+            core::mem::size_of::<GnSums>(),
+            state_bytes_per_pixel(),
+        ];
+        assert_eq!(sizes, [64, 72, 36, 264]);
+    }
+}

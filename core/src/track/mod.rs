@@ -62,7 +62,7 @@ enum Mode {
     SeekMin,
 }
 
-/// Tracker state of one pixel for one angle. 72 bytes; independent of bands and angles.
+/// Tracker state of one pixel for one angle: 64 bytes, independent of bands and angles.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PixelTracker {
     ring: [f32; WINDOW],
