@@ -27,11 +27,6 @@ impl Complex {
         self.re * self.re + self.im * self.im
     }
 
-    /// `e^{i x}` for real `x`.
-    pub fn cis(x: f64) -> Self {
-        Self::new(libm::cos(x), libm::sin(x))
-    }
-
     /// `e^{z}`.
     pub fn exp(self) -> Self {
         let m = libm::exp(self.re);

@@ -9,7 +9,7 @@
 //! mean around it) gives `n^2 = (x_cur - rho^2 x_ref) / (1 - rho^2)` (eq. 12, every pixel
 //! pooled).
 
-use crate::track::{Extremum, Kind};
+use crate::track::Extremum;
 
 /// Bins of a ratio histogram.
 pub const BINS: usize = 512;
@@ -453,11 +453,6 @@ pub fn combine(estimates: &[PairEstimate]) -> Option<(f64, f64)> {
 
 /// How far (in sigmas) a pair estimate may sit from the others' mean.
 pub const OUTLIER_SIGMA: f64 = 4.0;
-
-/// Whether an extremum list has anything to vote with.
-pub fn has_kind(list: &[Extremum], kind: Kind) -> bool {
-    list.iter().any(|e| e.kind == kind)
-}
 
 /// One pair's per-wavelength evidence, kept by the solver for the index fit.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -296,11 +296,6 @@ impl SweepSolver {
         self.index_sigma
     }
 
-    /// The index from extrema shifts alone (all pairs pooled), for comparison.
-    pub fn extrema_index(&self) -> Option<(f64, f64)> {
-        combine(&self.pairs)
-    }
-
     /// Full-spectrum index steps taken.
     pub fn refined_steps(&self) -> usize {
         self.refined_steps
