@@ -3,6 +3,7 @@
 use std::path::Path;
 use std::time::Instant;
 
+use filmscope_core::solve::sweep::SPECTRAL_TERM_CHI2;
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
 use serde_json::json;
 
@@ -10,8 +11,12 @@ use crate::baseline::{brute, paper, BruteGrid};
 use crate::export::png::{write_map_png, MapPreview};
 use crate::io::{write_atomic, write_f32_map, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::pipeline::{
-    collect_sweep, run_sweep, PipelineConfig, PipelineError, Source, SweepOutput,
+    collect_sweep, run_sweep, PipelineConfig, PipelineError, Prior, Source, SweepOutput,
 };
+
+/// Most passes over a replayable source (the first from the extremum shifts, the others with
+/// the index from the full spectra).
+pub const MAX_PASSES: usize = 3;
 use crate::simulate::dispersion_json;
 use crate::sweep::{Method, MethodResult};
 
@@ -94,7 +99,24 @@ pub fn run_method(
     let t0 = Instant::now();
     match config.method {
         Method::Filmscope => {
-            let out = run_sweep(source, config.pipeline, None, on_rows)?;
+            let mut out = run_sweep(source, config.pipeline, None, on_rows)?;
+            let mut passes = 1;
+            // Spectra the extremum-shift index does not explain (real dispersion, a high
+            // index): pass again over the same data with the index from the full spectra,
+            // starting at the first pass's.
+            while out.model_mismatch
+                && passes < MAX_PASSES
+                && config.pipeline.solver.refine
+                && source.replayable()
+            {
+                let Some(index) = out.index else { break };
+                let prior = Prior {
+                    index,
+                    spectral: true,
+                };
+                out = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
+                passes += 1;
+            }
             let reports: Vec<_> = out
                 .angles
                 .iter()
@@ -107,6 +129,8 @@ pub fn run_method(
                         "refined": a.refined,
                         "spectral_index_step": a.spectral_index_step,
                         "dispersive": a.dispersive,
+                        "index_terms": a.index_terms,
+                        "index_from_full_spectra": a.spectral_index,
                     })
                 })
                 .collect();
@@ -120,10 +144,16 @@ pub fn run_method(
                 samples: out.samples,
                 angle_reports: serde_json::Value::Array(reports),
                 model_choice: out.index_fit.map_or(serde_json::Value::Null, |f| {
+                    let finite = |x: f64| x.is_finite().then_some(x);
                     json!({
                         "residual_sigma": out.residual_sigma,
                         "noise_sigma": out.noise_sigma,
-                        "chosen": if f.dispersive { "cauchy" } else { "constant" },
+                        "passes": passes,
+                        "index_source": if out.spectral_index { "full spectra" } else { "extremum shifts" },
+                        "full_spectrum_chi2_gains": out.spectral_gains.map(finite),
+                        "full_spectrum_criterion": format!("a second pass takes the index from the full spectra when the extremum-shift model leaves a model mismatch; an extra Cauchy term enters only if it lowers the chi-square by {SPECTRAL_TERM_CHI2} (5 sigma)"),
+                        "chosen": (["constant", "cauchy", "cauchy3"])[out.index.map_or(1, |m| m.terms()) - 1],
+                        "extremum_fit_chosen": if f.dispersive { "cauchy" } else { "constant" },
                         "chi2_constant": f.chi2_constant,
                         "chi2_cauchy": if f.chi2_cauchy.is_finite() { Some(f.chi2_cauchy) } else { None },
                         "wavelength_bins": f.bins,
@@ -265,7 +295,7 @@ pub fn write_outputs(
         "refractive_index": r.index.at(550.0),
         "refractive_index_sigma": r.index_sigma,
         "dispersion": dispersion_json(&r.index.dispersion()),
-        "index_model": if r.index.b_um2 == 0.0 { "constant" } else { "cauchy" },
+        "index_model": (["constant", "cauchy", "cauchy3"])[r.index.terms() - 1],
         "index_model_choice": run.model_choice,
         "thickness_nm": stats(&r.thickness_nm),
         "valid_fraction": valid as f64 / (w * h).max(1) as f64,

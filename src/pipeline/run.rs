@@ -69,6 +69,10 @@ pub struct SweepOutput {
     pub index_fit: Option<filmscope_core::solve::index::IndexFit>,
     /// Whether the film model failed to explain the spectra (every pixel flagged).
     pub model_mismatch: bool,
+    /// Whether the index came from the full spectra (else from the extremum shifts).
+    pub spectral_index: bool,
+    /// Chi-square gains of the last full-spectrum step with 1, 2, 3 index terms.
+    pub spectral_gains: [f64; 3],
     /// Wall time from the first message to the maps being ready.
     pub stream_time: Duration,
     /// Wall time from the last row of the last angle to the maps being ready.
@@ -108,12 +112,23 @@ fn shard_rows(height: usize, workers: usize, i: usize) -> (usize, usize) {
     (first, last - first)
 }
 
+/// What a sweep starts from: the index of an earlier pass over the same capture or of the
+/// last sweep on a production line, and whether the full spectra move it
+/// ([`SweepSolver::with_spectral_index`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Prior {
+    /// The starting index.
+    pub index: IndexModel,
+    /// Take the index from the full spectra.
+    pub spectral: bool,
+}
+
 /// Runs one sweep from `source` through the pipeline; `on_rows` is told of every block of
 /// rows calibrated (for progress bars). `prior` seeds the index (e.g. the last sweep's).
 pub fn run_sweep(
     source: &mut dyn Source,
     config: PipelineConfig,
-    prior: Option<IndexModel>,
+    prior: Option<Prior>,
     on_rows: &(dyn Fn(u64) + Sync),
 ) -> Result<SweepOutput, PipelineError> {
     let mut spec = source.spec().clone();
@@ -122,7 +137,11 @@ pub fn run_sweep(
     let workers = config.workers.clamp(1, h.max(1));
     let cap = config.channel_capacity.max(1);
     let start = Instant::now();
-    let mut solver = Box::new(SweepSolver::new(spec.clone(), prior));
+    let mut solver = SweepSolver::new(spec.clone(), prior.map(|p| p.index));
+    if prior.is_some_and(|p| p.spectral) {
+        solver = solver.with_spectral_index();
+    }
+    let mut solver = Box::new(solver);
     let mut states: Vec<Option<Vec<PixelState>>> = (0..workers)
         .map(|i| Some(vec![PixelState::default(); shard_rows(h, workers, i).1 * w]))
         .collect();
@@ -242,6 +261,8 @@ pub fn run_sweep(
         index_sigma: solver.index_sigma(),
         index_fit: solver.index_fit(),
         model_mismatch: solver.model_mismatch(),
+        spectral_index: solver.spectral_index(),
+        spectral_gains: solver.spectral_gains(),
         residual_sigma: solver.residual_sigma(),
         noise_sigma: solver.noise_sigma(),
         angles: reports,

@@ -18,6 +18,11 @@ pub trait Source: Send {
     fn angles_deg(&self) -> Vec<f64>;
     /// Streams the sweep into `tx`.
     fn stream(&mut self, tx: &Sender<StreamMsg>);
+    /// Whether [`Source::stream`] may be called again for the same data (a capture on disk,
+    /// the software camera; not a live camera).
+    fn replayable(&self) -> bool {
+        true
+    }
 }
 
 /// Builds a [`SweepSpec`] from band lists and the sample's optics.

@@ -580,7 +580,7 @@ pub fn fit_index(
     if bins < 4 {
         return Some(fit);
     }
-    let mut m = super::IndexModel { a, b_um2: 0.0 };
+    let mut m = super::IndexModel::constant(a);
     let mut cov = [[0.0; 2]; 2];
     for _ in 0..30 {
         let Some((step, c)) = normal_2d(pairs, m) else {

@@ -84,35 +84,122 @@ pub mod flags {
     ];
 }
 
-/// The film index model the solver works with: Cauchy `n = a + b_um2 / lambda_um^2`
-/// (`b_um2 = 0`: a constant index).
+/// The film index model the solver works with: Cauchy
+/// `n = a + b_um2 / lambda_um^2 + c_um4 / lambda_um^4` (`b_um2 = c_um4 = 0`: a constant
+/// index; `c_um4 = 0`: two terms).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IndexModel {
     /// Constant term.
     pub a: f64,
     /// Dispersion term, um^2.
     pub b_um2: f64,
+    /// Second dispersion term, um^4.
+    pub c_um4: f64,
 }
+
+/// Reference wavelength of the index basis ([`IndexModel::to_basis`]), nm.
+pub const BASIS_NM: f64 = 550.0;
 
 impl IndexModel {
     /// A constant index.
     pub const fn constant(n: f64) -> Self {
-        Self { a: n, b_um2: 0.0 }
+        Self {
+            a: n,
+            b_um2: 0.0,
+            c_um4: 0.0,
+        }
+    }
+
+    /// A two-term Cauchy model.
+    pub const fn cauchy(a: f64, b_um2: f64) -> Self {
+        Self {
+            a,
+            b_um2,
+            c_um4: 0.0,
+        }
     }
 
     /// The index at `wavelength_nm`.
     #[inline]
     pub fn at(&self, wavelength_nm: f64) -> f64 {
         let l = wavelength_nm * 1e-3;
-        self.a + self.b_um2 / (l * l)
+        let l2 = l * l;
+        self.a + self.b_um2 / l2 + self.c_um4 / (l2 * l2)
+    }
+
+    /// Terms the model uses: 1 (constant), 2 or 3.
+    pub fn terms(&self) -> usize {
+        if self.c_um4 != 0.0 {
+            3
+        } else if self.b_um2 != 0.0 {
+            2
+        } else {
+            1
+        }
+    }
+
+    /// The basis variable of `wavelength_nm`: `u = (550 nm / lambda)^2 - 1`, 0 at 550 nm and
+    /// within +-0.8 over the visible, so that the normal equations of `(1, u, u^2)` are well
+    /// conditioned (those of `(1, lambda^-2, lambda^-4)` are not).
+    #[inline]
+    pub fn basis_u(wavelength_nm: f64) -> f64 {
+        let s = BASIS_NM / wavelength_nm;
+        s * s - 1.0
+    }
+
+    /// The same model as `n = p0 + p1 u + p2 u^2` ([`IndexModel::basis_u`]): `p0` is the
+    /// index at 550 nm.
+    pub fn to_basis(&self) -> [f64; 3] {
+        let l0 = BASIS_NM * 1e-3;
+        let (b, c) = (self.b_um2 / (l0 * l0), self.c_um4 / (l0 * l0 * l0 * l0));
+        [self.a + b + c, b + 2.0 * c, c]
+    }
+
+    /// The inverse of [`IndexModel::to_basis`].
+    pub fn from_basis(p: [f64; 3]) -> Self {
+        let l0 = BASIS_NM * 1e-3;
+        let (l2, l4) = (l0 * l0, l0 * l0 * l0 * l0);
+        let c = p[2];
+        let b = p[1] - 2.0 * c;
+        Self {
+            a: p[0] - b - c,
+            b_um2: b * l2,
+            c_um4: c * l4,
+        }
     }
 
     /// As an optics dispersion.
     pub fn dispersion(&self) -> crate::optics::Dispersion {
-        if self.b_um2 == 0.0 {
-            crate::optics::Dispersion::constant(self.a)
-        } else {
-            crate::optics::Dispersion::cauchy(self.a, self.b_um2)
+        match self.terms() {
+            1 => crate::optics::Dispersion::constant(self.a),
+            _ => crate::optics::Dispersion::Cauchy {
+                a: self.a,
+                b_um2: self.b_um2,
+                c_um4: self.c_um4,
+            },
         }
+    }
+}
+
+#[cfg(test)]
+mod model_tests {
+    use super::*;
+
+    #[test]
+    fn basis_round_trips_and_agrees_with_the_cauchy_form() {
+        let m = IndexModel {
+            a: 2.266,
+            b_um2: 0.0258,
+            c_um4: 0.0032,
+        };
+        let p = m.to_basis();
+        let back = IndexModel::from_basis(p);
+        for l in [420.0, 550.0, 720.0] {
+            let u = IndexModel::basis_u(l);
+            let via_basis = p[0] + p[1] * u + p[2] * u * u;
+            assert!((via_basis - m.at(l)).abs() < 1e-12, "{l}");
+            assert!((back.at(l) - m.at(l)).abs() < 1e-12, "{l}");
+        }
+        assert!((p[0] - m.at(550.0)).abs() < 1e-12);
     }
 }

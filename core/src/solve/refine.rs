@@ -1,11 +1,13 @@
 //! Full-spectrum refinement with fixed per-pixel memory: Gauss-Newton sums.
 //!
 //! Once a pixel has a thickness `d` (its linearisation point) and the sweep a shared index
-//! `n`, every band sample `R` adds to the pixel's normal equations for `(d, n)`: with the
-//! model `M(d, n)` and its derivatives `J_d`, `J_n`, the sums `J_d^2`, `J_d J_n`, `J_n^2`,
-//! `J_d r`, `J_n r` and `r^2` (`r = R - M`). Their size does not depend on the number of bands,
-//! angles or sweeps. At each angle's end the per-pixel `d` rows are eliminated (Schur
-//! complement) to move the shared `n`, then each `d` steps (see [`super::sweep`]).
+//! model `n(lambda) = p0 + p1 u + p2 u^2` ([`IndexModel::basis_u`]), every band sample `R`
+//! adds to the pixel's normal equations for `(d, p)`: with the model `M` and its derivatives
+//! `J_d` and `J_n` (so `J_pk = J_n u^k`), the sums `J_d^2`, `J_d J_n u^k` (k < 3),
+//! `J_n^2 u^k` (k < 5: every entry of the index block), `J_d r`, `J_n r u^k` and `r^2`
+//! (`r = R - M`). Their size does not depend on the number of bands, angles or sweeps. At each
+//! angle's end the per-pixel `d` rows are eliminated (Schur complement) to move the shared
+//! index, then each `d` steps (see [`super::sweep`]).
 //!
 //! The model per band is the Airy reflectance averaged over the Gaussian passband by 5-point
 //! Gauss-Hermite quadrature, dispersion followed node by node. Two more sums score the
@@ -50,6 +52,8 @@ struct Node {
 /// the passband), at the current index and one index step above.
 #[derive(Clone, Copy, Debug)]
 pub struct BandCoef {
+    /// The band's index basis variable ([`IndexModel::basis_u`]).
+    pub u: f64,
     nodes: [Node; 5],
     nodes_up: [Node; 5],
     count: usize,
@@ -100,6 +104,7 @@ impl BandCoef {
             nodes_up[i] = node(i, INDEX_STEP)?;
         }
         Some(Self {
+            u: IndexModel::basis_u(wavelength_nm),
             nodes,
             nodes_up,
             count,
@@ -134,19 +139,20 @@ impl BandCoef {
     }
 }
 
-/// Per-pixel Gauss-Newton sums (36 bytes).
+/// Per-pixel Gauss-Newton sums (68 bytes) for the pixel's thickness and the shared index's
+/// three basis coefficients.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GnSums {
     /// Sum of `J_d^2`.
     pub h_dd: f32,
-    /// Sum of `J_d J_n`.
-    pub h_dn: f32,
-    /// Sum of `J_n^2`.
-    pub h_nn: f32,
+    /// Sums of `J_d J_n u^k`, k = 0..3.
+    pub h_dp: [f32; 3],
+    /// Sums of `J_n^2 u^k`, k = 0..5 (index block entry `(i, j)` is `h_pp[i + j]`).
+    pub h_pp: [f32; 5],
     /// Sum of `J_d r`.
     pub g_d: f32,
-    /// Sum of `J_n r`.
-    pub g_n: f32,
+    /// Sums of `J_n r u^k`, k = 0..3.
+    pub g_p: [f32; 3],
     /// Sum of `r^2` at the linearisation point.
     pub sse: f32,
     /// Sum of squared residuals one order thinner.
@@ -168,11 +174,18 @@ impl GnSums {
         let r = measured - m;
         let m_minus = coef.model(thickness_nm - order_step_nm);
         let m_plus = coef.model(thickness_nm + order_step_nm);
+        let u = coef.u;
+        let (jn2, mut uk) = (j_n * j_n, 1.0);
+        for k in 0..5 {
+            self.h_pp[k] += (jn2 * uk) as f32;
+            if k < 3 {
+                self.h_dp[k] += (j_d * j_n * uk) as f32;
+                self.g_p[k] += (j_n * r * uk) as f32;
+            }
+            uk *= u;
+        }
         self.h_dd += (j_d * j_d) as f32;
-        self.h_dn += (j_d * j_n) as f32;
-        self.h_nn += (j_n * j_n) as f32;
         self.g_d += (j_d * r) as f32;
-        self.g_n += (j_n * r) as f32;
         self.sse += (r * r) as f32;
         self.sse_minus += ((measured - m_minus) * (measured - m_minus)) as f32;
         self.sse_plus += ((measured - m_plus) * (measured - m_plus)) as f32;
@@ -188,21 +201,35 @@ impl GnSums {
         }
     }
 
-    /// Moves the linearisation point by `dd` (thickness) and `dn` (index): the gradients and
-    /// the squared error follow the linear model.
-    pub fn shift(&mut self, dd: f64, dn: f64) {
-        let (h_dd, h_dn, h_nn) = (
-            f64::from(self.h_dd),
-            f64::from(self.h_dn),
-            f64::from(self.h_nn),
-        );
-        let (g_d, g_n) = (f64::from(self.g_d), f64::from(self.g_n));
-        let sse = f64::from(self.sse) - 2.0 * (g_d * dd + g_n * dn)
-            + h_dd * dd * dd
-            + 2.0 * h_dn * dd * dn
-            + h_nn * dn * dn;
-        self.g_d = (g_d - h_dd * dd - h_dn * dn) as f32;
-        self.g_n = (g_n - h_dn * dd - h_nn * dn) as f32;
+    /// The best thickness step given the index step `dp` (basis coefficients).
+    pub fn thickness_step(&self, dp: [f64; 3]) -> f64 {
+        let mut g = f64::from(self.g_d);
+        for (h, d) in self.h_dp.iter().zip(dp) {
+            g -= f64::from(*h) * d;
+        }
+        g / f64::from(self.h_dd)
+    }
+
+    /// Moves the linearisation point by `dd` (thickness) and `dp` (index basis coefficients):
+    /// the gradients and the squared error follow the linear model.
+    pub fn shift(&mut self, dd: f64, dp: [f64; 3]) {
+        let h = |i: usize, j: usize| f64::from(self.h_pp[i + j]);
+        let h_dp = self.h_dp.map(f64::from);
+        let g_p = self.g_p.map(f64::from);
+        let (h_dd, g_d) = (f64::from(self.h_dd), f64::from(self.g_d));
+        let mut sse = f64::from(self.sse) - 2.0 * g_d * dd + h_dd * dd * dd;
+        let mut new_g_d = g_d - h_dd * dd;
+        for i in 0..3 {
+            sse += -2.0 * g_p[i] * dp[i] + 2.0 * h_dp[i] * dd * dp[i];
+            new_g_d -= h_dp[i] * dp[i];
+            let mut gi = g_p[i] - h_dp[i] * dd;
+            for (j, &dj) in dp.iter().enumerate() {
+                sse += h(i, j) * dp[i] * dj;
+                gi -= h(i, j) * dj;
+            }
+            self.g_p[i] = gi as f32;
+        }
+        self.g_d = new_g_d as f32;
         self.sse = sse.max(0.0) as f32;
     }
 }

@@ -227,11 +227,17 @@ impl<'a> Shard<'a> {
             let mut s = SchurSums::default();
             for p in row.iter().filter(|p| Self::trusted(p, limit)) {
                 let g = &p.gn;
-                let (h_dd, h_dn) = (f64::from(g.h_dd), f64::from(g.h_dn));
-                s.h_nn += f64::from(g.h_nn);
-                s.g_n += f64::from(g.g_n);
-                s.q_g += h_dn * f64::from(g.g_d) / h_dd;
-                s.q_h += h_dn * h_dn / h_dd;
+                let h_dd = f64::from(g.h_dd);
+                let h_dp = g.h_dp.map(f64::from);
+                let g_d = f64::from(g.g_d);
+                let mut k = 0;
+                for i in 0..3 {
+                    for j in i..3 {
+                        s.h[k] += f64::from(g.h_pp[i + j]) - h_dp[i] * h_dp[j] / h_dd;
+                        k += 1;
+                    }
+                    s.g[i] += f64::from(g.g_p[i]) - h_dp[i] * g_d / h_dd;
+                }
                 s.pixels += 1.0;
                 s.sse += f64::from(g.sse) - f64::from(g.g_d) * f64::from(g.g_d) / h_dd;
                 s.samples += f64::from(g.samples);
@@ -244,7 +250,7 @@ impl<'a> Shard<'a> {
     /// the first angle's extrema. Then, shard after shard, [`Shard::resolve_forward`] and, in
     /// reverse, [`Shard::resolve_backward`].
     pub fn update(&mut self, solver: &SweepSolver) {
-        let dn = solver.pending_index_step();
+        let dp = solver.pending_index_step();
         let first_angle = solver.anchor_deg().is_none();
         // An index that moved this much makes the orders chosen with the old one suspect:
         // every pixel chooses again (with this angle's extrema) and its sums restart.
@@ -261,10 +267,9 @@ impl<'a> Shard<'a> {
             } else if p.thickness_nm.is_finite() && p.gn.samples > 0 && p.gn.h_dd > 0.0 {
                 let g = p.gn;
                 let step = f64::from(p.order_step_nm);
-                let dd = ((f64::from(g.g_d) - f64::from(g.h_dn) * dn) / f64::from(g.h_dd))
-                    .clamp(-0.25 * step, 0.25 * step);
+                let dd = g.thickness_step(dp).clamp(-0.25 * step, 0.25 * step);
                 p.thickness_nm = (f64::from(p.thickness_nm) + dd) as f32;
-                p.gn.shift(dd, dn);
+                p.gn.shift(dd, dp);
             } else if p.thickness_nm.is_finite() {
                 // Not refined yet: follow the index change at constant optical path.
                 if let (Some(old), Some(new)) = (solver.index(), solver.next_index()) {
@@ -498,14 +503,14 @@ mod size_tests {
 
     #[test]
     fn pixel_state_size_is_fixed_and_known() {
-        // Breakdown: tracker 64, two extremum lists 2 x 72, full-spectrum sums 36, the rest
-        // (thickness, order step, sample counters, flags) 20; 264 in all.
+        // Breakdown: tracker 64, two extremum lists 2 x 72, full-spectrum sums 68, the rest
+        // (thickness, order step, sample counters, flags) 20; 296 in all.
         let sizes = [
             core::mem::size_of::<PixelTracker>(),
             core::mem::size_of::<ExtremaList>(),
             core::mem::size_of::<GnSums>(),
             state_bytes_per_pixel(),
         ];
-        assert_eq!(sizes, [64, 72, 36, 264]);
+        assert_eq!(sizes, [64, 72, 68, 296]);
     }
 }

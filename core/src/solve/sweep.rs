@@ -177,20 +177,18 @@ impl FitStats {
     }
 }
 
-/// Sums for the shared index's Gauss-Newton step, merged over shards.
+/// Sums for the shared index's Gauss-Newton step (each pixel's thickness eliminated), merged
+/// over shards.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SchurSums {
-    /// Sum of `h_nn`.
-    pub h_nn: f64,
-    /// Sum of `g_n`.
-    pub g_n: f64,
-    /// Sum of `h_dn g_d / h_dd`.
-    pub q_g: f64,
-    /// Sum of `h_dn^2 / h_dd`.
-    pub q_h: f64,
+    /// The reduced index block, upper triangle row by row: `(0,0) (0,1) (0,2) (1,1) (1,2)
+    /// (2,2)` of the basis coefficients ([`IndexModel::to_basis`]).
+    pub h: [f64; 6],
+    /// The reduced index gradient.
+    pub g: [f64; 3],
     /// Pixels included.
     pub pixels: f64,
-    /// Sum of squared residuals of the pixels included.
+    /// Sum of squared residuals of the pixels included (each at its best thickness).
     pub sse: f64,
     /// Samples of the pixels included.
     pub samples: f64,
@@ -199,15 +197,67 @@ pub struct SchurSums {
 impl SchurSums {
     /// Adds another shard's sums.
     pub fn merge(&mut self, o: &Self) {
-        self.h_nn += o.h_nn;
-        self.g_n += o.g_n;
-        self.q_g += o.q_g;
-        self.q_h += o.q_h;
+        for (a, b) in self.h.iter_mut().zip(o.h) {
+            *a += b;
+        }
+        for (a, b) in self.g.iter_mut().zip(o.g) {
+            *a += b;
+        }
         self.pixels += o.pixels;
         self.sse += o.sse;
         self.samples += o.samples;
     }
+
+    fn entry(&self, i: usize, j: usize) -> f64 {
+        let (i, j) = (i.min(j), i.max(j));
+        self.h[[0, 3, 5][i] + j - i]
+    }
+
+    /// The step in the first `k` basis coefficients (the others held) and the squared-error
+    /// reduction it predicts, or `None` if that block is singular.
+    pub fn step(&self, k: usize) -> Option<([f64; 3], f64)> {
+        // Cholesky of the leading k x k block.
+        let mut l = [[0.0f64; 3]; 3];
+        for i in 0..k {
+            for j in 0..=i {
+                let mut v = self.entry(i, j);
+                for m in 0..j {
+                    v -= l[i][m] * l[j][m];
+                }
+                if i == j {
+                    if v <= self.entry(i, i) * 1e-12 || v <= 0.0 {
+                        return None;
+                    }
+                    l[i][i] = libm::sqrt(v);
+                } else {
+                    l[i][j] = v / l[j][j];
+                }
+            }
+        }
+        let mut y = [0.0; 3];
+        for i in 0..k {
+            let mut v = self.g[i];
+            for m in 0..i {
+                v -= l[i][m] * y[m];
+            }
+            y[i] = v / l[i][i];
+        }
+        let mut x = [0.0; 3];
+        for i in (0..k).rev() {
+            let mut v = y[i];
+            for m in i + 1..k {
+                v -= l[m][i] * x[m];
+            }
+            x[i] = v / l[i][i];
+        }
+        let gain = (0..k).map(|i| x[i] * self.g[i]).sum();
+        Some((x, gain))
+    }
 }
+
+/// Chi-square gain (in units of the residual variance) an extra index term must bring to
+/// enter the full-spectrum index model: a 5-sigma improvement.
+pub const SPECTRAL_TERM_CHI2: f64 = 25.0;
 
 /// What one angle added, for progress reports.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -222,10 +272,14 @@ pub struct AngleReport {
     pub pair: Option<PairEstimate>,
     /// Whether full-spectrum sums were available at this angle's end.
     pub refined: bool,
-    /// The index step the full-spectrum sums alone would take (a consistency check).
+    /// The index step (at 550 nm) the full-spectrum sums would take.
     pub spectral_index_step: f64,
     /// Whether the index model is dispersive (Cauchy) after this angle.
     pub dispersive: bool,
+    /// Whether the index came from the full spectra (else from the extremum shifts).
+    pub spectral_index: bool,
+    /// Terms of the index model after this angle.
+    pub index_terms: usize,
 }
 
 /// The global state of one sweep.
@@ -245,12 +299,14 @@ pub struct SweepSolver {
     last_pair: Option<PairEstimate>,
     rms_median: Option<f32>,
     noise_median: Option<f32>,
-    pending_dn: f64,
+    pending_dp: [f64; 3],
     next_index: Option<IndexModel>,
     refined_steps: usize,
     last_refined: bool,
     residual_sigma: Option<f64>,
     spectral_dn: f64,
+    spectral_index: bool,
+    spectral_gains: [f64; 3],
 }
 
 impl SweepSolver {
@@ -272,13 +328,36 @@ impl SweepSolver {
             last_pair: None,
             rms_median: None,
             noise_median: None,
-            pending_dn: 0.0,
+            pending_dp: [0.0; 3],
             next_index: None,
             refined_steps: 0,
             last_refined: false,
             residual_sigma: None,
             spectral_dn: 0.0,
+            spectral_index: false,
+            spectral_gains: [f64::NAN; 3],
         }
+    }
+
+    /// Takes the index from the full spectra (Gauss-Newton on the pooled sums, each pixel's
+    /// thickness eliminated) instead of the extremum shifts. Needs a prior index (the
+    /// linearisation point); the pipeline turns it on for a second pass over a capture whose
+    /// first pass the extremum-shift model did not explain ([`SweepSolver::model_mismatch`]),
+    /// and a production line for the sweeps after one that needed it.
+    pub fn with_spectral_index(mut self) -> Self {
+        self.spectral_index = self.index.is_some();
+        self
+    }
+
+    /// Whether the index comes from the full spectra.
+    pub fn spectral_index(&self) -> bool {
+        self.spectral_index
+    }
+
+    /// Chi-square gains of the last full-spectrum step with 1, 2 and 3 index terms (in units
+    /// of the residual variance; NaN where not computed).
+    pub fn spectral_gains(&self) -> [f64; 3] {
+        self.spectral_gains
     }
 
     /// The sweep's description.
@@ -355,9 +434,10 @@ impl SweepSolver {
         self.rms_median
     }
 
-    /// The index step decided at this angle's end.
-    pub fn pending_index_step(&self) -> f64 {
-        self.pending_dn
+    /// The index step decided at this angle's end, in basis coefficients
+    /// ([`IndexModel::to_basis`]).
+    pub fn pending_index_step(&self) -> [f64; 3] {
+        self.pending_dp
     }
 
     /// The index model shards must use in `update` (the one after this angle).
@@ -398,7 +478,7 @@ impl SweepSolver {
         self.window = None;
         self.last_pair = None;
         self.next_index = None;
-        self.pending_dn = 0.0;
+        self.pending_dp = [0.0; 3];
     }
 
     fn band_span_nm(&self) -> [f64; 2] {
@@ -448,42 +528,96 @@ impl SweepSolver {
 
     /// Merged Schur sums: decides the index step and the index shards use in `update`.
     ///
-    /// The index comes from the pooled extremum shifts ([`super::index`]): they measure it
-    /// through fringe positions alone, which a model's amplitude errors cannot bias. The
-    /// full-spectrum sums pin each pixel's thickness; their index information (a pixel's own
-    /// thickness eliminated) is kept as a check, [`SweepSolver::spectral_index_step`], because
-    /// from the one or two angles left after the orders are known it rests mostly on fringe
-    /// amplitudes. When the index moves, each refined pixel's thickness follows through its
-    /// cross term (`update`).
+    /// By default the index comes from the pooled extremum shifts ([`super::index`]): they
+    /// measure it through fringe positions alone, which a model's amplitude errors cannot
+    /// bias, and the full-spectrum sums pin each pixel's thickness. With
+    /// [`SweepSolver::with_spectral_index`] the sums move the index too: a Gauss-Newton step in
+    /// the basis coefficients with every pixel's thickness eliminated, with as many terms as
+    /// the data ask for (a term enters only if it lowers the chi-square by
+    /// [`SPECTRAL_TERM_CHI2`]; terms once in stay). When the index moves, each refined pixel's
+    /// thickness follows through its cross terms (`update`).
     pub fn set_schur(&mut self, s: &SchurSums) {
-        let denom = s.h_nn - s.q_h;
         self.last_refined = false;
-        if s.pixels >= 16.0 && denom > 0.0 && s.samples > s.pixels * 2.0 {
-            let sigma2 = s.sse / (s.samples - s.pixels - 1.0).max(1.0);
-            self.residual_sigma = Some(libm::sqrt(sigma2));
-            self.spectral_dn = ((s.g_n - s.q_g) / denom).clamp(-MAX_INDEX_STEP, MAX_INDEX_STEP);
-            self.last_refined = true;
-            self.refined_steps += 1;
+        let mut spectral_next = None;
+        if s.pixels >= 16.0 && s.h[0] > 0.0 && s.samples > s.pixels * 2.0 {
+            let base = self.index.map_or(1, |m| m.terms());
+            let full = s.step(3).or_else(|| s.step(2)).or_else(|| s.step(1));
+            let dof = (s.samples - s.pixels - 3.0).max(1.0);
+            let sigma2 = full.map_or(s.sse / dof, |(_, gain)| (s.sse - gain).max(0.0) / dof);
+            let mut gains = [f64::NAN; 3];
+            for (k, g) in gains.iter_mut().enumerate() {
+                *g = s
+                    .step(k + 1)
+                    .map_or(f64::NAN, |(_, gain)| gain / sigma2.max(1e-30));
+            }
+            let mut terms = base.clamp(1, 3);
+            while terms < 3 && gains[terms] - gains[terms - 1] > SPECTRAL_TERM_CHI2 {
+                terms += 1;
+            }
+            if let Some((mut x, gain)) = s.step(terms) {
+                let after = if self.spectral_index {
+                    s.sse - gain
+                } else {
+                    s.sse
+                };
+                let dof = (s.samples - s.pixels - terms as f64).max(1.0);
+                self.residual_sigma = Some(libm::sqrt(after.max(0.0) / dof));
+                self.spectral_dn = x[0];
+                self.spectral_gains = gains;
+                self.last_refined = true;
+                self.refined_steps += 1;
+                if let Some(index) = self.index.filter(|_| self.spectral_index) {
+                    let scale = self.max_index_change(x) / MAX_INDEX_STEP;
+                    if scale > 1.0 {
+                        x = x.map(|v| v / scale);
+                    }
+                    let p = index.to_basis();
+                    spectral_next = Some(IndexModel::from_basis([
+                        p[0] + x[0],
+                        p[1] + x[1],
+                        p[2] + x[2],
+                    ]));
+                    self.index_sigma = libm::sqrt(sigma2 / s.h[0].max(1e-30));
+                }
+            }
         }
         let (range, span) = (self.spec.index_range, self.band_span_nm());
         self.fit = combine(&self.pairs).and_then(|c| fit_index(&self.pair_bins, c, range, span));
-        self.next_index = match self.fit {
-            Some(f) => {
-                self.index_sigma = f.sigma;
-                Some(f.model)
+        self.next_index = if self.spectral_index {
+            spectral_next.or(self.index)
+        } else {
+            match self.fit {
+                Some(f) => {
+                    self.index_sigma = f.sigma;
+                    Some(f.model)
+                }
+                None => self.index,
             }
-            None => self.index,
         };
-        self.pending_dn = match (self.index, self.next_index) {
-            (Some(a), Some(b)) => b.at(550.0) - a.at(550.0),
-            _ => 0.0,
+        self.pending_dp = match (self.index, self.next_index) {
+            (Some(a), Some(b)) => {
+                let (pa, pb) = (a.to_basis(), b.to_basis());
+                [pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]]
+            }
+            _ => [0.0; 3],
         };
+    }
+
+    /// The largest index change over the band of a step `x` in basis coefficients.
+    fn max_index_change(&self, x: [f64; 3]) -> f64 {
+        let [lo, hi] = self.band_span_nm();
+        let mut worst = 0.0f64;
+        for i in 0..=8 {
+            let u = IndexModel::basis_u(lo + (hi - lo) * f64::from(i) / 8.0);
+            worst = worst.max(libm::fabs(x[0] + x[1] * u + x[2] * u * u));
+        }
+        worst
     }
 
     /// Whether the index moved so much at this angle's end (more than
     /// [`REORDER_INDEX_STEP`]) that every pixel chooses its order again (its sums restart).
     pub fn reorders(&self) -> bool {
-        libm::fabs(self.pending_dn) > REORDER_INDEX_STEP
+        libm::fabs(self.pending_dp[0]) > REORDER_INDEX_STEP
     }
 
     /// Whether the full-spectrum fit is much worse than the noise: residual RMS above
@@ -516,7 +650,9 @@ impl SweepSolver {
             pair: self.last_pair,
             refined: self.last_refined,
             spectral_index_step: self.spectral_dn,
-            dispersive: self.fit.is_some_and(|f| f.dispersive),
+            dispersive: self.index.is_some_and(|m| m.terms() > 1),
+            spectral_index: self.spectral_index,
+            index_terms: self.index.map_or(0, |m| m.terms()),
         }
     }
 
