@@ -16,9 +16,25 @@ use crate::pipeline::{
 
 /// Most passes over a replayable source (the first from the extremum shifts, the others with
 /// the index from the full spectra).
-pub const MAX_PASSES: usize = 3;
+pub const MAX_PASSES: usize = 5;
 use crate::simulate::dispersion_json;
 use crate::sweep::{Method, MethodResult};
+
+/// Whether a full-spectrum pass ended with its index at rest: the last step moved it by
+/// less than 0.002 and no pixel had to choose its order again.
+fn settled(out: &SweepOutput) -> bool {
+    out.angles
+        .last()
+        .is_some_and(|a| a.refined && a.spectral_index_step.abs() < 2e-3)
+}
+
+/// Orders passes: a pass the model explains before one it does not, then by residual.
+fn fit_rank(out: &SweepOutput) -> (bool, f64) {
+    (
+        out.model_mismatch,
+        out.residual_sigma.unwrap_or(f64::INFINITY),
+    )
+}
 
 /// How to run a method.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -103,19 +119,26 @@ pub fn run_method(
             let mut passes = 1;
             // Spectra the extremum-shift index does not explain (real dispersion, a high
             // index): pass again over the same data with the index from the full spectra,
-            // starting at the first pass's.
-            while out.model_mismatch
-                && passes < MAX_PASSES
+            // starting where the last pass's full-spectrum step pointed, until the index
+            // settles; the pass that fits best is kept.
+            let mut last = out.clone();
+            while passes < MAX_PASSES
+                && (last.model_mismatch || (last.spectral_index && !settled(&last)))
                 && config.pipeline.solver.refine
                 && source.replayable()
             {
-                let Some(index) = out.index else { break };
+                let Some(index) = last.spectral_candidate.or(last.index) else {
+                    break;
+                };
                 let prior = Prior {
                     index,
                     spectral: true,
                 };
-                out = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
+                last = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
                 passes += 1;
+                if fit_rank(&last) < fit_rank(&out) {
+                    out = last.clone();
+                }
             }
             let reports: Vec<_> = out
                 .angles

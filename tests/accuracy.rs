@@ -117,22 +117,14 @@ fn filmscope_is_more_accurate_than_the_paper_method_on_every_paper_sample() {
     );
 }
 
+// Debenham's Sellmeier ZnS: the index falls by 0.19 across the band, and a two-term Cauchy
+// model misses it by up to 0.0105 (a three-term one by 0.0008). The extremum shifts alone
+// gave -0.10..+0.21 and every pixel flagged; the full-spectrum pass gives, measured over seeds
+// 201, 1, 2, 3, 4: index error -0.0002..-0.0005, MAE 0.08-0.10 nm, valid 100 %, spectral RMSE
+// 0.0006, dE2000 0.07, the three-term model chosen.
 #[test]
-#[ignore = "known failure: the dispersive index is not accurate (seeds 1-4: index errors -0.06..+0.21); every pixel is then flagged model_mismatch"]
-fn real_zns_dispersion_is_modelled_with_a_cauchy_index() {
-    // Debenham's Sellmeier ZnS: the index falls by 0.19 across the band.
-    let r = eval("zns-dispersive", Method::Filmscope);
-    assert!(r.index_error.abs() <= 0.01, "index error {}", r.index_error);
-    assert!(r.thickness_mae_nm <= 3.0, "MAE {}", r.thickness_mae_nm);
-    assert!(r.spectral_rmse <= 0.01, "RMSE {}", r.spectral_rmse);
-    assert!(r.valid_fraction >= 0.95, "valid {}", r.valid_fraction);
-}
-
-#[test]
-fn where_the_model_fails_no_pixel_is_silently_wrong() {
-    // Dispersive ZnS under several noise realisations: whatever the index comes out, no
-    // pixel may be reported valid and more than 20 nm off (seed 2 once gave 70 %).
-    for seed in [201u64, 1, 2, 3] {
+fn real_zns_dispersion_is_measured_under_every_noise_seed() {
+    for seed in [201u64, 1, 2, 3, 4] {
         let mut scene = common::scene("zns-dispersive");
         scene.seed = seed;
         let truth = Truth::of_scene(&scene);
@@ -144,6 +136,33 @@ fn where_the_model_fails_no_pixel_is_silently_wrong() {
             "seed {seed}: silent {}",
             r.silent_failure_rate
         );
+        assert!(
+            r.index_error.abs() <= 0.003,
+            "seed {seed}: index {}",
+            r.index_error
+        );
+        assert!(
+            r.thickness_mae_nm <= 1.0,
+            "seed {seed}: MAE {}",
+            r.thickness_mae_nm
+        );
+        assert!(
+            r.spectral_rmse <= 0.002,
+            "seed {seed}: RMSE {}",
+            r.spectral_rmse
+        );
+        assert!(
+            r.valid_fraction >= 0.98,
+            "seed {seed}: valid {}",
+            r.valid_fraction
+        );
+        assert!(
+            r.delta_e2000_mean <= 0.5,
+            "seed {seed}: dE {}",
+            r.delta_e2000_mean
+        );
+        let dispersive = run.result.index.b_um2 > 0.0;
+        assert!(dispersive, "seed {seed}: {:?}", run.result.index);
     }
 }
 

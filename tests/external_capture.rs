@@ -125,33 +125,25 @@ fn thick_mgf2_float_bsq_big_endian_micrometres_solves_nearly_every_pixel() {
     assert!(r.valid_fraction >= 0.95, "valid {}", r.valid_fraction);
 }
 
-// Whatever the accuracy, nothing may be silently wrong, and the raw path (uint16 BIL counts,
-// a one-line float32 white, a dark, angles out of order) must load and run.
+// The raw path (uint16 BIL counts, a one-line float32 white, a dark, angles out of order)
+// with Debenham's Sellmeier ZnS made by tmm. Measured: index error -0.0003, MAE 0.04 nm, valid
+// 100 %, spectral RMSE 0.0004 (two passes, three-term Cauchy). Before the full-spectrum pass:
+// error -0.037, every pixel flagged model_mismatch.
 #[test]
-fn zns_with_sellmeier_dispersion_from_raw_counts_fails_honestly() {
+fn zns_with_sellmeier_dispersion_from_raw_counts() {
     let r = eval("zns-sellmeier-raw");
+    check(
+        &r,
+        &Bounds {
+            index_error: 0.003,
+            mae_nm: 1.0,
+            valid_fraction: 0.98,
+            spectral_rmse: 0.002,
+        },
+    );
     assert!(
         r.silent_failure_rate <= 0.001,
         "silent failures {}",
         r.silent_failure_rate
-    );
-}
-
-#[test]
-#[ignore = "known failure: Cauchy index 2.3489 vs 2.3862 at 550 nm (error -0.037), every \
-            pixel ~8 nm thick (MAE 7.99 nm), spectral RMSE 0.0204, valid 0.908, silent 0; \
-            model_mismatch flagged on all 120 px. With the angles listed in ascending order \
-            the same data gives error -0.050 and valid 0.0"]
-fn zns_with_sellmeier_dispersion_from_raw_counts() {
-    // A 2-term Cauchy fits Debenham's ZnS to 0.011 over 420-720 nm and to 0.003 at 550 nm,
-    // so these are within reach of the model filmscope chooses.
-    check(
-        &eval("zns-sellmeier-raw"),
-        &Bounds {
-            index_error: 0.01,
-            mae_nm: 4.0,
-            valid_fraction: 0.95,
-            spectral_rmse: 0.01,
-        },
     );
 }

@@ -71,8 +71,10 @@ pub struct SweepOutput {
     pub model_mismatch: bool,
     /// Whether the index came from the full spectra (else from the extremum shifts).
     pub spectral_index: bool,
-    /// Chi-square gains of the last full-spectrum step with 1, 2, 3 index terms.
+    /// The largest chi-square gains of the full-spectrum steps with 1, 2, 3 index terms.
     pub spectral_gains: [f64; 3],
+    /// The index after the last full-spectrum step, taken or not (where another pass starts).
+    pub spectral_candidate: Option<IndexModel>,
     /// Wall time from the first message to the maps being ready.
     pub stream_time: Duration,
     /// Wall time from the last row of the last angle to the maps being ready.
@@ -263,6 +265,7 @@ pub fn run_sweep(
         model_mismatch: solver.model_mismatch(),
         spectral_index: solver.spectral_index(),
         spectral_gains: solver.spectral_gains(),
+        spectral_candidate: solver.spectral_candidate(),
         residual_sigma: solver.residual_sigma(),
         noise_sigma: solver.noise_sigma(),
         angles: reports,

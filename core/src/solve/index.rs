@@ -613,6 +613,45 @@ pub fn fit_index(
     Some(fit)
 }
 
+/// The dispersion slope `p1` (of `n = p0 + p1 u`, [`super::IndexModel::to_basis`]) that
+/// best explains the pairs' per-wavelength log ratios when the index at 550 nm is known to be
+/// `p0` (from the full spectra). The extremum shifts measure about `n n_g`, the product of the
+/// index and the group index, so given `n` they pin the dispersion well, where alone they
+/// cannot separate the two. `None` without enough bins.
+pub fn fit_slope_at(pairs: &[PairBins], p0: f64) -> Option<f64> {
+    let (_, bins) = chi2(pairs, super::IndexModel::constant(p0));
+    if bins < 2 {
+        return None;
+    }
+    let model = |p1: f64| super::IndexModel::from_basis([p0, p1, 0.0]);
+    let mut p1 = 0.0;
+    let h = 1e-6;
+    for _ in 0..20 {
+        let (mut jj, mut jr) = (0.0, 0.0);
+        for p in pairs {
+            for &(lambda, mean, se, n) in &p.bins {
+                if n < MIN_BIN_VOTES {
+                    continue;
+                }
+                let r0 = predicted_log_ratio(model(p1), lambda, p.x_ref, p.x_cur);
+                let r1 = predicted_log_ratio(model(p1 + h), lambda, p.x_ref, p.x_cur);
+                let j = (r1 - r0) / h / se;
+                jj += j * j;
+                jr += j * (mean - r0) / se;
+            }
+        }
+        if !(jj > 0.0) {
+            return None;
+        }
+        let step = (jr / jj).clamp(-0.1, 0.1);
+        p1 += step;
+        if libm::fabs(step) < 1e-7 {
+            break;
+        }
+    }
+    p1.is_finite().then_some(p1)
+}
+
 fn residuals_and_jacobian(
     pairs: &[PairBins],
     m: super::IndexModel,

@@ -12,8 +12,8 @@ use heapless::Vec as HVec;
 use crate::optics::{FilmAtAngle, Indices, Polarization};
 
 use super::index::{
-    combine, fit_index, pair_estimate, IndexFit, PairBins, PairEstimate, PairGeometry,
-    RatioHistogram, RatioSums, RatioWindows,
+    combine, fit_index, fit_slope_at, pair_estimate, IndexFit, PairBins, PairEstimate,
+    PairGeometry, RatioHistogram, RatioSums, RatioWindows,
 };
 use super::refine::BandCoef;
 use super::shard::Shard;
@@ -30,8 +30,11 @@ pub const MISMATCH_RATIO: f64 = 2.0;
 pub const MISMATCH_FLOOR: f64 = 0.002;
 /// An index step above this at an angle's end makes every pixel choose its order again.
 pub const REORDER_INDEX_STEP: f64 = 0.01;
-/// Largest index change one Gauss-Newton step may make.
-const MAX_INDEX_STEP: f64 = 0.05;
+/// A full-spectrum step smaller than this (anywhere in the band) means the index model has
+/// settled, and a richer one may be tried.
+const SETTLED_INDEX_STEP: f64 = 0.02;
+/// Largest index change (anywhere in the band) one full-spectrum Gauss-Newton step may make.
+const MAX_INDEX_STEP: f64 = 0.15;
 
 /// What the solver must know about a sweep before it starts.
 #[derive(Clone, Debug, PartialEq)]
@@ -307,6 +310,7 @@ pub struct SweepSolver {
     spectral_dn: f64,
     spectral_index: bool,
     spectral_gains: [f64; 3],
+    spectral_candidate: Option<IndexModel>,
 }
 
 impl SweepSolver {
@@ -336,6 +340,7 @@ impl SweepSolver {
             spectral_dn: 0.0,
             spectral_index: false,
             spectral_gains: [f64::NAN; 3],
+            spectral_candidate: None,
         }
     }
 
@@ -354,8 +359,14 @@ impl SweepSolver {
         self.spectral_index
     }
 
-    /// Chi-square gains of the last full-spectrum step with 1, 2 and 3 index terms (in units
-    /// of the residual variance; NaN where not computed).
+    /// The index after the last full-spectrum step (whether or not it was taken): where a
+    /// further pass starts.
+    pub fn spectral_candidate(&self) -> Option<IndexModel> {
+        self.spectral_candidate
+    }
+
+    /// The largest chi-square gains of the sweep's full-spectrum steps with 1, 2 and 3 index
+    /// terms (in units of the residual variance; NaN where not computed).
     pub fn spectral_gains(&self) -> [f64; 3] {
         self.spectral_gains
     }
@@ -550,8 +561,22 @@ impl SweepSolver {
                     .step(k + 1)
                     .map_or(f64::NAN, |(_, gain)| gain / sigma2.max(1e-30));
             }
+            // Terms are added only once the simpler model has settled (its own step is
+            // small), so that a richer model is compared with the simpler one at its best
+            // rather than used to absorb a linearisation far from it, and only if the index
+            // it gives keeps normal dispersion (falling with wavelength) across the band.
             let mut terms = base.clamp(1, 3);
-            while terms < 3 && gains[terms] - gains[terms - 1] > SPECTRAL_TERM_CHI2 {
+            let settled = s
+                .step(terms)
+                .is_some_and(|(x, _)| self.max_index_change(x) < SETTLED_INDEX_STEP);
+            while settled && terms < 3 && gains[terms] - gains[terms - 1] > SPECTRAL_TERM_CHI2 {
+                let normal = match (self.index, s.step(terms + 1)) {
+                    (Some(index), Some((x, _))) => self.normal_dispersion(index, x),
+                    _ => false,
+                };
+                if !normal {
+                    break;
+                }
                 terms += 1;
             }
             if let Some((mut x, gain)) = s.step(terms) {
@@ -563,21 +588,27 @@ impl SweepSolver {
                 let dof = (s.samples - s.pixels - terms as f64).max(1.0);
                 self.residual_sigma = Some(libm::sqrt(after.max(0.0) / dof));
                 self.spectral_dn = x[0];
-                self.spectral_gains = gains;
+                for (kept, g) in self.spectral_gains.iter_mut().zip(gains) {
+                    if !(*kept >= g) {
+                        *kept = g;
+                    }
+                }
                 self.last_refined = true;
                 self.refined_steps += 1;
-                if let Some(index) = self.index.filter(|_| self.spectral_index) {
+                if let Some(index) = self.index {
                     let scale = self.max_index_change(x) / MAX_INDEX_STEP;
                     if scale > 1.0 {
                         x = x.map(|v| v / scale);
                     }
                     let p = index.to_basis();
-                    spectral_next = Some(IndexModel::from_basis([
-                        p[0] + x[0],
-                        p[1] + x[1],
-                        p[2] + x[2],
-                    ]));
-                    self.index_sigma = libm::sqrt(sigma2 / s.h[0].max(1e-30));
+                    let next = IndexModel::from_basis([p[0] + x[0], p[1] + x[1], p[2] + x[2]]);
+                    if self.spectral_index {
+                        spectral_next = Some(next);
+                        self.spectral_candidate = Some(next);
+                        self.index_sigma = libm::sqrt(sigma2 / s.h[0].max(1e-30));
+                    } else {
+                        self.spectral_candidate = self.spectral_start(index, s);
+                    }
                 }
             }
         }
@@ -601,6 +632,31 @@ impl SweepSolver {
             }
             _ => [0.0; 3],
         };
+    }
+
+    /// Where a full-spectrum pass should start after an extremum-shift pass linearised at
+    /// `index`: the index at 550 nm from the full spectra (a one-term step, unclamped: far from
+    /// the truth the extremum shifts give about `sqrt(n n_g)`, not `n`), and the dispersion
+    /// slope the extremum shifts call for given that index ([`fit_slope_at`]), if normal.
+    fn spectral_start(&self, index: IndexModel, s: &SchurSums) -> Option<IndexModel> {
+        let (x, _) = s.step(1)?;
+        let p0 = index.at(super::BASIS_NM) + x[0];
+        let [lo, hi] = self.spec.index_range;
+        if !(lo..=hi).contains(&p0) {
+            return None;
+        }
+        let p1 = fit_slope_at(&self.pair_bins, p0).filter(|p1| *p1 > 0.0 && *p1 < 0.5);
+        Some(IndexModel::from_basis([p0, p1.unwrap_or(0.0), 0.0]))
+    }
+
+    /// Whether `index` moved by `x` (basis coefficients) falls with wavelength across the
+    /// band (normal dispersion, as every transparent film's does in its transparent range).
+    fn normal_dispersion(&self, index: IndexModel, x: [f64; 3]) -> bool {
+        let p = index.to_basis();
+        let m = IndexModel::from_basis([p[0] + x[0], p[1] + x[1], p[2] + x[2]]);
+        let [lo, hi] = self.band_span_nm();
+        let at = |i: i32| m.at(lo + (hi - lo) * f64::from(i) / 16.0);
+        (0..16).all(|i| at(i + 1) <= at(i) + 1e-4)
     }
 
     /// The largest index change over the band of a step `x` in basis coefficients.
@@ -645,7 +701,7 @@ impl SweepSolver {
         self.angles_done += 1;
         AngleReport {
             incidence_deg: self.angle_deg,
-            index: self.index.map(|m| m.a),
+            index: self.index.map(|m| m.at(super::BASIS_NM)),
             index_sigma: self.index_sigma,
             pair: self.last_pair,
             refined: self.last_refined,
