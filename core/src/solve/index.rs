@@ -640,7 +640,7 @@ pub fn fit_slope_at(pairs: &[PairBins], p0: f64) -> Option<f64> {
                 jr += j * (mean - r0) / se;
             }
         }
-        if !(jj > 0.0) {
+        if jj.is_nan() || jj <= 0.0 {
             return None;
         }
         let step = (jr / jj).clamp(-0.1, 0.1);

@@ -223,10 +223,8 @@ impl SchurSums {
         let mut l = [[0.0f64; 3]; 3];
         for i in 0..k {
             for j in 0..=i {
-                let mut v = self.entry(i, j);
-                for m in 0..j {
-                    v -= l[i][m] * l[j][m];
-                }
+                let dot: f64 = l[i][..j].iter().zip(&l[j][..j]).map(|(a, b)| a * b).sum();
+                let v = self.entry(i, j) - dot;
                 if i == j {
                     if v <= self.entry(i, i) * 1e-12 || v <= 0.0 {
                         return None;
@@ -589,7 +587,7 @@ impl SweepSolver {
                 self.residual_sigma = Some(libm::sqrt(after.max(0.0) / dof));
                 self.spectral_dn = x[0];
                 for (kept, g) in self.spectral_gains.iter_mut().zip(gains) {
-                    if !(*kept >= g) {
+                    if kept.is_nan() || g > *kept {
                         *kept = g;
                     }
                 }
