@@ -21,6 +21,8 @@ pub use filmscope_core::*;
 #[cfg(feature = "std")]
 pub mod baseline;
 #[cfg(feature = "std")]
+pub mod bench;
+#[cfg(feature = "std")]
 pub mod cli;
 #[cfg(feature = "std")]
 pub mod estimate;

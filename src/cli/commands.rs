@@ -336,3 +336,18 @@ pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
     );
     Ok(())
 }
+
+/// `filmscope bench`.
+pub fn bench(scene: &Path, quick: bool, json: bool) -> Result<()> {
+    let report = crate::bench::run_bench(scene, quick, &|what| {
+        if !json {
+            eprintln!("bench: {what}");
+        }
+    })?;
+    if json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        print!("{}", crate::bench::format_table(&report));
+    }
+    Ok(())
+}

@@ -85,6 +85,27 @@ enum Command {
         #[arg(long, default_value_t = 2.0)]
         brute_thickness_step: f64,
     },
+    /// Measures speed and memory (tracker, pipeline, solve, latency, state, peak RSS) and the
+    /// baselines' cost on the same data, and prints one table.
+    Bench {
+        /// Smaller sweeps (under a minute).
+        #[arg(long)]
+        quick: bool,
+        /// One JSON object on stdout instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// The scene whose spectra are measured.
+        #[arg(long, default_value = "config/scenes/paper-sample1.toml")]
+        scene: PathBuf,
+    },
+    /// (internal) One sweep in a fresh process, for `bench`'s peak-memory figure.
+    #[command(hide = true)]
+    BenchRssChild {
+        scene: PathBuf,
+        width: usize,
+        height: usize,
+        angles: usize,
+    },
 }
 
 /// Runs the command line; returns the process exit code.
@@ -128,6 +149,13 @@ pub fn main() -> std::process::ExitCode {
             (brute_index_steps, brute_thickness_step),
             &ablate,
         ),
+        Command::Bench { quick, json, scene } => commands::bench(&scene, quick, json),
+        Command::BenchRssChild {
+            scene,
+            width,
+            height,
+            angles,
+        } => crate::bench::rss_child(&scene, width, height, angles),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -1,0 +1,626 @@
+//! `filmscope bench`: speed, memory and the baselines' cost, measured in one run.
+//!
+//! Every figure is measured here, on this machine, in release builds; nothing is asserted
+//! about time (tests check accuracy, this command reports speed). The spectra are real: a
+//! scene is rendered by the software camera (raw counts with noise, calibrated) once, and the
+//! measurements replay them from memory, so the camera's own cost (an Airy sum per sample)
+//! is left out of everything but the figure that names it.
+//!
+//! - `tracker`: [`PixelTracker::push`] alone, one core, pixel-band samples per second.
+//! - `stream`: everything a sample costs a worker ([`Shard::feed_row`]: tracker and the
+//!   full-spectrum sums), one core.
+//! - `solve`: the angle-end passes ([`SweepSolver::end_angle_all`]: votes, index, orders,
+//!   Gauss-Newton steps) and the final maps, one core, pixels per second of a whole sweep.
+//! - `pipeline`: the whole bounded pipeline on two workers from a replayed source; its
+//!   latency from the last row to the maps.
+//! - `methods`: `filmscope`, `paper` and `brute` on the same small sweep, seconds per
+//!   megapixel and their accuracy.
+//! - `rss`: a child process runs one sweep of a large sensor (2048 x 2048 x 161 bands x 5
+//!   angles unless `--quick`) and reports its peak resident memory (`VmHWM`).
+
+use std::path::Path;
+use std::process::Command;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, Context, Result};
+use crossbeam_channel::Sender;
+use filmscope_core::solve::refine::BandCoef;
+use filmscope_core::solve::shard::{PixelResult, PixelState, Shard};
+use filmscope_core::solve::{state_bytes_per_pixel, SweepSolver, SweepSpec};
+use filmscope_core::track::{ExtremaList, PixelTracker};
+use firmware_sim::{Scene, SoftwareCamera};
+use serde::Serialize;
+
+use crate::estimate::{run_method, RunConfig};
+use crate::eval::{evaluate, Truth};
+use crate::pipeline::{
+    calibrate_block, run_sweep, PipelineConfig, RowBlock, Samples, SimSource, Source, StreamMsg,
+};
+use crate::sweep::Method;
+
+/// Calibrated reflectance frames of the first `rows` rows of a scene, every angle and band,
+/// held in memory to be replayed.
+pub struct Frames {
+    /// The sweep as the solver sees it.
+    pub spec: SweepSpec,
+    /// Angles, degrees.
+    pub angles_deg: Vec<f64>,
+    /// Rows held.
+    pub rows: usize,
+    /// `[angle][band][row][col]`.
+    pub data: Vec<f32>,
+}
+
+impl Frames {
+    /// Renders the first `rows` rows of `scene` through the software camera (raw counts with
+    /// noise, white and dark references) and calibrates them.
+    pub fn render(scene: &Scene, rows: usize) -> Result<Self> {
+        let camera = SoftwareCamera::new(scene.clone());
+        let (w, h) = (camera.width(), camera.height());
+        let rows = rows.clamp(1, h);
+        let spec = SimSource::new(SoftwareCamera::new(scene.clone()), false, 1)
+            .map_err(|e| anyhow!("{}: {e}", scene.name))?
+            .spec()
+            .clone();
+        let sat = scene.sensor.saturation_counts() as f32;
+        let (na, nb) = (scene.angles_deg.len(), scene.bands_nm.len());
+        let mut data = Vec::with_capacity(na * nb * rows * w);
+        let mut raw = vec![0u16; w];
+        let (mut white, mut dark) = (vec![0f32; w], vec![0f32; w]);
+        for a in 0..na {
+            for b in 0..nb {
+                for r in 0..rows {
+                    camera.raw_row(a, b, r, &mut raw);
+                    camera.white_row(a, b, r, &mut white);
+                    camera.dark_row(a, b, r, &mut dark);
+                    let samples = Samples::Raw {
+                        counts: raw.iter().map(|&c| f32::from(c)).collect(),
+                        dark: Some(dark.clone()),
+                        white: white.clone(),
+                        white_reflectance: 1.0,
+                        saturation_counts: sat,
+                    };
+                    data.extend(calibrate_block(samples, 1, w));
+                }
+            }
+        }
+        Ok(Self {
+            spec,
+            angles_deg: scene.angles_deg.clone(),
+            rows,
+            data,
+        })
+    }
+
+    fn width(&self) -> usize {
+        self.spec.width
+    }
+
+    fn bands(&self) -> usize {
+        self.spec.bands_nm.len()
+    }
+
+    /// Row `row` of band `band` at angle `angle`.
+    fn row(&self, angle: usize, band: usize, row: usize) -> &[f32] {
+        let w = self.width();
+        let start = ((angle * self.bands() + band) * self.rows + row % self.rows) * w;
+        &self.data[start..start + w]
+    }
+}
+
+/// A source replaying [`Frames`], their rows repeated to `height` rows (band-sequential, in
+/// blocks of `rows_per_block` rows of calibrated reflectance).
+pub struct ReplaySource {
+    frames: Arc<Frames>,
+    spec: SweepSpec,
+    rows_per_block: usize,
+}
+
+impl ReplaySource {
+    /// A source of `height` rows.
+    pub fn new(frames: Arc<Frames>, height: usize, rows_per_block: usize) -> Self {
+        let mut spec = frames.spec.clone();
+        spec.height = height;
+        Self {
+            frames,
+            spec,
+            rows_per_block: rows_per_block.max(1),
+        }
+    }
+}
+
+impl Source for ReplaySource {
+    fn spec(&self) -> &SweepSpec {
+        &self.spec
+    }
+
+    fn angles_deg(&self) -> Vec<f64> {
+        self.frames.angles_deg.clone()
+    }
+
+    fn stream(&mut self, tx: &Sender<StreamMsg>) {
+        let f = &self.frames;
+        let (w, h) = (self.spec.width, self.spec.height);
+        for (a, &deg) in f.angles_deg.iter().enumerate() {
+            if tx.send(StreamMsg::Angle { incidence_deg: deg }).is_err() {
+                return;
+            }
+            for b in 0..f.bands() {
+                let mut r0 = 0;
+                while r0 < h {
+                    let rows = self.rows_per_block.min(h - r0);
+                    let mut v = Vec::with_capacity(rows * w);
+                    for r in r0..r0 + rows {
+                        v.extend_from_slice(f.row(a, b, r));
+                    }
+                    let block = RowBlock {
+                        band: b as u16,
+                        first_row: r0 as u32,
+                        rows: rows as u32,
+                        samples: Samples::Reflectance(v),
+                    };
+                    if tx.send(StreamMsg::Rows(block)).is_err() {
+                        return;
+                    }
+                    r0 += rows;
+                }
+                if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
+                    return;
+                }
+            }
+            if tx.send(StreamMsg::AngleEnd).is_err() {
+                return;
+            }
+        }
+        let _ = tx.send(StreamMsg::SweepEnd);
+    }
+}
+
+/// `scene_path` with its sensor resized (the thickness map is regenerated at the new size)
+/// and, if given, its bands replaced by `[first, last, step]` nm.
+pub fn scene_with(
+    scene_path: &Path,
+    width: usize,
+    height: usize,
+    bands: Option<[f64; 3]>,
+) -> Result<Scene> {
+    let text = std::fs::read_to_string(scene_path)
+        .with_context(|| format!("{}: cannot read", scene_path.display()))?;
+    let mut doc: toml::Table = text
+        .parse()
+        .with_context(|| format!("{}: not TOML", scene_path.display()))?;
+    let sensor = doc
+        .entry("sensor")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let Some(t) = sensor.as_table_mut() {
+        t.insert("width".into(), toml::Value::Integer(width as i64));
+        t.insert("height".into(), toml::Value::Integer(height as i64));
+    }
+    if let (Some(b), Some(rig)) = (bands, doc.get_mut("rig").and_then(|r| r.as_table_mut())) {
+        rig.insert(
+            "bands_nm".into(),
+            toml::Value::Array(b.iter().map(|&x| toml::Value::Float(x)).collect()),
+        );
+    }
+    let name = scene_path
+        .file_stem()
+        .map_or_else(|| "scene".into(), |s| s.to_string_lossy().into_owned());
+    Scene::from_toml(&doc.to_string(), &name)
+        .map_err(|e| anyhow!("{}: {}", scene_path.display(), e.problem))
+}
+
+/// Runs `f` repeatedly until at least `min` has passed; returns (calls, elapsed).
+fn repeat_for(min: Duration, mut f: impl FnMut()) -> (u64, Duration) {
+    let t0 = Instant::now();
+    let mut n = 0;
+    while n == 0 || t0.elapsed() < min {
+        f();
+        n += 1;
+    }
+    (n, t0.elapsed())
+}
+
+/// Tracker throughput on one core: samples per second.
+pub fn tracker_rate(frames: &Frames, min: Duration) -> f64 {
+    let w = frames.width();
+    let px = w * frames.rows;
+    let mut trackers = vec![PixelTracker::default(); px];
+    let mut lists = vec![ExtremaList::new(); px];
+    let (n, t) = repeat_for(min, || {
+        for a in 0..frames.angles_deg.len() {
+            for (tr, l) in trackers.iter_mut().zip(lists.iter_mut()) {
+                tr.reset();
+                l.clear();
+            }
+            for b in 0..frames.bands() {
+                for r in 0..frames.rows {
+                    let row = frames.row(a, b, r);
+                    for (i, &v) in row.iter().enumerate() {
+                        let k = r * w + i;
+                        trackers[k].push(b as u16, v, true, &mut lists[k]);
+                    }
+                }
+            }
+        }
+        std::hint::black_box(&lists);
+    });
+    let samples = (px * frames.bands() * frames.angles_deg.len()) as f64 * n as f64;
+    samples / t.as_secs_f64()
+}
+
+/// One whole sweep over `frames` on one core, with the streaming (tracker and sums) and the
+/// angle-end passes timed apart: `(stream samples/s, solve pixels/s)`.
+pub fn sweep_rates(frames: &Frames) -> (f64, f64) {
+    let spec = frames.spec.clone();
+    let (w, rows, nb) = (frames.width(), frames.rows, frames.bands());
+    let mut spec_rows = spec.clone();
+    spec_rows.height = rows;
+    let mut solver = SweepSolver::new(spec_rows, None);
+    let mut states = vec![PixelState::default(); w * rows];
+    let mut models: Vec<Option<BandCoef>> = vec![None; nb];
+    let (mut stream, mut solve) = (Duration::ZERO, Duration::ZERO);
+    for (a, &deg) in frames.angles_deg.iter().enumerate() {
+        solver.begin_angle(deg);
+        solver.band_models(&mut models);
+        let mut shard = Shard::new(0, w, &mut states);
+        shard.begin_angle();
+        let t0 = Instant::now();
+        for b in 0..nb {
+            for r in 0..rows {
+                shard.feed_row(spec.options, &models, b, r, frames.row(a, b, r));
+            }
+        }
+        stream += t0.elapsed();
+        let t1 = Instant::now();
+        solver.end_angle_all(&mut [shard]);
+        solve += t1.elapsed();
+    }
+    let t2 = Instant::now();
+    let mut out = vec![
+        PixelResult {
+            thickness_nm: f32::NAN,
+            confidence: 0.0,
+            flags: 0,
+        };
+        w * rows
+    ];
+    Shard::new(0, w, &mut states).finish(&solver, &mut out);
+    solve += t2.elapsed();
+    std::hint::black_box(&out);
+    let samples = (w * rows * nb * frames.angles_deg.len()) as f64;
+    (
+        samples / stream.as_secs_f64(),
+        (w * rows) as f64 / solve.as_secs_f64(),
+    )
+}
+
+/// One method's cost and accuracy on the shared sweep.
+#[derive(Clone, Debug, Serialize)]
+pub struct MethodFigures {
+    /// The method.
+    pub method: String,
+    /// Wall seconds per megapixel (from the replayed sweep to the maps).
+    pub seconds_per_mpix: f64,
+    /// Index error at 550 nm.
+    pub index_error: Option<f64>,
+    /// Thickness mean absolute error, nm.
+    pub thickness_mae_nm: Option<f64>,
+    /// Valid fraction.
+    pub valid_fraction: f64,
+}
+
+/// Runs every method on `scene` (all of its rows rendered, so the truth applies).
+pub fn method_figures(
+    scene: &Scene,
+    brute_grid: crate::baseline::BruteGrid,
+) -> Result<Vec<MethodFigures>> {
+    let frames = Arc::new(Frames::render(scene, scene.sensor.height)?);
+    let truth = Truth::of_scene(scene);
+    let mpix = (scene.sensor.width * scene.sensor.height) as f64 / 1e6;
+    let mut out = Vec::new();
+    for method in [Method::Filmscope, Method::Paper, Method::Brute] {
+        let mut source = ReplaySource::new(frames.clone(), scene.sensor.height, 8);
+        let config = RunConfig {
+            method,
+            brute_grid,
+            ..RunConfig::default()
+        };
+        let t0 = Instant::now();
+        let run = run_method(&mut source, &config, &|_| {}).map_err(|e| anyhow!("{e}"))?;
+        let secs = t0.elapsed().as_secs_f64();
+        let r = evaluate(&scene.name, &truth, &run);
+        let finite = |x: f64| x.is_finite().then_some(x);
+        out.push(MethodFigures {
+            method: method.name().to_owned(),
+            seconds_per_mpix: secs / mpix,
+            index_error: finite(r.index_error),
+            thickness_mae_nm: finite(r.thickness_mae_nm),
+            valid_fraction: r.valid_fraction,
+        });
+    }
+    Ok(out)
+}
+
+/// Peak memory of one sweep, measured in a child process.
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
+pub struct RssFigures {
+    /// Sensor width.
+    pub width: usize,
+    /// Sensor height.
+    pub height: usize,
+    /// Bands.
+    pub bands: usize,
+    /// Angles.
+    pub angles: usize,
+    /// Peak resident set of the child, MB (`VmHWM`).
+    pub peak_rss_mb: f64,
+    /// Resident set before the sweep started (frames rendered), MB.
+    pub before_sweep_mb: f64,
+    /// Seconds the sweep took.
+    pub seconds: f64,
+    /// Samples per second of that sweep.
+    pub samples_per_s: f64,
+}
+
+/// Reads a `/proc/self/status` field in kB, as MB.
+fn status_mb(field: &str) -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with(field))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// The child's side of the RSS measurement: one sweep of `scene_path` resized, printed as
+/// JSON on stdout.
+pub fn rss_child(scene_path: &Path, width: usize, height: usize, angles: usize) -> Result<()> {
+    let mut scene = scene_with(scene_path, width, 1, Some([400.0, 720.0, 2.0]))?;
+    scene.angles_deg.truncate(angles.max(1));
+    let frames = Arc::new(Frames::render(&scene, 1)?);
+    let before = status_mb("VmRSS:").unwrap_or(f64::NAN);
+    let mut source = ReplaySource::new(frames.clone(), height, 16);
+    let t0 = Instant::now();
+    let out = run_sweep(&mut source, PipelineConfig::default(), None, &|_| {})
+        .map_err(|e| anyhow!("{e}"))?;
+    let secs = t0.elapsed().as_secs_f64();
+    std::hint::black_box(&out.results);
+    let fig = RssFigures {
+        width,
+        height,
+        bands: frames.bands(),
+        angles: frames.angles_deg.len(),
+        peak_rss_mb: status_mb("VmHWM:").unwrap_or(f64::NAN),
+        before_sweep_mb: before,
+        seconds: secs,
+        samples_per_s: out.samples as f64 / secs,
+    };
+    println!("{}", serde_json::to_string(&fig)?);
+    Ok(())
+}
+
+fn rss_in_child(
+    scene_path: &Path,
+    width: usize,
+    height: usize,
+    angles: usize,
+) -> Result<RssFigures> {
+    let exe = std::env::current_exe().context("cannot find the filmscope executable")?;
+    let out = Command::new(exe)
+        .args(["bench-rss-child", &scene_path.to_string_lossy()])
+        .args([width.to_string(), height.to_string(), angles.to_string()])
+        .output()
+        .context("cannot start the memory-measuring child")?;
+    if !out.status.success() {
+        return Err(anyhow!(
+            "memory-measuring child failed: {}",
+            String::from_utf8_lossy(&out.stderr).trim()
+        ));
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().last().unwrap_or_default();
+    Ok(serde_json::from_str(line)?)
+}
+
+/// Everything `filmscope bench` measures.
+#[derive(Clone, Debug, Serialize)]
+pub struct BenchReport {
+    /// Quick mode (smaller sweeps).
+    pub quick: bool,
+    /// The scene the spectra come from.
+    pub scene: String,
+    /// Tracker alone, samples per second on one core.
+    pub tracker_samples_per_s_per_core: f64,
+    /// Tracker and full-spectrum sums (a worker's per-sample cost), on one core.
+    pub stream_samples_per_s_per_core: f64,
+    /// The whole pipeline on two workers from a replayed source.
+    pub pipeline_samples_per_s: f64,
+    /// The whole pipeline fed by the software camera (the camera's Airy sums included).
+    pub pipeline_from_camera_samples_per_s: f64,
+    /// Pixels per second of a sweep's angle-end passes and final maps, on one core.
+    pub solve_pixels_per_s_per_core: f64,
+    /// Time from the last row to the maps, per megapixel, ms.
+    pub latency_ms_per_mpix: f64,
+    /// Sensor of the pipeline and latency figures.
+    pub pipeline_sensor: [usize; 2],
+    /// Bytes of solver state per pixel (constant in bands, angles and sweeps).
+    pub state_bytes_per_pixel: usize,
+    /// Peak memory of a large sweep.
+    pub rss: Option<RssFigures>,
+    /// Why the memory figure is missing, if it is.
+    pub rss_error: Option<String>,
+    /// The three methods on the same sweep.
+    pub methods: Vec<MethodFigures>,
+    /// Sensor of the methods' sweep.
+    pub methods_sensor: [usize; 2],
+    /// Time of `brute` over time of `filmscope`.
+    pub speedup_vs_brute: f64,
+    /// Time of `paper` over time of `filmscope`.
+    pub speedup_vs_paper: f64,
+}
+
+/// Runs every measurement. `scene_path` gives the spectra (the paper's MgF2 sample by default).
+pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Result<BenchReport> {
+    let min = Duration::from_millis(if quick { 300 } else { 1500 });
+    // Kernels: 256 x 32 pixels, every band and angle.
+    progress("rendering spectra");
+    let kernel_scene = scene_with(scene_path, 256, 32, None)?;
+    let kernel = Frames::render(&kernel_scene, 32)?;
+    progress("tracker");
+    let tracker = tracker_rate(&kernel, min);
+    progress("stream and solve");
+    let (stream, solve) = sweep_rates(&kernel);
+
+    // Pipeline: a wide sensor, rows replayed.
+    let (pw, ph) = if quick { (512, 256) } else { (1024, 1024) };
+    progress("pipeline");
+    let pipe_scene = scene_with(scene_path, pw, 16, None)?;
+    let frames = Arc::new(Frames::render(&pipe_scene, 16)?);
+    let mut source = ReplaySource::new(frames, ph, 16);
+    let out = run_sweep(&mut source, PipelineConfig::default(), None, &|_| {})
+        .map_err(|e| anyhow!("{e}"))?;
+    let pipeline = out.samples as f64 / out.stream_time.as_secs_f64();
+    let latency = out.solve_latency.as_secs_f64() * 1e3 / ((pw * ph) as f64 / 1e6);
+
+    progress("pipeline from the software camera");
+    let cam_scene = scene_with(scene_path, 128, if quick { 32 } else { 96 }, None)?;
+    let mut sim =
+        SimSource::new(SoftwareCamera::new(cam_scene), false, 8).map_err(|e| anyhow!("{e}"))?;
+    let cam = run_sweep(&mut sim, PipelineConfig::default(), None, &|_| {})
+        .map_err(|e| anyhow!("{e}"))?;
+    let from_camera = cam.samples as f64 / cam.stream_time.as_secs_f64();
+
+    progress("methods");
+    let (mw, mh) = if quick { (24, 16) } else { (48, 32) };
+    let m_scene = scene_with(scene_path, mw, mh, None)?;
+    let methods = method_figures(&m_scene, crate::baseline::BruteGrid::default())?;
+    let time = |m: &str| {
+        methods
+            .iter()
+            .find(|f| f.method == m)
+            .map_or(f64::NAN, |f| f.seconds_per_mpix)
+    };
+
+    progress("peak memory (child process)");
+    let (rw, rh, ra) = if quick {
+        (1024, 1024, 2)
+    } else {
+        (2048, 2048, 5)
+    };
+    let (rss, rss_error) = match rss_in_child(scene_path, rw, rh, ra) {
+        Ok(r) => (Some(r), None),
+        Err(e) => (None, Some(e.to_string())),
+    };
+    let (speedup_vs_brute, speedup_vs_paper) = (
+        time("brute") / time("filmscope"),
+        time("paper") / time("filmscope"),
+    );
+    Ok(BenchReport {
+        quick,
+        scene: kernel_scene.name.clone(),
+        tracker_samples_per_s_per_core: tracker,
+        stream_samples_per_s_per_core: stream,
+        pipeline_samples_per_s: pipeline,
+        pipeline_from_camera_samples_per_s: from_camera,
+        solve_pixels_per_s_per_core: solve,
+        latency_ms_per_mpix: latency,
+        pipeline_sensor: [pw, ph],
+        state_bytes_per_pixel: state_bytes_per_pixel(),
+        rss,
+        rss_error,
+        methods,
+        methods_sensor: [mw, mh],
+        speedup_vs_brute,
+        speedup_vs_paper,
+    })
+}
+
+/// The report as a table.
+pub fn format_table(r: &BenchReport) -> String {
+    let m = |x: f64| format!("{:.1} M", x / 1e6);
+    let k = |x: f64| format!("{:.0} k", x / 1e3);
+    let mut s = String::new();
+    let mut row = |name: &str, value: String, target: &str| {
+        s.push_str(&format!("{name:<44} {value:>14}   {target}\n"));
+    };
+    row("figure", "measured".into(), "target");
+    row(
+        "tracker, samples/s per core",
+        m(r.tracker_samples_per_s_per_core),
+        ">= 200 M",
+    );
+    row(
+        "tracker + sums, samples/s per core",
+        m(r.stream_samples_per_s_per_core),
+        "",
+    );
+    row(
+        &format!(
+            "pipeline, 2 workers, samples/s ({}x{})",
+            r.pipeline_sensor[0], r.pipeline_sensor[1]
+        ),
+        m(r.pipeline_samples_per_s),
+        ">= 150 M",
+    );
+    row(
+        "pipeline from the software camera, samples/s",
+        m(r.pipeline_from_camera_samples_per_s),
+        "(camera-bound)",
+    );
+    row(
+        "solve, pixels/s per core (whole sweep)",
+        k(r.solve_pixels_per_s_per_core),
+        ">= 200 k",
+    );
+    row(
+        "latency last row -> maps, ms per Mpix",
+        format!("{:.1}", r.latency_ms_per_mpix),
+        "<= 50",
+    );
+    row(
+        "state, bytes per pixel",
+        r.state_bytes_per_pixel.to_string(),
+        "<= 64",
+    );
+    match (&r.rss, &r.rss_error) {
+        (Some(x), _) => row(
+            &format!(
+                "peak RSS, {}x{} x {} bands x {} angles, MB",
+                x.width, x.height, x.bands, x.angles
+            ),
+            format!("{:.0}", x.peak_rss_mb),
+            "<= 400 (4 MP, 161 x 5)",
+        ),
+        (None, Some(e)) => row("peak RSS", "failed".into(), e),
+        _ => {}
+    }
+    row(
+        &format!(
+            "speedup vs brute ({}x{})",
+            r.methods_sensor[0], r.methods_sensor[1]
+        ),
+        format!("{:.0}x", r.speedup_vs_brute),
+        ">= 100x",
+    );
+    row(
+        "speedup vs paper",
+        format!("{:.1}x", r.speedup_vs_paper),
+        "",
+    );
+    s.push('\n');
+    s.push_str(&format!(
+        "{:<10} {:>12} {:>10} {:>10} {:>7}\n",
+        "method", "s per Mpix", "n err", "MAE nm", "valid"
+    ));
+    for f in &r.methods {
+        let opt = |x: Option<f64>, d: usize| x.map_or("-".into(), |v| format!("{v:.d$}"));
+        s.push_str(&format!(
+            "{:<10} {:>12.3} {:>10} {:>10} {:>6.1}%\n",
+            f.method,
+            f.seconds_per_mpix,
+            opt(f.index_error, 4),
+            opt(f.thickness_mae_nm, 2),
+            100.0 * f.valid_fraction
+        ));
+    }
+    s
+}
