@@ -55,7 +55,10 @@ pub struct BandCoef {
     /// The band's index basis variable ([`IndexModel::basis_u`]).
     pub u: f64,
     nodes: [Node; 5],
-    nodes_up: [Node; 5],
+    /// The band centre at the current index and one index step above (for `d M / d n` and
+    /// the neighbouring orders' misfits, which need no passband detail).
+    centre: Node,
+    centre_up: Node,
     count: usize,
 }
 
@@ -98,15 +101,15 @@ impl BandCoef {
         };
         let first = node(0, 0.0)?;
         let mut nodes = [first; 5];
-        let mut nodes_up = [node(0, INDEX_STEP)?; 5];
-        for i in 0..count {
-            nodes[i] = node(i, 0.0)?;
-            nodes_up[i] = node(i, INDEX_STEP)?;
+        for (i, n) in nodes.iter_mut().enumerate().take(count) {
+            *n = node(i, 0.0)?;
         }
+        let mid = if count == 1 { 0 } else { 2 };
         Some(Self {
             u: IndexModel::basis_u(wavelength_nm),
             nodes,
-            nodes_up,
+            centre: node(mid, 0.0)?,
+            centre_up: node(mid, INDEX_STEP)?,
             count,
         })
     }
@@ -169,11 +172,16 @@ impl GnSums {
     #[inline]
     pub fn add(&mut self, coef: &BandCoef, thickness_nm: f64, order_step_nm: f64, measured: f64) {
         let (m, j_d) = coef.model_and_slope(thickness_nm);
-        let m_up = BandCoef::model_of(&coef.nodes_up[..coef.count], thickness_nm);
-        let j_n = (m_up - m) / INDEX_STEP;
+        // The index derivative and the neighbouring orders from the band centre alone: a
+        // fifth of the cost, and the passband's detail matters to neither (it scales the
+        // fringe contrast a little; the order misfits are whole fringes).
+        let centre = |n: &Node, d: f64| n.film.reflectance_at_phase(n.phase_per_nm * d);
+        let m_centre = centre(&coef.centre, thickness_nm);
+        let j_n = (centre(&coef.centre_up, thickness_nm) - m_centre) / INDEX_STEP;
         let r = measured - m;
-        let m_minus = coef.model(thickness_nm - order_step_nm);
-        let m_plus = coef.model(thickness_nm + order_step_nm);
+        // Neighbouring orders: the model's passband correction at `d` carried over.
+        let m_minus = centre(&coef.centre, thickness_nm - order_step_nm) + (m - m_centre);
+        let m_plus = centre(&coef.centre, thickness_nm + order_step_nm) + (m - m_centre);
         let u = coef.u;
         let (jn2, mut uk) = (j_n * j_n, 1.0);
         for k in 0..5 {
