@@ -23,6 +23,8 @@ pub mod baseline;
 #[cfg(feature = "std")]
 pub mod bench;
 #[cfg(feature = "std")]
+pub mod chart;
+#[cfg(feature = "std")]
 pub mod cli;
 #[cfg(feature = "std")]
 pub mod estimate;

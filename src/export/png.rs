@@ -28,7 +28,8 @@
 //!
 //! [`render_rgb_png`] encodes a plain colour image (e.g. a render of the film's colour),
 //! upscaled by a given factor. The `write_*` variants write the PNG with
-//! [`write_atomic`], so an interrupted run never leaves a truncated file behind.
+//! [`write_atomic`](crate::io::write_atomic), so an interrupted run never leaves a
+//! truncated file behind.
 //!
 //! No function here panics on any input: mismatched sizes, absurd dimensions and invalid
 //! ranges are reported as [`PreviewError`]s.
@@ -36,11 +37,10 @@
 use std::io;
 use std::path::{Path, PathBuf};
 
-use image::codecs::png::PngEncoder;
-use image::{ExtendedColorType, ImageEncoder};
-
+use super::canvas::{
+    fit_text, text_width, write_png, Canvas, BACKGROUND, CAP_ROWS, FRAME_INK, GLYPH_ROWS, INK,
+};
 use super::colormap::{viridis, NO_DATA};
-use crate::io::write_atomic;
 
 /// The map part of a preview is upscaled to be at least this many pixels wide.
 pub const MIN_MAP_WIDTH: usize = 384;
@@ -116,6 +116,19 @@ pub enum PreviewError {
         scale: usize,
         /// [`MAX_PIXELS`].
         limit: usize,
+    },
+    /// A multi-panel figure was asked for with no panels.
+    #[error("a figure needs at least one panel, got none")]
+    NoPanels,
+    /// A heat map's tick labels are neither absent nor one per column (or row).
+    #[error("{axis} axis: {expected} tick labels needed (one per cell) but {actual} were given")]
+    TickCount {
+        /// `"x"` or `"y"`.
+        axis: &'static str,
+        /// The number of columns (x) or rows (y).
+        expected: usize,
+        /// The number of labels given.
+        actual: usize,
     },
     /// The PNG encoder failed.
     #[error("cannot encode PNG: {err}")]
@@ -232,36 +245,11 @@ pub fn render_map_png(p: &MapPreview) -> Result<Vec<u8>, PreviewError> {
         }
     }
     if !any_finite {
-        let msg = "no valid pixels";
-        let scale = if text_width(msg, 2) + 16 <= map_w {
-            2
-        } else {
-            1
-        };
-        let (tw, th) = (text_width(msg, scale), CAP_ROWS * scale);
-        let (bw, bh) = (tw + 12, th + 12);
-        let bx = map_x + map_w.saturating_sub(bw) / 2;
-        let by = map_y + map_h.saturating_sub(bh) / 2;
-        c.fill(bx, by, bw, bh, BACKGROUND);
-        c.frame(bx, by, bw, bh, FRAME_INK);
-        c.text(bx + 6, by + 6, msg, scale, INK);
+        c.message_box(map_x, map_y, map_w, map_h, "no valid pixels");
     }
 
     // Colour bar: high values at the top.
-    c.frame(
-        bar_x - FRAME,
-        bar_y - FRAME,
-        BAR_WIDTH + 2 * FRAME,
-        bar_h + 2 * FRAME,
-        FRAME_INK,
-    );
-    for r in 0..bar_h {
-        let colour = match range {
-            Some(_) => viridis(1.0 - r as f64 / (bar_h - 1).max(1) as f64),
-            None => NO_DATA,
-        };
-        c.fill(bar_x, bar_y + r, BAR_WIDTH, 1, colour);
-    }
+    c.colour_bar(bar_x, bar_y, BAR_WIDTH, bar_h, range.is_some());
     for (f, label) in &ticks {
         let y = bar_y + ((1.0 - f) * (bar_h - 1) as f64).round() as usize;
         c.fill(bar_x + BAR_WIDTH + FRAME, y, TICK_LEN, 1, FRAME_INK);
@@ -285,7 +273,7 @@ pub fn render_map_png(p: &MapPreview) -> Result<Vec<u8>, PreviewError> {
 }
 
 /// Renders `p` like [`render_map_png`] and writes it to `path` atomically (temporary
-/// file + rename, see [`write_atomic`]).
+/// file + rename, see [`write_atomic`](crate::io::write_atomic)).
 ///
 /// Errors: those of [`render_map_png`], and [`PreviewError::Write`] (naming `path`) if
 /// the file cannot be written.
@@ -337,7 +325,7 @@ pub fn render_rgb_png(
 }
 
 /// Renders like [`render_rgb_png`] and writes the PNG to `path` atomically (temporary
-/// file + rename, see [`write_atomic`]).
+/// file + rename, see [`write_atomic`](crate::io::write_atomic)).
 ///
 /// Errors: those of [`render_rgb_png`], and [`PreviewError::Write`] (naming `path`) if
 /// the file cannot be written.
@@ -384,15 +372,8 @@ const NOTE_SWATCH: usize = 9;
 /// The note under the colour bar.
 const NOTE: &str = "grey = no estimate";
 
-/// Image background.
-const BACKGROUND: [u8; 3] = [255, 255, 255];
-/// Text colour.
-const INK: [u8; 3] = [20, 20, 20];
-/// Frame and tick colour.
-const FRAME_INK: [u8; 3] = [70, 70, 70];
-
 /// Checks that a `width x height` image has pixels and that `len` matches.
-fn check_size(width: usize, height: usize, len: usize) -> Result<(), PreviewError> {
+pub(super) fn check_size(width: usize, height: usize, len: usize) -> Result<(), PreviewError> {
     if width == 0 || height == 0 {
         return Err(PreviewError::Empty { width, height });
     }
@@ -458,7 +439,7 @@ fn percentile(v: &[f64], q: f64) -> f64 {
 }
 
 /// Decimals for tick labels over a span: enough to resolve 0.5% of it, at most 6.
-fn tick_decimals(span: f64) -> usize {
+pub(super) fn tick_decimals(span: f64) -> usize {
     let d = (-(span / 200.0).log10()).ceil();
     if d.is_finite() {
         d.clamp(0.0, 6.0) as usize
@@ -469,7 +450,7 @@ fn tick_decimals(span: f64) -> usize {
 
 /// Formats a tick value: fixed point with `decimals`, or scientific for magnitudes at
 /// or above 1e6 and below 1e-3; never "-0".
-fn format_value(v: f64, decimals: usize) -> String {
+pub(super) fn format_value(v: f64, decimals: usize) -> String {
     let a = v.abs();
     let s = if a != 0.0 && !(1e-3..1e6).contains(&a) {
         format!("{v:.2e}")
@@ -491,253 +472,6 @@ fn with_unit(number: &str, unit: &str) -> String {
         format!("{number} {unit}")
     }
 }
-
-/// `text` cut short with "..." so that it is at most `max_w` pixels wide at `scale`.
-fn fit_text(text: &str, max_w: usize, scale: usize) -> String {
-    if text_width(text, scale) <= max_w {
-        return text.to_string();
-    }
-    let max_chars = (max_w / (ADVANCE * scale)).saturating_sub(3);
-    let mut s: String = text.chars().take(max_chars).collect();
-    s.push_str("...");
-    s
-}
-
-// ---------------------------------------------------------------------------------------
-// Drawing.
-
-/// An RGB8 image being drawn; all drawing is clipped to its bounds.
-struct Canvas {
-    width: usize,
-    height: usize,
-    data: Vec<u8>,
-}
-
-impl Canvas {
-    /// A `width x height` canvas filled with `bg` (the caller has checked the size).
-    fn new(width: usize, height: usize, bg: [u8; 3]) -> Self {
-        let mut data = vec![0u8; width * height * 3];
-        for px in data.chunks_exact_mut(3) {
-            px.copy_from_slice(&bg);
-        }
-        Self {
-            width,
-            height,
-            data,
-        }
-    }
-
-    /// Copies a row of RGB bytes to `(x, y)`, clipped.
-    fn put_row(&mut self, x: usize, y: usize, rgb: &[u8]) {
-        if y >= self.height || x >= self.width {
-            return;
-        }
-        let n = rgb.len().min((self.width - x) * 3);
-        let start = (y * self.width + x) * 3;
-        self.data[start..start + n].copy_from_slice(&rgb[..n]);
-    }
-
-    /// Fills a rectangle, clipped.
-    fn fill(&mut self, x: usize, y: usize, w: usize, h: usize, colour: [u8; 3]) {
-        let x_end = x.saturating_add(w).min(self.width);
-        let y_end = y.saturating_add(h).min(self.height);
-        for yy in y..y_end {
-            for xx in x..x_end {
-                let i = (yy * self.width + xx) * 3;
-                self.data[i..i + 3].copy_from_slice(&colour);
-            }
-        }
-    }
-
-    /// Draws a one-pixel outline of a rectangle, clipped.
-    fn frame(&mut self, x: usize, y: usize, w: usize, h: usize, colour: [u8; 3]) {
-        if w == 0 || h == 0 {
-            return;
-        }
-        self.fill(x, y, w, 1, colour);
-        self.fill(x, y + h - 1, w, 1, colour);
-        self.fill(x, y, 1, h, colour);
-        self.fill(x + w - 1, y, 1, h, colour);
-    }
-
-    /// Draws `text` with its top-left corner (the top of a capital) at `(x, y)`, each
-    /// font pixel a `scale x scale` block.
-    fn text(&mut self, x: usize, y: usize, text: &str, scale: usize, colour: [u8; 3]) {
-        for (n, ch) in text.chars().enumerate() {
-            let gx = x + n * ADVANCE * scale;
-            for (r, bits) in glyph(ch).iter().enumerate() {
-                for col in 0..GLYPH_COLS {
-                    if bits & (1 << (GLYPH_COLS - 1 - col)) != 0 {
-                        self.fill(gx + col * scale, y + r * scale, scale, scale, colour);
-                    }
-                }
-            }
-        }
-    }
-
-    /// Encodes the canvas as an RGB8 PNG.
-    fn encode(&self) -> Result<Vec<u8>, PreviewError> {
-        let too_large = || PreviewError::TooLarge {
-            width: self.width,
-            height: self.height,
-            scale: 1,
-            limit: MAX_PIXELS,
-        };
-        let w = u32::try_from(self.width).map_err(|_| too_large())?;
-        let h = u32::try_from(self.height).map_err(|_| too_large())?;
-        let mut out = Vec::new();
-        PngEncoder::new(&mut out)
-            .write_image(&self.data, w, h, ExtendedColorType::Rgb8)
-            .map_err(|err| PreviewError::Encode { err })?;
-        Ok(out)
-    }
-}
-
-/// Writes encoded PNG bytes to `path` atomically.
-fn write_png(path: &Path, png: &[u8]) -> Result<(), PreviewError> {
-    write_atomic(path, png).map_err(|err| PreviewError::Write {
-        path: path.to_path_buf(),
-        err,
-    })
-}
-
-// ---------------------------------------------------------------------------------------
-// The built-in font: 5x7 pixel glyphs in a 5x9 cell (two rows below the baseline for
-// descenders), drawn for this module. Each row is a byte whose low 5 bits are the pixels,
-// bit 4 leftmost.
-
-/// Glyph width in font pixels.
-const GLYPH_COLS: usize = 5;
-/// Glyph cell height in font pixels, including the descender rows.
-const GLYPH_ROWS: usize = 9;
-/// Height of capitals and digits in font pixels.
-const CAP_ROWS: usize = 7;
-/// Horizontal distance between characters in font pixels.
-const ADVANCE: usize = 6;
-
-/// Width in pixels of `text` drawn at `scale` (no trailing space).
-fn text_width(text: &str, scale: usize) -> usize {
-    let n = text.chars().count();
-    (n * ADVANCE).saturating_sub(1) * scale
-}
-
-/// The glyph of `ch`; characters without one are drawn as `?`.
-fn glyph(ch: char) -> &'static [u8; GLYPH_ROWS] {
-    const QUESTION: usize = b'?' as usize - 0x20;
-    match ch {
-        ' '..='~' => &ASCII[ch as usize - 0x20],
-        '\u{b0}' => &DEGREE,
-        '\u{b5}' => &MICRO,
-        '\u{b1}' => &PLUS_MINUS,
-        _ => &ASCII[QUESTION],
-    }
-}
-
-/// `°`.
-const DEGREE: [u8; GLYPH_ROWS] = [0x0C, 0x12, 0x12, 0x0C, 0x00, 0x00, 0x00, 0x00, 0x00];
-/// `µ` (micro sign).
-const MICRO: [u8; GLYPH_ROWS] = [0x00, 0x00, 0x11, 0x11, 0x11, 0x13, 0x1D, 0x10, 0x10];
-/// `±`.
-const PLUS_MINUS: [u8; GLYPH_ROWS] = [0x04, 0x04, 0x1F, 0x04, 0x04, 0x00, 0x1F, 0x00, 0x00];
-
-/// Glyphs for ASCII 0x20..=0x7E, in order.
-const ASCII: [[u8; GLYPH_ROWS]; 95] = [
-    [0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00], // ' '
-    [0x04, 0x04, 0x04, 0x04, 0x04, 0x00, 0x04, 0x00, 0x00], // '!'
-    [0x0A, 0x0A, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00], // '"'
-    [0x0A, 0x0A, 0x1F, 0x0A, 0x1F, 0x0A, 0x0A, 0x00, 0x00], // '#'
-    [0x04, 0x0F, 0x14, 0x0E, 0x05, 0x1E, 0x04, 0x00, 0x00], // '$'
-    [0x18, 0x19, 0x02, 0x04, 0x08, 0x13, 0x03, 0x00, 0x00], // '%'
-    [0x0C, 0x12, 0x14, 0x08, 0x15, 0x12, 0x0D, 0x00, 0x00], // '&'
-    [0x04, 0x04, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00], // '\''
-    [0x02, 0x04, 0x08, 0x08, 0x08, 0x04, 0x02, 0x00, 0x00], // '('
-    [0x08, 0x04, 0x02, 0x02, 0x02, 0x04, 0x08, 0x00, 0x00], // ')'
-    [0x00, 0x04, 0x15, 0x0E, 0x15, 0x04, 0x00, 0x00, 0x00], // '*'
-    [0x00, 0x04, 0x04, 0x1F, 0x04, 0x04, 0x00, 0x00, 0x00], // '+'
-    [0x00, 0x00, 0x00, 0x00, 0x00, 0x0C, 0x04, 0x08, 0x00], // ','
-    [0x00, 0x00, 0x00, 0x1F, 0x00, 0x00, 0x00, 0x00, 0x00], // '-'
-    [0x00, 0x00, 0x00, 0x00, 0x00, 0x0C, 0x0C, 0x00, 0x00], // '.'
-    [0x00, 0x01, 0x02, 0x04, 0x08, 0x10, 0x00, 0x00, 0x00], // '/'
-    [0x0E, 0x11, 0x13, 0x15, 0x19, 0x11, 0x0E, 0x00, 0x00], // '0'
-    [0x04, 0x0C, 0x04, 0x04, 0x04, 0x04, 0x0E, 0x00, 0x00], // '1'
-    [0x0E, 0x11, 0x01, 0x02, 0x04, 0x08, 0x1F, 0x00, 0x00], // '2'
-    [0x1F, 0x02, 0x04, 0x02, 0x01, 0x11, 0x0E, 0x00, 0x00], // '3'
-    [0x02, 0x06, 0x0A, 0x12, 0x1F, 0x02, 0x02, 0x00, 0x00], // '4'
-    [0x1F, 0x10, 0x1E, 0x01, 0x01, 0x11, 0x0E, 0x00, 0x00], // '5'
-    [0x06, 0x08, 0x10, 0x1E, 0x11, 0x11, 0x0E, 0x00, 0x00], // '6'
-    [0x1F, 0x01, 0x02, 0x04, 0x08, 0x08, 0x08, 0x00, 0x00], // '7'
-    [0x0E, 0x11, 0x11, 0x0E, 0x11, 0x11, 0x0E, 0x00, 0x00], // '8'
-    [0x0E, 0x11, 0x11, 0x0F, 0x01, 0x02, 0x0C, 0x00, 0x00], // '9'
-    [0x00, 0x0C, 0x0C, 0x00, 0x0C, 0x0C, 0x00, 0x00, 0x00], // ':'
-    [0x00, 0x0C, 0x0C, 0x00, 0x0C, 0x04, 0x08, 0x00, 0x00], // ';'
-    [0x02, 0x04, 0x08, 0x10, 0x08, 0x04, 0x02, 0x00, 0x00], // '<'
-    [0x00, 0x00, 0x1F, 0x00, 0x1F, 0x00, 0x00, 0x00, 0x00], // '='
-    [0x08, 0x04, 0x02, 0x01, 0x02, 0x04, 0x08, 0x00, 0x00], // '>'
-    [0x0E, 0x11, 0x01, 0x02, 0x04, 0x00, 0x04, 0x00, 0x00], // '?'
-    [0x0E, 0x11, 0x01, 0x0D, 0x15, 0x15, 0x0E, 0x00, 0x00], // '@'
-    [0x0E, 0x11, 0x11, 0x1F, 0x11, 0x11, 0x11, 0x00, 0x00], // 'A'
-    [0x1E, 0x11, 0x11, 0x1E, 0x11, 0x11, 0x1E, 0x00, 0x00], // 'B'
-    [0x0E, 0x11, 0x10, 0x10, 0x10, 0x11, 0x0E, 0x00, 0x00], // 'C'
-    [0x1C, 0x12, 0x11, 0x11, 0x11, 0x12, 0x1C, 0x00, 0x00], // 'D'
-    [0x1F, 0x10, 0x10, 0x1E, 0x10, 0x10, 0x1F, 0x00, 0x00], // 'E'
-    [0x1F, 0x10, 0x10, 0x1E, 0x10, 0x10, 0x10, 0x00, 0x00], // 'F'
-    [0x0E, 0x11, 0x10, 0x17, 0x11, 0x11, 0x0F, 0x00, 0x00], // 'G'
-    [0x11, 0x11, 0x11, 0x1F, 0x11, 0x11, 0x11, 0x00, 0x00], // 'H'
-    [0x0E, 0x04, 0x04, 0x04, 0x04, 0x04, 0x0E, 0x00, 0x00], // 'I'
-    [0x07, 0x02, 0x02, 0x02, 0x02, 0x12, 0x0C, 0x00, 0x00], // 'J'
-    [0x11, 0x12, 0x14, 0x18, 0x14, 0x12, 0x11, 0x00, 0x00], // 'K'
-    [0x10, 0x10, 0x10, 0x10, 0x10, 0x10, 0x1F, 0x00, 0x00], // 'L'
-    [0x11, 0x1B, 0x15, 0x15, 0x11, 0x11, 0x11, 0x00, 0x00], // 'M'
-    [0x11, 0x11, 0x19, 0x15, 0x13, 0x11, 0x11, 0x00, 0x00], // 'N'
-    [0x0E, 0x11, 0x11, 0x11, 0x11, 0x11, 0x0E, 0x00, 0x00], // 'O'
-    [0x1E, 0x11, 0x11, 0x1E, 0x10, 0x10, 0x10, 0x00, 0x00], // 'P'
-    [0x0E, 0x11, 0x11, 0x11, 0x15, 0x12, 0x0D, 0x00, 0x00], // 'Q'
-    [0x1E, 0x11, 0x11, 0x1E, 0x14, 0x12, 0x11, 0x00, 0x00], // 'R'
-    [0x0F, 0x10, 0x10, 0x0E, 0x01, 0x01, 0x1E, 0x00, 0x00], // 'S'
-    [0x1F, 0x04, 0x04, 0x04, 0x04, 0x04, 0x04, 0x00, 0x00], // 'T'
-    [0x11, 0x11, 0x11, 0x11, 0x11, 0x11, 0x0E, 0x00, 0x00], // 'U'
-    [0x11, 0x11, 0x11, 0x11, 0x11, 0x0A, 0x04, 0x00, 0x00], // 'V'
-    [0x11, 0x11, 0x11, 0x15, 0x15, 0x15, 0x0A, 0x00, 0x00], // 'W'
-    [0x11, 0x11, 0x0A, 0x04, 0x0A, 0x11, 0x11, 0x00, 0x00], // 'X'
-    [0x11, 0x11, 0x0A, 0x04, 0x04, 0x04, 0x04, 0x00, 0x00], // 'Y'
-    [0x1F, 0x01, 0x02, 0x04, 0x08, 0x10, 0x1F, 0x00, 0x00], // 'Z'
-    [0x0E, 0x08, 0x08, 0x08, 0x08, 0x08, 0x0E, 0x00, 0x00], // '['
-    [0x00, 0x10, 0x08, 0x04, 0x02, 0x01, 0x00, 0x00, 0x00], // '\\'
-    [0x0E, 0x02, 0x02, 0x02, 0x02, 0x02, 0x0E, 0x00, 0x00], // ']'
-    [0x04, 0x0A, 0x11, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00], // '^'
-    [0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x1F, 0x00], // '_'
-    [0x08, 0x04, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00], // '`'
-    [0x00, 0x00, 0x0E, 0x01, 0x0F, 0x11, 0x0F, 0x00, 0x00], // 'a'
-    [0x10, 0x10, 0x16, 0x19, 0x11, 0x11, 0x1E, 0x00, 0x00], // 'b'
-    [0x00, 0x00, 0x0E, 0x10, 0x10, 0x11, 0x0E, 0x00, 0x00], // 'c'
-    [0x01, 0x01, 0x0D, 0x13, 0x11, 0x11, 0x0F, 0x00, 0x00], // 'd'
-    [0x00, 0x00, 0x0E, 0x11, 0x1F, 0x10, 0x0E, 0x00, 0x00], // 'e'
-    [0x06, 0x09, 0x08, 0x1C, 0x08, 0x08, 0x08, 0x00, 0x00], // 'f'
-    [0x00, 0x00, 0x0F, 0x11, 0x11, 0x11, 0x0F, 0x01, 0x0E], // 'g'
-    [0x10, 0x10, 0x16, 0x19, 0x11, 0x11, 0x11, 0x00, 0x00], // 'h'
-    [0x04, 0x00, 0x0C, 0x04, 0x04, 0x04, 0x0E, 0x00, 0x00], // 'i'
-    [0x02, 0x00, 0x06, 0x02, 0x02, 0x02, 0x02, 0x12, 0x0C], // 'j'
-    [0x10, 0x10, 0x12, 0x14, 0x18, 0x14, 0x12, 0x00, 0x00], // 'k'
-    [0x0C, 0x04, 0x04, 0x04, 0x04, 0x04, 0x0E, 0x00, 0x00], // 'l'
-    [0x00, 0x00, 0x1A, 0x15, 0x15, 0x15, 0x15, 0x00, 0x00], // 'm'
-    [0x00, 0x00, 0x16, 0x19, 0x11, 0x11, 0x11, 0x00, 0x00], // 'n'
-    [0x00, 0x00, 0x0E, 0x11, 0x11, 0x11, 0x0E, 0x00, 0x00], // 'o'
-    [0x00, 0x00, 0x1E, 0x11, 0x11, 0x11, 0x1E, 0x10, 0x10], // 'p'
-    [0x00, 0x00, 0x0F, 0x11, 0x11, 0x11, 0x0F, 0x01, 0x01], // 'q'
-    [0x00, 0x00, 0x16, 0x19, 0x10, 0x10, 0x10, 0x00, 0x00], // 'r'
-    [0x00, 0x00, 0x0F, 0x10, 0x0E, 0x01, 0x1E, 0x00, 0x00], // 's'
-    [0x08, 0x08, 0x1C, 0x08, 0x08, 0x09, 0x06, 0x00, 0x00], // 't'
-    [0x00, 0x00, 0x11, 0x11, 0x11, 0x13, 0x0D, 0x00, 0x00], // 'u'
-    [0x00, 0x00, 0x11, 0x11, 0x11, 0x0A, 0x04, 0x00, 0x00], // 'v'
-    [0x00, 0x00, 0x11, 0x11, 0x15, 0x15, 0x0A, 0x00, 0x00], // 'w'
-    [0x00, 0x00, 0x11, 0x0A, 0x04, 0x0A, 0x11, 0x00, 0x00], // 'x'
-    [0x00, 0x00, 0x11, 0x11, 0x11, 0x11, 0x0F, 0x01, 0x0E], // 'y'
-    [0x00, 0x00, 0x1F, 0x02, 0x04, 0x08, 0x1F, 0x00, 0x00], // 'z'
-    [0x02, 0x04, 0x04, 0x08, 0x04, 0x04, 0x02, 0x00, 0x00], // '{'
-    [0x04, 0x04, 0x04, 0x04, 0x04, 0x04, 0x04, 0x00, 0x00], // '|'
-    [0x08, 0x04, 0x04, 0x02, 0x04, 0x04, 0x08, 0x00, 0x00], // '}'
-    [0x00, 0x00, 0x08, 0x15, 0x02, 0x00, 0x00, 0x00, 0x00], // '~'
-];
 
 #[cfg(test)]
 mod tests {
@@ -771,14 +505,5 @@ mod tests {
         assert!(resolve_range(&[1.0], Some((2.0, 1.0))).is_err());
         assert!(resolve_range(&[1.0], Some((f64::NAN, 1.0))).is_err());
         assert!(resolve_range(&[1.0], Some((-f64::MAX, f64::MAX))).is_err());
-    }
-
-    #[test]
-    fn every_printable_character_has_a_distinct_glyph() {
-        let mut seen = std::collections::HashSet::new();
-        for ch in '!'..='~' {
-            assert!(seen.insert(*glyph(ch)), "{ch:?} duplicates another glyph");
-        }
-        assert_eq!(glyph('\u{1F600}'), glyph('?'));
     }
 }

@@ -11,7 +11,7 @@ mod source;
 pub use msg::{RowBlock, Samples, StreamMsg};
 pub use run::{
     calibrate_block, collect_sweep, end_angle_parallel, run_sweep, PipelineConfig, PipelineError,
-    Prior, SweepOutput,
+    Prior, PriorUpdate, SweepOutput,
 };
 pub use source::{
     sweep_spec, CaptureSource, SimSource, Source, DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,

@@ -115,14 +115,27 @@ fn shard_rows(height: usize, workers: usize, i: usize) -> (usize, usize) {
 }
 
 /// What a sweep starts from: the index of an earlier pass over the same capture or of the
-/// last sweep on a production line, and whether the full spectra move it
-/// ([`SweepSolver::with_spectral_index`]).
+/// last sweep on a production line, and what moves it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Prior {
     /// The starting index.
     pub index: IndexModel,
-    /// Take the index from the full spectra.
-    pub spectral: bool,
+    /// What moves it during the sweep.
+    pub update: PriorUpdate,
+}
+
+/// How a sweep treats its prior index.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PriorUpdate {
+    /// The extremum shifts re-estimate it as the angles arrive (a production line's next
+    /// sweep).
+    Shifts,
+    /// It is held (a second pass over the same data, whose first pass estimated it from
+    /// every angle: the early angles' partial estimates would only move it away), so every
+    /// pixel is refined from the second angle on ([`SweepSolver::with_held_index`]).
+    Hold,
+    /// The full spectra move it ([`SweepSolver::with_spectral_index`]).
+    FullSpectra,
 }
 
 /// Runs one sweep from `source` through the pipeline; `on_rows` is told of every block of
@@ -140,8 +153,10 @@ pub fn run_sweep(
     let cap = config.channel_capacity.max(1);
     let start = Instant::now();
     let mut solver = SweepSolver::new(spec.clone(), prior.map(|p| p.index));
-    if prior.is_some_and(|p| p.spectral) {
-        solver = solver.with_spectral_index();
+    match prior.map(|p| p.update) {
+        Some(PriorUpdate::FullSpectra) => solver = solver.with_spectral_index(),
+        Some(PriorUpdate::Hold) => solver = solver.with_held_index(),
+        _ => {}
     }
     let mut solver = Box::new(solver);
     let mut states: Vec<Option<Vec<PixelState>>> = (0..workers)

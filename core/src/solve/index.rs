@@ -213,9 +213,9 @@ pub fn for_each_ratio(
     mut f: impl FnMut(f64, f64),
 ) {
     for r in reference {
-        let lr = wavelength_nm(r.band);
+        let lr = wavelength_nm(r.band());
         for c in current.iter().filter(|c| c.kind == r.kind) {
-            let rho = wavelength_nm(c.band) / lr;
+            let rho = wavelength_nm(c.band()) / lr;
             if rho > geom.rho_lo && rho < geom.rho_hi {
                 f(rho, lr);
             }

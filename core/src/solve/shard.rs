@@ -326,7 +326,7 @@ impl<'a> Shard<'a> {
         for (angle, list) in [(0, &p.anchor), (1, &p.current)] {
             for e in list.iter() {
                 let _ = obs.push(Observation {
-                    wavelength_nm: spec.wavelength_at(e.band),
+                    wavelength_nm: spec.wavelength_at(e.band()),
                     kind: e.kind,
                     angle,
                 });
@@ -453,9 +453,11 @@ impl<'a> Shard<'a> {
                 };
             } else if p.gn.samples == 0 {
                 f |= flags::NOT_REFINED;
-                // Its neighbours were refined and it could not be: it was ambiguous until the
-                // last angle, so its order rests on one pair of spectra.
-                if solver.refined_steps() > 0 && !solver.reorders() {
+                // Its order rests on one pair of extremum lists, unconfirmed by the full
+                // spectrum (it was ambiguous until the last angle, or the index arrived or
+                // moved then): measured, such orders can be wrong for every pixel at once
+                // (a thin high-index film), so with refinement on they are not reported.
+                if solver.spec().options.refine {
                     f |= flags::AMBIGUOUS_ORDER;
                 }
                 confidence = 0.5;
@@ -503,14 +505,15 @@ mod size_tests {
 
     #[test]
     fn pixel_state_size_is_fixed_and_known() {
-        // Breakdown: tracker 64, two extremum lists 2 x 72, full-spectrum sums 68, the rest
-        // (thickness, order step, sample counters, flags) 20; 296 in all.
+        // Breakdown: tracker 64, two extremum lists 2 x 88 (20 extrema of 4 bytes and a
+        // length), full-spectrum sums 68, the rest (thickness, order step, sample counters,
+        // flags) 20; 328 in all.
         let sizes = [
             core::mem::size_of::<PixelTracker>(),
             core::mem::size_of::<ExtremaList>(),
             core::mem::size_of::<GnSums>(),
             state_bytes_per_pixel(),
         ];
-        assert_eq!(sizes, [64, 72, 68, 296]);
+        assert_eq!(sizes, [64, 88, 68, 328]);
     }
 }

@@ -30,6 +30,9 @@ pub const MISMATCH_RATIO: f64 = 2.0;
 pub const MISMATCH_FLOOR: f64 = 0.002;
 /// An index step above this at an angle's end makes every pixel choose its order again.
 pub const REORDER_INDEX_STEP: f64 = 0.01;
+/// Largest index fall across the band a film model may have (rutile TiO2, among the most
+/// dispersive transparent films, falls by about 0.3 over 420-720 nm; ZnS by 0.19).
+pub const MAX_DISPERSION: f64 = 0.4;
 /// A full-spectrum step smaller than this (anywhere in the band) means the index model has
 /// settled, and a richer one may be tried.
 const SETTLED_INDEX_STEP: f64 = 0.02;
@@ -307,6 +310,7 @@ pub struct SweepSolver {
     residual_sigma: Option<f64>,
     spectral_dn: f64,
     spectral_index: bool,
+    held_index: bool,
     spectral_gains: [f64; 3],
     spectral_candidate: Option<IndexModel>,
 }
@@ -337,6 +341,7 @@ impl SweepSolver {
             residual_sigma: None,
             spectral_dn: 0.0,
             spectral_index: false,
+            held_index: false,
             spectral_gains: [f64::NAN; 3],
             spectral_candidate: None,
         }
@@ -349,6 +354,14 @@ impl SweepSolver {
     /// and a production line for the sweeps after one that needed it.
     pub fn with_spectral_index(mut self) -> Self {
         self.spectral_index = self.index.is_some();
+        self
+    }
+
+    /// Holds the prior index for the whole sweep (the extremum-shift fit is still made and
+    /// reported): for a second pass over data whose first pass estimated the index from every
+    /// angle.
+    pub fn with_held_index(mut self) -> Self {
+        self.held_index = self.index.is_some();
         self
     }
 
@@ -600,7 +613,7 @@ impl SweepSolver {
                     }
                     let p = index.to_basis();
                     let next = IndexModel::from_basis([p[0] + x[0], p[1] + x[1], p[2] + x[2]]);
-                    if self.spectral_index {
+                    if self.spectral_index && self.physical(next) {
                         spectral_next = Some(next);
                         self.spectral_candidate = Some(next);
                         self.index_sigma = libm::sqrt(sigma2 / s.h[0].max(1e-30));
@@ -612,7 +625,9 @@ impl SweepSolver {
         }
         let (range, span) = (self.spec.index_range, self.band_span_nm());
         self.fit = combine(&self.pairs).and_then(|c| fit_index(&self.pair_bins, c, range, span));
-        self.next_index = if self.spectral_index {
+        self.next_index = if self.held_index {
+            self.index
+        } else if self.spectral_index {
             spectral_next.or(self.index)
         } else {
             match self.fit {
@@ -652,9 +667,18 @@ impl SweepSolver {
     fn normal_dispersion(&self, index: IndexModel, x: [f64; 3]) -> bool {
         let p = index.to_basis();
         let m = IndexModel::from_basis([p[0] + x[0], p[1] + x[1], p[2] + x[2]]);
+        self.physical(m)
+    }
+
+    /// Whether an index model is one a transparent film can have over the band: inside the
+    /// search range, falling with wavelength, by at most [`MAX_DISPERSION`].
+    fn physical(&self, m: IndexModel) -> bool {
         let [lo, hi] = self.band_span_nm();
+        let [n_lo, n_hi] = self.spec.index_range;
         let at = |i: i32| m.at(lo + (hi - lo) * f64::from(i) / 16.0);
-        (0..16).all(|i| at(i + 1) <= at(i) + 1e-4)
+        (0..=16).all(|i| (n_lo..=n_hi).contains(&at(i)))
+            && (0..16).all(|i| at(i + 1) <= at(i) + 1e-4)
+            && at(0) - at(16) <= MAX_DISPERSION
     }
 
     /// The largest index change over the band of a step `x` in basis coefficients.

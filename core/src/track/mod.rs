@@ -31,7 +31,7 @@ const SG_CURV_NORM: f32 = 462.0;
 pub const PROMINENCE_SIGMA: f32 = 6.0;
 
 /// Most extrema kept per pixel and angle.
-pub const MAX_EXTREMA: usize = 8;
+pub const MAX_EXTREMA: usize = 20;
 
 /// Peak or valley.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -42,13 +42,33 @@ pub enum Kind {
     Valley,
 }
 
-/// One extremum of one pixel's spectrum at one angle.
+/// One extremum of one pixel's spectrum at one angle: 4 bytes, its position kept in
+/// 1/64 band (0.03 nm at a 2 nm band step, well below the location noise).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Extremum {
-    /// Position in (fractional) band index.
-    pub band: f32,
+    pos: u16,
     /// Peak or valley.
     pub kind: Kind,
+}
+
+/// Position steps per band of [`Extremum`].
+const POS_PER_BAND: f32 = 64.0;
+
+impl Extremum {
+    /// An extremum at fractional band `band` (clamped to `0..1024`).
+    pub fn new(band: f32, kind: Kind) -> Self {
+        let max = f32::from(u16::MAX) / POS_PER_BAND;
+        Self {
+            pos: (band.clamp(0.0, max) * POS_PER_BAND).round() as u16,
+            kind,
+        }
+    }
+
+    /// Position in (fractional) band index.
+    #[inline]
+    pub fn band(&self) -> f32 {
+        f32::from(self.pos) / POS_PER_BAND
+    }
 }
 
 /// The extrema of one pixel at one angle, in increasing band order.
@@ -210,7 +230,7 @@ impl PixelTracker {
     }
 
     fn emit(&mut self, band: f32, kind: Kind, out: &mut ExtremaList) {
-        if out.push(Extremum { band, kind }).is_err() {
+        if out.push(Extremum::new(band, kind)).is_err() {
             self.overflow = true;
         }
     }
