@@ -5,6 +5,7 @@
 //! noise, calibrated), replayed from memory to every method and setting, timed from the first
 //! row to the maps, and scored against the scene's truth.
 
+use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -17,6 +18,9 @@ use crate::baseline::BruteGrid;
 use crate::bench::{Frames, ReplaySource};
 use crate::estimate::{run_method, RunConfig};
 use crate::eval::{evaluate, Truth};
+use crate::export::plot::{
+    write_heatmap_panels_png, write_scatter_panels_png, HeatMap, Scatter, Series,
+};
 use crate::sweep::Method;
 
 /// One method with one setting of its knobs.
@@ -254,4 +258,153 @@ pub fn index_thickness_grid(
         }
     }
     Ok(out)
+}
+
+/// Points of one series and their labels.
+type Labelled = (Vec<(f64, f64)>, Vec<String>);
+
+/// Writes the speed-against-accuracy chart of `points`: time per megapixel (log) against
+/// thickness MAE and against index error, a series per method, the Pareto front marked.
+pub fn write_speed_chart(path: &Path, title: &str, points: &[Point]) -> Result<()> {
+    let methods: Vec<String> = {
+        let mut m: Vec<String> = points.iter().map(|p| p.method.clone()).collect();
+        m.dedup();
+        m
+    };
+    let pick = |m: &str, y: fn(&Point) -> f64| -> (Vec<(f64, f64)>, Vec<String>) {
+        points
+            .iter()
+            .filter(|p| p.method == m)
+            .map(|p| ((p.seconds_per_mpix, y(p)), p.label.clone()))
+            .unzip()
+    };
+    let mae: Vec<_> = methods
+        .iter()
+        .map(|m| pick(m, |p| p.thickness_mae_nm))
+        .collect();
+    let idx: Vec<_> = methods
+        .iter()
+        .map(|m| pick(m, |p| p.index_error_abs))
+        .collect();
+    fn series<'a>(data: &'a [Labelled], methods: &'a [String]) -> Vec<Series<'a>> {
+        data.iter()
+            .zip(methods)
+            .map(|((pts, labels), name)| Series {
+                name,
+                points: pts,
+                labels: Some(labels),
+            })
+            .collect()
+    }
+    let (s_mae, s_idx) = (series(&mae, &methods), series(&idx, &methods));
+    let panels = [
+        Scatter {
+            title: "thickness MAE",
+            x_label: "seconds per megapixel",
+            y_label: "MAE, nm",
+            x_log: true,
+            y_log: true,
+            series: &s_mae,
+            pareto: true,
+        },
+        Scatter {
+            title: "index error at 550 nm",
+            x_label: "seconds per megapixel",
+            y_label: "|n error|",
+            x_log: true,
+            y_log: true,
+            series: &s_idx,
+            pareto: true,
+        },
+    ];
+    write_scatter_panels_png(path, title, &panels).map_err(|e| anyhow!("{e}"))
+}
+
+/// Writes one stability map per method of `cells` into `dir` (`stability-METHOD.png`):
+/// thickness MAE, index error and flagged fraction over film index (rows, highest on top)
+/// and thickness (columns). Returns the files written.
+pub fn write_stability_maps(dir: &Path, cells: &[Cell]) -> Result<Vec<std::path::PathBuf>> {
+    let mut indices: Vec<f64> = cells.iter().map(|c| c.index).collect();
+    indices.sort_by(|a, b| b.total_cmp(a));
+    indices.dedup();
+    let mut thicknesses: Vec<f64> = cells.iter().map(|c| c.thickness_nm).collect();
+    thicknesses.sort_by(f64::total_cmp);
+    thicknesses.dedup();
+    let mut labels: Vec<String> = cells.iter().map(|c| c.point.label.clone()).collect();
+    labels.dedup();
+    labels.sort();
+    labels.dedup();
+    let x_ticks: Vec<String> = thicknesses.iter().map(|d| format!("{d:.0}")).collect();
+    let y_ticks: Vec<String> = indices.iter().map(|n| format!("{n:.2}")).collect();
+    let mut written = Vec::new();
+    for label in &labels {
+        let grid = |f: fn(&Point) -> f64| -> Vec<f64> {
+            let mut v = Vec::with_capacity(indices.len() * thicknesses.len());
+            for &n in &indices {
+                for &d in &thicknesses {
+                    v.push(
+                        cells
+                            .iter()
+                            .find(|c| {
+                                &c.point.label == label && c.index == n && c.thickness_nm == d
+                            })
+                            .map_or(f64::NAN, |c| f(&c.point)),
+                    );
+                }
+            }
+            v
+        };
+        let mae = grid(|p| p.thickness_mae_nm);
+        let idx = grid(|p| p.index_error_abs);
+        let flagged = grid(|p| 100.0 * (1.0 - p.valid_fraction));
+        let silent = grid(|p| 100.0 * p.silent_failure_rate);
+        let base = HeatMap {
+            title: "",
+            x_label: "thickness, nm",
+            y_label: "film index",
+            x_ticks: &x_ticks,
+            y_ticks: &y_ticks,
+            cols: thicknesses.len(),
+            rows: indices.len(),
+            values: &mae,
+            unit: "nm",
+            range: Some((0.1, 1000.0)),
+            log: true,
+            cell_text: true,
+        };
+        let percent = HeatMap {
+            unit: "%",
+            range: Some((0.0, 100.0)),
+            log: false,
+            ..base
+        };
+        let panels = [
+            HeatMap {
+                title: "thickness MAE (valid px)",
+                ..base
+            },
+            HeatMap {
+                title: "index error",
+                values: &idx,
+                unit: "",
+                range: Some((1e-4, 1.0)),
+                ..base
+            },
+            HeatMap {
+                title: "flagged",
+                values: &flagged,
+                ..percent
+            },
+            HeatMap {
+                title: "silently wrong (> 20 nm)",
+                values: &silent,
+                ..percent
+            },
+        ];
+        let path = dir.join(format!("stability-{}.png", label.replace('/', "-")));
+        write_heatmap_panels_png(&path, &format!("{label}: where it works"), &panels)
+            .map_err(|e| anyhow!("{e}"))?;
+        written.push(path);
+    }
+    Ok(written)
 }

@@ -351,3 +351,60 @@ pub fn bench(scene: &Path, quick: bool, json: bool) -> Result<()> {
     }
     Ok(())
 }
+
+/// `filmscope chart`.
+pub fn chart(scene: &Path, out: &Path, quick: bool) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let size = if quick { [24, 16] } else { [48, 32] };
+    let scene = crate::bench::scene_with(scene, size[0], size[1], None)?;
+    let points = crate::chart::measure(&scene, &crate::chart::settings(quick))?;
+    for p in &points {
+        println!(
+            "{:<10} {:<12} {:>12.2} s/Mpix  MAE {:>8.2} nm  |n err| {:.4}  valid {:>5.1}%",
+            p.method,
+            p.label,
+            p.seconds_per_mpix,
+            p.thickness_mae_nm,
+            p.index_error_abs,
+            100.0 * p.valid_fraction
+        );
+    }
+    let png = out.join("speed-accuracy.png");
+    let title = format!(
+        "{} ({}x{} px): speed against accuracy",
+        scene.name, size[0], size[1]
+    );
+    crate::chart::write_speed_chart(&png, &title, &points)?;
+    crate::io::write_atomic(
+        &out.join("speed-accuracy.json"),
+        serde_json::to_string_pretty(&points)?.as_bytes(),
+    )?;
+    println!("wrote {}", png.display());
+    Ok(())
+}
+
+/// `filmscope stability`.
+pub fn stability(out: &Path, quick: bool) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let (indices, thicknesses): (&[f64], &[f64]) = if quick {
+        (&[1.38, 1.8, 2.35], &[150.0, 500.0, 1500.0])
+    } else {
+        (
+            &[1.2, 1.4, 1.6, 1.8, 2.0, 2.2, 2.4, 2.6, 2.8],
+            &[50.0, 100.0, 200.0, 400.0, 700.0, 1000.0, 1500.0, 2000.0],
+        )
+    };
+    let settings: Vec<_> = crate::chart::settings(true)
+        .into_iter()
+        .filter(|s| matches!(s.label.as_str(), "filmscope" | "paper" | "19n/8nm"))
+        .collect();
+    let cells = crate::chart::index_thickness_grid(indices, thicknesses, &settings)?;
+    crate::io::write_atomic(
+        &out.join("stability.json"),
+        serde_json::to_string_pretty(&cells)?.as_bytes(),
+    )?;
+    for p in crate::chart::write_stability_maps(out, &cells)? {
+        println!("wrote {}", p.display());
+    }
+    Ok(())
+}

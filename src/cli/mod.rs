@@ -98,6 +98,29 @@ enum Command {
         #[arg(long, default_value = "config/scenes/paper-sample1.toml")]
         scene: PathBuf,
     },
+    /// Speed against accuracy: every method and knob setting on one scene, charted (time per
+    /// megapixel against thickness and index error, Pareto front marked).
+    Chart {
+        /// The scene.
+        #[arg(long, default_value = "config/scenes/paper-sample1.toml")]
+        scene: PathBuf,
+        /// Output folder (speed-accuracy.png and .json).
+        #[arg(long, default_value = "docs")]
+        out: PathBuf,
+        /// Fewer settings and a smaller sensor.
+        #[arg(long)]
+        quick: bool,
+    },
+    /// Where each method works: error, flagged and silent fractions over film index x
+    /// thickness, one heat map per method.
+    Stability {
+        /// Output folder (stability-*.png and stability.json).
+        #[arg(long, default_value = "docs")]
+        out: PathBuf,
+        /// A 3 x 3 grid instead of 9 x 8.
+        #[arg(long)]
+        quick: bool,
+    },
     /// (internal) One sweep in a fresh process, for `bench`'s peak-memory figure.
     #[command(hide = true)]
     BenchRssChild {
@@ -150,6 +173,8 @@ pub fn main() -> std::process::ExitCode {
             &ablate,
         ),
         Command::Bench { quick, json, scene } => commands::bench(&scene, quick, json),
+        Command::Chart { scene, out, quick } => commands::chart(&scene, &out, quick),
+        Command::Stability { out, quick } => commands::stability(&out, quick),
         Command::BenchRssChild {
             scene,
             width,

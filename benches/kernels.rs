@@ -1,0 +1,425 @@
+//! Criterion benchmarks of filmscope's hot kernels, each reported as elements per second.
+//!
+//! - `track/push`: the per-pixel extremum tracker over 1024 pixels x 151 bands of a thin-film
+//!   fringe spectrum, band-major as the pipeline streams it (throughput: pixel-band samples).
+//! - `refine/gn_sums_add`: the full-spectrum Gauss-Newton sums over the same 1024 x 151
+//!   samples, band models built once (throughput: samples).
+//! - `refine/band_coef_new`: building one angle's 151 band models (throughput: bands).
+//! - `calibrate/*`: raw counts + dark + white to reflectance on a 2048 x 16 block
+//!   (throughput: samples).
+//! - `solve/end_angle_*`: the solver's angle-end passes (`SweepSolver::end_angle_all`, one
+//!   shard, one thread) over the software camera's `paper-sample1` scene, after the rows of
+//!   that angle were fed (throughput: pixels).
+//! - `solve/feed_row_*`: a whole refining angle of that scene through `Shard::feed_row`
+//!   (tracker plus Gauss-Newton sums; throughput: pixel-band samples).
+//!
+//! Run with `cargo bench --bench kernels`.
+
+use std::f64::consts::PI;
+use std::hint::black_box;
+use std::path::Path;
+use std::time::Duration;
+
+use criterion::measurement::WallTime;
+use criterion::{criterion_main, BatchSize, BenchmarkGroup, Criterion, SamplingMode, Throughput};
+use filmscope::calibrate::calibrate_row;
+use filmscope::optics::Polarization;
+use filmscope::pipeline::{calibrate_block, Samples, SimSource, Source};
+use filmscope::solve::refine::{BandCoef, GnSums};
+use filmscope::solve::sweep::SolverOptions;
+use filmscope::solve::{IndexModel, PixelState, Shard, SweepSolver};
+use filmscope::track::{ExtremaList, PixelTracker};
+use firmware_sim::{Scene, SoftwareCamera};
+
+/// Pixels per row of the synthetic spectra.
+const PIXELS: usize = 1024;
+/// Bands 420..720 nm in 2 nm steps, as the paper's LCTF.
+const BANDS: usize = 151;
+/// Film index of the synthetic spectra.
+const N_FILM: f64 = 1.38;
+/// Incidence angle of the synthetic band models, degrees.
+const ANGLE_DEG: f64 = 30.0;
+
+fn wavelength(band: usize) -> f64 {
+    420.0 + 2.0 * band as f64
+}
+
+/// Thickness of synthetic pixel `p`: 300..700 nm across the row.
+fn thickness(p: usize) -> f64 {
+    300.0 + 400.0 * p as f64 / (PIXELS - 1) as f64
+}
+
+/// A small deterministic pseudo-random generator (xorshift64*), uniform in `[-1, 1)`.
+struct Noise(u64);
+
+impl Noise {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        let x = self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11;
+        x as f64 / (1u64 << 52) as f64 - 1.0
+    }
+}
+
+/// Band-major fringe spectra `0.04 + 0.03 cos(4 pi n d / lambda)` plus uniform noise of
+/// +-0.004 (about 0.0023 RMS, the paper scene's shot noise at this reflectance).
+fn fringe_spectra() -> Vec<f32> {
+    let mut noise = Noise(0x9e37_79b9_7f4a_7c15);
+    let mut v = Vec::with_capacity(BANDS * PIXELS);
+    for b in 0..BANDS {
+        let l = wavelength(b);
+        for p in 0..PIXELS {
+            let r = 0.04 + 0.03 * (4.0 * PI * N_FILM * thickness(p) / l).cos();
+            v.push((r + 0.004 * noise.next()) as f32);
+        }
+    }
+    v
+}
+
+fn band_coefs() -> Vec<BandCoef> {
+    (0..BANDS)
+        .map(|b| {
+            BandCoef::new(
+                IndexModel::constant(N_FILM),
+                1.0,
+                1.65,
+                Polarization::S,
+                ANGLE_DEG,
+                wavelength(b),
+                4.0,
+            )
+            .expect("a 1.38 film at 30 degrees propagates")
+        })
+        .collect()
+}
+
+fn short<'a>(c: &'a mut Criterion, name: &str) -> BenchmarkGroup<'a, WallTime> {
+    let mut g = c.benchmark_group(name);
+    g.sample_size(20)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3));
+    g
+}
+
+fn bench_tracker(c: &mut Criterion) {
+    let spectra = fringe_spectra();
+    let mut trackers = vec![PixelTracker::default(); PIXELS];
+    let mut lists = vec![ExtremaList::new(); PIXELS];
+    let sweep = |trackers: &mut [PixelTracker], lists: &mut [ExtremaList]| {
+        for (t, l) in trackers.iter_mut().zip(lists.iter_mut()) {
+            t.reset();
+            l.clear();
+        }
+        for (b, row) in spectra.chunks_exact(PIXELS).enumerate() {
+            for ((t, l), &v) in trackers.iter_mut().zip(lists.iter_mut()).zip(row) {
+                t.push(b as u16, v, true, l);
+            }
+        }
+    };
+    // The spectra must look like fringes to the tracker (300..700 nm: 2-6 extrema each).
+    sweep(&mut trackers, &mut lists);
+    let found: usize = lists.iter().map(|l| l.len()).sum();
+    assert!(
+        found > 2 * PIXELS && trackers.iter().all(|t| !t.overflow),
+        "the tracker found {found} extrema in {PIXELS} synthetic spectra"
+    );
+
+    let mut g = short(c, "track");
+    g.throughput(Throughput::Elements((PIXELS * BANDS) as u64));
+    g.bench_function("push_1024px_x_151b", |bench| {
+        bench.iter(|| {
+            sweep(&mut trackers, &mut lists);
+            black_box(&lists);
+        });
+    });
+    g.finish();
+}
+
+fn bench_refine(c: &mut Criterion) {
+    let coefs = band_coefs();
+    // One order of the film at mid-band: lambda / (2 n cos theta_film).
+    let sin = ANGLE_DEG.to_radians().sin();
+    let order_step = 570.0 / (2.0 * (N_FILM * N_FILM - sin * sin).sqrt());
+    let mut noise = Noise(0x2545_f491_4f6c_dd1d);
+    let measured: Vec<f32> = coefs
+        .iter()
+        .flat_map(|c| {
+            (0..PIXELS)
+                .map(|p| (c.model(thickness(p)) + 0.002 * noise.next()) as f32)
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    // Linearisation points a nm off the truth, as after the first refinement step.
+    let lin: Vec<f64> = (0..PIXELS).map(|p| thickness(p) + 1.0).collect();
+    let mut sums = vec![GnSums::default(); PIXELS];
+
+    let mut g = short(c, "refine");
+    // About 30 ms an iteration: flat sampling keeps it within the measurement time.
+    g.sampling_mode(SamplingMode::Flat);
+    g.throughput(Throughput::Elements((PIXELS * BANDS) as u64));
+    g.bench_function("gn_sums_add_1024px_x_151b", |bench| {
+        bench.iter(|| {
+            sums.fill(GnSums::default());
+            for (coef, row) in coefs.iter().zip(measured.chunks_exact(PIXELS)) {
+                for ((s, &d), &v) in sums.iter_mut().zip(&lin).zip(row) {
+                    s.add(coef, d, order_step, f64::from(v));
+                }
+            }
+            black_box(&sums);
+        });
+    });
+
+    g.sampling_mode(SamplingMode::Auto);
+    g.throughput(Throughput::Elements(BANDS as u64));
+    g.bench_function("band_coef_new_151b", |bench| {
+        bench.iter(|| {
+            for b in 0..BANDS {
+                black_box(BandCoef::new(
+                    IndexModel::constant(black_box(N_FILM)),
+                    1.0,
+                    1.65,
+                    Polarization::S,
+                    ANGLE_DEG,
+                    wavelength(b),
+                    4.0,
+                ));
+            }
+        });
+    });
+    g.finish();
+}
+
+fn bench_calibrate(c: &mut Criterion) {
+    const WIDTH: usize = 2048;
+    const ROWS: usize = 16;
+    const SATURATION: f32 = 4095.0;
+    let mut noise = Noise(0x0123_4567_89ab_cdef);
+    let n = WIDTH * ROWS;
+    let dark: Vec<f32> = (0..n).map(|_| (64.0 + 0.5 * noise.next()) as f32).collect();
+    let white: Vec<f32> = (0..n)
+        .map(|i| {
+            // Vignetted white reference; every 997th pixel dead (no usable reference).
+            let x = (i % WIDTH) as f64 / WIDTH as f64 - 0.5;
+            let w = if i % 997 == 0 {
+                64.0
+            } else {
+                64.0 + 3000.0 * (1.0 - 0.3 * x * x)
+            };
+            w as f32
+        })
+        .collect();
+    let counts: Vec<f32> = (0..n)
+        .map(|i| {
+            // Reflectance 0.01..0.07 plus read noise; every 1009th pixel hot (saturated).
+            let r = 0.04 + 0.03 * (i as f64 * 0.01).sin();
+            let c = f64::from(dark[i]) + r * f64::from(white[i] - dark[i]) + 3.0 * noise.next();
+            if i % 1009 == 0 {
+                SATURATION
+            } else {
+                c.round().clamp(0.0, f64::from(SATURATION)) as f32
+            }
+        })
+        .collect();
+    let samples = Samples::Raw {
+        counts: counts.clone(),
+        dark: Some(dark.clone()),
+        white: white.clone(),
+        white_reflectance: 0.99,
+        saturation_counts: SATURATION,
+    };
+
+    let mut g = short(c, "calibrate");
+    g.throughput(Throughput::Elements(n as u64));
+    g.bench_function("calibrate_row_2048px_x_16rows", |bench| {
+        let mut out = vec![0f32; n];
+        bench.iter(|| {
+            for (k, o) in out.chunks_exact_mut(WIDTH).enumerate() {
+                let s = k * WIDTH..(k + 1) * WIDTH;
+                calibrate_row(
+                    &counts[s.clone()],
+                    Some(&dark[s.clone()]),
+                    &white[s],
+                    0.99,
+                    SATURATION,
+                    o,
+                );
+            }
+            black_box(&out);
+        });
+    });
+    // The pipeline's stage: takes the message's buffers and returns a new one (the input
+    // clone is setup, not timed).
+    g.bench_function("calibrate_block_2048px_x_16rows", |bench| {
+        bench.iter_batched(
+            || samples.clone(),
+            |s| calibrate_block(s, ROWS, WIDTH),
+            BatchSize::LargeInput,
+        );
+    });
+    g.finish();
+}
+
+/// The paper-sample1 scene's sweep (96 x 64 pixels, 151 bands, angles 10..50 degrees) as
+/// the pipeline would see it with one shard: raw counts calibrated on the fly, fed row by row.
+struct Prepared {
+    /// Pixels per row.
+    width: usize,
+    /// The solver options of the sweep.
+    options: SolverOptions,
+    /// Solver and states after `begin_angle` of angle `upto`, before its rows.
+    before_rows: (SweepSolver, Vec<PixelState>),
+    /// The band models of angle `upto`.
+    models: Vec<Option<BandCoef>>,
+    /// Calibrated rows of angle `upto`, band-major then row-major.
+    rows: Vec<f32>,
+    /// Solver and states after every row of angle `upto`, before its end.
+    before_end: (SweepSolver, Vec<PixelState>),
+}
+
+impl Prepared {
+    fn new(upto: usize) -> Self {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/scenes/paper-sample1.toml");
+        let scene = Scene::load(&path).expect("config/scenes/paper-sample1.toml loads");
+        let camera = SoftwareCamera::new(scene);
+        let source = SimSource::new(camera.clone(), false, 1).expect("a valid sweep spec");
+        let spec = source.spec().clone();
+        let (w, h) = (spec.width, spec.height);
+        let nb = spec.bands_nm.len();
+        let options = spec.options;
+        let sat = camera.scene().sensor.saturation_counts() as f32;
+        let angles = camera.scene().angles_deg.clone();
+        assert!(upto < angles.len(), "the scene has {} angles", angles.len());
+        let mut solver = SweepSolver::new(spec, None);
+        let mut states = vec![PixelState::default(); w * h];
+        let (mut raw16, mut raw, mut white, mut dark) =
+            (vec![0u16; w], vec![0f32; w], vec![0f32; w], vec![0f32; w]);
+        let mut models = vec![None; nb];
+        let mut rows = vec![0f32; nb * h * w];
+        let mut before_rows = None;
+        for (a, &deg) in angles.iter().enumerate().take(upto + 1) {
+            solver.begin_angle(deg);
+            solver.band_models(&mut models);
+            let mut shard = Shard::new(0, w, &mut states);
+            shard.begin_angle();
+            if a == upto {
+                before_rows = Some((solver.clone(), shard.pixels.to_vec()));
+            }
+            for (b, band) in rows.chunks_exact_mut(h * w).enumerate() {
+                for (r, refl) in band.chunks_exact_mut(w).enumerate() {
+                    camera.raw_row(a, b, r, &mut raw16);
+                    for (o, &c) in raw.iter_mut().zip(&raw16) {
+                        *o = f32::from(c);
+                    }
+                    camera.white_row(a, b, r, &mut white);
+                    camera.dark_row(a, b, r, &mut dark);
+                    calibrate_row(&raw, Some(&dark), &white, 1.0, sat, refl);
+                    shard.feed_row(options, &models, b, r, refl);
+                }
+            }
+            if a < upto {
+                solver.end_angle_all(&mut [shard]);
+            }
+        }
+        Self {
+            width: w,
+            options,
+            before_rows: before_rows.expect("angle `upto` was started"),
+            models,
+            rows,
+            before_end: (solver, states),
+        }
+    }
+
+    /// Feeds every row of the angle into `states`.
+    fn feed(&self, states: &mut [PixelState]) {
+        let w = self.width;
+        let mut shard = Shard::new(0, w, states);
+        let h = shard.rows();
+        for (b, band) in self.rows.chunks_exact(h * w).enumerate() {
+            for (r, row) in band.chunks_exact(w).enumerate() {
+                shard.feed_row(self.options, &self.models, b, r, row);
+            }
+        }
+    }
+}
+
+fn bench_solve(c: &mut Criterion) {
+    let mut g = short(c, "solve");
+    // In this scene the 20 and 30 degree pairs give no clear ratio mode (as in the
+    // pipeline): the index first comes at 40 degrees' end, so every pixel's order is chosen
+    // there; at 50 degrees the full-spectrum sums refine (Schur index step, thickness steps).
+    for (upto, name) in [
+        (3, "end_angle_40deg_first_index_6144px"),
+        (4, "end_angle_50deg_refine_6144px"),
+    ] {
+        let prep = Prepared::new(upto);
+        let (solver, states) = &prep.before_end;
+        let w = prep.width;
+        // The state must be what the bench claims.
+        {
+            let (mut s, mut st) = (solver.clone(), states.clone());
+            let report = s.end_angle_all(&mut [Shard::new(0, w, &mut st)]);
+            let resolved = st.iter().filter(|p| p.thickness_nm.is_finite()).count();
+            assert!(report.index.is_some(), "{name}: no index");
+            assert!(
+                resolved * 2 > st.len(),
+                "{name}: {resolved} pixels resolved"
+            );
+            assert!(upto < 4 || report.refined, "{name}: not refined");
+        }
+        g.throughput(Throughput::Elements(states.len() as u64));
+        g.bench_function(name, |bench| {
+            bench.iter_batched(
+                || (solver.clone(), states.clone()),
+                |(mut s, mut st): (SweepSolver, Vec<PixelState>)| {
+                    let report = s.end_angle_all(&mut [Shard::new(0, w, &mut st)]);
+                    (report, s, st)
+                },
+                BatchSize::LargeInput,
+            );
+        });
+        if upto == 4 {
+            // The worker's per-sample path at a refining angle: tracker push plus the
+            // Gauss-Newton sums, through `Shard::feed_row`.
+            let states = &prep.before_rows.1;
+            let mut check = states.clone();
+            prep.feed(&mut check);
+            assert!(
+                check.iter().filter(|p| p.gn.samples > 0).count() * 2 > check.len(),
+                "the feed does not refine"
+            );
+            g.throughput(Throughput::Elements(prep.rows.len() as u64));
+            // About 0.3 s an iteration: 10 flat samples.
+            g.sample_size(10)
+                .sampling_mode(SamplingMode::Flat)
+                .measurement_time(Duration::from_secs(4));
+            g.bench_function("feed_row_50deg_6144px_x_151b", |bench| {
+                bench.iter_batched(
+                    || states.clone(),
+                    |mut st| {
+                        prep.feed(&mut st);
+                        st
+                    },
+                    BatchSize::LargeInput,
+                );
+            });
+        }
+    }
+    g.finish();
+}
+
+/// The group `criterion_main!` runs (in a private module: the macro's `pub fn` has no doc).
+mod group {
+    use super::{bench_calibrate, bench_refine, bench_solve, bench_tracker};
+
+    criterion::criterion_group!(
+        kernels,
+        bench_tracker,
+        bench_refine,
+        bench_calibrate,
+        bench_solve
+    );
+}
+
+criterion_main!(group::kernels);
