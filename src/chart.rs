@@ -282,9 +282,10 @@ pub fn write_speed_chart(path: &Path, title: &str, points: &[Point]) -> Result<(
         .iter()
         .map(|m| pick(m, |p| p.thickness_mae_nm))
         .collect();
+    // A grid that holds the true index exactly gives an error of 0: drawn at 1e-5.
     let idx: Vec<_> = methods
         .iter()
-        .map(|m| pick(m, |p| p.index_error_abs))
+        .map(|m| pick(m, |p| p.index_error_abs.max(1e-5)))
         .collect();
     fn series<'a>(data: &'a [Labelled], methods: &'a [String]) -> Vec<Series<'a>> {
         data.iter()

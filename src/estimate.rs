@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use filmscope_core::solve::sweep::SPECTRAL_TERM_CHI2;
+use filmscope_core::solve::sweep::{MAX_DISPERSION, SPECTRAL_TERM_CHI2};
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
 use serde_json::json;
 
@@ -221,7 +221,7 @@ pub fn run_method(
                         "passes": passes,
                         "index_source": if out.spectral_index { "full spectra" } else { "extremum shifts" },
                         "full_spectrum_chi2_gains": out.spectral_gains.map(finite),
-                        "full_spectrum_criterion": format!("a second pass takes the index from the full spectra when the extremum-shift model leaves a model mismatch; an extra Cauchy term enters only if it lowers the chi-square by {SPECTRAL_TERM_CHI2} (5 sigma)"),
+                        "full_spectrum_criterion": format!("another pass holds the index when it came too late to refine most pixels; a pass takes it from the full spectra when the fit residual exceeds {UNDERFIT_RATIO} x the pixels' noise; an extra Cauchy term enters only once the simpler model has settled, if it lowers the chi-square by {SPECTRAL_TERM_CHI2} (5 sigma) and keeps the dispersion physical (normal, at most {MAX_DISPERSION} across the band)"),
                         "chosen": (["constant", "cauchy", "cauchy3"])[out.index.map_or(1, |m| m.terms()) - 1],
                         "extremum_fit_chosen": if f.dispersive { "cauchy" } else { "constant" },
                         "chi2_constant": f.chi2_constant,

@@ -216,3 +216,33 @@ fn other_noise_seeds_keep_thickness_and_never_fail_silently() {
         }
     }
 }
+
+// Model no more than a scene needs: the constant-index films keep one term and one pass;
+// real ZnS asks for three terms and three passes (extremum shifts; the index held, as it came
+// only at the fourth angle; the full spectra): the two-term extremum-shift model left every
+// pixel flagged.
+#[test]
+fn the_index_model_is_no_richer_than_the_scene_needs() {
+    for (name, terms, passes) in [
+        ("paper-sample1", 1, 1),
+        ("paper-sample3", 1, 1),
+        ("wide-band-thick", 1, 1),
+        ("zns-dispersive", 3, 3),
+    ] {
+        let scene = common::scene(name);
+        let mut source = SimSource::new(SoftwareCamera::new(scene), false, 8).expect("source");
+        let run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
+        assert_eq!(
+            run.result.index.terms(),
+            terms,
+            "{name}: {:?}",
+            run.result.index
+        );
+        assert_eq!(
+            run.model_choice["passes"].as_u64(),
+            Some(passes),
+            "{name}: {}",
+            run.model_choice
+        );
+    }
+}

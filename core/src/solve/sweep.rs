@@ -25,9 +25,9 @@ pub const MAX_BANDS: usize = 1024;
 pub const MAX_PAIRS: usize = 64;
 /// A fit residual above this many times the pixels' noise (plus the floor) means the film
 /// model does not explain the spectra.
-pub const MISMATCH_RATIO: f64 = 2.0;
+pub const MISMATCH_RATIO: f64 = 1.5;
 /// Absolute allowance of the mismatch test (reflectance).
-pub const MISMATCH_FLOOR: f64 = 0.002;
+pub const MISMATCH_FLOOR: f64 = 0.001;
 /// An index step above this at an angle's end makes every pixel choose its order again.
 pub const REORDER_INDEX_STEP: f64 = 0.01;
 /// Largest index fall across the band a film model may have (rutile TiO2, among the most
