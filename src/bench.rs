@@ -35,7 +35,8 @@ use serde::Serialize;
 use crate::estimate::{run_method, RunConfig};
 use crate::eval::{evaluate, Truth};
 use crate::pipeline::{
-    calibrate_block, run_sweep, PipelineConfig, RowBlock, Samples, SimSource, Source, StreamMsg,
+    calibrate_block, run_sweep, stream_band_sequential, PipelineConfig, Samples, SimSource, Source,
+    StreamMsg,
 };
 use crate::sweep::Method;
 
@@ -142,38 +143,20 @@ impl Source for ReplaySource {
     fn stream(&mut self, tx: &Sender<StreamMsg>) {
         let f = &self.frames;
         let (w, h) = (self.spec.width, self.spec.height);
-        for (a, &deg) in f.angles_deg.iter().enumerate() {
-            if tx.send(StreamMsg::Angle { incidence_deg: deg }).is_err() {
-                return;
-            }
-            for b in 0..f.bands() {
-                let mut r0 = 0;
-                while r0 < h {
-                    let rows = self.rows_per_block.min(h - r0);
-                    let mut v = Vec::with_capacity(rows * w);
-                    for r in r0..r0 + rows {
-                        v.extend_from_slice(f.row(a, b, r));
-                    }
-                    let block = RowBlock {
-                        band: b as u16,
-                        first_row: r0 as u32,
-                        rows: rows as u32,
-                        samples: Samples::Reflectance(v),
-                    };
-                    if tx.send(StreamMsg::Rows(block)).is_err() {
-                        return;
-                    }
-                    r0 += rows;
+        stream_band_sequential(
+            tx,
+            &f.angles_deg,
+            f.bands(),
+            h,
+            self.rows_per_block,
+            |a, b, r0, rows| {
+                let mut v = Vec::with_capacity(rows * w);
+                for r in r0..r0 + rows {
+                    v.extend_from_slice(f.row(a, b, r));
                 }
-                if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
-                    return;
-                }
-            }
-            if tx.send(StreamMsg::AngleEnd).is_err() {
-                return;
-            }
-        }
-        let _ = tx.send(StreamMsg::SweepEnd);
+                Samples::Reflectance(v)
+            },
+        );
     }
 }
 

@@ -14,5 +14,6 @@ pub use run::{
     Prior, PriorUpdate, SweepOutput,
 };
 pub use source::{
-    sweep_spec, CaptureSource, SimSource, Source, DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,
+    stream_band_sequential, sweep_spec, CaptureSource, SimSource, Source, DEFAULT_INDEX_RANGE,
+    DEFAULT_THICKNESS_RANGE_NM,
 };

@@ -134,62 +134,88 @@ impl Source for SimSource {
         let cam = &self.camera;
         let (w, h) = (cam.width(), cam.height());
         let sat = cam.scene().sensor.saturation_counts() as f32;
+        let noise_free = self.noise_free;
         let mut raw16 = vec![0u16; w];
-        for (a, &deg) in cam.scene().angles_deg.iter().enumerate() {
-            if tx.send(StreamMsg::Angle { incidence_deg: deg }).is_err() {
-                return;
-            }
-            for b in 0..cam.scene().bands_nm.len() {
-                let mut r0 = 0;
-                while r0 < h {
-                    let rows = self.rows_per_block.min(h - r0);
-                    let samples = if self.noise_free {
-                        let mut v = vec![0f32; rows * w];
-                        for (k, chunk) in v.chunks_mut(w).enumerate() {
-                            cam.reflectance_row(a, b, r0 + k, chunk);
-                        }
-                        Samples::Reflectance(v)
-                    } else {
-                        let mut counts = vec![0f32; rows * w];
-                        let mut white = vec![0f32; rows * w];
-                        let mut dark = vec![0f32; rows * w];
-                        for k in 0..rows {
-                            cam.raw_row(a, b, r0 + k, &mut raw16);
-                            for (o, &c) in counts[k * w..(k + 1) * w].iter_mut().zip(&raw16) {
-                                *o = f32::from(c);
-                            }
-                            cam.white_row(a, b, r0 + k, &mut white[k * w..(k + 1) * w]);
-                            cam.dark_row(a, b, r0 + k, &mut dark[k * w..(k + 1) * w]);
-                        }
-                        Samples::Raw {
-                            counts,
-                            dark: Some(dark),
-                            white,
-                            white_reflectance: 1.0,
-                            saturation_counts: sat,
-                        }
-                    };
-                    let block = RowBlock {
-                        band: b as u16,
-                        first_row: r0 as u32,
-                        rows: rows as u32,
-                        samples,
-                    };
-                    if tx.send(StreamMsg::Rows(block)).is_err() {
-                        return;
+        let angles = cam.scene().angles_deg.clone();
+        let bands = cam.scene().bands_nm.len();
+        stream_band_sequential(
+            tx,
+            &angles,
+            bands,
+            h,
+            self.rows_per_block,
+            |a, b, r0, rows| {
+                if noise_free {
+                    let mut v = vec![0f32; rows * w];
+                    for (k, chunk) in v.chunks_mut(w).enumerate() {
+                        cam.reflectance_row(a, b, r0 + k, chunk);
                     }
-                    r0 += rows;
+                    return Samples::Reflectance(v);
                 }
-                if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
+                let mut counts = vec![0f32; rows * w];
+                let mut white = vec![0f32; rows * w];
+                let mut dark = vec![0f32; rows * w];
+                for k in 0..rows {
+                    cam.raw_row(a, b, r0 + k, &mut raw16);
+                    for (o, &c) in counts[k * w..(k + 1) * w].iter_mut().zip(&raw16) {
+                        *o = f32::from(c);
+                    }
+                    cam.white_row(a, b, r0 + k, &mut white[k * w..(k + 1) * w]);
+                    cam.dark_row(a, b, r0 + k, &mut dark[k * w..(k + 1) * w]);
+                }
+                Samples::Raw {
+                    counts,
+                    dark: Some(dark),
+                    white,
+                    white_reflectance: 1.0,
+                    saturation_counts: sat,
+                }
+            },
+        );
+    }
+}
+
+/// Streams a band-sequential sweep into `tx`: per angle, every band's `height` rows in blocks
+/// of `rows_per_block`, the samples of a block made by `block(angle, band, first_row, rows)`,
+/// then the band's and the angle's end, and the sweep's end. Stops quietly when the receiver
+/// is gone.
+pub fn stream_band_sequential(
+    tx: &Sender<StreamMsg>,
+    angles_deg: &[f64],
+    bands: usize,
+    height: usize,
+    rows_per_block: usize,
+    mut block: impl FnMut(usize, usize, usize, usize) -> Samples,
+) {
+    let per_block = rows_per_block.max(1);
+    for (a, &deg) in angles_deg.iter().enumerate() {
+        if tx.send(StreamMsg::Angle { incidence_deg: deg }).is_err() {
+            return;
+        }
+        for b in 0..bands {
+            let mut r0 = 0;
+            while r0 < height {
+                let rows = per_block.min(height - r0);
+                let msg = StreamMsg::Rows(RowBlock {
+                    band: b as u16,
+                    first_row: r0 as u32,
+                    rows: rows as u32,
+                    samples: block(a, b, r0, rows),
+                });
+                if tx.send(msg).is_err() {
                     return;
                 }
+                r0 += rows;
             }
-            if tx.send(StreamMsg::AngleEnd).is_err() {
+            if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
                 return;
             }
         }
-        let _ = tx.send(StreamMsg::SweepEnd);
+        if tx.send(StreamMsg::AngleEnd).is_err() {
+            return;
+        }
     }
+    let _ = tx.send(StreamMsg::SweepEnd);
 }
 
 /// An ENVI capture replayed row by row in each cube's own interleave.
