@@ -59,7 +59,7 @@ impl Extremum {
     pub fn new(band: f32, kind: Kind) -> Self {
         let max = f32::from(u16::MAX) / POS_PER_BAND;
         Self {
-            pos: (band.clamp(0.0, max) * POS_PER_BAND).round() as u16,
+            pos: libm::roundf(band.clamp(0.0, max) * POS_PER_BAND) as u16,
             kind,
         }
     }
