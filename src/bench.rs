@@ -32,8 +32,8 @@ use filmscope_core::track::{ExtremaList, PixelTracker};
 use firmware_sim::{Scene, SoftwareCamera};
 use serde::Serialize;
 
-use crate::estimate::{run_method, RunConfig};
-use crate::eval::{evaluate, Truth};
+use crate::chart::{measure, Point, Setting};
+use crate::estimate::RunConfig;
 use crate::pipeline::{
     calibrate_block, run_sweep, stream_band_sequential, PipelineConfig, Samples, SimSource, Source,
     StreamMsg,
@@ -57,33 +57,16 @@ impl Frames {
     /// Renders the first `rows` rows of `scene` through the software camera (raw counts with
     /// noise, white and dark references) and calibrates them.
     pub fn render(scene: &Scene, rows: usize) -> Result<Self> {
-        let camera = SoftwareCamera::new(scene.clone());
-        let (w, h) = (camera.width(), camera.height());
-        let rows = rows.clamp(1, h);
-        let spec = SimSource::new(SoftwareCamera::new(scene.clone()), false, 1)
-            .map_err(|e| anyhow!("{}: {e}", scene.name))?
-            .spec()
-            .clone();
-        let sat = scene.sensor.saturation_counts() as f32;
+        let source = SimSource::new(SoftwareCamera::new(scene.clone()), false, 1)
+            .map_err(|e| anyhow!("{}: {e}", scene.name))?;
+        let spec = source.spec().clone();
+        let w = spec.width;
+        let rows = rows.clamp(1, spec.height);
         let (na, nb) = (scene.angles_deg.len(), scene.bands_nm.len());
         let mut data = Vec::with_capacity(na * nb * rows * w);
-        let mut raw = vec![0u16; w];
-        let (mut white, mut dark) = (vec![0f32; w], vec![0f32; w]);
         for a in 0..na {
             for b in 0..nb {
-                for r in 0..rows {
-                    camera.raw_row(a, b, r, &mut raw);
-                    camera.white_row(a, b, r, &mut white);
-                    camera.dark_row(a, b, r, &mut dark);
-                    let samples = Samples::Raw {
-                        counts: raw.iter().map(|&c| f32::from(c)).collect(),
-                        dark: Some(dark.clone()),
-                        white: white.clone(),
-                        white_reflectance: 1.0,
-                        saturation_counts: sat,
-                    };
-                    data.extend(calibrate_block(samples, 1, w));
-                }
+                data.extend(calibrate_block(source.block(a, b, 0, rows), rows, w));
             }
         }
         Ok(Self {
@@ -278,53 +261,6 @@ pub fn sweep_rates(frames: &Frames) -> (f64, f64) {
     )
 }
 
-/// One method's cost and accuracy on the shared sweep.
-#[derive(Clone, Debug, Serialize)]
-pub struct MethodFigures {
-    /// The method.
-    pub method: String,
-    /// Wall seconds per megapixel (from the replayed sweep to the maps).
-    pub seconds_per_mpix: f64,
-    /// Index error at 550 nm.
-    pub index_error: Option<f64>,
-    /// Thickness mean absolute error, nm.
-    pub thickness_mae_nm: Option<f64>,
-    /// Valid fraction.
-    pub valid_fraction: f64,
-}
-
-/// Runs every method on `scene` (all of its rows rendered, so the truth applies).
-pub fn method_figures(
-    scene: &Scene,
-    brute_grid: crate::baseline::BruteGrid,
-) -> Result<Vec<MethodFigures>> {
-    let frames = Arc::new(Frames::render(scene, scene.sensor.height)?);
-    let truth = Truth::of_scene(scene);
-    let mpix = (scene.sensor.width * scene.sensor.height) as f64 / 1e6;
-    let mut out = Vec::new();
-    for method in [Method::Filmscope, Method::Paper, Method::Brute] {
-        let mut source = ReplaySource::new(frames.clone(), scene.sensor.height, 8);
-        let config = RunConfig {
-            method,
-            brute_grid,
-            ..RunConfig::default()
-        };
-        let t0 = Instant::now();
-        let run = run_method(&mut source, &config, &|_| {}).map_err(|e| anyhow!("{e}"))?;
-        let secs = t0.elapsed().as_secs_f64();
-        let r = evaluate(&scene.name, &truth, &run);
-        let finite = |x: f64| x.is_finite().then_some(x);
-        out.push(MethodFigures {
-            method: method.name().to_owned(),
-            seconds_per_mpix: secs / mpix,
-            index_error: finite(r.index_error),
-            thickness_mae_nm: finite(r.thickness_mae_nm),
-            valid_fraction: r.valid_fraction,
-        });
-    }
-    Ok(out)
-}
-
 /// Peak memory of one sweep, measured in a child process.
 #[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct RssFigures {
@@ -432,7 +368,7 @@ pub struct BenchReport {
     /// Why the memory figure is missing, if it is.
     pub rss_error: Option<String>,
     /// The three methods on the same sweep.
-    pub methods: Vec<MethodFigures>,
+    pub methods: Vec<Point>,
     /// Sensor of the methods' sweep.
     pub methods_sensor: [usize; 2],
     /// Time of `brute` over time of `filmscope`.
@@ -475,7 +411,17 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     progress("methods");
     let (mw, mh) = if quick { (24, 16) } else { (48, 32) };
     let m_scene = scene_with(scene_path, mw, mh, None)?;
-    let methods = method_figures(&m_scene, crate::baseline::BruteGrid::default())?;
+    let defaults: Vec<Setting> = [Method::Filmscope, Method::Paper, Method::Brute]
+        .into_iter()
+        .map(|method| {
+            let config = RunConfig {
+                method,
+                ..RunConfig::default()
+            };
+            Setting::new(method.name(), config)
+        })
+        .collect();
+    let methods = measure(&m_scene, &defaults)?;
     let time = |m: &str| {
         methods
             .iter()
@@ -592,15 +538,21 @@ pub fn format_table(r: &BenchReport) -> String {
     s.push('\n');
     s.push_str(&format!(
         "{:<10} {:>12} {:>10} {:>10} {:>7}\n",
-        "method", "s per Mpix", "n err", "MAE nm", "valid"
+        "method", "s per Mpix", "|n err|", "MAE nm", "valid"
     ));
     for f in &r.methods {
-        let opt = |x: Option<f64>, d: usize| x.map_or("-".into(), |v| format!("{v:.d$}"));
+        let opt = |x: f64, d: usize| {
+            if x.is_finite() {
+                format!("{x:.d$}")
+            } else {
+                "-".into()
+            }
+        };
         s.push_str(&format!(
             "{:<10} {:>12.3} {:>10} {:>10} {:>6.1}%\n",
             f.method,
             f.seconds_per_mpix,
-            opt(f.index_error, 4),
+            opt(f.index_error_abs, 4),
             opt(f.thickness_mae_nm, 2),
             100.0 * f.valid_fraction
         ));

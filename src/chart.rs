@@ -33,7 +33,8 @@ pub struct Setting {
 }
 
 impl Setting {
-    fn new(label: &str, config: RunConfig) -> Self {
+    /// A setting labelled `label`.
+    pub fn new(label: &str, config: RunConfig) -> Self {
         Self {
             label: label.to_owned(),
             config,

@@ -29,6 +29,29 @@ fn settled(out: &SweepOutput) -> bool {
         .is_some_and(|a| a.refined && a.spectral_index_step.abs() < 2e-3)
 }
 
+/// The pass to run after `last` (the `passes`-th), if any:
+/// - an index that arrived only with the last angle left the orders unconfirmed by the full
+///   spectra: after the first pass, pass again with it held, so every pixel is refined;
+/// - spectra the extremum-shift index does not explain (real dispersion, a high index): pass
+///   again with the index from the full spectra, starting where the last pass's
+///   full-spectrum step pointed, until it settles. The pass that fits best is kept.
+fn next_pass(last: &SweepOutput, passes: usize) -> Option<Prior> {
+    if passes == 1 && unrefined(last) {
+        return last.index.map(|index| Prior {
+            index,
+            update: PriorUpdate::Hold,
+        });
+    }
+    let again = last.model_mismatch
+        || (!last.spectral_index && underfit(last))
+        || (last.spectral_index && !settled(last));
+    let index = last.spectral_candidate.or(last.index).filter(|_| again)?;
+    Some(Prior {
+        index,
+        update: PriorUpdate::FullSpectra,
+    })
+}
+
 /// Whether most of the pixels with fringes were never refined on the full spectra (the
 /// index came too late in the sweep).
 fn unrefined(out: &SweepOutput) -> bool {
@@ -149,42 +172,21 @@ pub fn run_method(
         Method::Filmscope => {
             let mut out = run_sweep(source, config.pipeline, None, on_rows)?;
             let mut passes = 1;
-            // Spectra the extremum-shift index does not explain (real dispersion, a high
-            // index): pass again over the same data with the index from the full spectra,
-            // starting where the last pass's full-spectrum step pointed, until the index
-            // settles; the pass that fits best is kept.
-            let mut last = out.clone();
-            // An index that arrived only with the last angle left the orders unconfirmed by
-            // the full spectra: pass again with it held, so every pixel is refined.
-            if unrefined(&out) && config.pipeline.solver.refine && source.replayable() {
-                if let Some(index) = out.index {
-                    let prior = Prior {
-                        index,
-                        update: PriorUpdate::Hold,
-                    };
-                    last = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
-                    passes += 1;
-                    out = last.clone();
-                }
-            }
-            while passes < MAX_PASSES
-                && (last.model_mismatch
-                    || (!last.spectral_index && underfit(&last))
-                    || (last.spectral_index && !settled(&last)))
-                && config.pipeline.solver.refine
-                && source.replayable()
-            {
-                let Some(index) = last.spectral_candidate.or(last.index) else {
+            // Further passes over the same data (`next_pass`); `latest` is the last pass when
+            // it is not the best, which `out` keeps.
+            let mut latest: Option<SweepOutput> = None;
+            let can_pass = config.pipeline.solver.refine && source.replayable();
+            while can_pass && passes < MAX_PASSES {
+                let Some(prior) = next_pass(latest.as_ref().unwrap_or(&out), passes) else {
                     break;
                 };
-                let prior = Prior {
-                    index,
-                    update: PriorUpdate::FullSpectra,
-                };
-                last = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
+                let pass = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
                 passes += 1;
-                if fit_rank(&last) < fit_rank(&out) {
-                    out = last.clone();
+                if prior.update == PriorUpdate::Hold || fit_rank(&pass) < fit_rank(&out) {
+                    out = pass;
+                    latest = None;
+                } else {
+                    latest = Some(pass);
                 }
             }
             let reports: Vec<_> = out
@@ -198,7 +200,7 @@ pub fn run_method(
                         "pair_index": a.pair.map(|p| p.index),
                         "refined": a.refined,
                         "spectral_index_step": a.spectral_index_step,
-                        "dispersive": a.dispersive,
+                        "dispersive": a.index_terms > 1,
                         "index_terms": a.index_terms,
                         "index_from_full_spectra": a.spectral_index,
                     })

@@ -121,6 +121,43 @@ impl SimSource {
     }
 }
 
+impl SimSource {
+    /// Rows `first_row..first_row + rows` of band `band` at angle `angle` as the camera
+    /// delivers them: raw counts with their white and dark references, or noise-free
+    /// reflectance.
+    pub fn block(&self, angle: usize, band: usize, first_row: usize, rows: usize) -> Samples {
+        let cam = &self.camera;
+        let w = cam.width();
+        if self.noise_free {
+            let mut v = vec![0f32; rows * w];
+            for (k, chunk) in v.chunks_mut(w).enumerate() {
+                cam.reflectance_row(angle, band, first_row + k, chunk);
+            }
+            return Samples::Reflectance(v);
+        }
+        let mut raw16 = vec![0u16; w];
+        let mut counts = vec![0f32; rows * w];
+        let mut white = vec![0f32; rows * w];
+        let mut dark = vec![0f32; rows * w];
+        for k in 0..rows {
+            let row = first_row + k;
+            cam.raw_row(angle, band, row, &mut raw16);
+            for (o, &c) in counts[k * w..(k + 1) * w].iter_mut().zip(&raw16) {
+                *o = f32::from(c);
+            }
+            cam.white_row(angle, band, row, &mut white[k * w..(k + 1) * w]);
+            cam.dark_row(angle, band, row, &mut dark[k * w..(k + 1) * w]);
+        }
+        Samples::Raw {
+            counts,
+            dark: Some(dark),
+            white,
+            white_reflectance: 1.0,
+            saturation_counts: cam.scene().sensor.saturation_counts() as f32,
+        }
+    }
+}
+
 impl Source for SimSource {
     fn spec(&self) -> &SweepSpec {
         &self.spec
@@ -131,46 +168,14 @@ impl Source for SimSource {
     }
 
     fn stream(&mut self, tx: &Sender<StreamMsg>) {
-        let cam = &self.camera;
-        let (w, h) = (cam.width(), cam.height());
-        let sat = cam.scene().sensor.saturation_counts() as f32;
-        let noise_free = self.noise_free;
-        let mut raw16 = vec![0u16; w];
-        let angles = cam.scene().angles_deg.clone();
-        let bands = cam.scene().bands_nm.len();
+        let scene = self.camera.scene();
         stream_band_sequential(
             tx,
-            &angles,
-            bands,
-            h,
+            &scene.angles_deg,
+            scene.bands_nm.len(),
+            self.camera.height(),
             self.rows_per_block,
-            |a, b, r0, rows| {
-                if noise_free {
-                    let mut v = vec![0f32; rows * w];
-                    for (k, chunk) in v.chunks_mut(w).enumerate() {
-                        cam.reflectance_row(a, b, r0 + k, chunk);
-                    }
-                    return Samples::Reflectance(v);
-                }
-                let mut counts = vec![0f32; rows * w];
-                let mut white = vec![0f32; rows * w];
-                let mut dark = vec![0f32; rows * w];
-                for k in 0..rows {
-                    cam.raw_row(a, b, r0 + k, &mut raw16);
-                    for (o, &c) in counts[k * w..(k + 1) * w].iter_mut().zip(&raw16) {
-                        *o = f32::from(c);
-                    }
-                    cam.white_row(a, b, r0 + k, &mut white[k * w..(k + 1) * w]);
-                    cam.dark_row(a, b, r0 + k, &mut dark[k * w..(k + 1) * w]);
-                }
-                Samples::Raw {
-                    counts,
-                    dark: Some(dark),
-                    white,
-                    white_reflectance: 1.0,
-                    saturation_counts: sat,
-                }
-            },
+            |a, b, r0, rows| self.block(a, b, r0, rows),
         );
     }
 }

@@ -168,6 +168,12 @@ impl IndexModel {
         }
     }
 
+    /// The model moved by `x` in basis coefficients ([`IndexModel::to_basis`]).
+    pub fn moved(&self, x: [f64; 3]) -> Self {
+        let p = self.to_basis();
+        Self::from_basis([p[0] + x[0], p[1] + x[1], p[2] + x[2]])
+    }
+
     /// As an optics dispersion.
     pub fn dispersion(&self) -> crate::optics::Dispersion {
         match self.terms() {

@@ -278,11 +278,9 @@ pub struct AngleReport {
     pub refined: bool,
     /// The index step (at 550 nm) the full-spectrum sums would take.
     pub spectral_index_step: f64,
-    /// Whether the index model is dispersive (Cauchy) after this angle.
-    pub dispersive: bool,
     /// Whether the index came from the full spectra (else from the extremum shifts).
     pub spectral_index: bool,
-    /// Terms of the index model after this angle.
+    /// Terms of the index model after this angle (0: no index yet; above 1: dispersive).
     pub index_terms: usize,
 }
 
@@ -562,35 +560,29 @@ impl SweepSolver {
         self.last_refined = false;
         let mut spectral_next = None;
         if s.pixels >= 16.0 && s.h[0] > 0.0 && s.samples > s.pixels * 2.0 {
-            let base = self.index.map_or(1, |m| m.terms());
-            let full = s.step(3).or_else(|| s.step(2)).or_else(|| s.step(1));
+            let steps = [s.step(1), s.step(2), s.step(3)];
+            let full = steps[2].or(steps[1]).or(steps[0]);
             let dof = (s.samples - s.pixels - 3.0).max(1.0);
             let sigma2 = full.map_or(s.sse / dof, |(_, gain)| (s.sse - gain).max(0.0) / dof);
-            let mut gains = [f64::NAN; 3];
-            for (k, g) in gains.iter_mut().enumerate() {
-                *g = s
-                    .step(k + 1)
-                    .map_or(f64::NAN, |(_, gain)| gain / sigma2.max(1e-30));
-            }
+            let gains = steps.map(|st| st.map_or(f64::NAN, |(_, gain)| gain / sigma2.max(1e-30)));
             // Terms are added only once the simpler model has settled (its own step is
             // small), so that a richer model is compared with the simpler one at its best
             // rather than used to absorb a linearisation far from it, and only if the index
-            // it gives keeps normal dispersion (falling with wavelength) across the band.
-            let mut terms = base.clamp(1, 3);
-            let settled = s
-                .step(terms)
+            // it gives is physical (normal dispersion across the band).
+            let mut terms = self.index.map_or(1, |m| m.terms()).clamp(1, 3);
+            let settled = steps[terms - 1]
                 .is_some_and(|(x, _)| self.max_index_change(x) < SETTLED_INDEX_STEP);
             while settled && terms < 3 && gains[terms] - gains[terms - 1] > SPECTRAL_TERM_CHI2 {
-                let normal = match (self.index, s.step(terms + 1)) {
-                    (Some(index), Some((x, _))) => self.normal_dispersion(index, x),
+                let physical = match (self.index, steps[terms]) {
+                    (Some(index), Some((x, _))) => self.physical(index.moved(x)),
                     _ => false,
                 };
-                if !normal {
+                if !physical {
                     break;
                 }
                 terms += 1;
             }
-            if let Some((mut x, gain)) = s.step(terms) {
+            if let Some((mut x, gain)) = steps[terms - 1] {
                 let after = if self.spectral_index {
                     s.sse - gain
                 } else {
@@ -611,13 +603,13 @@ impl SweepSolver {
                     if scale > 1.0 {
                         x = x.map(|v| v / scale);
                     }
-                    let p = index.to_basis();
-                    let next = IndexModel::from_basis([p[0] + x[0], p[1] + x[1], p[2] + x[2]]);
+                    let next = index.moved(x);
                     if self.spectral_index && self.physical(next) {
                         spectral_next = Some(next);
                         self.spectral_candidate = Some(next);
                         self.index_sigma = libm::sqrt(sigma2 / s.h[0].max(1e-30));
                     } else {
+                        // No usable step from the linearisation: where a fresh pass starts.
                         self.spectral_candidate = self.spectral_start(index, s);
                     }
                 }
@@ -660,14 +652,6 @@ impl SweepSolver {
         }
         let p1 = fit_slope_at(&self.pair_bins, p0).filter(|p1| *p1 > 0.0 && *p1 < 0.5);
         Some(IndexModel::from_basis([p0, p1.unwrap_or(0.0), 0.0]))
-    }
-
-    /// Whether `index` moved by `x` (basis coefficients) falls with wavelength across the
-    /// band (normal dispersion, as every transparent film's does in its transparent range).
-    fn normal_dispersion(&self, index: IndexModel, x: [f64; 3]) -> bool {
-        let p = index.to_basis();
-        let m = IndexModel::from_basis([p[0] + x[0], p[1] + x[1], p[2] + x[2]]);
-        self.physical(m)
     }
 
     /// Whether an index model is one a transparent film can have over the band: inside the
@@ -728,7 +712,6 @@ impl SweepSolver {
             pair: self.last_pair,
             refined: self.last_refined,
             spectral_index_step: self.spectral_dn,
-            dispersive: self.index.is_some_and(|m| m.terms() > 1),
             spectral_index: self.spectral_index,
             index_terms: self.index.map_or(0, |m| m.terms()),
         }
