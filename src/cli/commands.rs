@@ -230,6 +230,14 @@ pub fn eval(
             "s"
         );
     }
+    // An ablated run is labelled by what was switched off.
+    let label = |method: &str| {
+        if ablate.is_empty() {
+            method.to_owned()
+        } else {
+            format!("-{}", ablate.join(",-"))
+        }
+    };
     for path in inputs {
         let r = eval_one(path, &config).with_context(|| path.display().to_string())?;
         if json {
@@ -238,7 +246,7 @@ pub fn eval(
             println!(
                 "{:<22} {:<9} {:>8.4} {:>+9.4} {:>8.2} {:>8.2} {:>6.1}% {:>7.2}% {:>7.4} {:>7.3} {:>7.3} {:>7.2}",
                 r.scene,
-                r.method,
+                label(&r.method),
                 r.index_estimated,
                 r.index_error,
                 r.thickness_mae_nm,
