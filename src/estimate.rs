@@ -1,9 +1,13 @@
 //! Running a method on a source and writing its outputs per capture-format.md.
 
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
-use filmscope_core::solve::sweep::{MAX_DISPERSION, SPECTRAL_TERM_CHI2};
+use filmscope_core::solve::sweep::{
+    MAX_DISPERSION, MISMATCH_FLOOR, MISMATCH_RATIO, SPECTRAL_TERM_CHI2,
+};
+use filmscope_core::solve::thin::{SampleGrid, SampledSpectra, ThinFit};
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
 use serde_json::json;
 
@@ -11,8 +15,8 @@ use crate::baseline::{brute, paper, BruteGrid};
 use crate::export::png::{write_map_png, MapPreview};
 use crate::io::{write_atomic, write_f32_map, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::pipeline::{
-    collect_sweep, run_sweep, PipelineConfig, PipelineError, Prior, PriorUpdate, Source,
-    SweepOutput,
+    collect_sweep, for_each_calibrated, run_sweep, Calibrated, PipelineConfig, PipelineError,
+    Prior, PriorUpdate, Source, SweepOutput,
 };
 
 /// Most passes over a replayable source (the first from the extremum shifts, the others with
@@ -40,6 +44,7 @@ fn next_pass(last: &SweepOutput, passes: usize) -> Option<Prior> {
         return last.index.map(|index| Prior {
             index,
             update: PriorUpdate::Hold,
+            seed: None,
         });
     }
     let again = last.model_mismatch
@@ -49,6 +54,7 @@ fn next_pass(last: &SweepOutput, passes: usize) -> Option<Prior> {
     Some(Prior {
         index,
         update: PriorUpdate::FullSpectra,
+        seed: None,
     })
 }
 
@@ -83,12 +89,141 @@ fn underfit(out: &SweepOutput) -> bool {
     }
 }
 
+/// Share of pixels below which a pass is thought to have missed a film without fringe pairs
+/// and the global search on sampled spectra ([`filmscope_core::solve::thin`]) is tried.
+pub const THIN_SEARCH_BELOW_VALID: f64 = 0.5;
+
+fn valid_fraction(out: &SweepOutput) -> f64 {
+    let valid = out
+        .results
+        .iter()
+        .filter(|r| r.flags & flags::INVALID == 0)
+        .count();
+    valid as f64 / out.results.len().max(1) as f64
+}
+
+/// The start of a pass for a film without fringe pairs: the index and a thickness map from
+/// the global (index, thickness) search on a grid of sampled pixels' spectra (streamed once
+/// more from the source; at most [`thin::MAX_SAMPLED_PIXELS`] spectra held), if its fit is as
+/// good as the pixels' noise allows (the [`SweepSolver::model_mismatch`] rule).
+fn thin_start(
+    source: &mut dyn Source,
+    last: &SweepOutput,
+) -> Result<Option<(ThinFit, Option<Prior>)>, PipelineError> {
+    let spec = last.spec.clone();
+    let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
+    let grid = SampleGrid::for_image(w, h);
+    let px = grid.len();
+    let mut angles = Vec::new();
+    let mut values: Vec<f32> = Vec::new();
+    for_each_calibrated(source, |event| match event {
+        Calibrated::Angle(deg) => {
+            angles.push(deg);
+            values.resize(angles.len() * nb * px, f32::NAN);
+        }
+        Calibrated::Rows {
+            angle,
+            band,
+            first_row,
+            rows,
+            values: v,
+        } => {
+            for r in first_row..first_row + rows {
+                for x in 0..w {
+                    if let Some(k) = grid.sample_at(x, r) {
+                        values[(angle * nb + band) * px + k] = v[(r - first_row) * w + x];
+                    }
+                }
+            }
+        }
+    })?;
+    let sample = SampledSpectra {
+        spec: &spec,
+        angles_deg: &angles,
+        pixels: px,
+        values: &values,
+    };
+    let mut sse = vec![0.0; sample.scratch_len()];
+    let mut thickness = vec![f32::NAN; px];
+    let Some(fit) = sample.fit(&mut sse, &mut thickness) else {
+        return Ok(None);
+    };
+    let noise = last.noise_sigma.map_or(0.0, f64::from);
+    if fit.rms > MISMATCH_RATIO * noise + MISMATCH_FLOOR {
+        return Ok(Some((fit, None)));
+    }
+    let mut seed = vec![f32::NAN; w * h];
+    grid.interpolate(&thickness, &mut seed);
+    let prior = Prior {
+        index: IndexModel::constant(fit.index),
+        update: PriorUpdate::FullSpectra,
+        seed: Some(Arc::new(seed)),
+    };
+    Ok(Some((fit, Some(prior))))
+}
+
+/// The next seeded pass's thickness map: this pass's thickness where it has one, else the
+/// old seed.
+fn carry_seed(seed: &[f32], pass: &SweepOutput) -> Arc<Vec<f32>> {
+    Arc::new(
+        seed.iter()
+            .zip(&pass.results)
+            .map(|(&s, r)| {
+                if r.thickness_nm.is_finite() {
+                    r.thickness_nm
+                } else {
+                    s
+                }
+            })
+            .collect(),
+    )
+}
+
 /// Orders passes: a pass the model explains before one it does not, then by residual.
 fn fit_rank(out: &SweepOutput) -> (bool, f64) {
     (
         out.model_mismatch,
         out.residual_sigma.unwrap_or(f64::INFINITY),
     )
+}
+
+/// The index model chosen and its evidence, for `summary.json` (null without an index).
+fn model_choice(
+    out: &SweepOutput,
+    passes: usize,
+    search: Option<(ThinFit, bool)>,
+) -> serde_json::Value {
+    let Some(index) = out.index else {
+        return serde_json::Value::Null;
+    };
+    let finite = |x: f64| x.is_finite().then_some(x);
+    let f = out.index_fit;
+    let seeded = search.is_some_and(|(_, kept)| kept);
+    json!({
+        "residual_sigma": out.residual_sigma,
+        "noise_sigma": out.noise_sigma,
+        "passes": passes,
+        "index_source": match (seeded, out.spectral_index) {
+            (true, _) => "spectrum search, then full spectra",
+            (false, true) => "full spectra",
+            (false, false) => "extremum shifts",
+        },
+        "spectrum_search": search.map(|(t, kept)| json!({
+            "index": t.index,
+            "rms": t.rms,
+            "sampled_pixels": t.pixels,
+            "kept": kept,
+            "criterion": format!("tried when fewer than {THIN_SEARCH_BELOW_VALID} of the pixels are valid and the extremum shifts found no index the spectra contradict; its passes run if its fit residual is within {MISMATCH_RATIO} x the pixels' noise + {MISMATCH_FLOOR}, and are kept if they leave more pixels valid"),
+        })),
+        "full_spectrum_chi2_gains": out.spectral_gains.map(finite),
+        "full_spectrum_criterion": format!("another pass holds the index when it came too late to refine most pixels; a pass takes it from the full spectra when the fit residual exceeds {UNDERFIT_RATIO} x the pixels' noise; an extra Cauchy term enters only once the simpler model has settled, if it lowers the chi-square by {SPECTRAL_TERM_CHI2} (5 sigma) and keeps the dispersion physical (normal, at most {MAX_DISPERSION} across the band)"),
+        "chosen": (["constant", "cauchy", "cauchy3"])[index.terms() - 1],
+        "extremum_fit_chosen": f.map(|f| if f.dispersive { "cauchy" } else { "constant" }),
+        "chi2_constant": f.map(|f| f.chi2_constant),
+        "chi2_cauchy": f.and_then(|f| finite(f.chi2_cauchy)),
+        "wavelength_bins": f.map(|f| f.bins),
+        "criterion": "Cauchy only if its chi-square gain, in units of its own reduced chi-square, exceeds 25, the constant model's reduced chi-square exceeds 2, and 0 <= b <= 0.2 um^2 with n inside the search range across the band",
+    })
 }
 
 /// How to run a method.
@@ -176,12 +311,41 @@ pub fn run_method(
             // it is not the best, which `out` keeps.
             let mut latest: Option<SweepOutput> = None;
             let can_pass = config.pipeline.solver.refine && source.replayable();
+            // A film without fringe pairs: every later pass starts its pixels from a
+            // thickness map (the search's, then the last pass's).
+            let mut seed: Option<Arc<Vec<f32>>> = None;
+            // The search's fit and whether its passes were kept.
+            let mut search: Option<(ThinFit, bool)> = None;
+            // (A model mismatch means the extremum shifts found an index: the film has
+            // fringes, and the full-spectrum passes below are the remedy.)
+            if can_pass && !out.model_mismatch && valid_fraction(&out) < THIN_SEARCH_BELOW_VALID {
+                if let Some((fit, start)) = thin_start(source, &out)? {
+                    search = Some((fit, false));
+                    if let Some(prior) = start {
+                        let pass =
+                            run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;
+                        passes += 1;
+                        if !pass.model_mismatch && valid_fraction(&pass) > valid_fraction(&out) {
+                            seed = prior.seed.map(|s| carry_seed(&s, &pass));
+                            search = Some((fit, true));
+                            out = pass;
+                        }
+                    }
+                }
+            }
             while can_pass && passes < MAX_PASSES {
-                let Some(prior) = next_pass(latest.as_ref().unwrap_or(&out), passes) else {
+                let Some(mut prior) = next_pass(latest.as_ref().unwrap_or(&out), passes) else {
                     break;
                 };
-                let pass = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
+                if let Some(s) = &seed {
+                    prior.seed = Some(s.clone());
+                    prior.update = PriorUpdate::FullSpectra;
+                }
+                let pass = run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;
                 passes += 1;
+                if let Some(s) = &seed {
+                    seed = Some(carry_seed(s, &pass));
+                }
                 if prior.update == PriorUpdate::Hold || fit_rank(&pass) < fit_rank(&out) {
                     out = pass;
                     latest = None;
@@ -215,23 +379,7 @@ pub fn run_method(
                 state_bytes_per_pixel: Some(out.state_bytes_per_pixel),
                 samples: out.samples,
                 angle_reports: serde_json::Value::Array(reports),
-                model_choice: out.index_fit.map_or(serde_json::Value::Null, |f| {
-                    let finite = |x: f64| x.is_finite().then_some(x);
-                    json!({
-                        "residual_sigma": out.residual_sigma,
-                        "noise_sigma": out.noise_sigma,
-                        "passes": passes,
-                        "index_source": if out.spectral_index { "full spectra" } else { "extremum shifts" },
-                        "full_spectrum_chi2_gains": out.spectral_gains.map(finite),
-                        "full_spectrum_criterion": format!("another pass holds the index when it came too late to refine most pixels; a pass takes it from the full spectra when the fit residual exceeds {UNDERFIT_RATIO} x the pixels' noise; an extra Cauchy term enters only once the simpler model has settled, if it lowers the chi-square by {SPECTRAL_TERM_CHI2} (5 sigma) and keeps the dispersion physical (normal, at most {MAX_DISPERSION} across the band)"),
-                        "chosen": (["constant", "cauchy", "cauchy3"])[out.index.map_or(1, |m| m.terms()) - 1],
-                        "extremum_fit_chosen": if f.dispersive { "cauchy" } else { "constant" },
-                        "chi2_constant": f.chi2_constant,
-                        "chi2_cauchy": if f.chi2_cauchy.is_finite() { Some(f.chi2_cauchy) } else { None },
-                        "wavelength_bins": f.bins,
-                        "criterion": "Cauchy only if its chi-square gain, in units of its own reduced chi-square, exceeds 25, the constant model's reduced chi-square exceeds 2, and 0 <= b <= 0.2 um^2 with n inside the search range across the band",
-                    })
-                }),
+                model_choice: model_choice(&out, passes, search),
             })
         }
         Method::Paper | Method::Brute => {

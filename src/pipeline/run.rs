@@ -116,12 +116,16 @@ fn shard_rows(height: usize, workers: usize, i: usize) -> (usize, usize) {
 
 /// What a sweep starts from: the index of an earlier pass over the same capture or of the
 /// last sweep on a production line, and what moves it.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Prior {
     /// The starting index.
     pub index: IndexModel,
     /// What moves it during the sweep.
     pub update: PriorUpdate,
+    /// Every pixel's starting thickness, row-major (a film without fringe pairs, from the
+    /// global search on sampled spectra): such pixels need no extrema. The map the sweep's
+    /// output replaces, not per-pixel state.
+    pub seed: Option<Arc<Vec<f32>>>,
 }
 
 /// How a sweep treats its prior index.
@@ -152,15 +156,32 @@ pub fn run_sweep(
     let workers = config.workers.clamp(1, h.max(1));
     let cap = config.channel_capacity.max(1);
     let start = Instant::now();
-    let mut solver = SweepSolver::new(spec.clone(), prior.map(|p| p.index));
-    match prior.map(|p| p.update) {
+    let mut solver = SweepSolver::new(spec.clone(), prior.as_ref().map(|p| p.index));
+    match prior.as_ref().map(|p| p.update) {
         Some(PriorUpdate::FullSpectra) => solver = solver.with_spectral_index(),
         Some(PriorUpdate::Hold) => solver = solver.with_held_index(),
         _ => {}
     }
     let mut solver = Box::new(solver);
+    let seed = prior
+        .as_ref()
+        .and_then(|p| Some((p.seed.clone()?, p.index)));
+    if seed.as_ref().is_some_and(|(map, _)| map.len() != w * h) {
+        return Err(PipelineError(format!(
+            "the thickness seed map does not have {w} x {h} pixels"
+        )));
+    }
     let mut states: Vec<Option<Vec<PixelState>>> = (0..workers)
-        .map(|i| Some(vec![PixelState::default(); shard_rows(h, workers, i).1 * w]))
+        .map(|i| {
+            let (first, rows) = shard_rows(h, workers, i);
+            Some(match &seed {
+                Some((map, index)) => map[first * w..(first + rows) * w]
+                    .iter()
+                    .map(|&d| PixelState::seeded(d, *index, &spec))
+                    .collect(),
+                None => vec![PixelState::default(); rows * w],
+            })
+        })
         .collect();
     let mut reports = Vec::new();
     let mut samples = 0u64;
@@ -468,27 +489,49 @@ pub fn calibrate_block(samples: Samples, rows: usize, width: usize) -> Vec<f32> 
     }
 }
 
-/// Streams `source` and keeps every calibrated sample: the whole sweep in memory, for the
-/// whole-cube baselines and for evaluation (not for the streaming estimator).
-pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube, PipelineError> {
+/// What [`for_each_calibrated`] hands on.
+#[derive(Debug)]
+pub enum Calibrated<'a> {
+    /// An angle starts (degrees).
+    Angle(f64),
+    /// Calibrated reflectance of rows `first_row..first_row + rows` of `band` at angle
+    /// number `angle` (row-major).
+    Rows {
+        /// Angle number (0 for the first).
+        angle: usize,
+        /// Band.
+        band: usize,
+        /// First row.
+        first_row: usize,
+        /// Rows.
+        rows: usize,
+        /// `rows * width` values.
+        values: &'a [f32],
+    },
+}
+
+/// Streams `source` and hands every angle start and block of calibrated rows to `f`, on this
+/// thread.
+pub fn for_each_calibrated(
+    source: &mut dyn Source,
+    mut f: impl FnMut(Calibrated<'_>),
+) -> Result<(), PipelineError> {
     let spec = source.spec().clone();
     let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
-    let mut angles = Vec::new();
-    let mut data: Vec<Vec<f32>> = Vec::new();
     let (tx, rx) = bounded::<StreamMsg>(64);
     std::thread::scope(|scope| -> Result<(), PipelineError> {
         scope.spawn(move || source.stream(&tx));
+        let mut angle = None;
         for msg in rx.iter() {
             match msg {
                 StreamMsg::Angle { incidence_deg } => {
-                    angles.push(incidence_deg);
-                    data.push(vec![f32::NAN; w * h * nb]);
+                    angle = Some(angle.map_or(0, |a| a + 1));
+                    f(Calibrated::Angle(incidence_deg));
                 }
                 StreamMsg::Rows(b) => {
                     let (band, first, rows) =
                         (usize::from(b.band), b.first_row as usize, b.rows as usize);
-                    let cube = data
-                        .last_mut()
+                    let a = angle
                         .ok_or_else(|| PipelineError("rows arrived outside an angle".into()))?;
                     if band >= nb || first + rows > h {
                         return Err(PipelineError(format!(
@@ -504,8 +547,13 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
                             rows * w
                         )));
                     }
-                    let at = (band * h + first) * w;
-                    cube[at..at + rows * w].copy_from_slice(&v);
+                    f(Calibrated::Rows {
+                        angle: a,
+                        band,
+                        first_row: first,
+                        rows,
+                        values: &v,
+                    });
                 }
                 StreamMsg::AngleEnd | StreamMsg::BandEnd { .. } => {}
                 StreamMsg::SweepEnd => return Ok(()),
@@ -515,6 +563,31 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
         Err(PipelineError(
             "the source stopped without ending the sweep".into(),
         ))
+    })
+}
+
+/// Streams `source` and keeps every calibrated sample: the whole sweep in memory, for the
+/// whole-cube baselines and for evaluation (not for the streaming estimator).
+pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube, PipelineError> {
+    let spec = source.spec().clone();
+    let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
+    let mut angles = Vec::new();
+    let mut data: Vec<Vec<f32>> = Vec::new();
+    for_each_calibrated(source, |event| match event {
+        Calibrated::Angle(deg) => {
+            angles.push(deg);
+            data.push(vec![f32::NAN; w * h * nb]);
+        }
+        Calibrated::Rows {
+            angle,
+            band,
+            first_row,
+            rows,
+            values,
+        } => {
+            let at = (band * h + first_row) * w;
+            data[angle][at..at + rows * w].copy_from_slice(values);
+        }
     })?;
     Ok(crate::sweep::SweepCube {
         width: w,

@@ -26,6 +26,7 @@ pub mod order;
 pub mod refine;
 pub mod shard;
 pub mod sweep;
+pub mod thin;
 
 pub use shard::{state_bytes_per_pixel, PixelResult, PixelState, Shard};
 pub use sweep::{AngleReport, SweepSolver, SweepSpec};
@@ -57,6 +58,9 @@ pub mod flags {
     /// The film model does not explain the image's spectra (fit residual well above the
     /// noise): the index, so every thickness, is unreliable.
     pub const MODEL_MISMATCH: u16 = 1 << 10;
+    /// No fringe pair: the thickness started from the global (index, thickness) search on
+    /// sampled spectra ([`super::thin`]) and was refined on the pixel's own full spectrum.
+    pub const FROM_SPECTRUM_SEARCH: u16 = 1 << 11;
 
     /// Flags that make the thickness unreliable (NaN in the map).
     pub const INVALID: u16 = NO_FRINGE
@@ -69,7 +73,7 @@ pub mod flags {
         | MODEL_MISMATCH;
 
     /// Names of the flags, for reports.
-    pub const NAMES: [(u16, &str); 11] = [
+    pub const NAMES: [(u16, &str); 12] = [
         (NO_FRINGE, "no_fringe"),
         (AMBIGUOUS_ORDER, "ambiguous_order"),
         (SATURATED, "saturated"),
@@ -81,6 +85,7 @@ pub mod flags {
         (NOT_REFINED, "not_refined"),
         (ORDER_FROM_NEIGHBOUR, "order_from_neighbour"),
         (MODEL_MISMATCH, "model_mismatch"),
+        (FROM_SPECTRUM_SEARCH, "from_spectrum_search"),
     ];
 }
 
@@ -172,6 +177,15 @@ impl IndexModel {
     pub fn moved(&self, x: [f64; 3]) -> Self {
         let p = self.to_basis();
         Self::from_basis([p[0] + x[0], p[1] + x[1], p[2] + x[2]])
+    }
+
+    /// The model with only its first `terms` basis coefficients (the rest zero).
+    pub fn truncated(&self, terms: usize) -> Self {
+        let mut p = self.to_basis();
+        for v in p.iter_mut().skip(terms.max(1)) {
+            *v = 0.0;
+        }
+        Self::from_basis(p)
     }
 
     /// As an optics dispersion.

@@ -6,7 +6,8 @@ use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
 use super::order::{Observation, OrderChoice, OrderContext};
 use super::refine::{BandCoef, GnSums};
-use super::sweep::{FitStats, SchurSums, SolverOptions, SweepSolver};
+use super::sweep::{FitStats, SchurSums, SolverOptions, SweepSolver, SweepSpec};
+use super::IndexModel;
 
 /// Cost margin below which two orders are a tie (squared order misfits).
 const AMBIGUITY_MARGIN: f64 = 0.08;
@@ -65,6 +66,22 @@ impl Default for PixelState {
             extrema_seen: 0,
             flags: 0,
         }
+    }
+}
+
+impl PixelState {
+    /// A pixel that starts at `thickness_nm` with `index`, as a global search on sampled
+    /// spectra put it ([`super::thin`]): it is refined from the first angle on, needing no
+    /// extrema.
+    pub fn seeded(thickness_nm: f32, index: IndexModel, spec: &SweepSpec) -> Self {
+        let mut p = Self::default();
+        if thickness_nm.is_finite() {
+            let mid = spec.bands_nm[spec.bands_nm.len() / 2];
+            p.thickness_nm = thickness_nm;
+            p.order_step_nm = (mid / (2.0 * index.at(mid))) as f32;
+            p.flags = flags::FROM_SPECTRUM_SEARCH;
+        }
+        p
     }
 }
 
@@ -260,7 +277,10 @@ impl<'a> Shard<'a> {
             if p.tracker.overflow {
                 p.flags |= flags::TRACKER_OVERFLOW;
             }
-            if reorder && p.thickness_nm.is_finite() {
+            // A seeded pixel has no extrema to choose its order again from: it keeps its
+            // thickness and steps with the index like the others.
+            let seeded = p.flags & flags::FROM_SPECTRUM_SEARCH != 0;
+            if reorder && p.thickness_nm.is_finite() && !seeded {
                 p.thickness_nm = f32::NAN;
                 p.gn = GnSums::default();
                 p.flags &= !flags::ORDER_FROM_NEIGHBOUR;
@@ -464,7 +484,14 @@ impl<'a> Shard<'a> {
             } else {
                 let g = &p.gn;
                 let best = f64::from(g.sse);
-                let alt = f64::from(g.sse_minus.min(g.sse_plus));
+                // One order thinner is no alternative below the search range (nor below
+                // zero, where the model would mirror the film's thickness).
+                let thinner = d - f64::from(p.order_step_nm) >= d_lo.max(0.0);
+                let alt = f64::from(if thinner {
+                    g.sse_minus.min(g.sse_plus)
+                } else {
+                    g.sse_plus
+                });
                 let chi2 = if sigma2 > 0.0 {
                     (alt - best) / sigma2
                 } else {

@@ -1,0 +1,521 @@
+//! Films without fringe pairs: a global (index, thickness) search on a few pixels' spectra.
+//!
+//! A film a few tens of nanometres thick shows at most one broad extremum inside the band, so
+//! neither the extremum shifts (no pair to compare) nor the order (nothing to count) say
+//! anything. Its spectra still do: the reflectance level fixes the film's index against the
+//! substrate's (a quarter-wave layer reflects `((n0 ns - n^2) / (n0 ns + n^2))^2`), the
+//! spectral slope the optical thickness, and the change with angle separates the two
+//! (`n d cos(theta_t)`). This module fits them by least squares over an (index, thickness)
+//! grid on a small, bounded sample of pixels' full spectra (a few dozen pixels of the sweep,
+//! whatever the sensor's size): the model of each grid point is computed once and scored
+//! against every sampled pixel, every pixel keeps its best thickness, and the index that
+//! minimises the sum of the pixels' best misfits wins. The streaming solver then starts every
+//! pixel from the sample's thickness map (interpolated) with that index and refines both on
+//! the full spectra ([`super::refine`]).
+
+use super::refine::BandCoef;
+use super::sweep::SweepSpec;
+use super::IndexModel;
+
+/// Index grid step of the coarse search.
+pub const INDEX_STEP: f64 = 0.02;
+/// Thickest film the search considers, nm: thicker films show fringes (method.md), and the
+/// streaming solver finds them from their extrema.
+pub const MAX_THICKNESS_NM: f64 = 800.0;
+/// Thickness grid step, nm: an eighth of the shortest fringe period the search meets
+/// (420 nm light in a film of index 2.8 repeats every 75 nm of thickness) at most.
+pub const THICKNESS_STEP_NM: f64 = 2.5;
+/// Most bands the coarse index grid looks at.
+pub const COARSE_BANDS: usize = 40;
+/// Golden-section steps refining the index around the best grid point.
+const REFINE_STEPS: usize = 14;
+
+/// The thickness grid of `spec`'s search range, nm.
+pub fn thickness_grid(spec: &SweepSpec) -> impl Iterator<Item = f64> + Clone {
+    let lo = spec.thickness_range_nm[0].max(THICKNESS_STEP_NM);
+    let hi = spec.thickness_range_nm[1].min(MAX_THICKNESS_NM).max(lo);
+    let n = libm::floor((hi - lo) / THICKNESS_STEP_NM) as usize + 1;
+    (0..n).map(move |i| lo + i as f64 * THICKNESS_STEP_NM)
+}
+
+/// Spectra of a few sampled pixels: `values[(a * bands + b) * pixels + p]` is pixel `p`'s
+/// calibrated reflectance in band `b` at angle `a` (non-finite: unusable, skipped).
+#[derive(Clone, Copy, Debug)]
+pub struct SampledSpectra<'a> {
+    /// The sweep.
+    pub spec: &'a SweepSpec,
+    /// Incidence angles, degrees, in the order of `values`.
+    pub angles_deg: &'a [f64],
+    /// Sampled pixels.
+    pub pixels: usize,
+    /// Reflectance, angle-major, then band, then pixel.
+    pub values: &'a [f32],
+}
+
+/// The best (index, thicknesses) of a sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ThinFit {
+    /// The film index (constant: the streaming passes add dispersion if the data ask).
+    pub index: f64,
+    /// RMS residual over every usable sample at the best index and thicknesses.
+    pub rms: f64,
+    /// Sampled pixels with at least one usable sample.
+    pub pixels: usize,
+}
+
+impl SampledSpectra<'_> {
+    fn bands(&self) -> usize {
+        self.spec.bands_nm.len()
+    }
+
+    /// Every sampled pixel's squared misfit at every grid thickness for index `n`, into
+    /// `sse[t * pixels + p]`. `coarse`: every few bands only ([`COARSE_BANDS`] at most) and
+    /// the band centres without their passbands (the spectra of the films the search is for
+    /// are smooth on that scale). Returns `false` where the model has no propagating wave.
+    fn misfits(&self, n: f64, sse: &mut [f64], coarse: bool) -> bool {
+        let (bands, px) = (self.bands(), self.pixels);
+        let grid = thickness_grid(self.spec);
+        sse.iter_mut().for_each(|s| *s = 0.0);
+        let index = IndexModel::constant(n);
+        let stride = if coarse {
+            bands.div_ceil(COARSE_BANDS)
+        } else {
+            1
+        };
+        for (a, &deg) in self.angles_deg.iter().enumerate() {
+            for b in (0..bands).step_by(stride.max(1)) {
+                let Some(coef) = BandCoef::new(
+                    index,
+                    self.spec.ambient_index,
+                    self.spec.substrate_index,
+                    self.spec.polarization,
+                    deg,
+                    self.spec.bands_nm[b],
+                    if coarse { 0.0 } else { self.spec.fwhm_nm[b] },
+                ) else {
+                    return false;
+                };
+                let row = &self.values[(a * bands + b) * px..(a * bands + b + 1) * px];
+                for (t, d) in grid.clone().enumerate() {
+                    let m = coef.model(d);
+                    for (s, &v) in sse[t * px..(t + 1) * px].iter_mut().zip(row) {
+                        if v.is_finite() {
+                            let r = f64::from(v) - m;
+                            *s += r * r;
+                        }
+                    }
+                }
+            }
+        }
+        true
+    }
+
+    /// The sum over pixels of each pixel's smallest misfit in `sse`, and (into `best`, if
+    /// given) each pixel's best thickness, refined between grid points by a parabola.
+    fn total(&self, sse: &[f64], mut best: Option<&mut [f32]>) -> f64 {
+        let px = self.pixels;
+        let d0 = thickness_grid(self.spec).next().unwrap_or(0.0);
+        let steps = sse.len() / px.max(1);
+        let mut total = 0.0;
+        for p in 0..px {
+            let at = |t: usize| sse[t * px + p];
+            let mut t_best = 0;
+            for t in 1..steps {
+                if at(t) < at(t_best) {
+                    t_best = t;
+                }
+            }
+            // The parabola through the best grid point and its neighbours: the grid's own
+            // step would otherwise make the total jump as the index moves.
+            let (mut value, mut shift) = (at(t_best), 0.0);
+            if t_best > 0 && t_best + 1 < steps {
+                let (l, c, r) = (at(t_best - 1), at(t_best), at(t_best + 1));
+                let curv = l - 2.0 * c + r;
+                if curv > 0.0 {
+                    shift = 0.5 * (l - r) / curv;
+                    value = c - (l - r) * (l - r) / (8.0 * curv);
+                }
+            }
+            total += value.max(0.0);
+            if let Some(out) = best.as_deref_mut() {
+                out[p] = (d0 + (t_best as f64 + shift) * THICKNESS_STEP_NM) as f32;
+            }
+        }
+        total
+    }
+
+    /// Usable samples and the pixels that have any.
+    fn usable(&self) -> (usize, usize) {
+        let px = self.pixels;
+        let mut count = 0;
+        let mut pixels = 0;
+        for p in 0..px {
+            let k = self
+                .values
+                .iter()
+                .skip(p)
+                .step_by(px.max(1))
+                .filter(|v| v.is_finite())
+                .count();
+            count += k;
+            pixels += usize::from(k > 0);
+        }
+        (count, pixels)
+    }
+
+    /// The scratch length [`SampledSpectra::fit`] needs: one misfit per pixel and grid
+    /// thickness.
+    pub fn scratch_len(&self) -> usize {
+        thickness_grid(self.spec).count() * self.pixels
+    }
+
+    /// Searches the index over the spec's range (a grid, then golden section around its
+    /// best point) with each pixel's thickness over the grid; writes each sampled pixel's
+    /// thickness into `thickness_nm` (NaN for a pixel without usable samples). `sse` is
+    /// scratch of [`SampledSpectra::scratch_len`]. `None` without usable samples or if the
+    /// shapes disagree.
+    pub fn fit(&self, sse: &mut [f64], thickness_nm: &mut [f32]) -> Option<ThinFit> {
+        let (bands, px) = (self.bands(), self.pixels);
+        if px == 0
+            || self.values.len() != self.angles_deg.len() * bands * px
+            || sse.len() != self.scratch_len()
+            || thickness_nm.len() != px
+        {
+            return None;
+        }
+        let (count, pixels) = self.usable();
+        if count == 0 {
+            return None;
+        }
+        let [n_lo, n_hi] = self.spec.index_range;
+        let steps = libm::ceil((n_hi - n_lo) / INDEX_STEP).max(1.0) as usize;
+        let mut cost = |n: f64, coarse: bool| -> f64 {
+            if self.misfits(n, sse, coarse) {
+                self.total(sse, None)
+            } else {
+                f64::INFINITY
+            }
+        };
+        let mut n_best = n_lo;
+        let mut c_best = f64::INFINITY;
+        for i in 0..=steps {
+            let n = n_lo + (n_hi - n_lo) * i as f64 / steps as f64;
+            let c = cost(n, true);
+            if c < c_best {
+                (n_best, c_best) = (n, c);
+            }
+        }
+        let mut cost = |n: f64| cost(n, false);
+        let c_best = cost(n_best);
+        // Golden section on the bracket around the best grid point.
+        let g = 0.5 * (libm::sqrt(5.0) - 1.0);
+        let (mut a, mut b) = (
+            (n_best - INDEX_STEP).max(n_lo),
+            (n_best + INDEX_STEP).min(n_hi),
+        );
+        let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
+        let (mut f1, mut f2) = (cost(x1), cost(x2));
+        for _ in 0..REFINE_STEPS {
+            if f1 < f2 {
+                (b, x2, f2) = (x2, x1, f1);
+                x1 = b - g * (b - a);
+                f1 = cost(x1);
+            } else {
+                (a, x1, f1) = (x1, x2, f2);
+                x2 = a + g * (b - a);
+                f2 = cost(x2);
+            }
+        }
+        let (n, _) = [(x1, f1), (x2, f2), (n_best, c_best)]
+            .into_iter()
+            .min_by(|p, q| p.1.total_cmp(&q.1))?;
+        if !self.misfits(n, sse, false) {
+            return None;
+        }
+        let total = self.total(sse, Some(thickness_nm));
+        for (p, d) in thickness_nm.iter_mut().enumerate() {
+            if !self
+                .values
+                .iter()
+                .skip(p)
+                .step_by(px)
+                .any(|v| v.is_finite())
+            {
+                *d = f32::NAN;
+            }
+        }
+        Some(ThinFit {
+            index: n,
+            rms: libm::sqrt(total / count as f64),
+            pixels,
+        })
+    }
+}
+
+/// Most pixels a sample holds: enough to pool the index over the image and follow a smooth
+/// thickness map, few enough that the search takes a fraction of a second.
+pub const MAX_SAMPLED_PIXELS: usize = 64;
+
+/// A regular grid of sampled pixels over a `width x height` image: the centres of
+/// `cols x rows` equal cells.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SampleGrid {
+    /// Image width.
+    pub width: usize,
+    /// Image height.
+    pub height: usize,
+    /// Cells across.
+    pub cols: usize,
+    /// Cells down.
+    pub rows: usize,
+}
+
+impl SampleGrid {
+    /// The grid of at most [`MAX_SAMPLED_PIXELS`] cells whose shape follows the image's.
+    pub fn for_image(width: usize, height: usize) -> Self {
+        let (w, h) = (width.max(1), height.max(1));
+        let cols_f = libm::sqrt(MAX_SAMPLED_PIXELS as f64 * w as f64 / h as f64);
+        let cols = (libm::floor(cols_f) as usize).clamp(1, w.min(MAX_SAMPLED_PIXELS));
+        let rows = (MAX_SAMPLED_PIXELS / cols).clamp(1, h);
+        Self {
+            width: w,
+            height: h,
+            cols,
+            rows,
+        }
+    }
+
+    /// Sampled pixels.
+    pub fn len(&self) -> usize {
+        self.cols * self.rows
+    }
+
+    /// Whether the grid is empty (never, for a non-empty image).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    fn centre(cell: usize, cells: usize, size: usize) -> f64 {
+        (cell as f64 + 0.5) * size as f64 / cells as f64 - 0.5
+    }
+
+    /// The image pixel `(x, y)` of sample `k` (row-major over the cells).
+    pub fn pixel(&self, k: usize) -> (usize, usize) {
+        let (cx, cy) = (k % self.cols, k / self.cols);
+        let x = libm::round(Self::centre(cx, self.cols, self.width)).max(0.0) as usize;
+        let y = libm::round(Self::centre(cy, self.rows, self.height)).max(0.0) as usize;
+        (x.min(self.width - 1), y.min(self.height - 1))
+    }
+
+    /// The sample that pixel `(x, y)` belongs to, if it is one.
+    pub fn sample_at(&self, x: usize, y: usize) -> Option<usize> {
+        let cx = x * self.cols / self.width;
+        let cy = y * self.rows / self.height;
+        let k = cy * self.cols + cx;
+        (self.pixel(k) == (x, y)).then_some(k)
+    }
+
+    /// The finite sample nearest to pixel `(x, y)`, NaN if there is none.
+    fn nearest_finite(&self, values: &[f32], x: usize, y: usize) -> f32 {
+        let mut best = (f64::INFINITY, f32::NAN);
+        for (k, &v) in values.iter().enumerate() {
+            let (px, py) = self.pixel(k);
+            let d2 = (px as f64 - x as f64).powi(2) + (py as f64 - y as f64).powi(2);
+            if v.is_finite() && d2 < best.0 {
+                best = (d2, v);
+            }
+        }
+        best.1
+    }
+
+    /// Fills the `width x height` map `out` from the samples' `values` by bilinear
+    /// interpolation between cell centres (constant beyond the outer centres); a NaN sample
+    /// gives way to its finite neighbours, or to the nearest finite sample (NaN only if
+    /// every sample is).
+    pub fn interpolate(&self, values: &[f32], out: &mut [f32]) {
+        if values.len() != self.len() || out.len() != self.width * self.height {
+            return;
+        }
+        let axis = |v: usize, cells: usize, size: usize| -> (usize, usize, f64) {
+            let t = ((v as f64 + 0.5) * cells as f64 / size as f64 - 0.5)
+                .clamp(0.0, (cells - 1) as f64);
+            let i = libm::floor(t) as usize;
+            let j = (i + 1).min(cells - 1);
+            (i, j, t - i as f64)
+        };
+        for y in 0..self.height {
+            let (r0, r1, fy) = axis(y, self.rows, self.height);
+            for x in 0..self.width {
+                let (c0, c1, fx) = axis(x, self.cols, self.width);
+                let (mut sum, mut weight) = (0.0, 0.0);
+                for (r, wy) in [(r0, 1.0 - fy), (r1, fy)] {
+                    for (c, wx) in [(c0, 1.0 - fx), (c1, fx)] {
+                        let v = values[r * self.cols + c];
+                        let wgt = wx * wy;
+                        if v.is_finite() && wgt > 0.0 {
+                            sum += wgt * f64::from(v);
+                            weight += wgt;
+                        }
+                    }
+                }
+                out[y * self.width + x] = if weight > 0.0 {
+                    (sum / weight) as f32
+                } else {
+                    self.nearest_finite(values, x, y)
+                };
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optics::Dispersion;
+    use crate::optics::{FilmStack, Passband, Polarization};
+
+    fn spec(bands: core::ops::Range<usize>) -> SweepSpec {
+        let mut s = SweepSpec {
+            width: 4,
+            height: 2,
+            bands_nm: heapless::Vec::new(),
+            fwhm_nm: heapless::Vec::new(),
+            ambient_index: 1.0,
+            substrate_index: 1.65,
+            polarization: Polarization::Unpolarized,
+            index_range: [1.2, 2.8],
+            thickness_range_nm: [50.0, 2000.0],
+            options: Default::default(),
+        };
+        for b in bands {
+            let _ = s.bands_nm.push(420.0 + 2.0 * b as f64);
+            let _ = s.fwhm_nm.push(4.0);
+        }
+        s
+    }
+
+    /// Spectra of films of `thicknesses` and index `n`, from the optics module's own stack
+    /// (33-node passband), not from the search's model.
+    fn spectra(spec: &SweepSpec, angles: &[f64], n: f64, thicknesses: &[f64]) -> Vec<f32> {
+        let stack = FilmStack {
+            ambient_index: 1.0,
+            film: Dispersion::constant(n),
+            substrate: Dispersion::constant(spec.substrate_index),
+            polarization: Polarization::Unpolarized,
+        };
+        let mut v = Vec::new();
+        for &a in angles {
+            for (b, &l) in spec.bands_nm.iter().enumerate() {
+                for &d in thicknesses {
+                    let band = Passband::gaussian(l, spec.fwhm_nm[b]);
+                    v.push(stack.band_reflectance(d, a, &band) as f32);
+                }
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn an_80_nm_film_without_fringes_gives_its_index_and_thickness() {
+        let spec = spec(0..151);
+        let angles = [10.0, 20.0, 30.0, 40.0, 50.0];
+        let truth = [72.0, 80.0, 88.0, 95.0];
+        let values = spectra(&spec, &angles, 1.45, &truth);
+        let s = SampledSpectra {
+            spec: &spec,
+            angles_deg: &angles,
+            pixels: truth.len(),
+            values: &values,
+        };
+        let mut sse = vec![0.0; s.scratch_len()];
+        let mut d = vec![0.0f32; truth.len()];
+        let fit = s.fit(&mut sse, &mut d).expect("a fit");
+        assert!((fit.index - 1.45).abs() < 0.005, "index {}", fit.index);
+        for (got, want) in d.iter().zip(truth) {
+            assert!(
+                (f64::from(*got) - want).abs() < 1.5,
+                "thickness {got} vs {want}"
+            );
+        }
+        assert!(fit.rms < 2e-4, "rms {}", fit.rms);
+    }
+
+    #[test]
+    fn a_high_index_thin_film_is_found_too() {
+        let spec = spec(0..151);
+        let angles = [10.0, 30.0, 50.0];
+        let truth = [60.0, 120.0];
+        let values = spectra(&spec, &angles, 2.35, &truth);
+        let s = SampledSpectra {
+            spec: &spec,
+            angles_deg: &angles,
+            pixels: truth.len(),
+            values: &values,
+        };
+        let mut sse = vec![0.0; s.scratch_len()];
+        let mut d = vec![0.0f32; truth.len()];
+        let fit = s.fit(&mut sse, &mut d).expect("a fit");
+        assert!((fit.index - 2.35).abs() < 0.005, "index {}", fit.index);
+        for (got, want) in d.iter().zip(truth) {
+            assert!(
+                (f64::from(*got) - want).abs() < 1.5,
+                "thickness {got} vs {want}"
+            );
+        }
+    }
+
+    #[test]
+    fn unusable_pixels_get_nan_and_bad_shapes_none() {
+        let spec = spec(0..40);
+        let angles = [10.0, 40.0];
+        let mut values = spectra(&spec, &angles, 1.6, &[100.0, 100.0]);
+        for (i, v) in values.iter_mut().enumerate() {
+            if i % 2 == 1 {
+                *v = f32::NAN;
+            }
+        }
+        let s = SampledSpectra {
+            spec: &spec,
+            angles_deg: &angles,
+            pixels: 2,
+            values: &values,
+        };
+        let mut sse = vec![0.0; s.scratch_len()];
+        let mut d = vec![0.0f32; 2];
+        let fit = s.fit(&mut sse, &mut d).expect("a fit");
+        assert_eq!(fit.pixels, 1);
+        assert!(d[1].is_nan() && d[0].is_finite());
+        assert!(s.fit(&mut sse, &mut d[..1]).is_none());
+    }
+
+    #[test]
+    fn the_sample_grid_spreads_over_the_image_and_interpolates() {
+        let g = SampleGrid::for_image(2048, 1024);
+        assert!(g.len() <= MAX_SAMPLED_PIXELS && g.len() >= MAX_SAMPLED_PIXELS / 2);
+        assert!(g.cols > g.rows);
+        let g = SampleGrid::for_image(32, 24);
+        for k in 0..g.len() {
+            let (x, y) = g.pixel(k);
+            assert_eq!(g.sample_at(x, y), Some(k));
+        }
+        // A plane is reproduced exactly inside the outer centres.
+        let values: Vec<f32> = (0..g.len())
+            .map(|k| {
+                let (x, y) = g.pixel(k);
+                let _ = (x, y);
+                let (cx, cy) = ((k % g.cols) as f64, (k / g.cols) as f64);
+                let x = (cx + 0.5) * 32.0 / g.cols as f64 - 0.5;
+                let y = (cy + 0.5) * 24.0 / g.rows as f64 - 0.5;
+                (100.0 + 2.0 * x + 3.0 * y) as f32
+            })
+            .collect();
+        let mut out = vec![0.0; 32 * 24];
+        g.interpolate(&values, &mut out);
+        let (x, y) = (15, 11);
+        assert!((f64::from(out[y * 32 + x]) - (100.0 + 30.0 + 33.0)).abs() < 1e-3);
+        let mut holes = values.clone();
+        holes[0] = f32::NAN;
+        g.interpolate(&holes, &mut out);
+        assert!(out.iter().all(|v| v.is_finite()));
+    }
+}
