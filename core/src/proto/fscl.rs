@@ -182,9 +182,7 @@ pub fn decode(buf: &[u8], max_payload: usize) -> Decoded<'_> {
         return Decoded::Garbage { skip };
     }
     if buf.len() < HEADER_LEN {
-        return Decoded::Incomplete {
-            needed: HEADER_LEN,
-        };
+        return Decoded::Incomplete { needed: HEADER_LEN };
     }
     let len = u32_at(buf, 20) as usize;
     if buf[4] != VERSION || len > max_payload {
@@ -456,10 +454,7 @@ mod tests {
         noisy[5..5 + n].copy_from_slice(&buf[..n]);
         assert_eq!(decode(&noisy, 64), Decoded::Garbage { skip: 5 });
         assert_eq!(decode(b"xxFS", 64), Decoded::Garbage { skip: 2 });
-        assert!(matches!(
-            decode(&noisy[5..], 64),
-            Decoded::Message { .. }
-        ));
+        assert!(matches!(decode(&noisy[5..], 64), Decoded::Message { .. }));
         // A length beyond the bound is garbage, not a wait for 4 GB.
         assert_eq!(decode(&buf[..n], 2), Decoded::Garbage { skip: 1 });
         assert!(encode(&mut buf[..10], h, &[]).is_none());
@@ -485,7 +480,10 @@ mod tests {
         };
         let mut p = [0u8; ROW_PREFIX + 4];
         p[..ROW_PREFIX].copy_from_slice(&r.to_bytes());
-        assert_eq!(RowHeader::parse(&p).map(|(h, px)| (h, px.len())), Ok((r, 4)));
+        assert_eq!(
+            RowHeader::parse(&p).map(|(h, px)| (h, px.len())),
+            Ok((r, 4))
+        );
         let t = Trigger {
             angle_mdeg: 1,
             wavelength_pm: 2,

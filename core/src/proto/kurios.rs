@@ -88,10 +88,7 @@ mod tests {
 
     #[test]
     fn commands_and_replies() {
-        assert_eq!(
-            set_wavelength(550.0).as_deref(),
-            Some("WL=550.000\r")
-        );
+        assert_eq!(set_wavelength(550.0).as_deref(), Some("WL=550.000\r"));
         assert_eq!(set("BW", 8).as_deref(), Some("BW=8\r"));
         assert_eq!(query("SP").as_deref(), Some("SP?\r"));
         assert_eq!(number("WL=550.000\r", "WL"), Some(550.0));

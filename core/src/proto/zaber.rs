@@ -14,7 +14,9 @@ pub type CommandLine = heapless::String<MAX_COMMAND>;
 
 /// LRC checksum of `body`: `(-(sum of bytes)) & 0xFF`.
 pub fn checksum(body: &[u8]) -> u8 {
-    body.iter().fold(0u8, |s, &b| s.wrapping_add(b)).wrapping_neg()
+    body.iter()
+        .fold(0u8, |s, &b| s.wrapping_add(b))
+        .wrapping_neg()
 }
 
 /// Writes `/device axis [id] command:CS\n`; `None` if it does not fit [`MAX_COMMAND`].
@@ -215,7 +217,7 @@ pub fn parse_command(line: &str) -> Result<Command<'_>, ParseError> {
         None => rest,
     };
     let mut words = body.split(' ').filter(|w| !w.is_empty()).peekable();
-    let mut number = |words: &mut core::iter::Peekable<_>| -> Option<u8> {
+    let number = |words: &mut core::iter::Peekable<_>| -> Option<u8> {
         let w: &str = *words.peek()?;
         let n = w.parse().ok()?;
         words.next();
