@@ -55,3 +55,13 @@ impl ScaledClock {
         (self.start.elapsed().as_secs_f64() * 1e6 * self.speed) as u64
     }
 }
+
+impl Clock for ScaledClock {
+    fn now_us(&self) -> u64 {
+        ScaledClock::now_us(self)
+    }
+
+    fn delay_us(&mut self, us: u64) {
+        std::thread::sleep(std::time::Duration::from_secs_f64(us as f64 * 1e-6 / self.speed));
+    }
+}

@@ -448,3 +448,120 @@ impl Source for Acquisition {
         }
     }
 }
+
+/// Runs `filmscope acquire`: opens the rig of `config` (or, with `sim`, starts
+/// `firmware-sim` on ptys and a socket and opens that), records the sweep into
+/// `out/capture`, estimates while it streams and writes the maps into `out`. Returns the
+/// summary; on a failed sweep, the error names what stopped it and what was kept.
+pub fn run(
+    config: &RigConfig,
+    out: &Path,
+    sim: bool,
+    run_config: &crate::estimate::RunConfig,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<serde_json::Value, String> {
+    let mut config = config.clone();
+    let mut _sim_rig = None;
+    let rig = if sim {
+        let (sim_rig, rig) = open_sim(&mut config)?;
+        _sim_rig = Some(sim_rig);
+        rig
+    } else {
+        let wheel: Option<Box<dyn super::HidTransport + Send>> = match &config.wheel {
+            Some(_) => Some(Box::new(
+                super::wheel::HidapiTransport::open().map_err(|e| e.to_string())?,
+            )),
+            None => None,
+        };
+        super::open(&config, wheel).map_err(|e| e.to_string())?
+    };
+    run_rig(rig, config, out, run_config, on_rows)
+}
+
+/// Sweeps an open `rig`, recording into `out/capture` and writing the maps into `out`.
+pub fn run_rig(
+    rig: Rig,
+    config: RigConfig,
+    out: &Path,
+    run_config: &crate::estimate::RunConfig,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<serde_json::Value, String> {
+    let capture_dir = out.join("capture");
+    let mut acq = Acquisition::new(rig, config, &capture_dir)?;
+    let result = crate::estimate::run_method(&mut acq, run_config, on_rows);
+    let run = match result {
+        Ok(run) => run,
+        Err(e) => {
+            let kept = acq.log.angles_done_deg.len();
+            return Err(format!(
+                "acquisition stopped: {e}; {kept} complete angle(s) kept in {} (see acquisition.json)",
+                capture_dir.display()
+            ));
+        }
+    };
+    let mut summary = crate::estimate::write_outputs(out, &run, &capture_dir.display().to_string())
+        .map_err(|e| e.to_string())?;
+    if let Some(o) = summary.as_object_mut() {
+        o.insert("acquisition".into(), serde_json::to_value(&acq.log).unwrap_or_default());
+    }
+    let path = out.join("summary.json");
+    let text = serde_json::to_string_pretty(&summary).map_err(|e| io_err(&path, &e))?;
+    write_atomic(&path, text.as_bytes()).map_err(|e| io_err(&path, &e))?;
+    Ok(summary)
+}
+
+/// Starts `firmware-sim` for `config` (its `[sim]` scene, re-gridded to the sweep's angles
+/// and bands) and points `config` at its ptys and socket.
+pub fn open_sim(config: &mut RigConfig) -> Result<(firmware_sim::serve::SimRig, Rig), String> {
+    let sim = config
+        .sim
+        .clone()
+        .ok_or("--sim needs a [sim] table with the scene to look at")?;
+    let options = sim_options(config, &sim.scene, sim.speed)?;
+    open_sim_with(config, options)
+}
+
+/// Starts `firmware-sim` with `options` and points `config` at it.
+pub fn open_sim_with(
+    config: &mut RigConfig,
+    options: firmware_sim::serve::RigOptions,
+) -> Result<(firmware_sim::serve::SimRig, Rig), String> {
+    let sim_rig = firmware_sim::serve::start(options).map_err(|e| format!("firmware-sim: {e}"))?;
+    config.stage.port = sim_rig.stage_port.clone();
+    config.filter.port = sim_rig.filter_port.clone();
+    config.camera.address = sim_rig.camera.to_string();
+    let wheel: Option<Box<dyn super::HidTransport + Send>> = Some(Box::new(
+        super::wheel::SimWheelTransport::new(sim_rig.wheel.clone(), sim_rig.clock),
+    ));
+    let rig = super::open(config, wheel).map_err(|e| e.to_string())?;
+    Ok((sim_rig, rig))
+}
+
+/// The simulator options for `config`, looking at `scene_path`.
+pub fn sim_options(
+    config: &RigConfig,
+    scene_path: &Path,
+    speed: f64,
+) -> Result<firmware_sim::serve::RigOptions, String> {
+    let mut scene = firmware_sim::Scene::load(scene_path).map_err(|e| e.to_string())?;
+    let s = &config.sweep;
+    scene.angles_deg = s.angles_deg.iter().map(|a| a + s.stage_offset_deg).collect();
+    scene.bands_nm = s.bands();
+    scene.fwhm_nm = s.fwhm_nm;
+    let c = &config.camera;
+    if scene.sensor.width != c.width as usize || scene.sensor.height != c.height as usize {
+        return Err(format!(
+            "{}: sensor {} x {} but rig.toml's camera is {} x {}",
+            scene_path.display(),
+            scene.sensor.width,
+            scene.sensor.height,
+            c.width,
+            c.height
+        ));
+    }
+    let mut o = firmware_sim::serve::RigOptions::new(scene);
+    o.speed = speed;
+    o.steps_per_deg = config.stage.steps_per_deg;
+    o.stage_limits_deg = config.stage.limits_deg;
+    Ok(o)
+}

@@ -70,13 +70,21 @@ impl<T: Read + Write, C: Clock> Kurios<T, C> {
 
     fn once(&mut self, command: &str) -> Result<Vec<String>, RigError> {
         self.io.send(command.as_bytes())?;
-        let text = self.io.read_until(&[kurios::PROMPT])?;
-        let lines: Vec<String> = text
-            .split(['\r', '\n'])
-            .map(str::trim)
-            .filter(|l| !l.is_empty())
-            .map(str::to_owned)
-            .collect();
+        let mut lines = Vec::new();
+        // A query always has an answer: an empty one was a stray prompt (the power-up
+        // prompt, or the end of a reply that timed out), so read on to the next.
+        while lines.is_empty() {
+            let text = self.io.read_until(&[kurios::PROMPT])?;
+            lines = text
+                .split(['\r', '\n'])
+                .map(str::trim)
+                .filter(|l| !l.is_empty())
+                .map(str::to_owned)
+                .collect();
+            if !command.trim_end().ends_with('?') {
+                break;
+            }
+        }
         if let Some(bad) = lines.iter().find(|l| kurios::is_refusal(l)) {
             return Err(self.err(
                 ErrorKind::Rejected,
