@@ -62,6 +62,8 @@ impl Clock for ScaledClock {
     }
 
     fn delay_us(&mut self, us: u64) {
-        std::thread::sleep(std::time::Duration::from_secs_f64(us as f64 * 1e-6 / self.speed));
+        std::thread::sleep(std::time::Duration::from_secs_f64(
+            us as f64 * 1e-6 / self.speed,
+        ));
     }
 }

@@ -269,12 +269,13 @@ pub fn acquire(rig: &Path, out: &Path, sim: bool) -> Result<()> {
     let s = &config.sweep;
     let total = (s.angles_deg.len() * s.bands().len() * config.camera.height as usize) as u64;
     let bar = rows_bar(total, if sim { "acquire (sim)" } else { "acquire" });
-    let summary = crate::rig::acquire::run(&config, out, sim, &RunConfig::default(), &|n| {
-        bar.inc(n)
-    })
-    .map_err(|e| anyhow!(e))?;
+    let summary =
+        crate::rig::acquire::run(&config, out, sim, &RunConfig::default(), &|n| bar.inc(n))
+            .map_err(|e| anyhow!(e))?;
     bar.finish_and_clear();
-    let lost = summary["acquisition"]["link"]["rows_lost"].as_u64().unwrap_or(0);
+    let lost = summary["acquisition"]["link"]["rows_lost"]
+        .as_u64()
+        .unwrap_or(0);
     println!(
         "acquired {} angles x {} bands into {}: n = {:.4}, thickness median {:.1} nm, valid {:.1}%, {} row(s) lost on the link",
         s.angles_deg.len(),

@@ -178,7 +178,11 @@ impl Acquisition {
             },
             search: Search {
                 index_range: self.config.search.as_ref().and_then(|s| s.index_range),
-                thickness_range_nm: self.config.search.as_ref().and_then(|s| s.thickness_range_nm),
+                thickness_range_nm: self
+                    .config
+                    .search
+                    .as_ref()
+                    .and_then(|s| s.thickness_range_nm),
             },
             angles: angles.to_vec(),
             unknown_keys: Vec::new(),
@@ -198,7 +202,12 @@ impl Acquisition {
         self.trigger(request)?;
         let mut px = vec![0u16; w];
         loop {
-            match self.rig.camera.read_line(&mut px).map_err(|e| e.to_string())? {
+            match self
+                .rig
+                .camera
+                .read_line(&mut px)
+                .map_err(|e| e.to_string())?
+            {
                 LineEvent::Row { row } => {
                     let r = row as usize;
                     for (o, &v) in out[r * w..(r + 1) * w].iter_mut().zip(&px) {
@@ -239,7 +248,11 @@ impl Acquisition {
     }
 
     fn trigger(&mut self, request: FrameRequest) -> Result<(), String> {
-        let info = self.rig.camera.trigger(request).map_err(|e| e.to_string())?;
+        let info = self
+            .rig
+            .camera
+            .trigger(request)
+            .map_err(|e| e.to_string())?;
         let c = &self.config.camera;
         if info.width != c.width || info.rows != c.height {
             return Err(format!(
@@ -281,7 +294,8 @@ impl Acquisition {
                 DataType::U16,
                 &format!("filmscope acquire: raw counts at {deg} deg"),
             );
-            hd.extra.push(("saturation counts".into(), format!("{sat}")));
+            hd.extra
+                .push(("saturation counts".into(), format!("{sat}")));
             let mut cube = EnviWriter::create(&cube_path, &hd).map_err(|x| x.to_string())?;
             let href = self.header(DataType::F32, "white reference (counts)");
             let mut white_w = EnviWriter::create(&white_path, &href).map_err(|x| x.to_string())?;
@@ -304,7 +318,9 @@ impl Acquisition {
                 for r in 0..h {
                     let (dr, wr) = (&dark[r * w..(r + 1) * w], &white[r * w..(r + 1) * w]);
                     dark_w.write_band_row(b, r, dr).map_err(|x| x.to_string())?;
-                    white_w.write_band_row(b, r, wr).map_err(|x| x.to_string())?;
+                    white_w
+                        .write_band_row(b, r, wr)
+                        .map_err(|x| x.to_string())?;
                 }
                 let request = req(FrameKind::Sample);
                 self.trigger(request)?;
@@ -502,7 +518,10 @@ pub fn run_rig(
     let mut summary = crate::estimate::write_outputs(out, &run, &capture_dir.display().to_string())
         .map_err(|e| e.to_string())?;
     if let Some(o) = summary.as_object_mut() {
-        o.insert("acquisition".into(), serde_json::to_value(&acq.log).unwrap_or_default());
+        o.insert(
+            "acquisition".into(),
+            serde_json::to_value(&acq.log).unwrap_or_default(),
+        );
     }
     let path = out.join("summary.json");
     let text = serde_json::to_string_pretty(&summary).map_err(|e| io_err(&path, &e))?;
@@ -533,7 +552,7 @@ pub fn open_sim_with(
     let wheel: Option<Box<dyn super::HidTransport + Send>> = Some(Box::new(
         super::wheel::SimWheelTransport::new(sim_rig.wheel.clone(), sim_rig.clock),
     ));
-    let rig = super::open(config, wheel).map_err(|e| e.to_string())?;
+    let rig = super::open_with_clock(config, wheel, sim_rig.clock).map_err(|e| e.to_string())?;
     Ok((sim_rig, rig))
 }
 
@@ -545,7 +564,11 @@ pub fn sim_options(
 ) -> Result<firmware_sim::serve::RigOptions, String> {
     let mut scene = firmware_sim::Scene::load(scene_path).map_err(|e| e.to_string())?;
     let s = &config.sweep;
-    scene.angles_deg = s.angles_deg.iter().map(|a| a + s.stage_offset_deg).collect();
+    scene.angles_deg = s
+        .angles_deg
+        .iter()
+        .map(|a| a + s.stage_offset_deg)
+        .collect();
     scene.bands_nm = s.bands();
     scene.fwhm_nm = s.fwhm_nm;
     let c = &config.camera;

@@ -213,7 +213,10 @@ impl<S: Read + Write> CamLink<S> {
                 kind::ERROR => {
                     return Err(self.err(
                         ErrorKind::Rejected,
-                        format!("camera refused the trigger: {}", String::from_utf8_lossy(&p)),
+                        format!(
+                            "camera refused the trigger: {}",
+                            String::from_utf8_lossy(&p)
+                        ),
                     ))
                 }
                 _ => self.stats.stale_messages += 1,

@@ -247,7 +247,9 @@ impl RigConfig {
         }
         let [lo, hi] = self.stage.limits_deg;
         if !(lo < hi) {
-            return Err(format!("[stage] limits_deg [{lo}, {hi}]: low must be below high"));
+            return Err(format!(
+                "[stage] limits_deg [{lo}, {hi}]: low must be below high"
+            ));
         }
         for &a in &s.angles_deg {
             let stage = a + s.stage_offset_deg;
@@ -259,7 +261,9 @@ impl RigConfig {
         }
         let [a, b, step] = s.bands_nm;
         if !(step > 0.0 && b >= a && a > 0.0) {
-            return Err(format!("[sweep] bands_nm [{a}, {b}, {step}]: want [first, last, step > 0]"));
+            return Err(format!(
+                "[sweep] bands_nm [{a}, {b}, {step}]: want [first, last, step > 0]"
+            ));
         }
         if !(self.stage.steps_per_deg > 0.0) {
             return Err("[stage] steps_per_deg must be positive".into());

@@ -56,10 +56,7 @@ impl hw::Error for RigError {
 
 /// Runs `f` up to `attempts` times while it fails transiently (timeouts, garbled replies);
 /// only for idempotent requests.
-pub fn retry<T>(
-    attempts: u32,
-    mut f: impl FnMut() -> Result<T, RigError>,
-) -> Result<T, RigError> {
+pub fn retry<T>(attempts: u32, mut f: impl FnMut() -> Result<T, RigError>) -> Result<T, RigError> {
     let mut left = attempts.max(1);
     loop {
         match f() {

@@ -135,7 +135,10 @@ impl<T: Read + Write, C: Clock> TunableFilter for Kurios<T, C> {
         let max = sp.iter().find_map(|l| kurios::number(l, "WLmax"));
         let min = sp.iter().find_map(|l| kurios::number(l, "WLmin"));
         let (Some(min), Some(max)) = (min, max) else {
-            return Err(self.err(ErrorKind::Protocol, format!("no range in the SP? reply {sp:?}")));
+            return Err(self.err(
+                ErrorKind::Protocol,
+                format!("no range in the SP? reply {sp:?}"),
+            ));
         };
         let oh = self.exchange("OH?\r")?;
         let head = oh.iter().find_map(|l| kurios::head(l));

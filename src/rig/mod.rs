@@ -91,7 +91,11 @@ pub fn connect_camera(
     let timeout = Some(Duration::from_millis(timeout_ms.max(1)));
     let stats = Arc::new(Mutex::new(LinkStats::default()));
     let fail = |e: std::io::Error| {
-        RigError::new(address, ErrorKind::Disconnected, format!("cannot connect: {e}"))
+        RigError::new(
+            address,
+            ErrorKind::Disconnected,
+            format!("cannot connect: {e}"),
+        )
     };
     let camera: acquire::DynCamera = if let Some(a) = address.strip_prefix("tcp:") {
         let s = TcpStream::connect(a).map_err(fail)?;
@@ -124,12 +128,22 @@ pub fn open(
     config: &RigConfig,
     wheel: Option<Box<dyn HidTransport + Send>>,
 ) -> Result<Rig, RigError> {
+    open_with_clock(config, wheel, SystemClock::default())
+}
+
+/// [`open`] with the drivers' delays on `clock` (firmware-sim's clock when simulating, so
+/// settle and motion times cost no wall time).
+pub fn open_with_clock<C: filmscope_core::hw::Clock + Clone + Send + 'static>(
+    config: &RigConfig,
+    wheel: Option<Box<dyn HidTransport + Send>>,
+    clock: C,
+) -> Result<Rig, RigError> {
     let s = &config.stage;
     let stage_port = open_serial(&s.port, s.baud, s.timeout_ms)?;
     let stage = Zaber::new(
         stage_port,
         &s.port,
-        SystemClock::default(),
+        clock.clone(),
         ZaberConfig {
             device: s.device,
             axis: s.axis,
@@ -144,7 +158,7 @@ pub fn open(
     let filter = Kurios::new(
         filter_port,
         &f.port,
-        SystemClock::default(),
+        clock.clone(),
         KuriosConfig {
             bandwidth: f.bandwidth,
             settle_us: f.settle_ms * 1000,
@@ -154,7 +168,7 @@ pub fn open(
     let c = &config.camera;
     let (camera, stats) = connect_camera(&c.address, c.width, c.timeout_ms)?;
     let wheel: Option<acquire::DynWheel> = match (wheel, &config.wheel) {
-        (Some(t), Some(_)) => Some(Box::new(SxWheel::new(t, "filter wheel", SystemClock::default()))),
+        (Some(t), Some(_)) => Some(Box::new(SxWheel::new(t, "filter wheel", clock))),
         _ => None,
     };
     Ok(Rig {

@@ -27,16 +27,14 @@ pub struct HidapiTransport {
 impl HidapiTransport {
     /// Opens the first wheel (VID 0x1278, PID 0x0920).
     pub fn open() -> Result<Self, RigError> {
-        let name = format!(
-            "hid {:04x}:{:04x}",
-            sxwheel::VENDOR_ID,
-            sxwheel::PRODUCT_ID
-        );
+        let name = format!("hid {:04x}:{:04x}", sxwheel::VENDOR_ID, sxwheel::PRODUCT_ID);
         let api = hidapi::HidApi::new()
             .map_err(|e| RigError::new(&name, ErrorKind::Other, e.to_string()))?;
         let device = api
             .open(sxwheel::VENDOR_ID, sxwheel::PRODUCT_ID)
-            .map_err(|e| RigError::new(&name, ErrorKind::Disconnected, format!("not found ({e})")))?;
+            .map_err(|e| {
+                RigError::new(&name, ErrorKind::Disconnected, format!("not found ({e})"))
+            })?;
         Ok(Self { device, name })
     }
 }
@@ -76,14 +74,22 @@ impl<C: Clock> HidTransport for SimWheelTransport<C> {
         if w.write_report(report, now) {
             Ok(())
         } else {
-            Err(RigError::new("sim wheel", ErrorKind::Disconnected, "device disconnected"))
+            Err(RigError::new(
+                "sim wheel",
+                ErrorKind::Disconnected,
+                "device disconnected",
+            ))
         }
     }
 
     fn read_report(&mut self, buf: &mut [u8], _timeout_ms: i32) -> Result<usize, RigError> {
         let mut w = self.wheel.lock().unwrap_or_else(|p| p.into_inner());
         if w.gone {
-            return Err(RigError::new("sim wheel", ErrorKind::Disconnected, "device disconnected"));
+            return Err(RigError::new(
+                "sim wheel",
+                ErrorKind::Disconnected,
+                "device disconnected",
+            ));
         }
         match w.read_report() {
             Some(r) if buf.len() >= 2 => {
@@ -122,7 +128,11 @@ impl<T: HidTransport, C: Clock> SxWheel<T, C> {
         let mut buf = [0u8; 8];
         let n = self.transport.read_report(&mut buf, 500)?;
         if n < 2 {
-            return Err(RigError::new(&self.name, ErrorKind::Timeout, "no status report"));
+            return Err(RigError::new(
+                &self.name,
+                ErrorKind::Timeout,
+                "no status report",
+            ));
         }
         Ok(sxwheel::status([buf[0], buf[1]]))
     }
@@ -145,7 +155,11 @@ impl<T: HidTransport, C: Clock> FilterWheel for SxWheel<T, C> {
                 return Ok(s.count);
             }
             if self.clock.now_us().saturating_sub(t0) > self.timeout_us {
-                return Err(RigError::new(&self.name, ErrorKind::Timeout, "wheel never settled"));
+                return Err(RigError::new(
+                    &self.name,
+                    ErrorKind::Timeout,
+                    "wheel never settled",
+                ));
             }
             self.clock.delay_us(50_000);
         }
@@ -153,13 +167,15 @@ impl<T: HidTransport, C: Clock> FilterWheel for SxWheel<T, C> {
 
     fn select(&mut self, slot: u8) -> Result<(), RigError> {
         let count = self.slots()?;
-        let report = sxwheel::select(slot).filter(|_| slot < count).ok_or_else(|| {
-            RigError::new(
-                &self.name,
-                ErrorKind::OutOfRange,
-                format!("slot {slot} does not exist (the wheel has {count})"),
-            )
-        })?;
+        let report = sxwheel::select(slot)
+            .filter(|_| slot < count)
+            .ok_or_else(|| {
+                RigError::new(
+                    &self.name,
+                    ErrorKind::OutOfRange,
+                    format!("slot {slot} does not exist (the wheel has {count})"),
+                )
+            })?;
         self.transport.write_report(&report)?;
         let t0 = self.clock.now_us();
         loop {

@@ -139,14 +139,19 @@ impl<T: Read + Write, C: Clock> Zaber<T, C> {
                 let problem = match r.warning.as_str() {
                     w if w.starts_with('F') => Some(format!("stage fault {w} during {what}")),
                     "NI" => Some(format!("motion interrupted during {what} (NI)")),
-                    "WR" => Some(format!("no reference position after {what} (WR): home first")),
+                    "WR" => Some(format!(
+                        "no reference position after {what} (WR): home first"
+                    )),
                     _ => None,
                 };
                 if let Some(p) = problem {
                     return Err(self.err(ErrorKind::Fault, p));
                 }
                 return r.data.trim().parse().map_err(|_| {
-                    self.err(ErrorKind::Protocol, format!("position not a number: {}", r.data))
+                    self.err(
+                        ErrorKind::Protocol,
+                        format!("position not a number: {}", r.data),
+                    )
                 });
             }
             if self.clock.now_us().saturating_sub(t0) > self.config.motion_timeout_us {
@@ -203,7 +208,10 @@ impl<T: Read + Write, C: Clock> Stage for Zaber<T, C> {
     fn position_deg(&mut self) -> Result<f64, RigError> {
         let r = self.request("get pos")?;
         let pos: i64 = r.data.trim().parse().map_err(|_| {
-            self.err(ErrorKind::Protocol, format!("position not a number: {}", r.data))
+            self.err(
+                ErrorKind::Protocol,
+                format!("position not a number: {}", r.data),
+            )
         })?;
         Ok(pos as f64 / self.config.steps_per_deg)
     }
