@@ -47,7 +47,7 @@ fn stage(
     VirtualClock,
 ) {
     let clock = VirtualClock::new();
-    let mut fw = ZaberStage::new(1, 4266.666_666_666_667, [0, 384_000], 20.0, World::new());
+    let mut fw = ZaberStage::new(1, 4_266.666_666_666_667, [0, 384_000], 20.0, World::new());
     if let Some(f) = fault {
         fw = fw.with_fault(f);
     }
@@ -410,7 +410,7 @@ fn a_stalled_frame_is_ended_with_its_rows_lost_and_the_stage_never_leaves_its_li
     assert_eq!(summary["acquisition"]["link"]["stalled_frames"], 1);
     assert_eq!(summary["acquisition"]["link"]["rows_lost"], 12);
     same_maps(dir.path());
-    let lim = 90.0 * 4266.666_666_666_667;
+    let lim = 90.0 * 4_266.666_666_666_667;
     for l in lock(&sim.stage).transcript() {
         if let Some(v) = l.text.split("move abs ").nth(1) {
             let steps: f64 = v

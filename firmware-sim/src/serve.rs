@@ -72,7 +72,7 @@ impl RigOptions {
         Self {
             scene,
             speed: 50.0,
-            steps_per_deg: 4266.666_666_666_667,
+            steps_per_deg: 4_266.666_666_666_667,
             stage_limits_deg: [0.0, 90.0],
             stage_faults: SerialFaults::default(),
             motion_fault: None,

@@ -246,7 +246,7 @@ impl RigConfig {
             return Err("[sweep] angles_deg: at least two angles".into());
         }
         let [lo, hi] = self.stage.limits_deg;
-        if !(lo < hi) {
+        if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
             return Err(format!(
                 "[stage] limits_deg [{lo}, {hi}]: low must be below high"
             ));
@@ -265,7 +265,7 @@ impl RigConfig {
                 "[sweep] bands_nm [{a}, {b}, {step}]: want [first, last, step > 0]"
             ));
         }
-        if !(self.stage.steps_per_deg > 0.0) {
+        if self.stage.steps_per_deg.is_nan() || self.stage.steps_per_deg <= 0.0 {
             return Err("[stage] steps_per_deg must be positive".into());
         }
         if self.camera.width == 0 || self.camera.height == 0 {

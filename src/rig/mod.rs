@@ -5,7 +5,7 @@
 //! - [`zaber`], [`kurios`]: serial drivers (generic over `Read + Write` and the clock).
 //! - [`wheel`]: the Starlight Xpress HID wheel behind [`wheel::HidTransport`].
 //! - [`camlink`]: the camera-link receiver (any byte stream).
-//! - [`config`]: `rig.toml`.
+//! - [`config`]: the rig file, `rig.toml`.
 //! - [`acquire`]: the sweep as a pipeline source that records a capture.
 //!
 //! [`open`] connects to a rig described by `rig.toml` (or to `firmware-sim`, whose ports

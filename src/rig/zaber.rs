@@ -39,7 +39,7 @@ impl Default for ZaberConfig {
         Self {
             device: 1,
             axis: 1,
-            steps_per_deg: 4266.666_666_666_667,
+            steps_per_deg: 4_266.666_666_666_667,
             limits_deg: [0.0, 90.0],
             poll_us: 20_000,
             motion_timeout_us: 60_000_000,

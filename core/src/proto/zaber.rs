@@ -31,7 +31,7 @@ pub fn command(device: u8, axis: u8, id: Option<u8>, text: &str) -> Option<Comma
     }
     let cs = checksum(body.as_bytes());
     let mut line = CommandLine::new();
-    write!(line, "/{body}:{cs:02X}\n").ok()?;
+    writeln!(line, "/{body}:{cs:02X}").ok()?;
     Some(line)
 }
 
@@ -216,23 +216,21 @@ pub fn parse_command(line: &str) -> Result<Command<'_>, ParseError> {
         }
         None => rest,
     };
-    let mut words = body.split(' ').filter(|w| !w.is_empty()).peekable();
-    let number = |words: &mut core::iter::Peekable<_>| -> Option<u8> {
-        let w: &str = *words.peek()?;
-        let n = w.parse().ok()?;
-        words.next();
-        Some(n)
-    };
-    let device = number(&mut words).unwrap_or(0);
-    let axis = number(&mut words).unwrap_or(0);
-    let id = number(&mut words);
-    let text = match words.next() {
-        Some(first) => {
-            let start = first.as_ptr() as usize - body.as_ptr() as usize;
-            &body[start..]
+    // Up to three leading numbers (device, axis, id), then the command text.
+    let mut numbers = [None::<u8>; 3];
+    let mut rest = body.trim_start_matches(' ');
+    for slot in numbers.iter_mut() {
+        let end = rest.find(' ').unwrap_or(rest.len());
+        match rest[..end].parse::<u8>() {
+            Ok(n) if end > 0 => {
+                *slot = Some(n);
+                rest = rest[end..].trim_start_matches(' ');
+            }
+            _ => break,
         }
-        None => "",
-    };
+    }
+    let [device, axis, id] = numbers;
+    let (device, axis, text) = (device.unwrap_or(0), axis.unwrap_or(0), rest.trim_end());
     Ok(Command {
         device,
         axis,
