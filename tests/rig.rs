@@ -466,3 +466,49 @@ fn hardware_sweep() {
     println!("{summary:#}");
     same_maps(dir.path());
 }
+
+#[test]
+fn acquire_over_a_unix_socket_camera_too() {
+    let dir = common::tempdir();
+    let c = rig_config();
+    let mut o = options(&c);
+    o.unix_socket = Some(dir.path().join("camera.sock"));
+    let (summary, sim) = acquire(o, &dir.path().join("out"));
+    assert!(sim.camera.to_string().starts_with("unix:"));
+    assert!(
+        summary.expect("acquire")["valid_fraction"]
+            .as_f64()
+            .expect("valid")
+            > 0.9
+    );
+}
+
+#[test]
+fn cli_acquire_sim_prints_one_line_of_figures() {
+    let dir = common::tempdir();
+    let out = common::filmscope()
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["acquire", "--rig", "config/rig.toml", "--sim", "--out"])
+        .arg(dir.path())
+        .output()
+        .expect("run");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.starts_with("acquired 4 angles x 101 bands"), "{text}");
+    assert!(dir.path().join("capture/capture.toml").exists());
+    assert!(dir.path().join("thickness_nm.png").exists());
+    let bad = common::filmscope()
+        .args(["acquire", "--rig", "no/such/rig.toml", "--out"])
+        .arg(dir.path())
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        !bad.status.success() && err.contains("no/such/rig.toml") && err.lines().count() == 1,
+        "{err}"
+    );
+}
