@@ -37,6 +37,8 @@ pub mod io;
 #[cfg(feature = "std")]
 pub mod pipeline;
 #[cfg(feature = "std")]
+pub mod rig;
+#[cfg(feature = "std")]
 pub mod simulate;
 #[cfg(feature = "std")]
 pub mod sweep;

@@ -12,10 +12,19 @@
 //! - [`track`]: the per-pixel running extremum tracker (fixed state per pixel).
 //! - [`solve`]: the streaming estimator: shared index from pooled extremum shifts, order per
 //!   pixel, full-spectrum Gauss-Newton thickness, flags and confidence.
+//!
+//! And the rig, from the traits down to the bytes:
+//!
+//! - [`hw`]: hardware traits (stage, tunable filter, filter wheel, line camera, clock) with
+//!   errors that say their kind.
+//! - [`proto`]: the devices' wire codecs (Zaber ASCII, Kurios, Starlight Xpress HID reports,
+//!   the `FSCL` camera link), pure functions over caller-owned buffers.
 #![cfg_attr(not(feature = "std"), no_std)]
 
 pub mod calibrate;
 pub mod colour;
+pub mod hw;
 pub mod optics;
+pub mod proto;
 pub mod solve;
 pub mod track;

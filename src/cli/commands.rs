@@ -263,6 +263,32 @@ pub fn eval(
     Ok(())
 }
 
+/// `filmscope acquire`.
+pub fn acquire(rig: &Path, out: &Path, sim: bool) -> Result<()> {
+    let config = crate::rig::RigConfig::load(rig)?;
+    let s = &config.sweep;
+    let total = (s.angles_deg.len() * s.bands().len() * config.camera.height as usize) as u64;
+    let bar = rows_bar(total, if sim { "acquire (sim)" } else { "acquire" });
+    let summary =
+        crate::rig::acquire::run(&config, out, sim, &RunConfig::default(), &|n| bar.inc(n))
+            .map_err(|e| anyhow!(e))?;
+    bar.finish_and_clear();
+    let lost = summary["acquisition"]["link"]["rows_lost"]
+        .as_u64()
+        .unwrap_or(0);
+    println!(
+        "acquired {} angles x {} bands into {}: n = {:.4}, thickness median {:.1} nm, valid {:.1}%, {} row(s) lost on the link",
+        s.angles_deg.len(),
+        s.bands().len(),
+        out.join("capture").display(),
+        summary["refractive_index"].as_f64().unwrap_or(f64::NAN),
+        summary["thickness_nm"]["median"].as_f64().unwrap_or(f64::NAN),
+        100.0 * summary["valid_fraction"].as_f64().unwrap_or(0.0),
+        lost
+    );
+    Ok(())
+}
+
 /// `filmscope demo`.
 pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
     println!("filmscope demo: the paper's three samples on the software rig (raw 12-bit counts, white/dark references, 5 angles x 151 bands), streamed through the pipeline.\n");

@@ -64,6 +64,19 @@ enum Command {
         #[arg(long, default_value_t = 2.0)]
         brute_thickness_step: f64,
     },
+    /// Sweeps a rig (stage x filter x camera), streams every frame into the estimator,
+    /// records the raw sweep as a capture in OUT/capture and writes the maps into OUT.
+    Acquire {
+        /// The rig file (see config/rig.toml).
+        #[arg(long, default_value = "config/rig.toml")]
+        rig: PathBuf,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Start firmware-sim and talk to it over real ptys and a socket.
+        #[arg(long)]
+        sim: bool,
+    },
     /// Accuracy against the truth on scene files or simulated capture directories.
     Eval {
         /// Scene files (.toml) or capture directories with truth.
@@ -158,6 +171,7 @@ pub fn main() -> std::process::ExitCode {
             channel_capacity,
             (brute_index_steps, brute_thickness_step),
         ),
+        Command::Acquire { rig, out, sim } => commands::acquire(&rig, &out, sim),
         Command::Eval {
             inputs,
             method,

@@ -58,9 +58,12 @@ pub mod flags {
     /// The film model does not explain the image's spectra (fit residual well above the
     /// noise): the index, so every thickness, is unreliable.
     pub const MODEL_MISMATCH: u16 = 1 << 10;
+    /// Some samples had no usable value (a row lost on the camera link, a bad reference
+    /// sample), too few to make the pixel [`DEAD`]: the thickness stands, but is worth a look.
+    pub const MISSING_SAMPLES: u16 = 1 << 11;
     /// No fringe pair: the thickness started from the global (index, thickness) search on
     /// sampled spectra ([`super::thin`]) and was refined on the pixel's own full spectrum.
-    pub const FROM_SPECTRUM_SEARCH: u16 = 1 << 11;
+    pub const FROM_SPECTRUM_SEARCH: u16 = 1 << 12;
 
     /// Flags that make the thickness unreliable (NaN in the map).
     pub const INVALID: u16 = NO_FRINGE
@@ -73,7 +76,7 @@ pub mod flags {
         | MODEL_MISMATCH;
 
     /// Names of the flags, for reports.
-    pub const NAMES: [(u16, &str); 12] = [
+    pub const NAMES: [(u16, &str); 13] = [
         (NO_FRINGE, "no_fringe"),
         (AMBIGUOUS_ORDER, "ambiguous_order"),
         (SATURATED, "saturated"),
@@ -85,6 +88,7 @@ pub mod flags {
         (NOT_REFINED, "not_refined"),
         (ORDER_FROM_NEIGHBOUR, "order_from_neighbour"),
         (MODEL_MISMATCH, "model_mismatch"),
+        (MISSING_SAMPLES, "missing_samples"),
         (FROM_SPECTRUM_SEARCH, "from_spectrum_search"),
     ];
 }

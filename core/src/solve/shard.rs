@@ -462,6 +462,8 @@ impl<'a> Shard<'a> {
             }
             if f64::from(p.dead) > BAD_SHARE * total {
                 f |= flags::DEAD;
+            } else if p.dead > 0 {
+                f |= flags::MISSING_SAMPLES;
             }
             let d = f64::from(p.thickness_nm);
             let mut confidence = 0.0f32;

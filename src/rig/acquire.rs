@@ -1,0 +1,590 @@
+//! Live acquisition: the sweep of issue 5 as a pipeline [`Source`], recording the raw sweep
+//! as a capture (capture-format.md) while it streams.
+//!
+//! Home the stage; prepare the filter (and the wheel); for each angle: move, read the
+//! position back; for each band: tune, read the wavelength back, take a dark, a white and
+//! a sample frame; each sample row goes downstream with its references as soon as it
+//! arrives. Only one band image of references is held at a time, never a cube.
+//!
+//! The capture is written band-sequentially (BSQ: the order frames arrive in), each cube
+//! renamed into place when its angle is complete and `capture.toml` rewritten atomically
+//! after every angle, so an interrupted sweep leaves a capture of the angles taken;
+//! `acquisition.json` says what is missing and every row the link lost. A lost row is
+//! recorded with counts 0 and a NaN white reference, so its pixels calibrate to NaN both
+//! live and on replay, and the solver flags them.
+//!
+//! The first [`Source::stream`] is the live sweep; later passes (the estimator may ask for
+//! more) replay the recorded capture, so the maps equal `estimate` on that capture.
+
+use std::path::{Path, PathBuf};
+
+use crossbeam_channel::Sender;
+use filmscope_core::hw::{
+    FilterWheel, FrameKind, FrameRequest, LineCamera, LineEvent, RowLoss, Stage, TunableFilter,
+};
+use filmscope_core::solve::SweepSpec;
+use serde_json::json;
+
+use super::camlink::LinkStats;
+use super::config::RigConfig;
+use super::error::RigError;
+use crate::io::{
+    write_atomic, Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave, Sample, Search,
+};
+use crate::pipeline::{
+    sweep_spec, CaptureSource, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
+    DEFAULT_THICKNESS_RANGE_NM,
+};
+
+/// A stage as the sweep uses it.
+pub type DynStage = Box<dyn Stage<Error = RigError> + Send>;
+/// A tunable filter as the sweep uses it.
+pub type DynFilter = Box<dyn TunableFilter<Error = RigError> + Send>;
+/// A filter wheel as the sweep uses it.
+pub type DynWheel = Box<dyn FilterWheel<Error = RigError> + Send>;
+/// A camera as the sweep uses it.
+pub type DynCamera = Box<dyn LineCamera<Error = RigError> + Send>;
+
+/// The devices of a rig.
+pub struct Rig {
+    /// Rotation stage.
+    pub stage: DynStage,
+    /// LCTF.
+    pub filter: DynFilter,
+    /// Filter wheel, if any.
+    pub wheel: Option<DynWheel>,
+    /// Camera.
+    pub camera: DynCamera,
+    /// Reads the camera link's fault counters (the camera is boxed).
+    pub link_stats: Box<dyn Fn() -> LinkStats + Send>,
+}
+
+/// A row that did not arrive intact.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct LostRows {
+    /// Incidence angle, degrees.
+    pub incidence_deg: f64,
+    /// Band index.
+    pub band: usize,
+    /// `sample`, `dark` or `white`.
+    pub frame: &'static str,
+    /// First row.
+    pub first_row: u32,
+    /// Rows.
+    pub rows: u32,
+    /// `missing` or `partial`.
+    pub cause: &'static str,
+}
+
+/// What the sweep did, for `acquisition.json` and the report.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct AcquisitionLog {
+    /// Whether every angle was taken.
+    pub complete: bool,
+    /// Why it stopped early.
+    pub error: Option<String>,
+    /// Measured incidence angles of the complete angles, degrees.
+    pub angles_done_deg: Vec<f64>,
+    /// Planned angles not (completely) taken, degrees.
+    pub angles_missing_deg: Vec<f64>,
+    /// Wavelengths read back, per complete angle, nm.
+    pub wavelengths_read_nm: Vec<Vec<f64>>,
+    /// Rows lost on the link.
+    pub lost_rows: Vec<LostRows>,
+    /// The link's fault counters.
+    pub link: LinkStats,
+}
+
+/// The live sweep as a [`Source`].
+pub struct Acquisition {
+    rig: Rig,
+    config: RigConfig,
+    spec: SweepSpec,
+    bands_nm: Vec<f64>,
+    out: PathBuf,
+    /// What happened (complete after the first stream).
+    pub log: AcquisitionLog,
+    acquired: bool,
+}
+
+fn io_err(p: &Path, e: &dyn std::fmt::Display) -> String {
+    format!("{}: {e}", p.display())
+}
+
+impl Acquisition {
+    /// A sweep of `rig` per `config`, recording into `out` (created).
+    pub fn new(rig: Rig, config: RigConfig, out: &Path) -> Result<Self, String> {
+        std::fs::create_dir_all(out).map_err(|e| io_err(out, &e))?;
+        let bands_nm = config.sweep.bands();
+        let search = config.search.clone();
+        let spec = sweep_spec(
+            config.camera.width as usize,
+            config.camera.height as usize,
+            &bands_nm,
+            Some(&vec![config.sweep.fwhm_nm; bands_nm.len()]),
+            config.sample.ambient_index,
+            config.sample.substrate_index,
+            filmscope_core::optics::Polarization::from_name(&config.sample.polarization)
+                .unwrap_or(filmscope_core::optics::Polarization::S),
+            search
+                .as_ref()
+                .and_then(|s| s.index_range)
+                .unwrap_or(DEFAULT_INDEX_RANGE),
+            search
+                .as_ref()
+                .and_then(|s| s.thickness_range_nm)
+                .unwrap_or(DEFAULT_THICKNESS_RANGE_NM),
+        )?;
+        Ok(Self {
+            rig,
+            config,
+            spec,
+            bands_nm,
+            out: out.to_path_buf(),
+            log: AcquisitionLog::default(),
+            acquired: false,
+        })
+    }
+
+    /// The capture file being written.
+    pub fn capture_path(&self) -> PathBuf {
+        self.out.join("capture.toml")
+    }
+
+    fn header(&self, data_type: DataType, description: &str) -> EnviHeader {
+        let c = &self.config.camera;
+        let mut h = EnviHeader::new(
+            c.width as usize,
+            c.height as usize,
+            self.bands_nm.len(),
+            data_type,
+            Interleave::Bsq,
+        );
+        h.wavelength_nm = Some(self.bands_nm.clone());
+        h.fwhm_nm = Some(vec![self.config.sweep.fwhm_nm; self.bands_nm.len()]);
+        h.description = Some(description.to_owned());
+        h
+    }
+
+    fn write_capture(&self, angles: &[Angle]) -> Result<(), String> {
+        let path = self.capture_path();
+        let s = &self.config.sample;
+        let capture = Capture {
+            path: path.clone(),
+            sample: Sample {
+                ambient_index: s.ambient_index,
+                substrate_index: s.substrate_index,
+                polarization: self.spec.polarization,
+            },
+            search: Search {
+                index_range: self.config.search.as_ref().and_then(|s| s.index_range),
+                thickness_range_nm: self
+                    .config
+                    .search
+                    .as_ref()
+                    .and_then(|s| s.thickness_range_nm),
+            },
+            angles: angles.to_vec(),
+            unknown_keys: Vec::new(),
+        };
+        capture.write_toml(&path).map_err(|e| e.to_string())
+    }
+
+    /// Reads one reference frame (dark or white) into `out` (`width * height`), NaN where
+    /// rows were lost.
+    fn reference(
+        &mut self,
+        request: FrameRequest,
+        out: &mut [f32],
+        incidence_deg: f64,
+    ) -> Result<(), String> {
+        let w = self.config.camera.width as usize;
+        self.trigger(request)?;
+        let mut px = vec![0u16; w];
+        loop {
+            match self
+                .rig
+                .camera
+                .read_line(&mut px)
+                .map_err(|e| e.to_string())?
+            {
+                LineEvent::Row { row } => {
+                    let r = row as usize;
+                    for (o, &v) in out[r * w..(r + 1) * w].iter_mut().zip(&px) {
+                        *o = f32::from(v);
+                    }
+                }
+                LineEvent::Lost {
+                    first,
+                    count,
+                    cause,
+                } => {
+                    let n = out.len();
+                    let (a, b) = (first as usize * w, (first + count) as usize * w);
+                    out[a.min(n)..b.min(n)].fill(f32::NAN);
+                    self.note_lost(incidence_deg, request, first, count, cause);
+                }
+                LineEvent::End => return Ok(()),
+            }
+        }
+    }
+
+    fn note_lost(&mut self, deg: f64, req: FrameRequest, first: u32, count: u32, cause: RowLoss) {
+        self.log.lost_rows.push(LostRows {
+            incidence_deg: deg,
+            band: usize::from(req.band),
+            frame: match req.kind {
+                FrameKind::Sample => "sample",
+                FrameKind::Dark => "dark",
+                FrameKind::White => "white",
+            },
+            first_row: first,
+            rows: count,
+            cause: match cause {
+                RowLoss::Missing => "missing",
+                RowLoss::Partial => "partial",
+            },
+        });
+    }
+
+    fn trigger(&mut self, request: FrameRequest) -> Result<(), String> {
+        let info = self
+            .rig
+            .camera
+            .trigger(request)
+            .map_err(|e| e.to_string())?;
+        let c = &self.config.camera;
+        if info.width != c.width || info.rows != c.height {
+            return Err(format!(
+                "camera sends {} x {} frames but rig.toml says {} x {}",
+                info.width, info.rows, c.width, c.height
+            ));
+        }
+        Ok(())
+    }
+
+    /// The live sweep; `Ok(false)` when the pipeline stopped listening.
+    fn sweep(&mut self, tx: &Sender<StreamMsg>) -> Result<bool, String> {
+        let e = |e: RigError| e.to_string();
+        let (w, h) = (
+            self.config.camera.width as usize,
+            self.config.camera.height as usize,
+        );
+        let sat = self.config.camera.saturation_counts;
+        self.rig.stage.home().map_err(e)?;
+        self.rig.filter.prepare().map_err(e)?;
+        if let (Some(wheel), Some(wc)) = (self.rig.wheel.as_mut(), self.config.wheel.as_ref()) {
+            wheel.select(wc.slot).map_err(e)?;
+        }
+        let mut angles: Vec<Angle> = Vec::new();
+        let plan = self.config.sweep.angles_deg.clone();
+        let offset = self.config.sweep.stage_offset_deg;
+        for (ai, &planned) in plan.iter().enumerate() {
+            self.log.angles_missing_deg = plan[ai..].to_vec();
+            let stage_deg = self.rig.stage.move_to_deg(planned + offset).map_err(e)?;
+            let deg = stage_deg - offset;
+            if tx.send(StreamMsg::Angle { incidence_deg: deg }).is_err() {
+                return Ok(false);
+            }
+            let tag = format!("{ai:02}");
+            let cube_path = self.out.join(format!("a{tag}.hdr"));
+            let white_path = self.out.join(format!("white{tag}.hdr"));
+            let dark_path = self.out.join(format!("dark{tag}.hdr"));
+            let mut hd = self.header(
+                DataType::U16,
+                &format!("filmscope acquire: raw counts at {deg} deg"),
+            );
+            hd.extra
+                .push(("saturation counts".into(), format!("{sat}")));
+            let mut cube = EnviWriter::create(&cube_path, &hd).map_err(|x| x.to_string())?;
+            let href = self.header(DataType::F32, "white reference (counts)");
+            let mut white_w = EnviWriter::create(&white_path, &href).map_err(|x| x.to_string())?;
+            let dref = self.header(DataType::F32, "dark reference (counts)");
+            let mut dark_w = EnviWriter::create(&dark_path, &dref).map_err(|x| x.to_string())?;
+            let mut dark = vec![0f32; w * h];
+            let mut white = vec![0f32; w * h];
+            let mut read_nm = Vec::with_capacity(self.bands_nm.len());
+            for b in 0..self.bands_nm.len() {
+                let lambda = self.rig.filter.tune_nm(self.bands_nm[b]).map_err(e)?;
+                read_nm.push(lambda);
+                let req = |kind| FrameRequest {
+                    kind,
+                    angle_deg: stage_deg,
+                    lambda_nm: lambda,
+                    band: b as u16,
+                };
+                self.reference(req(FrameKind::Dark), &mut dark, deg)?;
+                self.reference(req(FrameKind::White), &mut white, deg)?;
+                for r in 0..h {
+                    let (dr, wr) = (&dark[r * w..(r + 1) * w], &white[r * w..(r + 1) * w]);
+                    dark_w.write_band_row(b, r, dr).map_err(|x| x.to_string())?;
+                    white_w
+                        .write_band_row(b, r, wr)
+                        .map_err(|x| x.to_string())?;
+                }
+                let request = req(FrameKind::Sample);
+                self.trigger(request)?;
+                let mut px = vec![0u16; w];
+                loop {
+                    let (first, rows, counts, lost) =
+                        match self.rig.camera.read_line(&mut px).map_err(e)? {
+                            LineEvent::Row { row } => {
+                                (row, 1, px.iter().map(|&v| f32::from(v)).collect(), false)
+                            }
+                            LineEvent::Lost {
+                                first,
+                                count,
+                                cause,
+                            } => {
+                                self.note_lost(deg, request, first, count, cause);
+                                let count = count.min(h as u32 - first.min(h as u32));
+                                (first, count, vec![0f32; count as usize * w], true)
+                            }
+                            LineEvent::End => break,
+                        };
+                    let (a, z) = (first as usize * w, (first + rows) as usize * w);
+                    let mut wv = white[a..z].to_vec();
+                    if lost {
+                        // No usable reference: NaN after calibration, live and on replay.
+                        wv.fill(f32::NAN);
+                    }
+                    for k in 0..rows as usize {
+                        let r = first as usize + k;
+                        let row = &counts[k * w..(k + 1) * w];
+                        cube.write_band_row(b, r, row).map_err(|x| x.to_string())?;
+                        white_w
+                            .write_band_row(b, r, &wv[k * w..(k + 1) * w])
+                            .map_err(|x| x.to_string())?;
+                    }
+                    let msg = StreamMsg::Rows(RowBlock {
+                        band: b as u16,
+                        first_row: first,
+                        rows,
+                        samples: Samples::Raw {
+                            counts,
+                            dark: Some(dark[a..z].to_vec()),
+                            white: wv,
+                            white_reflectance: 1.0,
+                            saturation_counts: sat as f32,
+                        },
+                    });
+                    if tx.send(msg).is_err() {
+                        return Ok(false);
+                    }
+                }
+                if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
+                    return Ok(false);
+                }
+            }
+            cube.finish().map_err(|x| x.to_string())?;
+            white_w.finish().map_err(|x| x.to_string())?;
+            dark_w.finish().map_err(|x| x.to_string())?;
+            angles.push(Angle {
+                incidence_deg: deg,
+                cube: cube_path,
+                white: Some(white_path),
+                dark: Some(dark_path),
+                white_reflectance: 1.0,
+            });
+            self.write_capture(&angles)?;
+            self.log.angles_done_deg.push(deg);
+            self.log.wavelengths_read_nm.push(read_nm);
+            self.log.angles_missing_deg = plan[ai + 1..].to_vec();
+            if tx.send(StreamMsg::AngleEnd).is_err() {
+                return Ok(false);
+            }
+        }
+        self.rig.filter.block().map_err(e)?;
+        if let (Some(wheel), Some(wc)) = (self.rig.wheel.as_mut(), self.config.wheel.as_ref()) {
+            wheel.select(wc.block_slot).map_err(e)?;
+        }
+        Ok(true)
+    }
+
+    /// Writes `acquisition.json`.
+    pub fn write_log(&self) -> Result<(), String> {
+        let path = self.out.join("acquisition.json");
+        let mut v = serde_json::to_value(&self.log).map_err(|x| io_err(&path, &x))?;
+        if let Some(o) = v.as_object_mut() {
+            o.insert(
+                "re_estimate".into(),
+                json!(if self.log.angles_done_deg.len() >= 2 {
+                    "filmscope estimate on capture.toml uses the complete angles"
+                } else {
+                    "fewer than two complete angles: the capture cannot be estimated"
+                }),
+            );
+        }
+        let text = serde_json::to_string_pretty(&v).map_err(|x| io_err(&path, &x))?;
+        write_atomic(&path, text.as_bytes()).map_err(|x| io_err(&path, &x))
+    }
+}
+
+impl Source for Acquisition {
+    fn spec(&self) -> &SweepSpec {
+        &self.spec
+    }
+
+    fn angles_deg(&self) -> Vec<f64> {
+        self.config.sweep.angles_deg.clone()
+    }
+
+    fn stream(&mut self, tx: &Sender<StreamMsg>) {
+        if self.acquired {
+            // Later passes replay what was recorded.
+            let replay = Capture::load(self.capture_path())
+                .map_err(|x| x.to_string())
+                .and_then(CaptureSource::new);
+            match replay {
+                Ok(mut src) => src.stream(tx),
+                Err(x) => {
+                    let _ = tx.send(StreamMsg::Abort(x));
+                }
+            }
+            return;
+        }
+        self.acquired = true;
+        let result = self.sweep(tx);
+        self.log.link = (self.rig.link_stats)();
+        match result {
+            Ok(true) => {
+                self.log.complete = true;
+                let _ = tx.send(StreamMsg::SweepEnd);
+            }
+            Ok(false) => {}
+            Err(x) => {
+                // Leave the filter dark if it still answers; the error is the one reported.
+                let _ = self.rig.filter.block();
+                self.log.error = Some(x.clone());
+                let _ = tx.send(StreamMsg::Abort(x));
+            }
+        }
+        if let Err(x) = self.write_log() {
+            self.log.error.get_or_insert(x);
+        }
+    }
+}
+
+/// Runs `filmscope acquire`: opens the rig of `config` (or, with `sim`, starts
+/// `firmware-sim` on ptys and a socket and opens that), records the sweep into
+/// `out/capture`, estimates while it streams and writes the maps into `out`. Returns the
+/// summary; on a failed sweep, the error names what stopped it and what was kept.
+pub fn run(
+    config: &RigConfig,
+    out: &Path,
+    sim: bool,
+    run_config: &crate::estimate::RunConfig,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<serde_json::Value, String> {
+    let mut config = config.clone();
+    let mut _sim_rig = None;
+    let rig = if sim {
+        let (sim_rig, rig) = open_sim(&mut config)?;
+        _sim_rig = Some(sim_rig);
+        rig
+    } else {
+        let wheel: Option<Box<dyn super::HidTransport + Send>> = match &config.wheel {
+            Some(_) => Some(Box::new(
+                super::wheel::HidapiTransport::open().map_err(|e| e.to_string())?,
+            )),
+            None => None,
+        };
+        super::open(&config, wheel).map_err(|e| e.to_string())?
+    };
+    run_rig(rig, config, out, run_config, on_rows)
+}
+
+/// Sweeps an open `rig`, recording into `out/capture` and writing the maps into `out`.
+pub fn run_rig(
+    rig: Rig,
+    config: RigConfig,
+    out: &Path,
+    run_config: &crate::estimate::RunConfig,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<serde_json::Value, String> {
+    let capture_dir = out.join("capture");
+    let mut acq = Acquisition::new(rig, config, &capture_dir)?;
+    let result = crate::estimate::run_method(&mut acq, run_config, on_rows);
+    let run = match result {
+        Ok(run) => run,
+        Err(e) => {
+            let kept = acq.log.angles_done_deg.len();
+            return Err(format!(
+                "acquisition stopped: {e}; {kept} complete angle(s) kept in {} (see acquisition.json)",
+                capture_dir.display()
+            ));
+        }
+    };
+    let mut summary = crate::estimate::write_outputs(out, &run, &capture_dir.display().to_string())
+        .map_err(|e| e.to_string())?;
+    if let Some(o) = summary.as_object_mut() {
+        o.insert(
+            "acquisition".into(),
+            serde_json::to_value(&acq.log).unwrap_or_default(),
+        );
+    }
+    let path = out.join("summary.json");
+    let text = serde_json::to_string_pretty(&summary).map_err(|e| io_err(&path, &e))?;
+    write_atomic(&path, text.as_bytes()).map_err(|e| io_err(&path, &e))?;
+    Ok(summary)
+}
+
+/// Starts `firmware-sim` for `config` (its `[sim]` scene, re-gridded to the sweep's angles
+/// and bands) and points `config` at its ptys and socket.
+pub fn open_sim(config: &mut RigConfig) -> Result<(firmware_sim::serve::SimRig, Rig), String> {
+    let sim = config
+        .sim
+        .clone()
+        .ok_or("--sim needs a [sim] table with the scene to look at")?;
+    let options = sim_options(config, &sim.scene, sim.speed)?;
+    open_sim_with(config, options)
+}
+
+/// Starts `firmware-sim` with `options` and points `config` at it.
+pub fn open_sim_with(
+    config: &mut RigConfig,
+    options: firmware_sim::serve::RigOptions,
+) -> Result<(firmware_sim::serve::SimRig, Rig), String> {
+    let sim_rig = firmware_sim::serve::start(options).map_err(|e| format!("firmware-sim: {e}"))?;
+    config.stage.port = sim_rig.stage_port.clone();
+    config.filter.port = sim_rig.filter_port.clone();
+    config.camera.address = sim_rig.camera.to_string();
+    let wheel: Option<Box<dyn super::HidTransport + Send>> = Some(Box::new(
+        super::wheel::SimWheelTransport::new(sim_rig.wheel.clone(), sim_rig.clock),
+    ));
+    let rig = super::open_with_clock(config, wheel, sim_rig.clock).map_err(|e| e.to_string())?;
+    Ok((sim_rig, rig))
+}
+
+/// The simulator options for `config`, looking at `scene_path`.
+pub fn sim_options(
+    config: &RigConfig,
+    scene_path: &Path,
+    speed: f64,
+) -> Result<firmware_sim::serve::RigOptions, String> {
+    let mut scene = firmware_sim::Scene::load(scene_path).map_err(|e| e.to_string())?;
+    let s = &config.sweep;
+    scene.angles_deg = s
+        .angles_deg
+        .iter()
+        .map(|a| a + s.stage_offset_deg)
+        .collect();
+    scene.bands_nm = s.bands();
+    scene.fwhm_nm = s.fwhm_nm;
+    let c = &config.camera;
+    if scene.sensor.width != c.width as usize || scene.sensor.height != c.height as usize {
+        return Err(format!(
+            "{}: sensor {} x {} but rig.toml's camera is {} x {}",
+            scene_path.display(),
+            scene.sensor.width,
+            scene.sensor.height,
+            c.width,
+            c.height
+        ));
+    }
+    let mut o = firmware_sim::serve::RigOptions::new(scene);
+    o.speed = speed;
+    o.steps_per_deg = config.stage.steps_per_deg;
+    o.stage_limits_deg = config.stage.limits_deg;
+    Ok(o)
+}

@@ -1,0 +1,514 @@
+//! The rig end to end: drivers against firmware-sim, in process on a virtual clock and over
+//! real ptys and a loopback socket; the acquired maps against `estimate` on the recorded
+//! capture; transcripts; and every fault the rig must survive or report.
+
+mod common;
+
+use std::path::Path;
+
+use filmscope::estimate::{run_method, RunConfig};
+use filmscope::hw::{ErrorKind, FilterWheel, Stage, TunableFilter};
+use filmscope::io::Capture;
+use filmscope::pipeline::CaptureSource;
+use filmscope::rig::acquire::{open_sim_with, run_rig, sim_options};
+use filmscope::rig::wheel::SimWheelTransport;
+use filmscope::rig::{Kurios, KuriosConfig, RigConfig, SxWheel, Zaber, ZaberConfig};
+use filmscope::solve::flags;
+use firmware_sim::camlink::CameraFaults;
+use firmware_sim::clock::VirtualClock;
+use firmware_sim::kurios::KuriosFilter;
+use firmware_sim::serial::{lock, SerialDevice, SerialFaults, SimPort};
+use firmware_sim::serve::RigOptions;
+use firmware_sim::wheel::SxWheelFirmware;
+use firmware_sim::world::World;
+use firmware_sim::zaber::{MotionFault, ZaberStage};
+use std::sync::{Arc, Mutex};
+
+fn rig_config() -> RigConfig {
+    let p = format!("{}/config/rig.toml", env!("CARGO_MANIFEST_DIR"));
+    let mut c = RigConfig::load(Path::new(&p)).expect("config/rig.toml loads");
+    c.camera.timeout_ms = 300;
+    c
+}
+
+fn options(c: &RigConfig) -> RigOptions {
+    let scene = c.sim.as_ref().expect("[sim]").scene.clone();
+    sim_options(c, &scene, 500.0).expect("sim options")
+}
+
+type Stage1 = Arc<Mutex<SerialDevice<ZaberStage>>>;
+
+fn stage(
+    faults: SerialFaults,
+    fault: Option<MotionFault>,
+) -> (
+    Zaber<SimPort<ZaberStage>, VirtualClock>,
+    Stage1,
+    VirtualClock,
+) {
+    let clock = VirtualClock::new();
+    let mut fw = ZaberStage::new(1, 4_266.666_666_666_667, [0, 384_000], 20.0, World::new());
+    if let Some(f) = fault {
+        fw = fw.with_fault(f);
+    }
+    let dev = Arc::new(Mutex::new(SerialDevice::new(fw, faults)));
+    let port = SimPort::new(dev.clone(), clock.clone(), 100_000);
+    let cfg = ZaberConfig {
+        limits_deg: [0.0, 60.0],
+        ..ZaberConfig::default()
+    };
+    (
+        Zaber::new(port, "sim-stage", clock.clone(), cfg),
+        dev,
+        clock,
+    )
+}
+
+fn said(dev: &Stage1) -> Vec<String> {
+    lock(dev)
+        .transcript()
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+}
+
+#[test]
+fn zaber_transcript_home_move_and_read_back_on_a_virtual_clock() {
+    let (mut st, dev, clock) = stage(SerialFaults::default(), None);
+    st.home().expect("home");
+    let t0 = std::time::Instant::now();
+    let deg = st.move_to_deg(10.0).expect("move");
+    assert!((deg - 10.0).abs() < 1e-3, "{deg}");
+    assert!(
+        clock_now(&clock) > 400_000,
+        "the half-second move took virtual time"
+    );
+    assert!(t0.elapsed().as_millis() < 200, "and no wall time");
+    let t = said(&dev);
+    assert_eq!(t[0], "-> /1 1 1 home:64");
+    assert!(t[1].starts_with("<- @01 1 1 OK BUSY -- 0:"), "{}", t[1]);
+    assert!(t
+        .iter()
+        .any(|l| l.starts_with("-> /1 1") && l.contains("move abs 42667")));
+    assert!(
+        t.last().is_some_and(|l| l.contains("OK IDLE -- 42667")),
+        "{t:?}"
+    );
+}
+
+fn clock_now(c: &VirtualClock) -> u64 {
+    use filmscope::hw::Clock;
+    c.now_us()
+}
+
+#[test]
+fn zaber_retries_lost_and_garbled_replies_and_survives_split_reads() {
+    let faults = SerialFaults {
+        swallow: vec![1],
+        garbage: vec![3],
+        split: Some(3),
+        ..SerialFaults::default()
+    };
+    let (mut st, dev, _) = stage(faults, None);
+    st.home().expect("home despite a lost and a garbled reply");
+    let homes = said(&dev).iter().filter(|l| l.contains("home")).count();
+    assert_eq!(
+        homes,
+        2,
+        "home sent again after the timeout: {:?}",
+        said(&dev)
+    );
+    assert!((st.move_to_deg(20.0).expect("move") - 20.0).abs() < 1e-3);
+}
+
+#[test]
+fn zaber_refusals_faults_limits_and_disappearance_are_one_line_errors() {
+    let (mut st, dev, _) = stage(SerialFaults::default(), None);
+    st.home().expect("home");
+    let n = said(&dev).len();
+    let e = st.move_to_deg(75.0).expect_err("beyond the limits");
+    assert_eq!(e.kind, ErrorKind::OutOfRange);
+    assert_eq!(said(&dev).len(), n, "nothing sent for an out-of-range move");
+    assert!(!e.to_string().contains('\n'));
+
+    let (mut st, _, _) = stage(
+        SerialFaults {
+            reject: vec![1],
+            ..SerialFaults::default()
+        },
+        None,
+    );
+    let e = st.home().expect_err("rejected");
+    assert_eq!(e.kind, ErrorKind::Rejected);
+    assert_eq!(e.to_string(), "sim-stage: stage refused `home`: BADCOMMAND");
+
+    let (mut st, _, _) = stage(SerialFaults::default(), Some(MotionFault::Interrupted(2)));
+    st.home().expect("home");
+    let e = st.move_to_deg(30.0).expect_err("interrupted");
+    assert_eq!(e.kind, ErrorKind::Fault);
+    assert!(e.to_string().contains("NI"), "{e}");
+
+    let (mut st, _, _) = stage(SerialFaults::default(), Some(MotionFault::Stalled(2)));
+    st.home().expect("home");
+    assert!(st
+        .move_to_deg(30.0)
+        .expect_err("stalled")
+        .to_string()
+        .contains("FS"));
+
+    let (mut st, _, _) = stage(
+        SerialFaults {
+            vanish_after: Some(2),
+            ..SerialFaults::default()
+        },
+        None,
+    );
+    assert_eq!(st.home().expect_err("gone").kind, ErrorKind::Disconnected);
+}
+
+#[test]
+fn kurios_prepares_tunes_and_refuses_on_a_virtual_clock() {
+    let clock = VirtualClock::new();
+    let dev = Arc::new(Mutex::new(SerialDevice::new(
+        KuriosFilter::new(3_000_000, World::new()),
+        SerialFaults {
+            split: Some(1),
+            swallow: vec![2],
+            ..SerialFaults::default()
+        },
+    )));
+    let port = SimPort::new(dev.clone(), clock.clone(), 100_000);
+    let mut f = Kurios::new(port, "sim-lctf", clock.clone(), KuriosConfig::default());
+    let t0 = std::time::Instant::now();
+    assert_eq!(f.prepare().expect("prepare"), [420.0, 730.0]);
+    assert!(
+        clock_now(&clock) >= 3_000_000,
+        "waited the warm-up in virtual time"
+    );
+    assert!(t0.elapsed().as_millis() < 500);
+    assert!((f.tune_nm(551.5).expect("tune") - 551.5).abs() < 1e-9);
+    let e = f.tune_nm(800.0).expect_err("out of range");
+    assert_eq!(e.kind, ErrorKind::OutOfRange);
+    f.block().expect("block");
+    let t: Vec<String> = lock(&dev)
+        .transcript()
+        .iter()
+        .filter(|s| s.dir == firmware_sim::serial::Dir::ToDevice)
+        .map(|s| s.text.clone())
+        .collect();
+    assert_eq!(
+        &t[..3],
+        ["*IDN?", "SP?", "SP?"],
+        "SP? retried after its lost reply"
+    );
+    assert!(t.contains(&"OM=1".to_owned()) && t.contains(&"BW=8".to_owned()));
+    assert!(t.contains(&"WL=551.500".to_owned()) && !t.iter().any(|l| l.contains("800")));
+    assert_eq!(t.last().map(String::as_str), Some("BW=1"));
+    assert_eq!(lock(&dev).firmware().bandwidth(), 1);
+}
+
+#[test]
+fn sx_wheel_counts_selects_refuses_and_notices_unplugging() {
+    let clock = VirtualClock::new();
+    let fw = Arc::new(Mutex::new(SxWheelFirmware::new(5, 200_000)));
+    let mut w = SxWheel::new(
+        SimWheelTransport::new(fw.clone(), clock.clone()),
+        "wheel",
+        clock,
+    );
+    assert_eq!(w.slots().expect("count"), 5);
+    w.select(3).expect("select");
+    assert_eq!(w.current().expect("current"), Some(3));
+    assert_eq!(
+        w.select(5).expect_err("no slot 5").kind,
+        ErrorKind::OutOfRange
+    );
+    assert!(fw.lock().expect("lock").transcript.contains(&[132, 0]));
+    fw.lock().expect("lock").gone = true;
+    assert_eq!(
+        w.select(1).expect_err("unplugged").kind,
+        ErrorKind::Disconnected
+    );
+}
+
+fn estimate(capture: &Path) -> filmscope::sweep::MethodResult {
+    let cap = Capture::load(capture).expect("recorded capture loads");
+    let mut src = CaptureSource::new(cap).expect("source");
+    run_method(&mut src, &RunConfig::default(), &|_| {})
+        .expect("estimate")
+        .result
+}
+
+fn read_map(path: &Path, n: usize) -> Vec<f32> {
+    let mut r = filmscope::io::EnviReader::open(path).expect("map");
+    let mut out = vec![0f32; n];
+    let w = r.header().samples;
+    let mut row = vec![0f32; w];
+    for line in 0..n / w {
+        r.read_band_row(0, line, &mut row).expect("row");
+        out[line * w..(line + 1) * w].copy_from_slice(&row);
+    }
+    out
+}
+
+fn acquire(
+    opts: RigOptions,
+    out: &Path,
+) -> (
+    Result<serde_json::Value, String>,
+    firmware_sim::serve::SimRig,
+) {
+    let mut c = rig_config();
+    let (sim, rig) = open_sim_with(&mut c, opts).expect("sim rig");
+    (run_rig(rig, c, out, &RunConfig::default(), &|_| {}), sim)
+}
+
+fn same_maps(out: &Path) -> filmscope::sweep::MethodResult {
+    let offline = estimate(&out.join("capture"));
+    let n = offline.thickness_nm.len();
+    let live = read_map(&out.join("thickness_nm.hdr"), n);
+    for (i, (a, b)) in live.iter().zip(&offline.thickness_nm).enumerate() {
+        assert_eq!(
+            a.to_bits(),
+            b.to_bits(),
+            "pixel {i}: acquired {a} vs estimate {b}"
+        );
+    }
+    let fl = read_map(&out.join("flags.hdr"), n);
+    let fl: Vec<u16> = fl.iter().map(|&f| f as u16).collect();
+    assert_eq!(fl, offline.flags, "flags differ");
+    offline
+}
+
+#[test]
+fn acquire_over_ptys_and_tcp_matches_estimate_on_the_recorded_capture() {
+    let dir = common::tempdir();
+    let c = rig_config();
+    let (summary, sim) = acquire(options(&c), dir.path());
+    let summary = summary.expect("acquire");
+    assert!(
+        sim.stage_port.starts_with("/dev/pts/"),
+        "{}",
+        sim.stage_port
+    );
+    let n = summary["refractive_index"].as_f64().expect("index");
+    assert!((n - 2.1).abs() < 0.02, "index {n}");
+    assert!(summary["valid_fraction"].as_f64().expect("valid") > 0.9);
+    let result = same_maps(dir.path());
+    assert!(result.flags.iter().all(|f| f & flags::MISSING_SAMPLES == 0));
+    // The stage transcript: homed first, every move inside the limits, each read back.
+    let t: Vec<String> = lock(&sim.stage)
+        .transcript()
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    assert!(t[0].contains(" home:"), "{t:?}");
+    let moves: Vec<i64> = t
+        .iter()
+        .filter_map(|l| l.split("move abs ").nth(1))
+        .filter_map(|s| s.split(':').next()?.parse().ok())
+        .collect();
+    assert_eq!(moves, [42667, 106667, 170667, 234667]);
+    let f: Vec<String> = lock(&sim.filter)
+        .transcript()
+        .iter()
+        .filter(|s| s.dir == firmware_sim::serial::Dir::ToDevice)
+        .map(|s| s.text.clone())
+        .collect();
+    assert_eq!(f[..4], ["*IDN?", "SP?", "OH?", "ST?"]);
+    assert_eq!(f.iter().filter(|l| l.starts_with("WL=")).count(), 4 * 101);
+    assert_eq!(
+        f.last().map(String::as_str),
+        Some("BW=1"),
+        "filter left blocking"
+    );
+    assert_eq!(
+        sim.wheel.lock().expect("wheel").slot(),
+        0,
+        "wheel on its blocking slot"
+    );
+}
+
+#[test]
+fn lost_corrupt_duplicated_reordered_and_partial_rows_are_reported_and_flagged() {
+    let dir = common::tempdir();
+    let c = rig_config();
+    let mut o = options(&c);
+    // Frames: 3 per band (dark, white, sample); sample frames are 3, 6, 9, ...
+    o.camera_faults = CameraFaults {
+        drop_rows: vec![(3, 5)],
+        corrupt_rows: vec![(6, 7)],
+        duplicate_rows: vec![(9, 2)],
+        swap_rows: vec![(12, 10)],
+        partial: vec![(15, 20)],
+        garbage_before: vec![18],
+        ..CameraFaults::default()
+    };
+    let (summary, _sim) = acquire(o, dir.path());
+    let summary = summary.expect("acquire survives transport faults");
+    let link = &summary["acquisition"]["link"];
+    assert_eq!(link["crc_errors"], 1);
+    assert_eq!(link["duplicate_rows"], 1);
+    assert_eq!(link["out_of_order_rows"], 1);
+    assert_eq!(link["partial_frames"], 1);
+    assert!(link["sequence_gaps"].as_u64().expect("gaps") >= 2);
+    assert!(link["garbage_bytes"].as_u64().expect("garbage") > 0);
+    assert_eq!(link["rows_lost"], 1 + 1 + 4);
+    let lost = summary["acquisition"]["lost_rows"]
+        .as_array()
+        .expect("lost rows");
+    assert_eq!(lost.len(), 3);
+    assert_eq!(lost[2]["cause"], "partial");
+    let result = same_maps(dir.path());
+    let w = 32;
+    for row in [5usize, 7, 20, 21, 22, 23] {
+        assert!(
+            result.flags[row * w..(row + 1) * w]
+                .iter()
+                .all(|f| f & (flags::MISSING_SAMPLES | flags::DEAD) != 0),
+            "row {row} flagged"
+        );
+    }
+    assert!(result.flags[0..w]
+        .iter()
+        .all(|f| f & flags::MISSING_SAMPLES == 0));
+}
+
+#[test]
+fn camera_disconnect_mid_sweep_leaves_a_re_estimable_capture_and_a_note() {
+    let dir = common::tempdir();
+    let c = rig_config();
+    let mut o = options(&c);
+    o.camera_faults.vanish_at = Some(2 * 303 + 10);
+    let (result, _sim) = acquire(o, dir.path());
+    let e = result.expect_err("the sweep stops");
+    assert!(
+        e.contains("disconnected") && e.contains("2 complete angle(s)"),
+        "{e}"
+    );
+    assert!(!e.contains('\n'));
+    let log: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("capture/acquisition.json")).expect("log"),
+    )
+    .expect("json");
+    assert_eq!(log["complete"], false);
+    assert_eq!(log["angles_missing_deg"], serde_json::json!([40.0, 55.0]));
+    let cap = Capture::load(dir.path().join("capture")).expect("consistent capture");
+    assert_eq!(cap.angles.len(), 2);
+    let r = estimate(&dir.path().join("capture"));
+    assert_eq!(r.thickness_nm.len(), 32 * 24);
+}
+
+#[test]
+fn a_stalled_frame_is_ended_with_its_rows_lost_and_the_stage_never_leaves_its_limits() {
+    let dir = common::tempdir();
+    let c = rig_config();
+    let mut o = options(&c);
+    o.camera_faults.stall = Some((3, 12));
+    let (summary, sim) = acquire(o, dir.path());
+    let summary = summary.expect("acquire");
+    assert_eq!(summary["acquisition"]["link"]["stalled_frames"], 1);
+    assert_eq!(summary["acquisition"]["link"]["rows_lost"], 12);
+    same_maps(dir.path());
+    let lim = 90.0 * 4_266.666_666_666_667;
+    for l in lock(&sim.stage).transcript() {
+        if let Some(v) = l.text.split("move abs ").nth(1) {
+            let steps: f64 = v
+                .split(':')
+                .next()
+                .and_then(|s| s.parse().ok())
+                .expect("steps");
+            assert!((0.0..=lim).contains(&steps));
+        }
+    }
+}
+
+#[test]
+fn a_stage_refusing_mid_sweep_stops_with_one_line_naming_the_port() {
+    let dir = common::tempdir();
+    let c = rig_config();
+    let mut o = options(&c);
+    o.motion_fault = Some(MotionFault::Interrupted(4));
+    let (result, sim) = acquire(o, dir.path());
+    let e = result.expect_err("stops");
+    assert!(e.contains(&sim.stage_port) && e.contains("NI"), "{e}");
+    assert_eq!(
+        Capture::load(dir.path().join("capture"))
+            .expect("capture")
+            .angles
+            .len(),
+        2
+    );
+}
+
+/// The real rig: `FILMSCOPE_RIG=path/to/rig.toml cargo test --release --test rig -- --ignored`
+/// (ports in the file, or FILMSCOPE_STAGE_PORT / FILMSCOPE_FILTER_PORT / FILMSCOPE_CAMERA).
+#[test]
+#[ignore = "needs the real devices: set FILMSCOPE_RIG"]
+fn hardware_sweep() {
+    let Ok(path) = std::env::var("FILMSCOPE_RIG") else {
+        return;
+    };
+    let mut c = RigConfig::load(Path::new(&path)).expect("rig file");
+    if let Ok(p) = std::env::var("FILMSCOPE_STAGE_PORT") {
+        c.stage.port = p;
+    }
+    if let Ok(p) = std::env::var("FILMSCOPE_FILTER_PORT") {
+        c.filter.port = p;
+    }
+    if let Ok(a) = std::env::var("FILMSCOPE_CAMERA") {
+        c.camera.address = a;
+    }
+    let dir = common::tempdir();
+    let summary =
+        filmscope::rig::acquire::run(&c, dir.path(), false, &RunConfig::default(), &|_| {})
+            .expect("hardware sweep");
+    println!("{summary:#}");
+    same_maps(dir.path());
+}
+
+#[test]
+fn acquire_over_a_unix_socket_camera_too() {
+    let dir = common::tempdir();
+    let c = rig_config();
+    let mut o = options(&c);
+    o.unix_socket = Some(dir.path().join("camera.sock"));
+    let (summary, sim) = acquire(o, &dir.path().join("out"));
+    assert!(sim.camera.to_string().starts_with("unix:"));
+    assert!(
+        summary.expect("acquire")["valid_fraction"]
+            .as_f64()
+            .expect("valid")
+            > 0.9
+    );
+}
+
+#[test]
+fn cli_acquire_sim_prints_one_line_of_figures() {
+    let dir = common::tempdir();
+    let out = common::filmscope()
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["acquire", "--rig", "config/rig.toml", "--sim", "--out"])
+        .arg(dir.path())
+        .output()
+        .expect("run");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.starts_with("acquired 4 angles x 101 bands"), "{text}");
+    assert!(dir.path().join("capture/capture.toml").exists());
+    assert!(dir.path().join("thickness_nm.png").exists());
+    let bad = common::filmscope()
+        .args(["acquire", "--rig", "no/such/rig.toml", "--out"])
+        .arg(dir.path())
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        !bad.status.success() && err.contains("no/such/rig.toml") && err.lines().count() == 1,
+        "{err}"
+    );
+}
