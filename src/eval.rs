@@ -77,7 +77,8 @@ impl Truth {
     }
 }
 
-fn parse_dispersion(d: &serde_json::Value) -> Option<Dispersion> {
+/// Parses a `dispersion` object of a summary or truth file (`cauchy` or `sellmeier`).
+pub(crate) fn parse_dispersion(d: &serde_json::Value) -> Option<Dispersion> {
     let f = |k: &str| d.get(k).and_then(serde_json::Value::as_f64);
     let arr = |k: &str| -> Option<[f64; 3]> {
         let a = d.get(k)?.as_array()?;

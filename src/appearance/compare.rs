@@ -1,0 +1,320 @@
+//! Measured against reproduced: every captured angle, as the camera measured it and as the
+//! estimated film model reproduces it, with the CIEDE2000 difference per pixel.
+//!
+//! Both sides go through the identical band-limited colorimetry, so the comparison is fair:
+//!
+//! - measured: the calibrated reflectance of each pixel at the capture's bands (e.g.
+//!   420..720 nm every 2 nm), linearly interpolated onto the CIE 5 nm grid;
+//! - reproduced: the film model (estimated index with its dispersion, the pixel's
+//!   thickness, the capture's substrate and polarisation) averaged over each band's LCTF
+//!   passband, i.e. what the camera would have measured of the model film, interpolated
+//!   the same way;
+//! - both summed to XYZ over only the grid wavelengths inside the bands
+//!   ([`Colorimetry::within`]: nothing is extrapolated outside what was measured), under
+//!   the chosen illuminant, normalised so a perfect reflector has `Y = 100`; CIELAB
+//!   against that band-limited white; CIEDE2000 between the two.
+//!
+//! A pixel takes part where its thickness is reliable and every band of its measured
+//! spectrum is usable (no saturated or dead sample). The mean and 95th percentile are over
+//! those pixels, per angle and over all angles.
+
+use std::path::Path;
+
+use filmscope_core::colour::{delta_e2000, Colorimetry, Illuminant, Xyz};
+use serde_json::json;
+
+use super::film::SampleFilm;
+use super::render::{auto_exposure, blit, display_rgb, sample_grid, upscale};
+use super::spectral::{capture_passbands, BandSpectrum};
+use super::AppearanceError;
+use crate::export::canvas::{text_width, Canvas, BACKGROUND, CAP_ROWS, INK};
+use crate::export::colormap::{viridis, NO_DATA};
+use crate::io::Capture;
+use crate::pipeline::{collect_sweep, CaptureSource};
+use crate::sweep::SweepCube;
+
+/// One captured angle, measured against reproduced.
+#[derive(Clone, Debug)]
+pub struct AngleComparison {
+    /// Incidence angle, degrees.
+    pub incidence_deg: f64,
+    /// Measured colour per pixel (row-major), NaN where the pixel takes no part.
+    pub measured: Vec<Xyz>,
+    /// Reproduced colour per pixel, NaN where the pixel takes no part.
+    pub reproduced: Vec<Xyz>,
+    /// CIEDE2000 per pixel, NaN where the pixel takes no part.
+    pub delta_e2000: Vec<f32>,
+    /// Statistics of the finite differences.
+    pub stats: DeltaStats,
+}
+
+/// Mean, median and 95th percentile of a set of colour differences.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct DeltaStats {
+    /// Number of pixels compared.
+    pub pixels: usize,
+    /// Mean CIEDE2000 (NaN without pixels).
+    pub mean: f64,
+    /// Median CIEDE2000.
+    pub median: f64,
+    /// 95th percentile CIEDE2000 (nearest rank).
+    pub p95: f64,
+}
+
+impl DeltaStats {
+    /// The statistics of the finite values of `v`.
+    pub fn of(v: impl Iterator<Item = f32>) -> Self {
+        let mut d: Vec<f64> = v.filter(|x| x.is_finite()).map(f64::from).collect();
+        if d.is_empty() {
+            return Self {
+                pixels: 0,
+                mean: f64::NAN,
+                median: f64::NAN,
+                p95: f64::NAN,
+            };
+        }
+        d.sort_by(f64::total_cmp);
+        let rank = |q: f64| d[((q * d.len() as f64).ceil() as usize).clamp(1, d.len()) - 1];
+        Self {
+            pixels: d.len(),
+            mean: d.iter().sum::<f64>() / d.len() as f64,
+            median: rank(0.5),
+            p95: rank(0.95),
+        }
+    }
+}
+
+/// Every captured angle compared.
+#[derive(Clone, Debug)]
+pub struct Comparison {
+    /// Pixels per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// The colorimetry both sides were summed with (band-limited).
+    pub colorimetry: Colorimetry,
+    /// Per angle, in ascending angle.
+    pub angles: Vec<AngleComparison>,
+    /// Over all angles and pixels.
+    pub overall: DeltaStats,
+}
+
+/// Reads and calibrates a capture whole (every angle, band and pixel).
+pub fn load_sweep(capture: &Path) -> Result<SweepCube, AppearanceError> {
+    let cap = Capture::load(capture).map_err(|e| AppearanceError(e.to_string()))?;
+    let label = cap.path.clone();
+    let mut source = CaptureSource::new(cap).map_err(AppearanceError)?;
+    collect_sweep(&mut source).map_err(|e| AppearanceError::new(&label, e))
+}
+
+/// Compares `film` with the sweep it was estimated from, under `illuminant`.
+pub fn compare(
+    film: &SampleFilm,
+    cube: &SweepCube,
+    illuminant: Illuminant,
+) -> Result<Comparison, AppearanceError> {
+    let at = |what: String| AppearanceError::new(&film.maps_dir, what);
+    if (cube.width, cube.height) != (film.width, film.height) {
+        return Err(at(format!(
+            "the maps are {}x{} but the capture is {}x{}",
+            film.width, film.height, cube.width, cube.height
+        )));
+    }
+    let (first, last) = (
+        cube.bands_nm.first().copied().unwrap_or(f64::NAN),
+        cube.bands_nm.last().copied().unwrap_or(f64::NAN),
+    );
+    let colorimetry = Colorimetry::within(illuminant, first, last).ok_or_else(|| {
+        at(format!(
+            "the capture's bands {first}..{last} nm hold no 5 nm CIE grid wavelength"
+        ))
+    })?;
+    let white = colorimetry.white();
+    let bands = capture_passbands(&cube.bands_nm, &cube.fwhm_nm);
+    let mut stack = film.stack;
+    stack.polarization = cube.polarization;
+    let nb = cube.bands_nm.len();
+    let mut order: Vec<usize> = (0..cube.angles_deg.len()).collect();
+    order.sort_by(|&a, &b| cube.angles_deg[a].total_cmp(&cube.angles_deg[b]));
+    let mut angles = Vec::with_capacity(order.len());
+    let (mut measured_r, mut model_r) = (vec![0f32; nb], vec![0f64; nb]);
+    let mut measured_f64 = vec![0f64; nb];
+    for a in order {
+        let deg = cube.angles_deg[a];
+        let model = BandSpectrum::new(stack, deg, &bands);
+        let n = film.width * film.height;
+        let (mut measured, mut reproduced) = (vec![Xyz::NAN; n], vec![Xyz::NAN; n]);
+        let mut de = vec![f32::NAN; n];
+        for i in 0..n {
+            let Some(d) = film.thickness_at(i) else {
+                continue;
+            };
+            cube.spectrum_into(a, i % film.width, i / film.width, &mut measured_r);
+            if measured_r.iter().any(|v| !v.is_finite()) {
+                continue;
+            }
+            for (o, &v) in measured_f64.iter_mut().zip(&measured_r) {
+                *o = f64::from(v);
+            }
+            model.reflectance_into(d, &mut model_r);
+            let m = colorimetry.xyz_sampled(&cube.bands_nm, &measured_f64);
+            let r = colorimetry.xyz_sampled(&cube.bands_nm, &model_r);
+            measured[i] = m;
+            reproduced[i] = r;
+            de[i] = delta_e2000(m.to_lab(white), r.to_lab(white)) as f32;
+        }
+        let stats = DeltaStats::of(de.iter().copied());
+        angles.push(AngleComparison {
+            incidence_deg: deg,
+            measured,
+            reproduced,
+            delta_e2000: de,
+            stats,
+        });
+    }
+    let overall = DeltaStats::of(angles.iter().flat_map(|a| a.delta_e2000.iter().copied()));
+    Ok(Comparison {
+        width: film.width,
+        height: film.height,
+        colorimetry,
+        angles,
+        overall,
+    })
+}
+
+impl Comparison {
+    /// The figures as JSON (`compare.json`): the approach, then per angle and overall
+    /// mean / median / p95 CIEDE2000.
+    pub fn to_json(&self) -> serde_json::Value {
+        let (lo, hi) = self.colorimetry.range_nm();
+        json!({
+            "metric": "CIEDE2000",
+            "illuminant": self.colorimetry.illuminant().name(),
+            "observer": "CIE 1931 2 degree",
+            "band_limited_nm": [lo, hi],
+            "approach": "measured reflectance at the capture's bands and the film model averaged over the same passbands, both interpolated onto the CIE 5 nm grid and summed only within the bands (white = perfect reflector over the same range); pixels with a reliable thickness and a fully usable measured spectrum",
+            "width": self.width,
+            "height": self.height,
+            "overall": self.overall,
+            "per_angle": self.angles.iter().map(|a| json!({
+                "incidence_deg": a.incidence_deg,
+                "pixels": a.stats.pixels,
+                "mean": a.stats.mean,
+                "median": a.stats.median,
+                "p95": a.stats.p95,
+            })).collect::<Vec<_>>(),
+        })
+    }
+
+    /// The figure: per angle (rows), measured | reproduced | CIEDE2000 map, with one
+    /// exposure for every image and one colour scale for every map.
+    pub fn to_png(&self) -> Result<Vec<u8>, AppearanceError> {
+        const MARGIN: usize = 12;
+        const GAP: usize = 12;
+        const TEXT: usize = 2;
+        const LINE: usize = CAP_ROWS * TEXT + 8;
+        const LABEL_W: usize = 60;
+        const BAR_W: usize = 20;
+        let white = self.colorimetry.white();
+        let all: Vec<Xyz> = self
+            .angles
+            .iter()
+            .flat_map(|a| a.measured.iter().chain(&a.reproduced).copied())
+            .collect();
+        let exposure = auto_exposure(&all);
+        let (sw, sh, idx) = sample_grid(self.width, self.height, 512);
+        let scale = upscale(sw, 192);
+        let (pw, ph) = (sw * scale, sh * scale);
+        let de_max = self
+            .angles
+            .iter()
+            .map(|a| a.stats.p95)
+            .filter(|v| v.is_finite())
+            .fold(0.0, f64::max)
+            .max(0.5)
+            * 1.5;
+        let stats_w = text_width("mean 00.00, p95 00.00", TEXT);
+        let width = MARGIN * 2 + LABEL_W + 3 * (pw + GAP) + stats_w + GAP + BAR_W + 80;
+        let (lo, hi) = self.colorimetry.range_nm();
+        let title = format!(
+            "measured vs reproduced, {lo:.0}-{hi:.0} nm, {}, exposure x{exposure:.1}; all angles: mean {:.2}, p95 {:.2} dE00",
+            self.colorimetry.illuminant().name(),
+            self.overall.mean,
+            self.overall.p95
+        );
+        let width = width.max(2 * MARGIN + text_width(&title, TEXT));
+        let height = MARGIN + 2 * LINE + self.angles.len() * (ph + GAP) + LINE + MARGIN;
+        if width.saturating_mul(height) > crate::export::png::MAX_PIXELS {
+            return Err(AppearanceError(format!(
+                "a {width}x{height} comparison is too large"
+            )));
+        }
+        let mut c = Canvas::new(width, height, BACKGROUND);
+        c.text(MARGIN, MARGIN, &title, TEXT, INK);
+        let x0 = MARGIN + LABEL_W;
+        let mut y = MARGIN + LINE;
+        for (k, head) in ["measured", "reproduced", "dE00"].iter().enumerate() {
+            c.text(x0 + k * (pw + GAP), y, head, TEXT, INK);
+        }
+        y += LINE;
+        let top = y;
+        for a in &self.angles {
+            c.text(
+                MARGIN,
+                y + ph / 2,
+                &format!("{:.0}°", a.incidence_deg),
+                TEXT,
+                INK,
+            );
+            let pick = |v: &[Xyz]| -> Vec<[u8; 3]> {
+                idx.iter()
+                    .map(|&i| display_rgb(v[i], white, exposure))
+                    .collect()
+            };
+            blit(&mut c, x0, y, sw, &pick(&a.measured), scale);
+            blit(&mut c, x0 + pw + GAP, y, sw, &pick(&a.reproduced), scale);
+            let heat: Vec<[u8; 3]> = idx
+                .iter()
+                .map(|&i| {
+                    let v = f64::from(a.delta_e2000[i]);
+                    if v.is_finite() {
+                        viridis((v / de_max).clamp(0.0, 1.0))
+                    } else {
+                        NO_DATA
+                    }
+                })
+                .collect();
+            blit(&mut c, x0 + 2 * (pw + GAP), y, sw, &heat, scale);
+            let s = format!("mean {:.2}, p95 {:.2}", a.stats.mean, a.stats.p95);
+            c.text(x0 + 3 * (pw + GAP), y + ph / 2, &s, TEXT, INK);
+            y += ph + GAP;
+        }
+        let bar_x = x0 + 3 * (pw + GAP) + stats_w + GAP;
+        let bar_h = y.saturating_sub(top + GAP).max(40);
+        c.colour_bar(bar_x, top, BAR_W, bar_h, true);
+        c.text(bar_x + BAR_W + 6, top, &format!("{de_max:.1}"), TEXT, INK);
+        c.text(
+            bar_x + BAR_W + 6,
+            top + bar_h / 2 - CAP_ROWS,
+            &format!("{:.1}", de_max / 2.0),
+            TEXT,
+            INK,
+        );
+        c.text(
+            bar_x + BAR_W + 6,
+            top + bar_h - CAP_ROWS * TEXT,
+            "0",
+            TEXT,
+            INK,
+        );
+        c.fill(MARGIN, y, CAP_ROWS * TEXT, CAP_ROWS * TEXT, NO_DATA);
+        c.text(
+            MARGIN + CAP_ROWS * TEXT + 6,
+            y,
+            "grey = not compared (no reliable thickness, or a saturated/dead band)",
+            TEXT,
+            INK,
+        );
+        c.encode().map_err(|e| AppearanceError(e.to_string()))
+    }
+}
