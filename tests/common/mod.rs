@@ -56,3 +56,29 @@ pub fn s(p: &Path) -> &str {
 pub fn join(dir: &Path, name: &str) -> PathBuf {
     dir.join(name)
 }
+
+/// Simulates [`tiny_scene`] into `dir/cap` (`noise_free` as `simulate --noise-free`) and
+/// estimates it into `dir/est` with the binary; returns both paths.
+pub fn estimated_tiny(dir: &Path, noise_free: bool) -> (PathBuf, PathBuf) {
+    let (cap, est) = (dir.join("cap"), dir.join("est"));
+    filmscope::simulate::write_capture(
+        &tiny_scene(),
+        &cap,
+        filmscope::simulate::SimulateOptions {
+            noise_free,
+            ..Default::default()
+        },
+        &|_| {},
+    )
+    .expect("capture");
+    let run = filmscope()
+        .args(["estimate", s(&cap), "--out", s(&est)])
+        .output()
+        .expect("run estimate");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    (cap, est)
+}
