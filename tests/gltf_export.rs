@@ -67,7 +67,7 @@ fn pack_glb(json: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
     out
 }
 
-fn view<'a>(glb: &'a Glb, index: u64) -> &'a [u8] {
+fn view(glb: &Glb, index: u64) -> &[u8] {
     let v = &glb.json["bufferViews"][index as usize];
     let off = v["byteOffset"].as_u64().unwrap_or(0) as usize;
     let len = v["byteLength"].as_u64().expect("byteLength") as usize;
