@@ -110,7 +110,7 @@ impl Page {
 }
 
 /// Marks every image as loaded or not once the page has loaded.
-const IMAGE_CHECK_SCRIPT: &str = "<script>\nwindow.addEventListener('load', function () {\n  var imgs = document.images, ok = 0;\n  for (var i = 0; i < imgs.length; i++) {\n    var good = imgs[i].complete && imgs[i].naturalWidth > 0;\n    imgs[i].setAttribute('data-loaded', good ? 'yes' : 'no');\n    if (good) ok++;\n  }\n  var s = document.getElementById('image-check');\n  s.setAttribute('data-ok', ok);\n  s.setAttribute('data-failed', imgs.length - ok);\n  s.textContent = ok + ' of ' + imgs.length + ' images loaded';\n});\n</script>\n";
+pub const IMAGE_CHECK_SCRIPT: &str = "<script>\nwindow.addEventListener('load', function () {\n  var imgs = document.images, ok = 0;\n  for (var i = 0; i < imgs.length; i++) {\n    var good = imgs[i].complete && imgs[i].naturalWidth > 0;\n    imgs[i].setAttribute('data-loaded', good ? 'yes' : 'no');\n    if (good) ok++;\n  }\n  var s = document.getElementById('image-check');\n  s.setAttribute('data-ok', ok);\n  s.setAttribute('data-failed', imgs.length - ok);\n  s.textContent = ok + ' of ' + imgs.length + ' images loaded';\n});\n</script>\n";
 
 const STYLE: &str = "<style>body{font-family:sans-serif;max-width:1200px;margin:1em auto;color:#222}table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:2px 8px;text-align:left}figure{margin:1em 0}img{max-width:100%;image-rendering:pixelated}#image-check{color:#888;font-size:small}</style>\n";
 

@@ -4,7 +4,7 @@
 //!
 //! The validator runs when `FILMSCOPE_GLTF_VALIDATOR` names the folder it was installed
 //! into (`npm install --prefix DIR gltf-validator`, as `.ci/run` does) and `node` is on the
-//! PATH. With `FILMSCOPE_REQUIRE_INTEROP=1` (set by `.ci/run` once it installed the tools)
+//! PATH. With `FILMSCOPE_REQUIRE_GLTF_VALIDATOR=1` (set by `.ci/run` once it installed it)
 //! a missing validator is a failure; otherwise the test says why it skipped.
 
 mod common;
@@ -217,8 +217,9 @@ fn khronos_gltf_validator_reports_no_errors() {
     let prefix = match validator() {
         Ok(p) => p,
         Err(why) => {
-            let required = std::env::var("FILMSCOPE_REQUIRE_INTEROP").is_ok_and(|v| v == "1");
-            assert!(!required, "FILMSCOPE_REQUIRE_INTEROP=1 but {why}");
+            let required =
+                std::env::var("FILMSCOPE_REQUIRE_GLTF_VALIDATOR").is_ok_and(|v| v == "1");
+            assert!(!required, "FILMSCOPE_REQUIRE_GLTF_VALIDATOR=1 but {why}");
             eprintln!("skipped: glTF-Validator not available ({why})");
             return;
         }
