@@ -5,32 +5,11 @@
 
 mod common;
 
-use std::path::PathBuf;
-
-use common::{estimated_tiny, filmscope, s, tempdir};
+use common::{colour_fixture_rows, estimated_tiny, filmscope, run_ok, s, tempdir};
 use filmscope::appearance::render::{display_rgb, FLAG_COLOUR};
 use filmscope::appearance::spectral::FilmColour;
 use filmscope::colour::{srgb_to_u8, xyz_to_srgb_balanced, Colorimetry, Illuminant};
 use filmscope::optics::{Dispersion, FilmStack, Polarization};
-
-/// Data rows of a fixture CSV ('#' comments and the header skipped).
-fn rows(name: &str) -> Vec<Vec<String>> {
-    let path: PathBuf = [
-        env!("CARGO_MANIFEST_DIR"),
-        "tests",
-        "fixtures",
-        "colour",
-        name,
-    ]
-    .iter()
-    .collect();
-    let text = std::fs::read_to_string(&path).expect("fixture");
-    text.lines()
-        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
-        .skip(1)
-        .map(|l| l.split(',').map(str::to_owned).collect())
-        .collect()
-}
 
 fn num(s: &str) -> f64 {
     s.parse().expect("number")
@@ -57,7 +36,7 @@ fn film_of(name: &str) -> Option<(FilmStack, f64, f64)> {
 
 #[test]
 fn spectra_under_d65_a_d50_match_colour_science() {
-    let rows = rows("illuminant_srgb.csv");
+    let rows = colour_fixture_rows("illuminant_srgb.csv");
     assert_eq!(rows.len(), 132);
     let mut films = 0;
     for row in rows {
@@ -127,15 +106,7 @@ fn white_balance_makes_white_white_under_every_illuminant() {
 }
 
 fn compare_json(est: &std::path::Path) -> serde_json::Value {
-    let run = filmscope()
-        .args(["compare", s(est)])
-        .output()
-        .expect("run compare");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    run_ok(&["compare", s(est)]);
     let text = std::fs::read_to_string(est.join("compare.json")).expect("compare.json");
     serde_json::from_str(&text).expect("json")
 }
@@ -188,16 +159,18 @@ fn render_writes_a_png_with_flagged_pixels_grey() {
     let (_, est) = estimated_tiny(dir.path(), false);
     for ill in ["D65", "A", "d50"] {
         let out = dir.path().join(format!("render-{ill}.png"));
-        let run = filmscope()
-            .args(["render", s(&est), "--out", s(&out), "--angle", "45"])
-            .args(["--illuminant", ill, "--exposure", "1.5"])
-            .output()
-            .expect("run render");
-        assert!(
-            run.status.success(),
-            "{}",
-            String::from_utf8_lossy(&run.stderr)
-        );
+        run_ok(&[
+            "render",
+            s(&est),
+            "--out",
+            s(&out),
+            "--angle",
+            "45",
+            "--illuminant",
+            ill,
+            "--exposure",
+            "1.5",
+        ]);
         let img = image::open(&out).expect("render decodes").to_rgb8();
         // The main image is the tiny map enlarged 12x, framed, below one line of title.
         assert!(
@@ -254,13 +227,5 @@ fn appearance_commands_fail_with_one_line_naming_the_file() {
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(!run.status.success() && err.contains("--capture"), "{err}");
     let cap = dir.path().join("cap");
-    let run = filmscope()
-        .args(["render", s(&est), "--out", s(&out), "--capture", s(&cap)])
-        .output()
-        .expect("run");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    run_ok(&["render", s(&est), "--out", s(&out), "--capture", s(&cap)]);
 }

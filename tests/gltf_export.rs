@@ -12,7 +12,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{estimated_tiny, filmscope, s, tempdir};
+use common::{estimated_tiny, run_ok, s, tempdir};
 use filmscope::io::read_cube;
 
 /// A GLB taken apart: its JSON and its binary chunk.
@@ -75,15 +75,7 @@ fn view(glb: &Glb, index: u64) -> &[u8] {
 }
 
 fn export(est: &Path, out: &Path) {
-    let run = filmscope()
-        .args(["export-gltf", s(est), "--out", s(out), "--width-m", "0.2"])
-        .output()
-        .expect("run export-gltf");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    run_ok(&["export-gltf", s(est), "--out", s(out), "--width-m", "0.2"]);
 }
 
 #[test]

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{estimated_tiny, filmscope, s, tempdir};
+use common::{estimated_tiny, run_ok, s, tempdir};
 use filmscope::report::{base64, IMAGE_CHECK_SCRIPT};
 
 /// Longest a browser run may take.
@@ -98,15 +98,7 @@ fn loaded_images(browser: &Path, profile: &Path, page: &Path) -> (usize, usize, 
 fn report(dir: &Path) -> (PathBuf, String) {
     let (_, est) = estimated_tiny(dir, false);
     let out = dir.join("report.html");
-    let run = filmscope()
-        .args(["report", s(&est), "--out", s(&out)])
-        .output()
-        .expect("run report");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    run_ok(&["report", s(&est), "--out", s(&out)]);
     let html = std::fs::read_to_string(&out).expect("report.html");
     (out, html)
 }

@@ -24,7 +24,7 @@ use filmscope_core::colour::{delta_e2000, Colorimetry, Illuminant, Xyz};
 use serde_json::json;
 
 use super::film::SampleFilm;
-use super::render::{auto_exposure, blit, display_rgb, sample_grid, upscale};
+use super::render::{auto_exposure, blit, display_rgb, sample_grid, swatch_note, upscale};
 use super::spectral::{capture_passbands, BandSpectrum};
 use super::AppearanceError;
 use crate::export::canvas::{text_width, Canvas, BACKGROUND, CAP_ROWS, INK};
@@ -307,13 +307,12 @@ impl Comparison {
             TEXT,
             INK,
         );
-        c.fill(MARGIN, y, CAP_ROWS * TEXT, CAP_ROWS * TEXT, NO_DATA);
-        c.text(
-            MARGIN + CAP_ROWS * TEXT + 6,
+        swatch_note(
+            &mut c,
+            MARGIN,
             y,
+            NO_DATA,
             "grey = not compared (no reliable thickness, or a saturated/dead band)",
-            TEXT,
-            INK,
         );
         c.encode().map_err(|e| AppearanceError(e.to_string()))
     }

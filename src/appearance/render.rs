@@ -146,6 +146,13 @@ pub(crate) fn blit(c: &mut Canvas, x: usize, y: usize, w: usize, rgb: &[[u8; 3]]
     );
 }
 
+/// A legend line at `(x, y)`: a square of `colour`, then `text` (font scale 2).
+pub(crate) fn swatch_note(c: &mut Canvas, x: usize, y: usize, colour: [u8; 3], text: &str) {
+    let side = CAP_ROWS * TEXT;
+    c.fill(x, y, side, side, colour);
+    c.text(x + side + 6, y, text, TEXT, INK);
+}
+
 /// Main image: at most this many columns are computed.
 const MAIN_MAX_WIDTH: usize = 1024;
 /// Main image: enlarged to at least this width.
@@ -280,13 +287,12 @@ pub fn render_png(
         );
     }
     y += LINE;
-    c.fill(MARGIN, y, CAP_ROWS * TEXT, CAP_ROWS * TEXT, FLAG_COLOUR);
-    c.text(
-        MARGIN + CAP_ROWS * TEXT + 6,
+    swatch_note(
+        &mut c,
+        MARGIN,
         y,
+        FLAG_COLOUR,
         "grey = no reliable thickness (NaN or flagged)",
-        TEXT,
-        INK,
     );
     let png = c
         .encode()
