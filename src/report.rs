@@ -15,12 +15,13 @@ use std::path::Path;
 
 use filmscope_core::colour::Illuminant;
 
-use crate::appearance::compare::{compare, load_sweep, Comparison};
+use crate::appearance::compare::{compare, load_sweep, median_pixel_spectra, Comparison};
 use crate::appearance::render::{render_png, RenderOptions};
 use crate::appearance::{AppearanceError, SampleFilm};
 use crate::export::plot::{render_scatter_panels_png, Scatter, Series};
 use crate::export::png::{render_map_png, MapPreview};
 use crate::io::{read_cube, write_atomic};
+use crate::sweep::SweepCube;
 
 /// The angle of the report's render, degrees.
 pub const REPORT_ANGLE_DEG: f64 = 30.0;
@@ -213,6 +214,61 @@ fn comparison_charts(cmp: &Comparison) -> Result<Vec<u8>, AppearanceError> {
         .map_err(|e| AppearanceError(e.to_string()))
 }
 
+/// Reflectance against wavelength of the pixel of median thickness, measured and
+/// modelled, at the first and last captured angle; `None` without such a pixel.
+fn spectra_chart(film: &SampleFilm, cube: &SweepCube) -> Result<Option<Vec<u8>>, AppearanceError> {
+    let Some((pixel, d, spectra)) = median_pixel_spectra(film, cube) else {
+        return Ok(None);
+    };
+    let ends = [spectra.first(), spectra.last()];
+    let names: Vec<[String; 2]> = ends
+        .iter()
+        .flatten()
+        .map(|p| {
+            [
+                format!("measured {:.0}°", p.incidence_deg),
+                format!("model {:.0}°", p.incidence_deg),
+            ]
+        })
+        .collect();
+    let series: Vec<Series> = ends
+        .iter()
+        .flatten()
+        .zip(&names)
+        .flat_map(|(p, [m, f])| {
+            [
+                Series {
+                    name: m,
+                    points: &p.measured,
+                    labels: None,
+                },
+                Series {
+                    name: f,
+                    points: &p.model,
+                    labels: None,
+                },
+            ]
+        })
+        .collect();
+    let title = format!(
+        "pixel ({}, {}), d = {d:.1} nm",
+        pixel % film.width,
+        pixel / film.width
+    );
+    let panels = [Scatter {
+        title: &title,
+        x_label: "wavelength, nm",
+        y_label: "reflectance",
+        x_log: false,
+        y_log: false,
+        series: &series,
+        pareto: false,
+    }];
+    render_scatter_panels_png("measured and modelled spectra", &panels)
+        .map(Some)
+        .map_err(|e| AppearanceError(e.to_string()))
+}
+
 /// Writes the report of the maps directory `run` to `out` (atomically).
 pub fn write_report(
     run: &Path,
@@ -284,11 +340,11 @@ pub fn write_report(
     let cmp = match film.capture.as_deref() {
         None => Err("the capture is unknown (pass --capture)".to_owned()),
         Some(cap) => load_sweep(cap)
-            .and_then(|cube| compare(&film, &cube, Illuminant::D65))
+            .and_then(|cube| compare(&film, &cube, Illuminant::D65).map(|c| (cube, c)))
             .map_err(|e| e.to_string()),
     };
     match cmp {
-        Ok(cmp) => {
+        Ok((cube, cmp)) => {
             let (lo, hi) = cmp.colorimetry.range_nm();
             page.para(&format!(
                 "Both the measured reflectance and the film model averaged over the same passbands are summed to XYZ over {lo:.0}-{hi:.0} nm only (D65, CIE 1931 2°, white = perfect reflector over the same range); CIEDE2000 per pixel. All angles: mean {:.3}, p95 {:.3} over {} pixels.",
@@ -323,6 +379,12 @@ pub fn write_report(
             );
             page.heading("Charts");
             page.image(&comparison_charts(&cmp)?, "CIEDE2000 per captured angle");
+            if let Some(png) = spectra_chart(&film, &cube)? {
+                page.image(
+                    &png,
+                    "the pixel of median thickness: measured band reflectance and the model, first and last angle",
+                );
+            }
         }
         Err(why) => {
             page.para(&format!("No comparison: {why}."));

@@ -182,6 +182,62 @@ pub fn compare(
     })
 }
 
+/// One pixel's band reflectance at one angle, measured and modelled: `(nm, R)` pairs.
+#[derive(Clone, Debug)]
+pub struct PixelSpectra {
+    /// Incidence angle, degrees.
+    pub incidence_deg: f64,
+    /// Measured (calibrated) reflectance per band.
+    pub measured: Vec<(f64, f64)>,
+    /// The film model averaged over each band's passband.
+    pub model: Vec<(f64, f64)>,
+}
+
+/// The pixel whose reliable thickness is nearest the median and whose measured spectra are
+/// usable at every angle: its index, thickness (nm) and spectra per angle (ascending).
+/// `None` without such a pixel.
+pub fn median_pixel_spectra(
+    film: &SampleFilm,
+    cube: &SweepCube,
+) -> Option<(usize, f64, Vec<PixelSpectra>)> {
+    let median = film.median_thickness_nm()?;
+    let nb = cube.bands_nm.len();
+    let mut spectrum = vec![0f32; nb];
+    let usable = |i: usize, spectrum: &mut [f32]| {
+        (0..cube.angles_deg.len()).all(|a| {
+            cube.spectrum_into(a, i % film.width, i / film.width, spectrum);
+            spectrum.iter().all(|v| v.is_finite())
+        })
+    };
+    let (pixel, d) = (0..film.width * film.height)
+        .filter_map(|i| film.thickness_at(i).map(|d| (i, d)))
+        .filter(|&(i, _)| i < cube.width * cube.height && usable(i, &mut spectrum))
+        .min_by(|a, b| (a.1 - median).abs().total_cmp(&(b.1 - median).abs()))?;
+    let bands = capture_passbands(&cube.bands_nm, &cube.fwhm_nm);
+    let mut stack = film.stack;
+    stack.polarization = cube.polarization;
+    let mut model = vec![0f64; nb];
+    let mut out: Vec<PixelSpectra> = (0..cube.angles_deg.len())
+        .map(|a| {
+            let deg = cube.angles_deg[a];
+            cube.spectrum_into(a, pixel % film.width, pixel / film.width, &mut spectrum);
+            BandSpectrum::new(stack, deg, &bands).reflectance_into(d, &mut model);
+            PixelSpectra {
+                incidence_deg: deg,
+                measured: cube
+                    .bands_nm
+                    .iter()
+                    .zip(&spectrum)
+                    .map(|(&l, &r)| (l, f64::from(r)))
+                    .collect(),
+                model: cube.bands_nm.iter().copied().zip(model.clone()).collect(),
+            }
+        })
+        .collect();
+    out.sort_by(|a, b| a.incidence_deg.total_cmp(&b.incidence_deg));
+    Some((pixel, d, out))
+}
+
 impl Comparison {
     /// The figures as JSON (`compare.json`): the approach, then per angle and overall
     /// mean / median / p95 CIEDE2000.
@@ -315,5 +371,22 @@ impl Comparison {
             "grey = not compared (no reliable thickness, or a saturated/dead band)",
         );
         c.encode().map_err(|e| AppearanceError(e.to_string()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stats_use_nearest_rank_percentiles_and_skip_nan() {
+        let v: Vec<f32> = (1..=100).map(|i| i as f32).chain([f32::NAN]).collect();
+        let s = DeltaStats::of(v.into_iter());
+        assert_eq!(s.pixels, 100);
+        assert_eq!((s.median, s.p95), (50.0, 95.0));
+        assert!((s.mean - 50.5).abs() < 1e-12);
+        let empty = DeltaStats::of([f32::NAN].into_iter());
+        assert_eq!(empty.pixels, 0);
+        assert!(empty.mean.is_nan() && empty.p95.is_nan());
     }
 }

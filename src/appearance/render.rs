@@ -306,3 +306,33 @@ pub fn render_png(
         },
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sample_grid_strides_large_maps_and_keeps_small_ones() {
+        let (w, h, idx) = sample_grid(4, 3, 1024);
+        assert_eq!((w, h), (4, 3));
+        assert_eq!(idx, (0..12).collect::<Vec<_>>());
+        let (w, h, idx) = sample_grid(10, 5, 4);
+        // Stride 3: columns 0, 3, 6, 9 of rows 0 and 3.
+        assert_eq!((w, h), (4, 2));
+        assert_eq!(idx, vec![0, 3, 6, 9, 30, 33, 36, 39]);
+        assert_eq!(upscale(96, 384), 4);
+        assert_eq!(upscale(1000, 384), 1);
+    }
+
+    #[test]
+    fn auto_exposure_targets_the_99th_percentile() {
+        let xyz = |y: f64| Xyz { x: y, y, z: y };
+        let mut v: Vec<Xyz> = (1..=100).map(|i| xyz(f64::from(i) * 0.1)).collect();
+        v.push(Xyz::NAN);
+        // The 99th percentile is 9.9: 40 / 9.9.
+        assert!((auto_exposure(&v) - 40.0 / 9.9).abs() < 1e-12);
+        assert_eq!(auto_exposure(&[xyz(80.0)]), 1.0);
+        assert_eq!(auto_exposure(&[xyz(0.01)]), 100.0);
+        assert_eq!(auto_exposure(&[Xyz::NAN]), 1.0);
+    }
+}
