@@ -16,7 +16,6 @@
 //! in [`FLAG_COLOUR`], the same neutral mid grey as "no estimate" in the map previews.
 
 use filmscope_core::colour::{srgb_to_u8, xyz_to_srgb_balanced, Colorimetry, Illuminant, Xyz};
-use filmscope_core::optics::FilmStack;
 
 use super::film::SampleFilm;
 use super::spectral::FilmColour;
@@ -58,16 +57,15 @@ pub struct RenderInfo {
     pub height: usize,
 }
 
-/// The XYZ of every pixel of `film` at `incidence_deg` (pixel indices `pixels` of the
-/// row-major map), [`Xyz::NAN`] where the thickness is not reliable.
+/// The XYZ of pixels `pixels` (indices into the row-major map) of `film` at
+/// `incidence_deg`, [`Xyz::NAN`] where the thickness is not reliable.
 pub fn film_xyz(
     film: &SampleFilm,
-    stack: FilmStack,
     incidence_deg: f64,
     colorimetry: Colorimetry,
     pixels: &[usize],
 ) -> Vec<Xyz> {
-    let colour = FilmColour::new(stack, incidence_deg, colorimetry);
+    let colour = FilmColour::new(film.stack, incidence_deg, colorimetry);
     pixels
         .iter()
         .map(|&i| film.thickness_at(i).map_or(Xyz::NAN, |d| colour.xyz(d)))
@@ -176,9 +174,8 @@ pub fn render_png(
 ) -> Result<(Vec<u8>, RenderInfo), super::AppearanceError> {
     let colorimetry = Colorimetry::full(opts.illuminant);
     let white = colorimetry.white();
-    let stack = film.stack;
     let (mw, mh, main_idx) = sample_grid(film.width, film.height, MAIN_MAX_WIDTH);
-    let main_xyz = film_xyz(film, stack, opts.incidence_deg, colorimetry, &main_idx);
+    let main_xyz = film_xyz(film, opts.incidence_deg, colorimetry, &main_idx);
     let exposure = opts.exposure.unwrap_or_else(|| auto_exposure(&main_xyz));
     let to_rgb = |v: &[Xyz]| -> Vec<[u8; 3]> {
         v.iter().map(|&x| display_rgb(x, white, exposure)).collect()
@@ -190,7 +187,7 @@ pub fn render_png(
     let tile_scale = upscale(tw, TILE_MIN_WIDTH);
     let tiles: Vec<Vec<[u8; 3]>> = STRIP_ANGLES_DEG
         .iter()
-        .map(|&deg| to_rgb(&film_xyz(film, stack, deg, colorimetry, &tile_idx)))
+        .map(|&deg| to_rgb(&film_xyz(film, deg, colorimetry, &tile_idx)))
         .collect();
     let (tile_w, tile_h) = (tw * tile_scale, th * tile_scale);
     let strip_w = STRIP_ANGLES_DEG.len() * (tile_w + GAP) - GAP;
@@ -201,7 +198,7 @@ pub fn render_png(
         .map(|k| {
             let deg = k as f64 * BAND_STEP_DEG;
             let xyz = median.map_or(Xyz::NAN, |d| {
-                FilmColour::new(stack, deg, colorimetry).xyz(d)
+                FilmColour::new(film.stack, deg, colorimetry).xyz(d)
             });
             display_rgb(xyz, white, exposure)
         })
