@@ -173,11 +173,15 @@ impl SampleFilm {
             }
             _ => String::new(),
         };
+        let light = match self.stack.polarization {
+            Polarization::S => "S-polarised",
+            Polarization::P => "P-polarised",
+            Polarization::Unpolarized => "unpolarised",
+        };
         format!(
-            "n = {:.4}{disp} on n = {:.3}, {}-pol",
+            "n = {:.4}{disp} on n = {:.3}, {light}",
             self.index_550(),
             self.substrate_550(),
-            self.stack.polarization.name()
         )
     }
 }
