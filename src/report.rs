@@ -15,13 +15,14 @@ use std::path::Path;
 
 use filmscope_core::colour::Illuminant;
 
-use crate::appearance::compare::{compare, load_sweep, median_pixel_spectra, Comparison};
+use crate::appearance::compare::{
+    compare_stream, median_pixel, open_capture, Comparison, PixelSpectra,
+};
 use crate::appearance::render::{render_png, RenderOptions};
 use crate::appearance::{AppearanceError, SampleFilm};
 use crate::export::plot::{render_scatter_panels_png, Scatter, Series};
 use crate::export::png::{render_map_png, MapPreview};
 use crate::io::{read_cube, write_atomic};
-use crate::sweep::SweepCube;
 
 /// The angle of the report's render, degrees.
 pub const REPORT_ANGLE_DEG: f64 = 30.0;
@@ -216,10 +217,16 @@ fn comparison_charts(cmp: &Comparison) -> Result<Vec<u8>, AppearanceError> {
 
 /// Reflectance against wavelength of the pixel of median thickness, measured and
 /// modelled, at the first and last captured angle; `None` without such a pixel.
-fn spectra_chart(film: &SampleFilm, cube: &SweepCube) -> Result<Option<Vec<u8>>, AppearanceError> {
-    let Some((pixel, d, spectra)) = median_pixel_spectra(film, cube) else {
+fn spectra_chart(
+    film: &SampleFilm,
+    spectra: &[PixelSpectra],
+) -> Result<Option<Vec<u8>>, AppearanceError> {
+    let Some((pixel, d)) = median_pixel(film).and_then(|p| Some((p, film.thickness_at(p)?))) else {
         return Ok(None);
     };
+    if spectra.is_empty() {
+        return Ok(None);
+    }
     let ends = [spectra.first(), spectra.last()];
     let names: Vec<[String; 2]> = ends
         .iter()
@@ -339,12 +346,14 @@ pub fn write_report(
     page.heading("Measured against reproduced");
     let cmp = match film.capture.as_deref() {
         None => Err("the capture is unknown (pass --capture)".to_owned()),
-        Some(cap) => load_sweep(cap)
-            .and_then(|cube| compare(&film, &cube, Illuminant::D65).map(|c| (cube, c)))
+        Some(cap) => open_capture(cap)
+            .and_then(|mut source| {
+                compare_stream(&film, &mut source, Illuminant::D65, median_pixel(&film))
+            })
             .map_err(|e| e.to_string()),
     };
     match cmp {
-        Ok((cube, cmp)) => {
+        Ok((cmp, spectra)) => {
             let (lo, hi) = cmp.colorimetry.range_nm();
             page.para(&format!(
                 "Both the measured reflectance and the film model averaged over the same passbands are summed to XYZ over {lo:.0}-{hi:.0} nm only (D65, CIE 1931 2°, white = perfect reflector over the same range); CIEDE2000 per pixel. All angles: mean {:.3}, p95 {:.3} over {} pixels.",
@@ -379,7 +388,7 @@ pub fn write_report(
             );
             page.heading("Charts");
             page.image(&comparison_charts(&cmp)?, "CIEDE2000 per captured angle");
-            if let Some(png) = spectra_chart(&film, &cube)? {
+            if let Some(png) = spectra_chart(&film, &spectra)? {
                 page.image(
                     &png,
                     "the pixel of median thickness: measured band reflectance and the model, first and last angle",

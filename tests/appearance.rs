@@ -229,3 +229,63 @@ fn appearance_commands_fail_with_one_line_naming_the_file() {
     let cap = dir.path().join("cap");
     run_ok(&["render", s(&est), "--out", s(&out), "--capture", s(&cap)]);
 }
+
+#[test]
+fn streamed_comparison_equals_the_whole_cube_one() {
+    use filmscope::appearance::compare::{compare_stream, median_pixel, open_capture};
+    use filmscope::appearance::SampleFilm;
+    use filmscope::pipeline::collect_sweep;
+
+    let dir = tempdir();
+    let (cap, est) = estimated_tiny(dir.path(), false);
+    let film = SampleFilm::load(&est, None).expect("film");
+    let trace = median_pixel(&film).expect("a reliable pixel");
+    let (cmp, spectra) = compare_stream(
+        &film,
+        &mut open_capture(&cap).expect("capture"),
+        Illuminant::A,
+        Some(trace),
+    )
+    .expect("compare");
+    let cube = collect_sweep(&mut open_capture(&cap).expect("capture")).expect("sweep");
+    let c = cmp.colorimetry;
+    assert_eq!(c.illuminant(), Illuminant::A);
+    assert_eq!(spectra.len(), cube.angles_deg.len());
+    let mut spectrum = vec![0f32; cube.bands_nm.len()];
+    let mut compared = 0;
+    for (a, &deg) in cube.angles_deg.iter().enumerate() {
+        let streamed = cmp
+            .angles
+            .iter()
+            .find(|s| s.incidence_deg == deg)
+            .expect("angle");
+        let traced = spectra
+            .iter()
+            .find(|s| s.incidence_deg == deg)
+            .expect("trace");
+        for i in 0..cube.width * cube.height {
+            cube.spectrum_into(a, i % cube.width, i / cube.width, &mut spectrum);
+            let usable = spectrum.iter().all(|v| v.is_finite());
+            let got = streamed.measured[i];
+            if i == trace {
+                for ((_, m), &v) in traced.measured.iter().zip(&spectrum) {
+                    assert!(m.to_bits() == f64::from(v).to_bits(), "traced {m} vs {v}");
+                }
+            }
+            if !(usable && film.thickness_at(i).is_some()) {
+                assert!(got.y.is_nan(), "pixel {i} should not be compared");
+                continue;
+            }
+            let r: Vec<f64> = spectrum.iter().map(|&v| f64::from(v)).collect();
+            let want = c.xyz_sampled(&cube.bands_nm, &r);
+            for (g, w) in [(got.x, want.x), (got.y, want.y), (got.z, want.z)] {
+                assert!(
+                    (g - w).abs() <= 1e-9 * w.abs() + 1e-12,
+                    "pixel {i}: {got:?} vs {want:?}"
+                );
+            }
+            compared += 1;
+        }
+    }
+    assert!(compared > 2500, "{compared}");
+}

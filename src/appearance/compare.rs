@@ -17,10 +17,16 @@
 //! A pixel takes part where its thickness is reliable and every band of its measured
 //! spectrum is usable (no saturated or dead sample). The mean and 95th percentile are over
 //! those pixels, per angle and over all angles.
+//!
+//! The capture is streamed, not loaded: each angle's measured colour is summed band by band
+//! as the rows arrive ([`compare_stream`]), so memory is a few numbers per pixel and angle
+//! whatever the number of bands.
 
 use std::path::Path;
 
+use crossbeam_channel::bounded;
 use filmscope_core::colour::{delta_e2000, Colorimetry, Illuminant, Xyz};
+use filmscope_core::optics::{FilmStack, Passband};
 use serde_json::json;
 
 use super::film::SampleFilm;
@@ -30,8 +36,7 @@ use super::AppearanceError;
 use crate::export::canvas::{text_width, Canvas, BACKGROUND, CAP_ROWS, INK};
 use crate::export::colormap::{viridis, NO_DATA};
 use crate::io::Capture;
-use crate::pipeline::{collect_sweep, CaptureSource};
-use crate::sweep::SweepCube;
+use crate::pipeline::{calibrate_block, CaptureSource, Source, StreamMsg};
 
 /// One captured angle, measured against reproduced.
 #[derive(Clone, Debug)]
@@ -99,87 +104,10 @@ pub struct Comparison {
     pub overall: DeltaStats,
 }
 
-/// Reads and calibrates a capture whole (every angle, band and pixel).
-pub fn load_sweep(capture: &Path) -> Result<SweepCube, AppearanceError> {
+/// Opens a capture (`capture.toml` or its directory) as a stream of calibrated rows.
+pub fn open_capture(capture: &Path) -> Result<CaptureSource, AppearanceError> {
     let cap = Capture::load(capture).map_err(|e| AppearanceError(e.to_string()))?;
-    let label = cap.path.clone();
-    let mut source = CaptureSource::new(cap).map_err(AppearanceError)?;
-    collect_sweep(&mut source).map_err(|e| AppearanceError::new(&label, e))
-}
-
-/// Compares `film` with the sweep it was estimated from, under `illuminant`.
-pub fn compare(
-    film: &SampleFilm,
-    cube: &SweepCube,
-    illuminant: Illuminant,
-) -> Result<Comparison, AppearanceError> {
-    let at = |what: String| AppearanceError::new(&film.maps_dir, what);
-    if (cube.width, cube.height) != (film.width, film.height) {
-        return Err(at(format!(
-            "the maps are {}x{} but the capture is {}x{}",
-            film.width, film.height, cube.width, cube.height
-        )));
-    }
-    let (first, last) = (
-        cube.bands_nm.first().copied().unwrap_or(f64::NAN),
-        cube.bands_nm.last().copied().unwrap_or(f64::NAN),
-    );
-    let colorimetry = Colorimetry::within(illuminant, first, last).ok_or_else(|| {
-        at(format!(
-            "the capture's bands {first}..{last} nm hold no 5 nm CIE grid wavelength"
-        ))
-    })?;
-    let white = colorimetry.white();
-    let bands = capture_passbands(&cube.bands_nm, &cube.fwhm_nm);
-    let mut stack = film.stack;
-    stack.polarization = cube.polarization;
-    let nb = cube.bands_nm.len();
-    let mut order: Vec<usize> = (0..cube.angles_deg.len()).collect();
-    order.sort_by(|&a, &b| cube.angles_deg[a].total_cmp(&cube.angles_deg[b]));
-    let mut angles = Vec::with_capacity(order.len());
-    let (mut measured_r, mut model_r) = (vec![0f32; nb], vec![0f64; nb]);
-    let mut measured_f64 = vec![0f64; nb];
-    for a in order {
-        let deg = cube.angles_deg[a];
-        let model = BandSpectrum::new(stack, deg, &bands);
-        let n = film.width * film.height;
-        let (mut measured, mut reproduced) = (vec![Xyz::NAN; n], vec![Xyz::NAN; n]);
-        let mut de = vec![f32::NAN; n];
-        for i in 0..n {
-            let Some(d) = film.thickness_at(i) else {
-                continue;
-            };
-            cube.spectrum_into(a, i % film.width, i / film.width, &mut measured_r);
-            if measured_r.iter().any(|v| !v.is_finite()) {
-                continue;
-            }
-            for (o, &v) in measured_f64.iter_mut().zip(&measured_r) {
-                *o = f64::from(v);
-            }
-            model.reflectance_into(d, &mut model_r);
-            let m = colorimetry.xyz_sampled(&cube.bands_nm, &measured_f64);
-            let r = colorimetry.xyz_sampled(&cube.bands_nm, &model_r);
-            measured[i] = m;
-            reproduced[i] = r;
-            de[i] = delta_e2000(m.to_lab(white), r.to_lab(white)) as f32;
-        }
-        let stats = DeltaStats::of(de.iter().copied());
-        angles.push(AngleComparison {
-            incidence_deg: deg,
-            measured,
-            reproduced,
-            delta_e2000: de,
-            stats,
-        });
-    }
-    let overall = DeltaStats::of(angles.iter().flat_map(|a| a.delta_e2000.iter().copied()));
-    Ok(Comparison {
-        width: film.width,
-        height: film.height,
-        colorimetry,
-        angles,
-        overall,
-    })
+    CaptureSource::new(cap).map_err(AppearanceError)
 }
 
 /// One pixel's band reflectance at one angle, measured and modelled: `(nm, R)` pairs.
@@ -187,55 +115,227 @@ pub fn compare(
 pub struct PixelSpectra {
     /// Incidence angle, degrees.
     pub incidence_deg: f64,
-    /// Measured (calibrated) reflectance per band.
+    /// Measured (calibrated) reflectance per band (non-finite where the sample is
+    /// saturated or has no usable reference).
     pub measured: Vec<(f64, f64)>,
     /// The film model averaged over each band's passband.
     pub model: Vec<(f64, f64)>,
 }
 
-/// The pixel whose reliable thickness is nearest the median and whose measured spectra are
-/// usable at every angle: its index, thickness (nm) and spectra per angle (ascending).
-/// `None` without such a pixel.
-pub fn median_pixel_spectra(
-    film: &SampleFilm,
-    cube: &SweepCube,
-) -> Option<(usize, f64, Vec<PixelSpectra>)> {
+/// The pixel whose reliable thickness is nearest the median (`None` without any).
+pub fn median_pixel(film: &SampleFilm) -> Option<usize> {
     let median = film.median_thickness_nm()?;
-    let nb = cube.bands_nm.len();
-    let mut spectrum = vec![0f32; nb];
-    let usable = |i: usize, spectrum: &mut [f32]| {
-        (0..cube.angles_deg.len()).all(|a| {
-            cube.spectrum_into(a, i % film.width, i / film.width, spectrum);
-            spectrum.iter().all(|v| v.is_finite())
-        })
-    };
-    let (pixel, d) = (0..film.width * film.height)
+    (0..film.width * film.height)
         .filter_map(|i| film.thickness_at(i).map(|d| (i, d)))
-        .filter(|&(i, _)| i < cube.width * cube.height && usable(i, &mut spectrum))
-        .min_by(|a, b| (a.1 - median).abs().total_cmp(&(b.1 - median).abs()))?;
-    let bands = capture_passbands(&cube.bands_nm, &cube.fwhm_nm);
-    let mut stack = film.stack;
-    stack.polarization = cube.polarization;
-    let mut model = vec![0f64; nb];
-    let mut out: Vec<PixelSpectra> = (0..cube.angles_deg.len())
-        .map(|a| {
-            let deg = cube.angles_deg[a];
-            cube.spectrum_into(a, pixel % film.width, pixel / film.width, &mut spectrum);
-            BandSpectrum::new(stack, deg, &bands).reflectance_into(d, &mut model);
-            PixelSpectra {
-                incidence_deg: deg,
-                measured: cube
-                    .bands_nm
-                    .iter()
-                    .zip(&spectrum)
-                    .map(|(&l, &r)| (l, f64::from(r)))
-                    .collect(),
-                model: cube.bands_nm.iter().copied().zip(model.clone()).collect(),
-            }
+        .min_by(|a, b| (a.1 - median).abs().total_cmp(&(b.1 - median).abs()))
+        .map(|(i, _)| i)
+}
+
+/// The comparison of the angle being streamed: measured XYZ summed band by band.
+struct AngleAccumulator {
+    incidence_deg: f64,
+    /// Measured XYZ per pixel, summed as the bands arrive.
+    xyz: Vec<[f64; 3]>,
+    /// Pixels with a saturated or unusable sample at some band.
+    unusable: Vec<bool>,
+    /// The traced pixel's measured spectrum (NaN until its band arrives).
+    traced: Vec<f64>,
+}
+
+/// Compares `film` with the sweep `source` streams (the capture it was estimated from),
+/// under `illuminant`, angle by angle as the rows arrive: memory is a few numbers per
+/// pixel and angle, never the whole sweep. Also returns the measured and modelled spectra
+/// of pixel `trace` (if given) at every angle, in ascending angle.
+///
+/// The band-limited XYZ of a sampled spectrum (linear interpolation onto the grid, then a
+/// weighted sum) is linear in the samples, so it is accumulated band by band with each
+/// band's weights, the XYZ of the unit spectrum at that band: exactly
+/// [`Colorimetry::xyz_sampled`] of the whole spectrum, to rounding.
+pub fn compare_stream(
+    film: &SampleFilm,
+    source: &mut dyn Source,
+    illuminant: Illuminant,
+    trace: Option<usize>,
+) -> Result<(Comparison, Vec<PixelSpectra>), AppearanceError> {
+    let at = |what: String| AppearanceError::new(&film.maps_dir, what);
+    let spec = source.spec().clone();
+    let (w, h) = (spec.width, spec.height);
+    if (w, h) != (film.width, film.height) {
+        return Err(at(format!(
+            "the maps are {}x{} but the capture is {w}x{h}",
+            film.width, film.height
+        )));
+    }
+    let bands_nm = spec.bands_nm.to_vec();
+    let (first, last) = (
+        bands_nm.first().copied().unwrap_or(f64::NAN),
+        bands_nm.last().copied().unwrap_or(f64::NAN),
+    );
+    let colorimetry = Colorimetry::within(illuminant, first, last).ok_or_else(|| {
+        at(format!(
+            "the capture's bands {first}..{last} nm hold no 5 nm CIE grid wavelength"
+        ))
+    })?;
+    let nb = bands_nm.len();
+    let weights: Vec<[f64; 3]> = (0..nb)
+        .map(|b| {
+            let unit: Vec<f64> = (0..nb).map(|k| if k == b { 1.0 } else { 0.0 }).collect();
+            let x = colorimetry.xyz_sampled(&bands_nm, &unit);
+            [x.x, x.y, x.z]
         })
         .collect();
-    out.sort_by(|a, b| a.incidence_deg.total_cmp(&b.incidence_deg));
-    Some((pixel, d, out))
+    let bands = capture_passbands(&bands_nm, &spec.fwhm_nm);
+    let mut stack = film.stack;
+    stack.polarization = spec.polarization;
+    let trace = trace.filter(|&p| p < w * h);
+
+    let mut angles = Vec::new();
+    let mut spectra = Vec::new();
+    let mut current: Option<AngleAccumulator> = None;
+    let (tx, rx) = bounded::<StreamMsg>(64);
+    std::thread::scope(|scope| -> Result<(), AppearanceError> {
+        scope.spawn(move || source.stream(&tx));
+        for msg in rx.iter() {
+            match msg {
+                StreamMsg::Angle { incidence_deg } => {
+                    current = Some(AngleAccumulator {
+                        incidence_deg,
+                        xyz: vec![[0.0; 3]; w * h],
+                        unusable: vec![false; w * h],
+                        traced: vec![f64::NAN; nb],
+                    });
+                }
+                StreamMsg::Rows(block) => {
+                    let acc = current
+                        .as_mut()
+                        .ok_or_else(|| at("the capture sent rows outside an angle".into()))?;
+                    let (band, first_row, rows) = (
+                        usize::from(block.band),
+                        block.first_row as usize,
+                        block.rows as usize,
+                    );
+                    let values = calibrate_block(block.samples, rows, w);
+                    if band >= nb || first_row + rows > h || values.len() != rows * w {
+                        return Err(at(format!(
+                            "the capture sent band {band}, rows {first_row}..{} outside its {w}x{h}x{nb} sweep",
+                            first_row + rows
+                        )));
+                    }
+                    let wb = weights[band];
+                    let start = first_row * w;
+                    for (k, &v) in values.iter().enumerate() {
+                        let px = start + k;
+                        if !v.is_finite() {
+                            acc.unusable[px] = true;
+                            continue;
+                        }
+                        let v = f64::from(v);
+                        for (s, c) in acc.xyz[px].iter_mut().zip(wb) {
+                            *s += c * v;
+                        }
+                    }
+                    if let Some(p) = trace.filter(|p| (start..start + rows * w).contains(p)) {
+                        acc.traced[band] = f64::from(values[p - start]);
+                    }
+                }
+                StreamMsg::AngleEnd => {
+                    let acc = current
+                        .take()
+                        .ok_or_else(|| at("the capture ended an angle it never began".into()))?;
+                    let (angle, traced) =
+                        finish_angle(film, stack, &bands, &weights, &colorimetry, acc, trace);
+                    angles.push(angle);
+                    if let Some(model) = traced.1 {
+                        spectra.push(PixelSpectra {
+                            incidence_deg: angles[angles.len() - 1].incidence_deg,
+                            measured: bands_nm.iter().copied().zip(traced.0).collect(),
+                            model: bands_nm.iter().copied().zip(model).collect(),
+                        });
+                    }
+                }
+                StreamMsg::BandEnd { .. } => {}
+                StreamMsg::SweepEnd => return Ok(()),
+                StreamMsg::Abort(e) => return Err(AppearanceError(e)),
+            }
+        }
+        Err(at("the capture stopped without ending the sweep".into()))
+    })?;
+    angles.sort_by(|a, b| a.incidence_deg.total_cmp(&b.incidence_deg));
+    spectra.sort_by(|a, b| a.incidence_deg.total_cmp(&b.incidence_deg));
+    let overall = DeltaStats::of(angles.iter().flat_map(|a| a.delta_e2000.iter().copied()));
+    Ok((
+        Comparison {
+            width: w,
+            height: h,
+            colorimetry,
+            angles,
+            overall,
+        },
+        spectra,
+    ))
+}
+
+/// The model side of one streamed angle, and the differences. Returns the comparison and
+/// the traced pixel's measured and (if it has a thickness) modelled spectra.
+#[allow(clippy::type_complexity)]
+fn finish_angle(
+    film: &SampleFilm,
+    stack: FilmStack,
+    bands: &[Passband],
+    weights: &[[f64; 3]],
+    colorimetry: &Colorimetry,
+    acc: AngleAccumulator,
+    trace: Option<usize>,
+) -> (AngleComparison, (Vec<f64>, Option<Vec<f64>>)) {
+    let white = colorimetry.white();
+    let model = BandSpectrum::new(stack, acc.incidence_deg, bands);
+    let n = film.width * film.height;
+    let (mut measured, mut reproduced) = (vec![Xyz::NAN; n], vec![Xyz::NAN; n]);
+    let mut de = vec![f32::NAN; n];
+    let mut r = vec![0.0; bands.len()];
+    let weighted = |r: &[f64]| {
+        let mut s = [0.0; 3];
+        for (v, wb) in r.iter().zip(weights) {
+            for (si, c) in s.iter_mut().zip(wb) {
+                *si += c * v;
+            }
+        }
+        Xyz {
+            x: s[0],
+            y: s[1],
+            z: s[2],
+        }
+    };
+    for i in 0..n {
+        let Some(d) = film.thickness_at(i) else {
+            continue;
+        };
+        if acc.unusable[i] {
+            continue;
+        }
+        let [x, y, z] = acc.xyz[i];
+        let m = Xyz { x, y, z };
+        model.reflectance_into(d, &mut r);
+        let p = weighted(&r);
+        measured[i] = m;
+        reproduced[i] = p;
+        de[i] = delta_e2000(m.to_lab(white), p.to_lab(white)) as f32;
+    }
+    let traced_model = trace.and_then(|p| film.thickness_at(p)).map(|d| {
+        model.reflectance_into(d, &mut r);
+        r.clone()
+    });
+    let stats = DeltaStats::of(de.iter().copied());
+    (
+        AngleComparison {
+            incidence_deg: acc.incidence_deg,
+            measured,
+            reproduced,
+            delta_e2000: de,
+            stats,
+        },
+        (acc.traced, traced_model),
+    )
 }
 
 impl Comparison {

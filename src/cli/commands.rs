@@ -7,8 +7,7 @@ use firmware_sim::{Scene, SoftwareCamera};
 
 use super::progress::rows_bar;
 use crate::appearance::{
-    self,
-    compare::load_sweep,
+    compare::{compare_stream, open_capture},
     render::{render_png, RenderOptions},
     SampleFilm,
 };
@@ -488,8 +487,8 @@ pub fn compare(
             maps.join("summary.json").display()
         )
     })?;
-    let cube = load_sweep(&cap)?;
-    let cmp = appearance::compare::compare(&film, &cube, ill)?;
+    let mut source = open_capture(&cap)?;
+    let (cmp, _) = compare_stream(&film, &mut source, ill, None)?;
     let dir = out.unwrap_or(maps);
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     let png_path = dir.join("compare.png");
