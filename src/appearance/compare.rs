@@ -292,7 +292,6 @@ fn finish_angle(
     let n = film.width * film.height;
     let (mut measured, mut reproduced) = (vec![Xyz::NAN; n], vec![Xyz::NAN; n]);
     let mut de = vec![f32::NAN; n];
-    let mut r = vec![0.0; bands.len()];
     let weighted = |r: &[f64]| {
         let mut s = [0.0; 3];
         for (v, wb) in r.iter().zip(weights) {
@@ -306,21 +305,44 @@ fn finish_angle(
             z: s[2],
         }
     };
-    for i in 0..n {
-        let Some(d) = film.thickness_at(i) else {
-            continue;
-        };
-        if acc.unusable[i] {
-            continue;
+    // The model costs a few thousand cosines per pixel: one share of the pixels per core.
+    let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
+    let chunk = n.div_ceil(threads).max(1);
+    let (acc_ref, model_ref, weighted_ref) = (&acc, &model, &weighted);
+    std::thread::scope(|scope| {
+        let shares = measured
+            .chunks_mut(chunk)
+            .zip(reproduced.chunks_mut(chunk))
+            .zip(de.chunks_mut(chunk))
+            .enumerate();
+        for (k, ((m_out, p_out), de_out)) in shares {
+            scope.spawn(move || {
+                let mut r = vec![0.0; bands.len()];
+                for (j, ((m_o, p_o), de_o)) in m_out
+                    .iter_mut()
+                    .zip(p_out.iter_mut())
+                    .zip(de_out.iter_mut())
+                    .enumerate()
+                {
+                    let i = k * chunk + j;
+                    let Some(d) = film.thickness_at(i) else {
+                        continue;
+                    };
+                    if acc_ref.unusable[i] {
+                        continue;
+                    }
+                    let [x, y, z] = acc_ref.xyz[i];
+                    let m = Xyz { x, y, z };
+                    model_ref.reflectance_into(d, &mut r);
+                    let p = weighted_ref(&r);
+                    *m_o = m;
+                    *p_o = p;
+                    *de_o = delta_e2000(m.to_lab(white), p.to_lab(white)) as f32;
+                }
+            });
         }
-        let [x, y, z] = acc.xyz[i];
-        let m = Xyz { x, y, z };
-        model.reflectance_into(d, &mut r);
-        let p = weighted(&r);
-        measured[i] = m;
-        reproduced[i] = p;
-        de[i] = delta_e2000(m.to_lab(white), p.to_lab(white)) as f32;
-    }
+    });
+    let mut r = vec![0.0; bands.len()];
     let traced_model = trace.and_then(|p| film.thickness_at(p)).map(|d| {
         model.reflectance_into(d, &mut r);
         r.clone()
