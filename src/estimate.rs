@@ -521,6 +521,11 @@ pub fn write_outputs(
         "valid_fraction": valid as f64 / (w * h).max(1) as f64,
         "width": w,
         "height": h,
+        "sample": {
+            "ambient_index": run.spec.ambient_index,
+            "substrate_index": run.spec.substrate_index,
+            "polarization": run.spec.polarization.name(),
+        },
         "method": r.method.name(),
         "source": source_label,
         "angles_deg": run.angles_deg,

@@ -2,16 +2,19 @@
 //! reproduced colour (spectral RMSE, CIE76, CIEDE2000) at every angle.
 //!
 //! Colour is compared on the film model over the whole visible range (380-780 nm, D65,
-//! CIE 1931 2 deg): the true film (true index with its dispersion, true thickness) against
+//! CIE 1931 2 deg, with [`FilmColour`], the model the renders use): the true film (true index with its dispersion, true thickness) against
 //! the estimated one, pixel by pixel, at each angle of the sweep. The spectral RMSE (method.md
 //! eq. 16) compares the two band-averaged spectra over the capture's own bands.
 
 use std::path::Path;
 
-use filmscope_core::colour::{delta_e2000, delta_e76, reflectance_fn_to_xyz, D65_WHITE_XYZ};
-use filmscope_core::optics::{BandModel, Dispersion, FilmStack, Passband, Polarization};
+use filmscope_core::colour::{
+    delta_e2000, delta_e76, spectral_rmse, Colorimetry, Illuminant, D65_WHITE_XYZ,
+};
+use filmscope_core::optics::{Dispersion, FilmStack, Polarization};
 use serde::Serialize;
 
+use crate::appearance::spectral::{capture_passbands, BandSpectrum, FilmColour};
 use crate::estimate::Run;
 use crate::io::read_cube;
 
@@ -77,7 +80,8 @@ impl Truth {
     }
 }
 
-fn parse_dispersion(d: &serde_json::Value) -> Option<Dispersion> {
+/// Parses a `dispersion` object of a summary or truth file (`cauchy` or `sellmeier`).
+pub(crate) fn parse_dispersion(d: &serde_json::Value) -> Option<Dispersion> {
     let f = |k: &str| d.get(k).and_then(serde_json::Value::as_f64);
     let arr = |k: &str| -> Option<[f64; 3]> {
         let a = d.get(k)?.as_array()?;
@@ -180,45 +184,36 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
     // Colour and spectra on at most ~4000 valid pixels (evenly strided) per angle.
     let stride = (valid_px.len() / 4000).max(1);
     let sample: Vec<usize> = valid_px.iter().copied().step_by(stride).collect();
-    let bands: Vec<Passband> = run
-        .spec
-        .bands_nm
-        .iter()
-        .zip(run.spec.fwhm_nm.iter())
-        .map(|(&c, &f)| Passband::gaussian_with_nodes(c, f, 9))
-        .collect();
+    let bands = capture_passbands(&run.spec.bands_nm, &run.spec.fwhm_nm);
+    let visible = Colorimetry::full(Illuminant::D65);
     let (mut de76_all, mut de00_all, mut rmse_all) = (Vec::new(), Vec::new(), Vec::new());
     let (mut de76_angle, mut de00_angle) = (Vec::new(), Vec::new());
+    let (mut r_true, mut r_est) = (vec![0.0; bands.len()], vec![0.0; bands.len()]);
     for &deg in &run.angles_deg {
-        let true_models: Vec<BandModel> = bands
-            .iter()
-            .map(|b| BandModel::new(true_stack, deg, *b))
-            .collect();
-        let est_models: Vec<BandModel> = bands
-            .iter()
-            .map(|b| BandModel::new(est_stack, deg, *b))
-            .collect();
+        let (true_bands, est_bands) = (
+            BandSpectrum::new(true_stack, deg, &bands),
+            BandSpectrum::new(est_stack, deg, &bands),
+        );
+        let (true_colour, est_colour) = (
+            FilmColour::new(true_stack, deg, visible),
+            FilmColour::new(est_stack, deg, visible),
+        );
         let (mut s76, mut s00) = (0.0, 0.0);
         for &i in &sample {
             let (t, e) = (
                 f64::from(truth.thickness_nm[i]),
                 f64::from(r.thickness_nm[i]),
             );
-            let lab_t =
-                reflectance_fn_to_xyz(|l| true_stack.reflectance(t, deg, l)).to_lab(D65_WHITE_XYZ);
-            let lab_e =
-                reflectance_fn_to_xyz(|l| est_stack.reflectance(e, deg, l)).to_lab(D65_WHITE_XYZ);
+            let lab_t = true_colour.xyz(t).to_lab(D65_WHITE_XYZ);
+            let lab_e = est_colour.xyz(e).to_lab(D65_WHITE_XYZ);
             let (a, b) = (delta_e76(lab_t, lab_e), delta_e2000(lab_t, lab_e));
             s76 += a;
             s00 += b;
             de76_all.push(a);
             de00_all.push(b);
-            let mut se = 0.0;
-            for (tm, em) in true_models.iter().zip(&est_models) {
-                let d = tm.reflectance(t) - em.reflectance(e);
-                se += d * d;
-            }
-            rmse_all.push((se / bands.len().max(1) as f64).sqrt());
+            true_bands.reflectance_into(t, &mut r_true);
+            est_bands.reflectance_into(e, &mut r_est);
+            rmse_all.push(spectral_rmse(&r_true, &r_est));
         }
         let k = sample.len().max(1) as f64;
         de76_angle.push(s76 / k);

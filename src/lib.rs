@@ -13,11 +13,15 @@
 //!   methods;
 //! - [`estimate`], [`eval`], [`export`], [`simulate`]: outputs per the capture contract,
 //!   accuracy against the truth, PNG previews, writing simulated captures;
+//! - [`appearance`]: the film's colour from the estimate: renders at any angle, measured
+//!   against reproduced; [`export::gltf`] hands it to renderers, [`report`] to people;
 //! - [`cli`]: the `filmscope` command line.
 #![cfg_attr(not(feature = "std"), no_std)]
 
 pub use filmscope_core::*;
 
+#[cfg(feature = "std")]
+pub mod appearance;
 #[cfg(feature = "std")]
 pub mod baseline;
 #[cfg(feature = "std")]
@@ -36,6 +40,8 @@ pub mod export;
 pub mod io;
 #[cfg(feature = "std")]
 pub mod pipeline;
+#[cfg(feature = "std")]
+pub mod report;
 #[cfg(feature = "std")]
 pub mod rig;
 #[cfg(feature = "std")]

@@ -3,27 +3,12 @@
 //! CIEDE2000 against the 34 published pairs of Sharma, Wu & Dalal (2005),
 //! spectrum -> XYZ -> Lab against colour-science, and XYZ -> sRGB.
 
-use filmscope::colour::{delta_e2000, reflectance_to_xyz, xyz_to_srgb, Lab, Xyz, D65_WHITE_XYZ};
-use std::path::PathBuf;
+mod common;
 
-/// Data rows of a fixture CSV: '#' comment lines and the header line skipped.
+use filmscope::colour::{delta_e2000, reflectance_to_xyz, xyz_to_srgb, Lab, Xyz, D65_WHITE_XYZ};
+
 fn rows(name: &str) -> Vec<Vec<String>> {
-    let path: PathBuf = [
-        env!("CARGO_MANIFEST_DIR"),
-        "tests",
-        "fixtures",
-        "colour",
-        name,
-    ]
-    .iter()
-    .collect();
-    let text = std::fs::read_to_string(&path)
-        .unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
-    text.lines()
-        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
-        .skip(1)
-        .map(|l| l.split(',').map(|s| s.trim().to_string()).collect())
-        .collect()
+    common::colour_fixture_rows(name)
 }
 
 fn num(s: &str) -> f64 {

@@ -6,13 +6,21 @@ use anyhow::{anyhow, bail, Context, Result};
 use firmware_sim::{Scene, SoftwareCamera};
 
 use super::progress::rows_bar;
+use crate::appearance::{
+    compare::{compare_stream, open_capture},
+    render::{render_png, RenderOptions},
+    SampleFilm,
+};
 use crate::baseline::BruteGrid;
 use crate::estimate::{run_method, write_outputs, Run, RunConfig};
 use crate::eval::{evaluate, EvalReport, Truth};
-use crate::io::{Capture, Interleave};
+use crate::export::gltf;
+use crate::io::{write_atomic, Capture, Interleave};
 use crate::pipeline::{CaptureSource, PipelineConfig, SimSource, Source};
 use crate::simulate::{write_capture, SimulateOptions};
 use crate::sweep::Method;
+use filmscope_core::colour::Illuminant;
+use filmscope_core::optics::Polarization;
 use filmscope_core::solve::sweep::SolverOptions;
 
 /// The paper's samples, built in so `demo` runs from anywhere.
@@ -440,5 +448,135 @@ pub fn stability(out: &Path, quick: bool) -> Result<()> {
     for p in crate::chart::write_stability_maps(out, &cells)? {
         println!("wrote {}", p.display());
     }
+    Ok(())
+}
+
+fn illuminant(name: &str) -> Result<Illuminant> {
+    Illuminant::from_name(name).ok_or_else(|| {
+        let names: Vec<&str> = Illuminant::ALL.iter().map(|i| i.name()).collect();
+        anyhow!("unknown illuminant {name:?}: use {}", names.join(", "))
+    })
+}
+
+/// `filmscope render`.
+pub fn render(
+    maps: &Path,
+    out: &Path,
+    angle_deg: f64,
+    illuminant_name: &str,
+    exposure: Option<f64>,
+    polarization: Option<&str>,
+    capture: Option<&Path>,
+) -> Result<()> {
+    if !(0.0..90.0).contains(&angle_deg) {
+        bail!("--angle {angle_deg}: the incidence angle must be in [0, 90) degrees");
+    }
+    if exposure.is_some_and(|e| !(e.is_finite() && e > 0.0)) {
+        bail!("--exposure must be a positive number");
+    }
+    let mut film = SampleFilm::load(maps, capture)?;
+    if let Some(name) = polarization {
+        film.stack.polarization = Polarization::from_name(name)
+            .ok_or_else(|| anyhow!("unknown polarization {name:?}: use s, p or unpolarized"))?;
+    }
+    let opts = RenderOptions {
+        incidence_deg: angle_deg,
+        illuminant: illuminant(illuminant_name)?,
+        exposure,
+    };
+    let (png, info) = render_png(&film, &opts)?;
+    write_atomic(out, &png).with_context(|| format!("{}: cannot write", out.display()))?;
+    println!(
+        "render: {} at {angle_deg}°, {}, exposure x{:.2}; {}x{} px in {}",
+        film.describe(),
+        opts.illuminant.name(),
+        info.exposure,
+        info.width,
+        info.height,
+        out.display()
+    );
+    Ok(())
+}
+
+/// `filmscope compare`.
+pub fn compare(
+    maps: &Path,
+    out: Option<&Path>,
+    illuminant_name: &str,
+    capture: Option<&Path>,
+) -> Result<()> {
+    let ill = illuminant(illuminant_name)?;
+    let film = SampleFilm::load(maps, capture)?;
+    let cap = film.capture.clone().ok_or_else(|| {
+        anyhow!(
+            "{}: the capture is unknown (pass --capture)",
+            maps.join("summary.json").display()
+        )
+    })?;
+    let mut source = open_capture(&cap)?;
+    let (cmp, _) = compare_stream(&film, &mut source, ill, None)?;
+    let dir = out.unwrap_or(maps);
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    let png_path = dir.join("compare.png");
+    write_atomic(&png_path, &cmp.to_png()?)
+        .with_context(|| format!("{}: cannot write", png_path.display()))?;
+    let json_path = dir.join("compare.json");
+    let text = serde_json::to_string_pretty(&cmp.to_json())?;
+    write_atomic(&json_path, text.as_bytes())
+        .with_context(|| format!("{}: cannot write", json_path.display()))?;
+    let (lo, hi) = cmp.colorimetry.range_nm();
+    println!(
+        "measured vs reproduced, CIEDE2000 over {lo:.0}-{hi:.0} nm under {}:",
+        ill.name()
+    );
+    for a in &cmp.angles {
+        println!(
+            "  {:>5.1}°  mean {:.3}  p95 {:.3}  ({} px)",
+            a.incidence_deg, a.stats.mean, a.stats.p95, a.stats.pixels
+        );
+    }
+    println!(
+        "  all     mean {:.3}  p95 {:.3}; {} and {}",
+        cmp.overall.mean,
+        cmp.overall.p95,
+        png_path.display(),
+        json_path.display()
+    );
+    Ok(())
+}
+
+/// `filmscope export-gltf`.
+pub fn export_gltf(maps: &Path, out: &Path, width_m: f64, capture: Option<&Path>) -> Result<()> {
+    if !(width_m.is_finite() && width_m > 0.0) {
+        bail!("--width-m must be a positive number of metres");
+    }
+    let film = SampleFilm::load(maps, capture)?;
+    let glb = gltf::film_glb(&film, width_m)?;
+    write_atomic(out, &glb.bytes).with_context(|| format!("{}: cannot write", out.display()))?;
+    println!(
+        "glTF: iridescenceIor {:.4}, thickness {:.1}-{:.1} nm, ior {:.3}; {} bytes in {}",
+        glb.iridescence_ior,
+        glb.thickness_min_nm,
+        glb.thickness_max_nm,
+        glb.substrate_ior,
+        glb.bytes.len(),
+        out.display()
+    );
+    Ok(())
+}
+
+/// `filmscope report`.
+pub fn report(run: &Path, out: Option<&Path>, capture: Option<&Path>) -> Result<()> {
+    let path = out.map_or_else(|| run.join("report.html"), Path::to_path_buf);
+    let made = crate::report::write_report(run, &path, capture)?;
+    for note in &made.notes {
+        eprintln!("filmscope: note: {note}");
+    }
+    println!(
+        "report: {} images, {} bytes in {}",
+        made.images,
+        made.bytes,
+        path.display()
+    );
     Ok(())
 }

@@ -134,6 +134,72 @@ enum Command {
         #[arg(long)]
         quick: bool,
     },
+    /// Renders the estimated film as a camera sees it (spectral -> XYZ -> sRGB) at one
+    /// angle, with an angle strip from 0 to 70 degrees.
+    Render {
+        /// A maps directory written by `estimate`.
+        maps: PathBuf,
+        /// Output PNG.
+        #[arg(long)]
+        out: PathBuf,
+        /// Incidence (= viewing, specular) angle of the main image, degrees.
+        #[arg(long, default_value_t = 30.0)]
+        angle: f64,
+        /// The light: D65, A or D50 (white-balanced to sRGB).
+        #[arg(long, default_value = "D65")]
+        illuminant: String,
+        /// Exposure factor on the reflectance (default: auto, printed in the image).
+        #[arg(long)]
+        exposure: Option<f64>,
+        /// Polarisation of the light: s, p or unpolarized (default: the capture's).
+        #[arg(long)]
+        polarization: Option<String>,
+        /// The capture (capture.toml or its directory), if the summary does not lead to it.
+        #[arg(long)]
+        capture: Option<PathBuf>,
+    },
+    /// Measured against reproduced at every captured angle, with CIEDE2000 maps:
+    /// compare.png and compare.json.
+    Compare {
+        /// A maps directory written by `estimate`.
+        maps: PathBuf,
+        /// Output directory (default: the maps directory).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The light: D65, A or D50.
+        #[arg(long, default_value = "D65")]
+        illuminant: String,
+        /// The capture (capture.toml or its directory), if the summary does not lead to it.
+        #[arg(long)]
+        capture: Option<PathBuf>,
+    },
+    /// Writes the film as a glTF 2.0 binary (.glb): a flat quad with
+    /// KHR_materials_iridescence (thickness texture) and KHR_materials_ior.
+    ExportGltf {
+        /// A maps directory written by `estimate`.
+        maps: PathBuf,
+        /// Output .glb file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Width of the quad in metres (its height follows the map's aspect).
+        #[arg(long, default_value_t = 0.1)]
+        width_m: f64,
+        /// The capture (capture.toml or its directory), if the summary does not lead to it.
+        #[arg(long)]
+        capture: Option<PathBuf>,
+    },
+    /// One self-contained HTML page: maps, render, measured vs reproduced, summary table
+    /// and charts.
+    Report {
+        /// A maps directory written by `estimate`.
+        run: PathBuf,
+        /// Output HTML file (default: RUN/report.html).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The capture (capture.toml or its directory), if the summary does not lead to it.
+        #[arg(long)]
+        capture: Option<PathBuf>,
+    },
     /// (internal) One sweep in a fresh process, for `bench`'s peak-memory figure.
     #[command(hide = true)]
     BenchRssChild {
@@ -189,6 +255,38 @@ pub fn main() -> std::process::ExitCode {
         Command::Bench { quick, json, scene } => commands::bench(&scene, quick, json),
         Command::Chart { scene, out, quick } => commands::chart(&scene, &out, quick),
         Command::Stability { out, quick } => commands::stability(&out, quick),
+        Command::Render {
+            maps,
+            out,
+            angle,
+            illuminant,
+            exposure,
+            polarization,
+            capture,
+        } => commands::render(
+            &maps,
+            &out,
+            angle,
+            &illuminant,
+            exposure,
+            polarization.as_deref(),
+            capture.as_deref(),
+        ),
+        Command::Compare {
+            maps,
+            out,
+            illuminant,
+            capture,
+        } => commands::compare(&maps, out.as_deref(), &illuminant, capture.as_deref()),
+        Command::ExportGltf {
+            maps,
+            out,
+            width_m,
+            capture,
+        } => commands::export_gltf(&maps, &out, width_m, capture.as_deref()),
+        Command::Report { run, out, capture } => {
+            commands::report(&run, out.as_deref(), capture.as_deref())
+        }
         Command::BenchRssChild {
             scene,
             width,

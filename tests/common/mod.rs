@@ -56,3 +56,53 @@ pub fn s(p: &Path) -> &str {
 pub fn join(dir: &Path, name: &str) -> PathBuf {
     dir.join(name)
 }
+
+/// Simulates [`tiny_scene`] into `dir/cap` (`noise_free` as `simulate --noise-free`) and
+/// estimates it into `dir/est` with the binary; returns both paths.
+pub fn estimated_tiny(dir: &Path, noise_free: bool) -> (PathBuf, PathBuf) {
+    let (cap, est) = (dir.join("cap"), dir.join("est"));
+    filmscope::simulate::write_capture(
+        &tiny_scene(),
+        &cap,
+        filmscope::simulate::SimulateOptions {
+            noise_free,
+            ..Default::default()
+        },
+        &|_| {},
+    )
+    .expect("capture");
+    run_ok(&["estimate", s(&cap), "--out", s(&est)]);
+    (cap, est)
+}
+
+/// Data rows of a CSV in `tests/fixtures/colour/`: '#' comment lines, blank lines and the
+/// header line skipped, cells trimmed.
+pub fn colour_fixture_rows(name: &str) -> Vec<Vec<String>> {
+    let path: PathBuf = [
+        env!("CARGO_MANIFEST_DIR"),
+        "tests",
+        "fixtures",
+        "colour",
+        name,
+    ]
+    .iter()
+    .collect();
+    let text = std::fs::read_to_string(&path)
+        .unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
+    text.lines()
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .skip(1)
+        .map(|l| l.split(',').map(|s| s.trim().to_string()).collect())
+        .collect()
+}
+
+/// Runs the binary with `args` and asserts it succeeded (printing its stderr if not).
+pub fn run_ok(args: &[&str]) -> std::process::Output {
+    let run = filmscope().args(args).output().expect("run filmscope");
+    assert!(
+        run.status.success(),
+        "filmscope {args:?}: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    run
+}

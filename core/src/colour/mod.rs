@@ -11,15 +11,24 @@
 //!    compares the spectra themselves.
 //! 4. [`xyz_to_srgb`] and [`srgb_to_u8`] give a displayable swatch.
 //!
+//! Beyond D65 and the whole visible grid: [`Colorimetry`] sums a spectrum under any
+//! [`Illuminant`] (D65, A, D50) and over the whole grid or only a measured range (camera
+//! bands), and [`bradford_adapt`] carries a colour seen under one light to the sRGB white,
+//! as a white-balanced camera would.
+//!
 //! Everything is `no_std` (maths through `libm`).
 
 mod difference;
+mod illuminant;
 mod lab;
 mod srgb;
 pub mod tables;
 mod xyz;
 
 pub use difference::{delta_e2000, delta_e76, spectral_rmse};
+pub use illuminant::{bradford_adapt, Illuminant};
 pub use lab::Lab;
-pub use srgb::{srgb_to_u8, xyz_to_srgb};
-pub use xyz::{d65_white, reflectance_fn_to_xyz, reflectance_to_xyz, Xyz, D65_WHITE_XYZ};
+pub use srgb::{srgb_to_u8, xyz_to_srgb, xyz_to_srgb_balanced};
+pub use xyz::{
+    d65_white, reflectance_fn_to_xyz, reflectance_to_xyz, Colorimetry, Xyz, D65_WHITE_XYZ,
+};

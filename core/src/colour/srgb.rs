@@ -1,6 +1,7 @@
 //! CIE XYZ -> sRGB (IEC 61966-2-1).
 
-use super::xyz::Xyz;
+use super::illuminant::bradford_adapt;
+use super::xyz::{Xyz, D65_WHITE_XYZ};
 
 /// XYZ -> linear sRGB matrix of IEC 61966-2-1:1999 (D65 white, as published, to
 /// four decimals; rows R, G, B).
@@ -43,6 +44,14 @@ pub fn xyz_to_srgb(xyz: Xyz) -> [f64; 3] {
         *o = encode(clip_unit(linear));
     }
     out
+}
+
+/// Gamma-encoded sRGB, as [`xyz_to_srgb`], of a colour seen under a light whose white
+/// is `white` (`Y = 100`), white-balanced to D65 first with [`bradford_adapt`]: what a
+/// camera set to that light's white balance shows. `white` equal to
+/// [`D65_WHITE_XYZ`] gives exactly [`xyz_to_srgb`].
+pub fn xyz_to_srgb_balanced(xyz: Xyz, white: Xyz) -> [f64; 3] {
+    xyz_to_srgb(bradford_adapt(xyz, white, D65_WHITE_XYZ))
 }
 
 /// Quantises gamma-encoded sRGB in `0..=1` to 8 bits per channel

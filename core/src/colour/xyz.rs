@@ -1,5 +1,7 @@
-//! Reflectance spectrum -> CIE 1931 XYZ under D65 (5 nm rectangle-rule sum).
+//! Reflectance spectrum -> CIE 1931 XYZ (5 nm rectangle-rule sum), under D65 or any
+//! [`Illuminant`], over the whole grid or a part of it ([`Colorimetry`]).
 
+use super::illuminant::Illuminant;
 use super::tables::{
     CIE1931_XBAR, CIE1931_YBAR, CIE1931_ZBAR, D65_SPD, GRID_LEN, GRID_START_NM, GRID_STEP_NM,
 };
@@ -25,33 +27,35 @@ impl Xyz {
     };
 }
 
-/// Sum of D65 x y-bar over the grid; `100 / DENOM` is the normalising constant k.
-const DENOM: f64 = {
-    let mut sum = 0.0;
-    let mut i = 0;
-    while i < GRID_LEN {
-        sum += D65_SPD[i] * CIE1931_YBAR[i];
+/// Rectangle-rule ("Integration") sum over grid samples `first..end` under the
+/// illuminant `spd`: `X = k * sum R(l) S(l) xbar(l)` (same for Y, Z),
+/// `k = 100 / sum S(l) ybar(l)` over the same samples, so a perfect reflector has
+/// `Y = 100`. The single summation used by every public entry point (and by the
+/// const white). `first < end <= GRID_LEN` is the caller's invariant.
+const fn integrate_range(
+    reflectance: &[f64; GRID_LEN],
+    spd: &[f64; GRID_LEN],
+    first: usize,
+    end: usize,
+) -> Xyz {
+    let mut denom = 0.0;
+    let mut i = first;
+    while i < end {
+        denom += spd[i] * CIE1931_YBAR[i];
         i += 1;
     }
-    sum
-};
-
-/// Rectangle-rule ("Integration") sum over the 5 nm grid:
-/// `X = k * sum R(l) S(l) xbar(l)` (same for Y, Z), `k = 100 / sum S(l) ybar(l)`.
-/// The single summation used by every public entry point (and by the const white).
-const fn integrate(reflectance: &[f64; GRID_LEN]) -> Xyz {
     let mut sx = 0.0;
     let mut sy = 0.0;
     let mut sz = 0.0;
-    let mut i = 0;
-    while i < GRID_LEN {
-        let rs = reflectance[i] * D65_SPD[i];
+    let mut i = first;
+    while i < end {
+        let rs = reflectance[i] * spd[i];
         sx += rs * CIE1931_XBAR[i];
         sy += rs * CIE1931_YBAR[i];
         sz += rs * CIE1931_ZBAR[i];
         i += 1;
     }
-    let k = 100.0 / DENOM;
+    let k = 100.0 / denom;
     Xyz {
         x: k * sx,
         y: k * sy,
@@ -59,10 +63,117 @@ const fn integrate(reflectance: &[f64; GRID_LEN]) -> Xyz {
     }
 }
 
+/// The whole grid under D65: the convention of [`reflectance_to_xyz`].
+const fn integrate(reflectance: &[f64; GRID_LEN]) -> Xyz {
+    integrate_range(reflectance, &D65_SPD, 0, GRID_LEN)
+}
+
 /// XYZ of the perfect reflector (R = 1 at every wavelength) under D65, computed
 /// from the tables with the same sum as [`reflectance_to_xyz`]:
 /// about (95.043, 100, 108.880). This is the white point for [`Xyz::to_lab`].
 pub const D65_WHITE_XYZ: Xyz = integrate(&[1.0; GRID_LEN]);
+
+/// How spectra become XYZ: the illuminant, and the part of the 5 nm grid
+/// 380..=780 nm that is summed.
+///
+/// [`Colorimetry::full`] sums the whole visible grid (with D65 this is exactly
+/// [`reflectance_to_xyz`] / [`reflectance_fn_to_xyz`]). [`Colorimetry::within`]
+/// sums only the grid wavelengths inside a sampled range, e.g. a camera's
+/// 420..720 nm bands, and normalises over that same range: a perfect reflector
+/// still has `Y = 100`, and [`Colorimetry::white`] is its XYZ, the white for
+/// [`Xyz::to_lab`]. That is CIE colorimetry restricted to what was measured (as
+/// colour-science's `sd_to_XYZ(..., method="Integration")` with the colour matching
+/// functions and illuminant trimmed to the range), with nothing extrapolated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Colorimetry {
+    illuminant: Illuminant,
+    first: usize,
+    end: usize,
+}
+
+impl Colorimetry {
+    /// The whole grid 380..=780 nm under `illuminant`.
+    pub const fn full(illuminant: Illuminant) -> Self {
+        Self {
+            illuminant,
+            first: 0,
+            end: GRID_LEN,
+        }
+    }
+
+    /// The grid wavelengths `g` with `first_nm <= g <= last_nm` under `illuminant`;
+    /// `None` when the range holds no grid wavelength or is not finite.
+    pub fn within(illuminant: Illuminant, first_nm: f64, last_nm: f64) -> Option<Self> {
+        if !(first_nm.is_finite() && last_nm.is_finite()) {
+            return None;
+        }
+        let first = (0..GRID_LEN).find(|&i| grid_nm(i) >= first_nm)?;
+        let end = (0..GRID_LEN).rev().find(|&i| grid_nm(i) <= last_nm)? + 1;
+        (first < end).then_some(Self {
+            illuminant,
+            first,
+            end,
+        })
+    }
+
+    /// The illuminant.
+    pub const fn illuminant(&self) -> Illuminant {
+        self.illuminant
+    }
+
+    /// The first and last grid wavelength summed, nm.
+    pub fn range_nm(&self) -> (f64, f64) {
+        (grid_nm(self.first), grid_nm(self.end - 1))
+    }
+
+    /// XYZ of a spectrum given on the whole grid.
+    fn of_grid(&self, grid: &[f64; GRID_LEN]) -> Xyz {
+        integrate_range(grid, self.illuminant.spd(), self.first, self.end)
+    }
+
+    /// XYZ of the perfect reflector: `Y = 100`; the white for [`Xyz::to_lab`].
+    pub fn white(&self) -> Xyz {
+        self.of_grid(&[1.0; GRID_LEN])
+    }
+
+    /// The grid wavelengths summed, in nm, ascending.
+    pub fn wavelengths_nm(&self) -> impl Iterator<Item = f64> {
+        (self.first..self.end).map(grid_nm)
+    }
+
+    /// XYZ of a reflectance given at exactly the wavelengths of
+    /// [`Colorimetry::wavelengths_nm`], in that order; [`Xyz::NAN`] if `reflectance`
+    /// has another length.
+    pub fn xyz_of(&self, reflectance: &[f64]) -> Xyz {
+        if reflectance.len() != self.end - self.first {
+            return Xyz::NAN;
+        }
+        let mut grid = [0.0; GRID_LEN];
+        grid[self.first..self.end].copy_from_slice(reflectance);
+        self.of_grid(&grid)
+    }
+
+    /// XYZ of a reflectance given as a function of wavelength in nm, evaluated at
+    /// the grid wavelengths summed.
+    pub fn xyz_fn(&self, f: impl Fn(f64) -> f64) -> Xyz {
+        let mut grid = [0.0; GRID_LEN];
+        for (i, r) in grid.iter_mut().enumerate().take(self.end).skip(self.first) {
+            *r = f(grid_nm(i));
+        }
+        self.of_grid(&grid)
+    }
+
+    /// XYZ of a reflectance sampled at `wavelength_nm` (strictly increasing),
+    /// linearly interpolated onto the grid (edge values held outside the samples,
+    /// which matters only for [`Colorimetry::full`]). [`Xyz::NAN`] for invalid input,
+    /// as [`reflectance_to_xyz`].
+    pub fn xyz_sampled(&self, wavelength_nm: &[f64], reflectance: &[f64]) -> Xyz {
+        match resample_to_grid(wavelength_nm, reflectance) {
+            Some(grid) => self.of_grid(&grid),
+            None => Xyz::NAN,
+        }
+    }
+}
 
 /// Function form of [`D65_WHITE_XYZ`].
 pub const fn d65_white() -> Xyz {
@@ -183,6 +294,37 @@ mod tests {
         for (p, q) in [(a.x, b.x), (a.y, b.y), (a.z, b.z)] {
             assert!((p - q).abs() < 1e-12, "{a:?} {b:?}");
         }
+    }
+
+    #[test]
+    fn full_d65_colorimetry_is_the_default_convention() {
+        let c = Colorimetry::full(Illuminant::D65);
+        assert_eq!(c.white(), D65_WHITE_XYZ);
+        let f = |l: f64| 0.3 + 0.2 * libm::sin(l / 37.0);
+        assert_eq!(c.xyz_fn(f), reflectance_fn_to_xyz(f));
+        assert_eq!(c.range_nm(), (380.0, 780.0));
+    }
+
+    #[test]
+    fn within_sums_only_the_range_and_keeps_white_at_100() {
+        let c = Colorimetry::within(Illuminant::A, 421.0, 720.0).expect("range");
+        assert_eq!(c.range_nm(), (425.0, 720.0));
+        assert!((c.white().y - 100.0).abs() < 1e-12);
+        // Reflectance outside the range does not count.
+        let inside = c.xyz_fn(|l| {
+            if (425.0..=720.0).contains(&l) {
+                0.5
+            } else {
+                9.0
+            }
+        });
+        assert!((inside.y - 50.0).abs() < 1e-12, "{inside:?}");
+        let wl: [f64; 60] = core::array::from_fn(|i| 425.0 + 5.0 * i as f64);
+        assert!(c.wavelengths_nm().eq(wl.iter().copied()));
+        assert_eq!(c.xyz_of(&[0.5; 60]), inside);
+        assert!(c.xyz_of(&[0.5; 59]).y.is_nan());
+        assert!(Colorimetry::within(Illuminant::D65, 381.0, 384.0).is_none());
+        assert!(Colorimetry::within(Illuminant::D65, f64::NAN, 500.0).is_none());
     }
 
     #[test]

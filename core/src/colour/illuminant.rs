@@ -1,0 +1,156 @@
+//! The illuminants a spectrum can be seen under, and chromatic adaptation between their
+//! whites (Bradford), so a render under any light can be shown on an sRGB display.
+
+use super::tables::{A_SPD, D50_SPD, D65_SPD, GRID_LEN};
+use super::xyz::{Colorimetry, Xyz};
+
+/// A light source with a tabulated spectrum (CIE 015:2018, `tables.rs`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Illuminant {
+    /// CIE standard illuminant D65: average daylight, 6504 K; the sRGB white.
+    D65,
+    /// CIE standard illuminant A: incandescent (tungsten) light, 2856 K.
+    A,
+    /// CIE illuminant D50: horizon daylight, 5003 K; the graphic arts viewing light.
+    D50,
+}
+
+impl Illuminant {
+    /// Every illuminant, in the order their names are listed to users.
+    pub const ALL: [Illuminant; 3] = [Self::D65, Self::A, Self::D50];
+
+    /// Relative spectral power on the 5 nm grid 380..=780 nm (100 at 560 nm).
+    pub const fn spd(self) -> &'static [f64; GRID_LEN] {
+        match self {
+            Self::D65 => &D65_SPD,
+            Self::A => &A_SPD,
+            Self::D50 => &D50_SPD,
+        }
+    }
+
+    /// The name used on the command line and in outputs: `D65`, `A`, `D50`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::D65 => "D65",
+            Self::A => "A",
+            Self::D50 => "D50",
+        }
+    }
+
+    /// Parses a name as [`Illuminant::name`] gives it, in any letter case.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|i| i.name().eq_ignore_ascii_case(name))
+    }
+
+    /// XYZ of the perfect reflector under this illuminant over the whole grid
+    /// (`Y = 100`): its white point.
+    pub fn white(self) -> Xyz {
+        Colorimetry::full(self).white()
+    }
+}
+
+/// The Bradford cone-response matrix (Lam 1985; as in colour-science's
+/// `CAT_BRADFORD` and ICC v4), rows rho, gamma, beta.
+const BRADFORD: [[f64; 3]; 3] = [
+    [0.8951, 0.2664, -0.1614],
+    [-0.7502, 1.7135, 0.0367],
+    [0.0389, -0.0685, 1.0296],
+];
+
+/// The inverse of [`BRADFORD`] (computed once by Gauss-Jordan elimination; the
+/// matrix is well conditioned).
+fn bradford_inverse() -> [[f64; 3]; 3] {
+    let m = BRADFORD;
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    let mut inv = [[0.0; 3]; 3];
+    for (r, row) in inv.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            // Cofactor of element (c, r), i.e. the adjugate's (r, c).
+            let (r1, r2) = ((c + 1) % 3, (c + 2) % 3);
+            let (c1, c2) = ((r + 1) % 3, (r + 2) % 3);
+            *v = (m[r1][c1] * m[r2][c2] - m[r1][c2] * m[r2][c1]) / det;
+        }
+    }
+    inv
+}
+
+fn apply(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    [
+        m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
+        m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
+        m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2],
+    ]
+}
+
+/// A colour seen under a light whose white is `from_white`, as it looks adapted to
+/// `to_white` (von Kries scaling in the Bradford cone space, the linear Bradford
+/// transform of colour-science's `chromatic_adaptation(..., method="Von Kries",
+/// transform="Bradford")`). What a white-balanced camera does: `from_white` itself maps
+/// to `to_white`. Identical whites return `xyz` unchanged.
+pub fn bradford_adapt(xyz: Xyz, from_white: Xyz, to_white: Xyz) -> Xyz {
+    if from_white == to_white {
+        return xyz;
+    }
+    let src = apply(&BRADFORD, [from_white.x, from_white.y, from_white.z]);
+    let dst = apply(&BRADFORD, [to_white.x, to_white.y, to_white.z]);
+    let cone = apply(&BRADFORD, [xyz.x, xyz.y, xyz.z]);
+    let scaled = [
+        cone[0] * dst[0] / src[0],
+        cone[1] * dst[1] / src[1],
+        cone[2] * dst[2] / src[2],
+    ];
+    let [x, y, z] = apply(&bradford_inverse(), scaled);
+    Xyz { x, y, z }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip() {
+        for i in Illuminant::ALL {
+            assert_eq!(Illuminant::from_name(i.name()), Some(i));
+        }
+        assert_eq!(Illuminant::from_name("d65"), Some(Illuminant::D65));
+        assert_eq!(Illuminant::from_name("F2"), None);
+    }
+
+    #[test]
+    fn whites_are_the_known_ones() {
+        // CIE 015 2-degree whites from the 5 nm tables (Y = 100).
+        let a = Illuminant::A.white();
+        assert!(
+            (a.x - 109.85).abs() < 0.02 && (a.z - 35.58).abs() < 0.02,
+            "{a:?}"
+        );
+        let d50 = Illuminant::D50.white();
+        assert!(
+            (d50.x - 96.42).abs() < 0.02 && (d50.z - 82.52).abs() < 0.02,
+            "{d50:?}"
+        );
+    }
+
+    #[test]
+    fn adaptation_maps_white_to_white_and_inverts() {
+        let (a, d65) = (Illuminant::A.white(), Illuminant::D65.white());
+        let w = bradford_adapt(a, a, d65);
+        for (p, q) in [(w.x, d65.x), (w.y, d65.y), (w.z, d65.z)] {
+            assert!((p - q).abs() < 1e-9, "{w:?}");
+        }
+        let c = Xyz {
+            x: 20.0,
+            y: 30.0,
+            z: 10.0,
+        };
+        let back = bradford_adapt(bradford_adapt(c, a, d65), d65, a);
+        for (p, q) in [(back.x, c.x), (back.y, c.y), (back.z, c.z)] {
+            assert!((p - q).abs() < 1e-9, "{back:?}");
+        }
+        assert_eq!(bradford_adapt(c, d65, d65), c);
+    }
+}

@@ -1,0 +1,187 @@
+//! A maps directory read back as a film: the thickness map, the estimated index with its
+//! dispersion, and the stack around it (ambient, substrate, polarisation).
+
+use std::path::{Path, PathBuf};
+
+use filmscope_core::optics::{Dispersion, FilmStack, Polarization};
+use filmscope_core::solve::flags;
+
+use super::AppearanceError;
+use crate::eval::parse_dispersion;
+use crate::io::{read_cube, Capture};
+
+/// An estimated film, as `filmscope estimate` wrote it into a maps directory.
+#[derive(Clone, Debug)]
+pub struct SampleFilm {
+    /// The maps directory.
+    pub maps_dir: PathBuf,
+    /// Pixels per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Thickness per pixel, row-major, nm; NaN where there is no reliable estimate.
+    pub thickness_nm: Vec<f32>,
+    /// Pixel flags ([`flags`]), row-major; all zero when the directory has no flag map.
+    pub flags: Vec<u16>,
+    /// Ambient, film (the estimated index and dispersion) and substrate, and the
+    /// polarisation the capture measured.
+    pub stack: FilmStack,
+    /// The capture the maps were estimated from, when it can still be found.
+    pub capture: Option<PathBuf>,
+    /// `summary.json` as written.
+    pub summary: serde_json::Value,
+}
+
+impl SampleFilm {
+    /// Reads `maps_dir` (`summary.json`, `thickness_nm.hdr`, `flags.hdr` if present).
+    ///
+    /// The substrate, ambient index and polarisation come from `capture` when given (a
+    /// `capture.toml` or its directory), else from the summary's `sample` entry, else from
+    /// the capture the summary names as its `source`. Errors name the file at fault.
+    pub fn load(maps_dir: &Path, capture: Option<&Path>) -> Result<Self, AppearanceError> {
+        let summary_path = maps_dir.join("summary.json");
+        let bad = |what: String| AppearanceError::new(&summary_path, what);
+        let text = std::fs::read_to_string(&summary_path)
+            .map_err(|e| AppearanceError::new(&summary_path, e))?;
+        let summary: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))?;
+        let n = summary["refractive_index"]
+            .as_f64()
+            .filter(|n| n.is_finite() && *n > 0.0)
+            .ok_or_else(|| bad("no finite refractive_index: the estimate found no index".into()))?;
+        let film = match &summary["dispersion"] {
+            serde_json::Value::Null => Dispersion::constant(n),
+            d => parse_dispersion(d)
+                .ok_or_else(|| bad("dispersion is neither null, cauchy nor sellmeier".into()))?,
+        };
+
+        let thick_path = maps_dir.join("thickness_nm.hdr");
+        let cube = read_cube(&thick_path).map_err(|e| AppearanceError::new(&thick_path, e))?;
+        let (width, height) = (cube.samples, cube.lines);
+        if cube.bands != 1 || width == 0 || height == 0 {
+            return Err(AppearanceError::new(
+                &thick_path,
+                format!(
+                    "expected one band of at least 1x1 pixels, found {}x{}x{}",
+                    width, height, cube.bands
+                ),
+            ));
+        }
+        let flags_path = maps_dir.join("flags.hdr");
+        let flags = if flags_path.exists() {
+            let f = read_cube(&flags_path).map_err(|e| AppearanceError::new(&flags_path, e))?;
+            if (f.samples, f.lines, f.bands) != (width, height, 1) {
+                return Err(AppearanceError::new(
+                    &flags_path,
+                    format!(
+                        "is {}x{}, the thickness map {width}x{height}",
+                        f.samples, f.lines
+                    ),
+                ));
+            }
+            // Flags are small integers stored exactly in f32.
+            f.data.iter().map(|&v| v as u16).collect()
+        } else {
+            vec![0; width * height]
+        };
+
+        let source = summary["source"]
+            .as_str()
+            .map(PathBuf::from)
+            .filter(|p| p.exists());
+        let capture_path = capture.map(Path::to_path_buf).or(source);
+        let sample = &summary["sample"];
+        let (ambient_index, substrate, polarization) = match (capture, sample) {
+            (None, serde_json::Value::Object(_)) => {
+                let substrate = sample["substrate_index"]
+                    .as_f64()
+                    .ok_or_else(|| bad("sample.substrate_index is missing".into()))?;
+                let pol = sample["polarization"]
+                    .as_str()
+                    .and_then(Polarization::from_name)
+                    .unwrap_or(Polarization::S);
+                (
+                    sample["ambient_index"].as_f64().unwrap_or(1.0),
+                    substrate,
+                    pol,
+                )
+            }
+            _ => {
+                let path = capture_path.as_deref().ok_or_else(|| {
+                    bad("no substrate index: the summary has no `sample` and its `source` capture is gone (pass --capture)".into())
+                })?;
+                let cap = Capture::load(path).map_err(|e| AppearanceError(e.to_string()))?;
+                (
+                    cap.sample.ambient_index,
+                    cap.sample.substrate_index,
+                    cap.sample.polarization,
+                )
+            }
+        };
+        Ok(Self {
+            maps_dir: maps_dir.to_path_buf(),
+            width,
+            height,
+            thickness_nm: cube.data,
+            flags,
+            stack: FilmStack {
+                ambient_index,
+                film,
+                substrate: Dispersion::constant(substrate),
+                polarization,
+            },
+            capture: capture_path,
+            summary,
+        })
+    }
+
+    /// The thickness of pixel `i` when it is a reliable estimate, else `None` (NaN, or a
+    /// flag that makes it unreliable).
+    pub fn thickness_at(&self, i: usize) -> Option<f64> {
+        let d = f64::from(*self.thickness_nm.get(i)?);
+        let flagged = self.flags.get(i).is_some_and(|f| f & flags::INVALID != 0);
+        (d.is_finite() && !flagged).then_some(d)
+    }
+
+    /// The film's index at 550 nm.
+    pub fn index_550(&self) -> f64 {
+        self.stack.film.index_at(550.0)
+    }
+
+    /// The substrate's index at 550 nm.
+    pub fn substrate_550(&self) -> f64 {
+        self.stack.substrate.index_at(550.0)
+    }
+
+    /// The median of the reliable thicknesses, nm (`None` without any).
+    pub fn median_thickness_nm(&self) -> Option<f64> {
+        let mut v: Vec<f64> = (0..self.thickness_nm.len())
+            .filter_map(|i| self.thickness_at(i))
+            .collect();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_by(f64::total_cmp);
+        Some(v[v.len() / 2])
+    }
+
+    /// One line describing the model, for captions: index, dispersion, substrate.
+    pub fn describe(&self) -> String {
+        let disp = match self.stack.film {
+            Dispersion::Cauchy { b_um2, .. } if b_um2 != 0.0 => {
+                format!(" (Cauchy, b = {b_um2:.4} µm²)")
+            }
+            _ => String::new(),
+        };
+        let light = match self.stack.polarization {
+            Polarization::S => "S-polarised",
+            Polarization::P => "P-polarised",
+            Polarization::Unpolarized => "unpolarised",
+        };
+        format!(
+            "n = {:.4}{disp} on n = {:.3}, {light}",
+            self.index_550(),
+            self.substrate_550(),
+        )
+    }
+}

@@ -1,0 +1,439 @@
+//! `filmscope report`: one self-contained HTML page for a maps directory: the maps, the
+//! render, measured against reproduced, the summary table and charts.
+//!
+//! Every image is a PNG inlined as a base64 `data:` URI, and the page has no link, script
+//! or style from anywhere else, so it opens offline and can be mailed as one file. A small
+//! inline script marks each `<img>` with `data-loaded="yes"` or `"no"` once the page has
+//! loaded (`complete && naturalWidth > 0`) and writes the count into
+//! `#image-check` (`data-ok`, `data-failed`): what the headless-browser test reads.
+//!
+//! Without the capture (moved, or never known) the page still has the maps, the render and
+//! the summary; the comparison is replaced by a note saying why.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use filmscope_core::colour::Illuminant;
+
+use crate::appearance::compare::{
+    compare_stream, median_pixel, open_capture, Comparison, PixelSpectra,
+};
+use crate::appearance::render::{render_png, RenderOptions};
+use crate::appearance::{AppearanceError, SampleFilm};
+use crate::export::plot::{render_scatter_panels_png, Scatter, Series};
+use crate::export::png::{render_map_png, MapPreview};
+use crate::io::{read_cube, write_atomic};
+
+/// The angle of the report's render, degrees.
+pub const REPORT_ANGLE_DEG: f64 = 30.0;
+
+/// What [`write_report`] made.
+#[derive(Clone, Debug)]
+pub struct Made {
+    /// Number of inlined images.
+    pub images: usize,
+    /// Size of the HTML file, bytes.
+    pub bytes: usize,
+    /// What was left out, and why.
+    pub notes: Vec<String>,
+}
+
+/// Standard base64 (RFC 4648, with padding) of `bytes`.
+pub fn base64(bytes: &[u8]) -> String {
+    const ALPHABET: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            chunk.get(1).copied().unwrap_or(0),
+            chunk.get(2).copied().unwrap_or(0),
+        ];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for k in 0..4 {
+            if k <= chunk.len() {
+                out.push(char::from(ALPHABET[((n >> (18 - 6 * k)) & 63) as usize]));
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+/// `text` with `&`, `<`, `>` and `"` escaped for HTML.
+pub fn escape(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// The page under construction.
+struct Page {
+    html: String,
+    images: usize,
+}
+
+impl Page {
+    fn heading(&mut self, text: &str) {
+        let _ = writeln!(self.html, "<h2>{}</h2>", escape(text));
+    }
+
+    fn para(&mut self, text: &str) {
+        let _ = writeln!(self.html, "<p>{}</p>", escape(text));
+    }
+
+    fn image(&mut self, png: &[u8], alt: &str) {
+        self.images += 1;
+        let _ = writeln!(
+            self.html,
+            "<figure><img alt=\"{}\" src=\"data:image/png;base64,{}\"><figcaption>{}</figcaption></figure>",
+            escape(alt),
+            base64(png),
+            escape(alt)
+        );
+    }
+
+    fn table(&mut self, head: &[&str], rows: &[Vec<String>]) {
+        self.html.push_str("<table><tr>");
+        for h in head {
+            let _ = write!(self.html, "<th>{}</th>", escape(h));
+        }
+        self.html.push_str("</tr>\n");
+        for row in rows {
+            self.html.push_str("<tr>");
+            for cell in row {
+                let _ = write!(self.html, "<td>{}</td>", escape(cell));
+            }
+            self.html.push_str("</tr>\n");
+        }
+        self.html.push_str("</table>\n");
+    }
+}
+
+/// Marks every image as loaded or not once the page has loaded.
+pub const IMAGE_CHECK_SCRIPT: &str = "<script>\nwindow.addEventListener('load', function () {\n  var imgs = document.images, ok = 0;\n  for (var i = 0; i < imgs.length; i++) {\n    var good = imgs[i].complete && imgs[i].naturalWidth > 0;\n    imgs[i].setAttribute('data-loaded', good ? 'yes' : 'no');\n    if (good) ok++;\n  }\n  var s = document.getElementById('image-check');\n  s.setAttribute('data-ok', ok);\n  s.setAttribute('data-failed', imgs.length - ok);\n  s.textContent = ok + ' of ' + imgs.length + ' images loaded';\n});\n</script>\n";
+
+const STYLE: &str = "<style>body{font-family:sans-serif;max-width:1200px;margin:1em auto;color:#222}table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:2px 8px;text-align:left}figure{margin:1em 0}img{max-width:100%;image-rendering:pixelated}#image-check{color:#888;font-size:small}</style>\n";
+
+/// A number for a table cell: 4 significant decimals, "-" when absent.
+fn cell(v: &serde_json::Value) -> String {
+    match v {
+        serde_json::Value::Number(n) => match n.as_f64() {
+            Some(x) if x.fract() != 0.0 => format!("{x:.4}"),
+            _ => n.to_string(),
+        },
+        serde_json::Value::Null => "-".to_owned(),
+        serde_json::Value::String(s) => s.clone(),
+        other => other.to_string(),
+    }
+}
+
+fn summary_rows(film: &SampleFilm) -> Vec<Vec<String>> {
+    let s = &film.summary;
+    let t = &s["thickness_nm"];
+    let mut rows = vec![
+        vec!["method".into(), cell(&s["method"])],
+        vec!["source".into(), cell(&s["source"])],
+        vec![
+            "refractive index at 550 nm".into(),
+            format!(
+                "{} ± {}",
+                cell(&s["refractive_index"]),
+                cell(&s["refractive_index_sigma"])
+            ),
+        ],
+        vec!["index model".into(), cell(&s["index_model"])],
+        vec!["dispersion".into(), cell(&s["dispersion"])],
+        vec![
+            "substrate / ambient index".into(),
+            format!(
+                "{:.4} / {:.4}",
+                film.substrate_550(),
+                film.stack.ambient_index
+            ),
+        ],
+        vec![
+            "polarisation".into(),
+            film.stack.polarization.name().to_owned(),
+        ],
+    ];
+    for k in ["mean", "median", "std", "min", "max"] {
+        rows.push(vec![format!("thickness {k}, nm"), cell(&t[k])]);
+    }
+    rows.push(vec!["valid fraction".into(), cell(&s["valid_fraction"])]);
+    rows.push(vec![
+        "size, px".into(),
+        format!("{} x {}", film.width, film.height),
+    ]);
+    rows.push(vec!["angles, deg".into(), cell(&s["angles_deg"])]);
+    rows.push(vec!["bands".into(), cell(&s["bands"])]);
+    rows.push(vec!["run time, s".into(), cell(&s["timing"]["seconds"])]);
+    if let Some(flags) = s["flags"].as_object() {
+        for (name, n) in flags.iter().filter(|(_, n)| n.as_u64().unwrap_or(0) > 0) {
+            rows.push(vec![format!("flag {name}, px"), cell(n)]);
+        }
+    }
+    rows
+}
+
+/// The charts of a comparison: CIEDE2000 per angle, and the spectra of the pixel of
+/// median thickness measured against the model at the first and last angle.
+fn comparison_charts(cmp: &Comparison) -> Result<Vec<u8>, AppearanceError> {
+    let mean: Vec<(f64, f64)> = cmp
+        .angles
+        .iter()
+        .map(|a| (a.incidence_deg, a.stats.mean))
+        .collect();
+    let p95: Vec<(f64, f64)> = cmp
+        .angles
+        .iter()
+        .map(|a| (a.incidence_deg, a.stats.p95))
+        .collect();
+    let series = [
+        Series {
+            name: "mean",
+            points: &mean,
+            labels: None,
+        },
+        Series {
+            name: "95th percentile",
+            points: &p95,
+            labels: None,
+        },
+    ];
+    let panels = [Scatter {
+        title: "CIEDE2000, measured vs reproduced",
+        x_label: "incidence angle, degrees",
+        y_label: "dE00",
+        x_log: false,
+        y_log: false,
+        series: &series,
+        pareto: false,
+    }];
+    render_scatter_panels_png("colour difference per angle", &panels)
+        .map_err(|e| AppearanceError(e.to_string()))
+}
+
+/// Reflectance against wavelength of the pixel of median thickness, measured and
+/// modelled, at the first and last captured angle; `None` without such a pixel.
+fn spectra_chart(
+    film: &SampleFilm,
+    spectra: &[PixelSpectra],
+) -> Result<Option<Vec<u8>>, AppearanceError> {
+    let Some((pixel, d)) = median_pixel(film).and_then(|p| Some((p, film.thickness_at(p)?))) else {
+        return Ok(None);
+    };
+    if spectra.is_empty() {
+        return Ok(None);
+    }
+    let ends = [spectra.first(), spectra.last()];
+    let names: Vec<[String; 2]> = ends
+        .iter()
+        .flatten()
+        .map(|p| {
+            [
+                format!("measured {:.0}°", p.incidence_deg),
+                format!("model {:.0}°", p.incidence_deg),
+            ]
+        })
+        .collect();
+    let series: Vec<Series> = ends
+        .iter()
+        .flatten()
+        .zip(&names)
+        .flat_map(|(p, [m, f])| {
+            [
+                Series {
+                    name: m,
+                    points: &p.measured,
+                    labels: None,
+                },
+                Series {
+                    name: f,
+                    points: &p.model,
+                    labels: None,
+                },
+            ]
+        })
+        .collect();
+    let title = format!(
+        "pixel ({}, {}), d = {d:.1} nm",
+        pixel % film.width,
+        pixel / film.width
+    );
+    let panels = [Scatter {
+        title: &title,
+        x_label: "wavelength, nm",
+        y_label: "reflectance",
+        x_log: false,
+        y_log: false,
+        series: &series,
+        pareto: false,
+    }];
+    render_scatter_panels_png("measured and modelled spectra", &panels)
+        .map(Some)
+        .map_err(|e| AppearanceError(e.to_string()))
+}
+
+/// Writes the report of the maps directory `run` to `out` (atomically).
+pub fn write_report(
+    run: &Path,
+    out: &Path,
+    capture: Option<&Path>,
+) -> Result<Made, AppearanceError> {
+    let film = SampleFilm::load(run, capture)?;
+    let mut notes = Vec::new();
+    let mut page = Page {
+        html: String::new(),
+        images: 0,
+    };
+    let png_err = |e: crate::export::png::PreviewError| AppearanceError::new(run, e);
+    let title = format!("filmscope report: {}", run.display());
+    let _ = write!(
+        page.html,
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title>\n{STYLE}</head><body>\n<h1>{}</h1>\n<p id=\"image-check\">images not checked yet</p>\n",
+        escape(&title),
+        escape(&title)
+    );
+
+    page.heading("Summary");
+    page.table(&["quantity", "value"], &summary_rows(&film));
+
+    page.heading("Maps");
+    let thickness = render_map_png(&MapPreview {
+        width: film.width,
+        height: film.height,
+        values: &film.thickness_nm,
+        title: &format!("thickness, {}", film.describe()),
+        unit: "nm",
+        range: None,
+    })
+    .map_err(png_err)?;
+    page.image(&thickness, "thickness map (nm; grey: no reliable estimate)");
+    let conf_path = run.join("confidence.hdr");
+    if conf_path.exists() {
+        let conf = read_cube(&conf_path).map_err(|e| AppearanceError::new(&conf_path, e))?;
+        let png = render_map_png(&MapPreview {
+            width: conf.samples,
+            height: conf.lines,
+            values: &conf.data,
+            title: "confidence",
+            unit: "",
+            range: Some((0.0, 1.0)),
+        })
+        .map_err(png_err)?;
+        page.image(&png, "confidence map (0..1)");
+    }
+
+    page.heading("Appearance");
+    let (render, info) = render_png(
+        &film,
+        &RenderOptions {
+            incidence_deg: REPORT_ANGLE_DEG,
+            illuminant: Illuminant::D65,
+            exposure: None,
+        },
+    )?;
+    page.image(
+        &render,
+        &format!(
+            "render at {REPORT_ANGLE_DEG}° under D65 (exposure x{:.1}), angle strip 0-70°",
+            info.exposure
+        ),
+    );
+
+    page.heading("Measured against reproduced");
+    let cmp = match film.capture.as_deref() {
+        None => Err("the capture is unknown (pass --capture)".to_owned()),
+        Some(cap) => open_capture(cap)
+            .and_then(|mut source| {
+                compare_stream(&film, &mut source, Illuminant::D65, median_pixel(&film))
+            })
+            .map_err(|e| e.to_string()),
+    };
+    match cmp {
+        Ok((cmp, spectra)) => {
+            let (lo, hi) = cmp.colorimetry.range_nm();
+            page.para(&format!(
+                "Both the measured reflectance and the film model averaged over the same passbands are summed to XYZ over {lo:.0}-{hi:.0} nm only (D65, CIE 1931 2°, white = perfect reflector over the same range); CIEDE2000 per pixel. All angles: mean {:.3}, p95 {:.3} over {} pixels.",
+                cmp.overall.mean, cmp.overall.p95, cmp.overall.pixels
+            ));
+            page.image(
+                &cmp.to_png()?,
+                "measured | reproduced | CIEDE2000, per captured angle",
+            );
+            let rows: Vec<Vec<String>> = cmp
+                .angles
+                .iter()
+                .map(|a| {
+                    vec![
+                        format!("{:.1}", a.incidence_deg),
+                        a.stats.pixels.to_string(),
+                        format!("{:.3}", a.stats.mean),
+                        format!("{:.3}", a.stats.median),
+                        format!("{:.3}", a.stats.p95),
+                    ]
+                })
+                .collect();
+            page.table(
+                &[
+                    "angle, deg",
+                    "pixels",
+                    "mean dE00",
+                    "median dE00",
+                    "p95 dE00",
+                ],
+                &rows,
+            );
+            page.heading("Charts");
+            page.image(&comparison_charts(&cmp)?, "CIEDE2000 per captured angle");
+            if let Some(png) = spectra_chart(&film, &spectra)? {
+                page.image(
+                    &png,
+                    "the pixel of median thickness: measured band reflectance and the model, first and last angle",
+                );
+            }
+        }
+        Err(why) => {
+            page.para(&format!("No comparison: {why}."));
+            notes.push(format!("no comparison in the report: {why}"));
+        }
+    }
+    page.html.push_str(IMAGE_CHECK_SCRIPT);
+    page.html.push_str("</body></html>\n");
+    write_atomic(out, page.html.as_bytes()).map_err(|e| AppearanceError::new(out, e))?;
+    Ok(Made {
+        images: page.images,
+        bytes: page.html.len(),
+        notes,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_matches_rfc_4648_vectors() {
+        for (input, want) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg=="),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
+            assert_eq!(base64(input.as_bytes()), want);
+        }
+    }
+
+    #[test]
+    fn escape_neutralises_markup() {
+        assert_eq!(
+            escape("<a href=\"x\">&</a>"),
+            "&lt;a href=&quot;x&quot;&gt;&amp;&lt;/a&gt;"
+        );
+    }
+}
