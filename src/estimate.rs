@@ -453,6 +453,8 @@ pub fn write_outputs(
 ) -> Result<serde_json::Value, OutputError> {
     let err = |p: &Path, e: &dyn std::fmt::Display| OutputError(format!("{}: {e}", p.display()));
     std::fs::create_dir_all(dir).map_err(|e| err(dir, &e))?;
+    // Temporaries of an earlier run that was killed mid-write.
+    crate::io::remove_stale_temps(dir);
     let (w, h) = (run.spec.width, run.spec.height);
     let r = &run.result;
     let thick = dir.join("thickness_nm.hdr");
