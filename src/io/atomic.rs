@@ -251,7 +251,9 @@ mod tests {
         let dir = tempfile::tempdir()?;
         // PIDs above the kernel's maximum (4194304) never run.
         let dead = dir.path().join(".summary.json.4999999-3.tmp");
-        let own = dir.path().join(format!(".map.img.{}-0.tmp", std::process::id()));
+        let own = dir
+            .path()
+            .join(format!(".map.img.{}-0.tmp", std::process::id()));
         let other = dir.path().join("notes.tmp");
         for p in [&dead, &own, &other] {
             fs::write(p, b"x")?;
