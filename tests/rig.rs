@@ -542,7 +542,7 @@ impl FaultRng {
 /// Random serial faults: lost and garbled replies, split reads, now and then a refusal or
 /// the device disappearing.
 fn random_serial_faults(rng: &mut FaultRng, commands: u64) -> SerialFaults {
-    let mut pick = |percent, rng: &mut FaultRng| {
+    let pick = |percent, rng: &mut FaultRng| {
         if rng.chance(percent) {
             vec![rng.below(commands) as usize + 1]
         } else {
