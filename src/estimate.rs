@@ -283,6 +283,17 @@ pub fn result_from_sweep(out: &SweepOutput) -> MethodResult {
             out.noise_sigma.map_or(f64::NAN, f64::from)
         ));
     }
+    let dead = out
+        .results
+        .iter()
+        .filter(|r| r.flags & flags::DEAD != 0)
+        .count();
+    if dead * 2 > out.results.len() {
+        notes.push(format!(
+            "{dead} of {} pixels lack usable samples in over a tenth of their bands (NaN or infinite reflectance: a white reference at or below its dark, or bad values in a cube)",
+            out.results.len()
+        ));
+    }
     MethodResult {
         method: Method::Filmscope,
         index: out.index.unwrap_or(IndexModel::constant(f64::NAN)),
