@@ -320,7 +320,8 @@ impl SampleGrid {
         let mut best = (f64::INFINITY, f32::NAN);
         for (k, &v) in values.iter().enumerate() {
             let (px, py) = self.pixel(k);
-            let d2 = (px as f64 - x as f64).powi(2) + (py as f64 - y as f64).powi(2);
+            let (dx, dy) = (px as f64 - x as f64, py as f64 - y as f64);
+            let d2 = dx * dx + dy * dy;
             if v.is_finite() && d2 < best.0 {
                 best = (d2, v);
             }
