@@ -73,6 +73,27 @@ pub const TARGETS: &[Target] = &[
         ],
     },
     Target {
+        name: "envi_file",
+        run: envi_file,
+        dict: &[
+            "samples = ",
+            "lines = ",
+            "bands = ",
+            "header offset = ",
+            "data type = 12",
+            "data type = 5",
+            "data type = 2",
+            "interleave = bsq",
+            "interleave = bip",
+            "byte order = 1",
+            "1000000000000",
+            "4611686018427387904",
+            "18446744073709551615",
+            "\n",
+            "\u{0}\u{0}\u{80}\u{7f}",
+        ],
+    },
+    Target {
         name: "capture_toml",
         run: capture_toml,
         dict: &[
@@ -214,6 +235,53 @@ fn envi_header(data: &[u8]) -> bool {
             false
         }
     }
+}
+
+/// An ENVI header and its data file on disk: input = header length (2 bytes, little
+/// endian), header text, data bytes. Opening checks the declared size against the file
+/// before allocating anything; every row then reads or fails with a message naming a file.
+fn envi_file(data: &[u8]) -> bool {
+    thread_local! {
+        static DIR: std::path::PathBuf = {
+            let d = std::env::temp_dir().join(format!("filmscope-fuzz-{}", std::process::id()));
+            let _ = std::fs::create_dir_all(&d);
+            d
+        };
+    }
+    let (head, rest) = data.split_at(data.len().min(2));
+    let n = match head {
+        [a, b] => usize::from(u16::from_le_bytes([*a, *b])),
+        _ => 0,
+    };
+    let (text, bytes) = rest.split_at(n.min(rest.len()));
+    DIR.with(|dir| {
+        let hdr = dir.join("c.hdr");
+        let img = dir.join("c.img");
+        if std::fs::write(&hdr, text).is_err() || std::fs::write(&img, bytes).is_err() {
+            return false;
+        }
+        let mut reader = match filmscope::io::EnviReader::open(&hdr) {
+            Ok(r) => r,
+            Err(e) => {
+                let msg = e.to_string();
+                assert!(!msg.contains('\n'), "multi-line error: {msg:?}");
+                assert!(msg.contains("c.hdr") || msg.contains("c.img"), "{msg:?}");
+                return false;
+            }
+        };
+        let h = reader.header().clone();
+        assert!(h.file_bytes().is_some_and(|b| b <= bytes.len() as u64));
+        let mut row = vec![0f32; h.samples];
+        let mut rows = 0;
+        while let Ok(Some(_)) = reader.next_band_row(&mut row) {
+            rows += 1;
+            assert!(rows <= reader.rows_total(), "more rows than declared");
+        }
+        assert_eq!(rows, reader.rows_total());
+        let cube = filmscope::io::read_cube(&hdr).expect("a cube that streams also reads whole");
+        assert_eq!(cube.data.len(), h.samples * h.lines * h.bands);
+        true
+    })
 }
 
 /// capture.toml text: parsing and value checks never panic, errors are one line and name

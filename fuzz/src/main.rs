@@ -86,6 +86,10 @@ fn main() {
             }
         }
     }
+    // The envi_file target's scratch folder.
+    let _ = std::fs::remove_dir_all(
+        std::env::temp_dir().join(format!("filmscope-fuzz-{}", std::process::id())),
+    );
     let elapsed = start.elapsed().as_secs_f64();
     println!(
         "{name}: {cases} cases in {elapsed:.0} s ({:.0}/s), {accepted} accepted, {crashes} crashing ({} distinct), {slow} slow, seed {seed}",
