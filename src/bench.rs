@@ -35,8 +35,8 @@ use serde::Serialize;
 use crate::chart::{measure, Point, Setting};
 use crate::estimate::RunConfig;
 use crate::pipeline::{
-    calibrate_block, run_sweep, stream_band_sequential, PipelineConfig, Samples, SimSource, Source,
-    StreamMsg,
+    calibrate_block, run_sweep, stream_band_sequential, PipelineConfig, Prior, PriorUpdate,
+    Samples, SimSource, Source, StreamMsg,
 };
 use crate::sweep::Method;
 
@@ -288,6 +288,55 @@ fn status_mb(field: &str) -> Option<f64> {
     let line = s.lines().find(|l| l.starts_with(field))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb / 1024.0)
+}
+
+/// Resident memory after a number of consecutive sweeps ([`soak`]).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct SoakPoint {
+    /// Sweeps done.
+    pub sweep: usize,
+    /// Resident set size, MB (`VmRSS`).
+    pub rss_mb: f64,
+    /// Peak resident set size so far, MB (`VmHWM`).
+    pub peak_rss_mb: f64,
+}
+
+/// Runs `sweeps` consecutive sweeps of `scene` on the software camera through
+/// [`run_sweep`], each starting from the last one's index as on a production line, and
+/// reports the resident memory after every `every`th sweep (and the first): a long run
+/// must not grow. Fails on the first sweep that fails.
+pub fn soak(
+    scene: &Scene,
+    sweeps: usize,
+    every: usize,
+    config: PipelineConfig,
+    mut report: impl FnMut(SoakPoint),
+) -> Result<Vec<SoakPoint>> {
+    let mut points = Vec::new();
+    let mut prior = None;
+    for i in 1..=sweeps {
+        let mut source = SimSource::new(SoftwareCamera::new(scene.clone()), false, 4)
+            .map_err(|e| anyhow!("{e}"))?;
+        let out = run_sweep(&mut source, config, prior.take(), &|_| {})
+            .map_err(|e| anyhow!("sweep {i}: {e}"))?;
+        prior = out.index.map(|index| Prior {
+            index,
+            update: PriorUpdate::Shifts,
+            seed: None,
+        });
+        std::hint::black_box(&out.results);
+        drop(out);
+        if i == 1 || i % every.max(1) == 0 || i == sweeps {
+            let point = SoakPoint {
+                sweep: i,
+                rss_mb: status_mb("VmRSS:").unwrap_or(f64::NAN),
+                peak_rss_mb: status_mb("VmHWM:").unwrap_or(f64::NAN),
+            };
+            report(point);
+            points.push(point);
+        }
+    }
+    Ok(points)
 }
 
 /// The child's side of the RSS measurement: one sweep of `scene_path` resized, printed as

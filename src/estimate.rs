@@ -283,6 +283,17 @@ pub fn result_from_sweep(out: &SweepOutput) -> MethodResult {
             out.noise_sigma.map_or(f64::NAN, f64::from)
         ));
     }
+    let dead = out
+        .results
+        .iter()
+        .filter(|r| r.flags & flags::DEAD != 0)
+        .count();
+    if dead * 2 > out.results.len() {
+        notes.push(format!(
+            "{dead} of {} pixels lack usable samples in over a tenth of their bands (NaN or infinite reflectance: a white reference at or below its dark, or bad values in a cube)",
+            out.results.len()
+        ));
+    }
     MethodResult {
         method: Method::Filmscope,
         index: out.index.unwrap_or(IndexModel::constant(f64::NAN)),
@@ -453,6 +464,8 @@ pub fn write_outputs(
 ) -> Result<serde_json::Value, OutputError> {
     let err = |p: &Path, e: &dyn std::fmt::Display| OutputError(format!("{}: {e}", p.display()));
     std::fs::create_dir_all(dir).map_err(|e| err(dir, &e))?;
+    // Temporaries of an earlier run that was killed mid-write.
+    crate::io::remove_stale_temps(dir);
     let (w, h) = (run.spec.width, run.spec.height);
     let r = &run.result;
     let thick = dir.join("thickness_nm.hdr");

@@ -258,7 +258,17 @@ fn acquire(
     Result<serde_json::Value, String>,
     firmware_sim::serve::SimRig,
 ) {
-    let mut c = rig_config();
+    acquire_with(rig_config(), opts, out)
+}
+
+fn acquire_with(
+    mut c: RigConfig,
+    opts: RigOptions,
+    out: &Path,
+) -> (
+    Result<serde_json::Value, String>,
+    firmware_sim::serve::SimRig,
+) {
     let (sim, rig) = open_sim_with(&mut c, opts).expect("sim rig");
     (run_rig(rig, c, out, &RunConfig::default(), &|_| {}), sim)
 }
@@ -511,4 +521,163 @@ fn cli_acquire_sim_prints_one_line_of_figures() {
         !bad.status.success() && err.contains("no/such/rig.toml") && err.lines().count() == 1,
         "{err}"
     );
+}
+
+/// A seeded xorshift generator for fault plans.
+struct FaultRng(u64);
+
+impl FaultRng {
+    fn below(&mut self, n: u64) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0 % n.max(1)
+    }
+
+    fn chance(&mut self, percent: u64) -> bool {
+        self.below(100) < percent
+    }
+}
+
+/// Random serial faults: lost and garbled replies, split reads, now and then a refusal or
+/// the device disappearing.
+fn random_serial_faults(rng: &mut FaultRng, commands: u64) -> SerialFaults {
+    let pick = |percent, rng: &mut FaultRng| {
+        if rng.chance(percent) {
+            vec![rng.below(commands) as usize + 1]
+        } else {
+            Vec::new()
+        }
+    };
+    SerialFaults {
+        swallow: pick(25, rng),
+        garbage: pick(25, rng),
+        reject: pick(4, rng),
+        split: rng.chance(30).then(|| rng.below(8) as usize + 1),
+        vanish_after: rng.chance(4).then(|| rng.below(commands) as usize + 1),
+    }
+}
+
+/// Long simulated runs with device faults injected at random (seeded): every sweep ends
+/// complete, or with a one-line error and a recorded capture that either loads (two or more
+/// complete angles) or whose acquisition.json says why it cannot be estimated. Sweeps:
+/// `FILMSCOPE_FAULT_SWEEPS` (default 50), seed `FILMSCOPE_FAULT_SEED`.
+#[test]
+fn random_device_faults_over_many_sweeps_end_complete_or_with_a_clear_error() {
+    let sweeps: u64 = std::env::var("FILMSCOPE_FAULT_SWEEPS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(50);
+    let seed: u64 = std::env::var("FILMSCOPE_FAULT_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0x5eed_f11e);
+    let mut rng = FaultRng(seed | 1);
+    let mut c = rig_config();
+    c.sweep.angles_deg = vec![10.0, 30.0, 50.0];
+    c.sweep.bands_nm = [420.0, 720.0, 12.0];
+    c.stage.timeout_ms = 200;
+    c.filter.timeout_ms = 200;
+    let bands = c.sweep.bands().len() as u64;
+    let frames = 3 * bands * c.sweep.angles_deg.len() as u64;
+    let (mut complete, mut partial, mut unusable) = (0, 0, 0);
+    let mut errors = std::collections::BTreeMap::<String, u32>::new();
+    for sweep in 0..sweeps {
+        let mut o = options(&c);
+        let rows = |percent, rng: &mut FaultRng| -> Vec<(u64, u32)> {
+            let mut v = Vec::new();
+            for _ in 0..3 {
+                if rng.chance(percent) {
+                    v.push((rng.below(frames) + 1, rng.below(24) as u32));
+                }
+            }
+            v
+        };
+        let mut garbage_before = Vec::new();
+        for _ in 0..2 {
+            if rng.chance(30) {
+                garbage_before.push(rng.below(frames) + 1);
+            }
+        }
+        o.camera_faults = CameraFaults {
+            drop_rows: rows(40, &mut rng),
+            corrupt_rows: rows(40, &mut rng),
+            duplicate_rows: rows(30, &mut rng),
+            swap_rows: rows(30, &mut rng),
+            partial: rows(20, &mut rng),
+            stall: rng
+                .chance(10)
+                .then(|| (rng.below(frames) + 1, rng.below(24) as u32)),
+            garbage_before,
+            vanish_at: rng.chance(8).then(|| rng.below(frames) + 1),
+        };
+        o.stage_faults = random_serial_faults(&mut rng, 12);
+        o.filter_faults = random_serial_faults(&mut rng, 3 * bands);
+        let faults = format!(
+            "sweep {sweep}: camera {:?}, stage {:?}, filter {:?}",
+            o.camera_faults, o.stage_faults, o.filter_faults
+        );
+        let dir = common::tempdir();
+        let (result, _sim) = acquire_with(c.clone(), o, dir.path());
+        let capture = dir.path().join("capture");
+        match result {
+            Ok(summary) => {
+                complete += 1;
+                assert!(
+                    summary["refractive_index"].is_number(),
+                    "{faults}: {summary}"
+                );
+                assert_eq!(summary["acquisition"]["complete"], true, "{faults}");
+                let cap = Capture::load(&capture).expect("complete capture loads");
+                assert_eq!(cap.angles.len(), 3, "{faults}");
+            }
+            Err(e) => {
+                assert!(!e.is_empty() && !e.contains('\n'), "{faults}: {e:?}");
+                assert!(!e.contains("panicked"), "{faults}: {e}");
+                // Group errors by their wording without numbers, for the figures.
+                let cause = e.strip_prefix("acquisition stopped: ").unwrap_or(&e);
+                let kind: String = cause
+                    .split("; ")
+                    .next()
+                    .unwrap_or(cause)
+                    .chars()
+                    .filter(|ch| !ch.is_ascii_digit())
+                    .take(60)
+                    .collect();
+                *errors.entry(kind).or_default() += 1;
+                let log = std::fs::read_to_string(capture.join("acquisition.json"));
+                match Capture::load(&capture) {
+                    Ok(cap) => {
+                        partial += 1;
+                        assert!(cap.angles.len() >= 2, "{faults}");
+                        if let Ok(log) = &log {
+                            let log: serde_json::Value =
+                                serde_json::from_str(log).expect("acquisition.json is JSON");
+                            assert_eq!(log["complete"], false, "{faults}");
+                        }
+                    }
+                    Err(load) => {
+                        unusable += 1;
+                        let log: serde_json::Value = serde_json::from_str(
+                            &log.unwrap_or_else(|_| {
+                                panic!("{faults}: {e}; capture does not load ({load}) and has no acquisition.json")
+                            }),
+                        )
+                        .expect("acquisition.json is JSON");
+                        assert_eq!(log["complete"], false, "{faults}");
+                        assert!(
+                            log["re_estimate"]
+                                .as_str()
+                                .is_some_and(|s| s.contains("fewer than two")),
+                            "{faults}: {log}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    eprintln!(
+        "device faults: {sweeps} sweeps (seed {seed:#x}): {complete} complete, {partial} stopped with a loadable partial capture, {unusable} stopped with fewer than two angles; errors {errors:?}"
+    );
+    assert_eq!(complete + partial + unusable, sweeps);
 }

@@ -394,6 +394,37 @@ pub fn bench(scene: &Path, quick: bool, json: bool) -> Result<()> {
     Ok(())
 }
 
+/// `filmscope soak`: prints one line per tenth sweep and a last line of figures.
+pub fn soak(scene: &Path, sweeps: usize) -> Result<()> {
+    let scene = crate::bench::scene_with(scene, 32, 24, Some([420.0, 720.0, 3.0]))?;
+    let t0 = std::time::Instant::now();
+    let points = crate::bench::soak(
+        &scene,
+        sweeps,
+        10,
+        crate::pipeline::PipelineConfig::default(),
+        |p| {
+            println!(
+                "soak: sweep {}: RSS {:.1} MB (peak {:.1} MB)",
+                p.sweep, p.rss_mb, p.peak_rss_mb
+            )
+        },
+    )?;
+    if let (Some(first), Some(last)) = (points.first(), points.last()) {
+        println!(
+            "soak: {sweeps} sweeps in {:.0} s, RSS after sweep {} {:.1} MB, after sweep {} {:.1} MB ({:+.1} MB), peak {:.1} MB",
+            t0.elapsed().as_secs_f64(),
+            first.sweep,
+            first.rss_mb,
+            last.sweep,
+            last.rss_mb,
+            last.rss_mb - first.rss_mb,
+            last.peak_rss_mb
+        );
+    }
+    Ok(())
+}
+
 /// `filmscope chart`.
 pub fn chart(scene: &Path, out: &Path, quick: bool) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;

@@ -200,6 +200,17 @@ enum Command {
         #[arg(long)]
         capture: Option<PathBuf>,
     },
+    /// (reliability) Consecutive sweeps of a small scene through the pipeline, printing the
+    /// resident memory every tenth sweep: memory must stay flat over a long run.
+    #[command(hide = true)]
+    Soak {
+        /// Sweeps to run.
+        #[arg(long, default_value_t = 200)]
+        sweeps: usize,
+        /// The scene (resized to 32 x 24 pixels, 101 bands).
+        #[arg(long, default_value = "config/scenes/rig-tiny.toml")]
+        scene: PathBuf,
+    },
     /// (internal) One sweep in a fresh process, for `bench`'s peak-memory figure.
     #[command(hide = true)]
     BenchRssChild {
@@ -253,6 +264,7 @@ pub fn main() -> std::process::ExitCode {
             &ablate,
         ),
         Command::Bench { quick, json, scene } => commands::bench(&scene, quick, json),
+        Command::Soak { sweeps, scene } => commands::soak(&scene, sweeps),
         Command::Chart { scene, out, quick } => commands::chart(&scene, &out, quick),
         Command::Stability { out, quick } => commands::stability(&out, quick),
         Command::Render {

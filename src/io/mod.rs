@@ -22,7 +22,7 @@ pub mod atomic;
 pub mod capture;
 pub mod envi;
 
-pub use atomic::{write_atomic, TempFile};
+pub use atomic::{remove_stale_temps, write_atomic, TempFile};
 pub use capture::{Angle, Capture, CaptureError, CaptureErrorKind, CubeInfo, Sample, Search};
 pub use envi::{
     read_cube, write_f32_map, BandRow, ByteOrder, Cube, DataType, EnviError, EnviErrorKind,

@@ -231,9 +231,15 @@ pub struct CaptureSource {
 }
 
 impl CaptureSource {
-    /// Opens a loaded capture (its cubes were checked by [`Capture::load`]).
-    pub fn new(capture: Capture) -> Result<Self, String> {
+    /// Opens a loaded capture (its cubes were checked by [`Capture::load`]). Its angles are
+    /// streamed by increasing incidence, whatever their order in capture.toml: the streaming
+    /// solver's result depends on the order angles arrive in, and a capture's maps must not
+    /// depend on how its file lists them.
+    pub fn new(mut capture: Capture) -> Result<Self, String> {
         let info = capture.check().map_err(|e| e.to_string())?;
+        capture
+            .angles
+            .sort_by(|a, b| a.incidence_deg.total_cmp(&b.incidence_deg));
         let bands = info.wavelength_nm.clone().ok_or_else(|| {
             format!(
                 "{}: the cubes have no `wavelength` list; filmscope needs each band's wavelength",

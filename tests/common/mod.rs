@@ -106,3 +106,68 @@ pub fn run_ok(args: &[&str]) -> std::process::Output {
     );
     run
 }
+
+/// A whole sweep held in memory ([`filmscope::sweep::SweepCube`]) replayed through the
+/// pipeline: every band of an angle as blocks of `rows_per_block` rows (the whole frame
+/// when it equals the height), its angles in the order `order` gives.
+pub struct WholeSource {
+    pub cube: std::sync::Arc<filmscope::sweep::SweepCube>,
+    pub spec: filmscope::solve::SweepSpec,
+    pub order: Vec<usize>,
+    pub rows_per_block: usize,
+}
+
+impl WholeSource {
+    /// Collects `source` whole, to replay in file order in blocks of `rows_per_block` rows.
+    pub fn collect(source: &mut dyn filmscope::pipeline::Source, rows_per_block: usize) -> Self {
+        let spec = source.spec().clone();
+        let cube = filmscope::pipeline::collect_sweep(source).expect("sweep collects");
+        let order = (0..cube.angles_deg.len()).collect();
+        Self {
+            cube: std::sync::Arc::new(cube),
+            spec,
+            order,
+            rows_per_block,
+        }
+    }
+
+    /// The same sweep, angles in `order`, blocks of `rows_per_block` rows.
+    pub fn with(&self, order: &[usize], rows_per_block: usize) -> Self {
+        Self {
+            cube: self.cube.clone(),
+            spec: self.spec.clone(),
+            order: order.to_vec(),
+            rows_per_block,
+        }
+    }
+}
+
+impl filmscope::pipeline::Source for WholeSource {
+    fn spec(&self) -> &filmscope::solve::SweepSpec {
+        &self.spec
+    }
+
+    fn angles_deg(&self) -> Vec<f64> {
+        self.order
+            .iter()
+            .map(|&a| self.cube.angles_deg[a])
+            .collect()
+    }
+
+    fn stream(&mut self, tx: &crossbeam_channel::Sender<filmscope::pipeline::StreamMsg>) {
+        let (w, h) = (self.cube.width, self.cube.height);
+        let cube = self.cube.clone();
+        let order = self.order.clone();
+        filmscope::pipeline::stream_band_sequential(
+            tx,
+            &self.angles_deg(),
+            self.cube.bands_nm.len(),
+            h,
+            self.rows_per_block,
+            |a, b, r0, rows| {
+                let plane = &cube.data[order[a]][b * w * h..(b + 1) * w * h];
+                filmscope::pipeline::Samples::Reflectance(plane[r0 * w..(r0 + rows) * w].to_vec())
+            },
+        );
+    }
+}

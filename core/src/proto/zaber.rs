@@ -94,23 +94,33 @@ pub fn parse(line: &str) -> Result<Message<'_>, ParseError> {
     if line.is_empty() {
         return Err(ParseError::Empty);
     }
-    let (kind, rest) = line.split_at(1);
-    let body = match rest.rfind(':') {
+    // The kind is one ASCII character; anything else (e.g. a multi-byte character from
+    // line noise) is not a Zaber message, and must not be split inside a character.
+    let (kind, rest) = match line.as_bytes()[0] {
+        b'@' | b'#' | b'!' => line.split_at(1),
+        _ => return Err(ParseError::Malformed),
+    };
+    let body = strip_checksum(rest)?;
+    match kind {
+        "@" => parse_reply(body).map(Message::Reply),
+        "#" => Ok(Message::Info(body)),
+        "!" => Ok(Message::Alert(body)),
+        _ => Err(ParseError::Malformed),
+    }
+}
+
+/// The body of a line without its `:CS` checksum, checked when present.
+fn strip_checksum(rest: &str) -> Result<&str, ParseError> {
+    match rest.rfind(':') {
         Some(i) => {
             let (body, cs) = (&rest[..i], &rest[i + 1..]);
             let want = u8::from_str_radix(cs, 16).map_err(|_| ParseError::Malformed)?;
             if cs.len() != 2 || checksum(body.as_bytes()) != want {
                 return Err(ParseError::Checksum);
             }
-            body
+            Ok(body)
         }
-        None => rest,
-    };
-    match kind {
-        "@" => parse_reply(body).map(Message::Reply),
-        "#" => Ok(Message::Info(body)),
-        "!" => Ok(Message::Alert(body)),
-        _ => Err(ParseError::Malformed),
+        None => Ok(rest),
     }
 }
 
@@ -205,17 +215,7 @@ pub struct Command<'a> {
 pub fn parse_command(line: &str) -> Result<Command<'_>, ParseError> {
     let line = line.trim_matches(|c| c == '\r' || c == '\n' || c == ' ');
     let rest = line.strip_prefix('/').ok_or(ParseError::Malformed)?;
-    let body = match rest.rfind(':') {
-        Some(i) => {
-            let (body, cs) = (&rest[..i], &rest[i + 1..]);
-            let want = u8::from_str_radix(cs, 16).map_err(|_| ParseError::Malformed)?;
-            if cs.len() != 2 || checksum(body.as_bytes()) != want {
-                return Err(ParseError::Checksum);
-            }
-            body
-        }
-        None => rest,
-    };
+    let body = strip_checksum(rest)?;
     // Up to three leading numbers (device, axis, id), then the command text.
     let mut numbers = [None::<u8>; 3];
     let mut rest = body.trim_start_matches(' ');
@@ -242,6 +242,15 @@ pub fn parse_command(line: &str) -> Result<Command<'_>, ParseError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Found by `fuzz zaber`: a line starting with a multi-byte character panicked
+    /// (`split_at(1)` inside the character) instead of being refused.
+    #[test]
+    fn fuzz_multibyte_first_character_is_malformed_not_a_panic() {
+        assert_eq!(parse("é01 0 OK IDLE -- 0"), Err(ParseError::Malformed));
+        assert_eq!(parse("٠"), Err(ParseError::Malformed));
+        assert_eq!(parse_command("é"), Err(ParseError::Malformed));
+    }
 
     #[test]
     fn checksum_matches_the_manual_vectors() {

@@ -166,6 +166,12 @@ impl<'a> Shard<'a> {
             .zip(values)
         {
             p.samples = p.samples.saturating_add(1);
+            // A finite value far outside any reflectance is a corrupted sample: dead.
+            let v = if v.is_finite() && !crate::track::usable(v) {
+                f32::NAN
+            } else {
+                v
+            };
             if !v.is_finite() {
                 if v.is_nan() {
                     p.dead = p.dead.saturating_add(1);

@@ -33,6 +33,18 @@ pub const PROMINENCE_SIGMA: f32 = 6.0;
 /// Most extrema kept per pixel and angle.
 pub const MAX_EXTREMA: usize = 20;
 
+/// Largest sample magnitude taken as a measurement: reflectance lies near 0..1, so a
+/// larger value is a corrupted sample (bad bytes in a float cube), treated like a dead one.
+/// Bounding it keeps the smoothing sums finite (found by the property tests: a sample of
+/// -1.1e38 overflowed them and placed an extremum at NaN, out of band order).
+pub const MAX_SAMPLE: f32 = 1e6;
+
+/// Whether `v` is a usable sample: finite and at most [`MAX_SAMPLE`] in magnitude.
+#[inline]
+pub fn usable(v: f32) -> bool {
+    v.abs() <= MAX_SAMPLE
+}
+
 /// Peak or valley.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kind {
@@ -123,12 +135,12 @@ impl PixelTracker {
     }
 
     /// Feeds the sample of band `band` (bands must come in increasing order, one per call).
-    /// Non-finite samples (saturated, dead) are counted and bridged by repeating the last
-    /// good sample. Confirmed extrema are pushed to `out`, placed to a fraction of a band when
+    /// Unusable samples (saturated, dead, beyond [`MAX_SAMPLE`]) are counted and bridged by
+    /// repeating the last good sample. Confirmed extrema are pushed to `out`, placed to a fraction of a band when
     /// `subband` (else at the band of the smoothed extreme).
     #[inline]
     pub fn push(&mut self, band: u16, value: f32, subband: bool, out: &mut ExtremaList) {
-        let v = if value.is_finite() {
+        let v = if usable(value) {
             value
         } else {
             self.bad_samples = self.bad_samples.saturating_add(1);
@@ -230,6 +242,10 @@ impl PixelTracker {
     }
 
     fn emit(&mut self, band: f32, kind: Kind, out: &mut ExtremaList) {
+        // Sub-band vertices move up to a band either way, so two extrema of a spiky spectrum
+        // less than two bands apart could come out of order (found by the property tests):
+        // the list stays in increasing band order.
+        let band = out.last().map_or(band, |last| band.max(last.band()));
         if out.push(Extremum::new(band, kind)).is_err() {
             self.overflow = true;
         }

@@ -69,3 +69,33 @@ fn state_size_is_fixed() {
         core::mem::size_of::<PixelTracker>()
     );
 }
+
+/// Found by the property tests: a huge finite sample (bad bytes in a float cube) overflowed
+/// the smoothing sums and placed an extremum at NaN (band 0), out of order.
+#[test]
+fn proptest_huge_finite_samples_are_bad_samples() {
+    let mut s = [0.0f32; 12];
+    s[2] = 0.775;
+    s[3] = f32::NAN;
+    s[10] = -1.124_262_1e38;
+    let (out, t) = run(s.iter().copied());
+    assert_eq!(t.bad_samples, 2);
+    assert!(out.windows(2).all(|w| w[0].band() <= w[1].band()));
+    assert!(t.noise_sigma().is_finite());
+}
+
+/// Found by the property tests: spikes less than two bands apart gave extrema out of band
+/// order (sub-band vertices move up to a band either way).
+#[test]
+fn proptest_close_spikes_keep_extrema_in_band_order() {
+    let mut s = [0.0f32; 116];
+    s[102] = 0.986;
+    s[105] = 0.731;
+    s[111] = -1421.911;
+    let (out, _) = run(s.iter().copied());
+    assert!(
+        out.windows(2).all(|w| w[0].band() <= w[1].band()),
+        "{:?}",
+        out.iter().map(|e| e.band()).collect::<Vec<_>>()
+    );
+}

@@ -433,13 +433,26 @@ impl EnviHeader {
     /// Renders the header as ENVI text (wavelengths and FWHM in nanometres).
     ///
     /// Parsing the result gives back an equal header, apart from braces in the description,
-    /// which are replaced by parentheses.
+    /// which are replaced by parentheses, and description lines starting with `;`, which
+    /// join the line before (ENVI reads them as comments).
     pub fn to_text(&self) -> String {
         let mut out = String::from("ENVI\n");
         // Writing to a String cannot fail; `let _` keeps the function infallible.
         if let Some(description) = &self.description {
             let clean = description.replace('{', "(").replace('}', ")");
-            let _ = writeln!(out, "description = {{\n  {}}}", clean.trim());
+            out.push_str("description = {");
+            for line in clean.trim().lines() {
+                let line = line.trim();
+                // A continuation line starting with `;` would be read as a comment (and a
+                // lone `;}` would leave the brace open): keep such text on the line before.
+                if line.starts_with(';') {
+                    out.push(' ');
+                } else {
+                    out.push_str("\n  ");
+                }
+                out.push_str(line);
+            }
+            out.push_str("}\n");
         }
         let _ = writeln!(out, "samples = {}", self.samples);
         let _ = writeln!(out, "lines = {}", self.lines);
@@ -637,6 +650,24 @@ mod tests {
 
     const BASIC: &str =
         "ENVI\nsamples = 5\nlines = 3\nbands = 4\ndata type = 4\ninterleave = bsq\n";
+
+    /// Found by `fuzz envi_header`: a description whose text starts with `;` was written as
+    /// a continuation line `;...}`, which readers skip as a comment, so the brace never
+    /// closed and the rewritten header lost every key after it.
+    #[test]
+    fn fuzz_description_starting_with_a_semicolon_round_trips() -> Result<(), EnviErrorKind> {
+        for description in [
+            "description = ;",
+            "description = ;{",
+            "description = { ; a\n b }",
+        ] {
+            let h = EnviHeader::parse(&format!("{BASIC}{description}\n"))?;
+            let again = EnviHeader::parse(&h.to_text())?;
+            assert_eq!((again.samples, again.lines, again.bands), (5, 3, 4));
+            assert!(again.description.is_some(), "{description}");
+        }
+        Ok(())
+    }
 
     #[test]
     fn parses_minimal_header_with_defaults() -> Result<(), EnviErrorKind> {
