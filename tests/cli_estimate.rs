@@ -139,8 +139,10 @@ fn unreadable_captures_fail_with_one_line_naming_the_file() {
         .expect("two angles");
     std::fs::write(&toml, &text[..first_angle_end]).expect("one angle");
     fails_with_one_line(&["estimate", s(&cap), "--out", s(&out)], "capture.toml");
-    // Garbage.
+    // Garbage, and an empty file.
     std::fs::write(&toml, "[[[ not toml").expect("garbage");
+    fails_with_one_line(&["estimate", s(&cap), "--out", s(&out)], "capture.toml");
+    std::fs::write(&toml, "").expect("empty");
     fails_with_one_line(&["estimate", s(&cap), "--out", s(&out)], "capture.toml");
     assert!(
         !out.join("summary.json").exists(),

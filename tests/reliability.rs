@@ -416,3 +416,61 @@ fn killing_estimate_mid_write_never_leaves_a_torn_output() {
     assert!(estimate().wait().expect("wait").success());
     assert_eq!(temps(), 0, "the next run removes stale temporaries");
 }
+
+/// A source that sends one malformed block (`rows`, `first_row`) in its first angle.
+struct MalformedSource {
+    inner: filmscope::pipeline::SimSource,
+    first_row: u32,
+    rows: u32,
+}
+
+impl Source for MalformedSource {
+    fn spec(&self) -> &filmscope::solve::SweepSpec {
+        self.inner.spec()
+    }
+
+    fn angles_deg(&self) -> Vec<f64> {
+        self.inner.angles_deg()
+    }
+
+    fn stream(&mut self, tx: &crossbeam_channel::Sender<StreamMsg>) {
+        let _ = tx.send(StreamMsg::Angle {
+            incidence_deg: 10.0,
+        });
+        let _ = tx.send(StreamMsg::Rows(filmscope::pipeline::RowBlock {
+            band: 0,
+            first_row: self.first_row,
+            rows: self.rows,
+            samples: filmscope::pipeline::Samples::Reflectance(vec![0.5; 32 * self.rows as usize]),
+        }));
+        let _ = tx.send(StreamMsg::AngleEnd);
+        let _ = tx.send(StreamMsg::SweepEnd);
+    }
+}
+
+/// A camera stream with an empty block, or rows beyond the frame, stops the sweep with a
+/// one-line error (regression: an empty block at row 0 computed row `0 + 0 - 1`, an
+/// overflow panic in debug builds).
+#[test]
+fn malformed_blocks_stop_the_sweep_with_one_line() {
+    for (first_row, rows, want) in [
+        (0, 0, "an empty block at row 0"),
+        (20, 8, "row 27 is outside the 24-row frame"),
+        (u32::MAX - 1, 1, "outside the 24-row frame"),
+    ] {
+        let mut source = MalformedSource {
+            inner: filmscope::pipeline::SimSource::new(
+                firmware_sim::SoftwareCamera::new(common::tiny_scene()),
+                false,
+                1,
+            )
+            .expect("source"),
+            first_row,
+            rows,
+        };
+        let err = run_sweep(&mut source, PipelineConfig::default(), None, &|_| {})
+            .expect_err("malformed block");
+        let msg = err.to_string();
+        assert!(msg.contains(want) && !msg.contains('\n'), "{msg}");
+    }
+}

@@ -387,10 +387,12 @@ fn calibrate_stage(
                 let rows = block.rows as usize;
                 let first = block.first_row as usize;
                 if rows == 0 || first + rows > height {
-                    let _ = control.send(Control::Abort(format!(
-                        "row {} is outside the {height}-row frame",
-                        first + rows - 1
-                    )));
+                    let what = if rows == 0 {
+                        format!("an empty block at row {first}")
+                    } else {
+                        format!("row {} is outside the {height}-row frame", first + rows - 1)
+                    };
+                    let _ = control.send(Control::Abort(what));
                     return;
                 }
                 let values = calibrate_block(block.samples, rows, width);
