@@ -128,11 +128,10 @@ fn thin_start(
             rows,
             values: v,
         } => {
-            for r in first_row..first_row + rows {
-                for x in 0..w {
-                    if let Some(k) = grid.sample_at(x, r) {
-                        values[(angle * nb + band) * px + k] = v[(r - first_row) * w + x];
-                    }
+            for k in 0..px {
+                let (x, y) = grid.pixel(k);
+                if (first_row..first_row + rows).contains(&y) {
+                    values[(angle * nb + band) * px + k] = v[(y - first_row) * w + x];
                 }
             }
         }

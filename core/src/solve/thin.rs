@@ -111,7 +111,8 @@ impl SampledSpectra<'_> {
     }
 
     /// The sum over pixels of each pixel's smallest misfit in `sse`, and (into `best`, if
-    /// given) each pixel's best thickness, refined between grid points by a parabola.
+    /// given) each pixel's best thickness, refined between grid points by a parabola (a NaN
+    /// entry of `best` is left alone).
     fn total(&self, sse: &[f64], mut best: Option<&mut [f32]>) -> f64 {
         let px = self.pixels;
         let d0 = thickness_grid(self.spec).next().unwrap_or(0.0);
@@ -137,30 +138,22 @@ impl SampledSpectra<'_> {
                 }
             }
             total += value.max(0.0);
-            if let Some(out) = best.as_deref_mut() {
+            // A pixel already NaN (no usable samples) stays so.
+            if let Some(out) = best.as_deref_mut().filter(|out| !out[p].is_nan()) {
                 out[p] = (d0 + (t_best as f64 + shift) * THICKNESS_STEP_NM) as f32;
             }
         }
         total
     }
 
-    /// Usable samples and the pixels that have any.
-    fn usable(&self) -> (usize, usize) {
-        let px = self.pixels;
-        let mut count = 0;
-        let mut pixels = 0;
-        for p in 0..px {
-            let k = self
-                .values
-                .iter()
-                .skip(p)
-                .step_by(px.max(1))
-                .filter(|v| v.is_finite())
-                .count();
-            count += k;
-            pixels += usize::from(k > 0);
-        }
-        (count, pixels)
+    /// Usable samples of sampled pixel `p`.
+    fn usable(&self, p: usize) -> usize {
+        self.values
+            .iter()
+            .skip(p)
+            .step_by(self.pixels.max(1))
+            .filter(|v| v.is_finite())
+            .count()
     }
 
     /// The scratch length [`SampledSpectra::fit`] needs: one misfit per pixel and grid
@@ -183,7 +176,14 @@ impl SampledSpectra<'_> {
         {
             return None;
         }
-        let (count, pixels) = self.usable();
+        let (mut count, mut pixels) = (0, 0);
+        for (p, d) in thickness_nm.iter_mut().enumerate() {
+            let k = self.usable(p);
+            count += k;
+            pixels += usize::from(k > 0);
+            // NaN marks a pixel without samples; `total` below fills the others.
+            *d = if k > 0 { 0.0 } else { f32::NAN };
+        }
         if count == 0 {
             return None;
         }
@@ -233,17 +233,6 @@ impl SampledSpectra<'_> {
             return None;
         }
         let total = self.total(sse, Some(thickness_nm));
-        for (p, d) in thickness_nm.iter_mut().enumerate() {
-            if !self
-                .values
-                .iter()
-                .skip(p)
-                .step_by(px)
-                .any(|v| v.is_finite())
-            {
-                *d = f32::NAN;
-            }
-        }
         Some(ThinFit {
             index: n,
             rms: libm::sqrt(total / count as f64),
@@ -305,14 +294,6 @@ impl SampleGrid {
         let x = libm::round(Self::centre(cx, self.cols, self.width)).max(0.0) as usize;
         let y = libm::round(Self::centre(cy, self.rows, self.height)).max(0.0) as usize;
         (x.min(self.width - 1), y.min(self.height - 1))
-    }
-
-    /// The sample that pixel `(x, y)` belongs to, if it is one.
-    pub fn sample_at(&self, x: usize, y: usize) -> Option<usize> {
-        let cx = x * self.cols / self.width;
-        let cy = y * self.rows / self.height;
-        let k = cy * self.cols + cx;
-        (self.pixel(k) == (x, y)).then_some(k)
     }
 
     /// The finite sample nearest to pixel `(x, y)`, NaN if there is none.
@@ -416,53 +397,43 @@ mod tests {
         v
     }
 
-    #[test]
-    fn an_80_nm_film_without_fringes_gives_its_index_and_thickness() {
+    /// Fits films of index `n` and `truth` thicknesses at `angles` and checks index and
+    /// thicknesses; returns the fit.
+    fn fits(angles: &[f64], n: f64, truth: &[f64]) -> ThinFit {
         let spec = spec(0..151);
-        let angles = [10.0, 20.0, 30.0, 40.0, 50.0];
-        let truth = [72.0, 80.0, 88.0, 95.0];
-        let values = spectra(&spec, &angles, 1.45, &truth);
+        let values = spectra(&spec, angles, n, truth);
         let s = SampledSpectra {
             spec: &spec,
-            angles_deg: &angles,
+            angles_deg: angles,
             pixels: truth.len(),
             values: &values,
         };
         let mut sse = vec![0.0; s.scratch_len()];
         let mut d = vec![0.0f32; truth.len()];
         let fit = s.fit(&mut sse, &mut d).expect("a fit");
-        assert!((fit.index - 1.45).abs() < 0.005, "index {}", fit.index);
+        assert!((fit.index - n).abs() < 0.005, "index {} vs {n}", fit.index);
         for (got, want) in d.iter().zip(truth) {
             assert!(
                 (f64::from(*got) - want).abs() < 1.5,
                 "thickness {got} vs {want}"
             );
         }
+        fit
+    }
+
+    #[test]
+    fn an_80_nm_film_without_fringes_gives_its_index_and_thickness() {
+        let fit = fits(
+            &[10.0, 20.0, 30.0, 40.0, 50.0],
+            1.45,
+            &[72.0, 80.0, 88.0, 95.0],
+        );
         assert!(fit.rms < 2e-4, "rms {}", fit.rms);
     }
 
     #[test]
     fn a_high_index_thin_film_is_found_too() {
-        let spec = spec(0..151);
-        let angles = [10.0, 30.0, 50.0];
-        let truth = [60.0, 120.0];
-        let values = spectra(&spec, &angles, 2.35, &truth);
-        let s = SampledSpectra {
-            spec: &spec,
-            angles_deg: &angles,
-            pixels: truth.len(),
-            values: &values,
-        };
-        let mut sse = vec![0.0; s.scratch_len()];
-        let mut d = vec![0.0f32; truth.len()];
-        let fit = s.fit(&mut sse, &mut d).expect("a fit");
-        assert!((fit.index - 2.35).abs() < 0.005, "index {}", fit.index);
-        for (got, want) in d.iter().zip(truth) {
-            assert!(
-                (f64::from(*got) - want).abs() < 1.5,
-                "thickness {got} vs {want}"
-            );
-        }
+        fits(&[10.0, 30.0, 50.0], 2.35, &[60.0, 120.0]);
     }
 
     #[test]
@@ -495,10 +466,11 @@ mod tests {
         assert!(g.len() <= MAX_SAMPLED_PIXELS && g.len() >= MAX_SAMPLED_PIXELS / 2);
         assert!(g.cols > g.rows);
         let g = SampleGrid::for_image(32, 24);
-        for k in 0..g.len() {
-            let (x, y) = g.pixel(k);
-            assert_eq!(g.sample_at(x, y), Some(k));
-        }
+        let mut seen: Vec<_> = (0..g.len()).map(|k| g.pixel(k)).collect();
+        seen.sort_unstable();
+        seen.dedup();
+        assert_eq!(seen.len(), g.len(), "every sample its own pixel");
+        assert!(seen.iter().all(|&(x, y)| x < 32 && y < 24));
         // A plane is reproduced exactly inside the outer centres.
         let values: Vec<f32> = (0..g.len())
             .map(|k| {
