@@ -25,7 +25,6 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
 use crossbeam_channel::Sender;
-use filmscope_core::solve::refine::BandCoef;
 use filmscope_core::solve::shard::{PixelResult, PixelState, Shard};
 use filmscope_core::solve::{state_bytes_per_pixel, SweepSolver, SweepSpec};
 use filmscope_core::track::{ExtremaList, PixelTracker};
@@ -35,7 +34,7 @@ use serde::Serialize;
 use crate::chart::{measure, Point, Setting};
 use crate::estimate::RunConfig;
 use crate::pipeline::{
-    calibrate_block, run_sweep, stream_band_sequential, PipelineConfig, Prior, PriorUpdate,
+    calibrate_block, run_sweep, BandModels, stream_band_sequential, PipelineConfig, Prior, PriorUpdate,
     Samples, SimSource, Source, StreamMsg,
 };
 use crate::sweep::Method;
@@ -215,26 +214,26 @@ pub fn tracker_rate(frames: &Frames, min: Duration) -> f64 {
     samples / t.as_secs_f64()
 }
 
-/// One whole sweep over `frames` on one core, with the streaming (tracker and sums) and the
-/// angle-end passes timed apart: `(stream samples/s, solve pixels/s)`.
-pub fn sweep_rates(frames: &Frames) -> (f64, f64) {
+/// One whole sweep over `frames` (their rows repeated to `rows` rows) on one core, with the
+/// streaming (tracker and sums) and the angle-end passes timed apart: `(stream samples/s,
+/// solve pixels/s)`.
+pub fn sweep_rates(frames: &Frames, rows: usize) -> (f64, f64) {
     let spec = frames.spec.clone();
-    let (w, rows, nb) = (frames.width(), frames.rows, frames.bands());
+    let (w, nb) = (frames.width(), frames.bands());
     let mut spec_rows = spec.clone();
     spec_rows.height = rows;
     let mut solver = SweepSolver::new(spec_rows, None);
     let mut states = vec![PixelState::default(); w * rows];
-    let mut models: Vec<Option<BandCoef>> = vec![None; nb];
     let (mut stream, mut solve) = (Duration::ZERO, Duration::ZERO);
     for (a, &deg) in frames.angles_deg.iter().enumerate() {
         solver.begin_angle(deg);
-        solver.band_models(&mut models);
+        let models = BandModels::of(&solver);
         let mut shard = Shard::new(0, w, &mut states);
         shard.begin_angle();
         let t0 = Instant::now();
         for b in 0..nb {
             for r in 0..rows {
-                shard.feed_row(spec.options, &models, b, r, frames.row(a, b, r));
+                shard.feed_row(spec.options, models.view(), b, r, frames.row(a, b, r));
             }
         }
         stream += t0.elapsed();
@@ -436,7 +435,12 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     progress("tracker");
     let tracker = tracker_rate(&kernel, min);
     progress("stream and solve");
-    let (stream, solve) = sweep_rates(&kernel);
+    let (stream, solve) = sweep_rates(&kernel, kernel.rows);
+    if std::env::var_os("FILMSCOPE_BENCH_STREAM_ROWS").is_some() {
+        let rows: usize = std::env::var("FILMSCOPE_BENCH_STREAM_ROWS")?.parse()?;
+        let (big, _) = sweep_rates(&kernel, rows);
+        eprintln!("stream 256x{rows}: {:.1} M samples/s", big / 1e6);
+    }
 
     // Pipeline: a wide sensor, rows replayed.
     let (pw, ph) = if quick { (512, 256) } else { (1024, 1024) };

@@ -10,7 +10,7 @@ mod source;
 
 pub use msg::{RowBlock, Samples, StreamMsg};
 pub use run::{
-    calibrate_block, collect_sweep, end_angle_parallel, for_each_calibrated, run_sweep, Calibrated,
+    calibrate_block, collect_sweep, end_angle_parallel, BandModels, for_each_calibrated, run_sweep, Calibrated,
     PipelineConfig, PipelineError, Prior, PriorUpdate, SweepOutput,
 };
 pub use source::{

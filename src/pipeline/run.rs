@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::calibrate::calibrate_row;
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
-use filmscope_core::solve::refine::BandCoef;
+use filmscope_core::solve::refine::{AngleModels, BandCoef, Knot};
 use filmscope_core::solve::sweep::SolverOptions;
 use filmscope_core::solve::sweep::{FitStats, SchurSums};
 use filmscope_core::solve::{
@@ -34,6 +34,12 @@ pub struct PipelineConfig {
     pub channel_capacity: usize,
     /// Worker threads (shards of rows).
     pub workers: usize,
+    /// Bands a worker holds before feeding them to its pixels row by row: every band streams
+    /// past every pixel's state, so on a sensor whose state does not fit the caches a sample
+    /// costs its state's memory traffic; holding `band_block` bands divides that traffic by
+    /// `band_block` at `4 * band_block` bytes per pixel of row buffers (1: feed each row as
+    /// it arrives).
+    pub band_block: usize,
     /// What the solver may use.
     pub solver: SolverOptions,
 }
@@ -43,6 +49,7 @@ impl Default for PipelineConfig {
         Self {
             channel_capacity: 64,
             workers: 2,
+            band_block: 8,
             solver: SolverOptions::default(),
         }
     }
@@ -98,7 +105,35 @@ enum WorkerMsg {
 
 /// The state of an angle for a worker, on its own channel (from the coordinator): rows are
 /// read only after it, so rows of the next angle can never reach the previous one's state.
-type Start = (Vec<PixelState>, Arc<Vec<Option<BandCoef>>>);
+type Start = (Vec<PixelState>, Arc<BandModels>);
+
+/// An angle's band models, owned: each band's coefficients and their tabulated knots.
+#[derive(Clone, Debug, Default)]
+pub struct BandModels {
+    /// One entry per band.
+    pub coefs: Vec<Option<BandCoef>>,
+    /// The tabulated bands' knots.
+    pub knots: Vec<Knot>,
+}
+
+impl BandModels {
+    /// The models of `solver`'s current angle, every band tabulated.
+    pub fn of(solver: &SweepSolver) -> Self {
+        let mut coefs = vec![None; solver.spec().bands_nm.len()];
+        solver.band_models(&mut coefs);
+        let mut knots = vec![Knot::default(); solver.table_knots(&coefs)];
+        solver.tabulate(&mut coefs, &mut knots);
+        Self { coefs, knots }
+    }
+
+    /// A borrowed view for [`Shard::feed_row`].
+    pub fn view(&self) -> AngleModels<'_> {
+        AngleModels {
+            coefs: &self.coefs,
+            knots: &self.knots,
+        }
+    }
+}
 
 enum Control {
     Angle(f64),
@@ -201,7 +236,8 @@ pub fn run_sweep(
             let done = done_tx.clone();
             let (first, _) = shard_rows(h, workers, i);
             let options = spec.options;
-            scope.spawn(move || worker(i, first, w, options, start_rx, rx, done));
+            let block = config.band_block.max(1);
+            scope.spawn(move || worker(i, first, w, options, block, start_rx, rx, done));
         }
         drop(done_tx);
         scope.spawn(move || source.stream(&src_tx));
@@ -212,9 +248,7 @@ pub fn run_sweep(
             match msg {
                 Control::Angle(deg) => {
                     solver.begin_angle(deg);
-                    let mut models = vec![None; spec.bands_nm.len()];
-                    solver.band_models(&mut models);
-                    let snapshot = Arc::new(models);
+                    let snapshot = Arc::new(BandModels::of(&solver));
                     for (i, tx) in start_txs.iter().enumerate() {
                         let st = states[i].take().unwrap_or_default();
                         if tx.send((st, snapshot.clone())).is_err() {
@@ -312,30 +346,44 @@ pub fn run_sweep(
     })
 }
 
+/// Rows of one band a worker holds: `(band, first row, rows, values)`.
+type HeldRows = (u16, u32, u32, Vec<f32>);
+
+#[allow(clippy::too_many_arguments)]
 fn worker(
     index: usize,
     first_row: usize,
     width: usize,
     options: SolverOptions,
+    band_block: usize,
     start: Receiver<Start>,
     rows: Receiver<WorkerMsg>,
     done: Sender<(usize, Vec<PixelState>)>,
 ) {
+    let mut held: Vec<HeldRows> = Vec::new();
     for (mut st, models) in start.iter() {
         let mut shard = Shard::new(first_row, width, &mut st);
         shard.begin_angle();
+        let shard_rows = shard.rows();
+        let (mut bands_held, mut rows_of_band) = (0, 0);
         loop {
             match rows.recv() {
                 Ok(WorkerMsg::Rows(band, row, n, values)) => {
-                    for k in 0..n as usize {
-                        let r = row as usize + k;
-                        shard.feed_row(
-                            options,
-                            &models,
-                            usize::from(band),
-                            r,
-                            &values[k * width..(k + 1) * width],
-                        );
+                    if held.last().is_none_or(|h| h.0 != band) {
+                        if bands_held == band_block {
+                            feed_held(&mut shard, options, &models, &mut held);
+                            bands_held = 0;
+                        }
+                        bands_held += 1;
+                        rows_of_band = 0;
+                    }
+                    rows_of_band += n as usize;
+                    held.push((band, row, n, values));
+                    // A full block is fed at once, not when the next band starts: the rows
+                    // still held when the angle ends are latency.
+                    if bands_held == band_block && rows_of_band >= shard_rows {
+                        feed_held(&mut shard, options, &models, &mut held);
+                        bands_held = 0;
                     }
                 }
                 Ok(WorkerMsg::End) => break,
@@ -343,10 +391,49 @@ fn worker(
                 Err(_) => break,
             }
         }
+        feed_held(&mut shard, options, &models, &mut held);
         if done.send((index, st)).is_err() {
             return;
         }
     }
+}
+
+/// Feeds the held rows to the shard a block of rows at a time, each block's bands in the
+/// order they arrived (so every pixel sees its bands in order), and empties `held`.
+fn feed_held(
+    shard: &mut Shard<'_>,
+    options: SolverOptions,
+    models: &BandModels,
+    held: &mut Vec<HeldRows>,
+) {
+    /// Bytes of pixel state a block of rows should keep in cache while its bands pass.
+    const BLOCK_BYTES: usize = 256 * 1024;
+    let width = shard.width;
+    let block_rows =
+        (BLOCK_BYTES / (width.max(1) * filmscope_core::solve::state_bytes_per_pixel())).max(1);
+    let (Some(lo), Some(hi)) = (
+        held.iter().map(|h| h.1 as usize).min(),
+        held.iter().map(|h| (h.1 + h.2) as usize).max(),
+    ) else {
+        return;
+    };
+    for block in (lo..hi).step_by(block_rows) {
+        let block_end = (block + block_rows).min(hi);
+        for (band, row, n, values) in held.iter() {
+            let (first, last) = (*row as usize, (*row + *n) as usize);
+            for r in first.max(block)..last.min(block_end) {
+                let k = r - first;
+                shard.feed_row(
+                    options,
+                    models.view(),
+                    usize::from(*band),
+                    r,
+                    &values[k * width..(k + 1) * width],
+                );
+            }
+        }
+    }
+    held.clear();
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -60,6 +60,63 @@ pub struct BandCoef {
     centre: Node,
     centre_up: Node,
     count: usize,
+    /// Where the band's tabulated model sits in the angle's knots, if tabulated.
+    table: Option<TableSpan>,
+}
+
+/// The tabulated model of one band at one thickness knot: the passband-averaged reflectance,
+/// its thickness derivative times the knot spacing (for cubic Hermite interpolation) and its
+/// index derivative (linearly interpolated: a Jacobian's small error slows Gauss-Newton a
+/// little but cannot bias where it converges, which the residual alone decides).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Knot {
+    m: f32,
+    slope_h: f32,
+    j_n: f32,
+}
+
+/// Where one band's knots sit in the angle's table.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct TableSpan {
+    first: u32,
+    count: u32,
+    d0: f32,
+    h: f32,
+    inv_h: f32,
+}
+
+/// Largest phase change (radians) of a band's fastest quadrature node between two knots:
+/// cubic Hermite interpolation of a sinusoid at this step errs by about
+/// `KNOT_PHASE^4 / 384 = 1e-5` of the fringe amplitude.
+pub const KNOT_PHASE: f64 = 0.25;
+/// Most knots per band (a 1 um knot spacing would cover 8 mm).
+pub const MAX_KNOTS_PER_BAND: usize = 1 << 14;
+
+/// An angle's band models: each band's coefficients (`None` where the model has no
+/// propagating wave, or before an index exists) and the knots of those that are tabulated
+/// ([`BandCoef::tabulate`]).
+#[derive(Clone, Copy, Debug)]
+pub struct AngleModels<'a> {
+    /// One entry per band.
+    pub coefs: &'a [Option<BandCoef>],
+    /// The tabulated bands' knots.
+    pub knots: &'a [Knot],
+}
+
+/// The model of one band at one thickness: reflectance, its thickness and index derivatives,
+/// and the reflectance one interference order either side.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BandEval {
+    /// Model reflectance.
+    pub m: f64,
+    /// `d M / d thickness`.
+    pub j_d: f64,
+    /// `d M / d index`.
+    pub j_n: f64,
+    /// Model one order thinner.
+    pub m_minus: f64,
+    /// Model one order thicker.
+    pub m_plus: f64,
 }
 
 impl BandCoef {
@@ -111,7 +168,115 @@ impl BandCoef {
             centre: node(mid, 0.0)?,
             centre_up: node(mid, INDEX_STEP)?,
             count,
+            table: None,
         })
+    }
+
+    /// Knot spacing and count that tabulate thicknesses `range_nm` ([`KNOT_PHASE`] per knot
+    /// at the fastest node, at most [`MAX_KNOTS_PER_BAND`] knots: `None` beyond).
+    pub fn knots_for(&self, range_nm: [f64; 2]) -> Option<(f64, usize)> {
+        let fastest = self.nodes[..self.count]
+            .iter()
+            .chain([&self.centre_up])
+            .fold(0.0f64, |a, n| a.max(libm::fabs(n.phase_per_nm)));
+        let span = range_nm[1] - range_nm[0];
+        if !(fastest > 0.0 && span > 0.0 && span.is_finite()) {
+            return None;
+        }
+        let h = KNOT_PHASE / fastest;
+        let count = libm::ceil(span / h) as usize + 2;
+        (count <= MAX_KNOTS_PER_BAND).then_some((h, count))
+    }
+
+    /// Tabulates the band's model over thicknesses `range_nm` into `knots` (which must hold
+    /// [`BandCoef::knots_for`]'s count), `first` being the knots' offset in the angle's table.
+    /// Each knot costs the model's quadrature with its thickness derivative and two
+    /// band-centre evaluations for the index derivative, once per angle.
+    pub fn tabulate(&mut self, range_nm: [f64; 2], first: usize, knots: &mut [Knot]) {
+        let Some((h, count)) = self.knots_for(range_nm) else {
+            self.table = None;
+            return;
+        };
+        let Some(knots) = knots.get_mut(..count) else {
+            self.table = None;
+            return;
+        };
+        let d0 = range_nm[0];
+        for (j, k) in knots.iter_mut().enumerate() {
+            let d = d0 + h * j as f64;
+            let (m, slope) = self.model_and_slope(d);
+            let at = |n: &Node| n.film.reflectance_at_phase(n.phase_per_nm * d);
+            let j_n = (at(&self.centre_up) - at(&self.centre)) / INDEX_STEP;
+            *k = Knot {
+                m: m as f32,
+                slope_h: (slope * h) as f32,
+                j_n: j_n as f32,
+            };
+        }
+        self.table = Some(TableSpan {
+            first: first as u32,
+            count: count as u32,
+            d0: d0 as f32,
+            h: h as f32,
+            inv_h: (1.0 / h) as f32,
+        });
+    }
+
+    /// Whether the band is tabulated.
+    pub fn tabulated(&self) -> bool {
+        self.table.is_some()
+    }
+
+    /// The model at `thickness_nm` and the orders `order_step_nm` either side: from the
+    /// table where it covers all three, else computed.
+    #[inline]
+    pub fn eval(&self, knots: &[Knot], thickness_nm: f64, order_step_nm: f64) -> BandEval {
+        if let Some(t) = self.table {
+            let span = |d: f64| {
+                let x = (d as f32 - t.d0) * t.inv_h;
+                let i = x as usize;
+                (x >= 0.0 && i + 1 < t.count as usize).then(|| (i, x - i as f32))
+            };
+            let (c, lo, hi) = (
+                span(thickness_nm),
+                span(thickness_nm - order_step_nm),
+                span(thickness_nm + order_step_nm),
+            );
+            if let (Some((i, u)), Some(lo), Some(hi), Some(k)) = (
+                c,
+                lo,
+                hi,
+                knots.get(t.first as usize..(t.first + t.count) as usize),
+            ) {
+                let (m, slope) = hermite(k[i], k[i + 1], u);
+                let j_n = k[i].j_n + (k[i + 1].j_n - k[i].j_n) * u;
+                return BandEval {
+                    m: f64::from(m),
+                    j_d: f64::from(slope * t.inv_h),
+                    j_n: f64::from(j_n),
+                    m_minus: f64::from(hermite(k[lo.0], k[lo.0 + 1], lo.1).0),
+                    m_plus: f64::from(hermite(k[hi.0], k[hi.0 + 1], hi.1).0),
+                };
+            }
+        }
+        self.eval_exact(thickness_nm, order_step_nm)
+    }
+
+    /// [`BandCoef::eval`] computed: the passband quadrature for the model and its thickness
+    /// derivative; the index derivative and the neighbouring orders from the band centre
+    /// (the passband's detail matters to neither: it scales the fringe contrast a little; the
+    /// order misfits are whole fringes), the model's passband correction carried over.
+    pub fn eval_exact(&self, thickness_nm: f64, order_step_nm: f64) -> BandEval {
+        let (m, j_d) = self.model_and_slope(thickness_nm);
+        let centre = |n: &Node, d: f64| n.film.reflectance_at_phase(n.phase_per_nm * d);
+        let m_centre = centre(&self.centre, thickness_nm);
+        BandEval {
+            m,
+            j_d,
+            j_n: (centre(&self.centre_up, thickness_nm) - m_centre) / INDEX_STEP,
+            m_minus: centre(&self.centre, thickness_nm - order_step_nm) + (m - m_centre),
+            m_plus: centre(&self.centre, thickness_nm + order_step_nm) + (m - m_centre),
+        }
     }
 
     /// Model reflectance of a film of `thickness_nm` and its derivative in thickness.
@@ -142,6 +307,21 @@ impl BandCoef {
     }
 }
 
+/// Cubic Hermite interpolation between two knots at fraction `u`: the value and its
+/// derivative in knot units (`d / du`).
+#[inline]
+fn hermite(a: Knot, b: Knot, u: f32) -> (f32, f32) {
+    let (u2, u3) = (u * u, u * u * u);
+    let value = (2.0 * u3 - 3.0 * u2 + 1.0) * a.m
+        + (u3 - 2.0 * u2 + u) * a.slope_h
+        + (3.0 * u2 - 2.0 * u3) * b.m
+        + (u3 - u2) * b.slope_h;
+    let slope = (6.0 * u2 - 6.0 * u) * (a.m - b.m)
+        + (3.0 * u2 - 4.0 * u + 1.0) * a.slope_h
+        + (3.0 * u2 - 2.0 * u) * b.slope_h;
+    (value, slope)
+}
+
 /// Per-pixel Gauss-Newton sums (68 bytes) for the pixel's thickness and the shared index's
 /// three basis coefficients.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -168,20 +348,25 @@ pub struct GnSums {
 
 impl GnSums {
     /// Adds one band sample `measured` of a pixel at linearisation point `thickness_nm`
-    /// (`order_step_nm` apart from the neighbouring orders).
+    /// (`order_step_nm` apart from the neighbouring orders), the band's model from `knots`
+    /// where tabulated.
     #[inline]
-    pub fn add(&mut self, coef: &BandCoef, thickness_nm: f64, order_step_nm: f64, measured: f64) {
-        let (m, j_d) = coef.model_and_slope(thickness_nm);
-        // The index derivative and the neighbouring orders from the band centre alone: a
-        // fifth of the cost, and the passband's detail matters to neither (it scales the
-        // fringe contrast a little; the order misfits are whole fringes).
-        let centre = |n: &Node, d: f64| n.film.reflectance_at_phase(n.phase_per_nm * d);
-        let m_centre = centre(&coef.centre, thickness_nm);
-        let j_n = (centre(&coef.centre_up, thickness_nm) - m_centre) / INDEX_STEP;
+    pub fn add(
+        &mut self,
+        coef: &BandCoef,
+        knots: &[Knot],
+        thickness_nm: f64,
+        order_step_nm: f64,
+        measured: f64,
+    ) {
+        let BandEval {
+            m,
+            j_d,
+            j_n,
+            m_minus,
+            m_plus,
+        } = coef.eval(knots, thickness_nm, order_step_nm);
         let r = measured - m;
-        // Neighbouring orders: the model's passband correction at `d` carried over.
-        let m_minus = centre(&coef.centre, thickness_nm - order_step_nm) + (m - m_centre);
-        let m_plus = centre(&coef.centre, thickness_nm + order_step_nm) + (m - m_centre);
         let u = coef.u;
         let (jn2, mut uk) = (j_n * j_n, 1.0);
         for k in 0..5 {
@@ -298,7 +483,7 @@ mod tests {
         let start = 405.0;
         let mut gn = GnSums::default();
         for c in &coefs {
-            gn.add(c, start, 200.0, c.model(truth));
+            gn.add(c, &[], start, 200.0, c.model(truth));
         }
         let step = f64::from(gn.g_d) / f64::from(gn.h_dd);
         assert!((start + step - truth).abs() < 0.3, "{}", start + step);

@@ -5,7 +5,7 @@ use crate::track::{ExtremaList, PixelTracker};
 use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
 use super::order::{Observation, OrderChoice, OrderContext};
-use super::refine::{BandCoef, GnSums};
+use super::refine::{AngleModels, GnSums};
 use super::sweep::{FitStats, SchurSums, SolverOptions, SweepSolver, SweepSpec};
 use super::IndexModel;
 
@@ -25,30 +25,37 @@ const BAD_SHARE: f64 = 0.1;
 
 /// Everything the solver keeps about one pixel; its size is fixed whatever the number of
 /// bands, angles and sweeps (see `state_bytes_per_pixel`).
+///
+/// Laid out hot first (`repr(C)`): every sample reads and writes the tracker, the
+/// full-spectrum sums, the thickness and the counters (the first 168 bytes); the extremum
+/// lists are touched only when an extremum is found and at angle ends. A band streams past
+/// every pixel's state, so on a large sensor the bytes a sample touches, not its arithmetic,
+/// set the rate.
 #[derive(Clone, Debug)]
+#[repr(C)]
 pub struct PixelState {
     /// This angle's extremum tracker.
     pub tracker: PixelTracker,
-    /// Extrema at the reference (first) angle.
-    pub anchor: ExtremaList,
-    /// Extrema at the current angle.
-    pub current: ExtremaList,
+    /// Full-spectrum sums.
+    pub gn: GnSums,
     /// Thickness (the Gauss-Newton linearisation point), NaN until the order is known.
     pub thickness_nm: f32,
     /// Thickness change of one interference order, nm.
     pub order_step_nm: f32,
-    /// Full-spectrum sums.
-    pub gn: GnSums,
     /// Samples seen.
     pub samples: u16,
     /// Saturated samples (`+inf` from calibration).
     pub saturated: u16,
     /// Samples without a usable reference (NaN from calibration).
     pub dead: u16,
-    /// Extrema seen over all angles.
-    pub extrema_seen: u8,
     /// Flags (see [`flags`]).
     pub flags: u16,
+    /// Extrema seen over all angles.
+    pub extrema_seen: u8,
+    /// Extrema at the current angle.
+    pub current: ExtremaList,
+    /// Extrema at the reference (first) angle.
+    pub anchor: ExtremaList,
 }
 
 impl Default for PixelState {
@@ -147,7 +154,7 @@ impl<'a> Shard<'a> {
     pub fn feed_row(
         &mut self,
         options: SolverOptions,
-        models: &[Option<BandCoef>],
+        models: AngleModels<'_>,
         band: usize,
         row: usize,
         values: &[f32],
@@ -157,6 +164,7 @@ impl<'a> Shard<'a> {
         }
         let start = (row - self.first_row) * self.width;
         let coef = models
+            .coefs
             .get(band)
             .and_then(Option::as_ref)
             .filter(|_| options.refine);
@@ -184,6 +192,7 @@ impl<'a> Shard<'a> {
                 if v.is_finite() && p.thickness_nm.is_finite() {
                     p.gn.add(
                         c,
+                        models.knots,
                         f64::from(p.thickness_nm),
                         f64::from(p.order_step_nm),
                         f64::from(v),

@@ -15,7 +15,7 @@ use super::index::{
     combine, fit_index, fit_slope_at, pair_estimate, IndexFit, PairBins, PairEstimate,
     PairGeometry, RatioHistogram, RatioSums, RatioWindows,
 };
-use super::refine::BandCoef;
+use super::refine::{BandCoef, Knot};
 use super::shard::Shard;
 use super::IndexModel;
 
@@ -433,6 +433,45 @@ impl SweepSolver {
                 ),
                 _ => None,
             };
+        }
+    }
+
+    /// The thicknesses the band models are tabulated over: the search range widened by an
+    /// interference order at the longest band and lowest index either side (the
+    /// neighbouring orders' misfits look there).
+    pub fn table_range_nm(&self) -> [f64; 2] {
+        let [lo, hi] = self.spec.thickness_range_nm;
+        let [_, l_max] = self.band_span_nm();
+        let step = 1.2 * l_max / (2.0 * self.spec.index_range[0].max(1.0));
+        [lo - step, hi + step]
+    }
+
+    /// Knots needed to tabulate every band of `models` ([`SweepSolver::tabulate`]).
+    pub fn table_knots(&self, models: &[Option<BandCoef>]) -> usize {
+        let range = self.table_range_nm();
+        models
+            .iter()
+            .flatten()
+            .filter_map(|c| c.knots_for(range))
+            .map(|(_, n)| n)
+            .sum()
+    }
+
+    /// Tabulates the band models (in band order, as many as `knots` holds; the rest are
+    /// computed per sample), so a sample's full-spectrum sums cost interpolations instead of
+    /// an Airy quadrature (see [`BandCoef::eval`]).
+    pub fn tabulate(&self, models: &mut [Option<BandCoef>], knots: &mut [Knot]) {
+        let range = self.table_range_nm();
+        let mut used = 0;
+        for c in models.iter_mut().flatten() {
+            let Some((_, n)) = c.knots_for(range) else {
+                continue;
+            };
+            if used + n > knots.len() {
+                break;
+            }
+            c.tabulate(range, used, &mut knots[used..used + n]);
+            used += n;
         }
     }
 

@@ -17,16 +17,6 @@ use heapless::Vec as HVec;
 pub const WINDOW: usize = 9;
 const HALF: usize = WINDOW / 2;
 
-/// Savitzky-Golay quadratic smoothing weights for 9 samples (sum 231).
-const SG_SMOOTH: [f32; WINDOW] = [-21.0, 14.0, 39.0, 54.0, 59.0, 54.0, 39.0, 14.0, -21.0];
-const SG_SMOOTH_NORM: f32 = 231.0;
-/// First-derivative weights (per band) for 9 samples (sum of squares 60).
-const SG_SLOPE: [f32; WINDOW] = [-4.0, -3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0];
-const SG_SLOPE_NORM: f32 = 60.0;
-/// Second-derivative weights for 9 samples (quadratic coefficient * 2).
-const SG_CURV: [f32; WINDOW] = [28.0, 7.0, -8.0, -17.0, -20.0, -17.0, -8.0, 7.0, 28.0];
-const SG_CURV_NORM: f32 = 462.0;
-
 /// Prominence of an extremum, in units of the pixel's noise (1 sigma).
 pub const PROMINENCE_SIGMA: f32 = 6.0;
 
@@ -94,17 +84,24 @@ enum Mode {
     SeekMin,
 }
 
-/// Tracker state of one pixel for one angle: 64 bytes, independent of bands and angles.
+/// `PROMINENCE_SIGMA` halved (the smoothed spectrum's noise is about half the raw noise)
+/// over the white-noise factor of the mean absolute second difference (see
+/// [`PixelTracker::noise_sigma`]): `tau = TAU_PER_D2 * mean |second difference|`.
+const TAU_PER_D2: f32 = PROMINENCE_SIGMA * 0.5 / 1.954;
+
+/// Tracker state of one pixel for one angle: 76 bytes, independent of bands and angles.
+///
+/// The smoothing window's three moments (`sum x`, `sum k x`, `sum k^2 x` with `k = -4..4`
+/// from the window centre) are carried from sample to sample in a few operations instead of
+/// three 9-tap dot products, and recomputed exactly each time the ring wraps (every 9
+/// samples) so rounding cannot accumulate (the update is a marginally stable recursion: an
+/// error in `sum x` would grow quadratically in `sum k^2 x`).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PixelTracker {
+    /// The last 9 samples; `head` is the oldest (the next to be overwritten).
     ring: [f32; WINDOW],
-    /// Samples seen this angle (saturates).
-    seen: u16,
-    mode: Mode,
-    /// Overflow or bad samples seen.
-    pub overflow: bool,
-    /// Non-finite samples seen this angle (saturated or dead).
-    pub bad_samples: u16,
+    /// `sum x`, `sum k x`, `sum k^2 x` over the ring.
+    moments: [f32; 3],
     /// Current running extreme (smoothed value) and its fractional band.
     ext_val: f32,
     ext_pos: f32,
@@ -112,9 +109,26 @@ pub struct PixelTracker {
     /// position marks an extreme still at the band edge.
     min_val: f32,
     min_pos: f32,
-    /// Sum of |second difference| and its count, for the noise estimate.
+    /// Sum of |second difference|, for the noise estimate.
     d2_sum: f32,
-    d2_n: u16,
+    /// Samples seen this angle (saturates).
+    seen: u16,
+    /// Non-finite samples seen this angle (saturated or dead).
+    pub bad_samples: u16,
+    head: u8,
+    mode: Mode,
+    /// Overflow or bad samples seen.
+    pub overflow: bool,
+}
+
+/// The ring slot before `i` (mod [`WINDOW`]).
+#[inline]
+fn before(i: u8) -> usize {
+    if i == 0 {
+        WINDOW - 1
+    } else {
+        usize::from(i) - 1
+    }
 }
 
 impl PixelTracker {
@@ -123,23 +137,28 @@ impl PixelTracker {
         *self = Self::default();
     }
 
+    /// Second differences summed so far.
+    fn d2_count(&self) -> u16 {
+        self.seen.saturating_sub(2)
+    }
+
     /// The pixel's noise estimate (1 sigma, reflectance), from the mean absolute second
     /// difference of the raw samples (`E|x[i+1] - 2 x[i] + x[i-1]| = sqrt(6) sqrt(2/pi) sigma
     /// = 1.954 sigma` for white noise).
     pub fn noise_sigma(&self) -> f32 {
-        if self.d2_n == 0 {
-            f32::INFINITY
-        } else {
-            self.d2_sum / f32::from(self.d2_n) / 1.954
+        match self.d2_count() {
+            0 => f32::INFINITY,
+            n => self.d2_sum / f32::from(n) / 1.954,
         }
     }
 
     /// Feeds the sample of band `band` (bands must come in increasing order, one per call).
     /// Unusable samples (saturated, dead, beyond [`MAX_SAMPLE`]) are counted and bridged by
-    /// repeating the last good sample. Confirmed extrema are pushed to `out`, placed to a fraction of a band when
-    /// `subband` (else at the band of the smoothed extreme).
+    /// repeating the last good sample. Confirmed extrema are pushed to `out`, placed to a
+    /// fraction of a band when `subband` (else at the band of the smoothed extreme).
     #[inline]
     pub fn push(&mut self, band: u16, value: f32, subband: bool, out: &mut ExtremaList) {
+        let last = before(self.head);
         let v = if usable(value) {
             value
         } else {
@@ -147,97 +166,117 @@ impl PixelTracker {
             if self.seen == 0 {
                 return;
             }
-            self.ring[(usize::from(self.seen) - 1) % WINDOW]
+            self.ring[last]
         };
-        let slot = usize::from(self.seen) % WINDOW;
-        self.ring[slot] = v;
+        let slot = usize::from(self.head);
         if self.seen >= 2 {
-            let a = self.ring[(usize::from(self.seen) - 2) % WINDOW];
-            let b = self.ring[(usize::from(self.seen) - 1) % WINDOW];
+            let a = self.ring[before(last as u8)];
+            let b = self.ring[last];
             self.d2_sum += (v - 2.0 * b + a).abs();
-            self.d2_n = self.d2_n.saturating_add(1);
         }
+        let old = self.ring[slot];
+        self.ring[slot] = v;
+        self.head = if slot + 1 == WINDOW { 0 } else { slot as u8 + 1 };
+        let [s0, s1, s2] = self.moments;
+        self.moments = if self.head == 0 {
+            // The ring is in order, oldest first: recompute exactly.
+            let (mut m0, mut m1, mut m2) = (0.0f32, 0.0f32, 0.0f32);
+            for (k, &x) in self.ring.iter().enumerate() {
+                let kk = k as f32 - HALF as f32;
+                m0 += x;
+                m1 += kk * x;
+                m2 += kk * kk * x;
+            }
+            [m0, m1, m2]
+        } else {
+            [
+                s0 - old + v,
+                s1 - s0 + 5.0 * old + 4.0 * v,
+                s2 - 2.0 * s1 + s0 - 25.0 * old + 16.0 * v,
+            ]
+        };
         self.seen = self.seen.saturating_add(1);
         if usize::from(self.seen) < WINDOW {
             return;
         }
-        // Smoothed value, slope and curvature at the window centre (band - HALF).
-        let oldest = usize::from(self.seen) % WINDOW;
-        let (mut s, mut d1, mut d2) = (0.0f32, 0.0f32, 0.0f32);
-        for k in 0..WINDOW {
-            let x = self.ring[(oldest + k) % WINDOW];
-            s += SG_SMOOTH[k] * x;
-            d1 += SG_SLOPE[k] * x;
-            d2 += SG_CURV[k] * x;
-        }
-        s /= SG_SMOOTH_NORM;
-        d1 /= SG_SLOPE_NORM;
-        d2 /= SG_CURV_NORM;
-        let centre = f32::from(band) - HALF as f32;
-        let vertex = if subband && d2.abs() > 1e-12 {
-            centre + (-d1 / (2.0 * d2)).clamp(-1.0, 1.0)
-        } else {
-            centre
-        };
-        // The smoothed spectrum's noise is about half the raw noise.
-        let tau = PROMINENCE_SIGMA * 0.5 * self.noise_sigma();
-        match self.mode {
-            Mode::Start => {
-                if usize::from(self.seen) == WINDOW {
-                    // The first smoothed sample: an extreme here is the band edge, not a fringe.
-                    self.ext_val = s;
-                    self.ext_pos = f32::NAN;
-                    self.min_val = s;
-                    self.min_pos = f32::NAN;
-                    return;
-                }
-                if s > self.ext_val {
-                    self.ext_val = s;
-                    self.ext_pos = vertex;
-                }
-                if s < self.min_val {
-                    self.min_val = s;
-                    self.min_pos = vertex;
-                }
-                if s >= self.min_val + tau {
-                    // Rising: the minimum behind us is a valley unless it is the band edge.
-                    if self.min_pos.is_finite() {
-                        self.emit(self.min_pos, Kind::Valley, out);
-                    }
-                    self.mode = Mode::SeekMax;
-                    self.ext_val = s;
-                    self.ext_pos = vertex;
-                } else if s <= self.ext_val - tau {
-                    if self.ext_pos.is_finite() {
-                        self.emit(self.ext_pos, Kind::Peak, out);
-                    }
-                    self.mode = Mode::SeekMin;
-                    self.ext_val = s;
-                    self.ext_pos = vertex;
-                }
+        let [m0, m1, m2] = self.moments;
+        // Smoothed value at the window centre (band - HALF): the 9-point quadratic
+        // Savitzky-Golay weights are 59 - 5 k^2 (sum 231).
+        let s = (59.0 * m0 - 5.0 * m2) * (1.0 / 231.0);
+        // Its vertex (fractional band), computed only where an extreme moves.
+        let vertex = || {
+            let centre = f32::from(band) - HALF as f32;
+            // Slope weights k (sum of squares 60); curvature 3 k^2 - 20 (times 2 / 462).
+            let d1 = m1 * (1.0 / 60.0);
+            let d2 = (3.0 * m2 - 20.0 * m0) * (1.0 / 462.0);
+            if subband && d2.abs() > 1e-12 {
+                centre + (-d1 / (2.0 * d2)).clamp(-1.0, 1.0)
+            } else {
+                centre
             }
+        };
+        let tau = TAU_PER_D2 * self.d2_sum / f32::from(self.d2_count());
+        match self.mode {
             Mode::SeekMax => {
                 if s > self.ext_val {
                     self.ext_val = s;
-                    self.ext_pos = vertex;
+                    self.ext_pos = vertex();
                 } else if s < self.ext_val - tau {
                     self.emit(self.ext_pos, Kind::Peak, out);
                     self.mode = Mode::SeekMin;
                     self.ext_val = s;
-                    self.ext_pos = vertex;
+                    self.ext_pos = vertex();
                 }
             }
             Mode::SeekMin => {
                 if s < self.ext_val {
                     self.ext_val = s;
-                    self.ext_pos = vertex;
+                    self.ext_pos = vertex();
                 } else if s > self.ext_val + tau {
                     self.emit(self.ext_pos, Kind::Valley, out);
                     self.mode = Mode::SeekMax;
                     self.ext_val = s;
-                    self.ext_pos = vertex;
+                    self.ext_pos = vertex();
                 }
             }
+            Mode::Start => self.start(s, tau, vertex, out),
+        }
+    }
+
+    /// Before the first extremum: follows both the running maximum and minimum until the
+    /// spectrum has moved `tau` away from one of them.
+    fn start(&mut self, s: f32, tau: f32, vertex: impl Fn() -> f32, out: &mut ExtremaList) {
+        if usize::from(self.seen) == WINDOW {
+            // The first smoothed sample: an extreme here is the band edge, not a fringe.
+            self.ext_val = s;
+            self.ext_pos = f32::NAN;
+            self.min_val = s;
+            self.min_pos = f32::NAN;
+            return;
+        }
+        if s > self.ext_val {
+            self.ext_val = s;
+            self.ext_pos = vertex();
+        }
+        if s < self.min_val {
+            self.min_val = s;
+            self.min_pos = vertex();
+        }
+        if s >= self.min_val + tau {
+            // Rising: the minimum behind us is a valley unless it is the band edge.
+            if self.min_pos.is_finite() {
+                self.emit(self.min_pos, Kind::Valley, out);
+            }
+            self.mode = Mode::SeekMax;
+            self.ext_val = s;
+            self.ext_pos = vertex();
+        } else if s <= self.ext_val - tau {
+            if self.ext_pos.is_finite() {
+                self.emit(self.ext_pos, Kind::Peak, out);
+            }
+            self.mode = Mode::SeekMin;
+            self.ext_val = s;
+            self.ext_pos = vertex();
         }
     }
 

@@ -64,7 +64,7 @@ fn edges_are_not_extrema_and_bad_samples_are_counted() {
 #[test]
 fn state_size_is_fixed() {
     assert!(
-        core::mem::size_of::<PixelTracker>() <= 72,
+        core::mem::size_of::<PixelTracker>() <= 76,
         "{}",
         core::mem::size_of::<PixelTracker>()
     );
@@ -98,4 +98,33 @@ fn proptest_close_spikes_keep_extrema_in_band_order() {
         "{:?}",
         out.iter().map(|e| e.band()).collect::<Vec<_>>()
     );
+}
+
+/// The carried moments give the 9-point quadratic Savitzky-Golay smoothing, slope and
+/// curvature (the weights of Savitzky & Golay's tables: smoothing -21 14 39 54 59 ... / 231,
+/// slope -4..4 / 60, curvature 28 7 -8 -17 -20 ... / 462) over a long noisy stream, the
+/// recursion's rounding kept in check by the exact recompute at each wrap.
+#[test]
+fn carried_moments_match_the_savitzky_golay_weights() {
+    const SMOOTH: [f32; 9] = [-21.0, 14.0, 39.0, 54.0, 59.0, 54.0, 39.0, 14.0, -21.0];
+    const CURV: [f32; 9] = [28.0, 7.0, -8.0, -17.0, -20.0, -17.0, -8.0, 7.0, 28.0];
+    let mut seed = 11u32;
+    let mut t = PixelTracker::default();
+    let mut out = ExtremaList::new();
+    let mut hist = vec![];
+    for b in 0..1000u16 {
+        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        let v = 0.3 + 0.2 * libm::sinf(f32::from(b) * 0.21) + (seed >> 8) as f32 * 1e-9;
+        hist.push(v);
+        t.push(b, v, true, &mut out);
+        if hist.len() >= WINDOW {
+            let w = &hist[hist.len() - WINDOW..];
+            let dot = |c: &[f32; 9]| w.iter().zip(c).map(|(x, c)| x * c).sum::<f32>();
+            let slope: f32 = w.iter().enumerate().map(|(k, x)| (k as f32 - 4.0) * x).sum();
+            let [m0, m1, m2] = t.moments;
+            assert!(((59.0 * m0 - 5.0 * m2) / 231.0 - dot(&SMOOTH) / 231.0).abs() < 2e-6);
+            assert!((m1 / 60.0 - slope / 60.0).abs() < 2e-6);
+            assert!(((3.0 * m2 - 20.0 * m0) / 462.0 - dot(&CURV) / 462.0).abs() < 2e-6);
+        }
+    }
 }
