@@ -3,8 +3,10 @@
 //! - `track/push`: the per-pixel extremum tracker over 1024 pixels x 151 bands of a thin-film
 //!   fringe spectrum, band-major as the pipeline streams it (throughput: pixel-band samples).
 //! - `refine/gn_sums_add`: the full-spectrum Gauss-Newton sums over the same 1024 x 151
-//!   samples, band models built once (throughput: samples).
+//!   samples, band models built once, computed per sample (throughput: samples).
+//! - `refine/gn_sums_add_tabled`: the same from the tabulated band models.
 //! - `refine/band_coef_new`: building one angle's 151 band models (throughput: bands).
+//! - `refine/tabulate`: tabulating them over 30-2500 nm (throughput: bands).
 //! - `calibrate/*`: raw counts + dark + white to reflectance on a 2048 x 16 block
 //!   (throughput: samples).
 //! - `solve/end_angle_*`: the solver's angle-end passes (`SweepSolver::end_angle_all`, one
@@ -24,8 +26,8 @@ use criterion::measurement::WallTime;
 use criterion::{criterion_main, BatchSize, BenchmarkGroup, Criterion, SamplingMode, Throughput};
 use filmscope::calibrate::calibrate_row;
 use filmscope::optics::Polarization;
-use filmscope::pipeline::{calibrate_block, Samples, SimSource, Source};
-use filmscope::solve::refine::{BandCoef, GnSums};
+use filmscope::pipeline::{calibrate_block, BandModels, Samples, SimSource, Source};
+use filmscope::solve::refine::{BandCoef, GnSums, Knot};
 use filmscope::solve::sweep::SolverOptions;
 use filmscope::solve::{IndexModel, PixelState, Shard, SweepSolver};
 use filmscope::track::{ExtremaList, PixelTracker};
@@ -163,10 +165,47 @@ fn bench_refine(c: &mut Criterion) {
             sums.fill(GnSums::default());
             for (coef, row) in coefs.iter().zip(measured.chunks_exact(PIXELS)) {
                 for ((s, &d), &v) in sums.iter_mut().zip(&lin).zip(row) {
-                    s.add(coef, d, order_step, f64::from(v));
+                    s.add(coef, &[], d, order_step, f64::from(v));
                 }
             }
             black_box(&sums);
+        });
+    });
+    let range = [30.0, 2500.0];
+    let knots_needed: usize = coefs
+        .iter()
+        .filter_map(|c| c.knots_for(range))
+        .map(|(_, n)| n)
+        .sum();
+    let mut knots = vec![Knot::default(); knots_needed];
+    let tabulate = |coefs: &mut [BandCoef], knots: &mut [Knot]| {
+        let mut used = 0;
+        for c in coefs.iter_mut() {
+            let n = c.knots_for(range).map_or(0, |(_, n)| n);
+            c.tabulate(range, used, &mut knots[used..used + n]);
+            used += n;
+        }
+    };
+    let mut tabled = coefs.clone();
+    tabulate(&mut tabled, &mut knots);
+    assert!(tabled.iter().all(BandCoef::tabulated));
+    g.bench_function("gn_sums_add_tabled_1024px_x_151b", |bench| {
+        bench.iter(|| {
+            sums.fill(GnSums::default());
+            for (coef, row) in tabled.iter().zip(measured.chunks_exact(PIXELS)) {
+                for ((s, &d), &v) in sums.iter_mut().zip(&lin).zip(row) {
+                    s.add(coef, &knots, d, order_step, f64::from(v));
+                }
+            }
+            black_box(&sums);
+        });
+    });
+    g.throughput(Throughput::Elements(BANDS as u64));
+    g.bench_function("tabulate_151b", |bench| {
+        let mut scratch = coefs.clone();
+        bench.iter(|| {
+            tabulate(&mut scratch, &mut knots);
+            black_box(&knots);
         });
     });
 
@@ -270,7 +309,7 @@ struct Prepared {
     /// Solver and states after `begin_angle` of angle `upto`, before its rows.
     before_rows: (SweepSolver, Vec<PixelState>),
     /// The band models of angle `upto`.
-    models: Vec<Option<BandCoef>>,
+    models: BandModels,
     /// Calibrated rows of angle `upto`, band-major then row-major.
     rows: Vec<f32>,
     /// Solver and states after every row of angle `upto`, before its end.
@@ -294,12 +333,12 @@ impl Prepared {
         let mut states = vec![PixelState::default(); w * h];
         let (mut raw16, mut raw, mut white, mut dark) =
             (vec![0u16; w], vec![0f32; w], vec![0f32; w], vec![0f32; w]);
-        let mut models = vec![None; nb];
+        let mut models = BandModels::default();
         let mut rows = vec![0f32; nb * h * w];
         let mut before_rows = None;
         for (a, &deg) in angles.iter().enumerate().take(upto + 1) {
             solver.begin_angle(deg);
-            solver.band_models(&mut models);
+            models = BandModels::of(&solver);
             let mut shard = Shard::new(0, w, &mut states);
             shard.begin_angle();
             if a == upto {
@@ -314,7 +353,7 @@ impl Prepared {
                     camera.white_row(a, b, r, &mut white);
                     camera.dark_row(a, b, r, &mut dark);
                     calibrate_row(&raw, Some(&dark), &white, 1.0, sat, refl);
-                    shard.feed_row(options, &models, b, r, refl);
+                    shard.feed_row(options, models.view(), b, r, refl);
                 }
             }
             if a < upto {
@@ -338,7 +377,7 @@ impl Prepared {
         let h = shard.rows();
         for (b, band) in self.rows.chunks_exact(h * w).enumerate() {
             for (r, row) in band.chunks_exact(w).enumerate() {
-                shard.feed_row(self.options, &self.models, b, r, row);
+                shard.feed_row(self.options, self.models.view(), b, r, row);
             }
         }
     }

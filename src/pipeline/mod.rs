@@ -10,8 +10,8 @@ mod source;
 
 pub use msg::{RowBlock, Samples, StreamMsg};
 pub use run::{
-    calibrate_block, collect_sweep, end_angle_parallel, BandModels, for_each_calibrated, run_sweep, Calibrated,
-    PipelineConfig, PipelineError, Prior, PriorUpdate, SweepOutput,
+    calibrate_block, collect_sweep, end_angle_parallel, for_each_calibrated, run_sweep, BandModels,
+    Calibrated, PipelineConfig, PipelineError, Prior, PriorUpdate, SweepOutput,
 };
 pub use source::{
     stream_band_sequential, sweep_spec, CaptureSource, SimSource, Source, DEFAULT_INDEX_RANGE,

@@ -176,7 +176,11 @@ impl PixelTracker {
         }
         let old = self.ring[slot];
         self.ring[slot] = v;
-        self.head = if slot + 1 == WINDOW { 0 } else { slot as u8 + 1 };
+        self.head = if slot + 1 == WINDOW {
+            0
+        } else {
+            slot as u8 + 1
+        };
         let [s0, s1, s2] = self.moments;
         self.moments = if self.head == 0 {
             // The ring is in order, oldest first: recompute exactly.

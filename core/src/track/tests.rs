@@ -120,7 +120,11 @@ fn carried_moments_match_the_savitzky_golay_weights() {
         if hist.len() >= WINDOW {
             let w = &hist[hist.len() - WINDOW..];
             let dot = |c: &[f32; 9]| w.iter().zip(c).map(|(x, c)| x * c).sum::<f32>();
-            let slope: f32 = w.iter().enumerate().map(|(k, x)| (k as f32 - 4.0) * x).sum();
+            let slope: f32 = w
+                .iter()
+                .enumerate()
+                .map(|(k, x)| (k as f32 - 4.0) * x)
+                .sum();
             let [m0, m1, m2] = t.moments;
             assert!(((59.0 * m0 - 5.0 * m2) / 231.0 - dot(&SMOOTH) / 231.0).abs() < 2e-6);
             assert!((m1 / 60.0 - slope / 60.0).abs() < 2e-6);
