@@ -366,22 +366,33 @@ impl GnSums {
             m_minus,
             m_plus,
         } = coef.eval(knots, thickness_nm, order_step_nm);
-        let r = measured - m;
-        let u = coef.u;
-        let (jn2, mut uk) = (j_n * j_n, 1.0);
-        for k in 0..5 {
-            self.h_pp[k] += (jn2 * uk) as f32;
-            if k < 3 {
-                self.h_dp[k] += (j_d * j_n * uk) as f32;
-                self.g_p[k] += (j_n * r * uk) as f32;
-            }
-            uk *= u;
-        }
-        self.h_dd += (j_d * j_d) as f32;
-        self.g_d += (j_d * r) as f32;
-        self.sse += (r * r) as f32;
-        self.sse_minus += ((measured - m_minus) * (measured - m_minus)) as f32;
-        self.sse_plus += ((measured - m_plus) * (measured - m_plus)) as f32;
+        // In f32, as the sums are kept: the table's values are f32 already.
+        let (v, m, j_d, j_n, u) = (
+            measured as f32,
+            m as f32,
+            j_d as f32,
+            j_n as f32,
+            coef.u as f32,
+        );
+        let r = v - m;
+        let (u2, jn2, jdn, jnr) = (u * u, j_n * j_n, j_d * j_n, j_n * r);
+        self.h_pp[0] += jn2;
+        self.h_pp[1] += jn2 * u;
+        self.h_pp[2] += jn2 * u2;
+        self.h_pp[3] += jn2 * u2 * u;
+        self.h_pp[4] += jn2 * u2 * u2;
+        self.h_dp[0] += jdn;
+        self.h_dp[1] += jdn * u;
+        self.h_dp[2] += jdn * u2;
+        self.g_p[0] += jnr;
+        self.g_p[1] += jnr * u;
+        self.g_p[2] += jnr * u2;
+        self.h_dd += j_d * j_d;
+        self.g_d += j_d * r;
+        self.sse += r * r;
+        let (rm, rp) = (v - m_minus as f32, v - m_plus as f32);
+        self.sse_minus += rm * rm;
+        self.sse_plus += rp * rp;
         self.samples = self.samples.saturating_add(1);
     }
 

@@ -219,13 +219,16 @@ impl PixelTracker {
                 centre
             }
         };
-        let tau = TAU_PER_D2 * self.d2_sum / f32::from(self.d2_count());
+        // The prominence `tau = TAU_PER_D2 * d2_sum / n` is compared as `x * n > tau * n`:
+        // no division per sample.
+        let n = f32::from(self.d2_count());
+        let tau_n = TAU_PER_D2 * self.d2_sum;
         match self.mode {
             Mode::SeekMax => {
                 if s > self.ext_val {
                     self.ext_val = s;
                     self.ext_pos = vertex();
-                } else if s < self.ext_val - tau {
+                } else if (self.ext_val - s) * n > tau_n {
                     self.emit(self.ext_pos, Kind::Peak, out);
                     self.mode = Mode::SeekMin;
                     self.ext_val = s;
@@ -236,14 +239,14 @@ impl PixelTracker {
                 if s < self.ext_val {
                     self.ext_val = s;
                     self.ext_pos = vertex();
-                } else if s > self.ext_val + tau {
+                } else if (s - self.ext_val) * n > tau_n {
                     self.emit(self.ext_pos, Kind::Valley, out);
                     self.mode = Mode::SeekMax;
                     self.ext_val = s;
                     self.ext_pos = vertex();
                 }
             }
-            Mode::Start => self.start(s, tau, vertex, out),
+            Mode::Start => self.start(s, tau_n / n, vertex, out),
         }
     }
 
