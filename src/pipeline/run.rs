@@ -117,12 +117,22 @@ pub struct BandModels {
 }
 
 impl BandModels {
-    /// The models of `solver`'s current angle, every band tabulated.
+    /// The models of `solver`'s current angle, every band tabulated if the sensor has
+    /// enough pixels to repay it (a knot costs about what one pixel's sample does computed:
+    /// tables pay from twice as many pixels as knots per band).
     pub fn of(solver: &SweepSolver) -> Self {
-        let mut coefs = vec![None; solver.spec().bands_nm.len()];
+        let spec = solver.spec();
+        let mut coefs = vec![None; spec.bands_nm.len()];
         solver.band_models(&mut coefs);
-        let mut knots = vec![Knot::default(); solver.table_knots(&coefs)];
-        solver.tabulate(&mut coefs, &mut knots);
+        let knots = solver.table_knots(&coefs);
+        let bands = coefs.iter().flatten().count().max(1);
+        let knots = if spec.width * spec.height >= 2 * knots / bands {
+            let mut table = vec![Knot::default(); knots];
+            solver.tabulate(&mut coefs, &mut table);
+            table
+        } else {
+            Vec::new()
+        };
         Self { coefs, knots }
     }
 
