@@ -20,6 +20,10 @@ const OUTLIER_FLOOR: f32 = 2e-3;
 /// Chi-square advantage (in units of the noise variance) the chosen order needs over its
 /// neighbours to be trusted.
 const ORDER_CHI2: f64 = 16.0;
+/// Chi-square (in units of the image's noise variance) by which a neighbouring order must fit
+/// a pixel's full spectra better, at an angle's end, for the pixel to move to it: an order
+/// chosen from two close angles' extrema can be wrong, and the full spectra tell.
+const ORDER_HOP_CHI2: f64 = 25.0;
 /// Largest share of unusable samples a valid pixel may have.
 const BAD_SHARE: f64 = 0.1;
 
@@ -255,9 +259,17 @@ impl<'a> Shard<'a> {
         let limit = solver
             .rms_median()
             .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR);
+        // A pixel about to move to a neighbouring order ([`Shard::update`]) would pull the
+        // index toward its wrong order: left out.
+        let hop = solver
+            .noise_sigma()
+            .map(|n| ORDER_HOP_CHI2 * f64::from(n) * f64::from(n));
+        let d_lo = solver.spec().thickness_range_nm[0];
+        let settled =
+            |p: &PixelState| hop.is_none_or(|margin| Self::better_order(p, margin, d_lo).is_none());
         for (r, row) in self.pixels.chunks(self.width.max(1)).enumerate() {
             let mut s = SchurSums::default();
-            for p in row.iter().filter(|p| Self::trusted(p, limit)) {
+            for p in row.iter().filter(|p| Self::trusted(p, limit) && settled(p)) {
                 let g = &p.gn;
                 let h_dd = f64::from(g.h_dd);
                 let h_dp = g.h_dp.map(f64::from);
@@ -287,6 +299,10 @@ impl<'a> Shard<'a> {
         // An index that moved this much makes the orders chosen with the old one suspect:
         // every pixel chooses again (with this angle's extrema) and its sums restart.
         let reorder = solver.reorders();
+        let hop = solver
+            .noise_sigma()
+            .map(|n| ORDER_HOP_CHI2 * f64::from(n) * f64::from(n));
+        let d_lo = solver.spec().thickness_range_nm[0];
         for p in self.pixels.iter_mut() {
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
             if p.tracker.overflow {
@@ -299,6 +315,10 @@ impl<'a> Shard<'a> {
                 p.thickness_nm = f32::NAN;
                 p.gn = GnSums::default();
                 p.flags &= !flags::ORDER_FROM_NEIGHBOUR;
+            } else if let Some(dir) = hop.and_then(|margin| Self::better_order(p, margin, d_lo)) {
+                // A whole order away: the sums restart there.
+                p.thickness_nm += dir * p.order_step_nm;
+                p.gn = GnSums::default();
             } else if p.thickness_nm.is_finite() && p.gn.samples > 0 && p.gn.h_dd > 0.0 {
                 let g = p.gn;
                 let step = f64::from(p.order_step_nm);
@@ -317,6 +337,23 @@ impl<'a> Shard<'a> {
                 p.anchor = p.current.clone();
             }
         }
+    }
+
+    /// The neighbouring order (`-1.0` thinner, `1.0` thicker) whose full-spectrum misfit is
+    /// below the pixel's own by more than `margin`, if any (thinner only within the search
+    /// range and above zero).
+    fn better_order(p: &PixelState, margin: f64, d_lo: f64) -> Option<f32> {
+        let g = &p.gn;
+        if !p.thickness_nm.is_finite() || g.samples == 0 {
+            return None;
+        }
+        let thinner = f64::from(p.thickness_nm - p.order_step_nm) >= d_lo.max(0.0);
+        let (alt, dir) = if thinner && g.sse_minus < g.sse_plus {
+            (g.sse_minus, -1.0)
+        } else {
+            (g.sse_plus, 1.0)
+        };
+        (f64::from(g.sse) - f64::from(alt) > margin).then_some(dir)
     }
 
     /// Thickness of the shard's first (`last = false`) or last row, for the neighbouring
