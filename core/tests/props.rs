@@ -41,7 +41,7 @@ proptest! {
         prop_assert!(out.len() <= MAX_EXTREMA);
         prop_assert!(out.windows(2).all(|w| w[0].band() <= w[1].band()));
         prop_assert!(out.iter().all(|e| e.band() >= 0.0 && e.band() <= samples.len() as f32));
-        prop_assert!(out.windows(2).all(|w| w[0].kind != w[1].kind), "peaks and valleys alternate");
+        prop_assert!(out.windows(2).all(|w| w[0].kind() != w[1].kind()), "peaks and valleys alternate");
         prop_assert!(!t.noise_sigma().is_nan());
         prop_assert_eq!(std::mem::size_of::<PixelTracker>(), 76);
     }

@@ -214,7 +214,7 @@ pub fn for_each_ratio(
 ) {
     for r in reference {
         let lr = wavelength_nm(r.band());
-        for c in current.iter().filter(|c| c.kind == r.kind) {
+        for c in current.iter().filter(|c| c.kind() == r.kind()) {
             let rho = wavelength_nm(c.band()) / lr;
             if rho > geom.rho_lo && rho < geom.rho_hi {
                 f(rho, lr);

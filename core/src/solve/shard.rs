@@ -31,7 +31,7 @@ const BAD_SHARE: f64 = 0.1;
 /// bands, angles and sweeps (see `state_bytes_per_pixel`).
 ///
 /// Laid out hot first (`repr(C)`): every sample reads and writes the tracker, the
-/// full-spectrum sums, the thickness and the counters (the first 168 bytes); the extremum
+/// full-spectrum sums, the thickness and the counters (the first 161 bytes of 248); the extremum
 /// lists are touched only when an extremum is found and at angle ends. A band streams past
 /// every pixel's state, so on a large sensor the bytes a sample touches, not its arithmetic,
 /// set the rate.
@@ -399,7 +399,7 @@ impl<'a> Shard<'a> {
             for e in list.iter() {
                 let _ = obs.push(Observation {
                     wavelength_nm: spec.wavelength_at(e.band()),
-                    kind: e.kind,
+                    kind: e.kind(),
                     angle,
                 });
             }
@@ -587,14 +587,14 @@ mod size_tests {
     #[test]
     fn pixel_state_size_is_fixed_and_known() {
         // Breakdown (hot first, `repr(C)`): tracker 76, full-spectrum sums 68, thickness,
-        // order step, sample counters, flags 17 (168 with padding), then the two extremum
-        // lists 2 x 88 (20 extrema of 4 bytes and a length); 344 in all.
+        // order step, sample counters, flags 17 (161 hot bytes), then the two extremum
+        // lists 2 x 42 (20 extrema of 2 bytes and a one-byte length); 248 in all.
         let sizes = [
             core::mem::size_of::<PixelTracker>(),
             core::mem::size_of::<ExtremaList>(),
             core::mem::size_of::<GnSums>(),
             state_bytes_per_pixel(),
         ];
-        assert_eq!(sizes, [76, 88, 68, 344]);
+        assert_eq!(sizes, [76, 42, 68, 248]);
     }
 }

@@ -11,8 +11,6 @@
 //! bands; found extrema go to a caller-owned [`ExtremaList`] of fixed capacity (overflow is a
 //! flag, never growth).
 
-use heapless::Vec as HVec;
-
 /// Samples in the smoothing window (odd).
 pub const WINDOW: usize = 9;
 const HALF: usize = WINDOW / 2;
@@ -44,37 +42,86 @@ pub enum Kind {
     Valley,
 }
 
-/// One extremum of one pixel's spectrum at one angle: 4 bytes, its position kept in
-/// 1/64 band (0.03 nm at a 2 nm band step, well below the location noise).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Extremum {
-    pos: u16,
-    /// Peak or valley.
-    pub kind: Kind,
-}
+/// One extremum of one pixel's spectrum at one angle: 2 bytes, its kind in the top bit and
+/// its position in 1/32 band below (0.06 nm at a 2 nm band step, well below the location
+/// noise; positions up to band 1023.97).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Extremum(u16);
 
 /// Position steps per band of [`Extremum`].
-const POS_PER_BAND: f32 = 64.0;
+const POS_PER_BAND: f32 = 32.0;
+/// The bit of [`Extremum`] that marks a valley.
+const VALLEY_BIT: u16 = 1 << 15;
 
 impl Extremum {
     /// An extremum at fractional band `band` (clamped to `0..1024`).
     pub fn new(band: f32, kind: Kind) -> Self {
-        let max = f32::from(u16::MAX) / POS_PER_BAND;
-        Self {
-            pos: libm::roundf(band.clamp(0.0, max) * POS_PER_BAND) as u16,
-            kind,
-        }
+        let max = f32::from(VALLEY_BIT - 1) / POS_PER_BAND;
+        let pos = libm::roundf(band.clamp(0.0, max) * POS_PER_BAND) as u16;
+        Self(match kind {
+            Kind::Peak => pos,
+            Kind::Valley => pos | VALLEY_BIT,
+        })
     }
 
     /// Position in (fractional) band index.
     #[inline]
     pub fn band(&self) -> f32 {
-        f32::from(self.pos) / POS_PER_BAND
+        f32::from(self.0 & !VALLEY_BIT) / POS_PER_BAND
+    }
+
+    /// Peak or valley.
+    #[inline]
+    pub fn kind(&self) -> Kind {
+        if self.0 & VALLEY_BIT == 0 {
+            Kind::Peak
+        } else {
+            Kind::Valley
+        }
     }
 }
 
-/// The extrema of one pixel at one angle, in increasing band order.
-pub type ExtremaList = HVec<Extremum, MAX_EXTREMA>;
+/// The extrema of one pixel at one angle, in increasing band order: at most
+/// [`MAX_EXTREMA`], 42 bytes (a `heapless::Vec` would spend 8 bytes on its length).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ExtremaList {
+    items: [Extremum; MAX_EXTREMA],
+    len: u8,
+}
+
+impl ExtremaList {
+    /// An empty list.
+    pub const fn new() -> Self {
+        Self {
+            items: [Extremum(0); MAX_EXTREMA],
+            len: 0,
+        }
+    }
+
+    /// Appends `e`, or hands it back if the list is full.
+    pub fn push(&mut self, e: Extremum) -> Result<(), Extremum> {
+        match self.items.get_mut(usize::from(self.len)) {
+            Some(slot) => {
+                *slot = e;
+                self.len += 1;
+                Ok(())
+            }
+            None => Err(e),
+        }
+    }
+
+    /// Empties the list.
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+}
+
+impl core::ops::Deref for ExtremaList {
+    type Target = [Extremum];
+    fn deref(&self) -> &[Extremum] {
+        &self.items[..usize::from(self.len)]
+    }
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 enum Mode {

@@ -23,7 +23,7 @@ fn finds_the_extrema_of_a_clean_cosine_to_a_tenth_of_a_band() {
     ];
     assert_eq!(out.len(), want.len(), "{out:?}");
     for (e, (pos, kind)) in out.iter().zip(want) {
-        assert_eq!(e.kind, kind);
+        assert_eq!(e.kind(), kind);
         assert!((e.band() - pos).abs() < 0.1, "{e:?} vs {pos}");
     }
 }
@@ -50,7 +50,7 @@ fn noise_on_a_broad_top_does_not_split_the_peak() {
         t.noise_sigma()
     );
     assert_eq!(out.len(), 1, "{out:?}");
-    assert_eq!(out[0].kind, Kind::Peak);
+    assert_eq!(out[0].kind(), Kind::Peak);
     assert!((out[0].band() - 80.0).abs() < 12.0, "{:?}", out[0]);
 }
 
