@@ -334,7 +334,7 @@ impl<'a> Shard<'a> {
                 }
             }
             if first_angle {
-                p.anchor = p.current.clone();
+                p.anchor = p.current;
             }
         }
     }
