@@ -120,6 +120,20 @@ impl SweepSpec {
     }
 }
 
+/// `log10(x)` for positive normal `x`, within 1e-4 (a 32nd of a decade, the histogram's bin,
+/// is 0.031): the exponent from the bits, the mantissa's `log2` by a quartic. Every pixel
+/// adds two values at every angle's end, where `libm::log10f` took a fifth of the time.
+#[inline]
+fn fast_log10(x: f32) -> f32 {
+    let bits = x.to_bits();
+    let exponent = ((bits >> 23) & 0xff) as i32 - 127;
+    let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000);
+    // Least-squares quartic for log2 on [1, 2) (max error 2.0e-4).
+    let log2_m = -2.496_773_8
+        + m * (4.028_372_8 + m * (-2.081_060_2 + m * (0.628_815_7 - 0.079_150_37 * m)));
+    (exponent as f32 + log2_m) * core::f32::consts::LOG10_2
+}
+
 /// Histogram of per-pixel RMS residuals (log bins), merged over shards.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RmsHistogram {
@@ -137,7 +151,7 @@ impl RmsHistogram {
     /// Adds one pixel's RMS residual.
     pub fn add(&mut self, rms: f32) {
         if rms.is_finite() && rms > 0.0 {
-            let b = ((libm::log10f(rms) + 6.0) * 32.0).clamp(0.0, 191.0) as usize;
+            let b = ((fast_log10(rms) + 6.0) * 32.0).clamp(0.0, 191.0) as usize;
             self.counts[b] += 1;
         }
     }
@@ -289,6 +303,20 @@ pub struct AngleReport {
     pub spectral_index: bool,
     /// Terms of the index model after this angle (0: no index yet; above 1: dispersive).
     pub index_terms: usize,
+}
+
+#[cfg(test)]
+mod log_tests {
+    #[test]
+    fn fast_log10_is_within_a_small_part_of_a_bin() {
+        let mut worst = 0.0f32;
+        let mut x = 1e-7f32;
+        while x < 1e3 {
+            worst = worst.max((super::fast_log10(x) - libm::log10f(x)).abs());
+            x *= 1.0137;
+        }
+        assert!(worst < 1e-4, "{worst}");
+    }
 }
 
 /// The global state of one sweep.
