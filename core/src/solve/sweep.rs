@@ -129,8 +129,8 @@ fn fast_log10(x: f32) -> f32 {
     let exponent = ((bits >> 23) & 0xff) as i32 - 127;
     let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000);
     // Least-squares quartic for log2 on [1, 2) (max error 2.0e-4).
-    let log2_m = -2.496_773_8
-        + m * (4.028_372_8 + m * (-2.081_060_2 + m * (0.628_815_7 - 0.079_150_37 * m)));
+    let log2_m =
+        -2.496_773_8 + m * (4.028_373 + m * (-2.081_06 + m * (0.628_815_7 - 0.079_150_37 * m)));
     (exponent as f32 + log2_m) * core::f32::consts::LOG10_2
 }
 
