@@ -3,18 +3,25 @@
 //!
 //! The streaming solver ([`filmscope_core::solve`]) takes one incidence angle per frame.
 //! Under a wide field of view column `x` sees `theta_stage + atan((x - cx) / focal_px)`
-//! ([`FieldOfView`] has the geometry), so the wide model cuts the image into `K` vertical
-//! strips of columns and solves each as a sweep of its own, with the angle list moved by the
-//! strip centre's offset: a [`StripSource`] crops its columns out of the one source. Every
-//! round the source is streamed once and each strip's pipeline gets its columns
-//! ([`Hub`]), so `K` strips cost one stream per pass, not `K`. Each strip runs the
-//! estimator's usual passes ([`filmscope_passes`]); their indices are then combined by
-//! inverse variance and every strip passes once more with the combined index held
-//! ([`PriorUpdate::Hold`]), so the maps share one index. `K` comes from the angle spread
-//! across the field ([`strips_for`]).
+//! ([`FieldOfView`] has the geometry and its sign convention). The wide model, with no
+//! change to the solver:
 //!
-//! Which model a capture gets: `narrow` unless its data ask for `wide`
-//! ([`run_filmscope`], `field_model_choice` in `summary.json`).
+//! 1. cuts the image into `K` vertical strips of columns, none spanning more than
+//!    [`STRIP_SPREAD_DEG`] of angle ([`strips_for`], [`plan_strips`]), and solves each as a
+//!    sweep of its own whose angles are the stage's moved by the strip centre's offset (their
+//!    magnitude: a planar film reflects alike at `+theta` and `-theta`). The strips crop
+//!    their columns out of one source: each round streams the source once and hands every
+//!    strip's pipeline its columns, so `K` strips cost one stream per pass, not `K`;
+//! 2. runs the estimator's usual passes on each strip ([`filmscope_passes`]);
+//! 3. combines the strips' indices ([`combine`]) and gives every strip that index in the
+//!    [`SHARED_ROUNDS`], seeded by the last round's maps;
+//! 4. merges the strips' maps, each pixel's thickness mapped from its strip's angles to its
+//!    column's own ([`column_factor`]).
+//!
+//! Which model a capture gets ([`run_filmscope`], [`AUTO_CRITERION`]): narrow unless the
+//! capture gives the lens's field of view, the narrow fit does not explain the spectra, and
+//! the wide one fits them better. The choice and both models' figures go to `summary.json`
+//! (`field_model_choice`).
 
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
@@ -87,6 +94,17 @@ impl FieldModel {
 
 /// The widest angle spread (degrees, between a strip's outer column centres) the wide model
 /// leaves inside one strip.
+///
+/// A strip's sweep models all its columns at its centre's angle; what the per-column
+/// thickness mapping cannot take up stays in the fit residual, which grows about linearly
+/// with the spread (noise-free 30 degree captures, one pass per strip: 0.0008 per degree of
+/// spread for MgF2 400 nm, 0.0018 for ZnS, against noises of 0.0044 and 0.0084 in the noisy
+/// captures). At 2 degrees that is under half the noise, adding under 10 % to the residual
+/// (the narrow model's underfit criterion is 25 %). Measured (`eval --field wide
+/// --field-strips K` on the two 30 degree scenes, 96 and 64 columns): 4 strips (7.5 degrees
+/// each) solve nothing; 8: paper-sample1 +0.0007 / 0.35 nm, ZnS 0.10 nm; 15 (2 degrees):
+/// +0.0004 / 0.24 nm, 0.07 nm; 24 and 30: +0.0002 / 0.22 and 0.21 nm, 0.07 nm, at 1.6 and
+/// 2.1 times the time of 15.
 pub const STRIP_SPREAD_DEG: f64 = 2.0;
 
 /// Fewest columns a strip may have (its index pools its own pixels' fringe shifts).
@@ -151,8 +169,8 @@ pub fn plan_strips(fov: FieldOfView, width: usize, k: usize) -> Vec<Strip> {
 }
 
 /// Lets strips' pipelines share one stream of the source: a round starts when every strip
-/// still running waits in [`StripSource::stream`], and ends when the source's stream has
-/// been handed to each of them.
+/// still running waits in `StripSource::stream`, and ends when the source's stream has been
+/// handed to each of them.
 struct Hub {
     state: Mutex<HubState>,
     turn: Condvar,
@@ -453,7 +471,7 @@ pub fn combine(outs: &[&SweepOutput]) -> Option<Combined> {
 }
 
 /// Runs `job` on every strip's source, each on its own thread, the strips' streams served
-/// by one stream of `source` per round ([`Hub`], channels of `capacity` messages); `views`
+/// by one stream of `source` per round (the hub, channels of `capacity` messages); `views`
 /// holds each strip's sweep and angles.
 fn in_rounds<T: Send>(
     source: &mut dyn Source,
@@ -495,31 +513,33 @@ fn in_rounds<T: Send>(
     outs.into_iter().collect()
 }
 
-/// Columns a held pass's seed may be carried from a solved pixel in the same row into one
-/// the strip's own passes left unsolved.
+/// Columns a shared round's seed may be carried from a solved pixel in the same row into one
+/// the last round left unsolved.
 pub const SEED_REACH_COLUMNS: usize = 16;
 
-/// The thickness maps the held passes start from, one per strip: the strips' own
-/// thicknesses where their index took part in the combination, carried along each row into
-/// the gaps (at most [`SEED_REACH_COLUMNS`]). A seeded pixel keeps the order of its seed
-/// rather than choosing one again (which a pass holding its index from the first angle on
-/// does from the first two angles alone, measured to fail for MgF2 400 nm), and the
+/// The thickness maps a shared round starts from, one per strip: the last round's
+/// thicknesses of the strips whose index took part in the combination (`used`), carried
+/// along each row into the gaps (at most [`SEED_REACH_COLUMNS`]). A seeded pixel keeps the
+/// order of its seed rather than choosing one again: a pass with a prior index chooses
+/// orders from its first two angles alone and keeps them while the index stays put, which
+/// failed for MgF2 400 nm (paper-sample1: a second pass from its own first pass's index
+/// flagged every pixel `model_mismatch`, residual 0.0199 against a noise of 0.0044); the
 /// full-spectrum order check still flags a seed a whole order off.
-fn held_seeds(
+fn shared_seeds(
     strips: &[Strip],
-    own: &[Passes],
-    combined: &Combined,
+    outs: &[&SweepOutput],
+    used: &[bool],
     w: usize,
     h: usize,
 ) -> Vec<Vec<f32>> {
     let mut map = vec![f32::NAN; w * h];
     for (k, s) in strips.iter().enumerate() {
-        if !combined.used[k] {
+        if !used[k] {
             continue;
         }
         for row in 0..h {
             for c in 0..s.cols {
-                map[row * w + s.first_col + c] = own[k].out.results[row * s.cols + c].thickness_nm;
+                map[row * w + s.first_col + c] = outs[k].results[row * s.cols + c].thickness_nm;
             }
         }
     }
@@ -562,9 +582,9 @@ pub struct FieldConfig {
     /// Map each pixel's thickness from its strip's angles to its column's own
     /// ([`column_factor`]); off only to measure what it is worth (`--ablate column-map`).
     pub column_map: bool,
-    /// Pass every strip once more with the combined index held (`--ablate held-pass` to
-    /// measure its worth).
-    pub held_pass: bool,
+    /// Run the [`SHARED_ROUNDS`] that give the strips one index (`--ablate shared-index` to
+    /// measure their worth; without them each strip keeps its own index).
+    pub shared_rounds: bool,
 }
 
 impl Default for FieldConfig {
@@ -573,7 +593,7 @@ impl Default for FieldConfig {
             choice: FieldChoice::Auto,
             strips: None,
             column_map: true,
-            held_pass: true,
+            shared_rounds: true,
         }
     }
 }
@@ -618,8 +638,8 @@ pub struct WideRun {
     pub strips: Vec<Strip>,
     /// Each strip's own passes.
     pub own: Vec<Passes>,
-    /// Each strip's pass with the combined index held, where it was run and kept (not kept
-    /// if it fitted worse than the strip's own passes).
+    /// Each strip's last kept pass of the [`SHARED_ROUNDS`] (a round's pass is not kept if it
+    /// fits worse than the strip's pass before it: a model mismatch, fewer valid pixels).
     pub held: Vec<Option<SweepOutput>>,
     /// The combined index.
     pub combined: Option<Combined>,
@@ -633,7 +653,7 @@ pub struct WideRun {
 }
 
 impl WideRun {
-    /// Strip `k`'s final pass: the held one when there is one.
+    /// Strip `k`'s final pass: its last kept shared round, else its own passes' best.
     pub fn last(&self, k: usize) -> &SweepOutput {
         self.held[k].as_ref().unwrap_or(&self.own[k].out)
     }
@@ -649,11 +669,21 @@ impl WideRun {
     }
 }
 
+/// The rounds that give the strips one index, after their own passes: each strip passes
+/// from the combined index, seeded by the last round's maps ([`shared_seeds`]), first with the
+/// index taken from its full spectra (the strips' indices then combined again), then with
+/// the combined index held. Measured on the 30 degree scenes (`--field wide`, 15 strips):
+/// holding the first combination directly gave paper-sample1 +0.0021 / 0.81 nm / 95.3 %
+/// valid (the extremum-shift indices of 400-pixel strips scatter), the full-spectra round
+/// alone +0.0004 / 0.24 nm / 95.3 % and ZnS 0.23 nm, both rounds +0.0004 / 0.24 nm / 99.9 %
+/// and ZnS -0.0001 / 0.07 nm / 100 %.
+pub const SHARED_ROUNDS: [PriorUpdate; 2] = [PriorUpdate::FullSpectra, PriorUpdate::Hold];
+
 /// Runs the wide model on `source` seen through `fov`: each strip's own passes on one shared
-/// stream per round, the strips' indices combined ([`combine`]), one held pass each with the
-/// combined index (more than one strip; seeded by [`held_seeds`]), and the strips' maps
-/// merged with each pixel's thickness mapped to its column's angle ([`column_factor`]).
-/// `on_rows` is told of the first strip's first-pass rows.
+/// stream per round, the strips' indices combined ([`combine`]), the [`SHARED_ROUNDS`] (more
+/// than one strip, a replayable source), and the strips' maps merged with each pixel's
+/// thickness mapped to its column's angle ([`column_factor`]). `on_rows` is told of the first
+/// strip's first-pass rows.
 pub fn run_wide(
     source: &mut dyn Source,
     config: &RunConfig,
@@ -690,24 +720,43 @@ pub fn run_wide(
         filmscope_passes(src, &strip_config, rows)
     })?;
 
-    let combined = combine(&own.iter().map(|p| &p.out).collect::<Vec<_>>());
+    let mut combined = combine(&own.iter().map(|p| &p.out).collect::<Vec<_>>());
     let mut held: Vec<Option<SweepOutput>> = vec![None; strips.len()];
-    let can_hold = replayable && config.pipeline.solver.refine && config.field.held_pass;
-    if let (Some(c), true) = (&combined, can_hold && strips.len() > 1) {
-        let seeds = held_seeds(strips, &own, c, w, h);
-        let outs = in_rounds(source, strips, &views, capacity, |k, src| {
-            let prior = Prior {
-                index: c.index,
-                update: PriorUpdate::Hold,
-                seed: Some(Arc::new(seeds[k].clone())),
-            };
-            run_sweep(src, pipeline, Some(prior), &quiet)
-        })?;
-        for (k, (slot, out)) in held.iter_mut().zip(outs).enumerate() {
-            let worse = out.model_mismatch && !own[k].out.model_mismatch
-                || valid_fraction(&out.results) < valid_fraction(&own[k].out.results);
-            if !worse {
-                *slot = Some(out);
+    let can_hold = replayable && config.pipeline.solver.refine && config.field.shared_rounds;
+    if let (Some(c0), true) = (combined.clone(), can_hold && strips.len() > 1) {
+        let (mut index, mut used) = (c0.index, c0.used.clone());
+        for update in SHARED_ROUNDS {
+            let last: Vec<&SweepOutput> = (0..strips.len())
+                .map(|k| held[k].as_ref().unwrap_or(&own[k].out))
+                .collect();
+            let seeds = shared_seeds(strips, &last, &used, w, h);
+            let outs = in_rounds(source, strips, &views, capacity, |k, src| {
+                let prior = Prior {
+                    index,
+                    update,
+                    seed: Some(Arc::new(seeds[k].clone())),
+                };
+                run_sweep(src, pipeline, Some(prior), &quiet)
+            })?;
+            let mut next = held.clone();
+            for (k, out) in outs.into_iter().enumerate() {
+                let prev = last[k];
+                let worse = out.model_mismatch && !prev.model_mismatch
+                    || valid_fraction(&out.results) < valid_fraction(&prev.results);
+                if !worse {
+                    next[k] = Some(out);
+                }
+            }
+            held = next;
+            if update == PriorUpdate::FullSpectra {
+                let outs: Vec<&SweepOutput> = (0..strips.len())
+                    .map(|k| held[k].as_ref().unwrap_or(&own[k].out))
+                    .collect();
+                if let Some(c) = combine(&outs) {
+                    index = c.index;
+                    used = c.used.clone();
+                    combined = Some(c);
+                }
             }
         }
     }
@@ -881,6 +930,12 @@ pub fn run_filmscope(
         run.field_model_choice = evidence.json(config, FieldModel::Narrow, &reason, &geometry);
         return Ok(run);
     }
+    if strips.len() < 2 {
+        let reason = format!("the narrow fit does not explain the spectra ({narrow_fig}), but the field's angle spread is within one strip's {STRIP_SPREAD_DEG} deg: the wide model would fit this same sweep");
+        let evidence = Evidence::new(source, Some(fov), Some((&passes, narrow_s)), None);
+        run.field_model_choice = evidence.json(config, FieldModel::Narrow, &reason, &geometry);
+        return Ok(run);
+    }
     let t1 = Instant::now();
     let wide = run_wide(source, config, fov, &strips, &|_| {})?;
     let wide_s = t1.elapsed().as_secs_f64();
@@ -995,7 +1050,7 @@ fn wide_run(source: &dyn Source, wide: &WideRun, t0: Instant) -> Run {
         angle_reports: angle_reports(wide.last(k_mid)),
         model_choice: json!({
             "chosen": chosen,
-            "combination": format!("inverse-variance mean of the strips' indices at 550 nm (sigmas floored at {STRIP_INDEX_FLOOR}; a strip more than {} sigma from the others left out; the number of Cauchy terms most strips chose, each coefficient averaged over the strips that have it), then one more pass per strip with it held, seeded by the strips' own maps", filmscope_core::solve::index::OUTLIER_SIGMA),
+            "combination": format!("inverse-variance mean of the strips' indices at 550 nm (sigmas floored at {STRIP_INDEX_FLOOR}; a strip more than {} sigma from the others left out; the number of Cauchy terms most strips chose, each coefficient averaged over the strips that have it), then every strip passes from it, seeded by the last maps, with the index from its full spectra (the strips' indices combined again), then with the combination held", filmscope_core::solve::index::OUTLIER_SIGMA),
             "strips": strips,
         }),
         field_model: Some(FieldModel::Wide),
@@ -1022,14 +1077,13 @@ impl<'a> Evidence<'a> {
     ) -> Self {
         let spec = source.spec();
         let angles = source.angles_deg();
-        let (index, thickness) = match (narrow, wide) {
-            (Some((p, _)), _) => (p.out.index, median_thickness(&p.out.results)),
-            (None, Some((w, _))) => (
-                w.combined.as_ref().map(|c| c.index),
-                median_thickness(&w.results),
-            ),
-            _ => (None, None),
-        };
+        // The narrow fit's index and median thickness, else the wide one's.
+        let narrow_index = narrow.and_then(|(p, _)| p.out.index);
+        let wide_index = wide.and_then(|(w, _)| w.combined.as_ref().map(|c| c.index));
+        let index = narrow_index.or(wide_index);
+        let thickness = narrow
+            .and_then(|(p, _)| median_thickness(&p.out.results))
+            .or_else(|| wide.and_then(|(w, _)| median_thickness(&w.results)));
         let narrow_edge_error_nm = match (fov, index, thickness) {
             (Some(f), Some(n), Some(d)) => Some([-0.5, 0.5].map(|side| {
                 let edge = side * f.horizontal_deg();
@@ -1089,7 +1143,7 @@ impl<'a> Evidence<'a> {
                     "passes": w.own[k].passes,
                     "own_residual_sigma": w.own[k].out.residual_sigma,
                     "own_model_mismatch": w.own[k].out.model_mismatch,
-                    "held_pass_kept": w.held[k].is_some(),
+                    "shared_rounds_kept": w.held[k].is_some(),
                     "residual_sigma": w.last(k).residual_sigma,
                     "model_mismatch": w.last(k).model_mismatch,
                 })).collect::<Vec<_>>(),
@@ -1116,4 +1170,96 @@ fn valid_fraction(results: &[PixelResult]) -> f64 {
         .filter(|p| p.flags & flags::INVALID == 0)
         .count();
     valid as f64 / results.len().max(1) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_column_at_its_strips_angle_keeps_its_thickness() {
+        let angles = [10.0, 25.0, 40.0, 55.0];
+        assert_eq!(column_factor(2.1, 1.0, &angles, 3.0, 3.0), 1.0);
+        // One angle: the ratio of the optical paths.
+        let c = |deg: f64| (2.1f64.powi(2) - deg.to_radians().sin().powi(2)).sqrt();
+        let f = column_factor(2.1, 1.0, &[30.0], 0.0, 5.0);
+        assert!((f - c(30.0) / c(35.0)).abs() < 1e-12, "{f}");
+        // A steeper column has a shorter path per nm: its thickness is larger than the
+        // strip's fit says.
+        assert!(column_factor(1.37, 1.0, &angles, 0.0, 1.0) > 1.0);
+        assert!(column_factor(1.37, 1.0, &angles, 0.0, -1.0) < 1.0);
+    }
+
+    #[test]
+    fn strips_cover_the_image_with_equal_angles() {
+        let fov = FieldOfView::new(30.0).expect("fov");
+        assert_eq!(strips_for(fov, 96), 15);
+        assert_eq!(strips_for(FieldOfView::new(2.0).expect("fov"), 96), 1);
+        // Never below MIN_STRIP_COLUMNS columns a strip.
+        assert_eq!(strips_for(fov, 24), 6);
+        let strips = plan_strips(fov, 96, 15);
+        assert_eq!(strips.len(), 15);
+        assert_eq!(strips[0].first_col, 0);
+        let end = strips.last().map(|s| s.first_col + s.cols);
+        assert_eq!(end, Some(96));
+        for pair in strips.windows(2) {
+            assert_eq!(pair[0].first_col + pair[0].cols, pair[1].first_col);
+            assert!(pair[0].offset_deg < pair[1].offset_deg);
+        }
+        for s in &strips {
+            assert!(s.spread_deg <= STRIP_SPREAD_DEG + 0.2, "{s:?}");
+        }
+    }
+
+    fn output(index: f64, sigma: f64, mismatch: bool) -> SweepOutput {
+        let spec = crate::pipeline::sweep_spec(
+            4,
+            4,
+            &(0..16)
+                .map(|i| 420.0 + 20.0 * f64::from(i))
+                .collect::<Vec<_>>(),
+            None,
+            1.0,
+            1.52,
+            filmscope_core::optics::Polarization::S,
+            [1.2, 3.0],
+            [50.0, 2000.0],
+        )
+        .expect("spec");
+        SweepOutput {
+            spec,
+            results: Vec::new(),
+            index: Some(IndexModel::constant(index)),
+            index_sigma: sigma,
+            residual_sigma: None,
+            noise_sigma: None,
+            angles: Vec::new(),
+            index_fit: None,
+            model_mismatch: mismatch,
+            spectral_index: false,
+            spectral_gains: [f64::NAN; 3],
+            spectral_candidate: None,
+            stream_time: std::time::Duration::ZERO,
+            solve_latency: std::time::Duration::ZERO,
+            samples: 0,
+            state_bytes_per_pixel: 0,
+        }
+    }
+
+    #[test]
+    fn the_combination_leaves_out_mismatched_and_outlying_strips() {
+        // A tiny full-spectrum sigma on a wrong index must not win: sigmas are floored.
+        let outs = [
+            output(1.370, 0.004, false),
+            output(1.371, 0.003, false),
+            output(1.369, 0.004, false),
+            output(1.393, 1e-4, false),
+            output(1.300, 0.001, true),
+        ];
+        let c = combine(&outs.iter().collect::<Vec<_>>()).expect("combined");
+        assert_eq!(c.used, [true, true, true, false, false]);
+        assert!((c.index.a - 1.370).abs() < 5e-4, "{}", c.index.a);
+        assert!(c.sigma > 0.0 && c.sigma < 0.003, "{}", c.sigma);
+        assert!(combine(&[&output(1.3, 0.001, true)]).is_none());
+    }
 }

@@ -239,9 +239,9 @@ fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig)> {
             "neighbours" => o.neighbours = false,
             "subband" => o.subband = false,
             "column-map" => f.column_map = false,
-            "held-pass" => f.held_pass = false,
+            "shared-index" => f.shared_rounds = false,
             other => bail!(
-                "--ablate {other:?}: use refine, half-order, neighbours, subband, column-map or held-pass"
+                "--ablate {other:?}: use refine, half-order, neighbours, subband, column-map or shared-index"
             ),
         }
     }

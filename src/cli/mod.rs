@@ -96,7 +96,7 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// Switch off filmscope improvements to measure their worth: refine, half-order,
-        /// neighbours, subband, and the wide field model's column-map and held-pass
+        /// neighbours, subband, and the wide field model's column-map and shared-index
         /// (comma-separated).
         #[arg(long, value_delimiter = ',')]
         ablate: Vec<String>,

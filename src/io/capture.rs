@@ -932,6 +932,41 @@ typo_key = 3
     }
 
     #[test]
+    fn the_lens_field_of_view_is_read_checked_and_written_back() -> Result<(), CaptureError> {
+        let path = Path::new("run/capture.toml");
+        let text = format!("{VALID}\n[lens]\nhorizontal_fov_deg = 30.0\n");
+        let c = Capture::from_toml_str(&text, path)?;
+        assert_eq!(c.lens.horizontal_fov_deg, Some(30.0));
+        assert_eq!(c.unknown_keys, vec!["angle[2].typo_key".to_string()]);
+        assert_eq!(Capture::from_toml_str(VALID, path)?.lens, Lens::default());
+        for bad in ["0.0", "180.0", "-2.0", "inf"] {
+            let text = format!("{VALID}\n[lens]\nhorizontal_fov_deg = {bad}\n");
+            let e = Capture::from_toml_str(&text, path)
+                .err()
+                .map(|e| e.to_string());
+            let msg = e.unwrap_or_default();
+            assert!(
+                msg.starts_with("run/capture.toml: lens.horizontal_fov_deg"),
+                "{msg}"
+            );
+        }
+        let dir = tempfile::tempdir().map_err(|e| {
+            CaptureError::new(
+                path,
+                CaptureErrorKind::Io {
+                    action: "tempdir",
+                    err: e,
+                },
+            )
+        })?;
+        let out = dir.path().join("capture.toml");
+        c.write_toml(&out)?;
+        let back = std::fs::read_to_string(&out).unwrap_or_default();
+        assert!(back.contains("[lens]\nhorizontal_fov_deg = 30.0"), "{back}");
+        Ok(())
+    }
+
+    #[test]
     fn toml_errors_are_one_line_with_a_line_number() {
         let text = "[sample]\nsubstrate_index = \"high\"\n";
         match Capture::from_toml_str(text, Path::new("c.toml")) {

@@ -9,8 +9,10 @@
 //! `x = c + 0.5`, the optical axis is at `cx = width / 2`) leaves the axis by
 //! `atan((x - cx) / focal_px)` in the plane of incidence.
 //!
-//! Sign convention: the sample's normal is turned towards the image's left (column 0), so
-//! the incidence angle grows from left to right:
+//! Sign convention: seen from the camera, the stage turns the sample's normal towards the
+//! image's right (in camera coordinates, `+z` along the optical axis and `+x` to the right,
+//! the normal is `(sin theta_stage, 0, -cos theta_stage)`), so the incidence angle grows
+//! from left to right:
 //!
 //! ```text
 //! theta(x) = theta_stage + atan((x - cx) / focal_px)
