@@ -930,6 +930,12 @@ pub fn run_filmscope(
         run.field_model_choice = evidence.json(config, FieldModel::Narrow, &reason, &geometry);
         return Ok(run);
     }
+    if !source.replayable() {
+        let reason = format!("the narrow fit does not explain the spectra ({narrow_fig}), but a live source streams once: no second model can be fitted (force --field wide to fit the wide one alone)");
+        let evidence = Evidence::new(source, Some(fov), Some((&passes, narrow_s)), None);
+        run.field_model_choice = evidence.json(config, FieldModel::Narrow, &reason, &geometry);
+        return Ok(run);
+    }
     if strips.len() < 2 {
         let reason = format!("the narrow fit does not explain the spectra ({narrow_fig}), but the field's angle spread is within one strip's {STRIP_SPREAD_DEG} deg: the wide model would fit this same sweep");
         let evidence = Evidence::new(source, Some(fov), Some((&passes, narrow_s)), None);

@@ -210,12 +210,19 @@ pub fn write_capture(
         "ambient_index": scene.stack.ambient_index,
         "polarization": scene.stack.polarization.name(),
         "angles_deg": scene.angles_deg,
-        "horizontal_fov_deg": scene.field_of_view.map(|f| f.horizontal_deg()),
         "noise_free": opts.noise_free,
         "thickness_map": "truth/thickness_nm.hdr",
         "width": w,
         "height": h,
     });
+    // Only a scene with a lens says so: other truths stay as they were.
+    let truth = match (truth, scene.field_of_view) {
+        (serde_json::Value::Object(mut o), Some(fov)) => {
+            o.insert("horizontal_fov_deg".into(), json!(fov.horizontal_deg()));
+            serde_json::Value::Object(o)
+        }
+        (t, _) => t,
+    };
     let truth_path = out_dir.join("truth.json");
     let text = serde_json::to_string_pretty(&truth).map_err(|e| err(&truth_path, &e))?;
     write_atomic(&truth_path, text.as_bytes()).map_err(|e| err(&truth_path, &e))?;

@@ -7,7 +7,7 @@ mod common;
 
 use common::{filmscope, run_ok, s, tempdir};
 use filmscope::estimate::{run_method_in_field, RunConfig};
-use filmscope::eval::{evaluate, Truth};
+use filmscope::eval::{evaluate, EvalReport, Truth};
 use filmscope::field::FieldModel;
 use filmscope::io::Capture;
 use filmscope::optics::{BandModel, FieldOfView};
@@ -15,34 +15,14 @@ use filmscope::pipeline::SimSource;
 use filmscope::simulate::{write_capture, SimulateOptions};
 use firmware_sim::{Scene, SoftwareCamera};
 
-/// The tests' small film (n = 2.1, 620 nm on glass, 4 angles x 101 bands) on a 48 x 24
-/// sensor, with the lens's field of view if given.
+/// The tests' small film ([`common::TINY_SCENE`]: n = 2.1, 620 nm on glass, 4 angles x 101
+/// bands) on a 48 x 24 sensor, with the lens's field of view if given.
 fn tiny(fov_deg: Option<f64>, seed: u64) -> Scene {
-    let fov = fov_deg.map_or(String::new(), |f| format!("horizontal_fov_deg = {f:?}"));
-    let text = format!(
-        r#"
-name = "tiny-fov"
-seed = {seed}
-[film]
-index = 2.1
-[film.thickness]
-base_nm = 620.0
-gradient_nm = [30.0, -20.0]
-random_bumps = {{ count = 2, height_nm = 8.0, sigma = 0.3 }}
-[substrate]
-index = 1.52
-[rig]
-angles_deg = [10.0, 25.0, 40.0, 55.0]
-bands_nm = [420.0, 720.0, 3.0]
-fwhm_nm = 5.0
-{fov}
-[sensor]
-width = 48
-height = 24
-dead_pixels = 2
-hot_pixels = 1
-"#
-    );
+    let fov = fov_deg.map_or(String::new(), |f| format!("\nhorizontal_fov_deg = {f:?}"));
+    let text = common::TINY_SCENE
+        .replace("seed = 7", &format!("seed = {seed}"))
+        .replace("fwhm_nm = 5.0", &format!("fwhm_nm = 5.0{fov}"))
+        .replace("width = 32", "width = 48");
     Scene::from_toml(&text, "tiny-fov").expect("scene")
 }
 
@@ -252,13 +232,26 @@ fn a_bad_field_of_view_is_one_line_naming_the_file_and_the_problem() {
     );
 }
 
-/// Runs the streaming method (`--field auto`) on `scene` through its lens.
-fn auto(scene: Scene) -> (filmscope::eval::EvalReport, filmscope::estimate::Run) {
+/// Runs the streaming method (`--field auto`) on the small film through a lens of
+/// `fov_deg`, and checks the model chosen and its strips.
+fn auto(fov_deg: f64, model: FieldModel, strips: u64) -> (EvalReport, serde_json::Value) {
+    let scene = tiny(Some(fov_deg), 7);
     let truth = Truth::of_scene(&scene);
     let fov = scene.field_of_view;
     let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
     let run = run_method_in_field(&mut source, &RunConfig::default(), fov, &|_| {}).expect("run");
-    (evaluate("tiny-fov", &truth, &run), run)
+    let choice = run.field_model_choice.clone();
+    assert_eq!(run.field_model, Some(model), "{choice}");
+    assert_eq!(choice["geometry"]["strips"], strips, "{choice}");
+    (evaluate("tiny-fov", &truth, &run), choice)
+}
+
+/// Index error, MAE and valid fraction within bounds, nothing silently wrong.
+fn within(r: &EvalReport, index: f64, mae_nm: f64, valid: f64) {
+    assert!(r.index_error.abs() < index, "index error {}", r.index_error);
+    assert!(r.thickness_mae_nm < mae_nm, "MAE {}", r.thickness_mae_nm);
+    assert!(r.valid_fraction > valid, "valid {}", r.valid_fraction);
+    assert_eq!(r.silent_failure_rate, 0.0);
 }
 
 // Tolerances: measured under seeds 1-4 and 7, then set with a margin. Wide (24 degrees, 12
@@ -266,14 +259,8 @@ fn auto(scene: Scene) -> (filmscope::eval::EvalReport, filmscope::estimate::Run)
 // narrow fit of the same data: index +0.018..+0.022, no pixel valid (every pixel flagged).
 #[test]
 fn a_wide_field_gets_the_wide_model_within_tolerance_and_the_narrow_one_is_flagged() {
-    let (r, run) = auto(tiny(Some(24.0), 7));
-    let choice = &run.field_model_choice;
-    assert_eq!(run.field_model, Some(FieldModel::Wide), "{choice}");
-    assert_eq!(choice["geometry"]["strips"], 12, "{choice}");
-    assert!(r.index_error.abs() < 0.003, "index error {}", r.index_error);
-    assert!(r.thickness_mae_nm < 0.8, "MAE {}", r.thickness_mae_nm);
-    assert!(r.valid_fraction > 0.97, "valid {}", r.valid_fraction);
-    assert_eq!(r.silent_failure_rate, 0.0);
+    let (r, choice) = auto(24.0, FieldModel::Wide, 12);
+    within(&r, 0.003, 0.8, 0.97);
     // The narrow model, fitted first on the same data, is measurably worse and says so.
     let narrow = &choice["narrow"];
     let valid = narrow["valid_fraction"].as_f64().expect("narrow valid");
@@ -296,15 +283,10 @@ fn a_wide_field_gets_the_wide_model_within_tolerance_and_the_narrow_one_is_flagg
 // valid 98.8-99.7 %, the narrow fit's residual 1.07-1.21 x the noise.
 #[test]
 fn a_narrow_field_keeps_the_narrow_model() {
-    let (r, run) = auto(tiny(Some(2.0), 7));
-    let choice = &run.field_model_choice;
-    assert_eq!(run.field_model, Some(FieldModel::Narrow), "{choice}");
-    assert_eq!(choice["geometry"]["strips"], 1, "{choice}");
+    let (r, choice) = auto(2.0, FieldModel::Narrow, 1);
     assert!(
         choice["wide"].is_null(),
         "the wide model was not needed: {choice}"
     );
-    assert!(r.index_error.abs() < 0.004, "index error {}", r.index_error);
-    assert!(r.thickness_mae_nm < 1.5, "MAE {}", r.thickness_mae_nm);
-    assert!(r.valid_fraction > 0.95, "valid {}", r.valid_fraction);
+    within(&r, 0.004, 1.5, 0.95);
 }

@@ -170,7 +170,7 @@ fn field_line(run: &Run) -> Option<String> {
     let c = &run.field_model_choice;
     let model = c["chosen"].as_str()?;
     let strips = match (model, c["geometry"]["strips"].as_u64()) {
-        ("wide", Some(k)) => format!(" ({k} strips)"),
+        ("wide", Some(k)) => format!(", {k} strips"),
         _ => String::new(),
     };
     Some(format!(
