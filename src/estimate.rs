@@ -13,11 +13,13 @@ use serde_json::json;
 
 use crate::baseline::{brute, paper, BruteGrid};
 use crate::export::png::{write_map_png, MapPreview};
+use crate::field::{FieldConfig, FieldModel};
 use crate::io::{write_atomic, write_f32_map, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::pipeline::{
     collect_sweep, for_each_calibrated, run_sweep, Calibrated, PipelineConfig, PipelineError,
     Prior, PriorUpdate, Source, SweepOutput,
 };
+use filmscope_core::optics::FieldOfView;
 
 /// Most passes over a replayable source (the first from the extremum shifts, the others with
 /// the index from the full spectra).
@@ -205,8 +207,105 @@ fn fit_rank(out: &SweepOutput) -> (bool, f64) {
     )
 }
 
+/// What the passes over one sweep ended with.
+pub struct Passes {
+    /// The pass kept.
+    pub out: SweepOutput,
+    /// Passes run.
+    pub passes: usize,
+    /// The spectrum search's fit and whether its passes were kept.
+    pub search: Option<(ThinFit, bool)>,
+    /// The thickness map later passes started from (a film without fringe pairs).
+    pub seed: Option<Arc<Vec<f32>>>,
+}
+
+/// The streaming estimator's passes over `source` with one incidence angle per frame: the
+/// first pass, the spectrum search for a film without fringe pairs, and the passes
+/// [`next_pass`] asks for; `on_rows` is told of the first pass's rows.
+pub fn filmscope_passes(
+    source: &mut dyn Source,
+    config: &RunConfig,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<Passes, PipelineError> {
+    let mut out = run_sweep(source, config.pipeline, None, on_rows)?;
+    let mut passes = 1;
+    // Further passes over the same data (`next_pass`); `latest` is the last pass when
+    // it is not the best, which `out` keeps.
+    let mut latest: Option<SweepOutput> = None;
+    let can_pass = config.pipeline.solver.refine && source.replayable();
+    // A film without fringe pairs: every later pass starts its pixels from a
+    // thickness map (the search's, then the last pass's).
+    let mut seed: Option<Arc<Vec<f32>>> = None;
+    // The search's fit and whether its passes were kept.
+    let mut search: Option<(ThinFit, bool)> = None;
+    // (A model mismatch means the extremum shifts found an index: the film has
+    // fringes, and the full-spectrum passes below are the remedy.)
+    if can_pass && !out.model_mismatch && valid_fraction(&out) < THIN_SEARCH_BELOW_VALID {
+        if let Some((fit, start)) = thin_start(source, &out)? {
+            search = Some((fit, false));
+            if let Some(prior) = start {
+                let pass = run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;
+                passes += 1;
+                if !pass.model_mismatch && valid_fraction(&pass) > valid_fraction(&out) {
+                    seed = prior.seed.map(|s| carry_seed(&s, &pass));
+                    search = Some((fit, true));
+                    out = pass;
+                }
+            }
+        }
+    }
+    while can_pass && passes < MAX_PASSES {
+        let Some(mut prior) = next_pass(latest.as_ref().unwrap_or(&out), passes) else {
+            break;
+        };
+        if let Some(s) = &seed {
+            prior.seed = Some(s.clone());
+            prior.update = PriorUpdate::FullSpectra;
+        }
+        let pass = run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;
+        passes += 1;
+        if let Some(s) = &seed {
+            seed = Some(carry_seed(s, &pass));
+        }
+        if prior.update == PriorUpdate::Hold || fit_rank(&pass) < fit_rank(&out) {
+            out = pass;
+            latest = None;
+        } else {
+            latest = Some(pass);
+        }
+    }
+    Ok(Passes {
+        out,
+        passes,
+        search,
+        seed,
+    })
+}
+
+/// The per-angle progress of a pass, as JSON (`summary.json` `angle_reports`).
+pub fn angle_reports(out: &SweepOutput) -> serde_json::Value {
+    let reports: Vec<_> = out
+        .angles
+        .iter()
+        .map(|a| {
+            json!({
+                "incidence_deg": a.incidence_deg,
+                "index": a.index,
+                "index_sigma": if a.index_sigma.is_finite() { Some(a.index_sigma) } else { None },
+                "pair_index": a.pair.map(|p| p.index),
+                "refined": a.refined,
+                "spectral_index_step": a.spectral_index_step,
+                "dispersive": a.index_terms > 1,
+                "index_terms": a.index_terms,
+                "index_from_full_spectra": a.spectral_index,
+            })
+        })
+        .collect();
+    serde_json::Value::Array(reports)
+}
+
 /// The index model chosen and its evidence, for `summary.json` (null without an index).
-fn model_choice(
+pub fn model_choice(
     out: &SweepOutput,
     passes: usize,
     search: Option<(ThinFit, bool)>,
@@ -253,6 +352,9 @@ pub struct RunConfig {
     pub pipeline: PipelineConfig,
     /// Grid of the brute-force baseline.
     pub brute_grid: BruteGrid,
+    /// The field model of the streaming method: chosen from the data (default), or forced,
+    /// and the wide model's settings.
+    pub field: FieldConfig,
 }
 
 impl Default for RunConfig {
@@ -261,6 +363,7 @@ impl Default for RunConfig {
             method: Method::Filmscope,
             pipeline: PipelineConfig::default(),
             brute_grid: BruteGrid::default(),
+            field: FieldConfig::default(),
         }
     }
 }
@@ -286,6 +389,10 @@ pub struct Run {
     pub angle_reports: serde_json::Value,
     /// How the index model was chosen (streaming method), as JSON.
     pub model_choice: serde_json::Value,
+    /// The field model used (streaming method).
+    pub field_model: Option<FieldModel>,
+    /// How the field model was chosen and its evidence (streaming method), as JSON.
+    pub field_model_choice: serde_json::Value,
 }
 
 /// The streaming estimator's output as a [`MethodResult`].
@@ -323,94 +430,31 @@ pub fn result_from_sweep(out: &SweepOutput) -> MethodResult {
     }
 }
 
-/// Runs `config.method` on `source`; `on_rows` is told of rows streamed.
+/// Runs `config.method` on `source`, whose lens's field of view is not known (so the
+/// streaming method takes one incidence angle per frame); `on_rows` is told of rows
+/// streamed.
 pub fn run_method(
     source: &mut dyn Source,
     config: &RunConfig,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<Run, PipelineError> {
+    run_method_in_field(source, config, None, on_rows)
+}
+
+/// Runs `config.method` on `source` seen through a lens of horizontal field of view
+/// `field_of_view` (`None`: unknown); the streaming method chooses its field model
+/// ([`crate::field`]) by `config.field`. `on_rows` is told of rows streamed.
+pub fn run_method_in_field(
+    source: &mut dyn Source,
+    config: &RunConfig,
+    field_of_view: Option<FieldOfView>,
     on_rows: &(dyn Fn(u64) + Sync),
 ) -> Result<Run, PipelineError> {
     let spec = source.spec().clone();
     let angles_deg = source.angles_deg();
     let t0 = Instant::now();
     match config.method {
-        Method::Filmscope => {
-            let mut out = run_sweep(source, config.pipeline, None, on_rows)?;
-            let mut passes = 1;
-            // Further passes over the same data (`next_pass`); `latest` is the last pass when
-            // it is not the best, which `out` keeps.
-            let mut latest: Option<SweepOutput> = None;
-            let can_pass = config.pipeline.solver.refine && source.replayable();
-            // A film without fringe pairs: every later pass starts its pixels from a
-            // thickness map (the search's, then the last pass's).
-            let mut seed: Option<Arc<Vec<f32>>> = None;
-            // The search's fit and whether its passes were kept.
-            let mut search: Option<(ThinFit, bool)> = None;
-            // (A model mismatch means the extremum shifts found an index: the film has
-            // fringes, and the full-spectrum passes below are the remedy.)
-            if can_pass && !out.model_mismatch && valid_fraction(&out) < THIN_SEARCH_BELOW_VALID {
-                if let Some((fit, start)) = thin_start(source, &out)? {
-                    search = Some((fit, false));
-                    if let Some(prior) = start {
-                        let pass =
-                            run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;
-                        passes += 1;
-                        if !pass.model_mismatch && valid_fraction(&pass) > valid_fraction(&out) {
-                            seed = prior.seed.map(|s| carry_seed(&s, &pass));
-                            search = Some((fit, true));
-                            out = pass;
-                        }
-                    }
-                }
-            }
-            while can_pass && passes < MAX_PASSES {
-                let Some(mut prior) = next_pass(latest.as_ref().unwrap_or(&out), passes) else {
-                    break;
-                };
-                if let Some(s) = &seed {
-                    prior.seed = Some(s.clone());
-                    prior.update = PriorUpdate::FullSpectra;
-                }
-                let pass = run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;
-                passes += 1;
-                if let Some(s) = &seed {
-                    seed = Some(carry_seed(s, &pass));
-                }
-                if prior.update == PriorUpdate::Hold || fit_rank(&pass) < fit_rank(&out) {
-                    out = pass;
-                    latest = None;
-                } else {
-                    latest = Some(pass);
-                }
-            }
-            let reports: Vec<_> = out
-                .angles
-                .iter()
-                .map(|a| {
-                    json!({
-                        "incidence_deg": a.incidence_deg,
-                        "index": a.index,
-                        "index_sigma": if a.index_sigma.is_finite() { Some(a.index_sigma) } else { None },
-                        "pair_index": a.pair.map(|p| p.index),
-                        "refined": a.refined,
-                        "spectral_index_step": a.spectral_index_step,
-                        "dispersive": a.index_terms > 1,
-                        "index_terms": a.index_terms,
-                        "index_from_full_spectra": a.spectral_index,
-                    })
-                })
-                .collect();
-            Ok(Run {
-                result: result_from_sweep(&out),
-                spec,
-                angles_deg,
-                seconds: t0.elapsed().as_secs_f64(),
-                solve_latency_ms: Some(out.solve_latency.as_secs_f64() * 1e3),
-                state_bytes_per_pixel: Some(out.state_bytes_per_pixel),
-                samples: out.samples,
-                angle_reports: serde_json::Value::Array(reports),
-                model_choice: model_choice(&out, passes, search),
-            })
-        }
+        Method::Filmscope => crate::field::run_filmscope(source, config, field_of_view, on_rows),
         Method::Paper | Method::Brute => {
             let cube = collect_sweep(source)?;
             on_rows((cube.height * cube.bands_nm.len() * cube.angles_deg.len()) as u64);
@@ -431,6 +475,8 @@ pub fn run_method(
                 samples,
                 angle_reports: serde_json::Value::Null,
                 model_choice: serde_json::Value::Null,
+                field_model: None,
+                field_model_choice: serde_json::Value::Null,
             })
         }
     }
@@ -548,6 +594,8 @@ pub fn write_outputs(
         "dispersion": dispersion_json(&r.index.dispersion()),
         "index_model": (["constant", "cauchy", "cauchy3"])[r.index.terms() - 1],
         "index_model_choice": run.model_choice,
+        "field_model": run.field_model.map(FieldModel::name),
+        "field_model_choice": run.field_model_choice,
         "thickness_nm": stats(&r.thickness_nm),
         "valid_fraction": valid as f64 / (w * h).max(1) as f64,
         "width": w,

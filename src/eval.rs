@@ -143,6 +143,11 @@ pub struct EvalReport {
     pub angles_deg: Vec<f64>,
     /// Wall time of the run, seconds.
     pub seconds: f64,
+    /// The field model used (streaming method): `narrow` or `wide`.
+    pub field_model: Option<String>,
+    /// How the field model was chosen, with each model's figures (`summary.json`
+    /// `field_model_choice`).
+    pub field_model_choice: serde_json::Value,
 }
 
 /// Compares a run with the truth.
@@ -246,5 +251,7 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
         delta_e2000_per_angle: de00_angle,
         angles_deg: run.angles_deg.clone(),
         seconds: run.seconds,
+        field_model: run.field_model.map(|m| m.name().to_owned()),
+        field_model_choice: run.field_model_choice.clone(),
     }
 }

@@ -13,6 +13,8 @@
 //!   methods;
 //! - [`estimate`], [`eval`], [`export`], [`simulate`]: outputs per the capture contract,
 //!   accuracy against the truth, PNG previews, writing simulated captures;
+//! - [`field`]: the field model (one incidence angle per frame, or one per strip of columns
+//!   under a wide field of view) and how it is chosen;
 //! - [`appearance`]: the film's colour from the estimate: renders at any angle, measured
 //!   against reproduced; [`export::gltf`] hands it to renderers, [`report`] to people;
 //! - [`cli`]: the `filmscope` command line.
@@ -36,6 +38,8 @@ pub mod estimate;
 pub mod eval;
 #[cfg(feature = "std")]
 pub mod export;
+#[cfg(feature = "std")]
+pub mod field;
 #[cfg(feature = "std")]
 pub mod io;
 #[cfg(feature = "std")]

@@ -4,7 +4,8 @@
 //! Layout: `capture.toml`; per angle `aNN.hdr/.img` (raw 12-bit counts as uint16, BIL, with
 //! `whiteNN` and `darkNN` float32 references averaged over the scene's `white_frames`), or,
 //! noise-free, float32 reflectance without references; `truth/thickness_nm.hdr/.img` and
-//! `truth.json`.
+//! `truth.json`. A scene with a lens field of view writes it as `[lens] horizontal_fov_deg`
+//! (filmscope's extension of the capture format).
 
 use std::path::{Path, PathBuf};
 
@@ -14,7 +15,7 @@ use serde_json::json;
 
 use crate::io::{
     write_atomic, write_f32_map, Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave,
-    Sample, Search,
+    Lens, Sample, Search,
 };
 
 /// A capture that could not be written, with the file at fault.
@@ -191,6 +192,9 @@ pub fn write_capture(
             index_range: scene.index_range,
             thickness_range_nm: scene.thickness_range_nm,
         },
+        lens: Lens {
+            horizontal_fov_deg: scene.field_of_view.map(|f| f.horizontal_deg()),
+        },
         angles,
         unknown_keys: Vec::new(),
     };
@@ -211,6 +215,14 @@ pub fn write_capture(
         "width": w,
         "height": h,
     });
+    // Only a scene with a lens says so: other truths stay as they were.
+    let truth = match (truth, scene.field_of_view) {
+        (serde_json::Value::Object(mut o), Some(fov)) => {
+            o.insert("horizontal_fov_deg".into(), json!(fov.horizontal_deg()));
+            serde_json::Value::Object(o)
+        }
+        (t, _) => t,
+    };
     let truth_path = out_dir.join("truth.json");
     let text = serde_json::to_string_pretty(&truth).map_err(|e| err(&truth_path, &e))?;
     write_atomic(&truth_path, text.as_bytes()).map_err(|e| err(&truth_path, &e))?;

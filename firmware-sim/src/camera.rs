@@ -5,6 +5,8 @@
 //! Every row is rendered from its own seed `(scene seed, angle, band, row, stream)`, so rows
 //! may be asked for in any order (BSQ, BIL, a pipeline, a file writer) and come out the same.
 
+use std::sync::{Mutex, PoisonError};
+
 use filmscope_core::optics::BandModel;
 
 use crate::rng::Rng;
@@ -24,6 +26,17 @@ pub enum Defect {
     Hot,
 }
 
+/// Band models of every column of one `(angle, band)` under a lens field of view: rows are
+/// asked for band by band, so the last one's models serve the next row.
+#[derive(Debug, Default)]
+struct ColumnModels(Mutex<Option<(usize, usize, Vec<BandModel>)>>);
+
+impl Clone for ColumnModels {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
 /// The simulated camera behind the LCTF, looking at one scene.
 #[derive(Clone, Debug)]
 pub struct SoftwareCamera {
@@ -34,6 +47,8 @@ pub struct SoftwareCamera {
     throughput: Vec<f64>,
     /// Defective pixels, sorted by index.
     defects: Vec<(usize, Defect)>,
+    /// Under a lens field of view: the last `(angle, band)`'s per-column models.
+    columns: ColumnModels,
 }
 
 impl SoftwareCamera {
@@ -80,6 +95,7 @@ impl SoftwareCamera {
             models,
             throughput,
             defects,
+            columns: ColumnModels::default(),
         }
     }
 
@@ -116,10 +132,36 @@ impl SoftwareCamera {
     }
 
     /// True band reflectance of one row, without noise or defects (`out.len() == width`).
+    /// With a lens field of view every column is seen at its own incidence angle
+    /// ([`Scene::incidence_deg`]).
     pub fn reflectance_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
         let w = self.width();
-        let model = self.model(angle, band);
         let thickness = &self.scene.thickness_nm[row * w..(row + 1) * w];
+        if self.scene.field_of_view.is_some() {
+            let mut cache = self
+                .columns
+                .0
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner);
+            if !matches!(&*cache, Some((a, b, _)) if *a == angle && *b == band) {
+                let stage_deg = self.scene.angles_deg[angle];
+                let passband = self.scene.passband(band);
+                let models = (0..w)
+                    .map(|col| {
+                        let deg = self.scene.incidence_deg(stage_deg, col);
+                        BandModel::new(self.scene.stack, deg, passband)
+                    })
+                    .collect();
+                *cache = Some((angle, band, models));
+            }
+            if let Some((_, _, models)) = &*cache {
+                for ((o, &d), model) in out.iter_mut().zip(thickness).zip(models) {
+                    *o = model.reflectance(f64::from(d)) as f32;
+                }
+            }
+            return;
+        }
+        let model = self.model(angle, band);
         for (o, &d) in out.iter_mut().zip(thickness) {
             *o = model.reflectance(f64::from(d)) as f32;
         }

@@ -5,7 +5,9 @@
 
 use std::path::{Path, PathBuf};
 
-use filmscope_core::optics::{materials, Dispersion, FilmStack, Passband, Polarization};
+use filmscope_core::optics::{
+    materials, Dispersion, FieldOfView, FilmStack, Passband, Polarization,
+};
 use serde::Deserialize;
 
 use crate::rng::Rng;
@@ -118,6 +120,9 @@ struct RigFile {
     angles_deg: Vec<f64>,
     bands_nm: [f64; 3],
     fwhm_nm: f64,
+    /// The lens's horizontal field of view, degrees (absent: every column sees the stage
+    /// angle).
+    horizontal_fov_deg: Option<f64>,
 }
 
 #[derive(Debug, Deserialize, Default)]
@@ -194,6 +199,10 @@ pub struct Scene {
     pub bands_nm: Vec<f64>,
     /// LCTF passband FWHM, nm (the same for every band).
     pub fwhm_nm: f64,
+    /// The lens's horizontal field of view (`[rig] horizontal_fov_deg`): column `c` sees the
+    /// stage angle plus [`FieldOfView::column_offset_deg`] (geometry and sign convention
+    /// there). `None`: every column sees the stage angle (a narrow field of view).
+    pub field_of_view: Option<FieldOfView>,
     /// The sensor.
     pub sensor: Sensor,
     /// Film thickness per pixel, row-major, nm.
@@ -284,6 +293,24 @@ impl Scene {
         if !(rig.fwhm_nm.is_finite() && rig.fwhm_nm >= 0.0 && rig.fwhm_nm < 100.0) {
             return Err(format!("[rig] fwhm_nm {} is outside 0..100", rig.fwhm_nm));
         }
+        let field_of_view = match rig.horizontal_fov_deg {
+            None => None,
+            Some(f) => Some(
+                FieldOfView::new(f)
+                    .ok_or_else(|| format!("[rig] horizontal_fov_deg {f} is outside (0, 180)"))?,
+            ),
+        };
+        if let Some(fov) = field_of_view {
+            for &a in &rig.angles_deg {
+                let edge = a.abs() + 0.5 * fov.horizontal_deg();
+                if edge >= 89.0 {
+                    return Err(format!(
+                        "[rig] angle {a} deg with a {} deg field of view reaches {edge} deg at the image edge (at most 89)",
+                        fov.horizontal_deg()
+                    ));
+                }
+            }
+        }
         let s = f.sensor.unwrap_or_default();
         let sensor = Sensor {
             width: s.width.unwrap_or(96),
@@ -345,6 +372,7 @@ impl Scene {
             angles_deg: rig.angles_deg,
             bands_nm,
             fwhm_nm: rig.fwhm_nm,
+            field_of_view,
             sensor,
             thickness_nm,
             index_range,
@@ -355,6 +383,15 @@ impl Scene {
     /// The passband of band `b`.
     pub fn passband(&self, b: usize) -> Passband {
         Passband::gaussian(self.bands_nm[b], self.fwhm_nm)
+    }
+
+    /// The incidence angle column `col` sees when the stage is at `stage_deg`: the stage
+    /// angle itself without a field of view.
+    pub fn incidence_deg(&self, stage_deg: f64, col: usize) -> f64 {
+        match self.field_of_view {
+            Some(fov) => fov.incidence_deg(stage_deg, col, self.sensor.width),
+            None => stage_deg,
+        }
     }
 }
 

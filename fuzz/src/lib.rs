@@ -106,6 +106,8 @@ pub const TARGETS: &[Target] = &[
             "\"unpolarized\"",
             "index_range = [",
             "thickness_range_nm = [",
+            "[lens]\n",
+            "horizontal_fov_deg = ",
             "incidence_deg = ",
             "cube = \"",
             "white = \"",
@@ -296,6 +298,10 @@ fn capture_toml(data: &[u8]) -> bool {
                 .angles
                 .iter()
                 .all(|a| (0.0..90.0).contains(&a.incidence_deg)));
+            if let Some(f) = c.lens.horizontal_fov_deg {
+                assert!(f > 0.0 && f < 180.0, "field of view {f}");
+                assert!(c.lens.field_of_view().is_some());
+            }
             true
         }
         Err(e) => {

@@ -12,15 +12,16 @@ use crate::appearance::{
     SampleFilm,
 };
 use crate::baseline::BruteGrid;
-use crate::estimate::{run_method, write_outputs, Run, RunConfig};
+use crate::estimate::{run_method_in_field, write_outputs, Run, RunConfig};
 use crate::eval::{evaluate, EvalReport, Truth};
 use crate::export::gltf;
+use crate::field::{FieldChoice, FieldConfig};
 use crate::io::{write_atomic, Capture, Interleave};
 use crate::pipeline::{CaptureSource, PipelineConfig, SimSource, Source};
 use crate::simulate::{write_capture, SimulateOptions};
 use crate::sweep::Method;
 use filmscope_core::colour::Illuminant;
-use filmscope_core::optics::Polarization;
+use filmscope_core::optics::{FieldOfView, Polarization};
 use filmscope_core::solve::sweep::SolverOptions;
 
 /// The paper's samples, built in so `demo` runs from anywhere.
@@ -51,13 +52,28 @@ fn method(name: &str) -> Result<Method> {
         .ok_or_else(|| anyhow!("unknown method {name:?}: use filmscope, paper or brute"))
 }
 
+fn field(name: &str) -> Result<FieldChoice> {
+    FieldChoice::from_name(name)
+        .ok_or_else(|| anyhow!("--field {name:?}: use auto, narrow or wide"))
+}
+
 fn rows_of(spec: &filmscope_core::solve::SweepSpec, angles: usize) -> u64 {
     (spec.height * spec.bands_nm.len() * angles) as u64
 }
 
 fn run_with_bar(source: &mut dyn Source, config: &RunConfig, label: &str) -> Result<Run> {
+    run_in_field_with_bar(source, config, None, label)
+}
+
+fn run_in_field_with_bar(
+    source: &mut dyn Source,
+    config: &RunConfig,
+    field_of_view: Option<FieldOfView>,
+    label: &str,
+) -> Result<Run> {
     let bar = rows_bar(rows_of(source.spec(), source.angles_deg().len()), label);
-    let run = run_method(source, config, &|n| bar.inc(n)).map_err(|e| anyhow!("{label}: {e}"))?;
+    let run = run_method_in_field(source, config, field_of_view, &|n| bar.inc(n))
+        .map_err(|e| anyhow!("{label}: {e}"))?;
     bar.finish_and_clear();
     Ok(run)
 }
@@ -98,6 +114,7 @@ pub fn estimate(
     workers: usize,
     channel_capacity: usize,
     brute: (usize, f64),
+    (field_name, field_strips): (&str, Option<usize>),
 ) -> Result<()> {
     let config = RunConfig {
         method: method(method_name)?,
@@ -110,6 +127,11 @@ pub fn estimate(
             index_steps: brute.0,
             thickness_step_nm: brute.1,
         },
+        field: FieldConfig {
+            choice: field(field_name)?,
+            strips: field_strips,
+            ..FieldConfig::default()
+        },
     };
     let cap = Capture::load(capture)?;
     for key in &cap.unknown_keys {
@@ -119,11 +141,15 @@ pub fn estimate(
         );
     }
     let label = cap.path.display().to_string();
+    let fov = cap.lens.field_of_view();
     let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
-    let run = run_with_bar(&mut source, &config, &label)?;
+    let run = run_in_field_with_bar(&mut source, &config, fov, &label)?;
     let summary = write_outputs(out, &run, &label)?;
     for note in &run.result.notes {
         eprintln!("filmscope: note: {note}");
+    }
+    if let Some(line) = field_line(&run) {
+        println!("{line}");
     }
     println!(
         "{}: n = {:.4}, thickness median {} nm, valid {:.1} %, {:.2} s; maps in {}",
@@ -137,6 +163,21 @@ pub fn estimate(
         out.display()
     );
     Ok(())
+}
+
+/// The field model chosen and why, in one line (streaming method).
+fn field_line(run: &Run) -> Option<String> {
+    let c = &run.field_model_choice;
+    let model = c["chosen"].as_str()?;
+    let strips = match (model, c["geometry"]["strips"].as_u64()) {
+        ("wide", Some(k)) => format!(", {k} strips"),
+        _ => String::new(),
+    };
+    Some(format!(
+        "field model: {model}{strips} ({}): {}",
+        c["requested"].as_str().unwrap_or("?"),
+        c["reason"].as_str().unwrap_or("")
+    ))
 }
 
 enum Input {
@@ -163,40 +204,48 @@ fn input(path: &Path) -> Result<Input> {
     }
 }
 
-fn eval_one(path: &Path, config: &RunConfig) -> Result<EvalReport> {
+fn eval_one(path: &Path, config: &RunConfig) -> Result<(EvalReport, Run)> {
     match input(path)? {
         Input::Scene(scene) => {
             let truth = Truth::of_scene(&scene);
             let name = scene.name.clone();
+            let fov = scene.field_of_view;
             let mut source = SimSource::new(SoftwareCamera::new(*scene), false, 1)
                 .map_err(|e| anyhow!("{}: {e}", path.display()))?;
-            let run = run_with_bar(&mut source, config, &name)?;
-            Ok(evaluate(&name, &truth, &run))
+            let run = run_in_field_with_bar(&mut source, config, fov, &name)?;
+            Ok((evaluate(&name, &truth, &run), run))
         }
         Input::Capture(dir) => {
             let truth = Truth::of_capture_dir(&dir).map_err(|e| anyhow!(e))?;
             let cap = Capture::load(&dir)?;
+            let fov = cap.lens.field_of_view();
             let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
             let name = dir.display().to_string();
-            let run = run_with_bar(&mut source, config, &name)?;
-            Ok(evaluate(&name, &truth, &run))
+            let run = run_in_field_with_bar(&mut source, config, fov, &name)?;
+            Ok((evaluate(&name, &truth, &run), run))
         }
     }
 }
 
-/// Solver options with the named improvements switched off.
-fn ablated(list: &[String]) -> Result<SolverOptions> {
+/// Solver options and the wide field model's settings with the named improvements switched
+/// off.
+fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig)> {
     let mut o = SolverOptions::default();
+    let mut f = FieldConfig::default();
     for name in list {
         match name.as_str() {
             "refine" => o.refine = false,
             "half-order" => o.half_order = false,
             "neighbours" => o.neighbours = false,
             "subband" => o.subband = false,
-            other => bail!("--ablate {other:?}: use refine, half-order, neighbours or subband"),
+            "column-map" => f.column_map = false,
+            "shared-index" => f.shared_rounds = false,
+            other => bail!(
+                "--ablate {other:?}: use refine, half-order, neighbours, subband, column-map or shared-index"
+            ),
         }
     }
-    Ok(o)
+    Ok((o, f))
 }
 
 /// `filmscope eval`.
@@ -206,10 +255,12 @@ pub fn eval(
     json: bool,
     brute: (usize, f64),
     ablate: &[String],
+    (field_name, field_strips): (&str, Option<usize>),
 ) -> Result<()> {
     if inputs.is_empty() {
         bail!("eval needs at least one scene file or capture directory");
     }
+    let (solver, wide) = ablated(ablate)?;
     let config = RunConfig {
         method: method(method_name)?,
         brute_grid: BruteGrid {
@@ -217,8 +268,13 @@ pub fn eval(
             thickness_step_nm: brute.1,
         },
         pipeline: PipelineConfig {
-            solver: ablated(ablate)?,
+            solver,
             ..PipelineConfig::default()
+        },
+        field: FieldConfig {
+            choice: field(field_name)?,
+            strips: field_strips,
+            ..wide
         },
     };
     if !json {
@@ -247,12 +303,28 @@ pub fn eval(
         }
     };
     for path in inputs {
-        let r = eval_one(path, &config).with_context(|| path.display().to_string())?;
+        let (r, run) = eval_one(path, &config).with_context(|| path.display().to_string())?;
         if json {
             println!("{}", serde_json::to_string(&r)?);
         } else {
+            // Runs whose lens has a field of view also say which field model was used.
+            let c = &run.field_model_choice;
+            let field = match (
+                c["geometry"]["horizontal_fov_deg"].as_f64(),
+                c["chosen"].as_str(),
+            ) {
+                (Some(_), Some("wide")) => format!(
+                    "  wide/{} ({})",
+                    c["geometry"]["strips"].as_u64().unwrap_or(0),
+                    c["requested"].as_str().unwrap_or("?")
+                ),
+                (Some(_), Some(model)) => {
+                    format!("  {model} ({})", c["requested"].as_str().unwrap_or("?"))
+                }
+                _ => String::new(),
+            };
             println!(
-                "{:<22} {:<9} {:>8.4} {:>+9.4} {:>8.2} {:>8.2} {:>6.1}% {:>7.2}% {:>7.4} {:>7.3} {:>7.3} {:>7.2}",
+                "{:<22} {:<9} {:>8.4} {:>+9.4} {:>8.2} {:>8.2} {:>6.1}% {:>7.2}% {:>7.4} {:>7.3} {:>7.3} {:>7.2}{field}",
                 r.scene,
                 label(&r.method),
                 r.index_estimated,

@@ -63,6 +63,14 @@ enum Command {
         /// Brute force: thickness grid step, nm.
         #[arg(long, default_value_t = 2.0)]
         brute_thickness_step: f64,
+        /// Field model: auto (default: narrow unless the data ask for wide), narrow (one
+        /// incidence angle per frame) or wide (the angle varies with the column; needs the
+        /// lens's field of view).
+        #[arg(long, default_value = "auto")]
+        field: String,
+        /// Wide field model: number of strips of columns (default: from the angle spread).
+        #[arg(long)]
+        field_strips: Option<usize>,
     },
     /// Sweeps a rig (stage x filter x camera), streams every frame into the estimator,
     /// records the raw sweep as a capture in OUT/capture and writes the maps into OUT.
@@ -88,7 +96,8 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// Switch off filmscope improvements to measure their worth: refine, half-order,
-        /// neighbours, subband (comma-separated).
+        /// neighbours, subband, and the wide field model's column-map and shared-index
+        /// (comma-separated).
         #[arg(long, value_delimiter = ',')]
         ablate: Vec<String>,
         /// Brute force: number of index values over the search range (0: a 0.01 step).
@@ -97,6 +106,14 @@ enum Command {
         /// Brute force: thickness grid step, nm.
         #[arg(long, default_value_t = 2.0)]
         brute_thickness_step: f64,
+        /// Field model: auto (default: narrow unless the data ask for wide), narrow (one
+        /// incidence angle per frame) or wide (the angle varies with the column; needs the
+        /// lens's field of view).
+        #[arg(long, default_value = "auto")]
+        field: String,
+        /// Wide field model: number of strips of columns (default: from the angle spread).
+        #[arg(long)]
+        field_strips: Option<usize>,
     },
     /// Measures speed and memory (tracker, pipeline, solve, latency, state, peak RSS) and the
     /// baselines' cost on the same data, and prints one table.
@@ -240,6 +257,8 @@ pub fn main() -> std::process::ExitCode {
             channel_capacity,
             brute_index_steps,
             brute_thickness_step,
+            field,
+            field_strips,
         } => commands::estimate(
             &capture,
             &out,
@@ -247,6 +266,7 @@ pub fn main() -> std::process::ExitCode {
             workers,
             channel_capacity,
             (brute_index_steps, brute_thickness_step),
+            (&field, field_strips),
         ),
         Command::Acquire { rig, out, sim } => commands::acquire(&rig, &out, sim),
         Command::Eval {
@@ -256,12 +276,15 @@ pub fn main() -> std::process::ExitCode {
             ablate,
             brute_index_steps,
             brute_thickness_step,
+            field,
+            field_strips,
         } => commands::eval(
             &inputs,
             &method,
             json,
             (brute_index_steps, brute_thickness_step),
             &ablate,
+            (&field, field_strips),
         ),
         Command::Bench { quick, json, scene } => commands::bench(&scene, quick, json),
         Command::Soak { sweeps, scene } => commands::soak(&scene, sweeps),

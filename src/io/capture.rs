@@ -10,6 +10,9 @@
 //! index_range = [1.2, 3.0]
 //! thickness_range_nm = [50.0, 2000.0]
 //!
+//! [lens]                     # optional, a filmscope extension of the contract
+//! horizontal_fov_deg = 30.0  # the lens's horizontal field of view, in (0, 180)
+//!
 //! [[angle]]                  # at least two, any order
 //! incidence_deg = 10.0
 //! cube = "a10.hdr"           # relative to capture.toml
@@ -21,6 +24,11 @@
 //! [`Capture::load`] parses the file, checks every value, then opens every cube, white and
 //! dark reference ([`Capture::check`]) so that a capture that cannot be processed fails
 //! before any pixel is read, with a one-line [`CaptureError`] naming the file at fault.
+//!
+//! `[lens] horizontal_fov_deg` says the incidence angle varies across the image: the stage
+//! turns about the vertical axis and column `x` sees `incidence_deg + atan((x - cx) /
+//! focal_px)`, growing from left to right ([`crate::optics::FieldOfView`] has the geometry).
+//! Absent, every column is taken to see the stage angle.
 //!
 //! Unknown keys are accepted, so captures written by newer tools with extra keys still
 //! load, and are listed in [`Capture::unknown_keys`] (e.g. `angle[2].white_reflectence`) so
@@ -71,6 +79,25 @@ pub struct Search {
     pub thickness_range_nm: Option<[f64; 2]>,
 }
 
+/// The optional `[lens]` table (a filmscope extension of the capture contract).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Lens {
+    /// The lens's horizontal field of view, degrees, in `(0, 180)`: column `c` of an image
+    /// `width` pixels wide sees the stage angle plus
+    /// [`crate::optics::FieldOfView::column_offset_deg`]. `None`: one incidence angle per
+    /// frame.
+    pub horizontal_fov_deg: Option<f64>,
+}
+
+impl Lens {
+    /// The checked field of view, if the capture gives one ([`Capture::check_values`]
+    /// refuses one outside `(0, 180)`).
+    pub fn field_of_view(&self) -> Option<crate::optics::FieldOfView> {
+        self.horizontal_fov_deg
+            .and_then(crate::optics::FieldOfView::new)
+    }
+}
+
 /// One `[[angle]]` entry: the cube taken at one incidence angle.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Angle {
@@ -96,6 +123,8 @@ pub struct Capture {
     pub sample: Sample,
     /// `[search]` (all `None` when absent).
     pub search: Search,
+    /// `[lens]` (all `None` when absent).
+    pub lens: Lens,
     /// `[[angle]]` entries in file order (the estimator accepts any order).
     pub angles: Vec<Angle>,
     /// Keys the format does not define, as dotted paths (`sample.foo`, `angle[1].bar`,
@@ -226,6 +255,24 @@ pub enum CaptureErrorKind {
         /// The value.
         value: String,
     },
+    /// `lens.horizontal_fov_deg` outside `(0, 180)`.
+    #[error("lens.horizontal_fov_deg = {value}: expected a field of view inside (0, 180) degrees")]
+    BadFieldOfView {
+        /// The value.
+        value: f64,
+    },
+    /// An angle whose image edge, with the lens's field of view, reaches 90 degrees.
+    #[error("[[angle]] {index}: incidence_deg = {incidence_deg} with lens.horizontal_fov_deg = {fov_deg} reaches {edge_deg} deg at the image edge (must stay below 90)")]
+    FieldBeyondGrazing {
+        /// 1-based entry index.
+        index: usize,
+        /// The stage angle.
+        incidence_deg: f64,
+        /// The field of view.
+        fov_deg: f64,
+        /// The incidence angle at the image edge.
+        edge_deg: f64,
+    },
     /// `white_reflectance` outside `(0, 1.5]`.
     #[error("[[angle]] {index}: white_reflectance = {value} is outside (0, 1.5]")]
     BadWhiteReflectance {
@@ -312,8 +359,16 @@ struct RawCapture {
     sample: RawSample,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     search: Option<RawSearch>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    lens: Option<RawLens>,
     #[serde(default)]
     angle: Vec<RawAngle>,
+}
+
+#[derive(Deserialize, Serialize)]
+struct RawLens {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    horizontal_fov_deg: Option<f64>,
 }
 
 #[derive(Deserialize, Serialize)]
@@ -355,6 +410,7 @@ fn default_polarization() -> String {
 
 const SAMPLE_KEYS: &[&str] = &["ambient_index", "substrate_index", "polarization"];
 const SEARCH_KEYS: &[&str] = &["index_range", "thickness_range_nm"];
+const LENS_KEYS: &[&str] = &["horizontal_fov_deg"];
 const ANGLE_KEYS: &[&str] = &[
     "incidence_deg",
     "cube",
@@ -427,6 +483,9 @@ impl Capture {
                     thickness_range_nm: s.thickness_range_nm,
                 })
                 .unwrap_or_default(),
+            lens: Lens {
+                horizontal_fov_deg: raw.lens.and_then(|l| l.horizontal_fov_deg),
+            },
             angles,
             unknown_keys,
         };
@@ -455,6 +514,11 @@ impl Capture {
                 }
             }
         }
+        if let Some(value) = self.lens.horizontal_fov_deg {
+            if crate::optics::FieldOfView::new(value).is_none() {
+                return Err(err(CaptureErrorKind::BadFieldOfView { value }));
+            }
+        }
         if self.angles.len() < 2 {
             return Err(err(CaptureErrorKind::TooFewAngles {
                 found: self.angles.len(),
@@ -468,6 +532,17 @@ impl Capture {
                     index,
                     incidence_deg: deg,
                 }));
+            }
+            if let Some(fov_deg) = self.lens.horizontal_fov_deg {
+                let edge_deg = deg + 0.5 * fov_deg;
+                if edge_deg >= 90.0 {
+                    return Err(err(CaptureErrorKind::FieldBeyondGrazing {
+                        index,
+                        incidence_deg: deg,
+                        fov_deg,
+                        edge_deg,
+                    }));
+                }
             }
             let wr = angle.white_reflectance;
             if !(wr.is_finite() && wr > 0.0 && wr <= MAX_WHITE_REFLECTANCE) {
@@ -617,6 +692,9 @@ impl Capture {
             index_range: self.search.index_range,
             thickness_range_nm: self.search.thickness_range_nm,
         });
+        let lens = self.lens.horizontal_fov_deg.map(|f| RawLens {
+            horizontal_fov_deg: Some(f),
+        });
         let raw = RawCapture {
             sample: RawSample {
                 ambient_index: self.sample.ambient_index,
@@ -624,6 +702,7 @@ impl Capture {
                 polarization: self.sample.polarization.name().to_string(),
             },
             search,
+            lens,
             angle,
         };
         let text = toml::to_string(&raw).map_err(|e| {
@@ -704,6 +783,7 @@ fn unknown_keys(table: &toml::Table) -> Vec<String> {
         match key.as_str() {
             "sample" => check(&mut out, "sample", value, SAMPLE_KEYS),
             "search" => check(&mut out, "search", value, SEARCH_KEYS),
+            "lens" => check(&mut out, "lens", value, LENS_KEYS),
             "angle" => {
                 for (i, entry) in value.as_array().into_iter().flatten().enumerate() {
                     check(&mut out, &format!("angle[{}]", i + 1), entry, ANGLE_KEYS);
@@ -848,6 +928,41 @@ typo_key = 3
         assert_eq!(c.angles[1].cube, PathBuf::from("run/sub/a10.hdr"));
         assert_eq!(c.angles[1].white_reflectance, 1.0);
         assert_eq!(c.unknown_keys, vec!["angle[2].typo_key".to_string()]);
+        Ok(())
+    }
+
+    #[test]
+    fn the_lens_field_of_view_is_read_checked_and_written_back() -> Result<(), CaptureError> {
+        let path = Path::new("run/capture.toml");
+        let text = format!("{VALID}\n[lens]\nhorizontal_fov_deg = 30.0\n");
+        let c = Capture::from_toml_str(&text, path)?;
+        assert_eq!(c.lens.horizontal_fov_deg, Some(30.0));
+        assert_eq!(c.unknown_keys, vec!["angle[2].typo_key".to_string()]);
+        assert_eq!(Capture::from_toml_str(VALID, path)?.lens, Lens::default());
+        for bad in ["0.0", "180.0", "-2.0", "inf"] {
+            let text = format!("{VALID}\n[lens]\nhorizontal_fov_deg = {bad}\n");
+            let e = Capture::from_toml_str(&text, path)
+                .err()
+                .map(|e| e.to_string());
+            let msg = e.unwrap_or_default();
+            assert!(
+                msg.starts_with("run/capture.toml: lens.horizontal_fov_deg"),
+                "{msg}"
+            );
+        }
+        let dir = tempfile::tempdir().map_err(|e| {
+            CaptureError::new(
+                path,
+                CaptureErrorKind::Io {
+                    action: "tempdir",
+                    err: e,
+                },
+            )
+        })?;
+        let out = dir.path().join("capture.toml");
+        c.write_toml(&out)?;
+        let back = std::fs::read_to_string(&out).unwrap_or_default();
+        assert!(back.contains("[lens]\nhorizontal_fov_deg = 30.0"), "{back}");
         Ok(())
     }
 

@@ -23,7 +23,7 @@ pub mod capture;
 pub mod envi;
 
 pub use atomic::{remove_stale_temps, write_atomic, TempFile};
-pub use capture::{Angle, Capture, CaptureError, CaptureErrorKind, CubeInfo, Sample, Search};
+pub use capture::{Angle, Capture, CaptureError, CaptureErrorKind, CubeInfo, Lens, Sample, Search};
 pub use envi::{
     read_cube, write_f32_map, BandRow, ByteOrder, Cube, DataType, EnviError, EnviErrorKind,
     EnviHeader, EnviReader, EnviWriter, Interleave,

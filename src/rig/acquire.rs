@@ -29,7 +29,8 @@ use super::camlink::LinkStats;
 use super::config::RigConfig;
 use super::error::RigError;
 use crate::io::{
-    write_atomic, Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave, Sample, Search,
+    write_atomic, Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave, Lens, Sample,
+    Search,
 };
 use crate::pipeline::{
     sweep_spec, CaptureSource, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
@@ -184,6 +185,7 @@ impl Acquisition {
                     .as_ref()
                     .and_then(|s| s.thickness_range_nm),
             },
+            lens: Lens::default(),
             angles: angles.to_vec(),
             unknown_keys: Vec::new(),
         };

@@ -11,9 +11,8 @@ pub fn scene(name: &str) -> Scene {
     Scene::load(Path::new(&p)).expect("scene loads")
 }
 
-/// A small scene (32 x 24 px, 101 bands) for fast tests: ZnS-like film above the substrate.
-pub fn tiny_scene() -> Scene {
-    let text = r#"
+/// The text of [`tiny_scene`].
+pub const TINY_SCENE: &str = r#"
 name = "tiny"
 seed = 7
 [film]
@@ -34,7 +33,10 @@ height = 24
 dead_pixels = 2
 hot_pixels = 1
 "#;
-    Scene::from_toml(text, "tiny").expect("tiny scene")
+
+/// A small scene (32 x 24 px, 101 bands) for fast tests: ZnS-like film above the substrate.
+pub fn tiny_scene() -> Scene {
+    Scene::from_toml(TINY_SCENE, "tiny").expect("tiny scene")
 }
 
 /// A fresh temporary directory.

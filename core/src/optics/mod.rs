@@ -1,5 +1,6 @@
 //! Thin-film optics: Snell, Fresnel, the Airy sum of one film on a substrate, dispersion and
-//! band averaging through the LCTF passband.
+//! band averaging through the LCTF passband, and the incidence angle of each image column
+//! under a lens's field of view ([`FieldOfView`]).
 //!
 //! Conventions: wavelengths are vacuum wavelengths in nm, angles in degrees, thicknesses in
 //! nm, indices real. The model is validated against the Python `tmm` package
@@ -8,6 +9,7 @@
 mod airy;
 mod complex;
 mod dispersion;
+mod field;
 mod film;
 mod fresnel;
 mod passband;
@@ -15,6 +17,7 @@ mod passband;
 pub use airy::{film_reflectance, FilmAtAngle, Indices};
 pub use complex::Complex;
 pub use dispersion::{materials, Dispersion};
+pub use field::FieldOfView;
 pub use film::{BandModel, FilmStack};
 pub use fresnel::{fresnel_r, fresnel_r_real, normal_component, refraction_deg, snell_invariant};
 pub use passband::{Passband, DEFAULT_NODES, HALF_WIDTH_FWHM, MAX_NODES};
