@@ -1,6 +1,8 @@
 //! The software camera: renders the scene's band frames row by row as the rig would see
 //! them through the LCTF, as raw 12-bit counts with shot and read noise, dark level,
 //! vignetting, dead and hot pixels and saturation, or noise-free as true band reflectance.
+//! A scene may replace the shot and read noise by Gaussian noise of a set reflectance
+//! (`reflectance_noise_percent`, with exact references), for sweeps over the noise level.
 //!
 //! Every row is rendered from its own seed `(scene seed, angle, band, row, stream)`, so rows
 //! may be asked for in any order (BSQ, BIL, a pipeline, a file writer) and come out the same.
@@ -22,6 +24,24 @@ pub enum Defect {
     Dead,
     /// Reads saturated whatever the light.
     Hot,
+}
+
+/// What [`SoftwareCamera::expose`] renders.
+#[derive(Clone, Copy, Debug)]
+enum Exposure {
+    /// One exposure of the sample.
+    Sample,
+    /// A white or dark reference: the mean of `frames` exposures.
+    Reference { frames: u32 },
+}
+
+impl Exposure {
+    fn frames(self) -> u32 {
+        match self {
+            Self::Sample => 1,
+            Self::Reference { frames } => frames,
+        }
+    }
 }
 
 /// The simulated camera behind the LCTF, looking at one scene.
@@ -139,13 +159,15 @@ impl SoftwareCamera {
             .map(|k| self.defects[k].1)
     }
 
-    /// One noisy frame's worth of counts for a row of targets of reflectance `r(col)`,
-    /// averaged over `frames` exposures.
+    /// Counts for a row of targets of reflectance `r(col)`: one noisy exposure of the
+    /// sample, or the mean of a reference's exposures. With the scene's
+    /// `reflectance_noise_percent`, the sample gets that Gaussian reflectance noise and the
+    /// references none.
     fn expose(
         &self,
         band: usize,
         row: usize,
-        frames: u32,
+        exposure: Exposure,
         rng: &mut Rng,
         r: impl Fn(usize) -> f64,
         out: &mut [f32],
@@ -157,30 +179,44 @@ impl SoftwareCamera {
             let value = match self.defect_at(row * w + col) {
                 Some(Defect::Dead) => s.dark_counts,
                 Some(Defect::Hot) => sat,
-                None => {
-                    let mean = self.mean_counts(band, col, row, r(col));
-                    let signal = (mean - s.dark_counts).max(0.0);
-                    if frames == 1 {
-                        let electrons = rng.poisson(signal * s.gain_e_per_count);
-                        let counts = s.dark_counts
-                            + electrons / s.gain_e_per_count
-                            + s.read_noise_counts * rng.normal();
-                        counts.round().clamp(0.0, sat)
-                    } else {
-                        // The mean of `frames` exposures: shot and read noise shrink by
-                        // sqrt(frames); drawn at once (the central limit of the per-frame
-                        // Poisson and Gaussian draws) rather than frame by frame.
-                        let k = f64::from(frames);
-                        let shot = (signal / s.gain_e_per_count / k).sqrt();
-                        let read = s.read_noise_counts / k.sqrt();
-                        let counts = s.dark_counts
-                            + signal
-                            + (shot * shot + read * read).sqrt() * rng.normal();
-                        counts.clamp(0.0, sat)
+                None => match (s.reflectance_noise_percent, exposure) {
+                    (Some(_), Exposure::Reference { .. }) => {
+                        self.mean_counts(band, col, row, r(col))
                     }
-                }
+                    (Some(percent), Exposure::Sample) => {
+                        let noisy = r(col) + 0.01 * percent * rng.normal();
+                        let counts = self.mean_counts(band, col, row, noisy);
+                        counts.round().clamp(0.0, sat)
+                    }
+                    (None, _) => {
+                        let mean = self.mean_counts(band, col, row, r(col));
+                        let signal = (mean - s.dark_counts).max(0.0);
+                        self.shot_and_read(signal, exposure.frames(), rng)
+                            .clamp(0.0, sat)
+                    }
+                },
             };
             *o = value as f32;
+        }
+    }
+
+    /// Counts, dark included, of `signal` counts above dark with shot and read noise,
+    /// averaged over `frames` exposures (one exposure is rounded to whole counts).
+    fn shot_and_read(&self, signal: f64, frames: u32, rng: &mut Rng) -> f64 {
+        let s = &self.scene.sensor;
+        if frames == 1 {
+            let electrons = rng.poisson(signal * s.gain_e_per_count);
+            let counts =
+                s.dark_counts + electrons / s.gain_e_per_count + s.read_noise_counts * rng.normal();
+            counts.round()
+        } else {
+            // The mean of `frames` exposures: shot and read noise shrink by sqrt(frames);
+            // drawn at once (the central limit of the per-frame Poisson and Gaussian draws)
+            // rather than frame by frame.
+            let k = f64::from(frames);
+            let shot = (signal / s.gain_e_per_count / k).sqrt();
+            let read = s.read_noise_counts / k.sqrt();
+            s.dark_counts + signal + (shot * shot + read * read).sqrt() * rng.normal()
         }
     }
 
@@ -191,7 +227,14 @@ impl SoftwareCamera {
         self.reflectance_row(angle, band, row, &mut refl);
         let mut counts = vec![0f32; w];
         let mut rng = self.rng(STREAM_SAMPLE, angle, band, row);
-        self.expose(band, row, 1, &mut rng, |c| f64::from(refl[c]), &mut counts);
+        self.expose(
+            band,
+            row,
+            Exposure::Sample,
+            &mut rng,
+            |c| f64::from(refl[c]),
+            &mut counts,
+        );
         for (o, c) in out.iter_mut().zip(&counts) {
             *o = *c as u16;
         }
@@ -202,14 +245,28 @@ impl SoftwareCamera {
     pub fn white_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
         let mut rng = self.rng(STREAM_WHITE, angle, band, row);
         let frames = self.scene.sensor.white_frames;
-        self.expose(band, row, frames, &mut rng, |_| 1.0, out);
+        self.expose(
+            band,
+            row,
+            Exposure::Reference { frames },
+            &mut rng,
+            |_| 1.0,
+            out,
+        );
     }
 
     /// The dark reference row (shutter closed, `white_frames` exposures averaged), in counts.
     pub fn dark_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
         let mut rng = self.rng(STREAM_DARK, angle, band, row);
         let frames = self.scene.sensor.white_frames;
-        self.expose(band, row, frames, &mut rng, |_| 0.0, out);
+        self.expose(
+            band,
+            row,
+            Exposure::Reference { frames },
+            &mut rng,
+            |_| 0.0,
+            out,
+        );
     }
 
     fn rng(&self, stream: u64, angle: usize, band: usize, row: usize) -> Rng {
