@@ -198,8 +198,45 @@ const IDEAL_WHITE_COUNTS: f64 = 40000.0;
 const IDEAL_DARK_COUNTS: f64 = 8000.0;
 
 impl GridScene {
-    /// The scene, as a scene file would give it.
+    /// One line: film, rig and sensor.
+    pub fn describe(&self) -> String {
+        let angles: Vec<String> = self.angles_deg.iter().map(|a| format!("{a}")).collect();
+        let noise = match self.noise_percent {
+            None => "the paper's camera noise".to_owned(),
+            Some(p) => format!("reflectance noise {p} %"),
+        };
+        format!(
+            "n {} at {} nm on {}, angles {} deg, FWHM {} nm, band step {} nm, {noise}, {}x{} px",
+            self.index,
+            self.thickness_nm,
+            self.substrate,
+            angles.join("/"),
+            self.fwhm_nm,
+            self.band_step_nm,
+            self.size[0],
+            self.size[1]
+        )
+    }
+
+    /// The smallest shift of a fringe at `lambda_nm` between neighbouring angles (angles
+    /// sorted), eqs. 17-18 of the method: `lambda (1 - sqrt(n^2 - sin^2 th2) /
+    /// sqrt(n^2 - sin^2 th1))`, nm (infinite with fewer than two angles).
+    pub fn neighbour_shift_nm(&self, lambda_nm: f64) -> f64 {
+        let mut a = self.angles_deg.clone();
+        a.sort_by(f64::total_cmp);
+        let q = |deg: f64| (self.index.powi(2) - deg.to_radians().sin().powi(2)).sqrt();
+        a.windows(2)
+            .map(|w| lambda_nm * (1.0 - q(w[1]) / q(w[0])))
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// The scene.
     pub fn scene(&self) -> Result<Scene> {
+        Scene::from_toml(&self.toml(), "grid").map_err(|e| anyhow!("grid scene: {}", e.problem))
+    }
+
+    /// The scene file (`config/scenes/*.toml` format; `filmscope eval` and `simulate` take it).
+    pub fn toml(&self) -> String {
         let sensor = match self.noise_percent {
             None => format!(
                 "bit_depth = 12\nwhite_counts = {}\ngain_e_per_count = 1.5\n\
@@ -212,9 +249,8 @@ impl GridScene {
             ),
         };
         let angles: Vec<String> = self.angles_deg.iter().map(|a| format!("{a:?}")).collect();
-        let text = format!(
-            r#"
-name = "n{n:.2}-d{d:.0}"
+        format!(
+            r#"name = "n{n:.2}-d{d:.0}"
 seed = {seed}
 polarization = "s"
 [film]
@@ -246,8 +282,7 @@ thickness_range_nm = [30.0, 2500.0]
             w = self.size[0],
             h = self.size[1],
             seed = self.seed,
-        );
-        Scene::from_toml(&text, "grid").map_err(|e| anyhow!("grid scene: {}", e.problem))
+        )
     }
 }
 
@@ -414,8 +449,11 @@ pub fn stability_maps(quick: bool) -> Vec<MapSpec> {
         MapSpec::new(
             "noise-index",
             base.clone(),
-            (Axis::Index, &indices),
-            (Axis::Noise, &[0.0, 0.1, 0.25, 0.5, 1.0, 2.0, 3.0]),
+            (
+                Axis::Index,
+                &[1.2, 1.4, 1.5, 1.6, 1.7, 1.8, 2.0, 2.2, 2.4, 2.6, 2.8],
+            ),
+            (Axis::Noise, &[0.0, 0.25, 0.5, 1.0, 2.0, 3.0]),
         ),
         MapSpec::new(
             "angles",
@@ -593,53 +631,107 @@ fn point_at<'a>(run: &'a MapRun, label: &str, x: f64, y: f64) -> Option<&'a Poin
         .map(|c| &c.point)
 }
 
-/// A text summary of `run`: per setting, how many cells each [`Verdict`] got and the map of
-/// verdict letters (rows as on the heat maps, highest y on top).
+/// Lines of a text map over `spec`'s cells (highest y on top, x ticks underneath), each cell
+/// `text(x, y)` right-aligned in a column as wide as the widest text or tick.
+fn text_grid(spec: &MapSpec, text: impl Fn(f64, f64) -> String) -> Vec<String> {
+    let x_ticks: Vec<String> = spec.x_values.iter().map(|&v| spec.x.tick(v)).collect();
+    let y_ticks: Vec<String> = spec.y_values.iter().map(|&v| spec.y.tick(v)).collect();
+    let cells: Vec<Vec<String>> = spec
+        .y_values
+        .iter()
+        .map(|&y| spec.x_values.iter().map(|&x| text(x, y)).collect())
+        .collect();
+    let width = 1 + cells
+        .iter()
+        .flatten()
+        .chain(&x_ticks)
+        .map(String::len)
+        .max()
+        .unwrap_or(1);
+    let margin = 2 + y_ticks.iter().map(String::len).max().unwrap_or(1);
+    let mut lines: Vec<String> = cells
+        .iter()
+        .zip(&y_ticks)
+        .rev()
+        .map(|(row, yt)| {
+            let mut line = format!("{yt:>margin$}");
+            for c in row {
+                line.push_str(&format!("{c:>width$}"));
+            }
+            line
+        })
+        .collect();
+    let mut ticks = format!("{:>margin$}", "");
+    for t in &x_ticks {
+        ticks.push_str(&format!("{t:>width$}"));
+    }
+    lines.push(ticks);
+    lines
+}
+
+/// A text summary of `run`: the base scene; where the map changes it, eq. 18's smallest peak
+/// shift between neighbouring angles at 550 nm over the FWHM; then per setting, how many
+/// cells each [`Verdict`] got and a map of verdict letters with the index error (rows as on
+/// the heat maps, highest y on top).
 pub fn summary(run: &MapRun) -> String {
     use std::fmt::Write as _;
     let spec = &run.spec;
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{}: {} x {}, {} cells, {:.0} s",
+        "{}: {} (rows) x {} (columns), {} cells, {:.0} s; otherwise {}",
         spec.name,
         spec.y.label(),
         spec.x.label(),
         spec.x_values.len() * spec.y_values.len(),
-        run.seconds
+        run.seconds,
+        spec.base.describe()
     );
-    let x_ticks: Vec<String> = spec.x_values.iter().map(|&v| spec.x.tick(v)).collect();
-    let y_ticks: Vec<String> = spec.y_values.iter().map(|&v| spec.y.tick(v)).collect();
-    let width = x_ticks.iter().map(String::len).max().unwrap_or(1).max(1) + 1;
-    let margin = y_ticks.iter().map(String::len).max().unwrap_or(1) + 2;
+    let ratio = |x: f64, y: f64| {
+        let g = spec.cell_scene(x, y);
+        g.neighbour_shift_nm(550.0) / g.fwhm_nm
+    };
+    let ratios: Vec<f64> = spec
+        .y_values
+        .iter()
+        .flat_map(|&y| spec.x_values.iter().map(move |&x| ratio(x, y)))
+        .collect();
+    if ratios.iter().any(|r| (r - ratios[0]).abs() > 1e-9) {
+        let _ = writeln!(
+            s,
+            "  eq. 18 peak shift between neighbouring angles at 550 nm / FWHM:"
+        );
+        for line in text_grid(spec, |x, y| format!("{:.2}", ratio(x, y))) {
+            let _ = writeln!(s, "  {line}");
+        }
+    } else {
+        let _ = writeln!(
+            s,
+            "  eq. 18 peak shift between neighbouring angles at 550 nm / FWHM: {:.2} everywhere",
+            ratios[0]
+        );
+    }
     for label in labels(run) {
         let mut count = [0usize; 4];
-        let mut rows = Vec::new();
-        for (y, yt) in spec.y_values.iter().zip(&y_ticks).rev() {
-            let mut line = format!("{yt:>margin$}");
-            for &x in &spec.x_values {
-                let c = point_at(run, &label, x, *y).map_or('.', |p| {
-                    let v = Verdict::of(p);
-                    count[v as usize] += 1;
-                    v.letter()
-                });
-                let _ = write!(line, "{c:>width$}");
-            }
-            rows.push(line);
+        for c in run.cells.iter().filter(|c| c.point.label == label) {
+            count[Verdict::of(&c.point) as usize] += 1;
         }
         let _ = writeln!(
             s,
-            "  {label}: works (o) {}, flags (f) {}, MAE > 3 nm (m) {}, silently wrong (X) {}",
+            "  {label}: works (o) {}, flags (f) {}, MAE > 3 nm (m) {}, silently wrong (X) {}; \
+             each with its |index error|",
             count[0], count[1], count[2], count[3]
         );
-        for r in rows {
-            let _ = writeln!(s, "  {r}");
+        let grid = text_grid(spec, |x, y| match point_at(run, &label, x, y) {
+            None => ".".into(),
+            Some(p) if p.index_error_abs.is_finite() => {
+                format!("{} {:.4}", Verdict::of(p).letter(), p.index_error_abs)
+            }
+            Some(p) => format!("{}      -", Verdict::of(p).letter()),
+        });
+        for line in grid {
+            let _ = writeln!(s, "  {line}");
         }
-        let mut ticks = format!("{:>margin$}", "");
-        for t in &x_ticks {
-            let _ = write!(ticks, "{t:>width$}");
-        }
-        let _ = writeln!(s, "  {ticks}");
     }
     s
 }
@@ -650,7 +742,12 @@ pub fn summary(run: &MapRun) -> String {
 pub fn write_stability_maps(dir: &Path, run: &MapRun) -> Result<Vec<std::path::PathBuf>> {
     let spec = &run.spec;
     let x_ticks: Vec<String> = spec.x_values.iter().map(|&v| spec.x.tick(v)).collect();
-    let y_ticks: Vec<String> = spec.y_values.iter().rev().map(|&v| spec.y.tick(v)).collect();
+    let y_ticks: Vec<String> = spec
+        .y_values
+        .iter()
+        .rev()
+        .map(|&v| spec.y.tick(v))
+        .collect();
     let mut written = Vec::new();
     for label in labels(run) {
         let grid = |f: fn(&Point) -> f64| -> Vec<f64> {

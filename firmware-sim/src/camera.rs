@@ -279,3 +279,84 @@ impl SoftwareCamera {
         ])
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 16-bit sensor without vignetting, with `noise` added to its `[sensor]` table.
+    fn camera(noise: &str) -> SoftwareCamera {
+        let text = format!(
+            r#"
+seed = 3
+[film]
+index = 1.38
+[film.thickness]
+base_nm = 500.0
+gradient_nm = [40.0, 0.0]
+[substrate]
+index = 1.52
+[rig]
+angles_deg = [10.0, 40.0]
+bands_nm = [420.0, 720.0, 30.0]
+fwhm_nm = 4.0
+[sensor]
+width = 64
+height = 8
+bit_depth = 16
+white_counts = 40000.0
+dark_counts = 8000.0
+vignetting = 0.0
+{noise}
+"#
+        );
+        SoftwareCamera::new(Scene::from_toml(&text, "t").expect("scene"))
+    }
+
+    /// Calibrated minus true reflectance at every pixel of every band and angle.
+    fn errors(cam: &SoftwareCamera) -> Vec<f64> {
+        let w = cam.width();
+        let (mut raw, mut white, mut dark, mut truth) =
+            (vec![0u16; w], vec![0f32; w], vec![0f32; w], vec![0f32; w]);
+        let mut out = Vec::new();
+        for a in 0..cam.scene().angles_deg.len() {
+            for b in 0..cam.scene().bands_nm.len() {
+                for row in 0..cam.height() {
+                    cam.raw_row(a, b, row, &mut raw);
+                    cam.white_row(a, b, row, &mut white);
+                    cam.dark_row(a, b, row, &mut dark);
+                    cam.reflectance_row(a, b, row, &mut truth);
+                    for c in 0..w {
+                        let r = (f64::from(raw[c]) - f64::from(dark[c]))
+                            / f64::from(white[c] - dark[c]);
+                        out.push(r - f64::from(truth[c]));
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn reflectance_noise_has_the_set_sigma_and_exact_references() {
+        let e = errors(&camera("reflectance_noise_percent = 1.5"));
+        let n = e.len() as f64;
+        let mean = e.iter().sum::<f64>() / n;
+        let rms = (e.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+        // 11 bands x 2 angles x 512 pixels: the rms is known to about 1 %.
+        assert!(mean.abs() < 0.0005, "mean {mean}");
+        assert!((rms - 0.015).abs() < 0.0006, "rms {rms}");
+    }
+
+    #[test]
+    fn reflectance_noise_zero_leaves_only_the_adc_rounding() {
+        let e = errors(&camera("reflectance_noise_percent = 0.0"));
+        // Half a count of the dimmest band's white (0.75 x 40000 counts).
+        let half_count = 0.5 / (0.75 * 40000.0);
+        let worst = e.iter().fold(0f64, |m, x| m.max(x.abs()));
+        assert!(worst <= half_count * 1.001, "worst {worst}");
+        // The shot-noise sensor, for contrast, is far noisier.
+        let shot = errors(&camera(""));
+        assert!(shot.iter().any(|x| x.abs() > 100.0 * half_count));
+    }
+}
