@@ -811,7 +811,11 @@ pub fn write_stability_maps(dir: &Path, run: &MapRun) -> Result<Vec<std::path::P
             spec.name,
             label.replace('/', "-")
         ));
-        let title = format!("{label}: where it works ({})", spec.name);
+        let title = format!(
+            "{label}: where it works ({}; otherwise {})",
+            spec.name,
+            spec.base.describe()
+        );
         write_heatmap_panels_png(&path, &title, &panels).map_err(|e| anyhow!("{e}"))?;
         written.push(path);
     }

@@ -6,7 +6,7 @@
 //!
 //! Measured figures are in each test's comment (filmscope's worst cell of the map).
 
-use filmscope::chart::{run_map, settings, stability_maps, Cell, MapRun};
+use filmscope::chart::{run_map, settings, stability_maps, Axis, Cell, GridScene, MapSpec};
 
 /// Filmscope's tolerances on one map, where it reports any pixel.
 struct Tolerance {
@@ -16,21 +16,22 @@ struct Tolerance {
     index: f64,
 }
 
-/// Runs the `--quick` map `name` with filmscope and the paper's method.
-fn run(name: &str) -> MapRun {
+/// The `--quick` map `name`.
+fn quick(name: &str) -> MapSpec {
+    stability_maps(true)
+        .into_iter()
+        .find(|m| m.name == name)
+        .expect("map")
+}
+
+/// Runs `spec` with filmscope and the paper's method and checks filmscope's cells.
+fn check(spec: &MapSpec, tol: Tolerance) {
     let chosen: Vec<_> = settings(true)
         .into_iter()
         .filter(|s| s.label == "filmscope" || s.label == "paper")
         .collect();
-    let spec = stability_maps(true)
-        .into_iter()
-        .find(|m| m.name == name)
-        .expect("map");
-    run_map(&spec, &chosen, &|_| {}).expect("map runs")
-}
-
-fn check(name: &str, tol: Tolerance) {
-    let map = run(name);
+    let map = run_map(spec, &chosen, &|_| {}).expect("map runs");
+    let name = &spec.name;
     let (x, y) = (map.spec.x, map.spec.y);
     let at = |c: &Cell| format!("{name} {:?} {} {:?} {}", y, c.y, x, c.x);
     for c in &map.cells {
@@ -92,7 +93,7 @@ fn check(name: &str, tol: Tolerance) {
 #[test]
 fn index_thickness() {
     check(
-        "index-thickness",
+        &quick("index-thickness"),
         Tolerance {
             mae_nm: 5.0,
             index: 0.01,
@@ -106,7 +107,7 @@ fn index_thickness() {
 #[test]
 fn fwhm_thickness() {
     check(
-        "fwhm-thickness",
+        &quick("fwhm-thickness"),
         Tolerance {
             mae_nm: 6.0,
             index: 0.01,
@@ -120,7 +121,7 @@ fn fwhm_thickness() {
 #[test]
 fn noise_index() {
     check(
-        "noise-index",
+        &quick("noise-index"),
         Tolerance {
             mae_nm: 2.5,
             index: 0.006,
@@ -130,13 +131,13 @@ fn noise_index() {
 
 /// 2 / 5 angles from 10 deg over 10 / 40 deg, ZnS-like n 2.35 at 500 nm.
 /// Measured: MAE <= 0.99 nm, index error <= 0.0042, every pixel valid, even with two
-/// angles 10 deg apart.
+/// angles 10 deg apart (index error 0.0000, MAE 0.08 nm).
 #[test]
 fn angles() {
     check(
-        "angles",
+        &quick("angles"),
         Tolerance {
-            mae_nm: 1.5,
+            mae_nm: 1.3,
             index: 0.006,
         },
     );
@@ -144,14 +145,38 @@ fn angles() {
 
 /// Band step 1 / 4 / 10 nm x 150 / 1500 nm at n 1.38, 4 nm FWHM.
 /// Measured: MAE <= 0.76 nm, index error <= 0.0004 where it reports; a 10 nm step over
-/// 1500 nm is mostly flagged (undersampled fringes), none silently wrong.
+/// 1500 nm (a fringe period of about 4 steps at 420 nm) is flagged whole, index error 0.0150
+/// (the paper's method reports it: MAE 233.50 nm, 99.48 % silently wrong).
 #[test]
 fn band_step_thickness() {
     check(
-        "band-step-thickness",
+        &quick("band-step-thickness"),
         Tolerance {
-            mae_nm: 1.5,
-            index: 0.002,
+            mae_nm: 1.0,
+            index: 0.001,
+        },
+    );
+}
+
+/// Solver finding, reported and not fixed here (the solver is being rewritten elsewhere): a
+/// film just above the substrate's index under 1 % reflectance noise gets wrong orders that
+/// neither the order choice nor the full-spectrum check catches. n 1.6 on 1.52, 500 nm, 1 %
+/// (this seed, 7): 68.23 % of the pixels valid and about 170 nm (one order) off, MAE 163.66
+/// nm, index -0.0071 (`filmscope eval` on `GridScene::toml`); seeds 3 and 4: 72.92 % and
+/// 33.33 %, seeds 1 and 2: none. Remove the `ignore` once the solver passes it.
+#[test]
+#[ignore = "solver finding: wrong orders near the substrate's index under 1 % noise"]
+fn wrong_orders_near_the_substrate_index_under_one_percent_noise() {
+    check(
+        &MapSpec::new(
+            "near-substrate",
+            GridScene::default(),
+            (Axis::Index, &[1.6]),
+            (Axis::Noise, &[1.0]),
+        ),
+        Tolerance {
+            mae_nm: 3.0,
+            index: 0.006,
         },
     );
 }
