@@ -4,6 +4,11 @@
 //! Every point is a real run: a scene rendered once by the software camera (raw counts with
 //! noise, calibrated), replayed from memory to every method and setting, timed from the first
 //! row to the maps, and scored against the scene's truth.
+//!
+//! A stability map ([`MapSpec`]) sweeps two knobs of a [`GridScene`] (film index, thickness,
+//! FWHM, reflectance noise, number and span of the angles, band step; [`Axis`]) and runs every
+//! setting in every cell ([`run_map`]); [`summary`] prints where each setting works
+//! ([`Verdict`]) and [`write_stability_maps`] draws one heat-map figure per setting.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -198,24 +203,40 @@ const IDEAL_WHITE_COUNTS: f64 = 40000.0;
 const IDEAL_DARK_COUNTS: f64 = 8000.0;
 
 impl GridScene {
-    /// One line: film, rig and sensor.
-    pub fn describe(&self) -> String {
-        let angles: Vec<String> = self.angles_deg.iter().map(|a| format!("{a}")).collect();
-        let noise = match self.noise_percent {
-            None => "the paper's camera noise".to_owned(),
-            Some(p) => format!("reflectance noise {p} %"),
-        };
-        format!(
-            "n {} at {} nm on {}, angles {} deg, FWHM {} nm, band step {} nm, {noise}, {}x{} px",
-            self.index,
-            self.thickness_nm,
-            self.substrate,
-            angles.join("/"),
-            self.fwhm_nm,
-            self.band_step_nm,
-            self.size[0],
-            self.size[1]
-        )
+    /// One line: film, rig and sensor, leaving out the knobs in `swept`.
+    pub fn describe(&self, swept: &[Axis]) -> String {
+        let has = |a: Axis| swept.contains(&a);
+        let mut parts = Vec::new();
+        match (has(Axis::Index), has(Axis::Thickness)) {
+            (false, false) => parts.push(format!("n {} at {} nm", self.index, self.thickness_nm)),
+            (false, true) => parts.push(format!("n {}", self.index)),
+            (true, false) => parts.push(format!("{} nm", self.thickness_nm)),
+            (true, true) => parts.push("films".to_owned()),
+        }
+        parts[0].push_str(&format!(" on {}", self.substrate));
+        match (has(Axis::AngleCount), has(Axis::AngleSpan)) {
+            (false, false) => {
+                let angles: Vec<String> = self.angles_deg.iter().map(|a| format!("{a}")).collect();
+                parts.push(format!("angles {} deg", angles.join("/")));
+            }
+            _ => parts.push(format!(
+                "angles evenly from {} deg",
+                self.angles_deg.first().copied().unwrap_or(f64::NAN)
+            )),
+        }
+        if !has(Axis::Fwhm) {
+            parts.push(format!("FWHM {} nm", self.fwhm_nm));
+        }
+        if !has(Axis::BandStep) {
+            parts.push(format!("band step {} nm", self.band_step_nm));
+        }
+        match (has(Axis::Noise), self.noise_percent) {
+            (true, _) => parts.push("ideal 16-bit sensor".to_owned()),
+            (false, None) => parts.push("the paper's camera noise".to_owned()),
+            (false, Some(p)) => parts.push(format!("reflectance noise {p} %")),
+        }
+        parts.push(format!("{}x{} px", self.size[0], self.size[1]));
+        parts.join(", ")
     }
 
     /// The smallest shift of a fringe at `lambda_nm` between neighbouring angles (angles
@@ -314,7 +335,7 @@ impl Axis {
             Self::Thickness => "thickness, nm",
             Self::Fwhm => "FWHM, nm",
             Self::Noise => "noise, % (1 sigma)",
-            Self::AngleCount => "angles",
+            Self::AngleCount => "number of angles",
             Self::AngleSpan => "angle span, deg",
             Self::BandStep => "band step, nm",
         }
@@ -432,7 +453,8 @@ pub fn stability_maps(quick: bool) -> Vec<MapSpec> {
         ];
     }
     let thicknesses = [50.0, 100.0, 200.0, 400.0, 700.0, 1000.0, 1500.0, 2000.0];
-    let indices = [1.2, 1.4, 1.6, 1.8, 2.0, 2.2, 2.4, 2.6, 2.8];
+    // 0.2 apart, and 1.5 next to the substrate's 1.52.
+    let indices = [1.2, 1.4, 1.5, 1.6, 1.8, 2.0, 2.2, 2.4, 2.6, 2.8];
     vec![
         MapSpec::new(
             "index-thickness",
@@ -449,10 +471,7 @@ pub fn stability_maps(quick: bool) -> Vec<MapSpec> {
         MapSpec::new(
             "noise-index",
             base.clone(),
-            (
-                Axis::Index,
-                &[1.2, 1.4, 1.5, 1.6, 1.7, 1.8, 2.0, 2.2, 2.4, 2.6, 2.8],
-            ),
+            (Axis::Index, &indices),
             (Axis::Noise, &[0.0, 0.25, 0.5, 1.0, 2.0, 3.0]),
         ),
         MapSpec::new(
@@ -679,13 +698,13 @@ pub fn summary(run: &MapRun) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{}: {} (rows) x {} (columns), {} cells, {:.0} s; otherwise {}",
+        "{}: {} (rows) x {} (columns), {} cells, {:.0} s; {}",
         spec.name,
         spec.y.label(),
         spec.x.label(),
         spec.x_values.len() * spec.y_values.len(),
         run.seconds,
-        spec.base.describe()
+        spec.base.describe(&[spec.x, spec.y])
     );
     let ratio = |x: f64, y: f64| {
         let g = spec.cell_scene(x, y);
@@ -812,9 +831,9 @@ pub fn write_stability_maps(dir: &Path, run: &MapRun) -> Result<Vec<std::path::P
             label.replace('/', "-")
         ));
         let title = format!(
-            "{label}: where it works ({}; otherwise {})",
+            "{label}: where it works ({}; {})",
             spec.name,
-            spec.base.describe()
+            spec.base.describe(&[spec.x, spec.y])
         );
         write_heatmap_panels_png(&path, &title, &panels).map_err(|e| anyhow!("{e}"))?;
         written.push(path);

@@ -180,3 +180,26 @@ fn wrong_orders_near_the_substrate_index_under_one_percent_noise() {
         },
     );
 }
+
+/// The same solver finding under the paper's camera noise (no extra noise): n 1.55 on 1.52,
+/// 500 nm, seed 3: 50.00 % of the pixels valid and wrong (MAE 138.38 nm, index -0.0035);
+/// seed 2: 23.44 %; seeds 1, 4 and 7: none. Remove the `ignore` once the solver passes it.
+#[test]
+#[ignore = "solver finding: wrong orders near the substrate's index, paper's camera"]
+fn wrong_orders_near_the_substrate_index_with_the_paper_camera() {
+    check(
+        &MapSpec::new(
+            "near-substrate",
+            GridScene {
+                seed: 3,
+                ..GridScene::default()
+            },
+            (Axis::Index, &[1.55]),
+            (Axis::Thickness, &[500.0]),
+        ),
+        Tolerance {
+            mae_nm: 3.0,
+            index: 0.006,
+        },
+    );
+}
