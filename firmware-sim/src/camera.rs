@@ -284,33 +284,33 @@ impl SoftwareCamera {
 mod tests {
     use super::*;
 
-    /// A 16-bit sensor without vignetting, with `noise` added to its `[sensor]` table.
-    fn camera(noise: &str) -> SoftwareCamera {
-        let text = format!(
-            r#"
-seed = 3
-[film]
-index = 1.38
-[film.thickness]
-base_nm = 500.0
-gradient_nm = [40.0, 0.0]
-[substrate]
-index = 1.52
-[rig]
-angles_deg = [10.0, 40.0]
-bands_nm = [420.0, 720.0, 30.0]
-fwhm_nm = 4.0
-[sensor]
-width = 64
-height = 8
-bit_depth = 16
-white_counts = 40000.0
-dark_counts = 8000.0
-vignetting = 0.0
-{noise}
-"#
+    /// The rig's scene (`config/scenes/rig-tiny.toml`) seen by a 16-bit sensor without
+    /// vignetting or defects, its reflectance noise `noise_percent` (`None`: shot and read).
+    fn camera(noise_percent: Option<f64>) -> SoftwareCamera {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../config/scenes/rig-tiny.toml"
         );
-        SoftwareCamera::new(Scene::from_toml(&text, "t").expect("scene"))
+        let text = std::fs::read_to_string(path).expect("rig-tiny scene");
+        let mut doc: toml::Table = text.parse().expect("TOML");
+        let sensor = doc
+            .get_mut("sensor")
+            .and_then(|s| s.as_table_mut())
+            .expect("[sensor]");
+        for (key, value) in [
+            ("bit_depth", toml::Value::Integer(16)),
+            ("white_counts", toml::Value::Float(40000.0)),
+            ("dark_counts", toml::Value::Float(8000.0)),
+            ("vignetting", toml::Value::Float(0.0)),
+            ("dead_pixels", toml::Value::Integer(0)),
+            ("hot_pixels", toml::Value::Integer(0)),
+        ] {
+            sensor.insert(key.into(), value);
+        }
+        if let Some(p) = noise_percent {
+            sensor.insert("reflectance_noise_percent".into(), toml::Value::Float(p));
+        }
+        SoftwareCamera::new(Scene::from_toml(&doc.to_string(), "t").expect("scene"))
     }
 
     /// Calibrated minus true reflectance at every pixel of every band and angle.
@@ -339,24 +339,24 @@ vignetting = 0.0
 
     #[test]
     fn reflectance_noise_has_the_set_sigma_and_exact_references() {
-        let e = errors(&camera("reflectance_noise_percent = 1.5"));
+        let e = errors(&camera(Some(1.5)));
         let n = e.len() as f64;
         let mean = e.iter().sum::<f64>() / n;
         let rms = (e.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
-        // 11 bands x 2 angles x 512 pixels: the rms is known to about 1 %.
-        assert!(mean.abs() < 0.0005, "mean {mean}");
-        assert!((rms - 0.015).abs() < 0.0006, "rms {rms}");
+        // 101 bands x 4 angles x 768 pixels: the rms is known to about 0.1 %.
+        assert!(mean.abs() < 0.0002, "mean {mean}");
+        assert!((rms - 0.015).abs() < 0.0001, "rms {rms}");
     }
 
     #[test]
     fn reflectance_noise_zero_leaves_only_the_adc_rounding() {
-        let e = errors(&camera("reflectance_noise_percent = 0.0"));
+        let e = errors(&camera(Some(0.0)));
         // Half a count of the dimmest band's white (0.75 x 40000 counts).
         let half_count = 0.5 / (0.75 * 40000.0);
         let worst = e.iter().fold(0f64, |m, x| m.max(x.abs()));
         assert!(worst <= half_count * 1.001, "worst {worst}");
         // The shot-noise sensor, for contrast, is far noisier.
-        let shot = errors(&camera(""));
+        let shot = errors(&camera(None));
         assert!(shot.iter().any(|x| x.abs() > 100.0 * half_count));
     }
 }
