@@ -341,6 +341,20 @@ impl Axis {
         }
     }
 
+    /// A value with its name and unit, in text: `n 1.38`, `d 500 nm`, `5 angles`.
+    pub fn at(self, value: f64) -> String {
+        let v = self.tick(value);
+        match self {
+            Self::Index => format!("n {v}"),
+            Self::Thickness => format!("d {v} nm"),
+            Self::Fwhm => format!("FWHM {v} nm"),
+            Self::Noise => format!("noise {v} %"),
+            Self::AngleCount => format!("{v} angles"),
+            Self::AngleSpan => format!("span {v} deg"),
+            Self::BandStep => format!("step {v} nm"),
+        }
+    }
+
     /// A value as a tick label.
     pub fn tick(self, value: f64) -> String {
         match self {
@@ -691,7 +705,8 @@ fn text_grid(spec: &MapSpec, text: impl Fn(f64, f64) -> String) -> Vec<String> {
 /// A text summary of `run`: the base scene; where the map changes it, eq. 18's smallest peak
 /// shift between neighbouring angles at 550 nm over the FWHM; then per setting, how many
 /// cells each [`Verdict`] got and a map of verdict letters with the index error (rows as on
-/// the heat maps, highest y on top).
+/// the heat maps, highest y on top), and, where at most a quarter of the cells do not work,
+/// those cells' figures.
 pub fn summary(run: &MapRun) -> String {
     use std::fmt::Write as _;
     let spec = &run.spec;
@@ -750,6 +765,28 @@ pub fn summary(run: &MapRun) -> String {
         });
         for line in grid {
             let _ = writeln!(s, "  {line}");
+        }
+        // Where a setting mostly works, the cells where it does not, in full.
+        let failing: Vec<&Cell> = run
+            .cells
+            .iter()
+            .filter(|c| c.point.label == label && Verdict::of(&c.point) != Verdict::Works)
+            .collect();
+        if failing.len() * 4 <= spec.x_values.len() * spec.y_values.len() {
+            for c in failing {
+                let p = &c.point;
+                let _ = writeln!(
+                    s,
+                    "    {}, {}: {}  n err {:.4}  MAE {:.2} nm  valid {:.1} %  silent {:.2} %",
+                    spec.y.at(c.y),
+                    spec.x.at(c.x),
+                    Verdict::of(p).letter(),
+                    p.index_error_abs,
+                    p.thickness_mae_nm,
+                    100.0 * p.valid_fraction,
+                    100.0 * p.silent_failure_rate
+                );
+            }
         }
     }
     s
