@@ -205,8 +205,9 @@ fn wrong_orders_near_the_substrate_index_with_the_paper_camera() {
 }
 
 /// Solver finding, reported and not fixed here: a thick film next to the substrate's index
-/// has fringes of about 0.5 % in reflectance, and the spectrum search (meant for films
-/// without a fringe pair) takes it for a thin one and reports every pixel. n 1.5 on 1.52,
+/// has faint fringes (peak to peak 4 |r12 r23| = 0.5 % in reflectance at normal incidence,
+/// eq. 4), and the spectrum search (meant for films without a fringe pair) takes it for a
+/// thin one and reports every pixel. n 1.5 on 1.52,
 /// 2000 nm, the paper's camera, seed 7: 100.00 % valid and wrong, MAE 1900.03 nm, index
 /// +0.0093 (`estimate`: n 1.5093, median 100.7 nm, every pixel `from_spectrum_search`, index
 /// sigma 3.9e-5); seed 1: 26.56 %. Remove the `ignore` once the solver passes it.
