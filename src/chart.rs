@@ -705,7 +705,7 @@ fn text_grid(spec: &MapSpec, text: impl Fn(f64, f64) -> String) -> Vec<String> {
 /// A text summary of `run`: the base scene; where the map changes it, eq. 18's smallest peak
 /// shift between neighbouring angles at 550 nm over the FWHM; then per setting, how many
 /// cells each [`Verdict`] got and a map of verdict letters with the index error (rows as on
-/// the heat maps, highest y on top), and, where at most a quarter of the cells do not work,
+/// the heat maps, highest y on top), and, where at most a third of the cells do not work,
 /// those cells' figures.
 pub fn summary(run: &MapRun) -> String {
     use std::fmt::Write as _;
@@ -772,7 +772,7 @@ pub fn summary(run: &MapRun) -> String {
             .iter()
             .filter(|c| c.point.label == label && Verdict::of(&c.point) != Verdict::Works)
             .collect();
-        if failing.len() * 4 <= spec.x_values.len() * spec.y_values.len() {
+        if failing.len() * 3 <= spec.x_values.len() * spec.y_values.len() {
             for c in failing {
                 let p = &c.point;
                 let _ = writeln!(
