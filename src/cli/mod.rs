@@ -130,7 +130,7 @@ enum Command {
         /// Output folder (stability-*.png and stability.json).
         #[arg(long, default_value = "docs")]
         out: PathBuf,
-        /// Grids of 2-3 x 2-3 cells instead of up to 9 x 8.
+        /// Grids of 2-3 x 2-3 cells instead of up to 10 x 8.
         #[arg(long)]
         quick: bool,
     },
