@@ -1,31 +1,44 @@
-//! Stability where methods fail (issue: speed against accuracy): on a coarse film index x
-//! thickness grid, filmscope is within tolerance or flags the pixel (silent failures <= 0.5 %),
-//! and is at least as accurate as the paper's method wherever that works.
+//! Stability where methods fail (issue: speed against accuracy): on the coarse maps of
+//! `filmscope stability --quick` (film index x thickness, FWHM x thickness, noise x index,
+//! angle count x span, band step x thickness; 16 x 12 px), filmscope is within tolerance or
+//! flags the pixel (silent failures <= 0.5 %), and is at least as accurate as the paper's
+//! method wherever that works.
 //!
-//! Measured (16 x 12 px, substrate 1.52, paper's noise): filmscope solves 7 of the 9 cells
-//! (MAE 0.12-4.1 nm, index error <= 0.0082) and flags every pixel of the other two (n 1.38 at
-//! 150 nm: no fringe pair in the band; n 2.35 at 150 nm: no model explains the spectra). The
-//! paper's method reports every pixel and is more than 90 % silently wrong in 8 of the 9.
+//! Measured figures are in each test's comment (filmscope's worst cell of the map).
 
-use filmscope::chart::{index_thickness_grid, settings, Cell};
+use filmscope::chart::{run_map, settings, stability_maps, Axis, Cell, GridScene, MapSpec};
 
-fn grid() -> Vec<Cell> {
+/// Filmscope's tolerances on one map, where it reports any pixel.
+struct Tolerance {
+    /// Thickness MAE over the valid pixels, nm.
+    mae_nm: f64,
+    /// Absolute index error.
+    index: f64,
+}
+
+/// The `--quick` map `name`.
+fn quick(name: &str) -> MapSpec {
+    stability_maps(true)
+        .into_iter()
+        .find(|m| m.name == name)
+        .expect("map")
+}
+
+/// Runs `spec` with filmscope and the paper's method and checks filmscope's cells.
+fn check(spec: &MapSpec, tol: Tolerance) {
     let chosen: Vec<_> = settings(true)
         .into_iter()
         .filter(|s| s.label == "filmscope" || s.label == "paper")
         .collect();
-    index_thickness_grid(&[1.38, 1.8, 2.35], &[150.0, 500.0, 1500.0], &chosen).expect("grid")
-}
-
-#[test]
-fn filmscope_is_accurate_or_flags_and_never_worse_than_paper_where_paper_works() {
-    let cells = grid();
-    for c in &cells {
+    let map = run_map(spec, &chosen, &|_| {}).expect("map runs");
+    let name = &spec.name;
+    let (x, y) = (map.spec.x, map.spec.y);
+    let at = |c: &Cell| format!("{name} {:?} {} {:?} {}", y, c.y, x, c.x);
+    for c in &map.cells {
         let p = &c.point;
         eprintln!(
-            "n {:.2} d {:>6.0} {:<10} n err {:.4} MAE {:>8.2} valid {:>5.1}% silent {:.2}%",
-            c.index,
-            c.thickness_nm,
+            "{:<48} {:<10} n err {:.4} MAE {:>8.2} valid {:>5.1}% silent {:.2}%",
+            at(c),
             p.method,
             p.index_error_abs,
             p.thickness_mae_nm,
@@ -33,35 +46,32 @@ fn filmscope_is_accurate_or_flags_and_never_worse_than_paper_where_paper_works()
             100.0 * p.silent_failure_rate
         );
     }
-    for c in cells.iter().filter(|c| c.point.method == "filmscope") {
+    for c in map.cells.iter().filter(|c| c.point.method == "filmscope") {
         let p = &c.point;
-        let at = format!("n {} d {}", c.index, c.thickness_nm);
+        let at = at(c);
         assert!(
             p.silent_failure_rate <= 0.005,
             "{at}: silent {}",
             p.silent_failure_rate
         );
-        // 192 pixels pool a noisier index than the paper scenes' 6144 (measured here: n 1.38
-        // d 500 gives index error 0.0065, MAE 4.1 nm), hence 5 nm rather than 3.
         if p.valid_fraction > 0.0 {
             assert!(
-                p.thickness_mae_nm <= 5.0,
+                p.thickness_mae_nm <= tol.mae_nm,
                 "{at}: MAE {}",
                 p.thickness_mae_nm
             );
             assert!(
-                p.index_error_abs <= 0.01,
+                p.index_error_abs <= tol.index,
                 "{at}: index {}",
                 p.index_error_abs
             );
         }
         // Where the paper's method works (index within 0.01, MAE within 10 nm, most pixels
         // valid), filmscope must be at least as accurate and solve as many pixels.
-        let paper = cells
+        let paper = map
+            .cells
             .iter()
-            .find(|o| {
-                o.point.method == "paper" && o.index == c.index && o.thickness_nm == c.thickness_nm
-            })
+            .find(|o| o.point.method == "paper" && o.x == c.x && o.y == c.y)
             .expect("paper cell");
         let q = &paper.point;
         if q.index_error_abs <= 0.01 && q.thickness_mae_nm <= 10.0 && q.valid_fraction >= 0.9 {
@@ -74,4 +84,131 @@ fn filmscope_is_accurate_or_flags_and_never_worse_than_paper_where_paper_works()
             assert!(p.valid_fraction >= 0.9, "{at}: valid {}", p.valid_fraction);
         }
     }
+}
+
+/// n 1.38 / 1.8 / 2.35 x 150 / 500 / 1500 nm (paper's camera, 4 nm FWHM).
+/// Measured: every pixel of every cell within 20 nm; worst MAE 0.60 nm (n 1.8, 1500 nm),
+/// worst index error 0.0015 (n 1.8, 150 nm); at least 99.0 % valid everywhere.
+#[test]
+fn index_thickness() {
+    check(
+        &quick("index-thickness"),
+        Tolerance {
+            mae_nm: 0.8,
+            index: 0.0025,
+        },
+    );
+}
+
+/// FWHM 2 / 8 / 20 nm x 150 / 500 / 1500 nm at n 1.38.
+/// Measured: worst MAE 1.87 nm and index error 0.0013, both at 20 nm FWHM over 1500 nm
+/// (the passband washing the thick film's fringes out); at least 97.9 % valid everywhere.
+#[test]
+fn fwhm_thickness() {
+    check(
+        &quick("fwhm-thickness"),
+        Tolerance {
+            mae_nm: 2.5,
+            index: 0.002,
+        },
+    );
+}
+
+/// Gaussian reflectance noise 0 / 1 / 3 % x n 1.38 / 2.35 at 500 nm (ideal 16-bit sensor).
+/// Measured: noise 0 gives MAE 0.00 / 0.06 nm; 3 % gives MAE 1.97 nm (n 1.38) and
+/// 0.43 nm (n 2.35), index errors <= 0.0011, every pixel valid.
+#[test]
+fn noise_index() {
+    check(
+        &quick("noise-index"),
+        Tolerance {
+            mae_nm: 2.5,
+            index: 0.0015,
+        },
+    );
+}
+
+/// 2 / 5 angles from 10 deg over 10 / 40 deg, ZnS-like n 2.35 at 500 nm.
+/// Measured: MAE 0.07-0.08 nm, index error <= 0.0003, every pixel valid, even with two
+/// angles 10 deg apart (index error 0.0000).
+#[test]
+fn angles() {
+    check(
+        &quick("angles"),
+        Tolerance {
+            mae_nm: 0.15,
+            index: 0.0005,
+        },
+    );
+}
+
+/// Band step 1 / 4 / 10 nm x 150 / 1500 nm at n 1.38, 4 nm FWHM.
+/// Measured: MAE <= 0.86 nm, index error <= 0.0004; a 10 nm step over 1500 nm (a fringe
+/// period of about 4 steps at 420 nm) leaves 84.4 % valid (MAE 0.86 nm; the paper's method
+/// reports it: MAE 233.50 nm, 99.48 % silently wrong).
+#[test]
+fn band_step_thickness() {
+    check(
+        &quick("band-step-thickness"),
+        Tolerance {
+            mae_nm: 1.2,
+            index: 0.0006,
+        },
+    );
+}
+
+/// Checks the one cell `x`, `y` over `base` as a cell of a map (the cases next to the
+/// substrate's index below: a working cell's 3 nm MAE, and an index within 0.006).
+fn check_cell(base: GridScene, x: (Axis, f64), y: (Axis, f64)) {
+    let spec = MapSpec::new("near-substrate", base, (x.0, &[x.1]), (y.0, &[y.1]));
+    check(
+        &spec,
+        Tolerance {
+            mae_nm: 3.0,
+            index: 0.006,
+        },
+    );
+}
+
+/// Solver finding, reported and not fixed here (the solver is being rewritten elsewhere): a
+/// film just above the substrate's index under 1 % reflectance noise gets a few wrong orders
+/// that neither the order choice nor the full-spectrum check catches. n 1.6 on 1.52, 500 nm,
+/// 1 % (this seed, 7): 2.08 % of the pixels valid and wrong (RMSE 66.17 nm against MAE
+/// 10.77 nm: a few pixels an order off), index -0.0007 (`filmscope eval` on
+/// `GridScene::toml`); seed 4 the same, seeds 1-3 none. Before the solver changes up to
+/// d78b4a8 it was 68.23 % (MAE 163.66 nm). Remove the `ignore` once the solver passes it.
+#[test]
+#[ignore = "solver finding: wrong orders near the substrate's index under 1 % noise"]
+fn wrong_orders_near_the_substrate_index_under_one_percent_noise() {
+    check_cell(GridScene::default(), (Axis::Index, 1.6), (Axis::Noise, 1.0));
+}
+
+/// Near the substrate's index under the paper's camera noise: n 1.55 on 1.52, 500 nm, seed 3
+/// was 50.00 % valid and wrong (MAE 138.38 nm, index -0.0035; seed 2: 23.44 %) before the
+/// solver changes up to d78b4a8; now MAE 1.12 nm, index -0.0001, every pixel valid (seeds 1,
+/// 2, 4 and 7 alike).
+#[test]
+fn orders_near_the_substrate_index_with_the_paper_camera() {
+    let seed_3 = GridScene {
+        seed: 3,
+        ..GridScene::default()
+    };
+    check_cell(seed_3, (Axis::Index, 1.55), (Axis::Thickness, 500.0));
+}
+
+/// Solver finding, reported and not fixed here: a thick film next to the substrate's index
+/// has faint fringes (peak to peak 4 |r12 r23| = 0.5 % in reflectance at normal incidence,
+/// eq. 4), and the spectrum search (meant for films without a fringe pair) takes it for a
+/// thin one and reports every pixel. n 1.5 on 1.52, 2000 nm, the paper's camera, seed 7:
+/// 100.00 % valid and wrong, MAE 1900.03 nm, index +0.0093 (`estimate`: n 1.5093, median
+/// 100.7 nm, every pixel `from_spectrum_search`, index sigma 3.9e-5); seeds 1-3 the same,
+/// seed 4 58.33 %. Remove the `ignore` once the solver passes it.
+#[test]
+#[ignore = "solver finding: spectrum search takes a thick near-substrate film for a thin one"]
+fn spectrum_search_takes_a_thick_film_next_to_the_substrate_index_for_a_thin_one() {
+    check_cell(
+        GridScene::default(),
+        (Axis::Index, 1.5),
+        (Axis::Thickness, 2000.0),
+    );
 }

@@ -1,6 +1,8 @@
 //! The software camera: renders the scene's band frames row by row as the rig would see
 //! them through the LCTF, as raw 12-bit counts with shot and read noise, dark level,
 //! vignetting, dead and hot pixels and saturation, or noise-free as true band reflectance.
+//! A scene may replace the shot and read noise by Gaussian noise of a set reflectance
+//! (`reflectance_noise_percent`, with exact references), for sweeps over the noise level.
 //!
 //! Every row is rendered from its own seed `(scene seed, angle, band, row, stream)`, so rows
 //! may be asked for in any order (BSQ, BIL, a pipeline, a file writer) and come out the same.
@@ -34,6 +36,24 @@ struct ColumnModels(Mutex<Option<(usize, usize, Vec<BandModel>)>>);
 impl Clone for ColumnModels {
     fn clone(&self) -> Self {
         Self::default()
+    }
+}
+
+/// What [`SoftwareCamera::expose`] renders.
+#[derive(Clone, Copy, Debug)]
+enum Exposure {
+    /// One exposure of the sample.
+    Sample,
+    /// A white or dark reference: the mean of `frames` exposures.
+    Reference { frames: u32 },
+}
+
+impl Exposure {
+    fn frames(self) -> u32 {
+        match self {
+            Self::Sample => 1,
+            Self::Reference { frames } => frames,
+        }
     }
 }
 
@@ -181,13 +201,15 @@ impl SoftwareCamera {
             .map(|k| self.defects[k].1)
     }
 
-    /// One noisy frame's worth of counts for a row of targets of reflectance `r(col)`,
-    /// averaged over `frames` exposures.
+    /// Counts for a row of targets of reflectance `r(col)`: one noisy exposure of the
+    /// sample, or the mean of a reference's exposures. With the scene's
+    /// `reflectance_noise_percent`, the sample gets that Gaussian reflectance noise and the
+    /// references none.
     fn expose(
         &self,
         band: usize,
         row: usize,
-        frames: u32,
+        exposure: Exposure,
         rng: &mut Rng,
         r: impl Fn(usize) -> f64,
         out: &mut [f32],
@@ -199,30 +221,44 @@ impl SoftwareCamera {
             let value = match self.defect_at(row * w + col) {
                 Some(Defect::Dead) => s.dark_counts,
                 Some(Defect::Hot) => sat,
-                None => {
-                    let mean = self.mean_counts(band, col, row, r(col));
-                    let signal = (mean - s.dark_counts).max(0.0);
-                    if frames == 1 {
-                        let electrons = rng.poisson(signal * s.gain_e_per_count);
-                        let counts = s.dark_counts
-                            + electrons / s.gain_e_per_count
-                            + s.read_noise_counts * rng.normal();
-                        counts.round().clamp(0.0, sat)
-                    } else {
-                        // The mean of `frames` exposures: shot and read noise shrink by
-                        // sqrt(frames); drawn at once (the central limit of the per-frame
-                        // Poisson and Gaussian draws) rather than frame by frame.
-                        let k = f64::from(frames);
-                        let shot = (signal / s.gain_e_per_count / k).sqrt();
-                        let read = s.read_noise_counts / k.sqrt();
-                        let counts = s.dark_counts
-                            + signal
-                            + (shot * shot + read * read).sqrt() * rng.normal();
-                        counts.clamp(0.0, sat)
+                None => match (s.reflectance_noise_percent, exposure) {
+                    (Some(_), Exposure::Reference { .. }) => {
+                        self.mean_counts(band, col, row, r(col))
                     }
-                }
+                    (Some(percent), Exposure::Sample) => {
+                        let noisy = r(col) + 0.01 * percent * rng.normal();
+                        let counts = self.mean_counts(band, col, row, noisy);
+                        counts.round().clamp(0.0, sat)
+                    }
+                    (None, _) => {
+                        let mean = self.mean_counts(band, col, row, r(col));
+                        let signal = (mean - s.dark_counts).max(0.0);
+                        self.shot_and_read(signal, exposure.frames(), rng)
+                            .clamp(0.0, sat)
+                    }
+                },
             };
             *o = value as f32;
+        }
+    }
+
+    /// Counts, dark included, of `signal` counts above dark with shot and read noise,
+    /// averaged over `frames` exposures (one exposure is rounded to whole counts).
+    fn shot_and_read(&self, signal: f64, frames: u32, rng: &mut Rng) -> f64 {
+        let s = &self.scene.sensor;
+        if frames == 1 {
+            let electrons = rng.poisson(signal * s.gain_e_per_count);
+            let counts =
+                s.dark_counts + electrons / s.gain_e_per_count + s.read_noise_counts * rng.normal();
+            counts.round()
+        } else {
+            // The mean of `frames` exposures: shot and read noise shrink by sqrt(frames);
+            // drawn at once (the central limit of the per-frame Poisson and Gaussian draws)
+            // rather than frame by frame.
+            let k = f64::from(frames);
+            let shot = (signal / s.gain_e_per_count / k).sqrt();
+            let read = s.read_noise_counts / k.sqrt();
+            s.dark_counts + signal + (shot * shot + read * read).sqrt() * rng.normal()
         }
     }
 
@@ -233,7 +269,14 @@ impl SoftwareCamera {
         self.reflectance_row(angle, band, row, &mut refl);
         let mut counts = vec![0f32; w];
         let mut rng = self.rng(STREAM_SAMPLE, angle, band, row);
-        self.expose(band, row, 1, &mut rng, |c| f64::from(refl[c]), &mut counts);
+        self.expose(
+            band,
+            row,
+            Exposure::Sample,
+            &mut rng,
+            |c| f64::from(refl[c]),
+            &mut counts,
+        );
         for (o, c) in out.iter_mut().zip(&counts) {
             *o = *c as u16;
         }
@@ -244,14 +287,28 @@ impl SoftwareCamera {
     pub fn white_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
         let mut rng = self.rng(STREAM_WHITE, angle, band, row);
         let frames = self.scene.sensor.white_frames;
-        self.expose(band, row, frames, &mut rng, |_| 1.0, out);
+        self.expose(
+            band,
+            row,
+            Exposure::Reference { frames },
+            &mut rng,
+            |_| 1.0,
+            out,
+        );
     }
 
     /// The dark reference row (shutter closed, `white_frames` exposures averaged), in counts.
     pub fn dark_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
         let mut rng = self.rng(STREAM_DARK, angle, band, row);
         let frames = self.scene.sensor.white_frames;
-        self.expose(band, row, frames, &mut rng, |_| 0.0, out);
+        self.expose(
+            band,
+            row,
+            Exposure::Reference { frames },
+            &mut rng,
+            |_| 0.0,
+            out,
+        );
     }
 
     fn rng(&self, stream: u64, angle: usize, band: usize, row: usize) -> Rng {
@@ -262,5 +319,86 @@ impl SoftwareCamera {
             band as u64,
             row as u64,
         ])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The rig's scene (`config/scenes/rig-tiny.toml`) seen by a 16-bit sensor without
+    /// vignetting or defects, its reflectance noise `noise_percent` (`None`: shot and read).
+    fn camera(noise_percent: Option<f64>) -> SoftwareCamera {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../config/scenes/rig-tiny.toml"
+        );
+        let text = std::fs::read_to_string(path).expect("rig-tiny scene");
+        let mut doc: toml::Table = text.parse().expect("TOML");
+        let sensor = doc
+            .get_mut("sensor")
+            .and_then(|s| s.as_table_mut())
+            .expect("[sensor]");
+        for (key, value) in [
+            ("bit_depth", toml::Value::Integer(16)),
+            ("white_counts", toml::Value::Float(40000.0)),
+            ("dark_counts", toml::Value::Float(8000.0)),
+            ("vignetting", toml::Value::Float(0.0)),
+            ("dead_pixels", toml::Value::Integer(0)),
+            ("hot_pixels", toml::Value::Integer(0)),
+        ] {
+            sensor.insert(key.into(), value);
+        }
+        if let Some(p) = noise_percent {
+            sensor.insert("reflectance_noise_percent".into(), toml::Value::Float(p));
+        }
+        SoftwareCamera::new(Scene::from_toml(&doc.to_string(), "t").expect("scene"))
+    }
+
+    /// Calibrated minus true reflectance at every pixel of every band and angle.
+    fn errors(cam: &SoftwareCamera) -> Vec<f64> {
+        let w = cam.width();
+        let (mut raw, mut white, mut dark, mut truth) =
+            (vec![0u16; w], vec![0f32; w], vec![0f32; w], vec![0f32; w]);
+        let mut out = Vec::new();
+        for a in 0..cam.scene().angles_deg.len() {
+            for b in 0..cam.scene().bands_nm.len() {
+                for row in 0..cam.height() {
+                    cam.raw_row(a, b, row, &mut raw);
+                    cam.white_row(a, b, row, &mut white);
+                    cam.dark_row(a, b, row, &mut dark);
+                    cam.reflectance_row(a, b, row, &mut truth);
+                    for c in 0..w {
+                        let r = (f64::from(raw[c]) - f64::from(dark[c]))
+                            / f64::from(white[c] - dark[c]);
+                        out.push(r - f64::from(truth[c]));
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn reflectance_noise_has_the_set_sigma_and_exact_references() {
+        let e = errors(&camera(Some(1.5)));
+        let n = e.len() as f64;
+        let mean = e.iter().sum::<f64>() / n;
+        let rms = (e.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+        // 101 bands x 4 angles x 768 pixels: the rms is known to about 0.1 %.
+        assert!(mean.abs() < 0.0002, "mean {mean}");
+        assert!((rms - 0.015).abs() < 0.0001, "rms {rms}");
+    }
+
+    #[test]
+    fn reflectance_noise_zero_leaves_only_the_adc_rounding() {
+        let e = errors(&camera(Some(0.0)));
+        // Half a count of the dimmest band's white (0.75 x 40000 counts).
+        let half_count = 0.5 / (0.75 * 40000.0);
+        let worst = e.iter().fold(0f64, |m, x| m.max(x.abs()));
+        assert!(worst <= half_count * 1.001, "worst {worst}");
+        // The shot-noise sensor, for contrast, is far noisier.
+        let shot = errors(&camera(None));
+        assert!(shot.iter().any(|x| x.abs() > 100.0 * half_count));
     }
 }

@@ -139,6 +139,7 @@ struct SensorFile {
     vignetting: Option<f64>,
     dead_pixels: Option<usize>,
     hot_pixels: Option<usize>,
+    reflectance_noise_percent: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -173,6 +174,12 @@ pub struct Sensor {
     pub dead_pixels: usize,
     /// Pixels that read saturated always.
     pub hot_pixels: usize,
+    /// Replaces the shot and read noise, if given: every sample's reflectance gets additive
+    /// Gaussian noise of this standard deviation, in percent of a perfect white's (so 1.0
+    /// is 0.01 in reflectance, whatever the pixel's signal), and the white and dark
+    /// references are exact. 0 leaves only the ADC's rounding of the sample counts
+    /// (1 / sqrt(12) count).
+    pub reflectance_noise_percent: Option<f64>,
 }
 
 impl Sensor {
@@ -324,6 +331,7 @@ impl Scene {
             vignetting: s.vignetting.unwrap_or(0.15),
             dead_pixels: s.dead_pixels.unwrap_or(0),
             hot_pixels: s.hot_pixels.unwrap_or(0),
+            reflectance_noise_percent: s.reflectance_noise_percent,
         };
         if sensor.width == 0 || sensor.height == 0 || sensor.width * sensor.height > 1 << 24 {
             return Err(format!(
@@ -351,6 +359,13 @@ impl Scene {
             return Err(
                 "[sensor] gain must be positive, read noise non-negative, white_frames >= 1".into(),
             );
+        }
+        if let Some(p) = sensor.reflectance_noise_percent {
+            if !(p.is_finite() && (0.0..=100.0).contains(&p)) {
+                return Err(format!(
+                    "[sensor] reflectance_noise_percent {p} is outside 0..100"
+                ));
+            }
         }
         if !(0.0..0.9).contains(&sensor.vignetting) {
             return Err(format!(

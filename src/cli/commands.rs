@@ -531,26 +531,31 @@ pub fn chart(scene: &Path, out: &Path, quick: bool) -> Result<()> {
 /// `filmscope stability`.
 pub fn stability(out: &Path, quick: bool) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    let (indices, thicknesses): (&[f64], &[f64]) = if quick {
-        (&[1.38, 1.8, 2.35], &[150.0, 500.0, 1500.0])
-    } else {
-        (
-            &[1.2, 1.4, 1.6, 1.8, 2.0, 2.2, 2.4, 2.6, 2.8],
-            &[50.0, 100.0, 200.0, 400.0, 700.0, 1000.0, 1500.0, 2000.0],
-        )
-    };
     let settings: Vec<_> = crate::chart::settings(true)
         .into_iter()
         .filter(|s| matches!(s.label.as_str(), "filmscope" | "paper" | "19n/8nm"))
         .collect();
-    let cells = crate::chart::index_thickness_grid(indices, thicknesses, &settings)?;
+    let t0 = std::time::Instant::now();
+    let mut runs = Vec::new();
+    for spec in crate::chart::stability_maps(quick) {
+        let run = crate::chart::run_map(&spec, &settings, &|_| {})?;
+        print!("{}", crate::chart::summary(&run));
+        for p in crate::chart::write_stability_maps(out, &run)? {
+            println!("wrote {}", p.display());
+        }
+        runs.push(run);
+    }
     crate::io::write_atomic(
         &out.join("stability.json"),
-        serde_json::to_string_pretty(&cells)?.as_bytes(),
+        serde_json::to_string_pretty(&runs)?.as_bytes(),
     )?;
-    for p in crate::chart::write_stability_maps(out, &cells)? {
-        println!("wrote {}", p.display());
-    }
+    let cells: usize = runs.iter().map(|r| r.cells.len() / settings.len()).sum();
+    println!(
+        "{} maps, {cells} cells x {} settings in {:.0} s",
+        runs.len(),
+        settings.len(),
+        t0.elapsed().as_secs_f64()
+    );
     Ok(())
 }
 

@@ -141,13 +141,13 @@ enum Command {
         #[arg(long)]
         quick: bool,
     },
-    /// Where each method works: error, flagged and silent fractions over film index x
-    /// thickness, one heat map per method.
+    /// Where each method works: error, flagged and silent fractions over film index,
+    /// thickness, FWHM, noise, angles and band step, one heat map per method and map.
     Stability {
         /// Output folder (stability-*.png and stability.json).
         #[arg(long, default_value = "docs")]
         out: PathBuf,
-        /// A 3 x 3 grid instead of 9 x 8.
+        /// Grids of 2-3 x 2-3 cells instead of up to 10 x 8.
         #[arg(long)]
         quick: bool,
     },
