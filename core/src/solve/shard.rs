@@ -261,7 +261,9 @@ impl<'a> Shard<'a> {
             .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR);
         // A pixel about to move to a neighbouring order ([`Shard::update`]) would pull the
         // index toward its wrong order: left out.
-        let hop = Self::hop_margin(solver);
+        let hop = solver
+            .noise_sigma()
+            .map(|n| ORDER_HOP_CHI2 * f64::from(n) * f64::from(n));
         let d_lo = solver.spec().thickness_range_nm[0];
         let settled =
             |p: &PixelState| hop.is_none_or(|margin| Self::better_order(p, margin, d_lo).is_none());
@@ -297,7 +299,9 @@ impl<'a> Shard<'a> {
         // An index that moved this much makes the orders chosen with the old one suspect:
         // every pixel chooses again (with this angle's extrema) and its sums restart.
         let reorder = solver.reorders();
-        let hop = Self::hop_margin(solver);
+        let hop = solver
+            .noise_sigma()
+            .map(|n| ORDER_HOP_CHI2 * f64::from(n) * f64::from(n));
         let d_lo = solver.spec().thickness_range_nm[0];
         for p in self.pixels.iter_mut() {
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
@@ -333,17 +337,6 @@ impl<'a> Shard<'a> {
                 p.anchor = p.current;
             }
         }
-    }
-
-    /// How much better a neighbouring order must fit for a pixel to move to it, in a sweep
-    /// that started from a prior index (one without re-chooses every order whenever the
-    /// index moves, and there hopping made things worse: a 100 nm film of index 2.8, whose
-    /// early extremum-shift index is far off, hopped to the wrong orders and was flagged).
-    fn hop_margin(solver: &SweepSolver) -> Option<f64> {
-        solver
-            .noise_sigma()
-            .filter(|_| solver.from_prior())
-            .map(|n| ORDER_HOP_CHI2 * f64::from(n) * f64::from(n))
     }
 
     /// The neighbouring order (`-1.0` thinner, `1.0` thicker) whose full-spectrum misfit is

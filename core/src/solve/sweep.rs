@@ -344,7 +344,6 @@ pub struct SweepSolver {
     spectral_dn: f64,
     spectral_index: bool,
     held_index: bool,
-    from_prior: bool,
     spectral_gains: [f64; 3],
     spectral_candidate: Option<IndexModel>,
 }
@@ -376,7 +375,6 @@ impl SweepSolver {
             spectral_dn: 0.0,
             spectral_index: false,
             held_index: false,
-            from_prior: prior.is_some(),
             spectral_gains: [f64::NAN; 3],
             spectral_candidate: None,
         }
@@ -440,12 +438,6 @@ impl SweepSolver {
     /// Angles completed.
     pub fn angles_done(&self) -> usize {
         self.angles_done
-    }
-
-    /// Whether the sweep started from a prior index: its pixels choose their orders from
-    /// the first two angles, and the index may never move enough to make them choose again.
-    pub fn from_prior(&self) -> bool {
-        self.from_prior
     }
 
     /// The typical per-pixel RMS residual of the full-spectrum fit (the noise level).
