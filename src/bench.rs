@@ -16,6 +16,9 @@
 //!   (a camera slower than the pipeline: nothing queued).
 //! - `methods`: `filmscope`, `paper` and `brute` on the same small sweep, seconds per
 //!   megapixel and their accuracy.
+//! - With `FILMSCOPE_BENCH_STREAM_ROWS=N` set, the `stream` figure is also measured with the
+//!   kernel sweep's rows repeated to N rows (printed to stderr): whether the state still fits
+//!   the caches shows in the difference.
 //! - `rss`: a child process runs one sweep of a large sensor (2048 x 2048 x 161 bands x 5
 //!   angles unless `--quick`) and reports its peak resident memory (`VmHWM`).
 

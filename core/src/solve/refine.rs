@@ -47,6 +47,15 @@ struct Node {
     film: FilmAtAngle,
 }
 
+impl Node {
+    /// The node's reflectance for a film of `thickness_nm`.
+    #[inline]
+    fn at(&self, thickness_nm: f64) -> f64 {
+        self.film
+            .reflectance_at_phase(self.phase_per_nm * thickness_nm)
+    }
+}
+
 /// The model of one band at one angle: the passband-averaged Airy reflectance by 5-point
 /// Gauss-Hermite quadrature (within 1e-6 of the 33-node Simpson average for fringes wider than
 /// the passband), at the current index and one index step above.
@@ -81,7 +90,6 @@ struct TableSpan {
     first: u32,
     count: u32,
     d0: f32,
-    h: f32,
     inv_h: f32,
 }
 
@@ -205,8 +213,7 @@ impl BandCoef {
         for (j, k) in knots.iter_mut().enumerate() {
             let d = d0 + h * j as f64;
             let (m, slope) = self.model_and_slope(d);
-            let at = |n: &Node| n.film.reflectance_at_phase(n.phase_per_nm * d);
-            let j_n = (at(&self.centre_up) - at(&self.centre)) / INDEX_STEP;
+            let j_n = (self.centre_up.at(d) - self.centre.at(d)) / INDEX_STEP;
             *k = Knot {
                 m: m as f32,
                 slope_h: (slope * h) as f32,
@@ -217,7 +224,6 @@ impl BandCoef {
             first: first as u32,
             count: count as u32,
             d0: d0 as f32,
-            h: h as f32,
             inv_h: (1.0 / h) as f32,
         });
     }
@@ -268,14 +274,13 @@ impl BandCoef {
     /// order misfits are whole fringes), the model's passband correction carried over.
     pub fn eval_exact(&self, thickness_nm: f64, order_step_nm: f64) -> BandEval {
         let (m, j_d) = self.model_and_slope(thickness_nm);
-        let centre = |n: &Node, d: f64| n.film.reflectance_at_phase(n.phase_per_nm * d);
-        let m_centre = centre(&self.centre, thickness_nm);
+        let m_centre = self.centre.at(thickness_nm);
         BandEval {
             m,
             j_d,
-            j_n: (centre(&self.centre_up, thickness_nm) - m_centre) / INDEX_STEP,
-            m_minus: centre(&self.centre, thickness_nm - order_step_nm) + (m - m_centre),
-            m_plus: centre(&self.centre, thickness_nm + order_step_nm) + (m - m_centre),
+            j_n: (self.centre_up.at(thickness_nm) - m_centre) / INDEX_STEP,
+            m_minus: self.centre.at(thickness_nm - order_step_nm) + (m - m_centre),
+            m_plus: self.centre.at(thickness_nm + order_step_nm) + (m - m_centre),
         }
     }
 
@@ -294,10 +299,7 @@ impl BandCoef {
 
     #[inline]
     fn model_of(nodes: &[Node], thickness_nm: f64) -> f64 {
-        nodes
-            .iter()
-            .map(|n| n.weight * n.film.reflectance_at_phase(n.phase_per_nm * thickness_nm))
-            .sum()
+        nodes.iter().map(|n| n.weight * n.at(thickness_nm)).sum()
     }
 
     /// Model reflectance of a film of `thickness_nm`.

@@ -261,10 +261,7 @@ impl<'a> Shard<'a> {
             .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR);
         // A pixel about to move to a neighbouring order ([`Shard::update`]) would pull the
         // index toward its wrong order: left out.
-        let hop = solver
-            .noise_sigma()
-            .map(|n| ORDER_HOP_CHI2 * f64::from(n) * f64::from(n));
-        let d_lo = solver.spec().thickness_range_nm[0];
+        let (hop, d_lo) = Self::hop_margin(solver);
         let settled =
             |p: &PixelState| hop.is_none_or(|margin| Self::better_order(p, margin, d_lo).is_none());
         for (r, row) in self.pixels.chunks(self.width.max(1)).enumerate() {
@@ -299,10 +296,7 @@ impl<'a> Shard<'a> {
         // An index that moved this much makes the orders chosen with the old one suspect:
         // every pixel chooses again (with this angle's extrema) and its sums restart.
         let reorder = solver.reorders();
-        let hop = solver
-            .noise_sigma()
-            .map(|n| ORDER_HOP_CHI2 * f64::from(n) * f64::from(n));
-        let d_lo = solver.spec().thickness_range_nm[0];
+        let (hop, d_lo) = Self::hop_margin(solver);
         for p in self.pixels.iter_mut() {
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
             if p.tracker.overflow {
@@ -337,6 +331,16 @@ impl<'a> Shard<'a> {
                 p.anchor = p.current;
             }
         }
+    }
+
+    /// How much better (sum of squares) a neighbouring order must fit for a pixel to move to
+    /// it ([`ORDER_HOP_CHI2`] noise variances), once the image's noise is known, and the
+    /// lower end of the thickness search range.
+    fn hop_margin(solver: &SweepSolver) -> (Option<f64>, f64) {
+        let margin = solver
+            .noise_sigma()
+            .map(|n| ORDER_HOP_CHI2 * f64::from(n) * f64::from(n));
+        (margin, solver.spec().thickness_range_nm[0])
     }
 
     /// The neighbouring order (`-1.0` thinner, `1.0` thicker) whose full-spectrum misfit is
