@@ -238,9 +238,10 @@ pub fn filmscope_passes(
     let mut seed: Option<Arc<Vec<f32>>> = None;
     // The search's fit and whether its passes were kept.
     let mut search: Option<(ThinFit, bool)> = None;
-    // (A model mismatch means the extremum shifts found an index: the film has
-    // fringes, and the full-spectrum passes below are the remedy.)
-    if can_pass && !out.model_mismatch && valid_fraction(&out) < THIN_SEARCH_BELOW_VALID {
+    // Also after a model mismatch: the extremum shifts may have found an index from noise
+    // extrema (a thick film next to the substrate's index, whose fringes drown in the
+    // noise); the search's pass is kept only if it explains the spectra and solves more.
+    if can_pass && valid_fraction(&out) < THIN_SEARCH_BELOW_VALID {
         if let Some((fit, start)) = thin_start(source, &out)? {
             search = Some((fit, false));
             if let Some(prior) = start {
@@ -330,7 +331,7 @@ pub fn model_choice(
             "rms": t.rms,
             "sampled_pixels": t.pixels,
             "kept": kept,
-            "criterion": format!("tried when fewer than {THIN_SEARCH_BELOW_VALID} of the pixels are valid and the extremum shifts found no index the spectra contradict; its passes run if its fit residual is within {MISMATCH_RATIO} x the pixels' noise + {MISMATCH_FLOOR}, and are kept if they leave more pixels valid"),
+            "criterion": format!("tried when fewer than {THIN_SEARCH_BELOW_VALID} of the pixels are valid; its passes run if its fit residual is within {MISMATCH_RATIO} x the pixels' noise + {MISMATCH_FLOOR}, and are kept if they leave more pixels valid"),
         })),
         "full_spectrum_chi2_gains": out.spectral_gains.map(finite),
         "full_spectrum_criterion": format!("another pass holds the index when it came too late to refine most pixels; a pass takes it from the full spectra when the fit residual exceeds {UNDERFIT_RATIO} x the pixels' noise or the full spectra would move the extremum-shift index by {DISAGREE_INDEX_STEP} or more; an extra Cauchy term enters only once the simpler model has settled, if it lowers the chi-square by {SPECTRAL_TERM_CHI2} (5 sigma) and keeps the dispersion physical (normal, at most {MAX_DISPERSION} across the band)"),

@@ -9,7 +9,9 @@
 //! grid on a small, bounded sample of pixels' full spectra (a few dozen pixels of the sweep,
 //! whatever the sensor's size): the model of each grid point is computed once and scored
 //! against every sampled pixel, every pixel keeps its best thickness, and the index that
-//! minimises the sum of the pixels' best misfits wins. The streaming solver then starts every
+//! minimises the sum of the pixels' best misfits wins. The search covers the whole thickness
+//! range: a thick film whose fringes drown in the noise (next to the substrate's index) comes
+//! here too, and is found. The streaming solver then starts every
 //! pixel from the sample's thickness map (interpolated) with that index and refines both on
 //! the full spectra ([`super::refine`]).
 
@@ -19,23 +21,49 @@ use super::IndexModel;
 
 /// Index grid step of the coarse search.
 pub const INDEX_STEP: f64 = 0.02;
-/// Thickest film the search considers, nm: thicker films show fringes (method.md), and the
-/// streaming solver finds them from their extrema.
-pub const MAX_THICKNESS_NM: f64 = 800.0;
-/// Thickness grid step, nm: an eighth of the shortest fringe period the search meets
-/// (420 nm light in a film of index 2.8 repeats every 75 nm of thickness) at most.
+/// Thickness grid step of the fine stage, nm: a thirtieth of the shortest fringe period the
+/// search meets (420 nm light in a film of index 2.8 repeats every 75 nm of thickness).
 pub const THICKNESS_STEP_NM: f64 = 2.5;
 /// Most bands the coarse index grid looks at.
 pub const COARSE_BANDS: usize = 40;
-/// Golden-section steps refining the index around the best grid point.
+/// Golden-section steps refining the index around the best grid point (on the coarse
+/// bands: the streaming passes refine the index on the full spectra after).
 const REFINE_STEPS: usize = 14;
 
-/// The thickness grid of `spec`'s search range, nm.
-pub fn thickness_grid(spec: &SweepSpec) -> impl Iterator<Item = f64> + Clone {
+/// Fringe periods (at the shortest band) the fine stage's thickness window reaches beyond
+/// the coarse stage's thinnest and thickest pixel: room for a pixel to move an order or two.
+const WINDOW_PERIODS: f64 = 2.0;
+
+/// The thickness grid of `spec`'s whole search range: `(first, points)`, nm. The search
+/// covers the whole range: a thick film whose fringes drown in the noise (a film next to the
+/// substrate's index: peak to peak `4 |r12 r23|`, eq. 4) also ends up here, and a search
+/// capped below it took it for a thin one (found by the stability maps: n 1.5 on 1.52 at
+/// 2000 nm reported as 100 nm, every pixel).
+fn thickness_grid(spec: &SweepSpec) -> (f64, usize) {
     let lo = spec.thickness_range_nm[0].max(THICKNESS_STEP_NM);
-    let hi = spec.thickness_range_nm[1].min(MAX_THICKNESS_NM).max(lo);
-    let n = libm::floor((hi - lo) / THICKNESS_STEP_NM) as usize + 1;
-    (0..n).map(move |i| lo + i as f64 * THICKNESS_STEP_NM)
+    let hi = spec.thickness_range_nm[1].max(lo);
+    (lo, libm::floor((hi - lo) / THICKNESS_STEP_NM) as usize + 1)
+}
+
+/// Grid points per fringe period (at the shortest band) the coarse stage looks at: enough
+/// for each pixel's parabola through its best three, a quarter of the fine grid's.
+const COARSE_POINTS_PER_PERIOD: f64 = 12.0;
+
+/// Every `stride`-th point of a run of the thickness grid starting at point `first`: `len`
+/// points.
+#[derive(Clone, Copy, Debug)]
+struct Window {
+    d0: f64,
+    first: usize,
+    stride: usize,
+    len: usize,
+}
+
+impl Window {
+    /// Thickness of window point `t` (fractional between points), nm.
+    fn at(&self, t: f64) -> f64 {
+        self.d0 + (self.first as f64 + t * self.stride as f64) * THICKNESS_STEP_NM
+    }
 }
 
 /// Spectra of a few sampled pixels: `values[(a * bands + b) * pixels + p]` is pixel `p`'s
@@ -72,9 +100,9 @@ impl SampledSpectra<'_> {
     /// `sse[t * pixels + p]`. `coarse`: every few bands only ([`COARSE_BANDS`] at most) and
     /// the band centres without their passbands (the spectra of the films the search is for
     /// are smooth on that scale). Returns `false` where the model has no propagating wave.
-    fn misfits(&self, n: f64, sse: &mut [f64], coarse: bool) -> bool {
+    fn misfits(&self, n: f64, window: Window, sse: &mut [f64], coarse: bool) -> bool {
         let (bands, px) = (self.bands(), self.pixels);
-        let grid = thickness_grid(self.spec);
+        let sse = &mut sse[..window.len * px];
         sse.iter_mut().for_each(|s| *s = 0.0);
         let index = IndexModel::constant(n);
         let stride = if coarse {
@@ -96,8 +124,8 @@ impl SampledSpectra<'_> {
                     return false;
                 };
                 let row = &self.values[(a * bands + b) * px..(a * bands + b + 1) * px];
-                for (t, d) in grid.clone().enumerate() {
-                    let m = coef.model(d);
+                for t in 0..window.len {
+                    let m = coef.model(window.at(t as f64));
                     for (s, &v) in sse[t * px..(t + 1) * px].iter_mut().zip(row) {
                         if v.is_finite() {
                             let r = f64::from(v) - m;
@@ -110,13 +138,12 @@ impl SampledSpectra<'_> {
         true
     }
 
-    /// The sum over pixels of each pixel's smallest misfit in `sse`, and (into `best`, if
-    /// given) each pixel's best thickness, refined between grid points by a parabola (a NaN
-    /// entry of `best` is left alone).
-    fn total(&self, sse: &[f64], mut best: Option<&mut [f32]>) -> f64 {
+    /// The sum over pixels of each pixel's smallest misfit in `sse` (over `window`), and
+    /// (into `best`, if given) each pixel's best thickness, refined between grid points by a
+    /// parabola (a NaN entry of `best` is left alone).
+    fn total(&self, window: Window, sse: &[f64], mut best: Option<&mut [f32]>) -> f64 {
         let px = self.pixels;
-        let d0 = thickness_grid(self.spec).next().unwrap_or(0.0);
-        let steps = sse.len() / px.max(1);
+        let steps = window.len;
         let mut total = 0.0;
         for p in 0..px {
             let at = |t: usize| sse[t * px + p];
@@ -140,10 +167,20 @@ impl SampledSpectra<'_> {
             total += value.max(0.0);
             // A pixel already NaN (no usable samples) stays so.
             if let Some(out) = best.as_deref_mut().filter(|out| !out[p].is_nan()) {
-                out[p] = (d0 + (t_best as f64 + shift) * THICKNESS_STEP_NM) as f32;
+                out[p] = window.at(t_best as f64 + shift) as f32;
             }
         }
         total
+    }
+
+    /// The summed best misfits ([`Self::total`]) at index `n`; infinite where the model has
+    /// no propagating wave.
+    fn cost(&self, n: f64, window: Window, sse: &mut [f64], coarse: bool) -> f64 {
+        if self.misfits(n, window, sse, coarse) {
+            self.total(window, sse, None)
+        } else {
+            f64::INFINITY
+        }
     }
 
     /// Usable samples of sampled pixel `p`.
@@ -159,11 +196,13 @@ impl SampledSpectra<'_> {
     /// The scratch length [`SampledSpectra::fit`] needs: one misfit per pixel and grid
     /// thickness.
     pub fn scratch_len(&self) -> usize {
-        thickness_grid(self.spec).count() * self.pixels
+        thickness_grid(self.spec).1 * self.pixels
     }
 
     /// Searches the index over the spec's range (a grid, then golden section around its
-    /// best point) with each pixel's thickness over the grid; writes each sampled pixel's
+    /// best point) with each pixel's thickness over the grid (the whole range every few
+    /// points, then every point of the window the pixels took, a few fringe periods wide,
+    /// and the final thicknesses on every band with its passband); writes each sampled pixel's
     /// thickness into `thickness_nm` (NaN for a pixel without usable samples). `sse` is
     /// scratch of [`SampledSpectra::scratch_len`]. `None` without usable samples or if the
     /// shapes disagree.
@@ -189,23 +228,56 @@ impl SampledSpectra<'_> {
         }
         let [n_lo, n_hi] = self.spec.index_range;
         let steps = libm::ceil((n_hi - n_lo) / INDEX_STEP).max(1.0) as usize;
-        let mut cost = |n: f64, coarse: bool| -> f64 {
-            if self.misfits(n, sse, coarse) {
-                self.total(sse, None)
-            } else {
-                f64::INFINITY
+        let (d0, points) = thickness_grid(self.spec);
+        let shortest = self
+            .spec
+            .bands_nm
+            .iter()
+            .fold(f64::INFINITY, |a, &b| a.min(b));
+        // The whole range, as densely as a film of index `n` needs.
+        let whole = |n: f64| {
+            let period = shortest / (2.0 * n);
+            let stride = libm::floor(period / COARSE_POINTS_PER_PERIOD / THICKNESS_STEP_NM)
+                .clamp(1.0, points as f64) as usize;
+            Window {
+                d0,
+                first: 0,
+                stride,
+                len: points.div_ceil(stride),
             }
         };
         let mut n_best = n_lo;
         let mut c_best = f64::INFINITY;
         for i in 0..=steps {
             let n = n_lo + (n_hi - n_lo) * i as f64 / steps as f64;
-            let c = cost(n, true);
+            let c = self.cost(n, whole(n), sse, true);
             if c < c_best {
                 (n_best, c_best) = (n, c);
             }
         }
-        let mut cost = |n: f64| cost(n, false);
+        // The fine stage (every band, with its passband) looks only at the thicknesses the
+        // coarse stage's pixels took, and a few fringe periods either side.
+        if !self.misfits(n_best, whole(n_best), sse, true) {
+            return None;
+        }
+        self.total(whole(n_best), sse, Some(thickness_nm));
+        let (thin, thick) = thickness_nm
+            .iter()
+            .filter(|d| d.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &d| {
+                (lo.min(f64::from(d)), hi.max(f64::from(d)))
+            });
+        let reach = WINDOW_PERIODS * shortest / (2.0 * n_best);
+        let first = libm::floor(((thin - reach - d0) / THICKNESS_STEP_NM).max(0.0)) as usize;
+        let last = (libm::ceil((thick + reach - d0) / THICKNESS_STEP_NM).max(0.0) as usize)
+            .min(points - 1);
+        let window = Window {
+            d0,
+            first: first.min(last),
+            stride: 1,
+            len: last - first.min(last) + 1,
+        };
+        let mut cost = |n: f64| self.cost(n, window, sse, true);
         let c_best = cost(n_best);
         // Golden section on the bracket around the best grid point.
         let g = 0.5 * (libm::sqrt(5.0) - 1.0);
@@ -229,10 +301,10 @@ impl SampledSpectra<'_> {
         let (n, _) = [(x1, f1), (x2, f2), (n_best, c_best)]
             .into_iter()
             .min_by(|p, q| p.1.total_cmp(&q.1))?;
-        if !self.misfits(n, sse, false) {
+        if !self.misfits(n, window, sse, false) {
             return None;
         }
-        let total = self.total(sse, Some(thickness_nm));
+        let total = self.total(window, sse, Some(thickness_nm));
         Some(ThinFit {
             index: n,
             rms: libm::sqrt(total / count as f64),
