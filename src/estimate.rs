@@ -173,6 +173,10 @@ fn thin_start(
         return Ok(Some((fit, None)));
     }
     let mut seed = vec![f32::NAN; w * h];
+    // A sample in another basin than its neighbours (a quarter of an order away) would
+    // spread its wrong order to the pixels around it.
+    let mid = spec.bands_nm[nb / 2];
+    grid.reject_outliers(&mut thickness, (mid / (8.0 * fit.index)) as f32);
     grid.interpolate(&thickness, &mut seed);
     let prior = Prior {
         index: IndexModel::constant(fit.index),

@@ -382,6 +382,60 @@ impl SampleGrid {
         best.1
     }
 
+    /// Marks NaN each finite sample more than `limit` from the median of its finite grid
+    /// neighbours (at least two of the eight): a pixel the search put in another basin than
+    /// the film around it (noise on a film with faint fringes: measured, one of 63 samples
+    /// of n 1.5 on 1.52 at 200 nm came out at 33 nm, and interpolation spread it to its
+    /// neighbours' seeds). Returns the samples rejected.
+    pub fn reject_outliers(&self, values: &mut [f32], limit: f32) -> usize {
+        if values.len() != self.len() || values.len() > MAX_SAMPLED_PIXELS {
+            return 0;
+        }
+        let mut reject = [false; MAX_SAMPLED_PIXELS];
+        for (k, flag) in reject.iter_mut().enumerate().take(values.len()) {
+            let v = values[k];
+            if !v.is_finite() {
+                continue;
+            }
+            let (cx, cy) = ((k % self.cols) as isize, (k / self.cols) as isize);
+            let mut near = [0.0f32; 8];
+            let mut n = 0;
+            for dy in -1..=1isize {
+                for dx in -1..=1isize {
+                    let (x, y) = (cx + dx, cy + dy);
+                    if (dx, dy) == (0, 0)
+                        || x < 0
+                        || y < 0
+                        || x >= self.cols as isize
+                        || y >= self.rows as isize
+                    {
+                        continue;
+                    }
+                    let w = values[y as usize * self.cols + x as usize];
+                    if w.is_finite() {
+                        near[n] = w;
+                        n += 1;
+                    }
+                }
+            }
+            if n < 2 {
+                continue;
+            }
+            let near = &mut near[..n];
+            near.sort_unstable_by(f32::total_cmp);
+            let median = 0.5 * (near[(n - 1) / 2] + near[n / 2]);
+            *flag = (v - median).abs() > limit;
+        }
+        let mut count = 0;
+        for (v, &r) in values.iter_mut().zip(&reject) {
+            if r {
+                *v = f32::NAN;
+                count += 1;
+            }
+        }
+        count
+    }
+
     /// Fills the `width x height` map `out` from the samples' `values` by bilinear
     /// interpolation between cell centres (constant beyond the outer centres); a NaN sample
     /// gives way to its finite neighbours, or to the nearest finite sample (NaN only if
@@ -425,6 +479,25 @@ impl SampleGrid {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_sample_off_its_neighbours_is_rejected_and_a_gradient_kept() {
+        let grid = SampleGrid::for_image(16, 12);
+        // A wedge rising 3 nm per sample across, one sample in another basin.
+        let mut values: heapless::Vec<f32, 64> = (0..grid.len())
+            .map(|k| 200.0 + 3.0 * (k % grid.cols) as f32)
+            .collect();
+        let wedge = values.clone();
+        assert_eq!(grid.reject_outliers(&mut values, 40.0), 0);
+        assert_eq!(values, wedge);
+        values[grid.cols + 2] = 33.0;
+        assert_eq!(grid.reject_outliers(&mut values, 40.0), 1);
+        assert!(values[grid.cols + 2].is_nan());
+        assert_eq!(
+            values.iter().filter(|v| v.is_finite()).count(),
+            grid.len() - 1
+        );
+    }
     use crate::optics::Dispersion;
     use crate::optics::{FilmStack, Passband, Polarization};
 
