@@ -64,6 +64,10 @@ pub mod flags {
     /// No fringe pair: the thickness started from the global (index, thickness) search on
     /// sampled spectra ([`super::thin`]) and was refined on the pixel's own full spectrum.
     pub const FROM_SPECTRUM_SEARCH: u16 = 1 << 12;
+    /// The thickness is too uncertain to report: its 1-sigma from the full-spectrum fit
+    /// (the pixel's residual over `sqrt(sum J_d^2)`) exceeds
+    /// [`super::shard::MAX_THICKNESS_SIGMA_NM`] (faint fringes under heavy noise).
+    pub const IMPRECISE: u16 = 1 << 13;
 
     /// Flags that make the thickness unreliable (NaN in the map).
     pub const INVALID: u16 = NO_FRINGE
@@ -73,10 +77,11 @@ pub mod flags {
         | OUT_OF_RANGE
         | POOR_FIT
         | ORDER_REJECTED
-        | MODEL_MISMATCH;
+        | MODEL_MISMATCH
+        | IMPRECISE;
 
     /// Names of the flags, for reports.
-    pub const NAMES: [(u16, &str); 13] = [
+    pub const NAMES: [(u16, &str); 14] = [
         (NO_FRINGE, "no_fringe"),
         (AMBIGUOUS_ORDER, "ambiguous_order"),
         (SATURATED, "saturated"),
@@ -90,6 +95,7 @@ pub mod flags {
         (MODEL_MISMATCH, "model_mismatch"),
         (MISSING_SAMPLES, "missing_samples"),
         (FROM_SPECTRUM_SEARCH, "from_spectrum_search"),
+        (IMPRECISE, "imprecise"),
     ];
 }
 

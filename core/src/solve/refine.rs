@@ -398,6 +398,16 @@ impl GnSums {
         self.samples = self.samples.saturating_add(1);
     }
 
+    /// 1-sigma uncertainty of the thickness, nm, from the fit alone (the index held): the
+    /// residual variance over `sum J_d^2`; infinite without samples or slope.
+    pub fn thickness_sigma_nm(&self) -> f64 {
+        if self.samples < 2 || self.h_dd <= 0.0 {
+            return f64::INFINITY;
+        }
+        let var = f64::from(self.sse) / f64::from(self.samples - 1);
+        libm::sqrt(var / f64::from(self.h_dd))
+    }
+
     /// Root-mean-square residual at the linearisation point.
     pub fn rms(&self) -> f32 {
         if self.samples == 0 {
