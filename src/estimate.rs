@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use filmscope_core::solve::sweep::{
-    MAX_DISPERSION, MISMATCH_FLOOR, MISMATCH_RATIO, SPECTRAL_TERM_CHI2,
+    MAX_DISPERSION, MAX_DISPERSION_PER_EXCESS, MISMATCH_FLOOR, MISMATCH_RATIO, SPECTRAL_TERM_CHI2,
 };
 use filmscope_core::solve::thin::{SampleGrid, SampledSpectra, ThinFit};
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
@@ -79,8 +79,14 @@ fn next_pass(last: &SweepOutput, passes: usize) -> Option<Prior> {
     })
 }
 
-/// Whether most of the pixels with fringes were never refined on the full spectra (the
-/// index came too late in the sweep).
+/// Share of the pixels with fringes left unrefined (their orders unconfirmed by the full
+/// spectra, so flagged) above which a pass with the index held follows. Measured: at a 1 nm
+/// band step a 700 nm film of index 1.38 got its index only at the third angle and left
+/// 61 of 192 pixels unrefined (67.7 % valid); most was the threshold then.
+pub const UNREFINED_SHARE: f64 = 0.1;
+
+/// Whether more than [`UNREFINED_SHARE`] of the pixels with fringes were never refined on
+/// the full spectra (the index came too late in the sweep).
 fn unrefined(out: &SweepOutput) -> bool {
     let with_fringes = out
         .results
@@ -93,7 +99,7 @@ fn unrefined(out: &SweepOutput) -> bool {
             not_refined += 1;
         }
     }
-    n > 0 && 2 * not_refined > n
+    n > 0 && not_refined as f64 > UNREFINED_SHARE * n as f64
 }
 
 /// A fit residual above this many times the pixels' own noise asks for a richer index
@@ -338,7 +344,7 @@ pub fn model_choice(
             "criterion": format!("tried when fewer than {THIN_SEARCH_BELOW_VALID} of the pixels are valid; its passes run if its fit residual is within {MISMATCH_RATIO} x the pixels' noise + {MISMATCH_FLOOR}, and are kept if they leave more pixels valid"),
         })),
         "full_spectrum_chi2_gains": out.spectral_gains.map(finite),
-        "full_spectrum_criterion": format!("another pass holds the index when it came too late to refine most pixels; a pass takes it from the full spectra when the fit residual exceeds {UNDERFIT_RATIO} x the pixels' noise or the full spectra would move the extremum-shift index by {DISAGREE_INDEX_STEP} or more; an extra Cauchy term enters only once the simpler model has settled, if it lowers the chi-square by {SPECTRAL_TERM_CHI2} (5 sigma) and keeps the dispersion physical (normal, at most {MAX_DISPERSION} across the band)"),
+        "full_spectrum_criterion": format!("another pass holds the index when it came too late to refine more than {UNREFINED_SHARE} of the pixels with fringes; a pass takes it from the full spectra when the fit residual exceeds {UNDERFIT_RATIO} x the pixels' noise or the full spectra would move the extremum-shift index by {DISAGREE_INDEX_STEP} or more; an extra Cauchy term enters only once the simpler model has settled, if it lowers the chi-square by {SPECTRAL_TERM_CHI2} (5 sigma) and keeps the dispersion physical (normal, at most {MAX_DISPERSION} and {MAX_DISPERSION_PER_EXCESS} x (n - 1) across the band)"),
         "chosen": (["constant", "cauchy", "cauchy3"])[index.terms() - 1],
         "extremum_fit_chosen": f.map(|f| if f.dispersive { "cauchy" } else { "constant" }),
         "chi2_constant": f.map(|f| f.chi2_constant),
