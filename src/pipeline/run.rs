@@ -232,6 +232,18 @@ pub fn run_sweep(
     let mut reports = Vec::new();
     let mut samples = 0u64;
     let mut last_row_at = Instant::now();
+    // The results are made by the last angle's update pass (the angles announced tell which
+    // is last), else by a pass of their own once the sweep has ended.
+    let angles = source.angles_deg().len();
+    let mut results = vec![
+        PixelResult {
+            thickness_nm: f32::NAN,
+            confidence: 0.0,
+            flags: 0
+        };
+        w * h
+    ];
+    let mut results_at = None;
 
     std::thread::scope(|scope| -> Result<(), PipelineError> {
         let (src_tx, src_rx) = bounded::<StreamMsg>(cap);
@@ -287,7 +299,12 @@ pub fn run_sweep(
                         .enumerate()
                         .map(|(i, st)| Shard::new(shard_rows(h, workers, i).0, w, st))
                         .collect();
-                    reports.push(end_angle_parallel(&mut solver, &mut shards));
+                    let last = solver.angles_done() + 1 == angles;
+                    let out = last.then_some(results.as_mut_slice());
+                    reports.push(end_angle_parallel(&mut solver, &mut shards, out));
+                    if last {
+                        results_at = Some(solver.angles_done());
+                    }
                     samples += (w * h * spec.bands_nm.len()) as u64;
                     drop(shards);
                     for (i, st) in owned.into_iter().enumerate() {
@@ -316,26 +333,20 @@ pub fn run_sweep(
             solver.angles_done()
         )));
     }
-    let mut results = vec![
-        PixelResult {
-            thickness_nm: f32::NAN,
-            confidence: 0.0,
-            flags: 0
-        };
-        w * h
-    ];
-    let mut owned: Vec<Vec<PixelState>> =
-        states.into_iter().map(Option::unwrap_or_default).collect();
-    std::thread::scope(|scope| {
-        let mut rest = results.as_mut_slice();
-        for (i, st) in owned.iter_mut().enumerate() {
-            let (first, rows) = shard_rows(h, workers, i);
-            let (mine, tail) = rest.split_at_mut(rows * w);
-            rest = tail;
-            let solver = &solver;
-            scope.spawn(move || Shard::new(first, w, st).finish(solver, mine));
-        }
-    });
+    if results_at != Some(solver.angles_done()) {
+        let mut owned: Vec<Vec<PixelState>> =
+            states.into_iter().map(Option::unwrap_or_default).collect();
+        std::thread::scope(|scope| {
+            let mut rest = results.as_mut_slice();
+            for (i, st) in owned.iter_mut().enumerate() {
+                let (first, rows) = shard_rows(h, workers, i);
+                let (mine, tail) = rest.split_at_mut(rows * w);
+                rest = tail;
+                let solver = &solver;
+                scope.spawn(move || Shard::new(first, w, st).finish(solver, mine));
+            }
+        });
+    }
     let done = Instant::now();
     Ok(SweepOutput {
         spec,
@@ -721,8 +732,14 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
     })
 }
 
-/// The solver's angle-end passes, each run on all shards at once.
-pub fn end_angle_parallel(solver: &mut SweepSolver, shards: &mut [Shard<'_>]) -> AngleReport {
+/// The solver's angle-end passes, each run on all shards at once. At the sweep's last angle,
+/// `results` (the image's, row-major; the shards hold its rows in order) gets every pixel's
+/// final result ([`Shard::finish`]) from the same pass that updates it.
+pub fn end_angle_parallel(
+    solver: &mut SweepSolver,
+    shards: &mut [Shard<'_>],
+    results: Option<&mut [PixelResult]>,
+) -> AngleReport {
     /// `f` of every shard, in shard order, the first on this thread.
     fn each<S: Send, T: Send>(shards: &mut [S], f: impl Fn(&mut S) -> T + Sync) -> Vec<T> {
         let Some((first, rest)) = shards.split_first_mut() else {
@@ -761,14 +778,37 @@ pub fn end_angle_parallel(solver: &mut SweepSolver, shards: &mut [Shard<'_>]) ->
     }
     solver.set_window_sums(&sums);
     solver.set_schur(&schur);
+    // Each shard's part of `results`.
+    let mut outs: Vec<&mut [PixelResult]> = Vec::new();
+    if let Some(mut rest) = results {
+        for sh in shards.iter() {
+            let n = sh.pixels.len().min(rest.len());
+            let (mine, tail) = std::mem::take(&mut rest).split_at_mut(n);
+            outs.push(mine);
+            rest = tail;
+        }
+    }
     let ties = {
         let solver = &*solver;
-        each(shards, |sh| {
+        let mut jobs: Vec<_> = shards
+            .iter_mut()
+            .zip(
+                outs.iter_mut()
+                    .map(Some)
+                    .chain(std::iter::repeat_with(|| None)),
+            )
+            .collect();
+        each(&mut jobs, |(sh, out)| {
             let mut ties = Vec::new();
-            sh.update(solver, |i| ties.push(i));
+            sh.update(solver, out.as_deref_mut().map(|o| &mut **o), |i| {
+                ties.push(i)
+            });
             ties
         })
     };
     filmscope_core::solve::sweep::resolve_orders(solver, shards, |k, _| ties[k].iter().copied());
+    for ((sh, out), ties) in shards.iter().zip(outs.iter_mut()).zip(&ties) {
+        sh.finish_pixels(solver, out, ties.iter().copied());
+    }
     solver.end_angle()
 }

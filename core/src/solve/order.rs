@@ -118,8 +118,8 @@ impl OrderContext {
             let r = e - libm::round(e);
             cost += r * r;
         }
-        for a in 0..self.angles {
-            cost += COUNT_PENALTY * (self.predicted_count(d, a, root) - seen[a]).abs() as f64;
+        for (a, &seen) in seen.iter().enumerate().take(self.angles) {
+            cost += COUNT_PENALTY * (self.predicted_count(d, a, root) - seen).abs() as f64;
         }
         (d, cost)
     }

@@ -279,8 +279,15 @@ impl<'a> Shard<'a> {
     /// the first angle's extrema, and gives every pixel without an order the one its extrema
     /// choose clearly; `tie(i)` is told of each pixel (index in the shard, in increasing
     /// order) whose two best orders are too close to call, for [`super::sweep::resolve_orders`] (a
-    /// resolved neighbour decides those, in image order).
-    pub fn update(&mut self, solver: &SweepSolver, mut tie: impl FnMut(usize)) {
+    /// resolved neighbour decides those, in image order). At the sweep's last angle, `out`
+    /// (the shard's results, row-major) gets every pixel's final result as [`Shard::finish`]
+    /// gives it (the ties' to be given again once resolved: [`Shard::finish_pixels`]).
+    pub fn update(
+        &mut self,
+        solver: &SweepSolver,
+        mut out: Option<&mut [PixelResult]>,
+        mut tie: impl FnMut(usize),
+    ) {
         let dp = solver.pending_index_step();
         let first_angle = solver.anchor_deg().is_none();
         // An index that moved this much makes the orders chosen with the old one suspect:
@@ -297,6 +304,7 @@ impl<'a> Shard<'a> {
             _ => None,
         };
         let orders = Self::order_context(solver);
+        let finish = out.is_some().then(|| Finish::of(solver));
         for (i, p) in self.pixels.iter_mut().enumerate() {
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
             if p.tracker.overflow {
@@ -335,6 +343,9 @@ impl<'a> Shard<'a> {
                         tie(i);
                     }
                 }
+            }
+            if let (Some(f), Some(o)) = (finish.as_ref(), out.as_mut().and_then(|o| o.get_mut(i))) {
+                *o = f.result(p);
             }
         }
     }
@@ -517,81 +528,122 @@ impl<'a> Shard<'a> {
 
     /// The final result of every pixel, row-major, after the last angle.
     pub fn finish(&self, solver: &SweepSolver, out: &mut [PixelResult]) {
-        let sigma2 = solver.residual_sigma().map_or(f64::NAN, |s| s * s);
-        let rms_limit = solver
-            .rms_median()
-            .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR);
+        self.finish_pixels(solver, out, 0..self.pixels.len());
+    }
+
+    /// The final results of the pixels `pixels` (indices in the shard) into `out` (the
+    /// shard's results, row-major), after the last angle.
+    pub fn finish_pixels(
+        &self,
+        solver: &SweepSolver,
+        out: &mut [PixelResult],
+        pixels: impl Iterator<Item = usize>,
+    ) {
+        let finish = Finish::of(solver);
+        for i in pixels {
+            if let (Some(p), Some(o)) = (self.pixels.get(i), out.get_mut(i)) {
+                *o = finish.result(p);
+            }
+        }
+    }
+}
+
+/// What a pixel's final result needs of the sweep.
+struct Finish {
+    sigma2: f64,
+    rms_limit: f32,
+    d_lo: f64,
+    d_hi: f64,
+    refine: bool,
+    mismatch: bool,
+    mismatch_scale: f32,
+}
+
+impl Finish {
+    fn of(solver: &SweepSolver) -> Self {
         let [d_lo, d_hi] = solver.spec().thickness_range_nm;
-        for (p, o) in self.pixels.iter().zip(out.iter_mut()) {
-            let mut f = p.flags;
-            let total = f64::from(p.samples.max(1));
-            if f64::from(p.saturated) > BAD_SHARE * total {
-                f |= flags::SATURATED;
-            }
-            if f64::from(p.dead) > BAD_SHARE * total {
-                f |= flags::DEAD;
-            } else if p.dead > 0 {
-                f |= flags::MISSING_SAMPLES;
-            }
-            let d = f64::from(p.thickness_nm);
-            let mut confidence = 0.0f32;
-            if !d.is_finite() {
-                f |= if p.extrema_seen == 0 {
-                    flags::NO_FRINGE
-                } else {
-                    flags::AMBIGUOUS_ORDER
-                };
-            } else if p.gn.samples == 0 {
-                f |= flags::NOT_REFINED;
-                // Its order rests on one pair of extremum lists, unconfirmed by the full
-                // spectrum (it was ambiguous until the last angle, or the index arrived or
-                // moved then): measured, such orders can be wrong for every pixel at once
-                // (a thin high-index film), so with refinement on they are not reported.
-                if solver.spec().options.refine {
-                    f |= flags::AMBIGUOUS_ORDER;
-                }
-                confidence = 0.5;
+        let (r, n) = (
+            solver.residual_sigma().unwrap_or(1.0),
+            solver.noise_sigma().unwrap_or(0.0),
+        );
+        Self {
+            sigma2: solver.residual_sigma().map_or(f64::NAN, |s| s * s),
+            rms_limit: solver
+                .rms_median()
+                .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR),
+            d_lo,
+            d_hi,
+            refine: solver.spec().options.refine,
+            mismatch: solver.model_mismatch(),
+            mismatch_scale: (f64::from(n) / r).clamp(0.0, 1.0) as f32,
+        }
+    }
+
+    fn result(&self, p: &PixelState) -> PixelResult {
+        let mut f = p.flags;
+        let total = f64::from(p.samples.max(1));
+        if f64::from(p.saturated) > BAD_SHARE * total {
+            f |= flags::SATURATED;
+        }
+        if f64::from(p.dead) > BAD_SHARE * total {
+            f |= flags::DEAD;
+        } else if p.dead > 0 {
+            f |= flags::MISSING_SAMPLES;
+        }
+        let d = f64::from(p.thickness_nm);
+        let mut confidence = 0.0f32;
+        if !d.is_finite() {
+            f |= if p.extrema_seen == 0 {
+                flags::NO_FRINGE
             } else {
-                let g = &p.gn;
-                let best = f64::from(g.sse);
-                // One order thinner is no alternative below the search range (nor below
-                // zero, where the model would mirror the film's thickness).
-                let thinner = d - f64::from(p.order_step_nm) >= d_lo.max(0.0);
-                let alt = f64::from(if thinner {
-                    g.sse_minus.min(g.sse_plus)
-                } else {
-                    g.sse_plus
-                });
-                let chi2 = if sigma2 > 0.0 {
-                    (alt - best) / sigma2
-                } else {
-                    0.0
-                };
-                if chi2 < ORDER_CHI2 {
-                    f |= flags::ORDER_REJECTED;
-                }
-                if g.rms() > rms_limit {
-                    f |= flags::POOR_FIT;
-                }
-                confidence = (chi2 / (chi2 + 4.0 * ORDER_CHI2)).clamp(0.0, 1.0) as f32;
-            }
-            if d.is_finite() && !(d_lo..=d_hi).contains(&d) {
-                f |= flags::OUT_OF_RANGE;
-            }
-            if solver.model_mismatch() {
-                f |= flags::MODEL_MISMATCH;
-                let (r, n) = (
-                    solver.residual_sigma().unwrap_or(1.0),
-                    solver.noise_sigma().unwrap_or(0.0),
-                );
-                confidence *= (f64::from(n) / r).clamp(0.0, 1.0) as f32;
-            }
-            let valid = f & flags::INVALID == 0;
-            *o = PixelResult {
-                thickness_nm: if valid { d as f32 } else { f32::NAN },
-                confidence: if valid { confidence } else { 0.0 },
-                flags: f,
+                flags::AMBIGUOUS_ORDER
             };
+        } else if p.gn.samples == 0 {
+            f |= flags::NOT_REFINED;
+            // Its order rests on one pair of extremum lists, unconfirmed by the full
+            // spectrum (it was ambiguous until the last angle, or the index arrived or
+            // moved then): measured, such orders can be wrong for every pixel at once
+            // (a thin high-index film), so with refinement on they are not reported.
+            if self.refine {
+                f |= flags::AMBIGUOUS_ORDER;
+            }
+            confidence = 0.5;
+        } else {
+            let g = &p.gn;
+            let best = f64::from(g.sse);
+            // One order thinner is no alternative below the search range (nor below
+            // zero, where the model would mirror the film's thickness).
+            let thinner = d - f64::from(p.order_step_nm) >= self.d_lo.max(0.0);
+            let alt = f64::from(if thinner {
+                g.sse_minus.min(g.sse_plus)
+            } else {
+                g.sse_plus
+            });
+            let chi2 = if self.sigma2 > 0.0 {
+                (alt - best) / self.sigma2
+            } else {
+                0.0
+            };
+            if chi2 < ORDER_CHI2 {
+                f |= flags::ORDER_REJECTED;
+            }
+            if g.rms() > self.rms_limit {
+                f |= flags::POOR_FIT;
+            }
+            confidence = (chi2 / (chi2 + 4.0 * ORDER_CHI2)).clamp(0.0, 1.0) as f32;
+        }
+        if d.is_finite() && !(self.d_lo..=self.d_hi).contains(&d) {
+            f |= flags::OUT_OF_RANGE;
+        }
+        if self.mismatch {
+            f |= flags::MODEL_MISMATCH;
+            confidence *= self.mismatch_scale;
+        }
+        let valid = f & flags::INVALID == 0;
+        PixelResult {
+            thickness_nm: if valid { d as f32 } else { f32::NAN },
+            confidence: if valid { confidence } else { 0.0 },
+            flags: f,
         }
     }
 }

@@ -844,7 +844,7 @@ impl SweepSolver {
         self.set_window_sums(&sums);
         self.set_schur(&schur);
         for s in shards.iter_mut() {
-            s.update(self, |_| {});
+            s.update(self, None, |_| {});
         }
         // Every pixel as a possible tie: those with an order are skipped.
         resolve_orders(self, shards, |_, pixels| 0..pixels);
