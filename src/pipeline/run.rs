@@ -38,7 +38,8 @@ pub struct PipelineConfig {
     /// past every pixel's state, so on a sensor whose state does not fit the caches a sample
     /// costs its state's memory traffic; holding `band_block` bands divides that traffic by
     /// `band_block` at `4 * band_block` bytes per pixel of row buffers (1: feed each row as
-    /// it arrives).
+    /// it arrives). Over an angle's last bands the blocks shrink ([`block_bands`]), so that
+    /// little is left to feed when its last row arrives.
     pub band_block: usize,
     /// What the solver may use.
     pub solver: SolverOptions,
@@ -231,6 +232,18 @@ pub fn run_sweep(
     let mut reports = Vec::new();
     let mut samples = 0u64;
     let mut last_row_at = Instant::now();
+    // The results are made by the last angle's update pass (the angles announced tell which
+    // is last), else by a pass of their own once the sweep has ended.
+    let angles = source.angles_deg().len();
+    let mut results = vec![
+        PixelResult {
+            thickness_nm: f32::NAN,
+            confidence: 0.0,
+            flags: 0
+        };
+        w * h
+    ];
+    let mut results_at = None;
 
     std::thread::scope(|scope| -> Result<(), PipelineError> {
         let (src_tx, src_rx) = bounded::<StreamMsg>(cap);
@@ -246,7 +259,7 @@ pub fn run_sweep(
             let done = done_tx.clone();
             let (first, _) = shard_rows(h, workers, i);
             let options = spec.options;
-            let block = config.band_block.max(1);
+            let block = [config.band_block.max(1), spec.bands_nm.len()];
             scope.spawn(move || worker(i, first, w, options, block, start_rx, rx, done));
         }
         drop(done_tx);
@@ -286,7 +299,12 @@ pub fn run_sweep(
                         .enumerate()
                         .map(|(i, st)| Shard::new(shard_rows(h, workers, i).0, w, st))
                         .collect();
-                    reports.push(end_angle_parallel(&mut solver, &mut shards));
+                    let last = solver.angles_done() + 1 == angles;
+                    let out = last.then_some(results.as_mut_slice());
+                    reports.push(end_angle_parallel(&mut solver, &mut shards, out));
+                    if last {
+                        results_at = Some(solver.angles_done());
+                    }
                     samples += (w * h * spec.bands_nm.len()) as u64;
                     drop(shards);
                     for (i, st) in owned.into_iter().enumerate() {
@@ -315,26 +333,20 @@ pub fn run_sweep(
             solver.angles_done()
         )));
     }
-    let mut results = vec![
-        PixelResult {
-            thickness_nm: f32::NAN,
-            confidence: 0.0,
-            flags: 0
-        };
-        w * h
-    ];
-    let mut owned: Vec<Vec<PixelState>> =
-        states.into_iter().map(Option::unwrap_or_default).collect();
-    std::thread::scope(|scope| {
-        let mut rest = results.as_mut_slice();
-        for (i, st) in owned.iter_mut().enumerate() {
-            let (first, rows) = shard_rows(h, workers, i);
-            let (mine, tail) = rest.split_at_mut(rows * w);
-            rest = tail;
-            let solver = &solver;
-            scope.spawn(move || Shard::new(first, w, st).finish(solver, mine));
-        }
-    });
+    if results_at != Some(solver.angles_done()) {
+        let mut owned: Vec<Vec<PixelState>> =
+            states.into_iter().map(Option::unwrap_or_default).collect();
+        std::thread::scope(|scope| {
+            let mut rest = results.as_mut_slice();
+            for (i, st) in owned.iter_mut().enumerate() {
+                let (first, rows) = shard_rows(h, workers, i);
+                let (mine, tail) = rest.split_at_mut(rows * w);
+                rest = tail;
+                let solver = &solver;
+                scope.spawn(move || Shard::new(first, w, st).finish(solver, mine));
+            }
+        });
+    }
     let done = Instant::now();
     Ok(SweepOutput {
         spec,
@@ -359,39 +371,56 @@ pub fn run_sweep(
 /// Rows of one band a worker holds: `(band, first row, rows, values)`.
 type HeldRows = (u16, u32, u32, Vec<f32>);
 
+/// Bands of the block that starts at `band` of an angle's `bands`: `band_block`, but at most
+/// half of the bands left (rounded up). A block is fed once its last band has arrived, so
+/// whatever is still to feed when the angle's last row arrives is latency: with the blocks
+/// halving towards the end, each is fed while the next (half as many bands) arrives, and
+/// the last block is one band, fed row by row as it arrives.
+pub fn block_bands(band: usize, bands: usize, band_block: usize) -> usize {
+    band_block
+        .min(bands.saturating_sub(band).div_ceil(2))
+        .max(1)
+}
+
+/// A worker: `block` is `[band_block, bands per angle]`.
 #[allow(clippy::too_many_arguments)]
 fn worker(
     index: usize,
     first_row: usize,
     width: usize,
     options: SolverOptions,
-    band_block: usize,
+    block: [usize; 2],
     start: Receiver<Start>,
     rows: Receiver<WorkerMsg>,
     done: Sender<(usize, Vec<PixelState>)>,
 ) {
+    let [band_block, bands] = block;
     let mut held: Vec<HeldRows> = Vec::new();
     for (mut st, models) in start.iter() {
         let mut shard = Shard::new(first_row, width, &mut st);
         shard.begin_angle();
         let shard_rows = shard.rows();
-        let (mut bands_held, mut rows_of_band) = (0, 0);
+        let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);
         loop {
             match rows.recv() {
                 Ok(WorkerMsg::Rows(band, row, n, values)) => {
                     if held.last().is_none_or(|h| h.0 != band) {
-                        if bands_held == band_block {
+                        if bands_held == limit {
                             feed_held(&mut shard, options, &models, &mut held);
                             bands_held = 0;
+                        }
+                        if bands_held == 0 {
+                            limit = block_bands(usize::from(band), bands, band_block);
                         }
                         bands_held += 1;
                         rows_of_band = 0;
                     }
                     rows_of_band += n as usize;
                     held.push((band, row, n, values));
-                    // A full block is fed at once, not when the next band starts: the rows
-                    // still held when the angle ends are latency.
-                    if bands_held == band_block && rows_of_band >= shard_rows {
+                    // A full block is fed at once, not when the next band starts (a block of
+                    // one band as its rows arrive): the rows still held when the angle ends
+                    // are latency.
+                    if limit == 1 || (bands_held == limit && rows_of_band >= shard_rows) {
                         feed_held(&mut shard, options, &models, &mut held);
                         bands_held = 0;
                     }
@@ -703,65 +732,83 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
     })
 }
 
-/// The solver's angle-end passes, each run on all shards at once.
-pub fn end_angle_parallel(solver: &mut SweepSolver, shards: &mut [Shard<'_>]) -> AngleReport {
-    fn each<T: Send>(shards: &[Shard<'_>], f: impl Fn(&Shard<'_>) -> T + Sync) -> Vec<T> {
+/// The solver's angle-end passes, each run on all shards at once. At the sweep's last angle,
+/// `results` (the image's, row-major; the shards hold its rows in order) gets every pixel's
+/// final result ([`Shard::finish`]) from the same pass that updates it.
+pub fn end_angle_parallel(
+    solver: &mut SweepSolver,
+    shards: &mut [Shard<'_>],
+    results: Option<&mut [PixelResult]>,
+) -> AngleReport {
+    /// `f` of every shard, in shard order, the first on this thread.
+    fn each<S: Send, T: Send>(shards: &mut [S], f: impl Fn(&mut S) -> T + Sync) -> Vec<T> {
+        let Some((first, rest)) = shards.split_first_mut() else {
+            return Vec::new();
+        };
         std::thread::scope(|s| {
-            let handles: Vec<_> = shards.iter().map(|sh| s.spawn(|| f(sh))).collect();
-            handles.into_iter().filter_map(|h| h.join().ok()).collect()
+            let f = &f;
+            let handles: Vec<_> = rest.iter_mut().map(|sh| s.spawn(move || f(sh))).collect();
+            let mut out = vec![f(first)];
+            out.extend(handles.into_iter().filter_map(|h| h.join().ok()));
+            out
         })
     }
     let mut hist = RatioHistogram::default();
-    for r in each(shards, |sh| sh.vote(solver)) {
-        hist.merge(&r);
+    let mut fit = FitStats::default();
+    for (h, f) in each(shards, |sh| sh.tally(solver)) {
+        hist.merge(&h);
+        fit.merge(&f);
     }
     solver.set_votes(&hist);
+    solver.set_fit_histogram(&fit);
     // Per-row sums merged in row order: the same floating-point result for any sharding.
-    fn by_row<T: Send + Default>(
-        shards: &[Shard<'_>],
-        rows_of: impl Fn(&Shard<'_>, &mut Vec<(usize, T)>) + Sync,
-        merge: impl Fn(&mut T, &T),
-    ) -> T {
-        let mut rows: Vec<(usize, T)> = each(shards, |sh| {
-            let mut v = Vec::new();
-            rows_of(sh, &mut v);
-            v
-        })
-        .into_iter()
-        .flatten()
-        .collect();
-        rows.sort_by_key(|(r, _)| *r);
-        let mut total = T::default();
-        for (_, r) in &rows {
-            merge(&mut total, r);
-        }
-        total
+    let mut rows: Vec<(usize, RatioSums, SchurSums)> = each(shards, |sh| {
+        let mut v = Vec::with_capacity(sh.rows());
+        sh.sums(solver, |r, w, s| v.push((r, w, s)));
+        v
+    })
+    .into_iter()
+    .flatten()
+    .collect();
+    rows.sort_by_key(|(r, _, _)| *r);
+    let (mut sums, mut schur) = (RatioSums::default(), SchurSums::default());
+    for (_, w, s) in &rows {
+        sums.merge(w);
+        schur.merge(s);
     }
-    let sums = by_row(
-        shards,
-        |sh, v| sh.window_sums(solver, |r, s| v.push((r, s))),
-        RatioSums::merge,
-    );
     solver.set_window_sums(&sums);
-    let mut rms = FitStats::default();
-    for r in each(shards, |sh| sh.fit_histogram()) {
-        rms.merge(&r);
-    }
-    solver.set_fit_histogram(&rms);
-    let schur = by_row(
-        shards,
-        |sh, v| sh.schur(solver, |r, s| v.push((r, s))),
-        SchurSums::merge,
-    );
     solver.set_schur(&schur);
-    {
-        let solver = &*solver;
-        std::thread::scope(|s| {
-            for sh in shards.iter_mut() {
-                s.spawn(move || sh.update(solver));
-            }
-        });
+    // Each shard's part of `results`.
+    let mut outs: Vec<&mut [PixelResult]> = Vec::new();
+    if let Some(mut rest) = results {
+        for sh in shards.iter() {
+            let n = sh.pixels.len().min(rest.len());
+            let (mine, tail) = std::mem::take(&mut rest).split_at_mut(n);
+            outs.push(mine);
+            rest = tail;
+        }
     }
-    filmscope_core::solve::sweep::resolve_orders(solver, shards);
+    let ties = {
+        let solver = &*solver;
+        let mut jobs: Vec<_> = shards
+            .iter_mut()
+            .zip(
+                outs.iter_mut()
+                    .map(Some)
+                    .chain(std::iter::repeat_with(|| None)),
+            )
+            .collect();
+        each(&mut jobs, |(sh, out)| {
+            let mut ties = Vec::new();
+            sh.update(solver, out.as_deref_mut().map(|o| &mut **o), |i| {
+                ties.push(i)
+            });
+            ties
+        })
+    };
+    filmscope_core::solve::sweep::resolve_orders(solver, shards, |k, _| ties[k].iter().copied());
+    for ((sh, out), ties) in shards.iter().zip(outs.iter_mut()).zip(&ties) {
+        sh.finish_pixels(solver, out, ties.iter().copied());
+    }
     solver.end_angle()
 }

@@ -14,6 +14,9 @@ use super::IndexModel;
 /// Most candidate orders tried per pixel.
 const MAX_CANDIDATES: usize = 48;
 
+/// Most observations the order search uses: a pixel's two extremum lists.
+pub const MAX_OBSERVATIONS: usize = 2 * crate::track::MAX_EXTREMA;
+
 /// Cost of each extremum predicted but not seen, or seen but not predicted, inside the
 /// reliable part of the band.
 const COUNT_PENALTY: f64 = 0.5;
@@ -75,13 +78,14 @@ impl OrderContext {
         }
     }
 
-    /// Extrema a film of `thickness_nm` shows at angle `a` inside the reliable range.
-    fn predicted_count(&self, thickness_nm: f64, a: usize) -> i64 {
-        let at = |l: f64| {
-            let n = self.index.at(l);
-            thickness_nm * 2.0 * libm::sqrt((n * n - self.x[a]).max(1e-9)) / l
-        };
-        let (q_lo, q_hi) = (at(self.reliable_nm[1]), at(self.reliable_nm[0]));
+    /// Extrema a film of `thickness_nm` shows at angle `a` inside the reliable range, given
+    /// `root[a]`: `sqrt(n^2 - x)` at the reliable range's long and short ends.
+    fn predicted_count(&self, thickness_nm: f64, a: usize, root: &[[f64; 2]; 2]) -> i64 {
+        let at = |l: f64, r: f64| thickness_nm * 2.0 * r / l;
+        let (q_lo, q_hi) = (
+            at(self.reliable_nm[1], root[a][0]),
+            at(self.reliable_nm[0], root[a][1]),
+        );
         // Extrema sit at q = peak_offset + k / 2.
         let offset = self.peak_offset[a];
         let first = libm::ceil((q_lo - offset) * 2.0) as i64;
@@ -90,49 +94,67 @@ impl OrderContext {
         (last - first + 1).max(0)
     }
 
-    /// Scores the thickness `d0`: assigns each extremum its nearest allowed order, refits the
-    /// thickness by least squares and returns `(thickness, cost)`.
-    fn score(&self, d0: f64, obs: &[Observation]) -> (f64, f64) {
+    /// Scores the thickness `d0`: assigns each extremum (`(u, parity)`, see
+    /// [`OrderContext::resolve`]) its nearest allowed order, refits the thickness by least
+    /// squares and returns `(thickness, cost)`; `seen[a]` extrema of angle `a` lie inside the
+    /// reliable range.
+    fn score(
+        &self,
+        d0: f64,
+        obs: &[(f64, f64)],
+        seen: [i64; 2],
+        root: &[[f64; 2]; 2],
+    ) -> (f64, f64) {
         let (mut suq, mut suu) = (0.0, 0.0);
-        for o in obs {
-            let u = self.u(o);
-            let p = self.parity(o.kind, o.angle);
+        for &(u, p) in obs {
             let q = p + libm::round(d0 * u - p);
             suq += u * q;
             suu += u * u;
         }
         let d = suq / suu;
         let mut cost = 0.0;
-        for o in obs {
-            let u = self.u(o);
-            let p = self.parity(o.kind, o.angle);
+        for &(u, p) in obs {
             let e = d * u - p;
             let r = e - libm::round(e);
             cost += r * r;
         }
-        for a in 0..self.angles {
-            let seen = obs
-                .iter()
-                .filter(|o| {
-                    o.angle == a
-                        && o.wavelength_nm >= self.reliable_nm[0]
-                        && o.wavelength_nm <= self.reliable_nm[1]
-                })
-                .count() as i64;
-            cost += COUNT_PENALTY * (self.predicted_count(d, a) - seen).abs() as f64;
+        for (a, &seen) in seen.iter().enumerate().take(self.angles) {
+            cost += COUNT_PENALTY * (self.predicted_count(d, a, root) - seen).abs() as f64;
         }
         (d, cost)
     }
 
-    /// Finds the best order for the observations; `None` without observations.
+    /// Finds the best order for the observations (the first [`MAX_OBSERVATIONS`]; a pixel's
+    /// two extremum lists hold at most that many); `None` without observations.
     pub fn resolve(&self, obs: &[Observation]) -> Option<OrderChoice> {
+        let obs = &obs[..obs.len().min(MAX_OBSERVATIONS)];
+        // What every candidate needs of each observation: its order per nm of thickness and
+        // its parity, and how many of each angle's lie inside the reliable range.
+        let mut prepared = [(0.0, 0.0); MAX_OBSERVATIONS];
+        let mut seen = [0i64; 2];
+        for (o, slot) in obs.iter().zip(prepared.iter_mut()) {
+            *slot = (self.u(o), self.parity(o.kind, o.angle));
+            let reliable =
+                o.wavelength_nm >= self.reliable_nm[0] && o.wavelength_nm <= self.reliable_nm[1];
+            if reliable && o.angle < 2 {
+                seen[o.angle] += 1;
+            }
+        }
+        let prepared = &prepared[..obs.len()];
+        let mut root = [[0.0; 2]; 2];
+        for (a, r) in root.iter_mut().enumerate().take(self.angles) {
+            *r = [self.reliable_nm[1], self.reliable_nm[0]].map(|l| {
+                let n = self.index.at(l);
+                libm::sqrt((n * n - self.x[a]).max(1e-9))
+            });
+        }
         // Candidates from the longest-wavelength extremum (the lowest order).
-        let anchor = obs
+        let (k0, _) = obs
             .iter()
-            .max_by(|a, b| a.wavelength_nm.total_cmp(&b.wavelength_nm))?;
-        let u0 = self.u(anchor);
-        let p0 = self.parity(anchor.kind, anchor.angle);
-        let mean_u = obs.iter().map(|o| self.u(o)).sum::<f64>() / obs.len() as f64;
+            .enumerate()
+            .max_by(|a, b| a.1.wavelength_nm.total_cmp(&b.1.wavelength_nm))?;
+        let (u0, p0) = prepared[k0];
+        let mean_u = prepared.iter().map(|o| o.0).sum::<f64>() / obs.len() as f64;
         let order_step_nm = 1.0 / mean_u;
         let [d_lo, d_hi] = self.thickness_range_nm;
         let mut best = (f64::NAN, f64::INFINITY);
@@ -150,7 +172,7 @@ impl OrderContext {
                 break;
             }
             tried += 1;
-            let (d, cost) = self.score(d0, obs);
+            let (d, cost) = self.score(d0, prepared, seen, &root);
             if !(d.is_finite() && d > 0.0) {
                 continue;
             }

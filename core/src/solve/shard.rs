@@ -117,7 +117,6 @@ pub struct Shard<'a> {
     pub width: usize,
     /// Row-major pixel states.
     pub pixels: &'a mut [PixelState],
-    use_neighbours: bool,
 }
 
 /// A pixel's final result.
@@ -138,7 +137,6 @@ impl<'a> Shard<'a> {
             first_row,
             width,
             pixels,
-            use_neighbours: true,
         }
     }
 
@@ -214,56 +212,37 @@ impl<'a> Shard<'a> {
         }
     }
 
-    /// Angle-end pass 1: every pixel's extremum ratios against the reference angle.
-    pub fn vote(&self, solver: &SweepSolver) -> RatioHistogram {
-        let mut h = RatioHistogram::default();
-        if let Some(g) = solver.pair_geometry() {
-            let spec = solver.spec();
-            for p in self.pixels.iter() {
-                h.vote(g, &p.anchor, &p.current, |b| spec.wavelength_at(b));
-            }
-        }
-        h
-    }
-
-    /// Angle-end pass 2: sums of the ratios inside the accepted window, one per image row
-    /// (`f(row, sums)`, rows in order), so that merging them in row order gives the same
-    /// floating-point result however the image is sharded.
-    pub fn window_sums(&self, solver: &SweepSolver, mut f: impl FnMut(usize, RatioSums)) {
-        if let (Some(g), Some(w)) = (solver.pair_geometry(), solver.ratio_window()) {
-            let spec = solver.spec();
-            for (r, row) in self.pixels.chunks(self.width.max(1)).enumerate() {
-                let mut s = RatioSums::default();
-                for p in row {
-                    accumulate_window(&mut s, g, w, &p.anchor, &p.current, |b| {
-                        spec.wavelength_at(b)
-                    });
-                }
-                f(self.first_row + r, s);
-            }
-        }
-    }
-
-    /// Angle-end pass 3: the RMS residuals of the refined pixels and every pixel's noise.
-    pub fn fit_histogram(&self) -> FitStats {
-        let mut h = FitStats::default();
+    /// Angle-end pass 1: every pixel's extremum ratios against the reference angle (the
+    /// votes), the RMS residuals of the refined pixels and every pixel's noise.
+    pub fn tally(&self, solver: &SweepSolver) -> (RatioHistogram, FitStats) {
+        let mut votes = RatioHistogram::default();
+        let mut fit = FitStats::default();
+        let spec = solver.spec();
+        let geometry = solver.pair_geometry();
         for p in self.pixels.iter() {
-            if p.gn.samples > 0 {
-                h.rms.add(p.gn.rms());
+            if let Some(g) = geometry {
+                votes.vote(g, &p.anchor, &p.current, |b| spec.wavelength_at(b));
             }
-            h.noise.add(p.tracker.noise_sigma());
+            if p.gn.samples > 0 {
+                fit.rms.add(p.gn.rms());
+            }
+            fit.noise.add(p.tracker.noise_sigma());
         }
-        h
+        (votes, fit)
     }
 
     fn trusted(p: &PixelState, rms_limit: f32) -> bool {
         p.thickness_nm.is_finite() && p.gn.samples > 2 && p.gn.h_dd > 0.0 && p.gn.rms() <= rms_limit
     }
 
-    /// Angle-end pass 4: the pixels' contributions to the shared index step (their own
-    /// thickness eliminated), outliers left out; one sum per image row, as in
-    /// [`Shard::window_sums`].
-    pub fn schur(&self, solver: &SweepSolver, mut f: impl FnMut(usize, SchurSums)) {
+    /// Angle-end pass 2, one call of `f(row, window, schur)` per image row (rows in order, so
+    /// that merging them in row order gives the same floating-point result however the image
+    /// is sharded): the sums of the ratios inside the accepted window, and the pixels'
+    /// contributions to the shared index step (their own thickness eliminated), outliers left
+    /// out.
+    pub fn sums(&self, solver: &SweepSolver, mut f: impl FnMut(usize, RatioSums, SchurSums)) {
+        let spec = solver.spec();
+        let window = solver.pair_geometry().zip(solver.ratio_window());
         let limit = solver
             .rms_median()
             .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR);
@@ -273,8 +252,17 @@ impl<'a> Shard<'a> {
         let settled =
             |p: &PixelState| hop.is_none_or(|margin| Self::better_order(p, margin, d_lo).is_none());
         for (r, row) in self.pixels.chunks(self.width.max(1)).enumerate() {
+            let mut w = RatioSums::default();
             let mut s = SchurSums::default();
-            for p in row.iter().filter(|p| Self::trusted(p, limit) && settled(p)) {
+            for p in row {
+                if let Some((g, windows)) = window {
+                    accumulate_window(&mut w, g, windows, &p.anchor, &p.current, |b| {
+                        spec.wavelength_at(b)
+                    });
+                }
+                if !(Self::trusted(p, limit) && settled(p)) {
+                    continue;
+                }
                 let g = &p.gn;
                 let h_dd = f64::from(g.h_dd);
                 let h_dp = g.h_dp.map(f64::from);
@@ -291,21 +279,41 @@ impl<'a> Shard<'a> {
                 s.sse += f64::from(g.sse) - f64::from(g.g_d) * f64::from(g.g_d) / h_dd;
                 s.samples += f64::from(g.samples);
             }
-            f(self.first_row + r, s);
+            f(self.first_row + r, w, s);
         }
     }
 
-    /// Angle-end pass 5: steps every refined pixel's thickness (with the index step) and keeps
-    /// the first angle's extrema. Then, shard after shard, [`Shard::resolve_forward`] and, in
-    /// reverse, [`Shard::resolve_backward`].
-    pub fn update(&mut self, solver: &SweepSolver) {
+    /// Angle-end pass 3: steps every refined pixel's thickness (with the index step), keeps
+    /// the first angle's extrema, and gives every pixel without an order the one its extrema
+    /// choose clearly; `tie(i)` is told of each pixel (index in the shard, in increasing
+    /// order) whose two best orders are too close to call, for [`super::sweep::resolve_orders`] (a
+    /// resolved neighbour decides those, in image order). At the sweep's last angle, `out`
+    /// (the shard's results, row-major) gets every pixel's final result as [`Shard::finish`]
+    /// gives it (the ties' to be given again once resolved: [`Shard::finish_pixels`]).
+    pub fn update(
+        &mut self,
+        solver: &SweepSolver,
+        mut out: Option<&mut [PixelResult]>,
+        mut tie: impl FnMut(usize),
+    ) {
         let dp = solver.pending_index_step();
         let first_angle = solver.anchor_deg().is_none();
         // An index that moved this much makes the orders chosen with the old one suspect:
         // every pixel chooses again (with this angle's extrema) and its sums restart.
         let reorder = solver.reorders();
         let (hop, d_lo) = Self::hop_margin(solver);
-        for p in self.pixels.iter_mut() {
+        let spec = solver.spec();
+        // A pixel not refined yet follows the index change at constant optical path.
+        let path_ratio = match (solver.index(), solver.next_index()) {
+            (Some(old), Some(new)) => {
+                let mid = spec.bands_nm[spec.bands_nm.len() / 2];
+                Some(old.at(mid) / new.at(mid))
+            }
+            _ => None,
+        };
+        let orders = Self::order_context(solver);
+        let finish = out.is_some().then(|| Finish::of(solver));
+        for (i, p) in self.pixels.iter_mut().enumerate() {
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
             if p.tracker.overflow {
                 p.flags |= flags::TRACKER_OVERFLOW;
@@ -328,15 +336,24 @@ impl<'a> Shard<'a> {
                 p.thickness_nm = (f64::from(p.thickness_nm) + dd) as f32;
                 p.gn.shift(dd, dp);
             } else if p.thickness_nm.is_finite() {
-                // Not refined yet: follow the index change at constant optical path.
-                if let (Some(old), Some(new)) = (solver.index(), solver.next_index()) {
-                    let mid = solver.spec().bands_nm[solver.spec().bands_nm.len() / 2];
-                    let ratio = old.at(mid) / new.at(mid);
+                if let Some(ratio) = path_ratio {
                     p.thickness_nm = (f64::from(p.thickness_nm) * ratio) as f32;
                 }
             }
             if first_angle {
                 p.anchor = p.current;
+            }
+            if let Some(ctx) = orders.as_ref().filter(|_| !p.thickness_nm.is_finite()) {
+                if let Some(c) = Self::choose(p, spec, ctx) {
+                    if c.runner_up_cost - c.cost >= AMBIGUITY_MARGIN {
+                        Self::set_thickness(p, c.thickness_nm, c.order_step_nm, 0);
+                    } else {
+                        tie(i);
+                    }
+                }
+            }
+            if let (Some(f), Some(o)) = (finish.as_ref(), out.as_mut().and_then(|o| o.get_mut(i))) {
+                *o = f.result(p);
             }
         }
     }
@@ -402,9 +419,7 @@ impl<'a> Shard<'a> {
         })
     }
 
-    fn choose(&self, solver: &SweepSolver, ctx: &OrderContext, i: usize) -> Option<OrderChoice> {
-        let p = &self.pixels[i];
-        let spec = solver.spec();
+    fn choose(p: &PixelState, spec: &SweepSpec, ctx: &OrderContext) -> Option<OrderChoice> {
         let mut obs: heapless::Vec<Observation, { 2 * crate::track::MAX_EXTREMA }> =
             heapless::Vec::new();
         for (angle, list) in [(0, &p.anchor), (1, &p.current)] {
@@ -419,73 +434,81 @@ impl<'a> Shard<'a> {
         ctx.resolve(&obs)
     }
 
-    /// Angle-end pass 6, forward (shards in row order): gives unresolved pixels their order,
-    /// clear winners directly, ties by a resolved neighbour to the left or above (`above`:
-    /// the previous shard's last row). Returns whether ties remain.
-    pub fn resolve_forward(&mut self, solver: &SweepSolver, above: Option<&[f32]>) -> bool {
-        if solver.anchor_deg().is_none() {
-            return false;
-        }
-        self.use_neighbours = solver.spec().options.neighbours;
+    /// Order resolution, forward (shards in row order): each pixel of `ties` (indices in the
+    /// shard, increasing; pixels with an order are skipped) takes the order of a resolved
+    /// neighbour to the left or above (`above`: the previous shard's last row) if it is one
+    /// of its two best. Returns whether ties remain.
+    pub fn resolve_forward(
+        &mut self,
+        solver: &SweepSolver,
+        above: Option<&[f32]>,
+        ties: impl Iterator<Item = usize>,
+    ) -> bool {
         let Some(ctx) = Self::order_context(solver) else {
             return false;
         };
         let w = self.width;
         let mut pending = false;
-        for i in 0..self.pixels.len() {
-            if self.pixels[i].thickness_nm.is_finite() {
+        for i in ties {
+            let p = &self.pixels[i];
+            if p.thickness_nm.is_finite() {
                 continue;
             }
-            let Some(c) = self.choose(solver, &ctx, i) else {
+            let Some(c) = Self::choose(p, solver.spec(), &ctx) else {
                 continue;
             };
-            if c.runner_up_cost - c.cost >= AMBIGUITY_MARGIN {
-                self.set_thickness(i, c.thickness_nm, c.order_step_nm, 0);
-                continue;
-            }
             let left = (i % w > 0).then(|| self.pixels[i - 1].thickness_nm);
             let up = if i >= w {
                 Some(self.pixels[i - w].thickness_nm)
             } else {
                 above.and_then(|a| a.get(i).copied())
             };
-            if !self.adopt_neighbour(i, &c, [left, up]) {
+            if !self.adopt_neighbour(solver, i, &c, [left, up]) {
                 pending = true;
             }
         }
         pending
     }
 
-    /// Angle-end pass 6, backward (shards in reverse order): ties left by the forward pass,
-    /// by a resolved neighbour to the right or below (`below`: the next shard's first row).
-    pub fn resolve_backward(&mut self, solver: &SweepSolver, below: Option<&[f32]>) {
-        if solver.anchor_deg().is_none() {
-            return;
-        }
-        self.use_neighbours = solver.spec().options.neighbours;
+    /// Order resolution, backward (shards in reverse order): the ties left by the forward pass
+    /// (`ties` in decreasing order), by a resolved neighbour to the right or below (`below`:
+    /// the next shard's first row).
+    pub fn resolve_backward(
+        &mut self,
+        solver: &SweepSolver,
+        below: Option<&[f32]>,
+        ties: impl Iterator<Item = usize>,
+    ) {
         let Some(ctx) = Self::order_context(solver) else {
             return;
         };
         let w = self.width;
         let n = self.pixels.len();
-        for i in (0..n).rev() {
-            if self.pixels[i].thickness_nm.is_finite() {
+        for i in ties {
+            let p = &self.pixels[i];
+            if p.thickness_nm.is_finite() {
                 continue;
             }
-            if let Some(c) = self.choose(solver, &ctx, i) {
+            if let Some(c) = Self::choose(p, solver.spec(), &ctx) {
                 let right = (i % w + 1 < w).then(|| self.pixels[i + 1].thickness_nm);
                 let down = if i + w < n {
                     Some(self.pixels[i + w].thickness_nm)
                 } else {
                     below.and_then(|b| b.get(i % w).copied())
                 };
-                self.adopt_neighbour(i, &c, [right, down]);
+                self.adopt_neighbour(solver, i, &c, [right, down]);
             }
         }
     }
 
-    fn adopt_neighbour(&mut self, i: usize, c: &OrderChoice, neighbours: [Option<f32>; 2]) -> bool {
-        if !self.use_neighbours {
+    fn adopt_neighbour(
+        &mut self,
+        solver: &SweepSolver,
+        i: usize,
+        c: &OrderChoice,
+        neighbours: [Option<f32>; 2],
+    ) -> bool {
+        if !solver.spec().options.neighbours {
             return false;
         }
         for d_n in neighbours.into_iter().flatten() {
@@ -495,7 +518,8 @@ impl<'a> Shard<'a> {
             }
             for cand in [c.thickness_nm, c.runner_up_nm] {
                 if cand.is_finite() && (cand - d_n).abs() < 0.3 * c.order_step_nm {
-                    self.set_thickness(i, cand, c.order_step_nm, flags::ORDER_FROM_NEIGHBOUR);
+                    let flag = flags::ORDER_FROM_NEIGHBOUR;
+                    Self::set_thickness(&mut self.pixels[i], cand, c.order_step_nm, flag);
                     return true;
                 }
             }
@@ -503,8 +527,7 @@ impl<'a> Shard<'a> {
         false
     }
 
-    fn set_thickness(&mut self, i: usize, d: f64, step: f64, flag: u16) {
-        let p = &mut self.pixels[i];
+    fn set_thickness(p: &mut PixelState, d: f64, step: f64, flag: u16) {
         p.thickness_nm = d as f32;
         p.order_step_nm = step as f32;
         p.flags |= flag;
@@ -513,84 +536,125 @@ impl<'a> Shard<'a> {
 
     /// The final result of every pixel, row-major, after the last angle.
     pub fn finish(&self, solver: &SweepSolver, out: &mut [PixelResult]) {
-        let sigma2 = solver.residual_sigma().map_or(f64::NAN, |s| s * s);
-        let rms_limit = solver
-            .rms_median()
-            .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR);
+        self.finish_pixels(solver, out, 0..self.pixels.len());
+    }
+
+    /// The final results of the pixels `pixels` (indices in the shard) into `out` (the
+    /// shard's results, row-major), after the last angle.
+    pub fn finish_pixels(
+        &self,
+        solver: &SweepSolver,
+        out: &mut [PixelResult],
+        pixels: impl Iterator<Item = usize>,
+    ) {
+        let finish = Finish::of(solver);
+        for i in pixels {
+            if let (Some(p), Some(o)) = (self.pixels.get(i), out.get_mut(i)) {
+                *o = finish.result(p);
+            }
+        }
+    }
+}
+
+/// What a pixel's final result needs of the sweep.
+struct Finish {
+    sigma2: f64,
+    rms_limit: f32,
+    d_lo: f64,
+    d_hi: f64,
+    refine: bool,
+    mismatch: bool,
+    mismatch_scale: f32,
+}
+
+impl Finish {
+    fn of(solver: &SweepSolver) -> Self {
         let [d_lo, d_hi] = solver.spec().thickness_range_nm;
-        for (p, o) in self.pixels.iter().zip(out.iter_mut()) {
-            let mut f = p.flags;
-            let total = f64::from(p.samples.max(1));
-            if f64::from(p.saturated) > BAD_SHARE * total {
-                f |= flags::SATURATED;
-            }
-            if f64::from(p.dead) > BAD_SHARE * total {
-                f |= flags::DEAD;
-            } else if p.dead > 0 {
-                f |= flags::MISSING_SAMPLES;
-            }
-            let d = f64::from(p.thickness_nm);
-            let mut confidence = 0.0f32;
-            if !d.is_finite() {
-                f |= if p.extrema_seen == 0 {
-                    flags::NO_FRINGE
-                } else {
-                    flags::AMBIGUOUS_ORDER
-                };
-            } else if p.gn.samples == 0 {
-                f |= flags::NOT_REFINED;
-                // Its order rests on one pair of extremum lists, unconfirmed by the full
-                // spectrum (it was ambiguous until the last angle, or the index arrived or
-                // moved then): measured, such orders can be wrong for every pixel at once
-                // (a thin high-index film), so with refinement on they are not reported.
-                if solver.spec().options.refine {
-                    f |= flags::AMBIGUOUS_ORDER;
-                }
-                confidence = 0.5;
+        let (r, n) = (
+            solver.residual_sigma().unwrap_or(1.0),
+            solver.noise_sigma().unwrap_or(0.0),
+        );
+        Self {
+            sigma2: solver.residual_sigma().map_or(f64::NAN, |s| s * s),
+            rms_limit: solver
+                .rms_median()
+                .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR),
+            d_lo,
+            d_hi,
+            refine: solver.spec().options.refine,
+            mismatch: solver.model_mismatch(),
+            mismatch_scale: (f64::from(n) / r).clamp(0.0, 1.0) as f32,
+        }
+    }
+
+    fn result(&self, p: &PixelState) -> PixelResult {
+        let mut f = p.flags;
+        let total = f64::from(p.samples.max(1));
+        if f64::from(p.saturated) > BAD_SHARE * total {
+            f |= flags::SATURATED;
+        }
+        if f64::from(p.dead) > BAD_SHARE * total {
+            f |= flags::DEAD;
+        } else if p.dead > 0 {
+            f |= flags::MISSING_SAMPLES;
+        }
+        let d = f64::from(p.thickness_nm);
+        let mut confidence = 0.0f32;
+        if !d.is_finite() {
+            f |= if p.extrema_seen == 0 {
+                flags::NO_FRINGE
             } else {
-                let g = &p.gn;
-                let best = f64::from(g.sse);
-                // One order thinner is no alternative below the search range (nor below
-                // zero, where the model would mirror the film's thickness).
-                let thinner = d - f64::from(p.order_step_nm) >= d_lo.max(0.0);
-                let alt = f64::from(if thinner {
-                    g.sse_minus.min(g.sse_plus)
-                } else {
-                    g.sse_plus
-                });
-                let chi2 = if sigma2 > 0.0 {
-                    (alt - best) / sigma2
-                } else {
-                    0.0
-                };
-                if chi2 < ORDER_CHI2 {
-                    f |= flags::ORDER_REJECTED;
-                }
-                if g.rms() > rms_limit {
-                    f |= flags::POOR_FIT;
-                }
-                if g.thickness_sigma_nm() > MAX_THICKNESS_SIGMA_NM {
-                    f |= flags::IMPRECISE;
-                }
-                confidence = (chi2 / (chi2 + 4.0 * ORDER_CHI2)).clamp(0.0, 1.0) as f32;
-            }
-            if d.is_finite() && !(d_lo..=d_hi).contains(&d) {
-                f |= flags::OUT_OF_RANGE;
-            }
-            if solver.model_mismatch() {
-                f |= flags::MODEL_MISMATCH;
-                let (r, n) = (
-                    solver.residual_sigma().unwrap_or(1.0),
-                    solver.noise_sigma().unwrap_or(0.0),
-                );
-                confidence *= (f64::from(n) / r).clamp(0.0, 1.0) as f32;
-            }
-            let valid = f & flags::INVALID == 0;
-            *o = PixelResult {
-                thickness_nm: if valid { d as f32 } else { f32::NAN },
-                confidence: if valid { confidence } else { 0.0 },
-                flags: f,
+                flags::AMBIGUOUS_ORDER
             };
+        } else if p.gn.samples == 0 {
+            f |= flags::NOT_REFINED;
+            // Its order rests on one pair of extremum lists, unconfirmed by the full
+            // spectrum (it was ambiguous until the last angle, or the index arrived or
+            // moved then): measured, such orders can be wrong for every pixel at once
+            // (a thin high-index film), so with refinement on they are not reported.
+            if self.refine {
+                f |= flags::AMBIGUOUS_ORDER;
+            }
+            confidence = 0.5;
+        } else {
+            let g = &p.gn;
+            let best = f64::from(g.sse);
+            // One order thinner is no alternative below the search range (nor below
+            // zero, where the model would mirror the film's thickness).
+            let thinner = d - f64::from(p.order_step_nm) >= self.d_lo.max(0.0);
+            let alt = f64::from(if thinner {
+                g.sse_minus.min(g.sse_plus)
+            } else {
+                g.sse_plus
+            });
+            let chi2 = if self.sigma2 > 0.0 {
+                (alt - best) / self.sigma2
+            } else {
+                0.0
+            };
+            if chi2 < ORDER_CHI2 {
+                f |= flags::ORDER_REJECTED;
+            }
+            if g.rms() > self.rms_limit {
+                f |= flags::POOR_FIT;
+            }
+            if g.thickness_sigma_nm() > MAX_THICKNESS_SIGMA_NM {
+                f |= flags::IMPRECISE;
+            }
+            confidence = (chi2 / (chi2 + 4.0 * ORDER_CHI2)).clamp(0.0, 1.0) as f32;
+        }
+        if d.is_finite() && !(self.d_lo..=self.d_hi).contains(&d) {
+            f |= flags::OUT_OF_RANGE;
+        }
+        if self.mismatch {
+            f |= flags::MODEL_MISMATCH;
+            confidence *= self.mismatch_scale;
+        }
+        let valid = f & flags::INVALID == 0;
+        PixelResult {
+            thickness_nm: if valid { d as f32 } else { f32::NAN },
+            confidence: if valid { confidence } else { 0.0 },
+            flags: f,
         }
     }
 }

@@ -2,9 +2,10 @@
 //!
 //! Per angle: [`SweepSolver::begin_angle`], then every shard's rows, then the angle-end
 //! phases in this order (each a shard-local pass whose results are merged here):
-//! `vote` -> [`SweepSolver::set_votes`], `window_sums` -> [`SweepSolver::set_window_sums`],
-//! `fit_histogram` -> [`SweepSolver::set_fit_histogram`], `schur` -> [`SweepSolver::set_schur`],
-//! `update`, then [`SweepSolver::end_angle`]. [`SweepSolver::end_angle_all`] runs them for
+//! `tally` -> [`SweepSolver::set_votes`] and [`SweepSolver::set_fit_histogram`], `sums` ->
+//! [`SweepSolver::set_window_sums`] and [`SweepSolver::set_schur`], `update` (which also
+//! gives the pixels their orders where their extrema choose clearly), [`resolve_orders`]
+//! (the ties, by their neighbours), then [`SweepSolver::end_angle`]. [`SweepSolver::end_angle_all`] runs them for
 //! shards on one thread; the pipeline runs each phase on all cores.
 
 use heapless::Vec as HVec;
@@ -838,43 +839,50 @@ impl SweepSolver {
     /// phases on all cores, merging the per-row sums in row order, so the sums are identical).
     pub fn end_angle_all(&mut self, shards: &mut [Shard<'_>]) -> AngleReport {
         let mut hist = RatioHistogram::default();
+        let mut fit = FitStats::default();
         for s in shards.iter() {
-            hist.merge(&s.vote(self));
+            let (h, f) = s.tally(self);
+            hist.merge(&h);
+            fit.merge(&f);
         }
         self.set_votes(&hist);
+        self.set_fit_histogram(&fit);
         let mut sums = RatioSums::default();
-        for s in shards.iter() {
-            s.window_sums(self, |_, r| sums.merge(&r));
-        }
-        self.set_window_sums(&sums);
-        let mut rms = FitStats::default();
-        for s in shards.iter() {
-            rms.merge(&s.fit_histogram());
-        }
-        self.set_fit_histogram(&rms);
         let mut schur = SchurSums::default();
         for s in shards.iter() {
-            s.schur(self, |_, r| schur.merge(&r));
+            s.sums(self, |_, w, r| {
+                sums.merge(&w);
+                schur.merge(&r);
+            });
         }
+        self.set_window_sums(&sums);
         self.set_schur(&schur);
         for s in shards.iter_mut() {
-            s.update(self);
+            s.update(self, None, |_| {});
         }
-        resolve_orders(self, shards);
+        // Every pixel as a possible tie: those with an order are skipped.
+        resolve_orders(self, shards, |_, pixels| 0..pixels);
         self.end_angle()
     }
 }
 
-/// Order resolution over shards in row order, forward then backward, each shard seeing its
-/// neighbours' edge rows: the same result as one shard over the whole image.
-pub fn resolve_orders(solver: &SweepSolver, shards: &mut [Shard<'_>]) {
+/// Order resolution of the pixels [`Shard::update`] left tied, over shards in row order,
+/// forward then backward, each shard seeing its neighbours' edge rows: the same result as one
+/// shard over the whole image. `ties(shard, pixels)` lists the tied pixels of shard number
+/// `shard` (of `pixels`) in increasing order; pixels with an order are skipped, so `0..pixels`
+/// will do.
+pub fn resolve_orders<I: DoubleEndedIterator<Item = usize>>(
+    solver: &SweepSolver,
+    shards: &mut [Shard<'_>],
+    ties: impl Fn(usize, usize) -> I,
+) {
     let w = solver.spec().width;
     let mut edge = [0f32; 4096];
     let mut have = false;
     let mut pending = false;
-    for s in shards.iter_mut() {
+    for (k, s) in shards.iter_mut().enumerate() {
         let above = (have && w <= edge.len()).then(|| &edge[..w]);
-        pending |= s.resolve_forward(solver, above);
+        pending |= s.resolve_forward(solver, above, ties(k, s.pixels.len()));
         if w <= edge.len() {
             s.edge_row(true, &mut edge[..w]);
             have = true;
@@ -884,9 +892,9 @@ pub fn resolve_orders(solver: &SweepSolver, shards: &mut [Shard<'_>]) {
         return;
     }
     have = false;
-    for s in shards.iter_mut().rev() {
+    for (k, s) in shards.iter_mut().enumerate().rev() {
         let below = (have && w <= edge.len()).then(|| &edge[..w]);
-        s.resolve_backward(solver, below);
+        s.resolve_backward(solver, below, ties(k, s.pixels.len()).rev());
         if w <= edge.len() {
             s.edge_row(false, &mut edge[..w]);
             have = true;
