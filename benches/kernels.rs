@@ -2,6 +2,8 @@
 //!
 //! - `track/push`: the per-pixel extremum tracker over 1024 pixels x 151 bands of a thin-film
 //!   fringe spectrum, band-major as the pipeline streams it (throughput: pixel-band samples).
+//! - `track/row`: the same spectra through the row kernel the pipeline uses
+//!   (`track::row::push_row`, one row of 1024 pixels per band).
 //! - `refine/gn_sums_add`: the full-spectrum Gauss-Newton sums over the same 1024 x 151
 //!   samples, band models built once, computed per sample (throughput: samples).
 //! - `refine/gn_sums_add_tabled`: the same from the tabulated band models.
@@ -30,6 +32,7 @@ use filmscope::pipeline::{calibrate_block, BandModels, Samples, SimSource, Sourc
 use filmscope::solve::refine::{BandCoef, GnSums, Knot};
 use filmscope::solve::sweep::SolverOptions;
 use filmscope::solve::{IndexModel, PixelState, Shard, SweepSolver};
+use filmscope::track::row::{blocks_for, push_row, TrackerLanes};
 use filmscope::track::{ExtremaList, PixelTracker};
 use firmware_sim::{Scene, SoftwareCamera};
 
@@ -133,6 +136,27 @@ fn bench_tracker(c: &mut Criterion) {
         bench.iter(|| {
             sweep(&mut trackers, &mut lists);
             black_box(&lists);
+        });
+    });
+
+    let mut blocks = vec![TrackerLanes::EMPTY; blocks_for(1, PIXELS)];
+    let mut row_lists = vec![ExtremaList::new(); PIXELS];
+    let rows = |blocks: &mut [TrackerLanes], lists: &mut [ExtremaList]| {
+        blocks.iter_mut().for_each(TrackerLanes::reset);
+        lists.iter_mut().for_each(ExtremaList::clear);
+        for (b, row) in spectra.chunks_exact(PIXELS).enumerate() {
+            push_row(blocks, b as u16, row, true, lists);
+        }
+    };
+    rows(&mut blocks, &mut row_lists);
+    assert_eq!(
+        row_lists, lists,
+        "the row kernel finds what the scalar tracker finds"
+    );
+    g.bench_function("row_1024px_x_151b", |bench| {
+        bench.iter(|| {
+            rows(&mut blocks, &mut row_lists);
+            black_box(&row_lists);
         });
     });
     g.finish();

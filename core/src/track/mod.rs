@@ -231,11 +231,15 @@ fn vertex(band: u16, [m0, m1, m2]: [f32; 3], subband: bool) -> f32 {
     // Slope weights k (sum of squares 60); curvature 3 k^2 - 20 (times 2 / 462).
     let d1 = m1 * (1.0 / 60.0);
     let d2 = (3.0 * m2 - 20.0 * m0) * (1.0 / 462.0);
-    if subband && d2.abs() > 1e-12 {
-        centre + (-d1 / (2.0 * d2)).clamp(-1.0, 1.0)
-    } else {
-        centre
-    }
+    // Written as `centre + (offset or 0)` (`centre` is never -0, so adding 0 leaves it as it
+    // is), the offset computed either way: a select the compiler vectorises in the row kernel.
+    let offset = (-d1 / (2.0 * d2)).clamp(-1.0, 1.0);
+    centre
+        + if subband && d2.abs() > 1e-12 {
+            offset
+        } else {
+            0.0
+        }
 }
 
 /// The ring slot before `i` (mod [`WINDOW`]).

@@ -198,8 +198,8 @@ impl TrackerLanes {
                 }
             }
         }
-        for (i, t) in own {
-            self.set_lane(usize::from(i), &t);
+        for (i, t) in own.iter() {
+            self.set_lane(usize::from(*i), t);
         }
     }
 
@@ -207,23 +207,27 @@ impl TrackerLanes {
     /// `WRAP` when this sample fills the ring's last slot (the moments are then recomputed).
     #[inline(always)]
     fn advance<const D2: bool, const WRAP: bool>(&mut self, head: usize, values: &Lanes) {
-        let last = before(head as u8);
-        let prev = before(last as u8);
+        // The ring's rows copied out, so the compiler sees no overlap between them.
+        let a_row = self.ring[before(before(head as u8) as u8)];
+        let b_row = self.ring[before(head as u8)];
+        let old_row = self.ring[head];
+        let mut v_row = [0.0; LANES];
         for i in 0..LANES {
             let x = values[i];
-            let ok = usable(x);
-            let b = self.ring[last][i];
-            let v = if ok { x } else { b };
-            self.bad_samples[i] = self.bad_samples[i].saturating_add(u16::from(!ok));
+            let b = b_row[i];
+            let v = if usable(x) { x } else { b };
+            v_row[i] = v;
             if D2 {
-                self.d2_sum[i] += abs_d2(self.ring[prev][i], b, v);
+                self.d2_sum[i] += abs_d2(a_row[i], b, v);
             }
-            let old = self.ring[head][i];
-            self.ring[head][i] = v;
             if !WRAP {
                 [self.m0[i], self.m1[i], self.m2[i]] =
-                    carry_moments([self.m0[i], self.m1[i], self.m2[i]], old, v);
+                    carry_moments([self.m0[i], self.m1[i], self.m2[i]], old_row[i], v);
             }
+        }
+        self.ring[head] = v_row;
+        for i in 0..LANES {
+            self.bad_samples[i] = self.bad_samples[i].saturating_add(u16::from(!usable(values[i])));
         }
         if WRAP {
             for i in 0..LANES {
