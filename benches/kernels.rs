@@ -28,10 +28,10 @@ use criterion::measurement::WallTime;
 use criterion::{criterion_main, BatchSize, BenchmarkGroup, Criterion, SamplingMode, Throughput};
 use filmscope::calibrate::calibrate_row;
 use filmscope::optics::Polarization;
-use filmscope::pipeline::{calibrate_block, BandModels, Samples, SimSource, Source};
+use filmscope::pipeline::{calibrate_block, BandModels, Samples, ShardState, SimSource, Source};
 use filmscope::solve::refine::{BandCoef, GnSums, Knot};
 use filmscope::solve::sweep::SolverOptions;
-use filmscope::solve::{IndexModel, PixelState, Shard, SweepSolver};
+use filmscope::solve::{IndexModel, SweepSolver};
 use filmscope::track::row::{blocks_for, push_row, TrackerLanes};
 use filmscope::track::{ExtremaList, PixelTracker};
 use firmware_sim::{Scene, SoftwareCamera};
@@ -331,13 +331,13 @@ struct Prepared {
     /// The solver options of the sweep.
     options: SolverOptions,
     /// Solver and states after `begin_angle` of angle `upto`, before its rows.
-    before_rows: (SweepSolver, Vec<PixelState>),
+    before_rows: (SweepSolver, ShardState),
     /// The band models of angle `upto`.
     models: BandModels,
     /// Calibrated rows of angle `upto`, band-major then row-major.
     rows: Vec<f32>,
     /// Solver and states after every row of angle `upto`, before its end.
-    before_end: (SweepSolver, Vec<PixelState>),
+    before_end: (SweepSolver, ShardState),
 }
 
 impl Prepared {
@@ -354,7 +354,7 @@ impl Prepared {
         let angles = camera.scene().angles_deg.clone();
         assert!(upto < angles.len(), "the scene has {} angles", angles.len());
         let mut solver = SweepSolver::new(spec, None);
-        let mut states = vec![PixelState::default(); w * h];
+        let mut states = ShardState::empty(h, w);
         let (mut raw16, mut raw, mut white, mut dark) =
             (vec![0u16; w], vec![0f32; w], vec![0f32; w], vec![0f32; w]);
         let mut models = BandModels::default();
@@ -363,10 +363,12 @@ impl Prepared {
         for (a, &deg) in angles.iter().enumerate().take(upto + 1) {
             solver.begin_angle(deg);
             models = BandModels::of(&solver);
-            let mut shard = Shard::new(0, w, &mut states);
+            let mut shard = states.shard(0, w);
             shard.begin_angle();
             if a == upto {
-                before_rows = Some((solver.clone(), shard.pixels.to_vec()));
+                drop(shard);
+                before_rows = Some((solver.clone(), states.clone()));
+                shard = states.shard(0, w);
             }
             for (b, band) in rows.chunks_exact_mut(h * w).enumerate() {
                 for (r, refl) in band.chunks_exact_mut(w).enumerate() {
@@ -395,9 +397,9 @@ impl Prepared {
     }
 
     /// Feeds every row of the angle into `states`.
-    fn feed(&self, states: &mut [PixelState]) {
+    fn feed(&self, states: &mut ShardState) {
         let w = self.width;
-        let mut shard = Shard::new(0, w, states);
+        let mut shard = states.shard(0, w);
         let h = shard.rows();
         for (b, band) in self.rows.chunks_exact(h * w).enumerate() {
             for (r, row) in band.chunks_exact(w).enumerate() {
@@ -422,21 +424,25 @@ fn bench_solve(c: &mut Criterion) {
         // The state must be what the bench claims.
         {
             let (mut s, mut st) = (solver.clone(), states.clone());
-            let report = s.end_angle_all(&mut [Shard::new(0, w, &mut st)]);
-            let resolved = st.iter().filter(|p| p.thickness_nm.is_finite()).count();
+            let report = s.end_angle_all(&mut [st.shard(0, w)]);
+            let resolved = st
+                .pixels
+                .iter()
+                .filter(|p| p.thickness_nm.is_finite())
+                .count();
             assert!(report.index.is_some(), "{name}: no index");
             assert!(
-                resolved * 2 > st.len(),
+                resolved * 2 > st.pixels.len(),
                 "{name}: {resolved} pixels resolved"
             );
             assert!(upto < 4 || report.refined, "{name}: not refined");
         }
-        g.throughput(Throughput::Elements(states.len() as u64));
+        g.throughput(Throughput::Elements(states.pixels.len() as u64));
         g.bench_function(name, |bench| {
             bench.iter_batched(
                 || (solver.clone(), states.clone()),
-                |(mut s, mut st): (SweepSolver, Vec<PixelState>)| {
-                    let report = s.end_angle_all(&mut [Shard::new(0, w, &mut st)]);
+                |(mut s, mut st): (SweepSolver, ShardState)| {
+                    let report = s.end_angle_all(&mut [st.shard(0, w)]);
                     (report, s, st)
                 },
                 BatchSize::LargeInput,
@@ -449,7 +455,7 @@ fn bench_solve(c: &mut Criterion) {
             let mut check = states.clone();
             prep.feed(&mut check);
             assert!(
-                check.iter().filter(|p| p.gn.samples > 0).count() * 2 > check.len(),
+                check.pixels.iter().filter(|p| p.gn.samples > 0).count() * 2 > check.pixels.len(),
                 "the feed does not refine"
             );
             g.throughput(Throughput::Elements(prep.rows.len() as u64));

@@ -8,7 +8,7 @@
 //!
 //! - `tracker`: the row kernel ([`push_row`], what the workers run) alone, one core,
 //!   pixel-band samples per second.
-//! - `stream`: everything a sample costs a worker ([`Shard::feed_row`]: tracker and the
+//! - `stream`: everything a sample costs a worker ([`filmscope_core::solve::Shard::feed_row`]: tracker and the
 //!   full-spectrum sums), one core.
 //! - `solve`: the angle-end passes ([`SweepSolver::end_angle_all`]: votes, index, orders,
 //!   Gauss-Newton steps) and the final maps, one core, pixels per second of a whole sweep.
@@ -30,7 +30,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
 use crossbeam_channel::Sender;
-use filmscope_core::solve::shard::{PixelResult, PixelState, Shard};
+use filmscope_core::solve::shard::PixelResult;
 use filmscope_core::solve::{state_bytes_per_pixel, SweepSolver, SweepSpec};
 use filmscope_core::track::row::{blocks_for, push_row, TrackerLanes};
 use filmscope_core::track::ExtremaList;
@@ -41,7 +41,7 @@ use crate::chart::{measure, Point, Setting};
 use crate::estimate::RunConfig;
 use crate::pipeline::{
     calibrate_block, run_sweep, stream_band_sequential, BandModels, PipelineConfig, Prior,
-    PriorUpdate, Samples, SimSource, Source, StreamMsg,
+    PriorUpdate, Samples, ShardState, SimSource, Source, StreamMsg,
 };
 use crate::sweep::Method;
 
@@ -247,12 +247,12 @@ pub fn sweep_rates(frames: &Frames, rows: usize) -> (f64, f64) {
     let mut spec_rows = spec.clone();
     spec_rows.height = rows;
     let mut solver = SweepSolver::new(spec_rows, None);
-    let mut states = vec![PixelState::default(); w * rows];
+    let mut states = ShardState::empty(rows, w);
     let (mut stream, mut solve) = (Duration::ZERO, Duration::ZERO);
     for (a, &deg) in frames.angles_deg.iter().enumerate() {
         solver.begin_angle(deg);
         let models = BandModels::of(&solver);
-        let mut shard = Shard::new(0, w, &mut states);
+        let mut shard = states.shard(0, w);
         shard.begin_angle();
         let t0 = Instant::now();
         for b in 0..nb {
@@ -274,7 +274,7 @@ pub fn sweep_rates(frames: &Frames, rows: usize) -> (f64, f64) {
         };
         w * rows
     ];
-    Shard::new(0, w, &mut states).finish(&solver, &mut out);
+    states.shard(0, w).finish(&solver, &mut out);
     solve += t2.elapsed();
     std::hint::black_box(&out);
     let samples = (w * rows * nb * frames.angles_deg.len()) as f64;
