@@ -363,13 +363,11 @@ impl Prepared {
         for (a, &deg) in angles.iter().enumerate().take(upto + 1) {
             solver.begin_angle(deg);
             models = BandModels::of(&solver);
-            let mut shard = states.shard(0, w);
-            shard.begin_angle();
+            states.shard(0, w).begin_angle();
             if a == upto {
-                drop(shard);
                 before_rows = Some((solver.clone(), states.clone()));
-                shard = states.shard(0, w);
             }
+            let mut shard = states.shard(0, w);
             for (b, band) in rows.chunks_exact_mut(h * w).enumerate() {
                 for (r, refl) in band.chunks_exact_mut(w).enumerate() {
                     camera.raw_row(a, b, r, &mut raw16);

@@ -13,6 +13,9 @@
 //! (the scalar tracker skips leading bad samples): it is *out of step* for the rest of the angle
 //! and its samples go through [`PixelTracker::push`] one by one.
 
+// The lane loops index a dozen parallel arrays by lane: that is the form that vectorises.
+#![allow(clippy::needless_range_loop)]
+
 use super::{
     abs_d2, before, carry_moments, exact_moments, smoothed, usable, vertex, ExtremaList, Mode,
     PixelTracker, TAU_PER_D2, WINDOW,
