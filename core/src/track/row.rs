@@ -95,9 +95,17 @@ impl TrackerLanes {
 
     /// Lane `i` as a scalar tracker (a copy).
     pub fn lane(&self, i: usize) -> PixelTracker {
-        let own = self.out_of_step[i];
         PixelTracker {
             ring: core::array::from_fn(|k| self.ring[k][i]),
+            ..self.lane_but_ring(i)
+        }
+    }
+
+    /// Lane `i` as a scalar tracker, its ring left empty.
+    fn lane_but_ring(&self, i: usize) -> PixelTracker {
+        let own = self.out_of_step[i];
+        PixelTracker {
+            ring: [0.0; WINDOW],
             moments: [self.m0[i], self.m1[i], self.m2[i]],
             ext_val: self.ext_val[i],
             ext_pos: self.ext_pos[i],
@@ -119,16 +127,21 @@ impl TrackerLanes {
             self.ring[k][i] = x;
         }
         [self.m0[i], self.m1[i], self.m2[i]] = t.moments;
+        self.d2_sum[i] = t.d2_sum;
+        self.bad_samples[i] = t.bad_samples;
+        self.lane_seen[i] = t.seen;
+        self.lane_head[i] = t.head;
+        self.set_extremes(i, t);
+    }
+
+    /// Stores what [`PixelTracker::decide`] changes of `t` in lane `i`.
+    fn set_extremes(&mut self, i: usize, t: &PixelTracker) {
         self.ext_val[i] = t.ext_val;
         self.ext_pos[i] = t.ext_pos;
         self.min_val[i] = t.min_val;
         self.min_pos[i] = t.min_pos;
-        self.d2_sum[i] = t.d2_sum;
-        self.bad_samples[i] = t.bad_samples;
         self.mode[i] = t.mode as u8;
         self.overflow[i] = t.overflow;
-        self.lane_seen[i] = t.seen;
-        self.lane_head[i] = t.head;
     }
 
     /// Feeds one band's samples of the block's pixels (`values.len() <= LANES`, one list per
@@ -191,13 +204,22 @@ impl TrackerLanes {
             self.first_smoothed();
         } else if usize::from(self.seen) > WINDOW {
             let mut slow = [false; LANES];
-            if self.follow(band, subband, &mut slow) {
+            // Once no lane in step is in `Start` mode (a few bands in), its logic is left out.
+            let starting = (self.mode.iter().zip(&self.out_of_step))
+                .fold(false, |a, (&m, &own)| a | (m == Mode::Start as u8 && !own));
+            let any = if starting {
+                self.follow::<true>(band, subband, &mut slow)
+            } else {
+                self.follow::<false>(band, subband, &mut slow)
+            };
+            if any {
                 let skip = self.out_of_step;
                 for i in (0..LANES).filter(|&i| slow[i] && !skip[i]) {
-                    let mut t = self.lane(i);
+                    // The state machine reads no ring and writes only the extremes.
+                    let mut t = self.lane_but_ring(i);
                     let out = lists.get_mut(i).map_or(&mut scratch, AsMut::as_mut);
                     t.decide(band, subband, out);
-                    self.set_lane(i, &t);
+                    self.set_extremes(i, &t);
                 }
             }
         }
@@ -255,9 +277,14 @@ impl TrackerLanes {
     /// [`PixelTracker::decide`] for every lane in step where the running extremes only move:
     /// marks in `slow` the lanes where an extremum is confirmed or the mode changes (their
     /// state is left as it was, for the scalar state machine). Returns whether any lane is
-    /// marked.
+    /// marked. `START`: whether any lane may be in `Start` mode.
     #[inline(always)]
-    fn follow(&mut self, band: u16, subband: bool, slow: &mut [bool; LANES]) -> bool {
+    fn follow<const START: bool>(
+        &mut self,
+        band: u16,
+        subband: bool,
+        slow: &mut [bool; LANES],
+    ) -> bool {
         let n = f32::from(self.seen.saturating_sub(2));
         let mut any = false;
         for i in 0..LANES {
@@ -266,20 +293,27 @@ impl TrackerLanes {
             let at = vertex(band, m, subband);
             let tau_n = TAU_PER_D2 * self.d2_sum[i];
             let (ev, ep) = (self.ext_val[i], self.ext_pos[i]);
-            let (mv, mp) = (self.min_val[i], self.min_pos[i]);
             let seek_min = self.mode[i] == Mode::SeekMin as u8;
-            let start = self.mode[i] == Mode::Start as u8;
             // The running extreme (the maximum in `Start` and `SeekMax`) moves ...
             let up = if seek_min { s < ev } else { s > ev };
             let new_ev = if up { s } else { ev };
             let new_ep = if up { at } else { ep };
-            // ... and in `Start`, the running minimum.
+            // ... or falls `tau` behind: an extremum (never where it moved).
+            let gap = if seek_min { s - ev } else { ev - s };
+            let seek_event = !up && gap * n > tau_n;
+            if !START {
+                slow[i] = seek_event;
+                any |= seek_event;
+                self.ext_val[i] = new_ev;
+                self.ext_pos[i] = new_ep;
+                continue;
+            }
+            // In `Start`, the running minimum moves too, and either extreme may end it.
+            let (mv, mp) = (self.min_val[i], self.min_pos[i]);
+            let start = self.mode[i] == Mode::Start as u8;
             let down = start && s < mv;
             let new_mv = if down { s } else { mv };
             let new_mp = if down { at } else { mp };
-            // The events of `SeekMax`/`SeekMin` and of `Start`.
-            let gap = if seek_min { s - ev } else { ev - s };
-            let seek_event = !up && gap * n > tau_n;
             let tau = tau_n / n;
             let start_event = s >= new_mv + tau || s <= new_ev - tau;
             let event = if start { start_event } else { seek_event };
