@@ -9,7 +9,9 @@
 //!
 //! State is a fixed-size [`PixelTracker`] per pixel, reset at each angle, whatever the number of
 //! bands; found extrema go to a caller-owned [`ExtremaList`] of fixed capacity (overflow is a
-//! flag, never growth).
+//! flag, never growth). The workers run [`row`], the same tracker over a row's pixels at once
+//! (structure of arrays, vectorised, the same results bit for bit); [`PixelTracker`] is its
+//! reference and handles its rare events.
 
 /// Samples in the smoothing window (odd).
 pub const WINDOW: usize = 9;
