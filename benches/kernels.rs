@@ -2,6 +2,8 @@
 //!
 //! - `track/push`: the per-pixel extremum tracker over 1024 pixels x 151 bands of a thin-film
 //!   fringe spectrum, band-major as the pipeline streams it (throughput: pixel-band samples).
+//! - `track/row`: the same spectra through the row kernel the pipeline uses
+//!   (`track::row::push_row`, one row of 1024 pixels per band).
 //! - `refine/gn_sums_add`: the full-spectrum Gauss-Newton sums over the same 1024 x 151
 //!   samples, band models built once, computed per sample (throughput: samples).
 //! - `refine/gn_sums_add_tabled`: the same from the tabulated band models.
@@ -26,10 +28,11 @@ use criterion::measurement::WallTime;
 use criterion::{criterion_main, BatchSize, BenchmarkGroup, Criterion, SamplingMode, Throughput};
 use filmscope::calibrate::calibrate_row;
 use filmscope::optics::Polarization;
-use filmscope::pipeline::{calibrate_block, BandModels, Samples, SimSource, Source};
+use filmscope::pipeline::{calibrate_block, BandModels, Samples, ShardState, SimSource, Source};
 use filmscope::solve::refine::{BandCoef, GnSums, Knot};
 use filmscope::solve::sweep::SolverOptions;
-use filmscope::solve::{IndexModel, PixelState, Shard, SweepSolver};
+use filmscope::solve::{IndexModel, SweepSolver};
+use filmscope::track::row::{blocks_for, push_row, TrackerLanes};
 use filmscope::track::{ExtremaList, PixelTracker};
 use firmware_sim::{Scene, SoftwareCamera};
 
@@ -133,6 +136,27 @@ fn bench_tracker(c: &mut Criterion) {
         bench.iter(|| {
             sweep(&mut trackers, &mut lists);
             black_box(&lists);
+        });
+    });
+
+    let mut blocks = vec![TrackerLanes::EMPTY; blocks_for(1, PIXELS)];
+    let mut row_lists = vec![ExtremaList::new(); PIXELS];
+    let rows = |blocks: &mut [TrackerLanes], lists: &mut [ExtremaList]| {
+        blocks.iter_mut().for_each(TrackerLanes::reset);
+        lists.iter_mut().for_each(ExtremaList::clear);
+        for (b, row) in spectra.chunks_exact(PIXELS).enumerate() {
+            push_row(blocks, b as u16, row, true, lists);
+        }
+    };
+    rows(&mut blocks, &mut row_lists);
+    assert_eq!(
+        row_lists, lists,
+        "the row kernel finds what the scalar tracker finds"
+    );
+    g.bench_function("row_1024px_x_151b", |bench| {
+        bench.iter(|| {
+            rows(&mut blocks, &mut row_lists);
+            black_box(&row_lists);
         });
     });
     g.finish();
@@ -307,13 +331,13 @@ struct Prepared {
     /// The solver options of the sweep.
     options: SolverOptions,
     /// Solver and states after `begin_angle` of angle `upto`, before its rows.
-    before_rows: (SweepSolver, Vec<PixelState>),
+    before_rows: (SweepSolver, ShardState),
     /// The band models of angle `upto`.
     models: BandModels,
     /// Calibrated rows of angle `upto`, band-major then row-major.
     rows: Vec<f32>,
     /// Solver and states after every row of angle `upto`, before its end.
-    before_end: (SweepSolver, Vec<PixelState>),
+    before_end: (SweepSolver, ShardState),
 }
 
 impl Prepared {
@@ -330,7 +354,7 @@ impl Prepared {
         let angles = camera.scene().angles_deg.clone();
         assert!(upto < angles.len(), "the scene has {} angles", angles.len());
         let mut solver = SweepSolver::new(spec, None);
-        let mut states = vec![PixelState::default(); w * h];
+        let mut states = ShardState::empty(h, w);
         let (mut raw16, mut raw, mut white, mut dark) =
             (vec![0u16; w], vec![0f32; w], vec![0f32; w], vec![0f32; w]);
         let mut models = BandModels::default();
@@ -339,11 +363,11 @@ impl Prepared {
         for (a, &deg) in angles.iter().enumerate().take(upto + 1) {
             solver.begin_angle(deg);
             models = BandModels::of(&solver);
-            let mut shard = Shard::new(0, w, &mut states);
-            shard.begin_angle();
+            states.shard(0, w).begin_angle();
             if a == upto {
-                before_rows = Some((solver.clone(), shard.pixels.to_vec()));
+                before_rows = Some((solver.clone(), states.clone()));
             }
+            let mut shard = states.shard(0, w);
             for (b, band) in rows.chunks_exact_mut(h * w).enumerate() {
                 for (r, refl) in band.chunks_exact_mut(w).enumerate() {
                     camera.raw_row(a, b, r, &mut raw16);
@@ -371,9 +395,9 @@ impl Prepared {
     }
 
     /// Feeds every row of the angle into `states`.
-    fn feed(&self, states: &mut [PixelState]) {
+    fn feed(&self, states: &mut ShardState) {
         let w = self.width;
-        let mut shard = Shard::new(0, w, states);
+        let mut shard = states.shard(0, w);
         let h = shard.rows();
         for (b, band) in self.rows.chunks_exact(h * w).enumerate() {
             for (r, row) in band.chunks_exact(w).enumerate() {
@@ -398,21 +422,25 @@ fn bench_solve(c: &mut Criterion) {
         // The state must be what the bench claims.
         {
             let (mut s, mut st) = (solver.clone(), states.clone());
-            let report = s.end_angle_all(&mut [Shard::new(0, w, &mut st)]);
-            let resolved = st.iter().filter(|p| p.thickness_nm.is_finite()).count();
+            let report = s.end_angle_all(&mut [st.shard(0, w)]);
+            let resolved = st
+                .pixels
+                .iter()
+                .filter(|p| p.thickness_nm.is_finite())
+                .count();
             assert!(report.index.is_some(), "{name}: no index");
             assert!(
-                resolved * 2 > st.len(),
+                resolved * 2 > st.pixels.len(),
                 "{name}: {resolved} pixels resolved"
             );
             assert!(upto < 4 || report.refined, "{name}: not refined");
         }
-        g.throughput(Throughput::Elements(states.len() as u64));
+        g.throughput(Throughput::Elements(states.pixels.len() as u64));
         g.bench_function(name, |bench| {
             bench.iter_batched(
                 || (solver.clone(), states.clone()),
-                |(mut s, mut st): (SweepSolver, Vec<PixelState>)| {
-                    let report = s.end_angle_all(&mut [Shard::new(0, w, &mut st)]);
+                |(mut s, mut st): (SweepSolver, ShardState)| {
+                    let report = s.end_angle_all(&mut [st.shard(0, w)]);
                     (report, s, st)
                 },
                 BatchSize::LargeInput,
@@ -425,7 +453,7 @@ fn bench_solve(c: &mut Criterion) {
             let mut check = states.clone();
             prep.feed(&mut check);
             assert!(
-                check.iter().filter(|p| p.gn.samples > 0).count() * 2 > check.len(),
+                check.pixels.iter().filter(|p| p.gn.samples > 0).count() * 2 > check.pixels.len(),
                 "the feed does not refine"
             );
             g.throughput(Throughput::Elements(prep.rows.len() as u64));

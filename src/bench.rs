@@ -6,8 +6,9 @@
 //! measurements replay them from memory, so the camera's own cost (an Airy sum per sample)
 //! is left out of everything but the figure that names it.
 //!
-//! - `tracker`: [`PixelTracker::push`] alone, one core, pixel-band samples per second.
-//! - `stream`: everything a sample costs a worker ([`Shard::feed_row`]: tracker and the
+//! - `tracker`: the row kernel ([`push_row`], what the workers run) alone, one core,
+//!   pixel-band samples per second.
+//! - `stream`: everything a sample costs a worker ([`filmscope_core::solve::Shard::feed_row`]: tracker and the
 //!   full-spectrum sums), one core.
 //! - `solve`: the angle-end passes ([`SweepSolver::end_angle_all`]: votes, index, orders,
 //!   Gauss-Newton steps) and the final maps, one core, pixels per second of a whole sweep.
@@ -29,9 +30,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
 use crossbeam_channel::Sender;
-use filmscope_core::solve::shard::{PixelResult, PixelState, Shard};
+use filmscope_core::solve::shard::PixelResult;
 use filmscope_core::solve::{state_bytes_per_pixel, SweepSolver, SweepSpec};
-use filmscope_core::track::{ExtremaList, PixelTracker};
+use filmscope_core::track::row::{blocks_for, push_row, TrackerLanes};
+use filmscope_core::track::ExtremaList;
 use firmware_sim::{Scene, SoftwareCamera};
 use serde::Serialize;
 
@@ -39,7 +41,7 @@ use crate::chart::{measure, Point, Setting};
 use crate::estimate::RunConfig;
 use crate::pipeline::{
     calibrate_block, run_sweep, stream_band_sequential, BandModels, PipelineConfig, Prior,
-    PriorUpdate, Samples, SimSource, Source, StreamMsg,
+    PriorUpdate, Samples, ShardState, SimSource, Source, StreamMsg,
 };
 use crate::sweep::Method;
 
@@ -206,25 +208,27 @@ fn repeat_for(min: Duration, mut f: impl FnMut()) -> (u64, Duration) {
     (n, t0.elapsed())
 }
 
-/// Tracker throughput on one core: samples per second.
+/// Tracker throughput on one core: samples per second of the row kernel the workers use
+/// ([`push_row`], one row of the image per call, band by band).
 pub fn tracker_rate(frames: &Frames, min: Duration) -> f64 {
     let w = frames.width();
     let px = w * frames.rows;
-    let mut trackers = vec![PixelTracker::default(); px];
+    let per_row = blocks_for(1, w);
+    let mut blocks = vec![TrackerLanes::EMPTY; blocks_for(frames.rows, w)];
     let mut lists = vec![ExtremaList::new(); px];
     let (n, t) = repeat_for(min, || {
         for a in 0..frames.angles_deg.len() {
-            for (tr, l) in trackers.iter_mut().zip(lists.iter_mut()) {
-                tr.reset();
-                l.clear();
-            }
+            blocks.iter_mut().for_each(TrackerLanes::reset);
+            lists.iter_mut().for_each(ExtremaList::clear);
             for b in 0..frames.bands() {
                 for r in 0..frames.rows {
-                    let row = frames.row(a, b, r);
-                    for (i, &v) in row.iter().enumerate() {
-                        let k = r * w + i;
-                        trackers[k].push(b as u16, v, true, &mut lists[k]);
-                    }
+                    push_row(
+                        &mut blocks[r * per_row..(r + 1) * per_row],
+                        b as u16,
+                        frames.row(a, b, r),
+                        true,
+                        &mut lists[r * w..(r + 1) * w],
+                    );
                 }
             }
         }
@@ -243,12 +247,12 @@ pub fn sweep_rates(frames: &Frames, rows: usize) -> (f64, f64) {
     let mut spec_rows = spec.clone();
     spec_rows.height = rows;
     let mut solver = SweepSolver::new(spec_rows, None);
-    let mut states = vec![PixelState::default(); w * rows];
+    let mut states = ShardState::empty(rows, w);
     let (mut stream, mut solve) = (Duration::ZERO, Duration::ZERO);
     for (a, &deg) in frames.angles_deg.iter().enumerate() {
         solver.begin_angle(deg);
         let models = BandModels::of(&solver);
-        let mut shard = Shard::new(0, w, &mut states);
+        let mut shard = states.shard(0, w);
         shard.begin_angle();
         let t0 = Instant::now();
         for b in 0..nb {
@@ -270,7 +274,7 @@ pub fn sweep_rates(frames: &Frames, rows: usize) -> (f64, f64) {
         };
         w * rows
     ];
-    Shard::new(0, w, &mut states).finish(&solver, &mut out);
+    states.shard(0, w).finish(&solver, &mut out);
     solve += t2.elapsed();
     std::hint::black_box(&out);
     let samples = (w * rows * nb * frames.angles_deg.len()) as f64;

@@ -4,6 +4,7 @@
 use filmscope_core::solve::index::{combine, PairEstimate, PairGeometry};
 use filmscope_core::solve::order::{Observation, OrderContext};
 use filmscope_core::solve::IndexModel;
+use filmscope_core::track::row::{blocks_for, pixel, push_row, TrackerLanes};
 use filmscope_core::track::{ExtremaList, Kind, PixelTracker, MAX_EXTREMA};
 use proptest::prelude::*;
 
@@ -44,6 +45,32 @@ proptest! {
         prop_assert!(out.windows(2).all(|w| w[0].kind() != w[1].kind()), "peaks and valleys alternate");
         prop_assert!(!t.noise_sigma().is_nan());
         prop_assert_eq!(std::mem::size_of::<PixelTracker>(), 76);
+    }
+
+    /// The row kernel the workers run finds what the scalar tracker finds, pixel by pixel,
+    /// whatever the samples (NaN, infinities, huge values, any row width and band count).
+    #[test]
+    fn row_kernel_matches_the_scalar_tracker(
+        width in 1usize..80,
+        rows in proptest::collection::vec(proptest::collection::vec(any_sample(), 80), 0..160),
+        subband in any::<bool>(),
+    ) {
+        let mut blocks = vec![TrackerLanes::EMPTY; blocks_for(1, width)];
+        let mut lists = vec![ExtremaList::new(); width];
+        let mut scalar = vec![PixelTracker::default(); width];
+        let mut scalar_lists = vec![ExtremaList::new(); width];
+        for (b, row) in rows.iter().enumerate() {
+            push_row(&mut blocks, b as u16, &row[..width], subband, &mut lists);
+            for ((t, l), &v) in scalar.iter_mut().zip(&mut scalar_lists).zip(row) {
+                t.push(b as u16, v, subband, l);
+            }
+        }
+        for (i, t) in scalar.iter().enumerate() {
+            let r = pixel(&blocks, width, i);
+            prop_assert_eq!(&*lists[i], &*scalar_lists[i], "pixel {}", i);
+            prop_assert_eq!(r.noise_sigma().to_bits(), t.noise_sigma().to_bits());
+            prop_assert_eq!((r.bad_samples, r.overflow), (t.bad_samples, t.overflow));
+        }
     }
 
     /// Finite samples give a finite noise estimate and finite extrema positions.

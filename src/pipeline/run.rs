@@ -21,8 +21,9 @@ use filmscope_core::solve::refine::{AngleModels, BandCoef, Knot};
 use filmscope_core::solve::sweep::SolverOptions;
 use filmscope_core::solve::sweep::{FitStats, SchurSums};
 use filmscope_core::solve::{
-    AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
+    tracker_blocks, AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
 };
+use filmscope_core::track::row::TrackerLanes;
 
 use super::msg::{Samples, StreamMsg};
 use super::source::Source;
@@ -106,7 +107,35 @@ enum WorkerMsg {
 
 /// The state of an angle for a worker, on its own channel (from the coordinator): rows are
 /// read only after it, so rows of the next angle can never reach the previous one's state.
-type Start = (Vec<PixelState>, Arc<BandModels>);
+type Start = (ShardState, Arc<BandModels>);
+
+/// The owned state of a shard of rows: its pixels' states and their extremum trackers (in
+/// blocks of a row's pixels).
+#[derive(Clone, Debug, Default)]
+pub struct ShardState {
+    /// Row-major pixel states.
+    pub pixels: Vec<PixelState>,
+    /// The pixels' trackers.
+    pub trackers: Vec<TrackerLanes>,
+}
+
+impl ShardState {
+    /// `pixels` (rows of `width`) with fresh trackers.
+    pub fn new(pixels: Vec<PixelState>, width: usize) -> Self {
+        let trackers = vec![TrackerLanes::EMPTY; tracker_blocks(pixels.len(), width)];
+        Self { pixels, trackers }
+    }
+
+    /// `rows` x `width` pixels that have seen nothing.
+    pub fn empty(rows: usize, width: usize) -> Self {
+        Self::new(vec![PixelState::default(); rows * width], width)
+    }
+
+    /// The shard over this state, its first row `first_row`.
+    pub fn shard(&mut self, first_row: usize, width: usize) -> Shard<'_> {
+        Shard::new(first_row, width, &mut self.pixels, &mut self.trackers)
+    }
+}
 
 /// An angle's band models, owned: each band's coefficients and their tabulated knots.
 #[derive(Clone, Debug, Default)]
@@ -217,15 +246,18 @@ pub fn run_sweep(
             "the thickness seed map does not have {w} x {h} pixels"
         )));
     }
-    let mut states: Vec<Option<Vec<PixelState>>> = (0..workers)
+    let mut states: Vec<Option<ShardState>> = (0..workers)
         .map(|i| {
             let (first, rows) = shard_rows(h, workers, i);
             Some(match &seed {
-                Some((map, index)) => map[first * w..(first + rows) * w]
-                    .iter()
-                    .map(|&d| PixelState::seeded(d, *index, &spec))
-                    .collect(),
-                None => vec![PixelState::default(); rows * w],
+                Some((map, index)) => ShardState::new(
+                    map[first * w..(first + rows) * w]
+                        .iter()
+                        .map(|&d| PixelState::seeded(d, *index, &spec))
+                        .collect(),
+                    w,
+                ),
+                None => ShardState::empty(rows, w),
             })
         })
         .collect();
@@ -248,7 +280,7 @@ pub fn run_sweep(
     std::thread::scope(|scope| -> Result<(), PipelineError> {
         let (src_tx, src_rx) = bounded::<StreamMsg>(cap);
         let (ctl_tx, ctl_rx) = bounded::<Control>(cap);
-        let (done_tx, done_rx) = bounded::<(usize, Vec<PixelState>)>(workers);
+        let (done_tx, done_rx) = bounded::<(usize, ShardState)>(workers);
         let mut worker_txs = Vec::new();
         let mut start_txs = Vec::new();
         for i in 0..workers {
@@ -290,14 +322,14 @@ pub fn run_sweep(
                     if abort.is_some() {
                         break;
                     }
-                    let mut owned: Vec<Vec<PixelState>> = states
+                    let mut owned: Vec<ShardState> = states
                         .iter_mut()
                         .map(|s| s.take().unwrap_or_default())
                         .collect();
                     let mut shards: Vec<Shard<'_>> = owned
                         .iter_mut()
                         .enumerate()
-                        .map(|(i, st)| Shard::new(shard_rows(h, workers, i).0, w, st))
+                        .map(|(i, st)| st.shard(shard_rows(h, workers, i).0, w))
                         .collect();
                     let last = solver.angles_done() + 1 == angles;
                     let out = last.then_some(results.as_mut_slice());
@@ -334,7 +366,7 @@ pub fn run_sweep(
         )));
     }
     if results_at != Some(solver.angles_done()) {
-        let mut owned: Vec<Vec<PixelState>> =
+        let mut owned: Vec<ShardState> =
             states.into_iter().map(Option::unwrap_or_default).collect();
         std::thread::scope(|scope| {
             let mut rest = results.as_mut_slice();
@@ -343,7 +375,7 @@ pub fn run_sweep(
                 let (mine, tail) = rest.split_at_mut(rows * w);
                 rest = tail;
                 let solver = &solver;
-                scope.spawn(move || Shard::new(first, w, st).finish(solver, mine));
+                scope.spawn(move || st.shard(first, w).finish(solver, mine));
             }
         });
     }
@@ -392,12 +424,12 @@ fn worker(
     block: [usize; 2],
     start: Receiver<Start>,
     rows: Receiver<WorkerMsg>,
-    done: Sender<(usize, Vec<PixelState>)>,
+    done: Sender<(usize, ShardState)>,
 ) {
     let [band_block, bands] = block;
     let mut held: Vec<HeldRows> = Vec::new();
     for (mut st, models) in start.iter() {
-        let mut shard = Shard::new(first_row, width, &mut st);
+        let mut shard = st.shard(first_row, width);
         shard.begin_angle();
         let shard_rows = shard.rows();
         let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);

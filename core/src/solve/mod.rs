@@ -28,7 +28,7 @@ pub mod shard;
 pub mod sweep;
 pub mod thin;
 
-pub use shard::{state_bytes_per_pixel, PixelResult, PixelState, Shard};
+pub use shard::{state_bytes_per_pixel, tracker_blocks, PixelResult, PixelState, Shard};
 pub use sweep::{AngleReport, SweepSolver, SweepSpec};
 
 /// Why a pixel has no thickness, or what to know about the one it has (bit flags).

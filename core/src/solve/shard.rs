@@ -1,5 +1,6 @@
 //! Per-pixel state of a band of rows, and the shard-local passes of the solver.
 
+use crate::track::row::{self, TrackerLanes};
 use crate::track::{ExtremaList, PixelTracker};
 
 use super::flags;
@@ -35,19 +36,17 @@ pub const MAX_THICKNESS_SIGMA_NM: f64 = 5.0;
 /// Largest share of unusable samples a valid pixel may have.
 const BAD_SHARE: f64 = 0.1;
 
-/// Everything the solver keeps about one pixel; its size is fixed whatever the number of
-/// bands, angles and sweeps (see `state_bytes_per_pixel`).
+/// Everything the solver keeps about one pixel but its extremum tracker (which lives in the
+/// shard's row blocks, [`TrackerLanes`]); its size is fixed whatever the number of bands,
+/// angles and sweeps (see `state_bytes_per_pixel`).
 ///
-/// Laid out hot first (`repr(C)`): every sample reads and writes the tracker, the
-/// full-spectrum sums, the thickness and the counters (the first 161 bytes of 248); the extremum
-/// lists are touched only when an extremum is found and at angle ends. A band streams past
-/// every pixel's state, so on a large sensor the bytes a sample touches, not its arithmetic,
-/// set the rate.
+/// Laid out hot first (`repr(C)`): every sample reads and writes the full-spectrum sums, the
+/// thickness and the counters (the first 85 bytes of 172); the extremum lists are touched only
+/// when an extremum is found and at angle ends. A band streams past every pixel's state, so on
+/// a large sensor the bytes a sample touches, not its arithmetic, set the rate.
 #[derive(Clone, Debug)]
 #[repr(C)]
 pub struct PixelState {
-    /// This angle's extremum tracker.
-    pub tracker: PixelTracker,
     /// Full-spectrum sums.
     pub gn: GnSums,
     /// Thickness (the Gauss-Newton linearisation point), NaN until the order is known.
@@ -73,7 +72,6 @@ pub struct PixelState {
 impl Default for PixelState {
     fn default() -> Self {
         Self {
-            tracker: PixelTracker::default(),
             anchor: ExtremaList::new(),
             current: ExtremaList::new(),
             thickness_nm: f32::NAN,
@@ -104,9 +102,25 @@ impl PixelState {
     }
 }
 
-/// Bytes of solver state per pixel.
+impl AsMut<ExtremaList> for PixelState {
+    /// The current angle's extrema, where the tracker puts them.
+    fn as_mut(&mut self) -> &mut ExtremaList {
+        &mut self.current
+    }
+}
+
+/// Bytes of solver state per pixel: its [`PixelState`] and its share of the tracker blocks
+/// (a block of [`row::LANES`] pixels, rounded up).
 pub const fn state_bytes_per_pixel() -> usize {
-    core::mem::size_of::<PixelState>()
+    core::mem::size_of::<PixelState>() + core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES)
+}
+
+/// Tracker blocks a shard of `pixels` pixels in rows of `width` needs ([`Shard::new`]).
+pub const fn tracker_blocks(pixels: usize, width: usize) -> usize {
+    match pixels.checked_div(width) {
+        Some(rows) => row::blocks_for(rows, width),
+        None => 0,
+    }
 }
 
 /// The per-pixel states of rows `first_row..first_row + pixels.len() / width`.
@@ -117,6 +131,8 @@ pub struct Shard<'a> {
     pub width: usize,
     /// Row-major pixel states.
     pub pixels: &'a mut [PixelState],
+    /// The pixels' extremum trackers, row after row ([`tracker_blocks`] of them).
+    trackers: &'a mut [TrackerLanes],
 }
 
 /// A pixel's final result.
@@ -131,13 +147,31 @@ pub struct PixelResult {
 }
 
 impl<'a> Shard<'a> {
-    /// A shard over caller-owned states.
-    pub fn new(first_row: usize, width: usize, pixels: &'a mut [PixelState]) -> Self {
+    /// A shard over caller-owned states and trackers (`trackers.len()` must be
+    /// [`tracker_blocks`]`(pixels.len(), width)`).
+    pub fn new(
+        first_row: usize,
+        width: usize,
+        pixels: &'a mut [PixelState],
+        trackers: &'a mut [TrackerLanes],
+    ) -> Self {
+        assert_eq!(
+            trackers.len(),
+            tracker_blocks(pixels.len(), width),
+            "one tracker block per {} pixels of a row",
+            row::LANES
+        );
         Self {
             first_row,
             width,
             pixels,
+            trackers,
         }
+    }
+
+    /// Pixel `i`'s extremum tracker this angle (a copy: its noise, bad samples, overflow).
+    pub fn tracker(&self, i: usize) -> PixelTracker {
+        row::pixel(self.trackers, self.width, i)
     }
 
     /// Rows held.
@@ -152,8 +186,8 @@ impl<'a> Shard<'a> {
 
     /// Starts an angle: resets the trackers and the current extrema.
     pub fn begin_angle(&mut self) {
+        self.trackers.iter_mut().for_each(TrackerLanes::reset);
         for p in self.pixels.iter_mut() {
-            p.tracker.reset();
             p.current.clear();
         }
     }
@@ -178,11 +212,12 @@ impl<'a> Shard<'a> {
             .get(band)
             .and_then(Option::as_ref)
             .filter(|_| options.refine);
-        let band16 = band as u16;
-        for (p, &v) in self.pixels[start..start + self.width]
-            .iter_mut()
-            .zip(values)
-        {
+        let pixels = &mut self.pixels[start..start + self.width];
+        let blocks = tracker_blocks(self.width, self.width);
+        let first = (row - self.first_row) * blocks;
+        let trackers = &mut self.trackers[first..first + blocks];
+        row::push_row(trackers, band as u16, values, options.subband, pixels);
+        for (p, &v) in pixels.iter_mut().zip(values) {
             p.samples = p.samples.saturating_add(1);
             // A finite value far outside any reflectance is a corrupted sample: dead.
             let v = if v.is_finite() && !crate::track::usable(v) {
@@ -197,7 +232,6 @@ impl<'a> Shard<'a> {
                     p.saturated = p.saturated.saturating_add(1);
                 }
             }
-            p.tracker.push(band16, v, options.subband, &mut p.current);
             if let Some(c) = coef {
                 if v.is_finite() && p.thickness_nm.is_finite() {
                     p.gn.add(
@@ -219,14 +253,14 @@ impl<'a> Shard<'a> {
         let mut fit = FitStats::default();
         let spec = solver.spec();
         let geometry = solver.pair_geometry();
-        for p in self.pixels.iter() {
+        for (i, p) in self.pixels.iter().enumerate() {
             if let Some(g) = geometry {
                 votes.vote(g, &p.anchor, &p.current, |b| spec.wavelength_at(b));
             }
             if p.gn.samples > 0 {
                 fit.rms.add(p.gn.rms());
             }
-            fit.noise.add(p.tracker.noise_sigma());
+            fit.noise.add(self.tracker(i).noise_sigma());
         }
         (votes, fit)
     }
@@ -315,7 +349,7 @@ impl<'a> Shard<'a> {
         let finish = out.is_some().then(|| Finish::of(solver));
         for (i, p) in self.pixels.iter_mut().enumerate() {
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
-            if p.tracker.overflow {
+            if row::pixel(self.trackers, self.width, i).overflow {
                 p.flags |= flags::TRACKER_OVERFLOW;
             }
             // A seeded pixel has no extrema to choose its order again from: it keeps its
@@ -665,15 +699,20 @@ mod size_tests {
 
     #[test]
     fn pixel_state_size_is_fixed_and_known() {
-        // Breakdown (hot first, `repr(C)`): tracker 76, full-spectrum sums 68, thickness,
-        // order step, sample counters, flags 17 (161 hot bytes), then the two extremum
-        // lists 2 x 42 (20 extrema of 2 bytes and a one-byte length); 248 in all.
+        // Breakdown: the pixel's state (hot first, `repr(C)`): full-spectrum sums 68,
+        // thickness, order step, sample counters, flags 17 (85 hot bytes), then the two
+        // extremum lists 2 x 42 (20 extrema of 2 bytes and a one-byte length), 172 with
+        // padding; and its tracker lanes in the row blocks, 76 bytes a pixel (the scalar
+        // tracker's 76) and the block's shared ring position and count, 77 rounded up; 249
+        // in all.
         let sizes = [
             core::mem::size_of::<PixelTracker>(),
+            core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES),
             core::mem::size_of::<ExtremaList>(),
             core::mem::size_of::<GnSums>(),
+            core::mem::size_of::<PixelState>(),
             state_bytes_per_pixel(),
         ];
-        assert_eq!(sizes, [76, 42, 68, 248]);
+        assert_eq!(sizes, [76, 77, 42, 68, 172, 249]);
     }
 }

@@ -9,7 +9,9 @@
 //!
 //! State is a fixed-size [`PixelTracker`] per pixel, reset at each angle, whatever the number of
 //! bands; found extrema go to a caller-owned [`ExtremaList`] of fixed capacity (overflow is a
-//! flag, never growth).
+//! flag, never growth). The workers run [`row`], the same tracker over a row's pixels at once
+//! (structure of arrays, vectorised, the same results bit for bit); [`PixelTracker`] is its
+//! reference and handles its rare events.
 
 /// Samples in the smoothing window (odd).
 pub const WINDOW: usize = 9;
@@ -116,6 +118,12 @@ impl ExtremaList {
     }
 }
 
+impl AsMut<ExtremaList> for ExtremaList {
+    fn as_mut(&mut self) -> &mut ExtremaList {
+        self
+    }
+}
+
 impl core::ops::Deref for ExtremaList {
     type Target = [Extremum];
     fn deref(&self) -> &[Extremum] {
@@ -124,11 +132,24 @@ impl core::ops::Deref for ExtremaList {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[repr(u8)]
 enum Mode {
     #[default]
     Start,
     SeekMax,
     SeekMin,
+}
+
+impl Mode {
+    /// The mode stored as `mode as u8`.
+    #[inline]
+    fn from_u8(m: u8) -> Self {
+        match m {
+            1 => Self::SeekMax,
+            2 => Self::SeekMin,
+            _ => Self::Start,
+        }
+    }
 }
 
 /// `PROMINENCE_SIGMA` halved (the smoothed spectrum's noise is about half the raw noise)
@@ -168,6 +189,61 @@ pub struct PixelTracker {
     pub overflow: bool,
 }
 
+/// `|a - 2 b + v|`: one term of the noise estimate.
+#[inline(always)]
+fn abs_d2(a: f32, b: f32, v: f32) -> f32 {
+    (v - 2.0 * b + a).abs()
+}
+
+/// The window's moments recomputed from a ring in order, oldest first.
+#[inline(always)]
+fn exact_moments(ring: &[f32; WINDOW]) -> [f32; 3] {
+    let (mut m0, mut m1, mut m2) = (0.0f32, 0.0f32, 0.0f32);
+    for (k, &x) in ring.iter().enumerate() {
+        let kk = k as f32 - HALF as f32;
+        m0 += x;
+        m1 += kk * x;
+        m2 += kk * kk * x;
+    }
+    [m0, m1, m2]
+}
+
+/// The window's moments carried one sample on: `old` leaves, `v` enters.
+#[inline(always)]
+fn carry_moments([s0, s1, s2]: [f32; 3], old: f32, v: f32) -> [f32; 3] {
+    [
+        s0 - old + v,
+        s1 - s0 + 5.0 * old + 4.0 * v,
+        s2 - 2.0 * s1 + s0 - 25.0 * old + 16.0 * v,
+    ]
+}
+
+/// Smoothed value at the window centre: the 9-point quadratic Savitzky-Golay weights are
+/// `59 - 5 k^2` (sum 231).
+#[inline(always)]
+fn smoothed([m0, _, m2]: [f32; 3]) -> f32 {
+    (59.0 * m0 - 5.0 * m2) * (1.0 / 231.0)
+}
+
+/// The local quadratic's vertex (fractional band) for the window ending at band `band`,
+/// within a band of the window centre (the centre itself unless `subband`).
+#[inline(always)]
+fn vertex(band: u16, [m0, m1, m2]: [f32; 3], subband: bool) -> f32 {
+    let centre = f32::from(band) - HALF as f32;
+    // Slope weights k (sum of squares 60); curvature 3 k^2 - 20 (times 2 / 462).
+    let d1 = m1 * (1.0 / 60.0);
+    let d2 = (3.0 * m2 - 20.0 * m0) * (1.0 / 462.0);
+    // Written as `centre + (offset or 0)` (`centre` is never -0, so adding 0 leaves it as it
+    // is), the offset computed either way: a select the compiler vectorises in the row kernel.
+    let offset = (-d1 / (2.0 * d2)).clamp(-1.0, 1.0);
+    centre
+        + if subband && d2.abs() > 1e-12 {
+            offset
+        } else {
+            0.0
+        }
+}
+
 /// The ring slot before `i` (mod [`WINDOW`]).
 #[inline]
 fn before(i: u8) -> usize {
@@ -205,13 +281,23 @@ impl PixelTracker {
     /// fraction of a band when `subband` (else at the band of the smoothed extreme).
     #[inline]
     pub fn push(&mut self, band: u16, value: f32, subband: bool, out: &mut ExtremaList) {
+        if self.advance(value) {
+            self.decide(band, subband, out);
+        }
+    }
+
+    /// The smoothing window's half of [`PixelTracker::push`]: takes the sample into the ring,
+    /// the moments and the noise sums. Returns whether the window is full (the smoothed
+    /// spectrum is defined).
+    #[inline]
+    fn advance(&mut self, value: f32) -> bool {
         let last = before(self.head);
         let v = if usable(value) {
             value
         } else {
             self.bad_samples = self.bad_samples.saturating_add(1);
             if self.seen == 0 {
-                return;
+                return false;
             }
             self.ring[last]
         };
@@ -219,7 +305,7 @@ impl PixelTracker {
         if self.seen >= 2 {
             let a = self.ring[before(last as u8)];
             let b = self.ring[last];
-            self.d2_sum += (v - 2.0 * b + a).abs();
+            self.d2_sum += abs_d2(a, b, v);
         }
         let old = self.ring[slot];
         self.ring[slot] = v;
@@ -228,44 +314,24 @@ impl PixelTracker {
         } else {
             slot as u8 + 1
         };
-        let [s0, s1, s2] = self.moments;
         self.moments = if self.head == 0 {
             // The ring is in order, oldest first: recompute exactly.
-            let (mut m0, mut m1, mut m2) = (0.0f32, 0.0f32, 0.0f32);
-            for (k, &x) in self.ring.iter().enumerate() {
-                let kk = k as f32 - HALF as f32;
-                m0 += x;
-                m1 += kk * x;
-                m2 += kk * kk * x;
-            }
-            [m0, m1, m2]
+            exact_moments(&self.ring)
         } else {
-            [
-                s0 - old + v,
-                s1 - s0 + 5.0 * old + 4.0 * v,
-                s2 - 2.0 * s1 + s0 - 25.0 * old + 16.0 * v,
-            ]
+            carry_moments(self.moments, old, v)
         };
         self.seen = self.seen.saturating_add(1);
-        if usize::from(self.seen) < WINDOW {
-            return;
-        }
-        let [m0, m1, m2] = self.moments;
-        // Smoothed value at the window centre (band - HALF): the 9-point quadratic
-        // Savitzky-Golay weights are 59 - 5 k^2 (sum 231).
-        let s = (59.0 * m0 - 5.0 * m2) * (1.0 / 231.0);
+        usize::from(self.seen) >= WINDOW
+    }
+
+    /// The state machine's half of [`PixelTracker::push`], once the window is full: follows
+    /// the smoothed spectrum and emits confirmed extrema.
+    #[inline]
+    fn decide(&mut self, band: u16, subband: bool, out: &mut ExtremaList) {
+        let m = self.moments;
+        let s = smoothed(m);
         // Its vertex (fractional band), computed only where an extreme moves.
-        let vertex = || {
-            let centre = f32::from(band) - HALF as f32;
-            // Slope weights k (sum of squares 60); curvature 3 k^2 - 20 (times 2 / 462).
-            let d1 = m1 * (1.0 / 60.0);
-            let d2 = (3.0 * m2 - 20.0 * m0) * (1.0 / 462.0);
-            if subband && d2.abs() > 1e-12 {
-                centre + (-d1 / (2.0 * d2)).clamp(-1.0, 1.0)
-            } else {
-                centre
-            }
-        };
+        let vertex = || vertex(band, m, subband);
         // The prominence `tau = TAU_PER_D2 * d2_sum / n` is compared as `x * n > tau * n`:
         // no division per sample.
         let n = f32::from(self.d2_count());
@@ -344,6 +410,8 @@ impl PixelTracker {
         }
     }
 }
+
+pub mod row;
 
 #[cfg(test)]
 mod tests;

@@ -1,0 +1,370 @@
+//! The tracker of a row of pixels at once: [`PixelTracker`]'s arithmetic, lane by lane.
+//!
+//! Every pixel of a row sees the same band at the same time, so the ring position and the
+//! count of samples are the row's, not each pixel's: a block of [`LANES`] pixels keeps each
+//! field of the tracker as an array over its pixels (structure of arrays) and the compiler
+//! vectorises the per-sample arithmetic (ring, moments, noise sums, the smoothed value, its
+//! vertex, the running extremes). The rare events, an extremum confirmed or a change of mode,
+//! are found by a mask and handed to the scalar tracker's own state machine for those lanes
+//! alone, so the two give the same extrema, noise, bad-sample counts and overflow flags bit for
+//! bit (the `row` tests feed both the same spectra).
+//!
+//! A pixel whose first sample of an angle is unusable does not start its window with the row
+//! (the scalar tracker skips leading bad samples): it is *out of step* for the rest of the angle
+//! and its samples go through [`PixelTracker::push`] one by one.
+
+// The lane loops index a dozen parallel arrays by lane: that is the form that vectorises.
+#![allow(clippy::needless_range_loop)]
+
+use super::{
+    abs_d2, before, carry_moments, exact_moments, smoothed, usable, vertex, ExtremaList, Mode,
+    PixelTracker, TAU_PER_D2, WINDOW,
+};
+
+/// Pixels per block of [`TrackerLanes`].
+pub const LANES: usize = 32;
+
+/// Tracker state of [`LANES`] pixels of one row: the fields of [`PixelTracker`] as arrays over
+/// the pixels, with the ring position and sample count shared (77 bytes per pixel).
+#[derive(Clone, Copy, Debug)]
+pub struct TrackerLanes {
+    /// `ring[k][i]`: ring slot `k` of lane `i`.
+    ring: [[f32; LANES]; WINDOW],
+    m0: [f32; LANES],
+    m1: [f32; LANES],
+    m2: [f32; LANES],
+    d2_sum: [f32; LANES],
+    ext_val: [f32; LANES],
+    ext_pos: [f32; LANES],
+    min_val: [f32; LANES],
+    min_pos: [f32; LANES],
+    bad_samples: [u16; LANES],
+    /// Samples seen by an out-of-step lane (the others have seen `seen`).
+    lane_seen: [u16; LANES],
+    /// `Mode as u8`.
+    mode: [u8; LANES],
+    overflow: [bool; LANES],
+    /// Ring position of an out-of-step lane (the others are at `head`).
+    lane_head: [u8; LANES],
+    /// Lanes whose first sample was unusable: their window lags the row's.
+    out_of_step: [bool; LANES],
+    /// Samples seen by the lanes in step (saturates).
+    seen: u16,
+    /// Their ring position.
+    head: u8,
+    /// Whether any lane is out of step.
+    any_out_of_step: bool,
+}
+
+impl Default for TrackerLanes {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
+/// The samples of one block, padded to [`LANES`].
+type Lanes = [f32; LANES];
+
+impl TrackerLanes {
+    /// A block that has seen nothing (every lane a reset [`PixelTracker`]).
+    pub const EMPTY: Self = Self {
+        ring: [[0.0; LANES]; WINDOW],
+        m0: [0.0; LANES],
+        m1: [0.0; LANES],
+        m2: [0.0; LANES],
+        d2_sum: [0.0; LANES],
+        ext_val: [0.0; LANES],
+        ext_pos: [0.0; LANES],
+        min_val: [0.0; LANES],
+        min_pos: [0.0; LANES],
+        bad_samples: [0; LANES],
+        lane_seen: [0; LANES],
+        mode: [Mode::Start as u8; LANES],
+        overflow: [false; LANES],
+        lane_head: [0; LANES],
+        out_of_step: [false; LANES],
+        seen: 0,
+        head: 0,
+        any_out_of_step: false,
+    };
+
+    /// Forgets everything: call at the start of each angle.
+    pub fn reset(&mut self) {
+        *self = Self::EMPTY;
+    }
+
+    /// Lane `i` as a scalar tracker (a copy).
+    pub fn lane(&self, i: usize) -> PixelTracker {
+        PixelTracker {
+            ring: core::array::from_fn(|k| self.ring[k][i]),
+            ..self.lane_but_ring(i)
+        }
+    }
+
+    /// Lane `i` as a scalar tracker, its ring left empty.
+    fn lane_but_ring(&self, i: usize) -> PixelTracker {
+        let own = self.out_of_step[i];
+        PixelTracker {
+            ring: [0.0; WINDOW],
+            moments: [self.m0[i], self.m1[i], self.m2[i]],
+            ext_val: self.ext_val[i],
+            ext_pos: self.ext_pos[i],
+            min_val: self.min_val[i],
+            min_pos: self.min_pos[i],
+            d2_sum: self.d2_sum[i],
+            seen: if own { self.lane_seen[i] } else { self.seen },
+            bad_samples: self.bad_samples[i],
+            head: if own { self.lane_head[i] } else { self.head },
+            mode: Mode::from_u8(self.mode[i]),
+            overflow: self.overflow[i],
+        }
+    }
+
+    /// Stores `t` in lane `i`, whose window must be in step with the row's unless the lane
+    /// is out of step.
+    fn set_lane(&mut self, i: usize, t: &PixelTracker) {
+        for (k, &x) in t.ring.iter().enumerate() {
+            self.ring[k][i] = x;
+        }
+        [self.m0[i], self.m1[i], self.m2[i]] = t.moments;
+        self.d2_sum[i] = t.d2_sum;
+        self.bad_samples[i] = t.bad_samples;
+        self.lane_seen[i] = t.seen;
+        self.lane_head[i] = t.head;
+        self.set_extremes(i, t);
+    }
+
+    /// Stores what [`PixelTracker::decide`] changes of `t` in lane `i`.
+    fn set_extremes(&mut self, i: usize, t: &PixelTracker) {
+        self.ext_val[i] = t.ext_val;
+        self.ext_pos[i] = t.ext_pos;
+        self.min_val[i] = t.min_val;
+        self.min_pos[i] = t.min_pos;
+        self.mode[i] = t.mode as u8;
+        self.overflow[i] = t.overflow;
+    }
+
+    /// Feeds one band's samples of the block's pixels (`values.len() <= LANES`, one list per
+    /// value): [`PixelTracker::push`] for each lane.
+    pub fn push<L: AsMut<ExtremaList>>(
+        &mut self,
+        band: u16,
+        values: &[f32],
+        subband: bool,
+        lists: &mut [L],
+    ) {
+        let mut padded = [0.0; LANES];
+        let values: &Lanes = match values.try_into() {
+            Ok(full) => full,
+            Err(_) => {
+                let n = values.len().min(LANES);
+                padded[..n].copy_from_slice(&values[..n]);
+                &padded
+            }
+        };
+        // Padding lanes (beyond `lists`) emit to a scratch list.
+        let mut scratch = ExtremaList::new();
+        // Out-of-step lanes first, one by one; the row's arithmetic below overwrites them.
+        let mut own: heapless::Vec<(u8, PixelTracker), LANES> = heapless::Vec::new();
+        if self.any_out_of_step {
+            for i in (0..LANES).filter(|&i| self.out_of_step[i]) {
+                let mut t = self.lane(i);
+                let out = lists.get_mut(i).map_or(&mut scratch, AsMut::as_mut);
+                t.push(band, values[i], subband, out);
+                let _ = own.push((i as u8, t));
+            }
+        }
+        let seen = self.seen;
+        let head = usize::from(self.head);
+        match (seen >= 2, head + 1 == WINDOW) {
+            (false, false) => self.advance::<false, false>(head, values),
+            (false, true) => self.advance::<false, true>(head, values),
+            (true, false) => self.advance::<true, false>(head, values),
+            (true, true) => self.advance::<true, true>(head, values),
+        }
+        self.head = if head + 1 == WINDOW {
+            0
+        } else {
+            head as u8 + 1
+        };
+        self.seen = seen.saturating_add(1);
+        if seen == 0 {
+            // A lane without a usable first sample stays where it was (the scalar tracker
+            // returns early), one bad sample counted: out of step from now on.
+            for i in (0..LANES).filter(|&i| !usable(values[i])) {
+                let t = PixelTracker {
+                    bad_samples: 1,
+                    ..PixelTracker::default()
+                };
+                self.set_lane(i, &t);
+                self.out_of_step[i] = true;
+                self.any_out_of_step = true;
+            }
+        } else if usize::from(self.seen) == WINDOW {
+            self.first_smoothed();
+        } else if usize::from(self.seen) > WINDOW {
+            let mut slow = [false; LANES];
+            // Once no lane in step is in `Start` mode (a few bands in), its logic is left out.
+            let starting = (self.mode.iter().zip(&self.out_of_step))
+                .fold(false, |a, (&m, &own)| a | (m == Mode::Start as u8 && !own));
+            let any = if starting {
+                self.follow::<true>(band, subband, &mut slow)
+            } else {
+                self.follow::<false>(band, subband, &mut slow)
+            };
+            if any {
+                let skip = self.out_of_step;
+                for i in (0..LANES).filter(|&i| slow[i] && !skip[i]) {
+                    // The state machine reads no ring and writes only the extremes.
+                    let mut t = self.lane_but_ring(i);
+                    let out = lists.get_mut(i).map_or(&mut scratch, AsMut::as_mut);
+                    t.decide(band, subband, out);
+                    self.set_extremes(i, &t);
+                }
+            }
+        }
+        for (i, t) in own.iter() {
+            self.set_lane(usize::from(*i), t);
+        }
+    }
+
+    /// [`PixelTracker::advance`] for every lane in step: `D2` when two samples came before,
+    /// `WRAP` when this sample fills the ring's last slot (the moments are then recomputed).
+    #[inline(always)]
+    fn advance<const D2: bool, const WRAP: bool>(&mut self, head: usize, values: &Lanes) {
+        // The ring's rows copied out, so the compiler sees no overlap between them.
+        let a_row = self.ring[before(before(head as u8) as u8)];
+        let b_row = self.ring[before(head as u8)];
+        let old_row = self.ring[head];
+        let mut v_row = [0.0; LANES];
+        for i in 0..LANES {
+            let x = values[i];
+            let b = b_row[i];
+            let v = if usable(x) { x } else { b };
+            v_row[i] = v;
+            if D2 {
+                self.d2_sum[i] += abs_d2(a_row[i], b, v);
+            }
+            if !WRAP {
+                [self.m0[i], self.m1[i], self.m2[i]] =
+                    carry_moments([self.m0[i], self.m1[i], self.m2[i]], old_row[i], v);
+            }
+        }
+        self.ring[head] = v_row;
+        for i in 0..LANES {
+            self.bad_samples[i] = self.bad_samples[i].saturating_add(u16::from(!usable(values[i])));
+        }
+        if WRAP {
+            for i in 0..LANES {
+                let ring = core::array::from_fn(|k| self.ring[k][i]);
+                [self.m0[i], self.m1[i], self.m2[i]] = exact_moments(&ring);
+            }
+        }
+    }
+
+    /// The first smoothed sample ([`PixelTracker::start`]'s first step): every lane in step is
+    /// in `Start` mode, its extremes at the band edge.
+    fn first_smoothed(&mut self) {
+        for i in 0..LANES {
+            let s = smoothed([self.m0[i], self.m1[i], self.m2[i]]);
+            self.ext_val[i] = s;
+            self.ext_pos[i] = f32::NAN;
+            self.min_val[i] = s;
+            self.min_pos[i] = f32::NAN;
+        }
+    }
+
+    /// [`PixelTracker::decide`] for every lane in step where the running extremes only move:
+    /// marks in `slow` the lanes where an extremum is confirmed or the mode changes (their
+    /// state is left as it was, for the scalar state machine). Returns whether any lane is
+    /// marked. `START`: whether any lane may be in `Start` mode.
+    #[inline(always)]
+    fn follow<const START: bool>(
+        &mut self,
+        band: u16,
+        subband: bool,
+        slow: &mut [bool; LANES],
+    ) -> bool {
+        let n = f32::from(self.seen.saturating_sub(2));
+        let mut any = false;
+        for i in 0..LANES {
+            let m = [self.m0[i], self.m1[i], self.m2[i]];
+            let s = smoothed(m);
+            let at = vertex(band, m, subband);
+            let tau_n = TAU_PER_D2 * self.d2_sum[i];
+            let (ev, ep) = (self.ext_val[i], self.ext_pos[i]);
+            let seek_min = self.mode[i] == Mode::SeekMin as u8;
+            // The running extreme (the maximum in `Start` and `SeekMax`) moves ...
+            let up = if seek_min { s < ev } else { s > ev };
+            let new_ev = if up { s } else { ev };
+            let new_ep = if up { at } else { ep };
+            // ... or falls `tau` behind: an extremum (never where it moved).
+            let gap = if seek_min { s - ev } else { ev - s };
+            let seek_event = !up && gap * n > tau_n;
+            if !START {
+                slow[i] = seek_event;
+                any |= seek_event;
+                self.ext_val[i] = new_ev;
+                self.ext_pos[i] = new_ep;
+                continue;
+            }
+            // In `Start`, the running minimum moves too, and either extreme may end it.
+            let (mv, mp) = (self.min_val[i], self.min_pos[i]);
+            let start = self.mode[i] == Mode::Start as u8;
+            let down = start && s < mv;
+            let new_mv = if down { s } else { mv };
+            let new_mp = if down { at } else { mp };
+            let tau = tau_n / n;
+            let start_event = s >= new_mv + tau || s <= new_ev - tau;
+            let event = if start { start_event } else { seek_event };
+            slow[i] = event;
+            any |= event;
+            self.ext_val[i] = if event { ev } else { new_ev };
+            self.ext_pos[i] = if event { ep } else { new_ep };
+            self.min_val[i] = if event { mv } else { new_mv };
+            self.min_pos[i] = if event { mp } else { new_mp };
+        }
+        any
+    }
+}
+
+/// Block `i / LANES` of the `width`-pixel row holding pixel `i` of a row-major image, and the
+/// pixel's lane: the blocks of a row are `width.div_ceil(LANES)` consecutive [`TrackerLanes`].
+#[inline]
+fn locate(width: usize, i: usize) -> (usize, usize) {
+    let (row, col) = (i / width, i % width);
+    (row * width.div_ceil(LANES) + col / LANES, col % LANES)
+}
+
+/// Blocks of [`TrackerLanes`] a `rows` x `width` image needs.
+pub const fn blocks_for(rows: usize, width: usize) -> usize {
+    rows * width.div_ceil(LANES)
+}
+
+/// Pixel `i` (row-major, rows of `width`) of an image whose trackers are `blocks`, as a scalar
+/// tracker (a copy: its noise, bad samples and overflow).
+pub fn pixel(blocks: &[TrackerLanes], width: usize, i: usize) -> PixelTracker {
+    let (b, lane) = locate(width, i);
+    blocks[b].lane(lane)
+}
+
+/// Feeds band `band` of one row (`values`, one list per value) to the row's blocks
+/// (`values.len().div_ceil(LANES)` of them): [`PixelTracker::push`] for each pixel.
+pub fn push_row<L: AsMut<ExtremaList>>(
+    blocks: &mut [TrackerLanes],
+    band: u16,
+    values: &[f32],
+    subband: bool,
+    lists: &mut [L],
+) {
+    for ((block, v), l) in blocks
+        .iter_mut()
+        .zip(values.chunks(LANES))
+        .zip(lists.chunks_mut(LANES))
+    {
+        block.push(band, v, subband, l);
+    }
+}
+
+#[cfg(test)]
+mod tests;
