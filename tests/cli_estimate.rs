@@ -155,3 +155,32 @@ fn unreadable_captures_fail_with_one_line_naming_the_file() {
         "magic",
     );
 }
+
+/// A reader that stops listening (`filmscope eval ... | head -1`) ends the program quietly
+/// with exit status 141 (128 + SIGPIPE), not with a panic (it panicked on the broken pipe).
+#[test]
+fn a_closed_stdout_ends_quietly_not_with_a_panic() {
+    let dir = tempdir();
+    let scene = dir.path().join("scene.toml");
+    std::fs::copy(
+        concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes/rig-tiny.toml"),
+        &scene,
+    )
+    .expect("scene");
+    let mut child = filmscope()
+        .args(["eval", s(&scene)])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    // Nobody reads: the first line written meets a broken pipe.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("wait");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        out.status.code(),
+        Some(filmscope::cli::BROKEN_PIPE_EXIT),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}

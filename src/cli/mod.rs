@@ -240,6 +240,7 @@ enum Command {
 
 /// Runs the command line; returns the process exit code.
 pub fn main() -> std::process::ExitCode {
+    quiet_on_broken_pipe();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Demo { out, with_paper } => commands::demo(&out, with_paper),
@@ -336,6 +337,31 @@ pub fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// Exit status of a program its reader stopped listening to (128 + SIGPIPE), as a shell
+/// tool's.
+pub const BROKEN_PIPE_EXIT: i32 = 141;
+
+/// A closed standard output (`filmscope eval ... | head -1`) ends the program quietly with
+/// [`BROKEN_PIPE_EXIT`], as a shell tool ends, instead of the panic `println!` raises on a
+/// broken pipe; every other panic is reported as before. (Rust ignores SIGPIPE, and resetting
+/// it needs `unsafe`, which the workspace denies.) Outputs already written stay whole: every
+/// file is written to a temporary name and renamed.
+fn quiet_on_broken_pipe() {
+    let report = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let payload = info.payload();
+        let message = payload
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| payload.downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if message.contains("failed printing to stdout") && message.contains("Broken pipe") {
+            std::process::exit(BROKEN_PIPE_EXIT);
+        }
+        report(info)
+    }));
 }
 
 fn one_line(s: &str) -> String {
