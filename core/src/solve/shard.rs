@@ -26,12 +26,13 @@ const ORDER_CHI2: f64 = 16.0;
 /// chosen from two close angles' extrema can be wrong, and the full spectra tell.
 const ORDER_HOP_CHI2: f64 = 25.0;
 /// Largest 1-sigma thickness uncertainty (nm) of a reported pixel, from its full-spectrum
-/// fit: a quarter of the 20 nm at which a reported thickness counts as wrong. Measured on a
-/// film next to the substrate's index (n 1.5 on 1.52, 500 nm) under Gaussian reflectance
-/// noise: sigma 4.4-5.0 nm at 1 % (no pixel off by 20 nm), 8.8-9.8 nm at 2 % (8 of 61 valid
-/// pixels off by more), 9-14 nm at 3 %; 0.3-0.9 nm on the paper's MgF2 sample. The errors run
-/// to 2-4 sigma at the 90th percentile (the index's own uncertainty and the model's
-/// curvature are not in it), hence the margin.
+/// fit: a quarter of the 20 nm at which a reported thickness counts as wrong. Seen with a
+/// temporary print of the sigma (no command reports it) on a film next to the substrate's
+/// index (n 1.5 on 1.52, 500 nm) under Gaussian reflectance noise: 4.4-5.0 nm at 1 % (no
+/// pixel off by 20 nm), 8.8-9.8 nm at 2 % (8 of 61 valid pixels off by more), 9-14 nm at
+/// 3 %; 0.3-0.9 nm on the paper's MgF2 sample; the errors ran to 2-4 sigma at the 90th
+/// percentile (the index's own uncertainty and the model's curvature are not in it), hence
+/// the margin. `filmscope eval` shows the flag's effect (valid and silent shares).
 pub const MAX_THICKNESS_SIGMA_NM: f64 = 5.0;
 /// Largest share of unusable samples a valid pixel may have.
 const BAD_SHARE: f64 = 0.1;
@@ -406,17 +407,25 @@ impl<'a> Shard<'a> {
     /// below the pixel's own by more than `margin`, if any (thinner only within the search
     /// range and above zero).
     fn better_order(p: &PixelState, margin: f64, d_lo: f64) -> Option<f32> {
-        let g = &p.gn;
-        if !p.thickness_nm.is_finite() || g.samples == 0 {
+        if !p.thickness_nm.is_finite() || p.gn.samples == 0 {
             return None;
         }
-        let thinner = f64::from(p.thickness_nm - p.order_step_nm) >= d_lo.max(0.0);
-        let (alt, dir) = if thinner && g.sse_minus < g.sse_plus {
+        let (alt, dir) = Self::neighbour_order(p, d_lo);
+        (f64::from(p.gn.sse) - f64::from(alt) > margin).then_some(dir)
+    }
+
+    /// The better-fitting neighbouring order of a refined pixel: its full-spectrum misfit and
+    /// direction (`-1.0` thinner, `1.0` thicker). One order thinner is no alternative below
+    /// the search range's lower end `d_lo` (nor below zero, where the model would mirror the
+    /// film's thickness).
+    fn neighbour_order(p: &PixelState, d_lo: f64) -> (f32, f32) {
+        let g = &p.gn;
+        let thinner = f64::from(p.thickness_nm) - f64::from(p.order_step_nm) >= d_lo.max(0.0);
+        if thinner && g.sse_minus < g.sse_plus {
             (g.sse_minus, -1.0)
         } else {
             (g.sse_plus, 1.0)
-        };
-        (f64::from(g.sse) - f64::from(alt) > margin).then_some(dir)
+        }
     }
 
     /// Thickness of the shard's first (`last = false`) or last row, for the neighbouring
@@ -653,14 +662,7 @@ impl Finish {
         } else {
             let g = &p.gn;
             let best = f64::from(g.sse);
-            // One order thinner is no alternative below the search range (nor below
-            // zero, where the model would mirror the film's thickness).
-            let thinner = d - f64::from(p.order_step_nm) >= self.d_lo.max(0.0);
-            let alt = f64::from(if thinner {
-                g.sse_minus.min(g.sse_plus)
-            } else {
-                g.sse_plus
-            });
+            let alt = f64::from(Shard::neighbour_order(p, self.d_lo).0);
             let chi2 = if self.sigma2 > 0.0 {
                 (alt - best) / self.sigma2
             } else {

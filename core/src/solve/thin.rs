@@ -253,9 +253,11 @@ impl SampledSpectra<'_> {
             .bands_nm
             .iter()
             .fold(f64::INFINITY, |a, &b| a.min(b));
+        // Thickness of one fringe period at the shortest band, in a film of index `n`.
+        let period = |n: f64| shortest / (2.0 * n);
         // The whole range, as densely as a film of index `n` needs.
         let whole = |n: f64| {
-            let period = shortest / (2.0 * n);
+            let period = period(n);
             let stride = libm::floor(period / COARSE_POINTS_PER_PERIOD / THICKNESS_STEP_NM)
                 .clamp(1.0, points as f64) as usize;
             let dense = (libm::ceil((DENSE_PERIODS * period - d0) / THICKNESS_STEP_NM).max(0.0)
@@ -278,8 +280,9 @@ impl SampledSpectra<'_> {
                 (n_best, c_best) = (n, c);
             }
         }
-        // The fine stage (every band, with its passband) looks only at the thicknesses the
-        // coarse stage's pixels took, and a few fringe periods either side.
+        // The index refinement and the final thicknesses look only at the thicknesses the
+        // coarse stage's pixels took, and a few fringe periods either side, at every grid
+        // point (the final thicknesses on every band, with its passband).
         if !self.misfits(n_best, whole(n_best), sse, true) {
             return None;
         }
@@ -290,14 +293,15 @@ impl SampledSpectra<'_> {
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &d| {
                 (lo.min(f64::from(d)), hi.max(f64::from(d)))
             });
-        let reach = WINDOW_PERIODS * shortest / (2.0 * n_best);
+        let reach = WINDOW_PERIODS * period(n_best);
         let first = libm::floor(((thin - reach - d0) / THICKNESS_STEP_NM).max(0.0)) as usize;
         let last = (libm::ceil((thick + reach - d0) / THICKNESS_STEP_NM).max(0.0) as usize)
             .min(points - 1);
-        let len = last - first.min(last) + 1;
+        let first = first.min(last);
+        let len = last - first + 1;
         let window = Window {
             d0,
-            first: first.min(last),
+            first,
             dense: len,
             stride: 1,
             len,
@@ -505,24 +509,6 @@ impl SampleGrid {
 mod tests {
     use super::*;
 
-    #[test]
-    fn a_sample_off_its_neighbours_is_rejected_and_a_gradient_kept() {
-        let grid = SampleGrid::for_image(16, 12);
-        // A wedge rising 3 nm per sample across, one sample in another basin.
-        let mut values: heapless::Vec<f32, 64> = (0..grid.len())
-            .map(|k| 200.0 + 3.0 * (k % grid.cols) as f32)
-            .collect();
-        let wedge = values.clone();
-        assert_eq!(grid.reject_outliers(&mut values, 40.0), 0);
-        assert_eq!(values, wedge);
-        values[grid.cols + 2] = 33.0;
-        assert_eq!(grid.reject_outliers(&mut values, 40.0), 1);
-        assert!(values[grid.cols + 2].is_nan());
-        assert_eq!(
-            values.iter().filter(|v| v.is_finite()).count(),
-            grid.len() - 1
-        );
-    }
     use crate::optics::Dispersion;
     use crate::optics::{FilmStack, Passband, Polarization};
 
@@ -660,5 +646,24 @@ mod tests {
         holes[0] = f32::NAN;
         g.interpolate(&holes, &mut out);
         assert!(out.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn a_sample_off_its_neighbours_is_rejected_and_a_gradient_kept() {
+        let grid = SampleGrid::for_image(16, 12);
+        // A wedge rising 3 nm per sample across, one sample in another basin.
+        let mut values: heapless::Vec<f32, 64> = (0..grid.len())
+            .map(|k| 200.0 + 3.0 * (k % grid.cols) as f32)
+            .collect();
+        let wedge = values.clone();
+        assert_eq!(grid.reject_outliers(&mut values, 40.0), 0);
+        assert_eq!(values, wedge);
+        values[grid.cols + 2] = 33.0;
+        assert_eq!(grid.reject_outliers(&mut values, 40.0), 1);
+        assert!(values[grid.cols + 2].is_nan());
+        assert_eq!(
+            values.iter().filter(|v| v.is_finite()).count(),
+            grid.len() - 1
+        );
     }
 }
