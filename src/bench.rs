@@ -15,8 +15,8 @@
 //! - `pipeline`: the whole bounded pipeline on two workers from a replayed source; its
 //!   latency from the last row to the maps, with the source paced at half the pipeline's rate
 //!   (a camera slower than the pipeline: nothing queued).
-//! - `methods`: `filmscope`, `paper` and `brute` on the same small sweep, seconds per
-//!   megapixel and their accuracy.
+//! - `methods`: `filmscope`, `paper` and `brute` on the same sweep (128 x 96, 48 x 32 with
+//!   `--quick`), seconds per megapixel and their accuracy.
 //! - With `FILMSCOPE_BENCH_STREAM_ROWS=N` set, the `stream` figure is also measured with the
 //!   kernel sweep's rows repeated to N rows (printed to stderr): whether the state still fits
 //!   the caches shows in the difference.
@@ -266,14 +266,7 @@ pub fn sweep_rates(frames: &Frames, rows: usize) -> (f64, f64) {
         solve += t1.elapsed();
     }
     let t2 = Instant::now();
-    let mut out = vec![
-        PixelResult {
-            thickness_nm: f32::NAN,
-            confidence: 0.0,
-            flags: 0,
-        };
-        w * rows
-    ];
+    let mut out = vec![PixelResult::UNSOLVED; w * rows];
     states.shard(0, w).finish(&solver, &mut out);
     solve += t2.elapsed();
     std::hint::black_box(&out);
@@ -492,7 +485,10 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     let from_camera = cam.samples as f64 / cam.stream_time.as_secs_f64();
 
     progress("methods");
-    let (mw, mh) = if quick { (24, 16) } else { (48, 32) };
+    // Large enough that per-megapixel times are the methods' own, not their fixed costs (the
+    // band models' tables, the brute-force grid's model spectra, thread start-up): at 48 x 32
+    // filmscope spent more on those than on the pixels.
+    let (mw, mh) = if quick { (48, 32) } else { (128, 96) };
     let mut m_scene = scene_with(scene_path, mw, mh, None)?;
     // A constant index half a brute-force grid step off the grid (paper-sample1's 1.37 sits on
     // it, which would give brute force the exact index for free).

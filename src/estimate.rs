@@ -4,6 +4,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
+use filmscope_core::solve::shard::MAX_THICKNESS_SIGMA_NM;
 use filmscope_core::solve::sweep::{
     MAX_DISPERSION, MAX_DISPERSION_PER_EXCESS, MISMATCH_FLOOR, MISMATCH_RATIO, SPECTRAL_TERM_CHI2,
 };
@@ -436,6 +437,7 @@ pub fn result_from_sweep(out: &SweepOutput) -> MethodResult {
         index_sigma: out.index.map(|_| out.index_sigma),
         thickness_nm: out.results.iter().map(|r| r.thickness_nm).collect(),
         confidence: out.results.iter().map(|r| r.confidence).collect(),
+        thickness_sigma_nm: out.results.iter().map(|r| r.thickness_sigma_nm).collect(),
         flags: out.results.iter().map(|r| r.flags).collect(),
         notes,
     }
@@ -515,6 +517,26 @@ pub fn stats(values: &[f32]) -> serde_json::Value {
     json!({"mean": mean, "median": median, "std": var.sqrt(), "min": v[0], "max": v[v.len() - 1]})
 }
 
+/// The thickness uncertainty of the reported (valid) pixels: statistics, the 90th
+/// percentile and the limit above which a pixel is flagged `imprecise`.
+fn sigma_summary(r: &MethodResult) -> serde_json::Value {
+    let mut valid: Vec<f32> = r
+        .thickness_sigma_nm
+        .iter()
+        .zip(&r.thickness_nm)
+        .filter(|(s, d)| s.is_finite() && d.is_finite())
+        .map(|(&s, _)| s)
+        .collect();
+    let mut out = stats(&valid);
+    valid.sort_by(f32::total_cmp);
+    let p90 = valid
+        .get((valid.len() * 9).div_ceil(10).saturating_sub(1))
+        .copied();
+    out["p90"] = json!(p90);
+    out["imprecise_above"] = json!(MAX_THICKNESS_SIGMA_NM);
+    out
+}
+
 /// Counts of each flag over the map.
 pub fn flag_counts(map: &[u16]) -> serde_json::Value {
     let mut o = serde_json::Map::new();
@@ -563,6 +585,18 @@ pub fn write_outputs(
         &[],
     )
     .map_err(|e| err(&conf, &e))?;
+    let sigma = dir.join("thickness_sigma_nm.hdr");
+    write_f32_map(
+        &sigma,
+        w,
+        h,
+        &r.thickness_sigma_nm,
+        Some(&format!(
+            "1-sigma thickness uncertainty from the pixel's own full-spectrum fit (index held), nm; given for flagged pixels too (above {MAX_THICKNESS_SIGMA_NM} nm: flag imprecise); NaN: no fit"
+        )),
+        &[],
+    )
+    .map_err(|e| err(&sigma, &e))?;
     let flags_path = dir.join("flags.hdr");
     let mut fh = EnviHeader::new(w, h, 1, DataType::U16, Interleave::Bsq);
     let names: Vec<String> = flags::NAMES
@@ -608,6 +642,7 @@ pub fn write_outputs(
         "field_model": run.field_model.map(FieldModel::name),
         "field_model_choice": run.field_model_choice,
         "thickness_nm": stats(&r.thickness_nm),
+        "thickness_sigma_nm": sigma_summary(r),
         "valid_fraction": valid as f64 / (w * h).max(1) as f64,
         "width": w,
         "height": h,
@@ -633,6 +668,7 @@ pub fn write_outputs(
         "files": {
             "thickness": "thickness_nm.hdr",
             "confidence": "confidence.hdr",
+            "thickness_sigma": "thickness_sigma_nm.hdr",
             "flags": "flags.hdr",
             "preview": "thickness_nm.png",
         },

@@ -771,12 +771,7 @@ pub fn run_wide(
         noise_sigma: None,
     };
     let n550 = run.combined.as_ref().map(|c| c.index.at(550.0));
-    let unsolved = PixelResult {
-        thickness_nm: f32::NAN,
-        confidence: 0.0,
-        flags: 0,
-    };
-    let mut results = vec![unsolved; w * h];
+    let mut results = vec![PixelResult::UNSOLVED; w * h];
     let (mut sse, mut n_px) = (0.0, 0usize);
     let mut noises = Vec::new();
     for (k, s) in strips.iter().enumerate() {
@@ -1033,6 +1028,7 @@ fn wide_run(source: &dyn Source, wide: &WideRun, t0: Instant) -> Run {
         index_sigma: wide.combined.as_ref().map(|c| c.sigma),
         thickness_nm: wide.results.iter().map(|r| r.thickness_nm).collect(),
         confidence: wide.results.iter().map(|r| r.confidence).collect(),
+        thickness_sigma_nm: wide.results.iter().map(|r| r.thickness_sigma_nm).collect(),
         flags: wide.results.iter().map(|r| r.flags).collect(),
         notes,
     };

@@ -90,6 +90,9 @@ pub struct MethodResult {
     pub thickness_nm: Vec<f32>,
     /// Confidence per pixel in 0..1.
     pub confidence: Vec<f32>,
+    /// 1-sigma thickness uncertainty per pixel from its own fit, nm (NaN where the method
+    /// gives none: the baselines, pixels without a full-spectrum fit).
+    pub thickness_sigma_nm: Vec<f32>,
     /// Flags per pixel (see [`filmscope_core::solve::flags`]).
     pub flags: Vec<u16>,
     /// Free-form notes for the summary (e.g. what the method decided).

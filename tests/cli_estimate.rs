@@ -57,6 +57,19 @@ fn estimate_writes_the_contract_outputs() {
     assert!(conf.data.iter().all(|c| (0.0..=1.0).contains(c)));
     let flags = read_cube(out.join("flags.hdr")).expect("flags map");
     assert_eq!(flags.data.len(), 32 * 24);
+    // Every reported thickness has its sigma, within the limit the summary names.
+    let sigma = read_cube(out.join("thickness_sigma_nm.hdr")).expect("sigma map");
+    let limit = summary["thickness_sigma_nm"]["imprecise_above"]
+        .as_f64()
+        .expect("imprecise_above");
+    for (d, s) in map.data.iter().zip(&sigma.data) {
+        assert!(
+            !d.is_finite() || (*s > 0.0 && f64::from(*s) <= limit),
+            "thickness {d} with sigma {s}"
+        );
+    }
+    let p90 = summary["thickness_sigma_nm"]["p90"].as_f64().expect("p90");
+    assert!(p90 > 0.0 && p90 <= limit, "p90 {p90}");
     let png = std::fs::read(out.join("thickness_nm.png")).expect("preview");
     assert_eq!(&png[1..4], b"PNG");
     // No temporary files left behind.

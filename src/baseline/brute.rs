@@ -218,6 +218,7 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
         method: Method::Brute,
         index: IndexModel::constant(n),
         index_sigma: None,
+        thickness_sigma_nm: vec![f32::NAN; thickness.len()],
         thickness_nm: thickness,
         confidence,
         flags: pixel_flags,

@@ -66,6 +66,7 @@ pub(crate) fn unusable(method: Method, cube: &SweepCube, problem: &str) -> Metho
         index_sigma: None,
         thickness_nm: vec![f32::NAN; n],
         confidence: vec![0.0; n],
+        thickness_sigma_nm: vec![f32::NAN; n],
         flags: vec![flags::DEAD; n],
         notes: vec![format!("{}: unusable cube: {problem}", method.name())],
     }

@@ -191,6 +191,7 @@ pub fn paper(cube: &SweepCube) -> MethodResult {
         method: Method::Paper,
         index: IndexModel::constant(n),
         index_sigma: None,
+        thickness_sigma_nm: vec![f32::NAN; thickness.len()],
         thickness_nm: thickness,
         confidence,
         flags: pixel_flags,

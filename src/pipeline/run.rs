@@ -267,14 +267,7 @@ pub fn run_sweep(
     // The results are made by the last angle's update pass (the angles announced tell which
     // is last), else by a pass of their own once the sweep has ended.
     let angles = source.angles_deg().len();
-    let mut results = vec![
-        PixelResult {
-            thickness_nm: f32::NAN,
-            confidence: 0.0,
-            flags: 0
-        };
-        w * h
-    ];
+    let mut results = vec![PixelResult::UNSOLVED; w * h];
     let mut results_at = None;
 
     std::thread::scope(|scope| -> Result<(), PipelineError> {

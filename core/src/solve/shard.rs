@@ -145,6 +145,20 @@ pub struct PixelResult {
     pub confidence: f32,
     /// Flags.
     pub flags: u16,
+    /// 1-sigma uncertainty of the thickness from the pixel's own full-spectrum fit (the index
+    /// held), nm; NaN without a fit. Given for flagged pixels too: above
+    /// [`MAX_THICKNESS_SIGMA_NM`] it is why a pixel is flagged `imprecise`.
+    pub thickness_sigma_nm: f32,
+}
+
+impl PixelResult {
+    /// A pixel nothing was solved for (yet).
+    pub const UNSOLVED: Self = Self {
+        thickness_nm: f32::NAN,
+        confidence: 0.0,
+        flags: 0,
+        thickness_sigma_nm: f32::NAN,
+    };
 }
 
 impl<'a> Shard<'a> {
@@ -643,6 +657,7 @@ impl Finish {
         }
         let d = f64::from(p.thickness_nm);
         let mut confidence = 0.0f32;
+        let mut sigma = f64::NAN;
         if !d.is_finite() {
             f |= if p.extrema_seen == 0 {
                 flags::NO_FRINGE
@@ -674,7 +689,8 @@ impl Finish {
             if g.rms() > self.rms_limit {
                 f |= flags::POOR_FIT;
             }
-            if g.thickness_sigma_nm() > MAX_THICKNESS_SIGMA_NM {
+            sigma = g.thickness_sigma_nm();
+            if sigma > MAX_THICKNESS_SIGMA_NM {
                 f |= flags::IMPRECISE;
             }
             confidence = (chi2 / (chi2 + 4.0 * ORDER_CHI2)).clamp(0.0, 1.0) as f32;
@@ -691,6 +707,11 @@ impl Finish {
             thickness_nm: if valid { d as f32 } else { f32::NAN },
             confidence: if valid { confidence } else { 0.0 },
             flags: f,
+            thickness_sigma_nm: if sigma.is_finite() {
+                sigma as f32
+            } else {
+                f32::NAN
+            },
         }
     }
 }
