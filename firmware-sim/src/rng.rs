@@ -16,12 +16,17 @@ fn splitmix(x: &mut u64) -> u64 {
 }
 
 impl Rng {
-    /// A generator seeded from a list of words (scene seed, angle, band, row, stream...).
+    /// A generator seeded from a list of words (scene seed, angle, band, row, stream...):
+    /// each word is folded into a hash chain (`x = mix(x ^ word)`, SplitMix64's output), so
+    /// distinct lists give unrelated streams. (Folding the words into SplitMix's counter
+    /// alone, `x = (x ^ word) + golden`, as this once did, is nearly linear: of a 12-row,
+    /// 151-band, 5-angle sweep's 9060 rows only 192 got their own noise, the rest repeated it
+    /// at other bands, rows and angles, and errors came out twice what the noise explains.)
     pub fn from_words(words: &[u64]) -> Self {
         let mut x = 0x5EED_F11E_u64;
         for &w in words {
-            x ^= w;
-            splitmix(&mut x);
+            let mut counter = x ^ w;
+            x = splitmix(&mut counter);
         }
         Self {
             s: [
@@ -76,6 +81,56 @@ impl Rng {
                 return k;
             }
             k += 1.0;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every (stream, angle, band, row) of a sweep gets its own noise: no two of 4 x 5 x 201 x
+    /// 64 word lists start the same sequence or share a state word.
+    #[test]
+    fn distinct_words_give_distinct_streams() {
+        let mut seen = std::collections::HashSet::new();
+        let mut lists = 0;
+        for stream in 1..=4u64 {
+            for angle in 0..5u64 {
+                for band in 0..201u64 {
+                    for row in 0..64u64 {
+                        let rng = Rng::from_words(&[7, stream, angle, band, row]);
+                        for word in rng.s {
+                            assert!(seen.insert(word), "{stream} {angle} {band} {row}");
+                        }
+                        lists += 1;
+                    }
+                }
+            }
+        }
+        assert_eq!(seen.len(), 4 * lists);
+    }
+
+    /// Neighbouring rows' noise is uncorrelated (|r| under 4 / sqrt(n) for every pair of
+    /// the first rows of one band).
+    #[test]
+    fn neighbouring_rows_are_uncorrelated() {
+        let n = 4096;
+        let draws = |row: u64| -> Vec<f64> {
+            let mut rng = Rng::from_words(&[101, 1, 0, 0, row]);
+            (0..n).map(|_| rng.normal()).collect()
+        };
+        let rows: Vec<Vec<f64>> = (0..8).map(draws).collect();
+        for a in 0..rows.len() {
+            for b in a + 1..rows.len() {
+                let r: f64 = rows[a]
+                    .iter()
+                    .zip(&rows[b])
+                    .map(|(x, y)| x * y)
+                    .sum::<f64>()
+                    / n as f64;
+                assert!(r.abs() < 4.0 / (n as f64).sqrt(), "rows {a} {b}: {r}");
+            }
         }
     }
 }
