@@ -1,7 +1,9 @@
 //! The estimator's targets on the paper's scenes (issue: streaming estimator), through the
 //! real pipeline from the software camera: raw 12-bit counts with white and dark references,
 //! shot and read noise, a smoothly varying thickness map. Tolerances are the targets; the
-//! figures measured when this was written are in the README (`filmscope eval`).
+//! figures measured when this was written are in the README (`filmscope eval`); those quoted
+//! in comments here predate the software camera's noise fix of session 6 unless they say
+//! otherwise.
 
 mod common;
 
