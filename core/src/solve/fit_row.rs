@@ -74,11 +74,28 @@ impl Default for FitLanes {
 /// The samples of one block, padded to [`LANES`].
 type Lanes = [f32; LANES];
 
-/// A band's table positions of each lane's thickness and its orders either side: knot and
-/// fraction.
-struct Positions {
-    knot: [[usize; LANES]; 3],
-    frac: [Lanes; 3],
+/// Each lane's knots (value and slope) at one table position: the knot before and after.
+#[derive(Clone, Copy)]
+struct Pairs {
+    m: [Lanes; 2],
+    slope_h: [Lanes; 2],
+}
+
+impl Pairs {
+    const ZERO: Self = Self {
+        m: [[0.0; LANES]; 2],
+        slope_h: [[0.0; LANES]; 2],
+    };
+
+    /// Lane `i`'s two knots, `j_n` their index derivatives.
+    #[inline(always)]
+    fn knots(&self, i: usize, j_n: [f32; 2]) -> [Knot; 2] {
+        [0, 1].map(|e| Knot {
+            m: self.m[e][i],
+            slope_h: self.slope_h[e][i],
+            j_n: j_n[e],
+        })
+    }
 }
 
 impl FitLanes {
@@ -129,14 +146,12 @@ impl FitLanes {
         let n = values.len().min(LANES);
         v[..n].copy_from_slice(&values[..n]);
         self.samples = self.samples.saturating_add(1);
+        if !v.iter().fold(true, |a, &x| a & usable(x)) {
+            self.count_bad(&v);
+        }
         let mut ok = [false; LANES];
         for i in 0..LANES {
-            let x = v[i];
-            let good = usable(x);
-            let saturated = x.is_infinite();
-            self.saturated[i] = self.saturated[i].saturating_add(u16::from(saturated));
-            self.dead[i] = self.dead[i].saturating_add(u16::from(!good && !saturated));
-            ok[i] = good && self.thickness_nm[i].is_finite();
+            ok[i] = usable(v[i]) & self.thickness_nm[i].is_finite();
         }
         let Some((coef, knots)) = model else {
             return;
@@ -148,12 +163,7 @@ impl FitLanes {
         // The lanes left to the computed model.
         let mut rest = ok;
         if let Some((span, k)) = coef.table().and_then(|t| Some((t, t.knots(knots)?))) {
-            let (at, inside) = self.positions(span, &ok);
-            if inside.iter().all(|&i| i) {
-                self.add_tabled::<false>(span, k, &at, &inside, &v, u);
-            } else {
-                self.add_tabled::<true>(span, k, &at, &inside, &v, u);
-            }
+            let inside = self.add_tabled(span, k, &ok, &v, u);
             for i in 0..LANES {
                 rest[i] = ok[i] && !inside[i];
             }
@@ -172,77 +182,84 @@ impl FitLanes {
         }
     }
 
-    /// The positions in the band's table of the lanes `ok`, and which lanes have all three
-    /// inside it (the others' positions are the first knot's).
+    /// Counts the saturated and dead samples of `v`.
+    #[inline(never)]
+    fn count_bad(&mut self, v: &Lanes) {
+        for i in 0..LANES {
+            let saturated = v[i].is_infinite();
+            let dead = !usable(v[i]) && !saturated;
+            self.saturated[i] = self.saturated[i].saturating_add(u16::from(saturated));
+            self.dead[i] = self.dead[i].saturating_add(u16::from(dead));
+        }
+    }
+
+    /// Adds the samples `v` of the lanes `ok` whose thickness and neighbouring orders all
+    /// fall inside the band's table (`span`, its knots `k`) from the table; returns which.
     #[inline(always)]
-    fn positions(&self, span: TableSpan, ok: &[bool; LANES]) -> (Positions, [bool; LANES]) {
-        let mut x = [[0.0; LANES]; 3];
+    fn add_tabled(
+        &mut self,
+        span: TableSpan,
+        k: &[Knot],
+        ok: &[bool; LANES],
+        v: &Lanes,
+        u: f32,
+    ) -> [bool; LANES] {
+        // Positions of the thickness and the orders either side: knot and fraction.
+        let mut knot = [[0u32; LANES]; 3];
+        let mut frac = [[0.0; LANES]; 3];
         let mut inside = [false; LANES];
         for i in 0..LANES {
             let (d, s) = (self.thickness_nm[i], self.order_step_nm[i]);
             // In f32: the f64 difference of two f32 values rounded to f32, as
             // [`BandCoef::eval`] takes it, is the f32 difference (53 >= 2 x 24 + 2 bits).
-            let d = [d, d - s, d + s];
-            let mut all = ok[i];
-            for k in 0..3 {
-                x[k][i] = span.position(d[k]);
-                all &= span.covers(x[k][i]);
-            }
+            let x = [d, d - s, d + s].map(|d| span.position(d));
+            let all = ok[i] & span.covers(x[0]) & span.covers(x[1]) & span.covers(x[2]);
             inside[i] = all;
-        }
-        let mut at = Positions {
-            knot: [[0; LANES]; 3],
-            frac: [[0.0; LANES]; 3],
-        };
-        for k in 0..3 {
-            for i in 0..LANES {
-                let x = if inside[i] { x[k][i] } else { 0.0 };
+            for p in 0..3 {
+                // Lanes not inside: the first knot.
+                let x = if all { x[p] } else { 0.0 };
                 let j = x as i32;
-                at.knot[k][i] = j as usize;
-                at.frac[k][i] = x - j as f32;
+                knot[p][i] = j as u32;
+                frac[p][i] = x - j as f32;
             }
         }
-        (at, inside)
-    }
-
-    /// Adds the samples `v` of the lanes `inside` from the band's knots `k` at positions
-    /// `at`. `MASKED`: whether some lanes are not `inside` (their sums are left as they were).
-    #[inline(always)]
-    fn add_tabled<const MASKED: bool>(
-        &mut self,
-        span: TableSpan,
-        k: &[Knot],
-        at: &Positions,
-        inside: &[bool; LANES],
-        v: &Lanes,
-        u: f32,
-    ) {
-        let pair = |j: usize| match k.get(j..j + 2) {
-            Some(&[a, b]) => [a, b],
-            _ => [Knot::default(); 2],
-        };
-        let mut knots = [[[Knot::default(); 2]; LANES]; 3];
+        // One lane at a time: each lane's knots.
+        let mut pairs = [Pairs::ZERO; 3];
+        let mut j_n = [[0.0; LANES]; 2];
         for i in 0..LANES {
             for p in 0..3 {
-                knots[p][i] = pair(at.knot[p][i]);
+                let j = knot[p][i] as usize;
+                if let Some(&[a, b]) = k.get(j..j + 2) {
+                    pairs[p].m[0][i] = a.m;
+                    pairs[p].m[1][i] = b.m;
+                    pairs[p].slope_h[0][i] = a.slope_h;
+                    pairs[p].slope_h[1][i] = b.slope_h;
+                    if p == 0 {
+                        j_n[0][i] = a.j_n;
+                        j_n[1][i] = b.j_n;
+                    }
+                }
             }
         }
+        let all = inside.iter().all(|&i| i);
         for i in 0..LANES {
             let s = SampleModel::from_knots(
-                knots[0][i],
-                at.frac[0][i],
-                (knots[1][i], at.frac[1][i]),
-                (knots[2][i], at.frac[2][i]),
+                pairs[0].knots(i, [j_n[0][i], j_n[1][i]]),
+                frac[0][i],
+                (pairs[1].knots(i, [0.0; 2]), frac[1][i]),
+                (pairs[2].knots(i, [0.0; 2]), frac[2][i]),
                 span.inv_h(),
             );
             let t = GnSums::terms(s, v[i], u);
-            let add = !MASKED || inside[i];
+            // Lanes not inside keep their sums (an added zero could change a zero's sign).
+            let add = all || inside[i];
             for (k, t) in t.into_iter().enumerate() {
                 let sum = self.sums[k][i];
                 self.sums[k][i] = if add { sum + t } else { sum };
             }
             self.gn_samples[i] = self.gn_samples[i].saturating_add(u16::from(add));
         }
+        inside
     }
 }
 

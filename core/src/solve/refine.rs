@@ -79,9 +79,9 @@ pub struct BandCoef {
 /// little but cannot bias where it converges, which the residual alone decides).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Knot {
-    m: f32,
-    slope_h: f32,
-    j_n: f32,
+    pub(crate) m: f32,
+    pub(crate) slope_h: f32,
+    pub(crate) j_n: f32,
 }
 
 /// Where one band's knots sit in the angle's table.
