@@ -74,11 +74,27 @@ impl Default for FitLanes {
 /// The samples of one block, padded to [`LANES`].
 type Lanes = [f32; LANES];
 
+/// A lane mask: 1 for the lanes in it, else 0 (not `bool`: a mask of the lanes' width
+/// vectorises).
+type Mask = [u32; LANES];
+
 /// Each lane's knots (value and slope) at one table position: the knot before and after.
 #[derive(Clone, Copy)]
 struct Pairs {
     m: [Lanes; 2],
     slope_h: [Lanes; 2],
+}
+
+/// The lanes' knots at their three table positions, as [`FitLanes::add_from`] takes them.
+struct Tabled {
+    /// At the thickness, one order thinner, one order thicker.
+    pairs: [Pairs; 3],
+    /// The index derivative at the thickness's two knots.
+    j_n: [Lanes; 2],
+    /// The fractions of the three positions.
+    frac: [Lanes; 3],
+    /// The band's knots per nm.
+    inv_h: f32,
 }
 
 impl Pairs {
@@ -90,11 +106,13 @@ impl Pairs {
     /// Lane `i`'s two knots, `j_n` their index derivatives.
     #[inline(always)]
     fn knots(&self, i: usize, j_n: [f32; 2]) -> [Knot; 2] {
-        [0, 1].map(|e| Knot {
+        // (No `array::map`: its call would keep the lane loop from vectorising.)
+        let knot = |e: usize| Knot {
             m: self.m[e][i],
             slope_h: self.slope_h[e][i],
             j_n: j_n[e],
-        })
+        };
+        [knot(0), knot(1)]
     }
 }
 
@@ -149,14 +167,14 @@ impl FitLanes {
         if !v.iter().fold(true, |a, &x| a & usable(x)) {
             self.count_bad(&v);
         }
-        let mut ok = [false; LANES];
+        let mut ok = [0; LANES];
         for i in 0..LANES {
-            ok[i] = usable(v[i]) & self.thickness_nm[i].is_finite();
+            ok[i] = u32::from(usable(v[i]) & self.thickness_nm[i].is_finite());
         }
         let Some((coef, knots)) = model else {
             return;
         };
-        if !ok.iter().any(|&o| o) {
+        if ok.iter().fold(0, |a, &o| a | o) == 0 {
             return;
         }
         let u = coef.u as f32;
@@ -165,10 +183,13 @@ impl FitLanes {
         if let Some((span, k)) = coef.table().and_then(|t| Some((t, t.knots(knots)?))) {
             let inside = self.add_tabled(span, k, &ok, &v, u);
             for i in 0..LANES {
-                rest[i] = ok[i] && !inside[i];
+                rest[i] = ok[i] & !inside[i];
             }
         }
-        for i in (0..LANES).filter(|&i| rest[i]) {
+        if rest.iter().fold(0, |a, &o| a | o) == 0 {
+            return;
+        }
+        for i in (0..LANES).filter(|&i| rest[i] != 0) {
             let e = coef.eval(
                 knots,
                 f64::from(self.thickness_nm[i]),
@@ -193,28 +214,26 @@ impl FitLanes {
         }
     }
 
-    /// Adds the samples `v` of the lanes `ok` whose thickness and neighbouring orders all
-    /// fall inside the band's table (`span`, its knots `k`) from the table; returns which.
+    /// Adds the samples `v` of the lanes `ok` (1, else 0) whose thickness and neighbouring
+    /// orders all fall inside the band's table (`span`, its knots `k`) from the table;
+    /// returns which (1, else 0).
     #[inline(always)]
-    fn add_tabled(
-        &mut self,
-        span: TableSpan,
-        k: &[Knot],
-        ok: &[bool; LANES],
-        v: &Lanes,
-        u: f32,
-    ) -> [bool; LANES] {
+    fn add_tabled(&mut self, span: TableSpan, k: &[Knot], ok: &Mask, v: &Lanes, u: f32) -> Mask {
         // Positions of the thickness and the orders either side: knot and fraction.
         let mut knot = [[0u32; LANES]; 3];
         let mut frac = [[0.0; LANES]; 3];
-        let mut inside = [false; LANES];
+        let mut inside = [0; LANES];
         for i in 0..LANES {
             let (d, s) = (self.thickness_nm[i], self.order_step_nm[i]);
             // In f32: the f64 difference of two f32 values rounded to f32, as
             // [`BandCoef::eval`] takes it, is the f32 difference (53 >= 2 x 24 + 2 bits).
-            let x = [d, d - s, d + s].map(|d| span.position(d));
-            let all = ok[i] & span.covers(x[0]) & span.covers(x[1]) & span.covers(x[2]);
-            inside[i] = all;
+            let x = [
+                span.position(d),
+                span.position(d - s),
+                span.position(d + s),
+            ];
+            let all = (ok[i] != 0) & span.covers(x[0]) & span.covers(x[1]) & span.covers(x[2]);
+            inside[i] = u32::from(all);
             for p in 0..3 {
                 // Lanes not inside: the first knot.
                 let x = if all { x[p] } else { 0.0 };
@@ -241,25 +260,41 @@ impl FitLanes {
                 }
             }
         }
-        let all = inside.iter().all(|&i| i);
+        let at = Tabled {
+            pairs,
+            j_n,
+            frac,
+            inv_h: span.inv_h(),
+        };
+        if inside.iter().fold(1, |a, &i| a & i) == 1 {
+            self.add_from::<false>(&at, &inside, v, u);
+        } else {
+            self.add_from::<true>(&at, &inside, v, u);
+        }
+        inside
+    }
+
+    /// Adds the samples `v` from the lanes' knots `at`. `MASKED`: only the lanes `inside`
+    /// (1, else 0); the others keep their sums (an added zero could change a zero's sign).
+    #[inline(always)]
+    fn add_from<const MASKED: bool>(&mut self, at: &Tabled, inside: &Mask, v: &Lanes, u: f32) {
+        let [c, lo, hi] = &at.pairs;
         for i in 0..LANES {
             let s = SampleModel::from_knots(
-                pairs[0].knots(i, [j_n[0][i], j_n[1][i]]),
-                frac[0][i],
-                (pairs[1].knots(i, [0.0; 2]), frac[1][i]),
-                (pairs[2].knots(i, [0.0; 2]), frac[2][i]),
-                span.inv_h(),
+                c.knots(i, [at.j_n[0][i], at.j_n[1][i]]),
+                at.frac[0][i],
+                (lo.knots(i, [0.0; 2]), at.frac[1][i]),
+                (hi.knots(i, [0.0; 2]), at.frac[2][i]),
+                at.inv_h,
             );
             let t = GnSums::terms(s, v[i], u);
-            // Lanes not inside keep their sums (an added zero could change a zero's sign).
-            let add = all || inside[i];
+            let add = !MASKED || inside[i] != 0;
             for (k, t) in t.into_iter().enumerate() {
                 let sum = self.sums[k][i];
                 self.sums[k][i] = if add { sum + t } else { sum };
             }
             self.gn_samples[i] = self.gn_samples[i].saturating_add(u16::from(add));
         }
-        inside
     }
 }
 
