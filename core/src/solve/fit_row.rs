@@ -86,13 +86,13 @@ struct Pairs {
 }
 
 /// The lanes' knots at their three table positions, as [`FitLanes::add_from`] takes them.
-struct Tabled {
+struct Tabled<'a> {
     /// At the thickness, one order thinner, one order thicker.
-    pairs: [Pairs; 3],
+    pairs: &'a [Pairs; 3],
     /// The index derivative at the thickness's two knots.
-    j_n: [Lanes; 2],
+    j_n: &'a [Lanes; 2],
     /// The fractions of the three positions.
-    frac: [Lanes; 3],
+    frac: &'a [Lanes; 3],
     /// The band's knots per nm.
     inv_h: f32,
 }
@@ -220,8 +220,10 @@ impl FitLanes {
     #[inline(always)]
     fn add_tabled(&mut self, span: TableSpan, k: &[Knot], ok: &Mask, v: &Lanes, u: f32) -> Mask {
         // Positions of the thickness and the orders either side: knot and fraction.
-        let mut knot = [[0u32; LANES]; 3];
+        // (Separate arrays, each zeroed in place: one struct of them would be zeroed by a
+        // call to `memset`, moved by one to `memcpy`.)
         let mut frac = [[0.0; LANES]; 3];
+        let mut knot = [[0u32; LANES]; 3];
         let mut inside = [0; LANES];
         for i in 0..LANES {
             let (d, s) = (self.thickness_nm[i], self.order_step_nm[i]);
@@ -236,10 +238,9 @@ impl FitLanes {
             inside[i] = u32::from(all);
             for p in 0..3 {
                 // Lanes not inside: the first knot.
-                let x = if all { x[p] } else { 0.0 };
-                let j = x as i32;
-                knot[p][i] = j as u32;
-                frac[p][i] = x - j as f32;
+                let (j, f) = knot_of(if all { x[p] } else { 0.0 });
+                knot[p][i] = j;
+                frac[p][i] = f;
             }
         }
         // One lane at a time: each lane's knots.
@@ -249,10 +250,11 @@ impl FitLanes {
             for p in 0..3 {
                 let j = knot[p][i] as usize;
                 if let Some(&[a, b]) = k.get(j..j + 2) {
-                    pairs[p].m[0][i] = a.m;
-                    pairs[p].m[1][i] = b.m;
-                    pairs[p].slope_h[0][i] = a.slope_h;
-                    pairs[p].slope_h[1][i] = b.slope_h;
+                    let pair = &mut pairs[p];
+                    pair.m[0][i] = a.m;
+                    pair.m[1][i] = b.m;
+                    pair.slope_h[0][i] = a.slope_h;
+                    pair.slope_h[1][i] = b.slope_h;
                     if p == 0 {
                         j_n[0][i] = a.j_n;
                         j_n[1][i] = b.j_n;
@@ -261,9 +263,9 @@ impl FitLanes {
             }
         }
         let at = Tabled {
-            pairs,
-            j_n,
-            frac,
+            pairs: &pairs,
+            j_n: &j_n,
+            frac: &frac,
             inv_h: span.inv_h(),
         };
         if inside.iter().fold(1, |a, &i| a & i) == 1 {
@@ -277,8 +279,8 @@ impl FitLanes {
     /// Adds the samples `v` from the lanes' knots `at`. `MASKED`: only the lanes `inside`
     /// (1, else 0); the others keep their sums (an added zero could change a zero's sign).
     #[inline(always)]
-    fn add_from<const MASKED: bool>(&mut self, at: &Tabled, inside: &Mask, v: &Lanes, u: f32) {
-        let [c, lo, hi] = &at.pairs;
+    fn add_from<const MASKED: bool>(&mut self, at: &Tabled<'_>, inside: &Mask, v: &Lanes, u: f32) {
+        let [c, lo, hi] = at.pairs;
         for i in 0..LANES {
             let s = SampleModel::from_knots(
                 c.knots(i, [at.j_n[0][i], at.j_n[1][i]]),
@@ -296,6 +298,22 @@ impl FitLanes {
             self.gn_samples[i] = self.gn_samples[i].saturating_add(u16::from(add));
         }
     }
+}
+
+/// The knot and fraction of a table position `0 <= x < 2^22`: `(x as u32, x - knot as f32)`
+/// (what [`BandCoef::eval`] computes), without a float-to-integer conversion, which would
+/// keep the lane loop from vectorising: `x + 2^23` is rounded to an integer (the f32 spacing
+/// there is 1) whose bits, less those of `2^23`, are that integer; one less where it rounded
+/// up.
+#[inline(always)]
+fn knot_of(x: f32) -> (u32, f32) {
+    const TWO_23: f32 = 8_388_608.0;
+    let r = x + TWO_23;
+    let near = r - TWO_23;
+    let up = near > x;
+    let floor = if up { near - 1.0 } else { near };
+    let j = (r.to_bits() - TWO_23.to_bits()) - u32::from(up);
+    (j, x - floor)
 }
 
 /// Feeds band samples `values` of one row to the row's blocks
