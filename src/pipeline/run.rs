@@ -16,6 +16,7 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::calibrate::calibrate_row;
+use filmscope_core::solve::fit_row::FitLanes;
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
 use filmscope_core::solve::refine::{AngleModels, BandCoef, Knot};
 use filmscope_core::solve::sweep::SolverOptions;
@@ -23,7 +24,6 @@ use filmscope_core::solve::sweep::{FitStats, SchurSums};
 use filmscope_core::solve::{
     tracker_blocks, AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
 };
-use filmscope_core::solve::fit_row::FitLanes;
 use filmscope_core::track::row::TrackerLanes;
 
 use super::msg::{Samples, StreamMsg};

@@ -229,11 +229,7 @@ impl FitLanes {
             let (d, s) = (self.thickness_nm[i], self.order_step_nm[i]);
             // In f32: the f64 difference of two f32 values rounded to f32, as
             // [`BandCoef::eval`] takes it, is the f32 difference (53 >= 2 x 24 + 2 bits).
-            let x = [
-                span.position(d),
-                span.position(d - s),
-                span.position(d + s),
-            ];
+            let x = [span.position(d), span.position(d - s), span.position(d + s)];
             let all = (ok[i] != 0) & span.covers(x[0]) & span.covers(x[1]) & span.covers(x[2]);
             inside[i] = u32::from(all);
             for p in 0..3 {
@@ -321,5 +317,101 @@ fn knot_of(x: f32) -> (u32, f32) {
 pub fn push_row(blocks: &mut [FitLanes], values: &[f32], model: Option<(&BandCoef, &[Knot])>) {
     for (block, v) in blocks.iter_mut().zip(values.chunks(LANES)) {
         block.push(v, model);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optics::Polarization;
+    use crate::solve::IndexModel;
+
+    #[test]
+    fn knot_of_is_the_conversion() {
+        for k in 0..200_000u32 {
+            let x = k as f32 * 0.081_93 + (k % 7) as f32 * 1e-4;
+            let j = x as u32;
+            assert_eq!(knot_of(x), (j, x - j as f32), "{x}");
+        }
+        assert_eq!(knot_of(0.0), (0, 0.0));
+    }
+
+    /// A row block gives every pixel the sums, counts and sample numbers the scalar
+    /// [`GnSums::add`] gives it, bit for bit: pixels inside the table, at and beyond its
+    /// ends (computed), without a thickness, and samples saturated, dead or corrupted.
+    #[test]
+    fn lanes_match_the_scalar_sums() {
+        let range = [100.0, 900.0];
+        let mut knots = [Knot::default(); 4096];
+        let mut coefs = [None; 3];
+        let mut first = 0;
+        for (b, c) in coefs.iter_mut().enumerate() {
+            let l = 450.0 + 110.0 * b as f64;
+            let mut coef = BandCoef::new(
+                IndexModel::constant(1.9),
+                1.0,
+                1.52,
+                Polarization::S,
+                35.0,
+                l,
+                4.0,
+            )
+            .expect("propagating");
+            if b < 2 {
+                let (_, count) = coef.knots_for(range).expect("a table");
+                coef.tabulate(range, first, &mut knots[first..first + count]);
+                first += count;
+            }
+            *c = Some(coef);
+        }
+        let knots = &knots[..first];
+        let n = 29;
+        let step = 130.0f32;
+        let thickness: [f32; 29] = core::array::from_fn(|i| match i {
+            3 => f32::NAN,
+            5 => 100.0 + step,
+            6 => 100.0 + step - 0.01,
+            7 => 900.0 - step,
+            8 => 2000.0,
+            _ => 240.0 + 17.3 * i as f32,
+        });
+        let mut lanes = FitLanes::EMPTY;
+        let mut scalar = [PixelFit::default(); 29];
+        for i in 0..n {
+            scalar[i].thickness_nm = thickness[i];
+            scalar[i].order_step_nm = step;
+            lanes.set_pixel(i, &scalar[i]);
+        }
+        for s in 0..12 {
+            let coef = coefs[s % 3].as_ref().expect("a band");
+            let values: [f32; 29] = core::array::from_fn(|i| match (i + s) % 11 {
+                0 if i % 4 == 0 => f32::INFINITY,
+                1 if i % 5 == 0 => f32::NAN,
+                2 if i % 6 == 0 => 3e7,
+                _ => 0.1 + 0.01 * ((i * 7 + s * 3) % 13) as f32,
+            });
+            lanes.push(&values, Some((coef, knots)));
+            for (p, &v) in scalar.iter_mut().zip(&values) {
+                p.samples += 1;
+                if v.is_infinite() {
+                    p.saturated += 1;
+                } else if !usable(v) {
+                    p.dead += 1;
+                } else if p.thickness_nm.is_finite() {
+                    let (d, o) = (f64::from(p.thickness_nm), f64::from(p.order_step_nm));
+                    p.gn.add(coef, knots, d, o, f64::from(v));
+                }
+            }
+        }
+        for (i, p) in scalar.iter().enumerate() {
+            let l = lanes.pixel(i);
+            let bits = |f: &PixelFit| {
+                let t = [f.thickness_nm, f.order_step_nm].map(f32::to_bits);
+                let n = [f.samples, f.saturated, f.dead, f.gn.samples];
+                (f.gn.to_terms().map(f32::to_bits), t, n)
+            };
+            assert_eq!(bits(&l), bits(p), "pixel {i}");
+        }
+        assert!(scalar.iter().filter(|p| p.gn.samples > 0).count() > 20);
     }
 }

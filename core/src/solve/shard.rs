@@ -677,20 +677,22 @@ mod size_tests {
 
     #[test]
     fn pixel_state_size_is_fixed_and_known() {
-        // Breakdown: the pixel's state (hot first, `repr(C)`): full-spectrum sums 68,
-        // thickness, order step, sample counters, flags 17 (85 hot bytes), then the two
-        // extremum lists 2 x 42 (20 extrema of 2 bytes and a one-byte length), 172 with
-        // padding; and its tracker lanes in the row blocks, 76 bytes a pixel (the scalar
-        // tracker's 76) and the block's shared ring position and count, 77 rounded up; 249
-        // in all.
+        // Breakdown: the pixel's state: flags, extrema seen and the two extremum lists
+        // 2 x 42 (20 extrema of 2 bytes and a one-byte length), 88 with padding; its tracker
+        // lanes in the row blocks, 76 bytes a pixel (the scalar tracker's 76) and the block's
+        // shared ring position and count, 77 rounded up; its fit lanes in the row blocks:
+        // thickness and order step 8, the sixteen full-spectrum sums 64 (the scalar `GnSums`
+        // is 68 with its count and padding), the sums' count and the saturated and dead counts
+        // 6, and the block's shared sample count, 79 rounded up; 244 in all.
         let sizes = [
             core::mem::size_of::<PixelTracker>(),
             core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES),
             core::mem::size_of::<ExtremaList>(),
             core::mem::size_of::<GnSums>(),
             core::mem::size_of::<PixelState>(),
+            core::mem::size_of::<FitLanes>().div_ceil(row::LANES),
             state_bytes_per_pixel(),
         ];
-        assert_eq!(sizes, [76, 77, 42, 68, 172, 249]);
+        assert_eq!(sizes, [76, 77, 42, 68, 88, 79, 244]);
     }
 }
