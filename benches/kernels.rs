@@ -423,10 +423,9 @@ fn bench_solve(c: &mut Criterion) {
         {
             let (mut s, mut st) = (solver.clone(), states.clone());
             let report = s.end_angle_all(&mut [st.shard(0, w)]);
-            let resolved = st
-                .pixels
-                .iter()
-                .filter(|p| p.thickness_nm.is_finite())
+            let shard = st.shard(0, w);
+            let resolved = (0..shard.pixels.len())
+                .filter(|&i| shard.fit(i).thickness_nm.is_finite())
                 .count();
             assert!(report.index.is_some(), "{name}: no index");
             assert!(
@@ -452,10 +451,11 @@ fn bench_solve(c: &mut Criterion) {
             let states = &prep.before_rows.1;
             let mut check = states.clone();
             prep.feed(&mut check);
-            assert!(
-                check.pixels.iter().filter(|p| p.gn.samples > 0).count() * 2 > check.pixels.len(),
-                "the feed does not refine"
-            );
+            let shard = check.shard(0, w);
+            let refined = (0..shard.pixels.len())
+                .filter(|&i| shard.fit(i).gn.samples > 0)
+                .count();
+            assert!(refined * 2 > shard.pixels.len(), "the feed does not refine");
             g.throughput(Throughput::Elements(prep.rows.len() as u64));
             // About 0.3 s an iteration: 10 flat samples.
             g.sample_size(10)

@@ -16,6 +16,7 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::calibrate::calibrate_row;
+use filmscope_core::solve::fit_row::FitLanes;
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
 use filmscope_core::solve::refine::{AngleModels, BandCoef, Knot};
 use filmscope_core::solve::sweep::SolverOptions;
@@ -109,31 +110,49 @@ enum WorkerMsg {
 /// read only after it, so rows of the next angle can never reach the previous one's state.
 type Start = (ShardState, Arc<BandModels>);
 
-/// The owned state of a shard of rows: its pixels' states and their extremum trackers (in
-/// blocks of a row's pixels).
+/// The owned state of a shard of rows: its pixels' states, their extremum trackers and their
+/// thickness, counters and sums (in blocks of a row's pixels).
 #[derive(Clone, Debug, Default)]
 pub struct ShardState {
     /// Row-major pixel states.
     pub pixels: Vec<PixelState>,
     /// The pixels' trackers.
     pub trackers: Vec<TrackerLanes>,
+    /// The pixels' thickness, counters and sums.
+    pub fits: Vec<FitLanes>,
 }
 
 impl ShardState {
-    /// `pixels` (rows of `width`) with fresh trackers.
-    pub fn new(pixels: Vec<PixelState>, width: usize) -> Self {
-        let trackers = vec![TrackerLanes::EMPTY; tracker_blocks(pixels.len(), width)];
-        Self { pixels, trackers }
-    }
-
     /// `rows` x `width` pixels that have seen nothing.
     pub fn empty(rows: usize, width: usize) -> Self {
-        Self::new(vec![PixelState::default(); rows * width], width)
+        let blocks = tracker_blocks(rows * width, width);
+        Self {
+            pixels: vec![PixelState::default(); rows * width],
+            trackers: vec![TrackerLanes::EMPTY; blocks],
+            fits: vec![FitLanes::EMPTY; blocks],
+        }
+    }
+
+    /// Pixels of rows of `width` that start at the thicknesses `seed` (NaN: none) with
+    /// `index` ([`Shard::seed`]).
+    pub fn seeded(seed: &[f32], width: usize, index: IndexModel, spec: &SweepSpec) -> Self {
+        let mut state = Self::empty(seed.len().checked_div(width).unwrap_or(0), width);
+        let mut shard = state.shard(0, width);
+        for (i, &d) in seed.iter().enumerate() {
+            shard.seed(i, d, index, spec);
+        }
+        state
     }
 
     /// The shard over this state, its first row `first_row`.
     pub fn shard(&mut self, first_row: usize, width: usize) -> Shard<'_> {
-        Shard::new(first_row, width, &mut self.pixels, &mut self.trackers)
+        Shard::new(
+            first_row,
+            width,
+            &mut self.pixels,
+            &mut self.trackers,
+            &mut self.fits,
+        )
     }
 }
 
@@ -250,13 +269,9 @@ pub fn run_sweep(
         .map(|i| {
             let (first, rows) = shard_rows(h, workers, i);
             Some(match &seed {
-                Some((map, index)) => ShardState::new(
-                    map[first * w..(first + rows) * w]
-                        .iter()
-                        .map(|&d| PixelState::seeded(d, *index, &spec))
-                        .collect(),
-                    w,
-                ),
+                Some((map, index)) => {
+                    ShardState::seeded(&map[first * w..(first + rows) * w], w, *index, &spec)
+                }
                 None => ShardState::empty(rows, w),
             })
         })

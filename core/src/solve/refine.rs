@@ -79,18 +79,103 @@ pub struct BandCoef {
 /// little but cannot bias where it converges, which the residual alone decides).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Knot {
-    m: f32,
-    slope_h: f32,
-    j_n: f32,
+    pub(crate) m: f32,
+    pub(crate) slope_h: f32,
+    pub(crate) j_n: f32,
 }
 
 /// Where one band's knots sit in the angle's table.
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct TableSpan {
+pub(crate) struct TableSpan {
     first: u32,
     count: u32,
     d0: f32,
     inv_h: f32,
+}
+
+impl TableSpan {
+    /// The band's knots in the angle's table (`None` if the table is too short).
+    #[inline]
+    pub(crate) fn knots<'k>(&self, knots: &'k [Knot]) -> Option<&'k [Knot]> {
+        knots.get(self.first as usize..(self.first + self.count) as usize)
+    }
+
+    /// Position of thickness `d` in knot units from the first knot.
+    #[inline(always)]
+    pub(crate) fn position(&self, d: f32) -> f32 {
+        (d - self.d0) * self.inv_h
+    }
+
+    /// Knots per nm.
+    #[inline(always)]
+    pub(crate) fn inv_h(&self) -> f32 {
+        self.inv_h
+    }
+
+    /// Whether position `x` falls between two knots (false for NaN): then its knot is
+    /// `x as usize`, its fraction `x - knot as f32`.
+    #[inline(always)]
+    pub(crate) fn covers(&self, x: f32) -> bool {
+        // `x as usize + 1 < count`, with `count` exact in f32 (at most 2^14).
+        x >= 0.0 && x < (self.count - 1) as f32
+    }
+
+    /// Knot and fraction of thickness `d`, if it falls inside the table.
+    #[inline(always)]
+    fn locate(&self, d: f32) -> Option<(usize, f32)> {
+        let x = self.position(d);
+        self.covers(x).then(|| {
+            let i = x as usize;
+            (i, x - i as f32)
+        })
+    }
+}
+
+/// The tabulated model of one band at one thickness, in f32 as the table holds it and the
+/// sums take it: the fields of [`BandEval`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct SampleModel {
+    pub(crate) m: f32,
+    pub(crate) j_d: f32,
+    pub(crate) j_n: f32,
+    pub(crate) m_minus: f32,
+    pub(crate) m_plus: f32,
+}
+
+impl SampleModel {
+    /// From the knots either side of the thickness (`a`, `b`, at fraction `u`) and of the
+    /// orders either side (`lo`, `hi`: knots and fraction), `inv_h` the band's knots per nm.
+    #[inline(always)]
+    pub(crate) fn from_knots(
+        [a, b]: [Knot; 2],
+        u: f32,
+        lo: ([Knot; 2], f32),
+        hi: ([Knot; 2], f32),
+        inv_h: f32,
+    ) -> Self {
+        let (m, slope) = hermite(a, b, u);
+        Self {
+            m,
+            j_d: slope * inv_h,
+            j_n: a.j_n + (b.j_n - a.j_n) * u,
+            m_minus: hermite(lo.0[0], lo.0[1], lo.1).0,
+            m_plus: hermite(hi.0[0], hi.0[1], hi.1).0,
+        }
+    }
+}
+
+impl From<BandEval> for SampleModel {
+    /// In f32, as the sums are kept (the table's values are f32 already).
+    #[inline(always)]
+    fn from(e: BandEval) -> Self {
+        Self {
+            m: e.m as f32,
+            j_d: e.j_d as f32,
+            j_n: e.j_n as f32,
+            m_minus: e.m_minus as f32,
+            m_plus: e.m_plus as f32,
+        }
+    }
 }
 
 /// Largest phase change (radians) of a band's fastest quadrature node between two knots:
@@ -233,35 +318,36 @@ impl BandCoef {
         self.table.is_some()
     }
 
+    /// Where the band's knots sit in the angle's table, if tabulated.
+    pub(crate) fn table(&self) -> Option<TableSpan> {
+        self.table
+    }
+
     /// The model at `thickness_nm` and the orders `order_step_nm` either side: from the
     /// table where it covers all three, else computed.
     #[inline]
     pub fn eval(&self, knots: &[Knot], thickness_nm: f64, order_step_nm: f64) -> BandEval {
         if let Some(t) = self.table {
-            let span = |d: f64| {
-                let x = (d as f32 - t.d0) * t.inv_h;
-                let i = x as usize;
-                (x >= 0.0 && i + 1 < t.count as usize).then_some((i, x - i as f32))
-            };
             let (c, lo, hi) = (
-                span(thickness_nm),
-                span(thickness_nm - order_step_nm),
-                span(thickness_nm + order_step_nm),
+                t.locate(thickness_nm as f32),
+                t.locate((thickness_nm - order_step_nm) as f32),
+                t.locate((thickness_nm + order_step_nm) as f32),
             );
-            if let (Some((i, u)), Some(lo), Some(hi), Some(k)) = (
-                c,
-                lo,
-                hi,
-                knots.get(t.first as usize..(t.first + t.count) as usize),
-            ) {
-                let (m, slope) = hermite(k[i], k[i + 1], u);
-                let j_n = k[i].j_n + (k[i + 1].j_n - k[i].j_n) * u;
+            if let (Some((i, u)), Some(lo), Some(hi), Some(k)) = (c, lo, hi, t.knots(knots)) {
+                let pair = |i: usize| [k[i], k[i + 1]];
+                let s = SampleModel::from_knots(
+                    pair(i),
+                    u,
+                    (pair(lo.0), lo.1),
+                    (pair(hi.0), hi.1),
+                    t.inv_h,
+                );
                 return BandEval {
-                    m: f64::from(m),
-                    j_d: f64::from(slope * t.inv_h),
-                    j_n: f64::from(j_n),
-                    m_minus: f64::from(hermite(k[lo.0], k[lo.0 + 1], lo.1).0),
-                    m_plus: f64::from(hermite(k[hi.0], k[hi.0 + 1], hi.1).0),
+                    m: f64::from(s.m),
+                    j_d: f64::from(s.j_d),
+                    j_n: f64::from(s.j_n),
+                    m_minus: f64::from(s.m_minus),
+                    m_plus: f64::from(s.m_plus),
                 };
             }
         }
@@ -348,6 +434,9 @@ pub struct GnSums {
     pub samples: u16,
 }
 
+/// Number of sums a sample adds to ([`GnSums::terms`]).
+pub const TERMS: usize = 16;
+
 impl GnSums {
     /// Adds one band sample `measured` of a pixel at linearisation point `thickness_nm`
     /// (`order_step_nm` apart from the neighbouring orders), the band's model from `knots`
@@ -361,41 +450,79 @@ impl GnSums {
         order_step_nm: f64,
         measured: f64,
     ) {
-        let BandEval {
-            m,
-            j_d,
-            j_n,
-            m_minus,
-            m_plus,
-        } = coef.eval(knots, thickness_nm, order_step_nm);
-        // In f32, as the sums are kept: the table's values are f32 already.
-        let (v, m, j_d, j_n, u) = (
-            measured as f32,
-            m as f32,
-            j_d as f32,
-            j_n as f32,
-            coef.u as f32,
-        );
-        let r = v - m;
-        let (u2, jn2, jdn, jnr) = (u * u, j_n * j_n, j_d * j_n, j_n * r);
-        self.h_pp[0] += jn2;
-        self.h_pp[1] += jn2 * u;
-        self.h_pp[2] += jn2 * u2;
-        self.h_pp[3] += jn2 * u2 * u;
-        self.h_pp[4] += jn2 * u2 * u2;
-        self.h_dp[0] += jdn;
-        self.h_dp[1] += jdn * u;
-        self.h_dp[2] += jdn * u2;
-        self.g_p[0] += jnr;
-        self.g_p[1] += jnr * u;
-        self.g_p[2] += jnr * u2;
-        self.h_dd += j_d * j_d;
-        self.g_d += j_d * r;
-        self.sse += r * r;
-        let (rm, rp) = (v - m_minus as f32, v - m_plus as f32);
-        self.sse_minus += rm * rm;
-        self.sse_plus += rp * rp;
-        self.samples = self.samples.saturating_add(1);
+        let model = coef.eval(knots, thickness_nm, order_step_nm).into();
+        let t = Self::terms(model, measured as f32, coef.u as f32);
+        let mut sums = self.to_terms();
+        for (s, t) in sums.iter_mut().zip(t) {
+            *s += t;
+        }
+        *self = Self::from_terms(sums, self.samples.saturating_add(1));
+    }
+
+    /// What one sample `v` of a band whose basis variable is `u` adds to each sum, the model
+    /// `s` at the pixel's thickness, in the order of [`GnSums::to_terms`].
+    #[inline(always)]
+    pub(crate) fn terms(s: SampleModel, v: f32, u: f32) -> [f32; TERMS] {
+        let r = v - s.m;
+        let (u2, jn2, jdn, jnr) = (u * u, s.j_n * s.j_n, s.j_d * s.j_n, s.j_n * r);
+        let (rm, rp) = (v - s.m_minus, v - s.m_plus);
+        [
+            s.j_d * s.j_d,
+            jdn,
+            jdn * u,
+            jdn * u2,
+            jn2,
+            jn2 * u,
+            jn2 * u2,
+            jn2 * u2 * u,
+            jn2 * u2 * u2,
+            s.j_d * r,
+            jnr,
+            jnr * u,
+            jnr * u2,
+            r * r,
+            rm * rm,
+            rp * rp,
+        ]
+    }
+
+    /// The sums as one array: `h_dd`, `h_dp`, `h_pp`, `g_d`, `g_p`, `sse`, `sse_minus`,
+    /// `sse_plus`.
+    pub fn to_terms(&self) -> [f32; TERMS] {
+        let (p, d, g) = (self.h_pp, self.h_dp, self.g_p);
+        [
+            self.h_dd,
+            d[0],
+            d[1],
+            d[2],
+            p[0],
+            p[1],
+            p[2],
+            p[3],
+            p[4],
+            self.g_d,
+            g[0],
+            g[1],
+            g[2],
+            self.sse,
+            self.sse_minus,
+            self.sse_plus,
+        ]
+    }
+
+    /// The sums from [`GnSums::to_terms`]' array and the count of samples.
+    pub fn from_terms(t: [f32; TERMS], samples: u16) -> Self {
+        Self {
+            h_dd: t[0],
+            h_dp: [t[1], t[2], t[3]],
+            h_pp: [t[4], t[5], t[6], t[7], t[8]],
+            g_d: t[9],
+            g_p: [t[10], t[11], t[12]],
+            sse: t[13],
+            sse_minus: t[14],
+            sse_plus: t[15],
+            samples,
+        }
     }
 
     /// 1-sigma uncertainty of the thickness, nm, from the fit alone (the index held): the

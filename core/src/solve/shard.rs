@@ -3,6 +3,7 @@
 use crate::track::row::{self, TrackerLanes};
 use crate::track::{ExtremaList, PixelTracker};
 
+use super::fit_row::{self, FitLanes, PixelFit};
 use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
 use super::order::{Observation, OrderChoice, OrderContext};
@@ -37,29 +38,13 @@ pub const MAX_THICKNESS_SIGMA_NM: f64 = 5.0;
 /// Largest share of unusable samples a valid pixel may have.
 const BAD_SHARE: f64 = 0.1;
 
-/// Everything the solver keeps about one pixel but its extremum tracker (which lives in the
-/// shard's row blocks, [`TrackerLanes`]); its size is fixed whatever the number of bands,
-/// angles and sweeps (see `state_bytes_per_pixel`).
-///
-/// Laid out hot first (`repr(C)`): every sample reads and writes the full-spectrum sums, the
-/// thickness and the counters (the first 85 bytes of 172); the extremum lists are touched only
-/// when an extremum is found and at angle ends. A band streams past every pixel's state, so on
-/// a large sensor the bytes a sample touches, not its arithmetic, set the rate.
+/// What the solver keeps about one pixel but its per-sample state: its flags and extrema.
+/// The extremum tracker and the thickness, counters and full-spectrum sums live in the
+/// shard's row blocks ([`TrackerLanes`], [`FitLanes`]), where a band's row updates them lane
+/// by lane; this is touched only when an extremum is found and at angle ends. Its size is
+/// fixed whatever the number of bands, angles and sweeps (see `state_bytes_per_pixel`).
 #[derive(Clone, Debug)]
-#[repr(C)]
 pub struct PixelState {
-    /// Full-spectrum sums.
-    pub gn: GnSums,
-    /// Thickness (the Gauss-Newton linearisation point), NaN until the order is known.
-    pub thickness_nm: f32,
-    /// Thickness change of one interference order, nm.
-    pub order_step_nm: f32,
-    /// Samples seen.
-    pub samples: u16,
-    /// Saturated samples (`+inf` from calibration).
-    pub saturated: u16,
-    /// Samples without a usable reference (NaN from calibration).
-    pub dead: u16,
     /// Flags (see [`flags`]).
     pub flags: u16,
     /// Extrema seen over all angles.
@@ -75,31 +60,9 @@ impl Default for PixelState {
         Self {
             anchor: ExtremaList::new(),
             current: ExtremaList::new(),
-            thickness_nm: f32::NAN,
-            order_step_nm: f32::NAN,
-            gn: GnSums::default(),
-            samples: 0,
-            saturated: 0,
-            dead: 0,
             extrema_seen: 0,
             flags: 0,
         }
-    }
-}
-
-impl PixelState {
-    /// A pixel that starts at `thickness_nm` with `index`, as a global search on sampled
-    /// spectra put it ([`super::thin`]): it is refined from the first angle on, needing no
-    /// extrema.
-    pub fn seeded(thickness_nm: f32, index: IndexModel, spec: &SweepSpec) -> Self {
-        let mut p = Self::default();
-        if thickness_nm.is_finite() {
-            let mid = spec.bands_nm[spec.bands_nm.len() / 2];
-            p.thickness_nm = thickness_nm;
-            p.order_step_nm = (mid / (2.0 * index.at(mid))) as f32;
-            p.flags = flags::FROM_SPECTRUM_SEARCH;
-        }
-        p
     }
 }
 
@@ -110,13 +73,16 @@ impl AsMut<ExtremaList> for PixelState {
     }
 }
 
-/// Bytes of solver state per pixel: its [`PixelState`] and its share of the tracker blocks
-/// (a block of [`row::LANES`] pixels, rounded up).
+/// Bytes of solver state per pixel: its [`PixelState`] and its shares of the tracker and
+/// fit blocks (each a block of [`row::LANES`] pixels, rounded up).
 pub const fn state_bytes_per_pixel() -> usize {
-    core::mem::size_of::<PixelState>() + core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES)
+    core::mem::size_of::<PixelState>()
+        + core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES)
+        + core::mem::size_of::<FitLanes>().div_ceil(row::LANES)
 }
 
-/// Tracker blocks a shard of `pixels` pixels in rows of `width` needs ([`Shard::new`]).
+/// Tracker blocks, and fit blocks, a shard of `pixels` pixels in rows of `width` needs
+/// ([`Shard::new`]).
 pub const fn tracker_blocks(pixels: usize, width: usize) -> usize {
     match pixels.checked_div(width) {
         Some(rows) => row::blocks_for(rows, width),
@@ -134,6 +100,8 @@ pub struct Shard<'a> {
     pub pixels: &'a mut [PixelState],
     /// The pixels' extremum trackers, row after row ([`tracker_blocks`] of them).
     trackers: &'a mut [TrackerLanes],
+    /// The pixels' thickness, counters and sums, in the same blocks.
+    fits: &'a mut [FitLanes],
 }
 
 /// A pixel's final result.
@@ -162,18 +130,19 @@ impl PixelResult {
 }
 
 impl<'a> Shard<'a> {
-    /// A shard over caller-owned states and trackers (`trackers.len()` must be
-    /// [`tracker_blocks`]`(pixels.len(), width)`).
+    /// A shard over caller-owned states, trackers and fits (`trackers.len()` and
+    /// `fits.len()` must be [`tracker_blocks`]`(pixels.len(), width)`).
     pub fn new(
         first_row: usize,
         width: usize,
         pixels: &'a mut [PixelState],
         trackers: &'a mut [TrackerLanes],
+        fits: &'a mut [FitLanes],
     ) -> Self {
-        assert_eq!(
-            trackers.len(),
-            tracker_blocks(pixels.len(), width),
-            "one tracker block per {} pixels of a row",
+        let blocks = tracker_blocks(pixels.len(), width);
+        assert!(
+            trackers.len() == blocks && fits.len() == blocks,
+            "one tracker and one fit block per {} pixels of a row",
             row::LANES
         );
         Self {
@@ -181,12 +150,39 @@ impl<'a> Shard<'a> {
             width,
             pixels,
             trackers,
+            fits,
         }
     }
 
     /// Pixel `i`'s extremum tracker this angle (a copy: its noise, bad samples, overflow).
     pub fn tracker(&self, i: usize) -> PixelTracker {
         row::pixel(self.trackers, self.width, i)
+    }
+
+    /// Pixel `i`'s thickness, counters and sums (a copy).
+    pub fn fit(&self, i: usize) -> PixelFit {
+        let (b, lane) = row::locate(self.width, i);
+        self.fits[b].pixel(lane)
+    }
+
+    /// Stores pixel `i`'s thickness, counters and sums.
+    fn set_fit(&mut self, i: usize, f: &PixelFit) {
+        let (b, lane) = row::locate(self.width, i);
+        self.fits[b].set_pixel(lane, f);
+    }
+
+    /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
+    /// spectra put it ([`super::thin`]): it is refined from the first angle on, needing no
+    /// extrema. A NaN thickness leaves it as it was.
+    pub fn seed(&mut self, i: usize, thickness_nm: f32, index: IndexModel, spec: &SweepSpec) {
+        if thickness_nm.is_finite() {
+            let mid = spec.bands_nm[spec.bands_nm.len() / 2];
+            let mut f = self.fit(i);
+            f.thickness_nm = thickness_nm;
+            f.order_step_nm = (mid / (2.0 * index.at(mid))) as f32;
+            self.set_fit(i, &f);
+            self.pixels[i].flags = flags::FROM_SPECTRUM_SEARCH;
+        }
     }
 
     /// Rows held.
@@ -232,33 +228,8 @@ impl<'a> Shard<'a> {
         let first = (row - self.first_row) * blocks;
         let trackers = &mut self.trackers[first..first + blocks];
         row::push_row(trackers, band as u16, values, options.subband, pixels);
-        for (p, &v) in pixels.iter_mut().zip(values) {
-            p.samples = p.samples.saturating_add(1);
-            // A finite value far outside any reflectance is a corrupted sample: dead.
-            let v = if v.is_finite() && !crate::track::usable(v) {
-                f32::NAN
-            } else {
-                v
-            };
-            if !v.is_finite() {
-                if v.is_nan() {
-                    p.dead = p.dead.saturating_add(1);
-                } else {
-                    p.saturated = p.saturated.saturating_add(1);
-                }
-            }
-            if let Some(c) = coef {
-                if v.is_finite() && p.thickness_nm.is_finite() {
-                    p.gn.add(
-                        c,
-                        models.knots,
-                        f64::from(p.thickness_nm),
-                        f64::from(p.order_step_nm),
-                        f64::from(v),
-                    );
-                }
-            }
-        }
+        let fits = &mut self.fits[first..first + blocks];
+        fit_row::push_row(fits, values, coef.map(|c| (c, models.knots)));
     }
 
     /// Angle-end pass 1: every pixel's extremum ratios against the reference angle (the
@@ -272,16 +243,17 @@ impl<'a> Shard<'a> {
             if let Some(g) = geometry {
                 votes.vote(g, &p.anchor, &p.current, |b| spec.wavelength_at(b));
             }
-            if p.gn.samples > 0 {
-                fit.rms.add(p.gn.rms());
+            let gn = self.fit(i).gn;
+            if gn.samples > 0 {
+                fit.rms.add(gn.rms());
             }
             fit.noise.add(self.tracker(i).noise_sigma());
         }
         (votes, fit)
     }
 
-    fn trusted(p: &PixelState, rms_limit: f32) -> bool {
-        p.thickness_nm.is_finite() && p.gn.samples > 2 && p.gn.h_dd > 0.0 && p.gn.rms() <= rms_limit
+    fn trusted(f: &PixelFit, rms_limit: f32) -> bool {
+        f.thickness_nm.is_finite() && f.gn.samples > 2 && f.gn.h_dd > 0.0 && f.gn.rms() <= rms_limit
     }
 
     /// Angle-end pass 2, one call of `f(row, window, schur)` per image row (rows in order, so
@@ -299,20 +271,22 @@ impl<'a> Shard<'a> {
         // index toward its wrong order: left out.
         let (hop, d_lo) = Self::hop_margin(solver);
         let settled =
-            |p: &PixelState| hop.is_none_or(|margin| Self::better_order(p, margin, d_lo).is_none());
-        for (r, row) in self.pixels.chunks(self.width.max(1)).enumerate() {
+            |f: &PixelFit| hop.is_none_or(|margin| Self::better_order(f, margin, d_lo).is_none());
+        let width = self.width.max(1);
+        for (r, row) in self.pixels.chunks(width).enumerate() {
             let mut w = RatioSums::default();
             let mut s = SchurSums::default();
-            for p in row {
+            for (c, p) in row.iter().enumerate() {
                 if let Some((g, windows)) = window {
                     accumulate_window(&mut w, g, windows, &p.anchor, &p.current, |b| {
                         spec.wavelength_at(b)
                     });
                 }
-                if !(Self::trusted(p, limit) && settled(p)) {
+                let f = self.fit(r * width + c);
+                if !(Self::trusted(&f, limit) && settled(&f)) {
                     continue;
                 }
-                let g = &p.gn;
+                let g = &f.gn;
                 let h_dd = f64::from(g.h_dd);
                 let h_dp = g.h_dp.map(f64::from);
                 let g_d = f64::from(g.g_d);
@@ -362,48 +336,53 @@ impl<'a> Shard<'a> {
         };
         let orders = Self::order_context(solver);
         let finish = out.is_some().then(|| Finish::of(solver));
-        for (i, p) in self.pixels.iter_mut().enumerate() {
+        for i in 0..self.pixels.len() {
+            let mut f = self.fit(i);
+            let overflow = row::pixel(self.trackers, self.width, i).overflow;
+            let p = &mut self.pixels[i];
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
-            if row::pixel(self.trackers, self.width, i).overflow {
+            if overflow {
                 p.flags |= flags::TRACKER_OVERFLOW;
             }
             // A seeded pixel has no extrema to choose its order again from: it keeps its
             // thickness and steps with the index like the others.
             let seeded = p.flags & flags::FROM_SPECTRUM_SEARCH != 0;
-            if reorder && p.thickness_nm.is_finite() && !seeded {
-                p.thickness_nm = f32::NAN;
-                p.gn = GnSums::default();
+            if reorder && f.thickness_nm.is_finite() && !seeded {
+                f.thickness_nm = f32::NAN;
+                f.gn = GnSums::default();
                 p.flags &= !flags::ORDER_FROM_NEIGHBOUR;
-            } else if let Some(dir) = hop.and_then(|margin| Self::better_order(p, margin, d_lo)) {
+            } else if let Some(dir) = hop.and_then(|margin| Self::better_order(&f, margin, d_lo)) {
                 // A whole order away: the sums restart there.
-                p.thickness_nm += dir * p.order_step_nm;
-                p.gn = GnSums::default();
-            } else if p.thickness_nm.is_finite() && p.gn.samples > 0 && p.gn.h_dd > 0.0 {
-                let g = p.gn;
-                let step = f64::from(p.order_step_nm);
+                f.thickness_nm += dir * f.order_step_nm;
+                f.gn = GnSums::default();
+            } else if f.thickness_nm.is_finite() && f.gn.samples > 0 && f.gn.h_dd > 0.0 {
+                let g = f.gn;
+                let step = f64::from(f.order_step_nm);
                 let dd = g.thickness_step(dp).clamp(-0.25 * step, 0.25 * step);
-                p.thickness_nm = (f64::from(p.thickness_nm) + dd) as f32;
-                p.gn.shift(dd, dp);
-            } else if p.thickness_nm.is_finite() {
+                f.thickness_nm = (f64::from(f.thickness_nm) + dd) as f32;
+                f.gn.shift(dd, dp);
+            } else if f.thickness_nm.is_finite() {
                 if let Some(ratio) = path_ratio {
-                    p.thickness_nm = (f64::from(p.thickness_nm) * ratio) as f32;
+                    f.thickness_nm = (f64::from(f.thickness_nm) * ratio) as f32;
                 }
             }
             if first_angle {
                 p.anchor = p.current;
             }
-            if let Some(ctx) = orders.as_ref().filter(|_| !p.thickness_nm.is_finite()) {
+            if let Some(ctx) = orders.as_ref().filter(|_| !f.thickness_nm.is_finite()) {
                 if let Some(c) = Self::choose(p, spec, ctx) {
                     if c.runner_up_cost - c.cost >= AMBIGUITY_MARGIN {
-                        Self::set_thickness(p, c.thickness_nm, c.order_step_nm, 0);
+                        Self::set_thickness(p, &mut f, c.thickness_nm, c.order_step_nm, 0);
                     } else {
                         tie(i);
                     }
                 }
             }
-            if let (Some(f), Some(o)) = (finish.as_ref(), out.as_mut().and_then(|o| o.get_mut(i))) {
-                *o = f.result(p);
+            if let (Some(fin), Some(o)) = (finish.as_ref(), out.as_mut().and_then(|o| o.get_mut(i)))
+            {
+                *o = fin.result(p, &f);
             }
+            self.set_fit(i, &f);
         }
     }
 
@@ -420,21 +399,21 @@ impl<'a> Shard<'a> {
     /// The neighbouring order (`-1.0` thinner, `1.0` thicker) whose full-spectrum misfit is
     /// below the pixel's own by more than `margin`, if any (thinner only within the search
     /// range and above zero).
-    fn better_order(p: &PixelState, margin: f64, d_lo: f64) -> Option<f32> {
-        if !p.thickness_nm.is_finite() || p.gn.samples == 0 {
+    fn better_order(f: &PixelFit, margin: f64, d_lo: f64) -> Option<f32> {
+        if !f.thickness_nm.is_finite() || f.gn.samples == 0 {
             return None;
         }
-        let (alt, dir) = Self::neighbour_order(p, d_lo);
-        (f64::from(p.gn.sse) - f64::from(alt) > margin).then_some(dir)
+        let (alt, dir) = Self::neighbour_order(f, d_lo);
+        (f64::from(f.gn.sse) - f64::from(alt) > margin).then_some(dir)
     }
 
     /// The better-fitting neighbouring order of a refined pixel: its full-spectrum misfit and
     /// direction (`-1.0` thinner, `1.0` thicker). One order thinner is no alternative below
     /// the search range's lower end `d_lo` (nor below zero, where the model would mirror the
     /// film's thickness).
-    fn neighbour_order(p: &PixelState, d_lo: f64) -> (f32, f32) {
-        let g = &p.gn;
-        let thinner = f64::from(p.thickness_nm) - f64::from(p.order_step_nm) >= d_lo.max(0.0);
+    fn neighbour_order(f: &PixelFit, d_lo: f64) -> (f32, f32) {
+        let g = &f.gn;
+        let thinner = f64::from(f.thickness_nm) - f64::from(f.order_step_nm) >= d_lo.max(0.0);
         if thinner && g.sse_minus < g.sse_plus {
             (g.sse_minus, -1.0)
         } else {
@@ -450,11 +429,8 @@ impl<'a> Shard<'a> {
             return;
         }
         let r = if last { rows - 1 } else { 0 };
-        for (o, p) in out
-            .iter_mut()
-            .zip(&self.pixels[r * self.width..(r + 1) * self.width])
-        {
-            *o = p.thickness_nm;
+        for (c, o) in out.iter_mut().take(self.width).enumerate() {
+            *o = self.fit(r * self.width + c).thickness_nm;
         }
     }
 
@@ -507,16 +483,15 @@ impl<'a> Shard<'a> {
         let w = self.width;
         let mut pending = false;
         for i in ties {
-            let p = &self.pixels[i];
-            if p.thickness_nm.is_finite() {
+            if self.fit(i).thickness_nm.is_finite() {
                 continue;
             }
-            let Some(c) = Self::choose(p, solver.spec(), &ctx) else {
+            let Some(c) = Self::choose(&self.pixels[i], solver.spec(), &ctx) else {
                 continue;
             };
-            let left = (i % w > 0).then(|| self.pixels[i - 1].thickness_nm);
+            let left = (i % w > 0).then(|| self.fit(i - 1).thickness_nm);
             let up = if i >= w {
-                Some(self.pixels[i - w].thickness_nm)
+                Some(self.fit(i - w).thickness_nm)
             } else {
                 above.and_then(|a| a.get(i).copied())
             };
@@ -542,14 +517,13 @@ impl<'a> Shard<'a> {
         let w = self.width;
         let n = self.pixels.len();
         for i in ties {
-            let p = &self.pixels[i];
-            if p.thickness_nm.is_finite() {
+            if self.fit(i).thickness_nm.is_finite() {
                 continue;
             }
-            if let Some(c) = Self::choose(p, solver.spec(), &ctx) {
-                let right = (i % w + 1 < w).then(|| self.pixels[i + 1].thickness_nm);
+            if let Some(c) = Self::choose(&self.pixels[i], solver.spec(), &ctx) {
+                let right = (i % w + 1 < w).then(|| self.fit(i + 1).thickness_nm);
                 let down = if i + w < n {
-                    Some(self.pixels[i + w].thickness_nm)
+                    Some(self.fit(i + w).thickness_nm)
                 } else {
                     below.and_then(|b| b.get(i % w).copied())
                 };
@@ -575,8 +549,10 @@ impl<'a> Shard<'a> {
             }
             for cand in [c.thickness_nm, c.runner_up_nm] {
                 if cand.is_finite() && (cand - d_n).abs() < 0.3 * c.order_step_nm {
+                    let mut f = self.fit(i);
                     let flag = flags::ORDER_FROM_NEIGHBOUR;
-                    Self::set_thickness(&mut self.pixels[i], cand, c.order_step_nm, flag);
+                    Self::set_thickness(&mut self.pixels[i], &mut f, cand, c.order_step_nm, flag);
+                    self.set_fit(i, &f);
                     return true;
                 }
             }
@@ -584,11 +560,11 @@ impl<'a> Shard<'a> {
         false
     }
 
-    fn set_thickness(p: &mut PixelState, d: f64, step: f64, flag: u16) {
-        p.thickness_nm = d as f32;
-        p.order_step_nm = step as f32;
+    fn set_thickness(p: &mut PixelState, f: &mut PixelFit, d: f64, step: f64, flag: u16) {
+        f.thickness_nm = d as f32;
+        f.order_step_nm = step as f32;
         p.flags |= flag;
-        p.gn = GnSums::default();
+        f.gn = GnSums::default();
     }
 
     /// The final result of every pixel, row-major, after the last angle.
@@ -607,7 +583,7 @@ impl<'a> Shard<'a> {
         let finish = Finish::of(solver);
         for i in pixels {
             if let (Some(p), Some(o)) = (self.pixels.get(i), out.get_mut(i)) {
-                *o = finish.result(p);
+                *o = finish.result(p, &self.fit(i));
             }
         }
     }
@@ -644,18 +620,18 @@ impl Finish {
         }
     }
 
-    fn result(&self, p: &PixelState) -> PixelResult {
+    fn result(&self, p: &PixelState, fit: &PixelFit) -> PixelResult {
         let mut f = p.flags;
-        let total = f64::from(p.samples.max(1));
-        if f64::from(p.saturated) > BAD_SHARE * total {
+        let total = f64::from(fit.samples.max(1));
+        if f64::from(fit.saturated) > BAD_SHARE * total {
             f |= flags::SATURATED;
         }
-        if f64::from(p.dead) > BAD_SHARE * total {
+        if f64::from(fit.dead) > BAD_SHARE * total {
             f |= flags::DEAD;
-        } else if p.dead > 0 {
+        } else if fit.dead > 0 {
             f |= flags::MISSING_SAMPLES;
         }
-        let d = f64::from(p.thickness_nm);
+        let d = f64::from(fit.thickness_nm);
         let mut confidence = 0.0f32;
         let mut sigma = f64::NAN;
         if !d.is_finite() {
@@ -664,7 +640,7 @@ impl Finish {
             } else {
                 flags::AMBIGUOUS_ORDER
             };
-        } else if p.gn.samples == 0 {
+        } else if fit.gn.samples == 0 {
             f |= flags::NOT_REFINED;
             // Its order rests on one pair of extremum lists, unconfirmed by the full
             // spectrum (it was ambiguous until the last angle, or the index arrived or
@@ -675,9 +651,9 @@ impl Finish {
             }
             confidence = 0.5;
         } else {
-            let g = &p.gn;
+            let g = &fit.gn;
             let best = f64::from(g.sse);
-            let alt = f64::from(Shard::neighbour_order(p, self.d_lo).0);
+            let alt = f64::from(Shard::neighbour_order(fit, self.d_lo).0);
             let chi2 = if self.sigma2 > 0.0 {
                 (alt - best) / self.sigma2
             } else {
@@ -722,20 +698,22 @@ mod size_tests {
 
     #[test]
     fn pixel_state_size_is_fixed_and_known() {
-        // Breakdown: the pixel's state (hot first, `repr(C)`): full-spectrum sums 68,
-        // thickness, order step, sample counters, flags 17 (85 hot bytes), then the two
-        // extremum lists 2 x 42 (20 extrema of 2 bytes and a one-byte length), 172 with
-        // padding; and its tracker lanes in the row blocks, 76 bytes a pixel (the scalar
-        // tracker's 76) and the block's shared ring position and count, 77 rounded up; 249
-        // in all.
+        // Breakdown: the pixel's state: flags, extrema seen and the two extremum lists
+        // 2 x 42 (20 extrema of 2 bytes and a one-byte length), 88 with padding; its tracker
+        // lanes in the row blocks, 76 bytes a pixel (the scalar tracker's 76) and the block's
+        // shared ring position and count, 77 rounded up; its fit lanes in the row blocks:
+        // thickness and order step 8, the sixteen full-spectrum sums 64 (the scalar `GnSums`
+        // is 68 with its count and padding), the sums' count and the saturated and dead counts
+        // 6, and the block's shared sample count, 79 rounded up; 244 in all.
         let sizes = [
             core::mem::size_of::<PixelTracker>(),
             core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES),
             core::mem::size_of::<ExtremaList>(),
             core::mem::size_of::<GnSums>(),
             core::mem::size_of::<PixelState>(),
+            core::mem::size_of::<FitLanes>().div_ceil(row::LANES),
             state_bytes_per_pixel(),
         ];
-        assert_eq!(sizes, [76, 77, 42, 68, 172, 249]);
+        assert_eq!(sizes, [76, 77, 42, 68, 88, 79, 244]);
     }
 }

@@ -331,7 +331,7 @@ impl TrackerLanes {
 /// Block `i / LANES` of the `width`-pixel row holding pixel `i` of a row-major image, and the
 /// pixel's lane: the blocks of a row are `width.div_ceil(LANES)` consecutive [`TrackerLanes`].
 #[inline]
-fn locate(width: usize, i: usize) -> (usize, usize) {
+pub(crate) fn locate(width: usize, i: usize) -> (usize, usize) {
     let (row, col) = (i / width, i % width);
     (row * width.div_ceil(LANES) + col / LANES, col % LANES)
 }

@@ -1,0 +1,417 @@
+//! The per-sample state of a row of pixels at once: thickness, order step, sample counters
+//! and full-spectrum sums ([`GnSums`]) of [`LANES`] pixels as arrays over the pixels
+//! (structure of arrays), like the tracker's [`crate::track::row::TrackerLanes`].
+//!
+//! A band's row reaches all the block's pixels together, so the table positions, the
+//! interpolation and the sixteen sums are computed lane by lane in loops the compiler
+//! vectorises; only fetching each pixel's knots is one lane at a time. A pixel whose
+//! thickness or order neighbours fall outside the band's table, or a band without a table,
+//! takes the computed model one lane at a time ([`BandCoef::eval`]): both give the sums
+//! [`GnSums::add`] gives, bit for bit.
+
+// The lane loops index parallel arrays by lane: that is the form that vectorises.
+#![allow(clippy::needless_range_loop)]
+
+use crate::track::row::LANES;
+use crate::track::usable;
+
+use super::refine::{BandCoef, GnSums, Knot, SampleModel, TableSpan, TERMS};
+
+/// What the solver keeps of one pixel between samples but its extrema and flags: a copy
+/// out of (or into) its [`FitLanes`] block.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelFit {
+    /// Thickness (the Gauss-Newton linearisation point), NaN until the order is known.
+    pub thickness_nm: f32,
+    /// Thickness change of one interference order, nm.
+    pub order_step_nm: f32,
+    /// Full-spectrum sums.
+    pub gn: GnSums,
+    /// Samples seen (the same for every pixel of a row; not stored by
+    /// [`FitLanes::set_pixel`]).
+    pub samples: u16,
+    /// Saturated samples (`+inf` from calibration).
+    pub saturated: u16,
+    /// Samples without a usable reference (NaN from calibration, or a finite value far
+    /// outside any reflectance).
+    pub dead: u16,
+}
+
+impl Default for PixelFit {
+    fn default() -> Self {
+        Self {
+            thickness_nm: f32::NAN,
+            order_step_nm: f32::NAN,
+            gn: GnSums::default(),
+            samples: 0,
+            saturated: 0,
+            dead: 0,
+        }
+    }
+}
+
+/// [`PixelFit`] of [`LANES`] pixels of one row as arrays over the pixels, the sample count
+/// shared (79 bytes per pixel).
+#[derive(Clone, Copy, Debug)]
+pub struct FitLanes {
+    thickness_nm: [f32; LANES],
+    order_step_nm: [f32; LANES],
+    /// `sums[k][i]`: sum `k` ([`GnSums::to_terms`]' order) of lane `i`.
+    sums: [[f32; LANES]; TERMS],
+    gn_samples: [u16; LANES],
+    saturated: [u16; LANES],
+    dead: [u16; LANES],
+    /// Samples seen by every lane (saturates).
+    samples: u16,
+}
+
+impl Default for FitLanes {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
+/// The samples of one block, padded to [`LANES`].
+type Lanes = [f32; LANES];
+
+/// A lane mask: 1 for the lanes in it, else 0 (not `bool`: a mask of the lanes' width
+/// vectorises).
+type Mask = [u32; LANES];
+
+/// Each lane's knots (value and slope) at one table position: the knot before and after.
+#[derive(Clone, Copy)]
+struct Pairs {
+    m: [Lanes; 2],
+    slope_h: [Lanes; 2],
+}
+
+/// The lanes' knots at their three table positions, as [`FitLanes::add_from`] takes them.
+struct Tabled<'a> {
+    /// At the thickness, one order thinner, one order thicker.
+    pairs: &'a [Pairs; 3],
+    /// The index derivative at the thickness's two knots.
+    j_n: &'a [Lanes; 2],
+    /// The fractions of the three positions.
+    frac: &'a [Lanes; 3],
+    /// The band's knots per nm.
+    inv_h: f32,
+}
+
+impl Pairs {
+    const ZERO: Self = Self {
+        m: [[0.0; LANES]; 2],
+        slope_h: [[0.0; LANES]; 2],
+    };
+
+    /// Lane `i`'s two knots, `j_n` their index derivatives.
+    #[inline(always)]
+    fn knots(&self, i: usize, j_n: [f32; 2]) -> [Knot; 2] {
+        // (No `array::map`: its call would keep the lane loop from vectorising.)
+        let knot = |e: usize| Knot {
+            m: self.m[e][i],
+            slope_h: self.slope_h[e][i],
+            j_n: j_n[e],
+        };
+        [knot(0), knot(1)]
+    }
+}
+
+impl FitLanes {
+    /// A block of pixels that have seen nothing.
+    pub const EMPTY: Self = Self {
+        thickness_nm: [f32::NAN; LANES],
+        order_step_nm: [f32::NAN; LANES],
+        sums: [[0.0; LANES]; TERMS],
+        gn_samples: [0; LANES],
+        saturated: [0; LANES],
+        dead: [0; LANES],
+        samples: 0,
+    };
+
+    /// Lane `i` (a copy).
+    pub fn pixel(&self, i: usize) -> PixelFit {
+        PixelFit {
+            thickness_nm: self.thickness_nm[i],
+            order_step_nm: self.order_step_nm[i],
+            gn: GnSums::from_terms(
+                core::array::from_fn(|k| self.sums[k][i]),
+                self.gn_samples[i],
+            ),
+            samples: self.samples,
+            saturated: self.saturated[i],
+            dead: self.dead[i],
+        }
+    }
+
+    /// Stores `p` in lane `i` (all but the shared sample count).
+    pub fn set_pixel(&mut self, i: usize, p: &PixelFit) {
+        self.thickness_nm[i] = p.thickness_nm;
+        self.order_step_nm[i] = p.order_step_nm;
+        for (k, t) in p.gn.to_terms().into_iter().enumerate() {
+            self.sums[k][i] = t;
+        }
+        self.gn_samples[i] = p.gn.samples;
+        self.saturated[i] = p.saturated;
+        self.dead[i] = p.dead;
+    }
+
+    /// Feeds one band's samples of the block's pixels (`values.len() <= LANES`; `+inf` a
+    /// saturated sample, NaN one without a usable reference): counts them, and with the
+    /// band's model (`coef` and the angle's `knots`) adds every usable sample of a pixel with
+    /// a thickness to its sums, as [`GnSums::add`] does.
+    pub fn push(&mut self, values: &[f32], model: Option<(&BandCoef, &[Knot])>) {
+        let mut v = [0.0; LANES];
+        let n = values.len().min(LANES);
+        v[..n].copy_from_slice(&values[..n]);
+        self.samples = self.samples.saturating_add(1);
+        if !v.iter().fold(true, |a, &x| a & usable(x)) {
+            self.count_bad(&v);
+        }
+        let mut ok = [0; LANES];
+        for i in 0..LANES {
+            ok[i] = u32::from(usable(v[i]) & self.thickness_nm[i].is_finite());
+        }
+        let Some((coef, knots)) = model else {
+            return;
+        };
+        if ok.iter().fold(0, |a, &o| a | o) == 0 {
+            return;
+        }
+        let u = coef.u as f32;
+        // The lanes left to the computed model.
+        let mut rest = ok;
+        if let Some((span, k)) = coef.table().and_then(|t| Some((t, t.knots(knots)?))) {
+            let inside = self.add_tabled(span, k, &ok, &v, u);
+            for i in 0..LANES {
+                rest[i] = ok[i] & !inside[i];
+            }
+        }
+        if rest.iter().fold(0, |a, &o| a | o) == 0 {
+            return;
+        }
+        for i in (0..LANES).filter(|&i| rest[i] != 0) {
+            let e = coef.eval(
+                knots,
+                f64::from(self.thickness_nm[i]),
+                f64::from(self.order_step_nm[i]),
+            );
+            let t = GnSums::terms(e.into(), v[i], u);
+            for (k, t) in t.into_iter().enumerate() {
+                self.sums[k][i] += t;
+            }
+            self.gn_samples[i] = self.gn_samples[i].saturating_add(1);
+        }
+    }
+
+    /// Counts the saturated and dead samples of `v`.
+    #[inline(never)]
+    fn count_bad(&mut self, v: &Lanes) {
+        for i in 0..LANES {
+            let saturated = v[i].is_infinite();
+            let dead = !usable(v[i]) && !saturated;
+            self.saturated[i] = self.saturated[i].saturating_add(u16::from(saturated));
+            self.dead[i] = self.dead[i].saturating_add(u16::from(dead));
+        }
+    }
+
+    /// Adds the samples `v` of the lanes `ok` (1, else 0) whose thickness and neighbouring
+    /// orders all fall inside the band's table (`span`, its knots `k`) from the table;
+    /// returns which (1, else 0).
+    #[inline(always)]
+    fn add_tabled(&mut self, span: TableSpan, k: &[Knot], ok: &Mask, v: &Lanes, u: f32) -> Mask {
+        // Positions of the thickness and the orders either side: knot and fraction.
+        // (Separate arrays, each zeroed in place: one struct of them would be zeroed by a
+        // call to `memset`, moved by one to `memcpy`.)
+        let mut frac = [[0.0; LANES]; 3];
+        let mut knot = [[0u32; LANES]; 3];
+        let mut inside = [0; LANES];
+        for i in 0..LANES {
+            let (d, s) = (self.thickness_nm[i], self.order_step_nm[i]);
+            // In f32: the f64 difference of two f32 values rounded to f32, as
+            // [`BandCoef::eval`] takes it, is the f32 difference (53 >= 2 x 24 + 2 bits).
+            let x = [span.position(d), span.position(d - s), span.position(d + s)];
+            let all = (ok[i] != 0) & span.covers(x[0]) & span.covers(x[1]) & span.covers(x[2]);
+            inside[i] = u32::from(all);
+            for p in 0..3 {
+                // Lanes not inside: the first knot.
+                let (j, f) = knot_of(if all { x[p] } else { 0.0 });
+                knot[p][i] = j;
+                frac[p][i] = f;
+            }
+        }
+        // One lane at a time: each lane's knots.
+        let mut pairs = [Pairs::ZERO; 3];
+        let mut j_n = [[0.0; LANES]; 2];
+        for i in 0..LANES {
+            for p in 0..3 {
+                let j = knot[p][i] as usize;
+                if let Some(&[a, b]) = k.get(j..j + 2) {
+                    let pair = &mut pairs[p];
+                    pair.m[0][i] = a.m;
+                    pair.m[1][i] = b.m;
+                    pair.slope_h[0][i] = a.slope_h;
+                    pair.slope_h[1][i] = b.slope_h;
+                    if p == 0 {
+                        j_n[0][i] = a.j_n;
+                        j_n[1][i] = b.j_n;
+                    }
+                }
+            }
+        }
+        let at = Tabled {
+            pairs: &pairs,
+            j_n: &j_n,
+            frac: &frac,
+            inv_h: span.inv_h(),
+        };
+        if inside.iter().fold(1, |a, &i| a & i) == 1 {
+            self.add_from::<false>(&at, &inside, v, u);
+        } else {
+            self.add_from::<true>(&at, &inside, v, u);
+        }
+        inside
+    }
+
+    /// Adds the samples `v` from the lanes' knots `at`. `MASKED`: only the lanes `inside`
+    /// (1, else 0); the others keep their sums (an added zero could change a zero's sign).
+    #[inline(always)]
+    fn add_from<const MASKED: bool>(&mut self, at: &Tabled<'_>, inside: &Mask, v: &Lanes, u: f32) {
+        let [c, lo, hi] = at.pairs;
+        for i in 0..LANES {
+            let s = SampleModel::from_knots(
+                c.knots(i, [at.j_n[0][i], at.j_n[1][i]]),
+                at.frac[0][i],
+                (lo.knots(i, [0.0; 2]), at.frac[1][i]),
+                (hi.knots(i, [0.0; 2]), at.frac[2][i]),
+                at.inv_h,
+            );
+            let t = GnSums::terms(s, v[i], u);
+            let add = !MASKED || inside[i] != 0;
+            for (k, t) in t.into_iter().enumerate() {
+                let sum = self.sums[k][i];
+                self.sums[k][i] = if add { sum + t } else { sum };
+            }
+            self.gn_samples[i] = self.gn_samples[i].saturating_add(u16::from(add));
+        }
+    }
+}
+
+/// The knot and fraction of a table position `0 <= x < 2^22`: `(x as u32, x - knot as f32)`
+/// (what [`BandCoef::eval`] computes), without a float-to-integer conversion, which would
+/// keep the lane loop from vectorising: `x + 2^23` is rounded to an integer (the f32 spacing
+/// there is 1) whose bits, less those of `2^23`, are that integer; one less where it rounded
+/// up.
+#[inline(always)]
+fn knot_of(x: f32) -> (u32, f32) {
+    const TWO_23: f32 = 8_388_608.0;
+    let r = x + TWO_23;
+    let near = r - TWO_23;
+    let up = near > x;
+    let floor = if up { near - 1.0 } else { near };
+    let j = (r.to_bits() - TWO_23.to_bits()) - u32::from(up);
+    (j, x - floor)
+}
+
+/// Feeds band samples `values` of one row to the row's blocks
+/// (`values.len().div_ceil(LANES)` of them): [`FitLanes::push`] for each block.
+pub fn push_row(blocks: &mut [FitLanes], values: &[f32], model: Option<(&BandCoef, &[Knot])>) {
+    for (block, v) in blocks.iter_mut().zip(values.chunks(LANES)) {
+        block.push(v, model);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optics::Polarization;
+    use crate::solve::IndexModel;
+
+    #[test]
+    fn knot_of_is_the_conversion() {
+        for k in 0..200_000u32 {
+            let x = k as f32 * 0.081_93 + (k % 7) as f32 * 1e-4;
+            let j = x as u32;
+            assert_eq!(knot_of(x), (j, x - j as f32), "{x}");
+        }
+        assert_eq!(knot_of(0.0), (0, 0.0));
+    }
+
+    /// A row block gives every pixel the sums, counts and sample numbers the scalar
+    /// [`GnSums::add`] gives it, bit for bit: pixels inside the table, at and beyond its
+    /// ends (computed), without a thickness, and samples saturated, dead or corrupted.
+    #[test]
+    fn lanes_match_the_scalar_sums() {
+        let range = [100.0, 900.0];
+        let mut knots = [Knot::default(); 4096];
+        let mut coefs = [None; 3];
+        let mut first = 0;
+        for (b, c) in coefs.iter_mut().enumerate() {
+            let l = 450.0 + 110.0 * b as f64;
+            let mut coef = BandCoef::new(
+                IndexModel::constant(1.9),
+                1.0,
+                1.52,
+                Polarization::S,
+                35.0,
+                l,
+                4.0,
+            )
+            .expect("propagating");
+            if b < 2 {
+                let (_, count) = coef.knots_for(range).expect("a table");
+                coef.tabulate(range, first, &mut knots[first..first + count]);
+                first += count;
+            }
+            *c = Some(coef);
+        }
+        let knots = &knots[..first];
+        let n = 29;
+        let step = 130.0f32;
+        let thickness: [f32; 29] = core::array::from_fn(|i| match i {
+            3 => f32::NAN,
+            5 => 100.0 + step,
+            6 => 100.0 + step - 0.01,
+            7 => 900.0 - step,
+            8 => 2000.0,
+            _ => 240.0 + 17.3 * i as f32,
+        });
+        let mut lanes = FitLanes::EMPTY;
+        let mut scalar = [PixelFit::default(); 29];
+        for i in 0..n {
+            scalar[i].thickness_nm = thickness[i];
+            scalar[i].order_step_nm = step;
+            lanes.set_pixel(i, &scalar[i]);
+        }
+        for s in 0..12 {
+            let coef = coefs[s % 3].as_ref().expect("a band");
+            let values: [f32; 29] = core::array::from_fn(|i| match (i + s) % 11 {
+                0 if i % 4 == 0 => f32::INFINITY,
+                1 if i % 5 == 0 => f32::NAN,
+                2 if i % 6 == 0 => 3e7,
+                _ => 0.1 + 0.01 * ((i * 7 + s * 3) % 13) as f32,
+            });
+            lanes.push(&values, Some((coef, knots)));
+            for (p, &v) in scalar.iter_mut().zip(&values) {
+                p.samples += 1;
+                if v.is_infinite() {
+                    p.saturated += 1;
+                } else if !usable(v) {
+                    p.dead += 1;
+                } else if p.thickness_nm.is_finite() {
+                    let (d, o) = (f64::from(p.thickness_nm), f64::from(p.order_step_nm));
+                    p.gn.add(coef, knots, d, o, f64::from(v));
+                }
+            }
+        }
+        for (i, p) in scalar.iter().enumerate() {
+            let l = lanes.pixel(i);
+            let bits = |f: &PixelFit| {
+                let t = [f.thickness_nm, f.order_step_nm].map(f32::to_bits);
+                let n = [f.samples, f.saturated, f.dead, f.gn.samples];
+                (f.gn.to_terms().map(f32::to_bits), t, n)
+            };
+            assert_eq!(bits(&l), bits(p), "pixel {i}");
+        }
+        assert!(scalar.iter().filter(|p| p.gn.samples > 0).count() > 20);
+    }
+}
