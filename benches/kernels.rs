@@ -29,10 +29,11 @@ use criterion::{criterion_main, BatchSize, BenchmarkGroup, Criterion, SamplingMo
 use filmscope::calibrate::calibrate_row;
 use filmscope::optics::Polarization;
 use filmscope::pipeline::{calibrate_block, BandModels, Samples, ShardState, SimSource, Source};
+use filmscope::solve::fit_row::{self, FitLanes};
 use filmscope::solve::refine::{BandCoef, GnSums, Knot};
 use filmscope::solve::sweep::SolverOptions;
 use filmscope::solve::{IndexModel, SweepSolver};
-use filmscope::track::row::{blocks_for, push_row, TrackerLanes};
+use filmscope::track::row::{blocks_for, push_row, TrackerLanes, LANES};
 use filmscope::track::{ExtremaList, PixelTracker};
 use firmware_sim::{Scene, SoftwareCamera};
 
@@ -222,6 +223,27 @@ fn bench_refine(c: &mut Criterion) {
                 }
             }
             black_box(&sums);
+        });
+    });
+    // What the pipeline runs: the same sums over row blocks of lanes (`FitLanes`).
+    let mut blocks = vec![FitLanes::default(); PIXELS.div_ceil(LANES)];
+    let seed = |blocks: &mut [FitLanes]| {
+        for (i, &d) in lin.iter().enumerate() {
+            let b = &mut blocks[i / LANES];
+            let mut p = b.pixel(i % LANES);
+            p.thickness_nm = d as f32;
+            p.order_step_nm = order_step as f32;
+            b.set_pixel(i % LANES, &p);
+        }
+    };
+    g.bench_function("fit_lanes_tabled_1024px_x_151b", |bench| {
+        bench.iter(|| {
+            blocks.fill(FitLanes::default());
+            seed(&mut blocks);
+            for (coef, row) in tabled.iter().zip(measured.chunks_exact(PIXELS)) {
+                fit_row::push_row(&mut blocks, row, Some((coef, &knots)));
+            }
+            black_box(&blocks);
         });
     });
     g.throughput(Throughput::Elements(BANDS as u64));
