@@ -107,7 +107,15 @@ enum WorkerMsg {
 
 /// The state of an angle for a worker, on its own channel (from the coordinator): rows are
 /// read only after it, so rows of the next angle can never reach the previous one's state.
-type Start = (ShardState, Arc<BandModels>);
+/// The solver as the angle began tallies the rows that have seen the angle's last band.
+type Start = (ShardState, Arc<BandModels>, Arc<SweepSolver>);
+
+/// A shard's angle-end pass 1 ([`Shard::tally`]): votes and fit statistics.
+pub type Tally = (RatioHistogram, FitStats);
+
+/// What a worker hands back at an angle's end: its state and, if every row of it saw every
+/// band once, its rows' tally.
+type Done = (usize, ShardState, Option<Box<Tally>>);
 
 /// The owned state of a shard of rows: its pixels' states and their extremum trackers (in
 /// blocks of a row's pixels).
@@ -280,7 +288,7 @@ pub fn run_sweep(
     std::thread::scope(|scope| -> Result<(), PipelineError> {
         let (src_tx, src_rx) = bounded::<StreamMsg>(cap);
         let (ctl_tx, ctl_rx) = bounded::<Control>(cap);
-        let (done_tx, done_rx) = bounded::<(usize, ShardState)>(workers);
+        let (done_tx, done_rx) = bounded::<Done>(workers);
         let mut worker_txs = Vec::new();
         let mut start_txs = Vec::new();
         for i in 0..workers {
@@ -304,18 +312,23 @@ pub fn run_sweep(
                 Control::Angle(deg) => {
                     solver.begin_angle(deg);
                     let snapshot = Arc::new(BandModels::of(&solver));
+                    let began = Arc::new((*solver).clone());
                     for (i, tx) in start_txs.iter().enumerate() {
                         let st = states[i].take().unwrap_or_default();
-                        if tx.send((st, snapshot.clone())).is_err() {
+                        if tx.send((st, snapshot.clone(), began.clone())).is_err() {
                             abort = Some("a worker stopped".to_owned());
                         }
                     }
                 }
                 Control::AngleEnd(at) => {
                     last_row_at = at;
+                    let mut tallies: Vec<Option<Tally>> = vec![None; workers];
                     for _ in 0..workers {
                         match done_rx.recv() {
-                            Ok((i, st)) => states[i] = Some(st),
+                            Ok((i, st, tally)) => {
+                                states[i] = Some(st);
+                                tallies[i] = tally.map(|t| *t);
+                            }
                             Err(_) => abort = Some("a worker stopped".to_owned()),
                         }
                     }
@@ -333,7 +346,7 @@ pub fn run_sweep(
                         .collect();
                     let last = solver.angles_done() + 1 == angles;
                     let out = last.then_some(results.as_mut_slice());
-                    reports.push(end_angle_parallel(&mut solver, &mut shards, out));
+                    reports.push(end_angle_parallel(&mut solver, &mut shards, tallies, out));
                     if last {
                         results_at = Some(solver.angles_done());
                     }
@@ -424,21 +437,22 @@ fn worker(
     block: [usize; 2],
     start: Receiver<Start>,
     rows: Receiver<WorkerMsg>,
-    done: Sender<(usize, ShardState)>,
+    done: Sender<Done>,
 ) {
     let [band_block, bands] = block;
     let mut held: Vec<HeldRows> = Vec::new();
-    for (mut st, models) in start.iter() {
+    for (mut st, models, began) in start.iter() {
         let mut shard = st.shard(first_row, width);
         shard.begin_angle();
         let shard_rows = shard.rows();
+        let mut tally = RowTally::new(began, bands, shard_rows);
         let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);
         loop {
             match rows.recv() {
                 Ok(WorkerMsg::Rows(band, row, n, values)) => {
                     if held.last().is_none_or(|h| h.0 != band) {
                         if bands_held == limit {
-                            feed_held(&mut shard, options, &models, &mut held);
+                            feed_held(&mut shard, options, &models, &mut held, &mut tally);
                             bands_held = 0;
                         }
                         if bands_held == 0 {
@@ -453,7 +467,7 @@ fn worker(
                     // one band as its rows arrive): the rows still held when the angle ends
                     // are latency.
                     if limit == 1 || (bands_held == limit && rows_of_band >= shard_rows) {
-                        feed_held(&mut shard, options, &models, &mut held);
+                        feed_held(&mut shard, options, &models, &mut held, &mut tally);
                         bands_held = 0;
                     }
                 }
@@ -462,20 +476,70 @@ fn worker(
                 Err(_) => break,
             }
         }
-        feed_held(&mut shard, options, &models, &mut held);
-        if done.send((index, st)).is_err() {
+        feed_held(&mut shard, options, &models, &mut held, &mut tally);
+        let tally = tally.finish().map(Box::new);
+        if done.send((index, st, tally)).is_err() {
             return;
         }
     }
 }
 
+/// A worker's angle-end pass 1 made row by row: a row is tallied ([`Shard::tally_rows`]) as
+/// soon as it has seen the angle's last band, its state still in cache and later rows still
+/// streaming, so that after the angle's last row only its own rows are left to tally.
+struct RowTally {
+    /// The solver as the angle began (the pair geometry).
+    solver: Arc<SweepSolver>,
+    /// Bands per angle.
+    bands: u32,
+    /// Bands fed to each row of the shard.
+    fed: Vec<u32>,
+    tally: Box<Tally>,
+}
+
+impl RowTally {
+    fn new(solver: Arc<SweepSolver>, bands: usize, rows: usize) -> Self {
+        Self {
+            solver,
+            bands: bands as u32,
+            fed: vec![0; rows],
+            tally: Box::default(),
+        }
+    }
+
+    /// Counts a band fed to image row `row` of `shard`, and tallies the row when that was its
+    /// last.
+    fn fed(&mut self, shard: &Shard<'_>, row: usize) {
+        let Some(n) = row
+            .checked_sub(shard.first_row)
+            .and_then(|k| self.fed.get_mut(k))
+        else {
+            return;
+        };
+        *n += 1;
+        if *n == self.bands {
+            let (votes, fit) = &mut *self.tally;
+            shard.tally_rows(&self.solver, row..row + 1, votes, fit);
+        }
+    }
+
+    /// The shard's tally, if every row saw every band exactly once (else the coordinator
+    /// tallies the shard after all).
+    fn finish(self) -> Option<Tally> {
+        let whole = self.fed.iter().all(|&n| n == self.bands);
+        whole.then(|| *self.tally)
+    }
+}
+
 /// Feeds the held rows to the shard a block of rows at a time, each block's bands in the
-/// order they arrived (so every pixel sees its bands in order), and empties `held`.
+/// order they arrived (so every pixel sees its bands in order), and empties `held`; each
+/// row's last band of the angle tallies it.
 fn feed_held(
     shard: &mut Shard<'_>,
     options: SolverOptions,
     models: &BandModels,
     held: &mut Vec<HeldRows>,
+    tally: &mut RowTally,
 ) {
     /// Bytes of pixel state a block of rows should keep in cache while its bands pass.
     const BLOCK_BYTES: usize = 256 * 1024;
@@ -501,6 +565,7 @@ fn feed_held(
                     r,
                     &values[k * width..(k + 1) * width],
                 );
+                tally.fed(shard, r);
             }
         }
     }
@@ -770,6 +835,7 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
 pub fn end_angle_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],
+    tallies: Vec<Option<Tally>>,
     results: Option<&mut [PixelResult]>,
 ) -> AngleReport {
     /// `f` of every shard, in shard order, the first on this thread.
@@ -787,7 +853,22 @@ pub fn end_angle_parallel(
     }
     let mut hist = RatioHistogram::default();
     let mut fit = FitStats::default();
-    for (h, f) in each(shards, |sh| sh.tally(solver)) {
+    // The shards whose workers did not tally them are tallied here (counts: the same sums
+    // in any order).
+    let mut untallied = Vec::new();
+    for (sh, tally) in shards
+        .iter()
+        .zip(tallies.into_iter().chain(std::iter::repeat(None)))
+    {
+        match tally {
+            Some(t) => {
+                hist.merge(&t.0);
+                fit.merge(&t.1);
+            }
+            None => untallied.push(&*sh),
+        }
+    }
+    for (h, f) in each(&mut untallied, |sh| sh.tally(solver)) {
         hist.merge(&h);
         fit.merge(&f);
     }
