@@ -113,9 +113,17 @@ type Start = (ShardState, Arc<BandModels>, Arc<SweepSolver>);
 /// A shard's angle-end pass 1 ([`Shard::tally`]): votes and fit statistics.
 pub type Tally = (RatioHistogram, FitStats);
 
-/// What a worker hands back at an angle's end: its state and, if every row of it saw every
-/// band once, its rows' tally.
-type Done = (usize, ShardState, Option<Box<Tally>>);
+/// What a worker tallied of its shard by an angle's end.
+#[derive(Debug, Default)]
+pub struct ShardTally {
+    /// The tally of the shard's rows but `untallied`.
+    pub tally: Box<Tally>,
+    /// Image rows left for the angle's end.
+    pub untallied: Vec<usize>,
+}
+
+/// What a worker hands back at an angle's end: its state and what it tallied of it.
+type Done = (usize, ShardState, ShardTally);
 
 /// The owned state of a shard of rows: its pixels' states and their extremum trackers (in
 /// blocks of a row's pixels).
@@ -300,7 +308,11 @@ pub fn run_sweep(
             let (first, _) = shard_rows(h, workers, i);
             let options = spec.options;
             let block = [config.band_block.max(1), spec.bands_nm.len()];
-            scope.spawn(move || worker(i, first, w, options, block, start_rx, rx, done));
+            // The last shard's rows are the last to arrive: it leaves those it cannot keep up
+            // with to the angle's end, where all cores tally them (the others have time).
+            let last_shard = i + 1 == workers;
+            scope
+                .spawn(move || worker(i, first, w, options, block, last_shard, start_rx, rx, done));
         }
         drop(done_tx);
         scope.spawn(move || source.stream(&src_tx));
@@ -322,12 +334,12 @@ pub fn run_sweep(
                 }
                 Control::AngleEnd(at) => {
                     last_row_at = at;
-                    let mut tallies: Vec<Option<Tally>> = vec![None; workers];
+                    let mut tallies: Vec<Option<ShardTally>> = (0..workers).map(|_| None).collect();
                     for _ in 0..workers {
                         match done_rx.recv() {
                             Ok((i, st, tally)) => {
                                 states[i] = Some(st);
-                                tallies[i] = tally.map(|t| *t);
+                                tallies[i] = Some(tally);
                             }
                             Err(_) => abort = Some("a worker stopped".to_owned()),
                         }
@@ -427,7 +439,8 @@ pub fn block_bands(band: usize, bands: usize, band_block: usize) -> usize {
         .max(1)
 }
 
-/// A worker: `block` is `[band_block, bands per angle]`.
+/// A worker: `block` is `[band_block, bands per angle]`; `last_shard`: whether its rows are
+/// the last of each band (it defers the tally of rows it cannot keep up with).
 #[allow(clippy::too_many_arguments)]
 fn worker(
     index: usize,
@@ -435,6 +448,7 @@ fn worker(
     width: usize,
     options: SolverOptions,
     block: [usize; 2],
+    last_shard: bool,
     start: Receiver<Start>,
     rows: Receiver<WorkerMsg>,
     done: Sender<Done>,
@@ -445,14 +459,16 @@ fn worker(
         let mut shard = st.shard(first_row, width);
         shard.begin_angle();
         let shard_rows = shard.rows();
-        let mut tally = RowTally::new(began, bands, shard_rows);
+        let mut tally = RowTally::new(began, bands, shard_rows, last_shard);
         let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);
         loop {
             match rows.recv() {
                 Ok(WorkerMsg::Rows(band, row, n, values)) => {
+                    // Rows waiting: the worker is behind the stream.
+                    let behind = !rows.is_empty();
                     if held.last().is_none_or(|h| h.0 != band) {
                         if bands_held == limit {
-                            feed_held(&mut shard, options, &models, &mut held, &mut tally);
+                            feed_held(&mut shard, options, &models, &mut held, &mut tally, behind);
                             bands_held = 0;
                         }
                         if bands_held == 0 {
@@ -467,7 +483,7 @@ fn worker(
                     // one band as its rows arrive): the rows still held when the angle ends
                     // are latency.
                     if limit == 1 || (bands_held == limit && rows_of_band >= shard_rows) {
-                        feed_held(&mut shard, options, &models, &mut held, &mut tally);
+                        feed_held(&mut shard, options, &models, &mut held, &mut tally, behind);
                         bands_held = 0;
                     }
                 }
@@ -476,8 +492,8 @@ fn worker(
                 Err(_) => break,
             }
         }
-        feed_held(&mut shard, options, &models, &mut held, &mut tally);
-        let tally = tally.finish().map(Box::new);
+        feed_held(&mut shard, options, &models, &mut held, &mut tally, true);
+        let tally = tally.finish(&shard);
         if done.send((index, st, tally)).is_err() {
             return;
         }
@@ -485,8 +501,8 @@ fn worker(
 }
 
 /// A worker's angle-end pass 1 made row by row: a row is tallied ([`Shard::tally_rows`]) as
-/// soon as it has seen the angle's last band, its state still in cache and later rows still
-/// streaming, so that after the angle's last row only its own rows are left to tally.
+/// soon as it has seen the angle's last band, its state in cache and later rows still
+/// streaming, so that after the angle's last row little is left to tally.
 struct RowTally {
     /// The solver as the angle began (the pair geometry).
     solver: Arc<SweepSolver>,
@@ -495,21 +511,27 @@ struct RowTally {
     /// Bands fed to each row of the shard.
     fed: Vec<u32>,
     tally: Box<Tally>,
+    /// Whether a row completed while rows wait in the queue is left to the angle's end.
+    defer_if_behind: bool,
+    /// Rows left to the angle's end.
+    deferred: Vec<usize>,
 }
 
 impl RowTally {
-    fn new(solver: Arc<SweepSolver>, bands: usize, rows: usize) -> Self {
+    fn new(solver: Arc<SweepSolver>, bands: usize, rows: usize, defer_if_behind: bool) -> Self {
         Self {
             solver,
             bands: bands as u32,
             fed: vec![0; rows],
             tally: Box::default(),
+            defer_if_behind,
+            deferred: Vec::new(),
         }
     }
 
     /// Counts a band fed to image row `row` of `shard`, and tallies the row when that was its
-    /// last.
-    fn fed(&mut self, shard: &Shard<'_>, row: usize) {
+    /// last (or defers it, if `behind`: rows wait in the worker's queue).
+    fn fed(&mut self, shard: &Shard<'_>, row: usize, behind: bool) {
         let Some(n) = row
             .checked_sub(shard.first_row)
             .and_then(|k| self.fed.get_mut(k))
@@ -518,16 +540,29 @@ impl RowTally {
         };
         *n += 1;
         if *n == self.bands {
-            let (votes, fit) = &mut *self.tally;
-            shard.tally_rows(&self.solver, row..row + 1, votes, fit);
+            if behind && self.defer_if_behind {
+                self.deferred.push(row);
+            } else {
+                let (votes, fit) = &mut *self.tally;
+                shard.tally_rows(&self.solver, row..row + 1, votes, fit);
+            }
         }
     }
 
-    /// The shard's tally, if every row saw every band exactly once (else the coordinator
-    /// tallies the shard after all).
-    fn finish(self) -> Option<Tally> {
-        let whole = self.fed.iter().all(|&n| n == self.bands);
-        whole.then(|| *self.tally)
+    /// What was tallied of `shard`: every row that saw every band exactly once was tallied
+    /// or deferred; if any row did not, none counts and the whole shard is left.
+    fn finish(self, shard: &Shard<'_>) -> ShardTally {
+        if self.fed.iter().all(|&n| n == self.bands) {
+            ShardTally {
+                tally: self.tally,
+                untallied: self.deferred,
+            }
+        } else {
+            ShardTally {
+                tally: Box::default(),
+                untallied: (shard.first_row..shard.first_row + shard.rows()).collect(),
+            }
+        }
     }
 }
 
@@ -540,6 +575,7 @@ fn feed_held(
     models: &BandModels,
     held: &mut Vec<HeldRows>,
     tally: &mut RowTally,
+    behind: bool,
 ) {
     /// Bytes of pixel state a block of rows should keep in cache while its bands pass.
     const BLOCK_BYTES: usize = 256 * 1024;
@@ -565,7 +601,7 @@ fn feed_held(
                     r,
                     &values[k * width..(k + 1) * width],
                 );
-                tally.fed(shard, r);
+                tally.fed(shard, r, behind);
             }
         }
     }
@@ -835,7 +871,7 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
 pub fn end_angle_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],
-    tallies: Vec<Option<Tally>>,
+    tallies: Vec<Option<ShardTally>>,
     results: Option<&mut [PixelResult]>,
 ) -> AngleReport {
     /// `f` of every shard, in shard order, the first on this thread.
@@ -853,24 +889,34 @@ pub fn end_angle_parallel(
     }
     let mut hist = RatioHistogram::default();
     let mut fit = FitStats::default();
-    // The shards whose workers did not tally them are tallied here (counts: the same sums
-    // in any order).
-    let mut untallied = Vec::new();
-    for (sh, tally) in shards
-        .iter()
-        .zip(tallies.into_iter().chain(std::iter::repeat(None)))
-    {
-        match tally {
+    // The rows the workers left (all of a shard without its tally) are tallied here, on
+    // all cores (counts: the same sums in any order).
+    let mut rows: Vec<(usize, usize)> = Vec::new();
+    for (k, sh) in shards.iter().enumerate() {
+        match tallies.get(k).and_then(Option::as_ref) {
             Some(t) => {
-                hist.merge(&t.0);
-                fit.merge(&t.1);
+                hist.merge(&t.tally.0);
+                fit.merge(&t.tally.1);
+                rows.extend(t.untallied.iter().map(|&r| (k, r)));
             }
-            None => untallied.push(&*sh),
+            None => rows.extend((sh.first_row..sh.first_row + sh.rows()).map(|r| (k, r))),
         }
     }
-    for (h, f) in each(&mut untallied, |sh| sh.tally(solver)) {
-        hist.merge(&h);
-        fit.merge(&f);
+    if !rows.is_empty() {
+        let view: &[Shard<'_>] = shards;
+        let mut parts: Vec<&[(usize, usize)]> =
+            rows.chunks(rows.len().div_ceil(view.len())).collect();
+        let tallied = each(&mut parts, |part| {
+            let mut t = Tally::default();
+            for &(k, r) in part.iter() {
+                view[k].tally_rows(solver, r..r + 1, &mut t.0, &mut t.1);
+            }
+            t
+        });
+        for (h, f) in tallied {
+            hist.merge(&h);
+            fit.merge(&f);
+        }
     }
     solver.set_votes(&hist);
     solver.set_fit_histogram(&fit);
