@@ -7,9 +7,11 @@
 //! ```
 //!
 //! Every channel is bounded, so a slow stage slows the source and memory never grows with
-//! the stream. Each worker owns the per-pixel state of its rows while an angle streams; at
-//! the angle's end it hands the state to the coordinator, which runs the solver's angle-end
-//! passes on all cores (one scoped thread per shard) and hands it back with the next angle.
+//! the stream. Each worker owns the per-pixel state of its rows while an angle streams, and
+//! tallies each row (the first angle-end pass) once the row has seen the angle's last band;
+//! at the angle's end it hands the state and its tally to the coordinator, which runs the
+//! rest of the solver's angle-end passes on all cores (one scoped thread per shard) and hands
+//! the state back with the next angle.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -865,9 +867,11 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
     })
 }
 
-/// The solver's angle-end passes, each run on all shards at once. At the sweep's last angle,
-/// `results` (the image's, row-major; the shards hold its rows in order) gets every pixel's
-/// final result ([`Shard::finish`]) from the same pass that updates it.
+/// The solver's angle-end passes, each run on all shards at once. `tallies` holds what each
+/// shard's worker tallied of pass 1 as its rows saw their last band (`None`: nothing); the
+/// rows left are tallied here. At the sweep's last angle, `results` (the image's, row-major;
+/// the shards hold its rows in order) gets every pixel's final result ([`Shard::finish`]) from
+/// the same pass that updates it.
 pub fn end_angle_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],
