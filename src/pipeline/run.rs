@@ -7,9 +7,11 @@
 //! ```
 //!
 //! Every channel is bounded, so a slow stage slows the source and memory never grows with
-//! the stream. Each worker owns the per-pixel state of its rows while an angle streams; at
-//! the angle's end it hands the state to the coordinator, which runs the solver's angle-end
-//! passes on all cores (one scoped thread per shard) and hands it back with the next angle.
+//! the stream. Each worker owns the per-pixel state of its rows while an angle streams, and
+//! tallies each row (the first angle-end pass) once the row has seen the angle's last band;
+//! at the angle's end it hands the state and its tally to the coordinator, which runs the
+//! rest of the solver's angle-end passes on all cores (one scoped thread per shard) and hands
+//! the state back with the next angle.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -108,7 +110,23 @@ enum WorkerMsg {
 
 /// The state of an angle for a worker, on its own channel (from the coordinator): rows are
 /// read only after it, so rows of the next angle can never reach the previous one's state.
-type Start = (ShardState, Arc<BandModels>);
+/// The solver as the angle began tallies the rows that have seen the angle's last band.
+type Start = (ShardState, Arc<BandModels>, Arc<SweepSolver>);
+
+/// A shard's angle-end pass 1 ([`Shard::tally`]): votes and fit statistics.
+pub type Tally = (RatioHistogram, FitStats);
+
+/// What a worker tallied of its shard by an angle's end.
+#[derive(Debug, Default)]
+pub struct ShardTally {
+    /// The tally of the shard's rows but `untallied`.
+    pub tally: Box<Tally>,
+    /// Image rows left for the angle's end.
+    pub untallied: Vec<usize>,
+}
+
+/// What a worker hands back at an angle's end: its state and what it tallied of it.
+type Done = (usize, ShardState, ShardTally);
 
 /// The owned state of a shard of rows: its pixels' states, their extremum trackers and their
 /// thickness, counters and sums (in blocks of a row's pixels).
@@ -288,7 +306,7 @@ pub fn run_sweep(
     std::thread::scope(|scope| -> Result<(), PipelineError> {
         let (src_tx, src_rx) = bounded::<StreamMsg>(cap);
         let (ctl_tx, ctl_rx) = bounded::<Control>(cap);
-        let (done_tx, done_rx) = bounded::<(usize, ShardState)>(workers);
+        let (done_tx, done_rx) = bounded::<Done>(workers);
         let mut worker_txs = Vec::new();
         let mut start_txs = Vec::new();
         for i in 0..workers {
@@ -300,7 +318,11 @@ pub fn run_sweep(
             let (first, _) = shard_rows(h, workers, i);
             let options = spec.options;
             let block = [config.band_block.max(1), spec.bands_nm.len()];
-            scope.spawn(move || worker(i, first, w, options, block, start_rx, rx, done));
+            // The last shard's rows are the last to arrive: it leaves those it cannot keep up
+            // with to the angle's end, where all cores tally them (the others have time).
+            let last_shard = i + 1 == workers;
+            scope
+                .spawn(move || worker(i, first, w, options, block, last_shard, start_rx, rx, done));
         }
         drop(done_tx);
         scope.spawn(move || source.stream(&src_tx));
@@ -312,18 +334,23 @@ pub fn run_sweep(
                 Control::Angle(deg) => {
                     solver.begin_angle(deg);
                     let snapshot = Arc::new(BandModels::of(&solver));
+                    let began = Arc::new((*solver).clone());
                     for (i, tx) in start_txs.iter().enumerate() {
                         let st = states[i].take().unwrap_or_default();
-                        if tx.send((st, snapshot.clone())).is_err() {
+                        if tx.send((st, snapshot.clone(), began.clone())).is_err() {
                             abort = Some("a worker stopped".to_owned());
                         }
                     }
                 }
                 Control::AngleEnd(at) => {
                     last_row_at = at;
+                    let mut tallies: Vec<Option<ShardTally>> = (0..workers).map(|_| None).collect();
                     for _ in 0..workers {
                         match done_rx.recv() {
-                            Ok((i, st)) => states[i] = Some(st),
+                            Ok((i, st, tally)) => {
+                                states[i] = Some(st);
+                                tallies[i] = Some(tally);
+                            }
                             Err(_) => abort = Some("a worker stopped".to_owned()),
                         }
                     }
@@ -341,7 +368,7 @@ pub fn run_sweep(
                         .collect();
                     let last = solver.angles_done() + 1 == angles;
                     let out = last.then_some(results.as_mut_slice());
-                    reports.push(end_angle_parallel(&mut solver, &mut shards, out));
+                    reports.push(end_angle_parallel(&mut solver, &mut shards, tallies, out));
                     if last {
                         results_at = Some(solver.angles_done());
                     }
@@ -422,7 +449,8 @@ pub fn block_bands(band: usize, bands: usize, band_block: usize) -> usize {
         .max(1)
 }
 
-/// A worker: `block` is `[band_block, bands per angle]`.
+/// A worker: `block` is `[band_block, bands per angle]`; `last_shard`: whether its rows are
+/// the last of each band (it defers the tally of rows it cannot keep up with).
 #[allow(clippy::too_many_arguments)]
 fn worker(
     index: usize,
@@ -430,23 +458,27 @@ fn worker(
     width: usize,
     options: SolverOptions,
     block: [usize; 2],
+    last_shard: bool,
     start: Receiver<Start>,
     rows: Receiver<WorkerMsg>,
-    done: Sender<(usize, ShardState)>,
+    done: Sender<Done>,
 ) {
     let [band_block, bands] = block;
     let mut held: Vec<HeldRows> = Vec::new();
-    for (mut st, models) in start.iter() {
+    for (mut st, models, began) in start.iter() {
         let mut shard = st.shard(first_row, width);
         shard.begin_angle();
         let shard_rows = shard.rows();
+        let mut tally = RowTally::new(began, bands, shard_rows, last_shard);
         let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);
         loop {
             match rows.recv() {
                 Ok(WorkerMsg::Rows(band, row, n, values)) => {
+                    // Rows waiting: the worker is behind the stream.
+                    let behind = !rows.is_empty();
                     if held.last().is_none_or(|h| h.0 != band) {
                         if bands_held == limit {
-                            feed_held(&mut shard, options, &models, &mut held);
+                            feed_held(&mut shard, options, &models, &mut held, &mut tally, behind);
                             bands_held = 0;
                         }
                         if bands_held == 0 {
@@ -461,7 +493,7 @@ fn worker(
                     // one band as its rows arrive): the rows still held when the angle ends
                     // are latency.
                     if limit == 1 || (bands_held == limit && rows_of_band >= shard_rows) {
-                        feed_held(&mut shard, options, &models, &mut held);
+                        feed_held(&mut shard, options, &models, &mut held, &mut tally, behind);
                         bands_held = 0;
                     }
                 }
@@ -470,20 +502,90 @@ fn worker(
                 Err(_) => break,
             }
         }
-        feed_held(&mut shard, options, &models, &mut held);
-        if done.send((index, st)).is_err() {
+        feed_held(&mut shard, options, &models, &mut held, &mut tally, true);
+        let tally = tally.finish(&shard);
+        if done.send((index, st, tally)).is_err() {
             return;
         }
     }
 }
 
+/// A worker's angle-end pass 1 made row by row: a row is tallied ([`Shard::tally_rows`]) as
+/// soon as it has seen the angle's last band, its state in cache and later rows still
+/// streaming, so that after the angle's last row little is left to tally.
+struct RowTally {
+    /// The solver as the angle began (the pair geometry).
+    solver: Arc<SweepSolver>,
+    /// Bands per angle.
+    bands: u32,
+    /// Bands fed to each row of the shard.
+    fed: Vec<u32>,
+    tally: Box<Tally>,
+    /// Whether a row completed while rows wait in the queue is left to the angle's end.
+    defer_if_behind: bool,
+    /// Rows left to the angle's end.
+    deferred: Vec<usize>,
+}
+
+impl RowTally {
+    fn new(solver: Arc<SweepSolver>, bands: usize, rows: usize, defer_if_behind: bool) -> Self {
+        Self {
+            solver,
+            bands: bands as u32,
+            fed: vec![0; rows],
+            tally: Box::default(),
+            defer_if_behind,
+            deferred: Vec::new(),
+        }
+    }
+
+    /// Counts a band fed to image row `row` of `shard`, and tallies the row when that was its
+    /// last (or defers it, if `behind`: rows wait in the worker's queue).
+    fn fed(&mut self, shard: &Shard<'_>, row: usize, behind: bool) {
+        let Some(n) = row
+            .checked_sub(shard.first_row)
+            .and_then(|k| self.fed.get_mut(k))
+        else {
+            return;
+        };
+        *n += 1;
+        if *n == self.bands {
+            if behind && self.defer_if_behind {
+                self.deferred.push(row);
+            } else {
+                let (votes, fit) = &mut *self.tally;
+                shard.tally_rows(&self.solver, row..row + 1, votes, fit);
+            }
+        }
+    }
+
+    /// What was tallied of `shard`: every row that saw every band exactly once was tallied
+    /// or deferred; if any row did not, none counts and the whole shard is left.
+    fn finish(self, shard: &Shard<'_>) -> ShardTally {
+        if self.fed.iter().all(|&n| n == self.bands) {
+            ShardTally {
+                tally: self.tally,
+                untallied: self.deferred,
+            }
+        } else {
+            ShardTally {
+                tally: Box::default(),
+                untallied: (shard.first_row..shard.first_row + shard.rows()).collect(),
+            }
+        }
+    }
+}
+
 /// Feeds the held rows to the shard a block of rows at a time, each block's bands in the
-/// order they arrived (so every pixel sees its bands in order), and empties `held`.
+/// order they arrived (so every pixel sees its bands in order), and empties `held`; each
+/// row's last band of the angle tallies it.
 fn feed_held(
     shard: &mut Shard<'_>,
     options: SolverOptions,
     models: &BandModels,
     held: &mut Vec<HeldRows>,
+    tally: &mut RowTally,
+    behind: bool,
 ) {
     /// Bytes of pixel state a block of rows should keep in cache while its bands pass.
     const BLOCK_BYTES: usize = 256 * 1024;
@@ -509,6 +611,7 @@ fn feed_held(
                     r,
                     &values[k * width..(k + 1) * width],
                 );
+                tally.fed(shard, r, behind);
             }
         }
     }
@@ -772,12 +875,15 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
     })
 }
 
-/// The solver's angle-end passes, each run on all shards at once. At the sweep's last angle,
-/// `results` (the image's, row-major; the shards hold its rows in order) gets every pixel's
-/// final result ([`Shard::finish`]) from the same pass that updates it.
+/// The solver's angle-end passes, each run on all shards at once. `tallies` holds what each
+/// shard's worker tallied of pass 1 as its rows saw their last band (`None`: nothing); the
+/// rows left are tallied here. At the sweep's last angle, `results` (the image's, row-major;
+/// the shards hold its rows in order) gets every pixel's final result ([`Shard::finish`]) from
+/// the same pass that updates it.
 pub fn end_angle_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],
+    tallies: Vec<Option<ShardTally>>,
     results: Option<&mut [PixelResult]>,
 ) -> AngleReport {
     /// `f` of every shard, in shard order, the first on this thread.
@@ -795,9 +901,34 @@ pub fn end_angle_parallel(
     }
     let mut hist = RatioHistogram::default();
     let mut fit = FitStats::default();
-    for (h, f) in each(shards, |sh| sh.tally(solver)) {
-        hist.merge(&h);
-        fit.merge(&f);
+    // The rows the workers left (all of a shard without its tally) are tallied here, on
+    // all cores (counts: the same sums in any order).
+    let mut rows: Vec<(usize, usize)> = Vec::new();
+    for (k, sh) in shards.iter().enumerate() {
+        match tallies.get(k).and_then(Option::as_ref) {
+            Some(t) => {
+                hist.merge(&t.tally.0);
+                fit.merge(&t.tally.1);
+                rows.extend(t.untallied.iter().map(|&r| (k, r)));
+            }
+            None => rows.extend((sh.first_row..sh.first_row + sh.rows()).map(|r| (k, r))),
+        }
+    }
+    if !rows.is_empty() {
+        let view: &[Shard<'_>] = shards;
+        let mut parts: Vec<&[(usize, usize)]> =
+            rows.chunks(rows.len().div_ceil(view.len())).collect();
+        let tallied = each(&mut parts, |part| {
+            let mut t = Tally::default();
+            for &(k, r) in part.iter() {
+                view[k].tally_rows(solver, r..r + 1, &mut t.0, &mut t.1);
+            }
+            t
+        });
+        for (h, f) in tallied {
+            hist.merge(&h);
+            fit.merge(&f);
+        }
     }
     solver.set_votes(&hist);
     solver.set_fit_histogram(&fit);

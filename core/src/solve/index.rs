@@ -9,7 +9,7 @@
 //! mean around it) gives `n^2 = (x_cur - rho^2 x_ref) / (1 - rho^2)` (eq. 12, every pixel
 //! pooled).
 
-use crate::track::Extremum;
+use crate::track::{Extremum, MAX_EXTREMA};
 
 /// Bins of a ratio histogram.
 pub const BINS: usize = 512;
@@ -204,7 +204,7 @@ impl RatioSums {
 }
 
 /// Calls `f(rho, lambda_ref_nm)` for every same-kind pairing of a pixel's extrema whose ratio the pair
-/// geometry allows. `wavelength_nm` maps a fractional band to its wavelength.
+/// geometry allows, reference extremum by reference extremum. `wavelength_nm` maps a fractional band to its wavelength.
 pub fn for_each_ratio(
     geom: &PairGeometry,
     reference: &[Extremum],
@@ -212,10 +212,26 @@ pub fn for_each_ratio(
     wavelength_nm: impl Fn(f32) -> f64,
     mut f: impl FnMut(f64, f64),
 ) {
+    // The current extrema's wavelengths once, not once per reference extremum (every pixel
+    // pairs its lists at every angle's end); a list longer than an `ExtremaList` looks its
+    // tail up as it goes.
+    let mut known = [0.0f64; MAX_EXTREMA];
+    for (l, c) in known.iter_mut().zip(current) {
+        *l = wavelength_nm(c.band());
+    }
+    let lambda = |k: usize| {
+        known
+            .get(k)
+            .copied()
+            .unwrap_or_else(|| wavelength_nm(current[k].band()))
+    };
     for r in reference {
         let lr = wavelength_nm(r.band());
-        for c in current.iter().filter(|c| c.kind() == r.kind()) {
-            let rho = wavelength_nm(c.band()) / lr;
+        for (k, c) in current.iter().enumerate() {
+            if c.kind() != r.kind() {
+                continue;
+            }
+            let rho = lambda(k) / lr;
             if rho > geom.rho_lo && rho < geom.rho_hi {
                 f(rho, lr);
             }
@@ -356,15 +372,21 @@ pub fn accumulate_window(
     wavelength_nm: impl Fn(f32) -> f64,
 ) {
     for_each_ratio(geom, reference, current, wavelength_nm, |rho, lambda| {
+        let in_all = rho >= windows.all.0 && rho <= windows.all.1;
+        let k = geom.lambda_bin(lambda);
+        let window = windows.per_bin[k];
+        let in_bin = rho >= window.0 && rho <= window.1;
+        // Most pairings (other orders) fall outside both windows: no logarithm for them.
+        if !(in_all || in_bin) {
+            return;
+        }
         let l = libm::log(rho);
-        if rho >= windows.all.0 && rho <= windows.all.1 {
+        if in_all {
             sums.n += 1.0;
             sums.sum += l;
             sums.sum_sq += l * l;
         }
-        let k = geom.lambda_bin(lambda);
-        let window = windows.per_bin[k];
-        if rho >= window.0 && rho <= window.1 {
+        if in_bin {
             sums.bins[k].add(l, lambda);
         }
     });

@@ -237,19 +237,39 @@ impl<'a> Shard<'a> {
     pub fn tally(&self, solver: &SweepSolver) -> (RatioHistogram, FitStats) {
         let mut votes = RatioHistogram::default();
         let mut fit = FitStats::default();
+        let rows = self.first_row..self.first_row + self.rows();
+        self.tally_rows(solver, rows, &mut votes, &mut fit);
+        (votes, fit)
+    }
+
+    /// [`Shard::tally`] of the image rows `rows` (those of the shard), added to `votes` and
+    /// `fit`: a row can be tallied once it has seen the angle's last band, while later rows
+    /// still stream (the counts add up to the same whatever the rows' grouping).
+    pub fn tally_rows(
+        &self,
+        solver: &SweepSolver,
+        rows: core::ops::Range<usize>,
+        votes: &mut RatioHistogram,
+        fit: &mut FitStats,
+    ) {
         let spec = solver.spec();
         let geometry = solver.pair_geometry();
-        for (i, p) in self.pixels.iter().enumerate() {
+        let local =
+            |r: usize| r.clamp(self.first_row, self.first_row + self.rows()) - self.first_row;
+        let (lo, hi) = (local(rows.start), local(rows.end).max(local(rows.start)));
+        let (w, blocks) = (self.width, tracker_blocks(self.width, self.width));
+        let pixels = &self.pixels[lo * w..hi * w];
+        let trackers = row::lanes(&self.trackers[lo * blocks..hi * blocks], w);
+        for (k, (p, (t, lane))) in pixels.iter().zip(trackers).enumerate() {
             if let Some(g) = geometry {
                 votes.vote(g, &p.anchor, &p.current, |b| spec.wavelength_at(b));
             }
-            let gn = self.fit(i).gn;
+            let gn = self.fit(lo * w + k).gn;
             if gn.samples > 0 {
                 fit.rms.add(gn.rms());
             }
-            fit.noise.add(self.tracker(i).noise_sigma());
+            fit.noise.add(t.noise_sigma(lane));
         }
-        (votes, fit)
     }
 
     fn trusted(f: &PixelFit, rms_limit: f32) -> bool {
@@ -338,7 +358,9 @@ impl<'a> Shard<'a> {
         let finish = out.is_some().then(|| Finish::of(solver));
         for i in 0..self.pixels.len() {
             let mut f = self.fit(i);
-            let overflow = row::pixel(self.trackers, self.width, i).overflow;
+            // The overflow flag read in place, not through a copy of the pixel's tracker.
+            let (block, lane) = row::locate(self.width, i);
+            let overflow = self.trackers[block].overflow(lane);
             let p = &mut self.pixels[i];
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
             if overflow {

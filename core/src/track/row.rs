@@ -101,6 +101,18 @@ impl TrackerLanes {
         }
     }
 
+    /// Lane `i`'s noise estimate ([`PixelTracker::noise_sigma`]), its ring not copied.
+    #[inline]
+    pub fn noise_sigma(&self, i: usize) -> f32 {
+        self.lane_but_ring(i).noise_sigma()
+    }
+
+    /// Whether lane `i` found more extrema than its list holds.
+    #[inline]
+    pub fn overflow(&self, i: usize) -> bool {
+        self.overflow[i]
+    }
+
     /// Lane `i` as a scalar tracker, its ring left empty.
     fn lane_but_ring(&self, i: usize) -> PixelTracker {
         let own = self.out_of_step[i];
@@ -346,6 +358,18 @@ pub const fn blocks_for(rows: usize, width: usize) -> usize {
 pub fn pixel(blocks: &[TrackerLanes], width: usize, i: usize) -> PixelTracker {
     let (b, lane) = locate(width, i);
     blocks[b].lane(lane)
+}
+
+/// Every pixel's block and lane, in pixel order, of a row-major image of `width`-pixel rows
+/// whose trackers are `blocks` (`block.lane(lane)` is the pixel's scalar tracker): a walk over
+/// the pixels without [`pixel`]'s division and ring copy per pixel.
+pub fn lanes(
+    blocks: &[TrackerLanes],
+    width: usize,
+) -> impl Iterator<Item = (&TrackerLanes, usize)> + '_ {
+    blocks
+        .chunks(width.div_ceil(LANES).max(1))
+        .flat_map(move |row| (0..width).map(move |col| (&row[col / LANES], col % LANES)))
 }
 
 /// Feeds band `band` of one row (`values`, one list per value) to the row's blocks
