@@ -500,7 +500,9 @@ pub fn soak(scene: &Path, sweeps: usize) -> Result<()> {
 /// `filmscope chart`.
 pub fn chart(scene: &Path, out: &Path, quick: bool) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    let size = if quick { [24, 16] } else { [48, 32] };
+    // The bench's methods sweep: large enough that a setting's time per megapixel is its
+    // own, not its fixed costs.
+    let size = if quick { [48, 32] } else { [128, 96] };
     let scene = crate::bench::scene_with(scene, size[0], size[1], None)?;
     let points = crate::chart::measure(&scene, &crate::chart::settings(quick))?;
     for p in &points {
