@@ -793,6 +793,7 @@ pub fn run_wide(
             for (((t, f), o), factor) in to.iter_mut().zip(from).zip(own).zip(&factors) {
                 *t = *f;
                 t.thickness_nm = (f64::from(f.thickness_nm) * factor) as f32;
+                t.thickness_sigma_nm = (f64::from(f.thickness_sigma_nm) * factor) as f32;
                 // A held pass's seed is the strips' own map, not the spectrum search's.
                 t.flags &= !flags::FROM_SPECTRUM_SEARCH | o.flags;
             }

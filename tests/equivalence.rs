@@ -32,8 +32,17 @@ fn same(a: &MethodResult, b: &MethodResult, what: &str) {
         b.index.a
     );
     assert_eq!(a.flags, b.flags, "{what}: flags differ");
-    for (i, (x, y)) in a.thickness_nm.iter().zip(&b.thickness_nm).enumerate() {
-        assert!(x.to_bits() == y.to_bits(), "{what}: pixel {i}: {x} vs {y}");
+    for (name, x, y) in [
+        ("thickness", &a.thickness_nm, &b.thickness_nm),
+        ("sigma", &a.thickness_sigma_nm, &b.thickness_sigma_nm),
+        ("confidence", &a.confidence, &b.confidence),
+    ] {
+        for (i, (x, y)) in x.iter().zip(y).enumerate() {
+            assert!(
+                x.to_bits() == y.to_bits(),
+                "{what}: {name} of pixel {i}: {x} vs {y}"
+            );
+        }
     }
 }
 
@@ -62,6 +71,39 @@ fn maps_do_not_depend_on_rows_per_message_workers_or_channel_capacity() {
             &reference,
             &got,
             &format!("rows {rows}, workers {workers}, capacity {cap}"),
+        );
+    }
+}
+
+/// Shards of unequal height (23 rows over 2, 5 and 7 workers, down to 3-row shards) and rows
+/// that end in a partial block of lanes (45 px: 32 + 13) give the same maps as one worker:
+/// the rows a worker tallies as they complete, and those it leaves to the angle's end, are
+/// each counted once.
+#[test]
+fn uneven_shards_and_partial_lane_blocks_give_the_same_maps() {
+    let text = common::TINY_SCENE
+        .replace("width = 32", "width = 45")
+        .replace("height = 24", "height = 23");
+    let scene = firmware_sim::Scene::from_toml(&text, "tiny-45x23").expect("scene");
+    let reference = run(
+        &mut SimSource::new(SoftwareCamera::new(scene.clone()), false, 1).expect("source"),
+        1,
+        64,
+    );
+    let solved = reference
+        .thickness_nm
+        .iter()
+        .filter(|x| x.is_finite())
+        .count();
+    assert!(solved > 900, "reference solves most pixels: {solved}");
+    for (rows, workers, cap) in [(1, 2, 4), (3, 5, 2), (2, 7, 64)] {
+        let mut src =
+            SimSource::new(SoftwareCamera::new(scene.clone()), false, rows).expect("source");
+        let got = run(&mut src, workers, cap);
+        same(
+            &reference,
+            &got,
+            &format!("45x23: rows {rows}, workers {workers}, capacity {cap}"),
         );
     }
 }

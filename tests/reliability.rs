@@ -367,7 +367,13 @@ fn killing_estimate_mid_write_never_leaves_a_torn_output() {
             .unwrap_or_else(|e| panic!("{name}: {e}"))
             .data
     };
-    let reference = ["thickness_nm.hdr", "confidence.hdr", "flags.hdr"].map(read);
+    let reference = [
+        "thickness_nm.hdr",
+        "confidence.hdr",
+        "thickness_sigma_nm.hdr",
+        "flags.hdr",
+    ]
+    .map(read);
     let temps = || {
         std::fs::read_dir(&out)
             .expect("out")
@@ -388,9 +394,14 @@ fn killing_estimate_mid_write_never_leaves_a_torn_output() {
             kills += 1;
         }
         let _ = child.wait();
-        for (name, want) in ["thickness_nm.hdr", "confidence.hdr", "flags.hdr"]
-            .iter()
-            .zip(&reference)
+        for (name, want) in [
+            "thickness_nm.hdr",
+            "confidence.hdr",
+            "thickness_sigma_nm.hdr",
+            "flags.hdr",
+        ]
+        .iter()
+        .zip(&reference)
         {
             let got = read(name);
             assert!(

@@ -8,8 +8,9 @@
 //!
 //! Every channel is bounded, so a slow stage slows the source and memory never grows with
 //! the stream. Each worker owns the per-pixel state of its rows while an angle streams, and
-//! tallies each row (the first angle-end pass) once the row has seen the angle's last band;
-//! at the angle's end it hands the state and its tally to the coordinator, which runs the
+//! tallies each row (the first angle-end pass) once the row has seen the angle's last band
+//! (the last shard, whose rows arrive last, leaves the rows it completes while behind the
+//! stream to the angle's end); at the angle's end it hands the state and its tally to the coordinator, which runs the
 //! rest of the solver's angle-end passes on all cores (one scoped thread per shard) and hands
 //! the state back with the next angle.
 
@@ -559,8 +560,9 @@ impl RowTally {
         }
     }
 
-    /// What was tallied of `shard`: every row that saw every band exactly once was tallied
-    /// or deferred; if any row did not, none counts and the whole shard is left.
+    /// What was tallied of `shard`: when every row was fed the angle's band count (each was
+    /// tallied or deferred at its last feed), the tally and the deferred rows; if any row was
+    /// fed more or fewer times, none counts and the whole shard is left.
     fn finish(self, shard: &Shard<'_>) -> ShardTally {
         if self.fed.iter().all(|&n| n == self.bands) {
             ShardTally {
@@ -895,7 +897,12 @@ pub fn end_angle_parallel(
             let f = &f;
             let handles: Vec<_> = rest.iter_mut().map(|sh| s.spawn(move || f(sh))).collect();
             let mut out = vec![f(first)];
-            out.extend(handles.into_iter().filter_map(|h| h.join().ok()));
+            // A worker's panic is the caller's: dropping its result would lose its votes
+            // (or misalign the ties) silently.
+            out.extend(handles.into_iter().map(|h| {
+                h.join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+            }));
             out
         })
     }

@@ -341,29 +341,7 @@ mod tests {
     /// ends (computed), without a thickness, and samples saturated, dead or corrupted.
     #[test]
     fn lanes_match_the_scalar_sums() {
-        let range = [100.0, 900.0];
-        let mut knots = [Knot::default(); 4096];
-        let mut coefs = [None; 3];
-        let mut first = 0;
-        for (b, c) in coefs.iter_mut().enumerate() {
-            let l = 450.0 + 110.0 * b as f64;
-            let mut coef = BandCoef::new(
-                IndexModel::constant(1.9),
-                1.0,
-                1.52,
-                Polarization::S,
-                35.0,
-                l,
-                4.0,
-            )
-            .expect("propagating");
-            if b < 2 {
-                let (_, count) = coef.knots_for(range).expect("a table");
-                coef.tabulate(range, first, &mut knots[first..first + count]);
-                first += count;
-            }
-            *c = Some(coef);
-        }
+        let (coefs, knots, first) = bands();
         let knots = &knots[..first];
         let n = 29;
         let step = 130.0f32;
@@ -413,5 +391,72 @@ mod tests {
             assert_eq!(bits(&l), bits(p), "pixel {i}");
         }
         assert!(scalar.iter().filter(|p| p.gn.samples > 0).count() > 20);
+    }
+
+    /// Three bands of n 1.9 on 1.52 at 35 degrees, the first two tabulated over 100-900 nm:
+    /// the bands, the knots and how many of them are used.
+    fn bands() -> ([Option<BandCoef>; 3], [Knot; 4096], usize) {
+        let range = [100.0, 900.0];
+        let mut knots = [Knot::default(); 4096];
+        let mut coefs = [None; 3];
+        let mut first = 0;
+        for (b, c) in coefs.iter_mut().enumerate() {
+            let l = 450.0 + 110.0 * b as f64;
+            let mut coef = BandCoef::new(
+                IndexModel::constant(1.9),
+                1.0,
+                1.52,
+                Polarization::S,
+                35.0,
+                l,
+                4.0,
+            )
+            .expect("propagating");
+            if b < 2 {
+                let (_, count) = coef.knots_for(range).expect("a table");
+                coef.tabulate(range, first, &mut knots[first..first + count]);
+                first += count;
+            }
+            *c = Some(coef);
+        }
+        (coefs, knots, first)
+    }
+
+    /// A full block whose every lane is inside the band's table with a usable sample (the
+    /// unmasked path the pipeline runs on most blocks) gives [`GnSums::add`]'s sums bit for
+    /// bit.
+    #[test]
+    fn a_full_block_inside_the_table_matches_the_scalar_sums() {
+        let (coefs, knots, first) = bands();
+        let knots = &knots[..first];
+        let step = 130.0f32;
+        let mut lanes = FitLanes::EMPTY;
+        let mut scalar = [PixelFit::default(); LANES];
+        for (i, p) in scalar.iter_mut().enumerate() {
+            p.thickness_nm = 250.0 + 11.7 * i as f32;
+            p.order_step_nm = step;
+            lanes.set_pixel(i, p);
+        }
+        for s in 0..10 {
+            // The tabulated bands only.
+            let coef = coefs[s % 2].as_ref().expect("a band");
+            let values: [f32; LANES] =
+                core::array::from_fn(|i| 0.05 + 0.013 * ((i * 5 + s * 7) % 17) as f32);
+            lanes.push(&values, Some((coef, knots)));
+            for (p, &v) in scalar.iter_mut().zip(&values) {
+                p.samples += 1;
+                let (d, o) = (f64::from(p.thickness_nm), f64::from(p.order_step_nm));
+                p.gn.add(coef, knots, d, o, f64::from(v));
+            }
+        }
+        for (i, p) in scalar.iter().enumerate() {
+            let l = lanes.pixel(i);
+            assert_eq!(
+                l.gn.to_terms().map(f32::to_bits),
+                p.gn.to_terms().map(f32::to_bits),
+                "pixel {i}"
+            );
+            assert_eq!((l.gn.samples, l.samples), (10, 10), "pixel {i}");
+        }
     }
 }
