@@ -161,6 +161,12 @@ fn summary_rows(film: &SampleFilm) -> Vec<Vec<String>> {
     for k in ["mean", "median", "std", "min", "max"] {
         rows.push(vec![format!("thickness {k}, nm"), cell(&t[k])]);
     }
+    let sigma = &s["thickness_sigma_nm"];
+    if sigma.is_object() {
+        for k in ["median", "p90", "max"] {
+            rows.push(vec![format!("thickness 1-sigma {k}, nm"), cell(&sigma[k])]);
+        }
+    }
     rows.push(vec!["valid fraction".into(), cell(&s["valid_fraction"])]);
     rows.push(vec![
         "size, px".into(),
@@ -324,6 +330,28 @@ pub fn write_report(
         })
         .map_err(png_err)?;
         page.image(&png, "confidence map (0..1)");
+    }
+    let sigma_path = run.join("thickness_sigma_nm.hdr");
+    if sigma_path.exists() {
+        let sigma = read_cube(&sigma_path).map_err(|e| AppearanceError::new(&sigma_path, e))?;
+        let limit = film.summary["thickness_sigma_nm"]["imprecise_above"]
+            .as_f64()
+            .unwrap_or(filmscope_core::solve::shard::MAX_THICKNESS_SIGMA_NM);
+        let png = render_map_png(&MapPreview {
+            width: sigma.samples,
+            height: sigma.lines,
+            values: &sigma.data,
+            title: "thickness 1-sigma from each pixel's fit",
+            unit: "nm",
+            range: None,
+        })
+        .map_err(png_err)?;
+        page.image(
+            &png,
+            &format!(
+                "thickness uncertainty map (nm, 1-sigma of each pixel's own fit, index held; a pixel above {limit} nm is flagged imprecise)"
+            ),
+        );
     }
 
     page.heading("Appearance");

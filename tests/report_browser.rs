@@ -108,8 +108,8 @@ fn report_is_one_self_contained_file() {
     let dir = tempdir();
     let (_, html) = report(dir.path());
     let imgs = html.matches("<img ").count();
-    // Thickness, confidence, render, comparison, two charts.
-    assert_eq!(imgs, 6, "images");
+    // Thickness, confidence, thickness sigma, render, comparison, two charts.
+    assert_eq!(imgs, 7, "images");
     assert_eq!(html.matches("src=\"data:image/png;base64,").count(), imgs);
     for external in ["http://", "https://", "<link", "src=\"/", "url("] {
         assert!(
