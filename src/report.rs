@@ -83,6 +83,33 @@ impl Page {
         let _ = writeln!(self.html, "<p>{}</p>", escape(text));
     }
 
+    /// The one-band map at `path`, if the run wrote it, as a colour-mapped image (`range`:
+    /// the colour bar's ends, `None` from the data) captioned `alt`.
+    fn map_if_present(
+        &mut self,
+        path: &Path,
+        title: &str,
+        unit: &str,
+        range: Option<(f64, f64)>,
+        alt: &str,
+    ) -> Result<(), AppearanceError> {
+        if !path.exists() {
+            return Ok(());
+        }
+        let map = read_cube(path).map_err(|e| AppearanceError::new(path, e))?;
+        let png = render_map_png(&MapPreview {
+            width: map.samples,
+            height: map.lines,
+            values: &map.data,
+            title,
+            unit,
+            range,
+        })
+        .map_err(|e| AppearanceError::new(path, e))?;
+        self.image(&png, alt);
+        Ok(())
+    }
+
     fn image(&mut self, png: &[u8], alt: &str) {
         self.images += 1;
         let _ = writeln!(
@@ -317,42 +344,25 @@ pub fn write_report(
     })
     .map_err(png_err)?;
     page.image(&thickness, "thickness map (nm; grey: no reliable estimate)");
-    let conf_path = run.join("confidence.hdr");
-    if conf_path.exists() {
-        let conf = read_cube(&conf_path).map_err(|e| AppearanceError::new(&conf_path, e))?;
-        let png = render_map_png(&MapPreview {
-            width: conf.samples,
-            height: conf.lines,
-            values: &conf.data,
-            title: "confidence",
-            unit: "",
-            range: Some((0.0, 1.0)),
-        })
-        .map_err(png_err)?;
-        page.image(&png, "confidence map (0..1)");
-    }
-    let sigma_path = run.join("thickness_sigma_nm.hdr");
-    if sigma_path.exists() {
-        let sigma = read_cube(&sigma_path).map_err(|e| AppearanceError::new(&sigma_path, e))?;
-        let limit = film.summary["thickness_sigma_nm"]["imprecise_above"]
-            .as_f64()
-            .unwrap_or(filmscope_core::solve::shard::MAX_THICKNESS_SIGMA_NM);
-        let png = render_map_png(&MapPreview {
-            width: sigma.samples,
-            height: sigma.lines,
-            values: &sigma.data,
-            title: "thickness 1-sigma from each pixel's fit",
-            unit: "nm",
-            range: None,
-        })
-        .map_err(png_err)?;
-        page.image(
-            &png,
-            &format!(
-                "thickness uncertainty map (nm, 1-sigma of each pixel's own fit, index held; a pixel above {limit} nm is flagged imprecise)"
-            ),
-        );
-    }
+    page.map_if_present(
+        &run.join("confidence.hdr"),
+        "confidence",
+        "",
+        Some((0.0, 1.0)),
+        "confidence map (0..1)",
+    )?;
+    let limit = film.summary["thickness_sigma_nm"]["imprecise_above"]
+        .as_f64()
+        .unwrap_or(filmscope_core::solve::shard::MAX_THICKNESS_SIGMA_NM);
+    page.map_if_present(
+        &run.join("thickness_sigma_nm.hdr"),
+        "thickness 1-sigma from each pixel's fit",
+        "nm",
+        None,
+        &format!(
+            "thickness uncertainty map (nm, 1-sigma of each pixel's own fit, index held; a pixel above {limit} nm is flagged imprecise)"
+        ),
+    )?;
 
     page.heading("Appearance");
     let (render, info) = render_png(

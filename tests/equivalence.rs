@@ -63,14 +63,31 @@ fn maps_do_not_depend_on_rows_per_message_workers_or_channel_capacity() {
             > 600,
         "reference solves most pixels"
     );
-    for (rows, workers, cap) in [(1, 1, 1), (5, 2, 1), (24, 3, 4), (7, 4, 64)] {
+    same_on_every_path(
+        &scene,
+        &reference,
+        &[(1, 1, 1), (5, 2, 1), (24, 3, 4), (7, 4, 64)],
+        "",
+    );
+}
+
+/// Runs `scene` streamed in blocks of `rows` rows to `workers` workers over channels of
+/// capacity `cap`, for each `(rows, workers, cap)` of `paths`, and checks every run gives
+/// `reference`.
+fn same_on_every_path(
+    scene: &firmware_sim::Scene,
+    reference: &MethodResult,
+    paths: &[(usize, usize, usize)],
+    what: &str,
+) {
+    for &(rows, workers, cap) in paths {
         let mut src =
             SimSource::new(SoftwareCamera::new(scene.clone()), false, rows).expect("source");
         let got = run(&mut src, workers, cap);
         same(
-            &reference,
+            reference,
             &got,
-            &format!("rows {rows}, workers {workers}, capacity {cap}"),
+            &format!("{what}rows {rows}, workers {workers}, capacity {cap}"),
         );
     }
 }
@@ -96,16 +113,12 @@ fn uneven_shards_and_partial_lane_blocks_give_the_same_maps() {
         .filter(|x| x.is_finite())
         .count();
     assert!(solved > 900, "reference solves most pixels: {solved}");
-    for (rows, workers, cap) in [(1, 2, 4), (3, 5, 2), (2, 7, 64)] {
-        let mut src =
-            SimSource::new(SoftwareCamera::new(scene.clone()), false, rows).expect("source");
-        let got = run(&mut src, workers, cap);
-        same(
-            &reference,
-            &got,
-            &format!("45x23: rows {rows}, workers {workers}, capacity {cap}"),
-        );
-    }
+    same_on_every_path(
+        &scene,
+        &reference,
+        &[(1, 2, 4), (3, 5, 2), (2, 7, 64)],
+        "45x23: ",
+    );
 }
 
 #[test]

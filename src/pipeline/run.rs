@@ -10,9 +10,9 @@
 //! the stream. Each worker owns the per-pixel state of its rows while an angle streams, and
 //! tallies each row (the first angle-end pass) once the row has seen the angle's last band
 //! (the last shard, whose rows arrive last, leaves the rows it completes while behind the
-//! stream to the angle's end); at the angle's end it hands the state and its tally to the coordinator, which runs the
-//! rest of the solver's angle-end passes on all cores (one scoped thread per shard) and hands
-//! the state back with the next angle.
+//! stream to the angle's end); at the angle's end it hands the state and its tally to the
+//! coordinator, which runs the rest of the solver's angle-end passes on all cores (one scoped
+//! thread per shard) and hands the state back with the next angle.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};

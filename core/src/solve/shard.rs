@@ -1,7 +1,7 @@
 //! Per-pixel state of a band of rows, and the shard-local passes of the solver.
 
 use crate::track::row::{self, TrackerLanes};
-use crate::track::{ExtremaList, PixelTracker};
+use crate::track::ExtremaList;
 
 use super::fit_row::{self, FitLanes, PixelFit};
 use super::flags;
@@ -152,11 +152,6 @@ impl<'a> Shard<'a> {
             trackers,
             fits,
         }
-    }
-
-    /// Pixel `i`'s extremum tracker this angle (a copy: its noise, bad samples, overflow).
-    pub fn tracker(&self, i: usize) -> PixelTracker {
-        row::pixel(self.trackers, self.width, i)
     }
 
     /// Pixel `i`'s thickness, counters and sums (a copy).
@@ -717,6 +712,7 @@ impl Finish {
 #[cfg(test)]
 mod size_tests {
     use super::*;
+    use crate::track::PixelTracker;
 
     #[test]
     fn pixel_state_size_is_fixed_and_known() {
