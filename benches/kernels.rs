@@ -468,6 +468,39 @@ fn bench_solve(c: &mut Criterion) {
             );
         });
         if upto == 4 {
+            // The three phases apart (each on its own: the earlier ones run in the setup).
+            let phases: [(&str, usize); 3] = [
+                ("end_tally_50deg_6144px", 0),
+                ("end_sums_50deg_6144px", 1),
+                ("end_update_50deg_6144px", 2),
+            ];
+            for (phase, k) in phases {
+                g.bench_function(phase, |bench| {
+                    bench.iter_batched(
+                        || {
+                            let (mut s, mut st) = (solver.clone(), states.clone());
+                            if k > 0 {
+                                s.end_tally(&[st.shard(0, w)]);
+                            }
+                            if k > 1 {
+                                s.end_sums(&[st.shard(0, w)]);
+                            }
+                            (s, st)
+                        },
+                        |(mut s, mut st): (SweepSolver, ShardState)| {
+                            match k {
+                                0 => s.end_tally(&[st.shard(0, w)]),
+                                1 => s.end_sums(&[st.shard(0, w)]),
+                                _ => {
+                                    black_box(s.end_update(&mut [st.shard(0, w)]));
+                                }
+                            }
+                            (s, st)
+                        },
+                        BatchSize::LargeInput,
+                    );
+                });
+            }
             // The worker's per-sample path at a refining angle: tracker push plus the
             // Gauss-Newton sums, through `Shard::feed_row`.
             let states = &prep.before_rows.1;

@@ -838,20 +838,33 @@ impl SweepSolver {
     }
 
     /// Runs the angle-end phases over shards on this thread (the pipeline runs the same
-    /// phases on all cores, merging the per-row sums in row order, so the sums are identical).
+    /// phases on all cores, merging the per-row sums in row order, so the sums are identical):
+    /// [`SweepSolver::end_tally`], [`SweepSolver::end_sums`], [`SweepSolver::end_update`].
     pub fn end_angle_all(&mut self, shards: &mut [Shard<'_>]) -> AngleReport {
+        self.end_tally(shards);
+        self.end_sums(shards);
+        self.end_update(shards)
+    }
+
+    /// Angle-end phase 1 on this thread: every shard's votes and fit statistics
+    /// ([`Shard::tally`]).
+    pub fn end_tally(&mut self, shards: &[Shard<'_>]) {
         let mut hist = RatioHistogram::default();
         let mut fit = FitStats::default();
-        for s in shards.iter() {
+        for s in shards {
             let (h, f) = s.tally(self);
             hist.merge(&h);
             fit.merge(&f);
         }
         self.set_votes(&hist);
         self.set_fit_histogram(&fit);
+    }
+
+    /// Angle-end phase 2 on this thread: the window and Schur sums ([`Shard::sums`]).
+    pub fn end_sums(&mut self, shards: &[Shard<'_>]) {
         let mut sums = RatioSums::default();
         let mut schur = SchurSums::default();
-        for s in shards.iter() {
+        for s in shards {
             s.sums(self, |_, w, r| {
                 sums.merge(&w);
                 schur.merge(&r);
@@ -859,6 +872,11 @@ impl SweepSolver {
         }
         self.set_window_sums(&sums);
         self.set_schur(&schur);
+    }
+
+    /// Angle-end phase 3 on this thread: every pixel's update ([`Shard::update`]), the ties
+    /// resolved, and the angle ended.
+    pub fn end_update(&mut self, shards: &mut [Shard<'_>]) -> AngleReport {
         for s in shards.iter_mut() {
             s.update(self, None, |_| {});
         }
