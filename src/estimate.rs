@@ -592,7 +592,7 @@ pub fn write_outputs(
         h,
         &r.thickness_sigma_nm,
         Some(&format!(
-            "1-sigma thickness uncertainty from the pixel's own full-spectrum fit (index held), nm; given for flagged pixels too (above {MAX_THICKNESS_SIGMA_NM} nm: flag imprecise); NaN: no fit"
+            "1-sigma thickness uncertainty from the pixel's own full-spectrum fit and the shared index's covariance, nm; given for flagged pixels too (above {MAX_THICKNESS_SIGMA_NM} nm: flag imprecise); NaN: no fit"
         )),
         &[],
     )

@@ -360,7 +360,7 @@ pub fn write_report(
         "nm",
         None,
         &format!(
-            "thickness uncertainty map (nm, 1-sigma of each pixel's own fit, index held; a pixel above {limit} nm is flagged imprecise)"
+            "thickness uncertainty map (nm, 1-sigma of each pixel's own fit and the index's uncertainty; a pixel above {limit} nm is flagged imprecise)"
         ),
     )?;
 

@@ -525,14 +525,24 @@ impl GnSums {
         }
     }
 
-    /// 1-sigma uncertainty of the thickness, nm, from the fit alone (the index held): the
-    /// residual variance over `sum J_d^2`; infinite without samples or slope.
-    pub fn thickness_sigma_nm(&self) -> f64 {
+    /// 1-sigma uncertainty of the thickness, nm: the fit's own (the residual variance over
+    /// `sum J_d^2`) and, given the shared index's covariance `index_cov` (basis coefficients,
+    /// [`super::IndexModel::to_basis`]), the index's, carried through the thickness's
+    /// dependence on it (`-h_dp / h_dd` nm per unit of each coefficient: at fixed data, the
+    /// best thickness moves that much with the index). Infinite without samples or slope.
+    pub fn thickness_sigma_nm(&self, index_cov: Option<&[[f64; 3]; 3]>) -> f64 {
         if self.samples < 2 || self.h_dd <= 0.0 {
             return f64::INFINITY;
         }
-        let var = f64::from(self.sse) / f64::from(self.samples - 1);
-        libm::sqrt(var / f64::from(self.h_dd))
+        let h_dd = f64::from(self.h_dd);
+        let var = f64::from(self.sse) / f64::from(self.samples - 1) / h_dd;
+        let from_index = index_cov.map_or(0.0, |c| {
+            let v = self.h_dp.map(|h| f64::from(h) / h_dd);
+            (0..3)
+                .map(|i| (0..3).map(|j| v[i] * c[i][j] * v[j]).sum::<f64>())
+                .sum::<f64>()
+        });
+        libm::sqrt(var + from_index.max(0.0))
     }
 
     /// Root-mean-square residual at the linearisation point.
@@ -580,6 +590,27 @@ impl GnSums {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_index_covariance_adds_to_the_thickness_sigma() {
+        let g = GnSums {
+            h_dd: 4.0,
+            h_dp: [40.0, -8.0, 0.0],
+            sse: 0.99,
+            samples: 100,
+            ..GnSums::default()
+        };
+        // Fit alone: sqrt(0.99 / 99 / 4) = 0.05 nm.
+        let alone = g.thickness_sigma_nm(None);
+        assert!((alone - 0.05).abs() < 1e-9, "{alone}");
+        // dd/dp = -(10, -2, 0) nm per unit; with sigma_p0 = 0.01, sigma_p1 = 0.02 and
+        // correlation 0.5: v C v = 100e-4 + 4 * 4e-4 - 2 * 20 * 0.5 * 2e-4 = 0.0076.
+        let c = [[1e-4, 1e-4, 0.0], [1e-4, 4e-4, 0.0], [0.0; 3]];
+        let both = g.thickness_sigma_nm(Some(&c));
+        let want = (0.05f64 * 0.05 + 0.0076).sqrt();
+        assert!((both - want).abs() < 1e-9, "{both} against {want}");
+        assert!(g.thickness_sigma_nm(Some(&[[0.0; 3]; 3])) == alone);
+    }
 
     #[test]
     fn model_matches_the_band_averaged_airy_sum() {

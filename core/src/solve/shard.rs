@@ -32,8 +32,8 @@ const ORDER_HOP_CHI2: f64 = 25.0;
 /// index (n 1.5 on 1.52, 500 nm) under Gaussian reflectance noise: 4.4-5.0 nm at 1 % (no
 /// pixel off by 20 nm), 8.8-9.8 nm at 2 % (8 of 61 valid pixels off by more), 9-14 nm at
 /// 3 %; 0.3-0.9 nm on the paper's MgF2 sample; the errors ran to 2-4 sigma at the 90th
-/// percentile (the index's own uncertainty and the model's curvature are not in it), hence
-/// the margin. `filmscope eval` shows the flag's effect (valid and silent shares).
+/// percentile (the model's curvature is not in it; the index's uncertainty was not either
+/// then), hence the margin. `filmscope eval` shows the flag's effect (valid and silent shares).
 pub const MAX_THICKNESS_SIGMA_NM: f64 = 5.0;
 /// Largest share of unusable samples a valid pixel may have.
 const BAD_SHARE: f64 = 0.1;
@@ -113,8 +113,10 @@ pub struct PixelResult {
     pub confidence: f32,
     /// Flags.
     pub flags: u16,
-    /// 1-sigma uncertainty of the thickness from the pixel's own full-spectrum fit (the index
-    /// held), nm; NaN without a fit. Given for flagged pixels too: above
+    /// 1-sigma uncertainty of the thickness, nm, from the pixel's own full-spectrum fit and the
+    /// shared index's covariance ([`GnSums::thickness_sigma_nm`]); NaN without a fit. It is
+    /// statistical: a bias of the index model (a spurious dispersion term) is not in it.
+    /// Given for flagged pixels too: above
     /// [`MAX_THICKNESS_SIGMA_NM`] it is why a pixel is flagged `imprecise`.
     pub thickness_sigma_nm: f32,
 }
@@ -609,6 +611,7 @@ impl<'a> Shard<'a> {
 /// What a pixel's final result needs of the sweep.
 struct Finish {
     sigma2: f64,
+    index_cov: Option<[[f64; 3]; 3]>,
     rms_limit: f32,
     d_lo: f64,
     d_hi: f64,
@@ -626,6 +629,7 @@ impl Finish {
         );
         Self {
             sigma2: solver.residual_sigma().map_or(f64::NAN, |s| s * s),
+            index_cov: solver.index_covariance(),
             rms_limit: solver
                 .rms_median()
                 .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR),
@@ -682,7 +686,7 @@ impl Finish {
             if g.rms() > self.rms_limit {
                 f |= flags::POOR_FIT;
             }
-            sigma = g.thickness_sigma_nm();
+            sigma = g.thickness_sigma_nm(self.index_cov.as_ref());
             if sigma > MAX_THICKNESS_SIGMA_NM {
                 f |= flags::IMPRECISE;
             }
