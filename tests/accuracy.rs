@@ -352,8 +352,9 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// noise: n 1.38, 500 nm, white Gaussian reflectance noise 0.5 and 2 % (an ideal sensor):
 /// every valid pixel's sigma finite and within the `imprecise` limit, the median sigma four
 /// times as large at four times the noise, and the median |error| / sigma near a normal
-/// variable's 0.674. Measured (independent noise): median sigma 0.383 and 1.536 nm (ratio
-/// 4.01), median |error| / sigma 0.61 and 0.62. (On the paper's camera, shot and read noise, paper-sample1 at
+/// variable's 0.674. Measured (independent noise): median sigma 0.385 and 1.545 nm with the
+/// index's covariance carried in (0.383 and 1.536 from the fit alone), median |error| /
+/// sigma 0.61 and 0.61. (On the paper's camera, shot and read noise, paper-sample1 at
 /// 192 x 128 gives 0.72, p90 1.77, against a normal variable's 0.674 and 1.645, by a throwaway
 /// comparison of `estimate`'s maps with the capture's truth map.)
 #[test]
