@@ -299,13 +299,12 @@ impl SchurSums {
     pub fn inverse(&self, k: usize) -> Option<[[f64; 3]; 3]> {
         let l = self.cholesky(k)?;
         let mut inv = [[0.0; 3]; 3];
-        for (j, col) in (0..k).map(|j| {
-            let mut e = [0.0; 3];
-            e[j] = 1.0;
-            (j, Self::solve(&l, k, e))
-        }) {
-            for i in 0..k {
-                inv[i][j] = col[i];
+        for j in 0..k {
+            let mut unit = [0.0; 3];
+            unit[j] = 1.0;
+            let column = Self::solve(&l, k, unit);
+            for (row, v) in inv.iter_mut().zip(column).take(k) {
+                row[j] = v;
             }
         }
         Some(inv)
@@ -423,9 +422,9 @@ mod log_tests {
 pub struct SweepSolver {
     spec: SweepSpec,
     index: Option<IndexModel>,
-    index_sigma: f64,
     /// Covariance of the index's basis coefficients ([`IndexModel::to_basis`]; zero beyond
-    /// the model's terms), when known.
+    /// the model's terms), when an estimate gave one: its `(0, 0)` is the index sigma's
+    /// square.
     index_cov: Option<[[f64; 3]; 3]>,
     anchor_deg: Option<f64>,
     angle_deg: f64,
@@ -457,7 +456,6 @@ impl SweepSolver {
         Self {
             spec,
             index: prior,
-            index_sigma: f64::INFINITY,
             index_cov: None,
             anchor_deg: None,
             angle_deg: f64::NAN,
@@ -530,14 +528,17 @@ impl SweepSolver {
 
     /// Standard error of the index.
     pub fn index_sigma(&self) -> f64 {
-        self.index_sigma
+        self.index_cov
+            .map_or(f64::INFINITY, |c| libm::sqrt(c[0][0]))
     }
 
     /// Covariance of the index's basis coefficients (`p0` the index at 550 nm, then the
     /// dispersion terms; zero beyond the model's terms), when an estimate gave one: what the
     /// index's own uncertainty adds to each pixel's thickness ([`GnSums::thickness_sigma_nm`]).
+    /// `None` when unknown or not finite.
     pub fn index_covariance(&self) -> Option<[[f64; 3]; 3]> {
         self.index_cov
+            .filter(|c| c.iter().flatten().all(|v| v.is_finite()))
     }
 
     /// Full-spectrum index steps taken.
@@ -815,9 +816,7 @@ impl SweepSolver {
                             c[0][0] = 1.0 / s.h[0].max(1e-30);
                             c
                         });
-                        let cov = cov.map(|row| row.map(|v| v * sigma2));
-                        self.index_sigma = libm::sqrt(cov[0][0].max(0.0));
-                        self.index_cov = Some(cov);
+                        self.index_cov = Some(cov.map(|row| row.map(|v| v * sigma2)));
                     } else {
                         // No usable step from the linearisation: where a fresh pass starts.
                         self.spectral_candidate = self.spectral_start(index, s);
@@ -834,10 +833,9 @@ impl SweepSolver {
         } else {
             match self.fit {
                 Some(f) => {
-                    self.index_sigma = f.sigma;
                     let mut cov = [[0.0; 3]; 3];
                     cov[0][0] = f.sigma * f.sigma;
-                    self.index_cov = f.sigma.is_finite().then_some(cov);
+                    self.index_cov = Some(cov);
                     Some(f.model)
                 }
                 None => self.index,
@@ -942,7 +940,7 @@ impl SweepSolver {
         AngleReport {
             incidence_deg: self.angle_deg,
             index: self.index.map(|m| m.at(super::BASIS_NM)),
-            index_sigma: self.index_sigma,
+            index_sigma: self.index_sigma(),
             pair: self.last_pair,
             refined: self.last_refined,
             spectral_index_step: self.spectral_dn,
