@@ -339,6 +339,7 @@ pub fn soak(
             index,
             update: PriorUpdate::Shifts,
             seed: None,
+            max_terms: None,
         });
         std::hint::black_box(&out.results);
         drop(out);

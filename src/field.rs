@@ -735,6 +735,7 @@ pub fn run_wide(
                     index,
                     update,
                     seed: Some(Arc::new(seeds[k].clone())),
+                    max_terms: None,
                 };
                 run_sweep(src, pipeline, Some(prior), &quiet)
             })?;
@@ -992,7 +993,7 @@ fn narrow_run(source: &dyn Source, p: &Passes, t0: Instant) -> Run {
         state_bytes_per_pixel: Some(p.out.state_bytes_per_pixel),
         samples: p.out.samples,
         angle_reports: angle_reports(&p.out),
-        model_choice: model_choice(&p.out, p.passes, p.search),
+        model_choice: model_choice(&p.out, p.passes, p.search, p.term_check),
         field_model: Some(FieldModel::Narrow),
         field_model_choice: serde_json::Value::Null,
     }
@@ -1034,7 +1035,14 @@ fn wide_run(source: &dyn Source, wide: &WideRun, t0: Instant) -> Run {
         notes,
     };
     let strips: Vec<_> = (0..wide.strips.len())
-        .map(|k| model_choice(wide.last(k), wide.own[k].passes, wide.own[k].search))
+        .map(|k| {
+            model_choice(
+                wide.last(k),
+                wide.own[k].passes,
+                wide.own[k].search,
+                wide.own[k].term_check,
+            )
+        })
         .collect();
     let chosen = wide
         .combined

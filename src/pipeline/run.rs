@@ -239,6 +239,9 @@ pub struct Prior {
     /// global search on sampled spectra): such pixels need no extrema. The map the sweep's
     /// output replaces, not per-pixel state.
     pub seed: Option<Arc<Vec<f32>>>,
+    /// Most index basis terms the full spectra may use (`None`: as many as the data ask
+    /// for; [`SweepSolver::with_max_terms`]).
+    pub max_terms: Option<usize>,
 }
 
 /// How a sweep treats its prior index.
@@ -253,6 +256,10 @@ pub enum PriorUpdate {
     Hold,
     /// The full spectra move it ([`SweepSolver::with_spectral_index`]).
     FullSpectra,
+    /// It and the seeded thicknesses are held ([`SweepSolver::with_frozen_seeds`]) until the
+    /// last angle, whose sums (every one linearised at an earlier pass's result) test the
+    /// index model's last term and take one Gauss-Newton step ([`SweepSolver::thaw`]).
+    Frozen,
 }
 
 /// Runs one sweep from `source` through the pipeline; `on_rows` is told of every block of
@@ -273,7 +280,11 @@ pub fn run_sweep(
     match prior.as_ref().map(|p| p.update) {
         Some(PriorUpdate::FullSpectra) => solver = solver.with_spectral_index(),
         Some(PriorUpdate::Hold) => solver = solver.with_held_index(),
+        Some(PriorUpdate::Frozen) => solver = solver.with_frozen_seeds(),
         _ => {}
+    }
+    if let Some(terms) = prior.as_ref().and_then(|p| p.max_terms) {
+        solver = solver.with_max_terms(terms);
     }
     let mut solver = Box::new(solver);
     let seed = prior
@@ -368,6 +379,9 @@ pub fn run_sweep(
                         .map(|(i, st)| st.shard(shard_rows(h, workers, i).0, w))
                         .collect();
                     let last = solver.angles_done() + 1 == angles;
+                    if last {
+                        solver.thaw();
+                    }
                     let out = last.then_some(results.as_mut_slice());
                     reports.push(end_angle_parallel(&mut solver, &mut shards, tallies, out));
                     if last {

@@ -366,7 +366,9 @@ impl<'a> Shard<'a> {
             // A seeded pixel has no extrema to choose its order again from: it keeps its
             // thickness and steps with the index like the others.
             let seeded = p.flags & flags::FROM_SPECTRUM_SEARCH != 0;
-            if reorder && f.thickness_nm.is_finite() && !seeded {
+            if seeded && solver.frozen_seeds() {
+                // Held where the seed put it: its sums stay linearised there.
+            } else if reorder && f.thickness_nm.is_finite() && !seeded {
                 f.thickness_nm = f32::NAN;
                 f.gn = GnSums::default();
                 p.flags &= !flags::ORDER_FROM_NEIGHBOUR;
