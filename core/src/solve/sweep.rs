@@ -1112,3 +1112,86 @@ pub fn resolve_orders<I: DoubleEndedIterator<Item = usize>>(
         }
     }
 }
+
+#[cfg(test)]
+mod term_tests {
+    use super::*;
+
+    fn spec() -> SweepSpec {
+        let mut s = SweepSpec {
+            width: 8,
+            height: 4,
+            bands_nm: HVec::new(),
+            fwhm_nm: HVec::new(),
+            ambient_index: 1.0,
+            substrate_index: 1.52,
+            polarization: crate::optics::Polarization::S,
+            index_range: [1.2, 2.8],
+            thickness_range_nm: [30.0, 2000.0],
+            options: SolverOptions::default(),
+        };
+        for b in 0..151 {
+            let _ = s.bands_nm.push(420.0 + 2.0 * f64::from(b));
+            let _ = s.fwhm_nm.push(4.0);
+        }
+        s
+    }
+
+    /// Sums whose index block is `h` (level, slope) and gradient `g`, from 32 pixels.
+    fn sums(h: [f64; 3], g: [f64; 2]) -> SchurSums {
+        SchurSums {
+            h: [h[0], h[1], 0.0, h[2], 0.0, 1.0],
+            g: [g[0], g[1], 0.0],
+            pixels: 32.0,
+            sse: 0.05,
+            samples: 32.0 * 755.0,
+        }
+    }
+
+    /// The last term's chi-square is its coefficient at the sums' optimum squared over its
+    /// variance, worked here by hand from the 2 x 2 block (Cramer's rule), not through the
+    /// solver's Cholesky factor.
+    #[test]
+    fn the_last_terms_chi2_is_its_wald_statistic() {
+        let index = IndexModel::from_basis([1.6, 0.0025, 0.0]);
+        let (h, g) = ([230.0, 500.0, 1270.0], [0.1, 0.105]);
+        let mut solver = SweepSolver::new(spec(), Some(index)).with_frozen_seeds();
+        assert!(solver.frozen_seeds());
+        solver.set_schur(&sums(h, g));
+        let det = h[0] * h[2] - h[1] * h[1];
+        let x1 = (h[0] * g[1] - h[1] * g[0]) / det;
+        let c11 = h[0] / det;
+        let coef = 0.0025 + x1;
+        // The residual variance after the full (three-term) step.
+        let s = sums(h, g);
+        let (_, gain) = s.step(3).expect("positive definite");
+        let sigma2 = (s.sse - gain) / (s.samples - s.pixels - 3.0);
+        let want = coef * coef / (sigma2 * c11);
+        let got = solver.term_chi2();
+        assert!((got - want).abs() <= 1e-9 * want, "{got} against {want}");
+        // Held: the index does not move.
+        assert_eq!(solver.next_index(), Some(index));
+        // A one-term index has no such term.
+        let mut constant = SweepSolver::new(spec(), Some(IndexModel::constant(1.6)));
+        constant.set_schur(&sums(h, g));
+        assert!(constant.term_chi2().is_nan());
+    }
+
+    /// Thawed, the same sums move the index, with no more terms than it had.
+    #[test]
+    fn a_thawed_sweep_steps_the_index_with_its_own_terms() {
+        let index = IndexModel::constant(1.6);
+        let mut solver = SweepSolver::new(spec(), Some(index)).with_frozen_seeds();
+        solver.thaw();
+        assert!(!solver.frozen_seeds());
+        solver.set_schur(&sums([230.0, 500.0, 1270.0], [0.1, 0.105]));
+        let next = solver.next_index().expect("an index");
+        assert_eq!(next.terms(), 1);
+        let want = 1.6 + 0.1 / 230.0;
+        assert!(
+            (next.at(crate::solve::BASIS_NM) - want).abs() < 1e-9,
+            "{}",
+            next.at(crate::solve::BASIS_NM)
+        );
+    }
+}
