@@ -433,7 +433,7 @@ pub struct BenchReport {
     pub rss: Option<RssFigures>,
     /// Why the memory figure is missing, if it is.
     pub rss_error: Option<String>,
-    /// The three methods on the same sweep.
+    /// The three methods on the same sweep, and filmscope without its polishing pass.
     pub methods: Vec<Point>,
     /// Sensor of the methods' sweep.
     pub methods_sensor: [usize; 2],
@@ -441,6 +441,8 @@ pub struct BenchReport {
     pub speedup_vs_brute: f64,
     /// Time of `paper` over time of `filmscope`.
     pub speedup_vs_paper: f64,
+    /// Time of `brute` over time of `filmscope -polish` (one pass fewer).
+    pub speedup_vs_brute_without_polish: f64,
 }
 
 /// Runs every measurement. `scene_path` gives the spectra (the paper's MgF2 sample by default).
@@ -499,7 +501,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
             n + 0.5 * crate::baseline::DEFAULT_INDEX_STEP,
         );
     }
-    let defaults: Vec<Setting> = [Method::Filmscope, Method::Paper, Method::Brute]
+    let mut defaults: Vec<Setting> = [Method::Filmscope, Method::Paper, Method::Brute]
         .into_iter()
         .map(|method| {
             let config = RunConfig {
@@ -509,11 +511,19 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
             Setting::new(method.name(), config)
         })
         .collect();
+    // The streaming estimator without its closing Gauss-Newton pass: what one pass costs.
+    defaults.push(Setting::new(
+        "filmscope -polish",
+        RunConfig {
+            polish: false,
+            ..RunConfig::default()
+        },
+    ));
     let methods = measure(&m_scene, &defaults)?;
     let time = |m: &str| {
         methods
             .iter()
-            .find(|f| f.method == m)
+            .find(|f| f.label == m)
             .map_or(f64::NAN, |f| f.seconds_per_mpix)
     };
 
@@ -531,6 +541,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         time("brute") / time("filmscope"),
         time("paper") / time("filmscope"),
     );
+    let speedup_vs_brute_without_polish = time("brute") / time("filmscope -polish");
     Ok(BenchReport {
         quick,
         scene: kernel_scene.name.clone(),
@@ -548,6 +559,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         methods_sensor: [mw, mh],
         speedup_vs_brute,
         speedup_vs_paper,
+        speedup_vs_brute_without_polish,
     })
 }
 
@@ -619,13 +631,18 @@ pub fn format_table(r: &BenchReport) -> String {
         ">= 100x",
     );
     row(
+        "speedup vs brute, filmscope -polish",
+        format!("{:.0}x", r.speedup_vs_brute_without_polish),
+        "",
+    );
+    row(
         "speedup vs paper",
         format!("{:.1}x", r.speedup_vs_paper),
         "",
     );
     s.push('\n');
     s.push_str(&format!(
-        "{:<10} {:>12} {:>10} {:>10} {:>7}\n",
+        "{:<18} {:>12} {:>10} {:>10} {:>7}\n",
         "method", "s per Mpix", "|n err|", "MAE nm", "valid"
     ));
     for f in &r.methods {
@@ -637,8 +654,8 @@ pub fn format_table(r: &BenchReport) -> String {
             }
         };
         s.push_str(&format!(
-            "{:<10} {:>12.3} {:>10} {:>10} {:>6.1}%\n",
-            f.method,
+            "{:<18} {:>12.3} {:>10} {:>10} {:>6.1}%\n",
+            f.label,
             f.seconds_per_mpix,
             opt(f.index_error_abs, 4),
             opt(f.thickness_mae_nm, 2),

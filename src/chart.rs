@@ -69,6 +69,13 @@ pub fn settings(quick: bool) -> Vec<Setting> {
             }),
         ),
         Setting::new(
+            "-polish",
+            RunConfig {
+                polish: false,
+                ..fs(full)
+            },
+        ),
+        Setting::new(
             "-subband",
             fs(SolverOptions {
                 subband: false,

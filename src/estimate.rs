@@ -421,7 +421,7 @@ pub fn filmscope_passes(
         seed,
         term_check: None,
     };
-    if can_pass {
+    if can_pass && config.polish {
         polish(source, config, &mut passes)?;
     }
     Ok(passes)
@@ -507,6 +507,9 @@ pub struct RunConfig {
     /// The field model of the streaming method: chosen from the data (default), or forced,
     /// and the wide model's settings.
     pub field: FieldConfig,
+    /// End a replayable estimate with Gauss-Newton iterations on the whole spectra
+    /// ([`polish`]; off: `--ablate polish`, one pass fewer).
+    pub polish: bool,
 }
 
 impl Default for RunConfig {
@@ -516,6 +519,7 @@ impl Default for RunConfig {
             pipeline: PipelineConfig::default(),
             brute_grid: BruteGrid::default(),
             field: FieldConfig::default(),
+            polish: true,
         }
     }
 }

@@ -132,6 +132,7 @@ pub fn estimate(
             strips: field_strips,
             ..FieldConfig::default()
         },
+        polish: true,
     };
     let cap = Capture::load(capture)?;
     for key in &cap.unknown_keys {
@@ -229,9 +230,10 @@ fn eval_one(path: &Path, config: &RunConfig) -> Result<(EvalReport, Run)> {
 
 /// Solver options and the wide field model's settings with the named improvements switched
 /// off.
-fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig)> {
+fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig, bool)> {
     let mut o = SolverOptions::default();
     let mut f = FieldConfig::default();
+    let mut polish = true;
     for name in list {
         match name.as_str() {
             "refine" => o.refine = false,
@@ -240,12 +242,13 @@ fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig)> {
             "subband" => o.subband = false,
             "column-map" => f.column_map = false,
             "shared-index" => f.shared_rounds = false,
+            "polish" => polish = false,
             other => bail!(
-                "--ablate {other:?}: use refine, half-order, neighbours, subband, column-map or shared-index"
+                "--ablate {other:?}: use refine, half-order, neighbours, subband, column-map, shared-index or polish"
             ),
         }
     }
-    Ok((o, f))
+    Ok((o, f, polish))
 }
 
 /// `filmscope eval`.
@@ -260,7 +263,7 @@ pub fn eval(
     if inputs.is_empty() {
         bail!("eval needs at least one scene file or capture directory");
     }
-    let (solver, wide) = ablated(ablate)?;
+    let (solver, wide, polish) = ablated(ablate)?;
     let config = RunConfig {
         method: method(method_name)?,
         brute_grid: BruteGrid {
@@ -276,6 +279,7 @@ pub fn eval(
             strips: field_strips,
             ..wide
         },
+        polish,
     };
     if !json {
         println!(

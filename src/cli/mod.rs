@@ -96,8 +96,8 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// Switch off filmscope improvements to measure their worth: refine, half-order,
-        /// neighbours, subband, and the wide field model's column-map and shared-index
-        /// (comma-separated).
+        /// neighbours, subband, the wide field model's column-map and shared-index, and
+        /// polish (the closing Gauss-Newton pass over a replayable source) (comma-separated).
         #[arg(long, value_delimiter = ',')]
         ablate: Vec<String>,
         /// Brute force: number of index values over the search range (0: a 0.01 step).
