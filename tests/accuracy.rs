@@ -7,7 +7,7 @@
 
 mod common;
 
-use filmscope::estimate::{run_method, RunConfig};
+use filmscope::estimate::{run_method, Run, RunConfig};
 use filmscope::eval::{evaluate, EvalReport, Truth};
 use filmscope::pipeline::{run_sweep, PipelineConfig, Prior, PriorUpdate, SimSource};
 use filmscope::sweep::Method;
@@ -15,17 +15,21 @@ use filmscope_core::solve::flags;
 use firmware_sim::SoftwareCamera;
 
 fn eval(name: &str, method: Method) -> EvalReport {
-    let scene = common::scene(name);
-    let truth = Truth::of_scene(&scene);
-    let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
     let config = RunConfig {
         method,
         ..RunConfig::default()
     };
-    let run = run_method(&mut source, &config, &|_| {}).expect("run");
-    let r = evaluate(name, &truth, &run);
+    let (r, _) = run_scene(name, common::scene(name), &config);
     eprintln!("{}", serde_json::to_string(&r).expect("json"));
     r
+}
+
+/// `scene` from the software camera (one worker) through `config`, scored against its truth.
+fn run_scene(name: &str, scene: firmware_sim::Scene, config: &RunConfig) -> (EvalReport, Run) {
+    let truth = Truth::of_scene(&scene);
+    let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
+    let run = run_method(&mut source, config, &|_| {}).expect("run");
+    (evaluate(name, &truth, &run), run)
 }
 
 fn check(r: &EvalReport, max_index_error: f64) {
@@ -118,10 +122,7 @@ height = 24
 "#
         );
         let scene = firmware_sim::Scene::from_toml(&text, name).expect("scene");
-        let truth = Truth::of_scene(&scene);
-        let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
-        let run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
-        let r = evaluate(name, &truth, &run);
+        let (r, run) = run_scene(name, scene, &RunConfig::default());
         check_valid(&r, 0.005, 0.98);
         assert_eq!(
             run.result.index.terms(),
@@ -175,10 +176,7 @@ fn real_zns_dispersion_is_measured_under_every_noise_seed() {
     for seed in [201u64, 1, 2, 3, 4] {
         let mut scene = common::scene("zns-dispersive");
         scene.seed = seed;
-        let truth = Truth::of_scene(&scene);
-        let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
-        let run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
-        let r = evaluate("zns-dispersive", &truth, &run);
+        let (r, run) = run_scene("zns-dispersive", scene, &RunConfig::default());
         assert!(
             r.silent_failure_rate <= 0.001,
             "seed {seed}: silent {}",
@@ -237,10 +235,7 @@ fn other_noise_seeds_keep_thickness_and_never_fail_silently() {
             let reseeded =
                 text.replace(&format!("seed = {}", scene.seed), &format!("seed = {seed}"));
             scene = firmware_sim::Scene::from_toml(&reseeded, name).expect("reseeded scene");
-            let truth = Truth::of_scene(&scene);
-            let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
-            let run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
-            let r = evaluate(name, &truth, &run);
+            let (r, _) = run_scene(name, scene, &RunConfig::default());
             assert!(
                 r.index_error.abs() <= max_index_error,
                 "{name} seed {seed}: index {}",
@@ -315,10 +310,7 @@ fn a_thin_film_keeps_a_constant_index_and_its_accuracy() {
             ..Default::default()
         };
         let scene = grid.scene().expect("grid scene");
-        let truth = Truth::of_scene(&scene);
-        let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
-        let run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
-        let r = evaluate("n1.6-d50", &truth, &run);
+        let (r, run) = run_scene("n1.6-d50", scene, &RunConfig::default());
         eprintln!("seed {seed}: {}", serde_json::to_string(&r).expect("json"));
         assert_eq!(
             run.result.index.terms(),

@@ -353,6 +353,7 @@ impl<'a> Shard<'a> {
         };
         let orders = Self::order_context(solver);
         let finish = out.is_some().then(|| Finish::of(solver));
+        let frozen = solver.frozen_seeds();
         for i in 0..self.pixels.len() {
             let mut f = self.fit(i);
             // The overflow flag read in place, not through a copy of the pixel's tracker.
@@ -366,7 +367,7 @@ impl<'a> Shard<'a> {
             // A seeded pixel has no extrema to choose its order again from: it keeps its
             // thickness and steps with the index like the others.
             let seeded = p.flags & flags::FROM_SPECTRUM_SEARCH != 0;
-            if seeded && solver.frozen_seeds() {
+            if seeded && frozen {
                 // Held where the seed put it: its sums stay linearised there.
             } else if reorder && f.thickness_nm.is_finite() && !seeded {
                 f.thickness_nm = f32::NAN;
