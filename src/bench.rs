@@ -340,6 +340,7 @@ pub fn soak(
             update: PriorUpdate::Shifts,
             seed: None,
             max_terms: None,
+            noise_sigma: None,
         });
         std::hint::black_box(&out.results);
         drop(out);

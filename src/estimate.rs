@@ -68,6 +68,7 @@ fn next_pass(last: &SweepOutput, passes: usize) -> Option<Prior> {
             update: PriorUpdate::Hold,
             seed: None,
             max_terms: None,
+            noise_sigma: None,
         });
     }
     let again = last.model_mismatch
@@ -79,6 +80,7 @@ fn next_pass(last: &SweepOutput, passes: usize) -> Option<Prior> {
         update: PriorUpdate::FullSpectra,
         seed: None,
         max_terms: None,
+        noise_sigma: None,
     })
 }
 
@@ -192,6 +194,7 @@ fn thin_start(
         update: PriorUpdate::FullSpectra,
         seed: Some(Arc::new(seed)),
         max_terms: None,
+        noise_sigma: None,
     };
     Ok(Some((fit, Some(prior))))
 }
@@ -254,6 +257,11 @@ fn term_confirmed(check: &SweepOutput) -> (f64, bool) {
     (chi2, chi2.is_nan() || chi2 >= SPECTRAL_TERM_CHI2)
 }
 
+/// Flags a polishing pass keeps from the pass before: whether the spectrum search seeded
+/// the pixel, and what the extremum tracker found, which a polishing pass does not run for
+/// the pixels it holds.
+const CARRIED_FLAGS: u16 = flags::FROM_SPECTRUM_SEARCH | flags::TRACKER_OVERFLOW;
+
 /// Most Gauss-Newton iterations on the whole spectra ([`polish`]) after the passes.
 pub const MAX_POLISH: usize = 3;
 
@@ -289,6 +297,7 @@ fn polish(
             update: PriorUpdate::Frozen,
             seed: Some(Arc::new(map)),
             max_terms: None,
+            noise_sigma: passes.out.noise_sigma,
         };
         let mut pass = run_sweep(source, config.pipeline, Some(frozen), &|_| {})?;
         passes.passes += 1;
@@ -308,10 +317,13 @@ fn polish(
         if pass.model_mismatch || valid_fraction(&pass) < valid_fraction(&passes.out) {
             return Ok(());
         }
-        // Every pixel was seeded here; only the search's seeds say so.
+        // Every pixel was seeded here, only the search's seeds say so; and the held pixels'
+        // extrema were not tracked: what the pass before found of them stands.
         for (r, before) in pass.results.iter_mut().zip(&passes.out.results) {
-            r.flags = (r.flags & !flags::FROM_SPECTRUM_SEARCH)
-                | (before.flags & flags::FROM_SPECTRUM_SEARCH);
+            r.flags = (r.flags & !CARRIED_FLAGS) | (before.flags & CARRIED_FLAGS);
+        }
+        for (a, before) in pass.angles.iter_mut().zip(&passes.out.angles) {
+            a.pair = before.pair;
         }
         let step = pass.angles.last().map_or(0.0, |a| a.spectral_index_step);
         if let Some(s) = &passes.seed {
@@ -339,6 +351,7 @@ fn drop_term(
         update: PriorUpdate::FullSpectra,
         seed: passes.seed.clone(),
         max_terms: Some(terms),
+        noise_sigma: None,
     };
     for _ in 0..MAX_PASSES {
         let pass = run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;

@@ -736,6 +736,7 @@ pub fn run_wide(
                     update,
                     seed: Some(Arc::new(seeds[k].clone())),
                     max_terms: None,
+                    noise_sigma: None,
                 };
                 run_sweep(src, pipeline, Some(prior), &quiet)
             })?;

@@ -182,6 +182,9 @@ pub struct BandModels {
     pub coefs: Vec<Option<BandCoef>>,
     /// The tabulated bands' knots.
     pub knots: Vec<Knot>,
+    /// Whether seeded pixels hold their thickness through the angle
+    /// ([`SweepSolver::frozen_seeds`]).
+    pub seeds_held: bool,
 }
 
 impl BandModels {
@@ -201,7 +204,11 @@ impl BandModels {
         } else {
             Vec::new()
         };
-        Self { coefs, knots }
+        Self {
+            coefs,
+            knots,
+            seeds_held: solver.frozen_seeds(),
+        }
     }
 
     /// A borrowed view for [`Shard::feed_row`].
@@ -209,6 +216,7 @@ impl BandModels {
         AngleModels {
             coefs: &self.coefs,
             knots: &self.knots,
+            seeds_held: self.seeds_held,
         }
     }
 }
@@ -242,6 +250,10 @@ pub struct Prior {
     /// Most index basis terms the full spectra may use (`None`: as many as the data ask
     /// for; [`SweepSolver::with_max_terms`]).
     pub max_terms: Option<usize>,
+    /// The image's noise an earlier pass over the same data measured, held for the sweep
+    /// (`None`: measured by this one; [`SweepSolver::with_noise_sigma`]). A
+    /// [`PriorUpdate::Frozen`] pass needs it: it tracks no held pixel's extrema.
+    pub noise_sigma: Option<f32>,
 }
 
 /// How a sweep treats its prior index.
@@ -285,6 +297,9 @@ pub fn run_sweep(
     }
     if let Some(terms) = prior.as_ref().and_then(|p| p.max_terms) {
         solver = solver.with_max_terms(terms);
+    }
+    if let Some(sigma) = prior.as_ref().and_then(|p| p.noise_sigma) {
+        solver = solver.with_noise_sigma(sigma);
     }
     let mut solver = Box::new(solver);
     let seed = prior

@@ -224,8 +224,19 @@ impl<'a> Shard<'a> {
         let blocks = tracker_blocks(self.width, self.width);
         let first = (row - self.first_row) * blocks;
         let trackers = &mut self.trackers[first..first + blocks];
-        row::push_row(trackers, band as u16, values, options.subband, pixels);
         let fits = &mut self.fits[first..first + blocks];
+        if models.seeds_held {
+            // A block whose every pixel holds its thickness has no order to choose: its
+            // extrema are not needed (the tracker is a third of a sample's cost).
+            let lanes = values.chunks(row::LANES).zip(pixels.chunks_mut(row::LANES));
+            for ((t, f), (v, p)) in trackers.iter_mut().zip(fits.iter()).zip(lanes) {
+                if !f.all_have_thickness(v.len()) {
+                    t.push(band as u16, v, options.subband, p);
+                }
+            }
+        } else {
+            row::push_row(trackers, band as u16, values, options.subband, pixels);
+        }
         fit_row::push_row(fits, values, coef.map(|c| (c, models.knots)));
     }
 
@@ -257,6 +268,8 @@ impl<'a> Shard<'a> {
         let (w, blocks) = (self.width, tracker_blocks(self.width, self.width));
         let pixels = &self.pixels[lo * w..hi * w];
         let trackers = row::lanes(&self.trackers[lo * blocks..hi * blocks], w);
+        // A held noise is not pooled; the held pixels' trackers were not fed.
+        let noise_held = solver.noise_held();
         for (k, (p, (t, lane))) in pixels.iter().zip(trackers).enumerate() {
             if let Some(g) = geometry {
                 votes.vote(g, &p.anchor, &p.current, |b| spec.wavelength_at(b));
@@ -265,7 +278,9 @@ impl<'a> Shard<'a> {
             if gn.samples > 0 {
                 fit.rms.add(gn.rms());
             }
-            fit.noise.add(t.noise_sigma(lane));
+            if !noise_held {
+                fit.noise.add(t.noise_sigma(lane));
+            }
         }
     }
 
@@ -740,5 +755,89 @@ mod size_tests {
             state_bytes_per_pixel(),
         ];
         assert_eq!(sizes, [76, 77, 42, 68, 88, 79, 244]);
+    }
+}
+
+#[cfg(test)]
+mod held_seed_tests {
+    use super::*;
+    use heapless::Vec as HVec;
+
+    const W: usize = 2 * row::LANES;
+
+    fn spec() -> SweepSpec {
+        let mut s = SweepSpec {
+            width: W,
+            height: 1,
+            bands_nm: HVec::new(),
+            fwhm_nm: HVec::new(),
+            ambient_index: 1.0,
+            substrate_index: 1.52,
+            polarization: crate::optics::Polarization::S,
+            index_range: [1.2, 2.8],
+            thickness_range_nm: [30.0, 2000.0],
+            options: SolverOptions::default(),
+        };
+        for b in 0..151 {
+            let _ = s.bands_nm.push(420.0 + 2.0 * f64::from(b));
+            let _ = s.fwhm_nm.push(4.0);
+        }
+        s
+    }
+
+    /// Feeds one angle of fringes (a peak every 20 bands, a little noise-like ripple) to a
+    /// one-row shard whose pixels are all seeded but `unseeded`, and returns the extrema
+    /// each pixel found and the tally's pooled noise.
+    fn one_angle(solver: &SweepSolver, unseeded: usize) -> ([usize; W], Option<f32>) {
+        let spec = solver.spec().clone();
+        let mut pixels = [(); W].map(|_| PixelState::default());
+        let mut trackers = [TrackerLanes::EMPTY; 2];
+        let mut fits = [FitLanes::EMPTY; 2];
+        let mut shard = Shard::new(0, W, &mut pixels, &mut trackers, &mut fits);
+        let index = IndexModel::constant(1.38);
+        for i in (0..W).filter(|&i| i != unseeded) {
+            shard.seed(i, 500.0, index, &spec);
+        }
+        shard.begin_angle();
+        let models = AngleModels {
+            coefs: &[],
+            knots: &[],
+            seeds_held: solver.frozen_seeds(),
+        };
+        for b in 0..spec.bands_nm.len() {
+            let x = b as f32 * core::f32::consts::TAU / 20.0;
+            let values: [f32; W] = core::array::from_fn(|i| {
+                0.05 + 0.03 * libm::cosf(x) + 1e-4 * libm::sinf(7.3 * (b * W + i) as f32)
+            });
+            shard.feed_row(spec.options, models, b, 0, &values);
+        }
+        let (_, stats) = shard.tally(solver);
+        (
+            core::array::from_fn(|i| shard.pixels[i].current.len()),
+            stats.noise.median(),
+        )
+    }
+
+    /// A held pass tracks only the blocks with a pixel that has no thickness (all of that
+    /// block's pixels), and pools no noise: it holds the one it was given.
+    #[test]
+    fn held_seeds_skip_the_trackers_of_blocks_that_need_no_extrema() {
+        let unseeded = row::LANES + 8;
+        let held = SweepSolver::new(spec(), Some(IndexModel::constant(1.38)))
+            .with_frozen_seeds()
+            .with_noise_sigma(0.004);
+        let (found, noise) = one_angle(&held, unseeded);
+        assert!(found[..row::LANES].iter().all(|&n| n == 0), "{found:?}");
+        assert!(found[row::LANES..].iter().all(|&n| n >= 6), "{found:?}");
+        assert_eq!(noise, None);
+        assert_eq!(held.noise_sigma(), Some(0.004));
+        let mut after = held.clone();
+        after.set_fit_histogram(&FitStats::default());
+        assert_eq!(after.noise_sigma(), Some(0.004));
+        // Not held: every pixel is tracked and the noise pooled.
+        let free = SweepSolver::new(spec(), Some(IndexModel::constant(1.38)));
+        let (found, noise) = one_angle(&free, unseeded);
+        assert!(found.iter().all(|&n| n >= 6), "{found:?}");
+        assert!(noise.is_some_and(|n| n > 0.0 && n < 0.01), "{noise:?}");
     }
 }

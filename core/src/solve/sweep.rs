@@ -449,6 +449,8 @@ pub struct SweepSolver {
     spectral_index: bool,
     held_index: bool,
     frozen_seeds: bool,
+    /// Whether `noise_median` was given ([`SweepSolver::with_noise_sigma`]).
+    noise_held: bool,
     spectral_gains: [f64; 3],
     spectral_candidate: Option<IndexModel>,
     max_terms: usize,
@@ -483,6 +485,7 @@ impl SweepSolver {
             spectral_index: false,
             held_index: false,
             frozen_seeds: false,
+            noise_held: false,
             spectral_gains: [f64::NAN; 3],
             spectral_candidate: None,
             max_terms: 3,
@@ -536,6 +539,22 @@ impl SweepSolver {
         self = self.with_held_index();
         self.frozen_seeds = self.held_index;
         self
+    }
+
+    /// Holds the image's noise (1 sigma of a sample) at `sigma`, as an earlier pass over
+    /// the same data measured it, instead of pooling the pixels' own estimates: a pass whose
+    /// seeded pixels are held ([`SweepSolver::with_frozen_seeds`]) does not track their
+    /// extrema, where those estimates come from. The same trackers over the same samples
+    /// give the same figure.
+    pub fn with_noise_sigma(mut self, sigma: f32) -> Self {
+        self.noise_median = Some(sigma);
+        self.noise_held = true;
+        self
+    }
+
+    /// Whether the noise is held ([`SweepSolver::with_noise_sigma`]).
+    pub fn noise_held(&self) -> bool {
+        self.noise_held
     }
 
     /// Ends [`SweepSolver::with_frozen_seeds`] before the sweep's last angle ends: that
@@ -778,7 +797,7 @@ impl SweepSolver {
         if let Some(m) = hist.rms.median() {
             self.rms_median = Some(m);
         }
-        if let Some(m) = hist.noise.median() {
+        if let Some(m) = hist.noise.median().filter(|_| !self.noise_held) {
             self.noise_median = Some(m);
         }
     }
