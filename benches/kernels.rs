@@ -384,7 +384,7 @@ impl Prepared {
         let mut before_rows = None;
         for (a, &deg) in angles.iter().enumerate().take(upto + 1) {
             solver.begin_angle(deg);
-            models = BandModels::of(&solver);
+            models = BandModels::of(&solver, 1);
             states.shard(0, w).begin_angle();
             if a == upto {
                 before_rows = Some((solver.clone(), states.clone()));

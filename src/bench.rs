@@ -251,7 +251,7 @@ pub fn sweep_rates(frames: &Frames, rows: usize) -> (f64, f64) {
     let (mut stream, mut solve) = (Duration::ZERO, Duration::ZERO);
     for (a, &deg) in frames.angles_deg.iter().enumerate() {
         solver.begin_angle(deg);
-        let models = BandModels::of(&solver);
+        let models = BandModels::of(&solver, 1);
         let mut shard = states.shard(0, w);
         shard.begin_angle();
         let t0 = Instant::now();

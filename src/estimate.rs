@@ -325,6 +325,7 @@ fn polish(
         for (a, before) in pass.angles.iter_mut().zip(&passes.out.angles) {
             a.pair = before.pair;
         }
+        pass.index_fit = passes.out.index_fit;
         let step = pass.angles.last().map_or(0.0, |a| a.spectral_index_step);
         if let Some(s) = &passes.seed {
             passes.seed = Some(carry_seed(s, &pass));

@@ -208,3 +208,27 @@ fn capture_angle_order_does_not_change_the_maps() {
         same(&reference, &got, &format!("angles in file order {order:?}"));
     }
 }
+
+/// The band tables are the same however many threads share their tabulation (the runs of
+/// bands split where their knots do).
+#[test]
+fn band_tables_do_not_depend_on_the_threads_tabulating_them() {
+    let source =
+        SimSource::new(SoftwareCamera::new(common::tiny_scene()), false, 1).expect("source");
+    let mut spec = source.spec().clone();
+    // Enough pixels for every band to be tabulated.
+    (spec.width, spec.height) = (1024, 1024);
+    let mut solver = filmscope::solve::SweepSolver::new(
+        spec,
+        Some(filmscope::solve::IndexModel::constant(1.45)),
+    );
+    solver.begin_angle(30.0);
+    let one = filmscope::pipeline::BandModels::of(&solver, 1);
+    assert!(one.knots.len() > 1000, "{} knots", one.knots.len());
+    assert!(one.coefs.iter().flatten().all(|c| c.tabulated()));
+    let text = |m: &filmscope::pipeline::BandModels| format!("{:?} {:?}", m.coefs, m.knots);
+    for threads in [2, 3, 7, 10_000] {
+        let many = filmscope::pipeline::BandModels::of(&solver, threads);
+        assert!(text(&many) == text(&one), "{threads} threads");
+    }
+}

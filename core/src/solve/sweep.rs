@@ -451,6 +451,8 @@ pub struct SweepSolver {
     frozen_seeds: bool,
     /// Whether `noise_median` was given ([`SweepSolver::with_noise_sigma`]).
     noise_held: bool,
+    /// The thicknesses the tables need cover ([`SweepSolver::with_table_thickness`]).
+    table_thickness_nm: Option<[f64; 2]>,
     spectral_gains: [f64; 3],
     spectral_candidate: Option<IndexModel>,
     max_terms: usize,
@@ -486,6 +488,7 @@ impl SweepSolver {
             held_index: false,
             frozen_seeds: false,
             noise_held: false,
+            table_thickness_nm: None,
             spectral_gains: [f64::NAN; 3],
             spectral_candidate: None,
             max_terms: 3,
@@ -549,6 +552,18 @@ impl SweepSolver {
     pub fn with_noise_sigma(mut self, sigma: f32) -> Self {
         self.noise_median = Some(sigma);
         self.noise_held = true;
+        self
+    }
+
+    /// Tabulates the band models over thicknesses `[lo, hi]` only (within the search range,
+    /// and an order either side): those of a pass's held seeds
+    /// ([`SweepSolver::with_frozen_seeds`]), which a table over the whole search range
+    /// would cover three times over for a film of one thickness (and whose tabulation, once
+    /// an angle on one core, cost a held pass a third of its time at 128 x 96 pixels).
+    pub fn with_table_thickness(mut self, lo: f64, hi: f64) -> Self {
+        if lo <= hi {
+            self.table_thickness_nm = Some([lo, hi]);
+        }
         self
     }
 
@@ -651,31 +666,31 @@ impl SweepSolver {
         }
     }
 
-    /// The thicknesses the band models are tabulated over: the search range widened by an
-    /// interference order at the longest band and lowest index either side (the
-    /// neighbouring orders' misfits look there).
+    /// The thicknesses the band models are tabulated over: the search range (or the
+    /// narrower span of [`SweepSolver::with_table_thickness`]) widened by an interference
+    /// order at the longest band and lowest index either side (the neighbouring orders'
+    /// misfits look there). A thickness outside it has its models computed per sample.
     pub fn table_range_nm(&self) -> [f64; 2] {
         let [lo, hi] = self.spec.thickness_range_nm;
+        let [lo, hi] = self
+            .table_thickness_nm
+            .map_or([lo, hi], |[a, b]| [lo.max(a), hi.min(b)]);
         let [_, l_max] = self.band_span_nm();
         let step = 1.2 * l_max / (2.0 * self.spec.index_range[0].max(1.0));
         [lo - step, hi + step]
-    }
-
-    /// Knots needed to tabulate every band of `models` ([`SweepSolver::tabulate`]).
-    pub fn table_knots(&self, models: &[Option<BandCoef>]) -> usize {
-        let range = self.table_range_nm();
-        models
-            .iter()
-            .flatten()
-            .filter_map(|c| c.knots_for(range))
-            .map(|(_, n)| n)
-            .sum()
     }
 
     /// Tabulates the band models (in band order, as many as `knots` holds; the rest are
     /// computed per sample), so a sample's full-spectrum sums cost interpolations instead of
     /// an Airy quadrature (see [`BandCoef::eval`]).
     pub fn tabulate(&self, models: &mut [Option<BandCoef>], knots: &mut [Knot]) {
+        self.tabulate_part(models, knots, 0);
+    }
+
+    /// [`SweepSolver::tabulate`] of a run of consecutive bands whose knots start at `first`
+    /// in the angle's table (`knots` the table from there on): runs of bands split where
+    /// their knots do can be tabulated on as many threads.
+    pub fn tabulate_part(&self, models: &mut [Option<BandCoef>], knots: &mut [Knot], first: usize) {
         let range = self.table_range_nm();
         let mut used = 0;
         for c in models.iter_mut().flatten() {
@@ -685,8 +700,20 @@ impl SweepSolver {
             if used + n > knots.len() {
                 break;
             }
-            c.tabulate(range, used, &mut knots[used..used + n]);
+            c.tabulate(range, first + used, &mut knots[used..used + n]);
             used += n;
+        }
+    }
+
+    /// Knots each band of `models` needs ([`SweepSolver::tabulate`]; 0 for a band without a
+    /// model or a table).
+    pub fn band_knots(&self, models: &[Option<BandCoef>], out: &mut [usize]) {
+        let range = self.table_range_nm();
+        for (o, c) in out.iter_mut().zip(models) {
+            *o = c
+                .as_ref()
+                .and_then(|c| c.knots_for(range))
+                .map_or(0, |(_, n)| n);
         }
     }
 
@@ -1194,6 +1221,23 @@ mod term_tests {
         let mut constant = SweepSolver::new(spec(), Some(IndexModel::constant(1.6)));
         constant.set_schur(&sums(h, g));
         assert!(constant.term_chi2().is_nan());
+    }
+
+    /// A held pass's tables cover its seeds' thicknesses (within the search range) and an
+    /// order either side; without seeds, the whole search range.
+    #[test]
+    fn tables_cover_the_held_seeds_only() {
+        let full = SweepSolver::new(spec(), None).table_range_nm();
+        let order = 30.0 - full[0];
+        assert!(order > 300.0 && 2000.0 + order == full[1], "{full:?}");
+        let narrow = |lo, hi| {
+            SweepSolver::new(spec(), None)
+                .with_table_thickness(lo, hi)
+                .table_range_nm()
+        };
+        assert_eq!(narrow(380.0, 430.0), [380.0 - order, 430.0 + order]);
+        assert_eq!(narrow(10.0, 3000.0), full);
+        assert_eq!(narrow(f64::INFINITY, f64::NEG_INFINITY), full);
     }
 
     /// Thawed, the same sums move the index, with no more terms than it had.
