@@ -32,23 +32,21 @@ fn run_scene(name: &str, scene: firmware_sim::Scene, config: &RunConfig) -> (Eva
     (evaluate(name, &truth, &run), run)
 }
 
+/// Checks a run's index error, thickness MAE (nm) and valid share against bounds; `what`
+/// names the case in a failure.
+fn assert_bounds(r: &EvalReport, what: &str, max_index: f64, max_mae_nm: f64, min_valid: f64) {
+    let (index, mae, valid) = (r.index_error, r.thickness_mae_nm, r.valid_fraction);
+    assert!(index.abs() <= max_index, "{what}: index error {index}");
+    assert!(mae <= max_mae_nm, "{what}: MAE {mae}");
+    assert!(valid >= min_valid, "{what}: valid {valid}");
+}
+
 fn check(r: &EvalReport, max_index_error: f64) {
     check_valid(r, max_index_error, 0.98);
 }
 
 fn check_valid(r: &EvalReport, max_index_error: f64, min_valid: f64) {
-    assert!(
-        r.index_error.abs() <= max_index_error,
-        "{}: index error {}",
-        r.scene,
-        r.index_error
-    );
-    assert!(
-        r.thickness_mae_nm <= 3.0,
-        "{}: MAE {}",
-        r.scene,
-        r.thickness_mae_nm
-    );
+    assert_bounds(r, &r.scene, max_index_error, 3.0, min_valid);
     assert!(
         r.delta_e76_mean <= 0.5,
         "{}: dE76 {}",
@@ -66,12 +64,6 @@ fn check_valid(r: &EvalReport, max_index_error: f64, min_valid: f64) {
         "{}: silent {}",
         r.scene,
         r.silent_failure_rate
-    );
-    assert!(
-        r.valid_fraction >= min_valid,
-        "{}: valid {}",
-        r.scene,
-        r.valid_fraction
     );
 }
 
@@ -182,25 +174,11 @@ fn real_zns_dispersion_is_measured_under_every_noise_seed() {
             "seed {seed}: silent {}",
             r.silent_failure_rate
         );
-        assert!(
-            r.index_error.abs() <= 0.003,
-            "seed {seed}: index {}",
-            r.index_error
-        );
-        assert!(
-            r.thickness_mae_nm <= 1.0,
-            "seed {seed}: MAE {}",
-            r.thickness_mae_nm
-        );
+        assert_bounds(&r, &format!("seed {seed}"), 0.003, 1.0, 0.98);
         assert!(
             r.spectral_rmse <= 0.002,
             "seed {seed}: RMSE {}",
             r.spectral_rmse
-        );
-        assert!(
-            r.valid_fraction >= 0.98,
-            "seed {seed}: valid {}",
-            r.valid_fraction
         );
         assert!(
             r.delta_e2000_mean <= 0.5,
@@ -236,25 +214,17 @@ fn other_noise_seeds_keep_thickness_and_never_fail_silently() {
                 text.replace(&format!("seed = {}", scene.seed), &format!("seed = {seed}"));
             scene = firmware_sim::Scene::from_toml(&reseeded, name).expect("reseeded scene");
             let (r, _) = run_scene(name, scene, &RunConfig::default());
-            assert!(
-                r.index_error.abs() <= max_index_error,
-                "{name} seed {seed}: index {}",
-                r.index_error
-            );
-            assert!(
-                r.thickness_mae_nm <= 3.0,
-                "{name} seed {seed}: MAE {}",
-                r.thickness_mae_nm
+            assert_bounds(
+                &r,
+                &format!("{name} seed {seed}"),
+                max_index_error,
+                3.0,
+                0.98,
             );
             assert!(
                 r.silent_failure_rate <= 0.001,
                 "{name} seed {seed}: silent {}",
                 r.silent_failure_rate
-            );
-            assert!(
-                r.valid_fraction >= 0.98,
-                "{name} seed {seed}: valid {}",
-                r.valid_fraction
             );
         }
     }
@@ -318,21 +288,7 @@ fn a_thin_film_keeps_a_constant_index_and_its_accuracy() {
             "seed {seed}: {}",
             run.model_choice
         );
-        assert!(
-            r.index_error.abs() <= 0.002,
-            "seed {seed}: index {}",
-            r.index_error
-        );
-        assert!(
-            r.thickness_mae_nm <= 1.0,
-            "seed {seed}: MAE {}",
-            r.thickness_mae_nm
-        );
-        assert!(
-            r.valid_fraction >= 0.98,
-            "seed {seed}: valid {}",
-            r.valid_fraction
-        );
+        assert_bounds(&r, &format!("seed {seed}"), 0.002, 1.0, 0.98);
     }
 }
 
@@ -359,21 +315,7 @@ fn a_thick_high_index_film_is_not_taken_for_one_without_fringe_pairs() {
             "n {index}: {}",
             run.model_choice
         );
-        assert!(
-            r.index_error.abs() <= 0.003,
-            "n {index}: index {}",
-            r.index_error
-        );
-        assert!(
-            r.thickness_mae_nm <= 2.0,
-            "n {index}: MAE {}",
-            r.thickness_mae_nm
-        );
-        assert!(
-            r.valid_fraction >= 0.98,
-            "n {index}: valid {}",
-            r.valid_fraction
-        );
+        assert_bounds(&r, &format!("n {index}"), 0.003, 2.0, 0.98);
     }
 }
 

@@ -191,6 +191,7 @@ impl BandModels {
     /// The models of `solver`'s current angle, every band tabulated if the sensor has
     /// enough pixels to repay it (a knot costs about what one pixel's sample does computed:
     /// tables pay from twice as many pixels as knots per band).
+    ///
     /// `threads` share the tabulation (the workers wait for it: measured at 128 x 96, the
     /// five angles' tables took 41.5 ms of a 100-130 ms pass on one thread).
     pub fn of(solver: &SweepSolver, threads: usize) -> Self {
@@ -248,10 +249,10 @@ fn tabulate_on(
             let (run, rest) = coefs.split_at_mut(bands);
             let (part, tail) = table.split_at_mut(knots);
             if rest.is_empty() {
-                solver.tabulate_part(run, part, first);
+                solver.tabulate(run, part, first);
             } else {
                 let at = first;
-                scope.spawn(move || solver.tabulate_part(run, part, at));
+                scope.spawn(move || solver.tabulate(run, part, at));
             }
             (coefs, counts, table, first) = (rest, &counts[bands..], tail, first + knots);
         }

@@ -762,28 +762,11 @@ mod size_tests {
 #[cfg(test)]
 mod held_seed_tests {
     use super::*;
-    use heapless::Vec as HVec;
 
     const W: usize = 2 * row::LANES;
 
     fn spec() -> SweepSpec {
-        let mut s = SweepSpec {
-            width: W,
-            height: 1,
-            bands_nm: HVec::new(),
-            fwhm_nm: HVec::new(),
-            ambient_index: 1.0,
-            substrate_index: 1.52,
-            polarization: crate::optics::Polarization::S,
-            index_range: [1.2, 2.8],
-            thickness_range_nm: [30.0, 2000.0],
-            options: SolverOptions::default(),
-        };
-        for b in 0..151 {
-            let _ = s.bands_nm.push(420.0 + 2.0 * f64::from(b));
-            let _ = s.fwhm_nm.push(4.0);
-        }
-        s
+        super::super::sweep::paper_rig_spec(W, 1)
     }
 
     /// Feeds one angle of fringes (a peak every 20 bands, a little noise-like ripple) to a

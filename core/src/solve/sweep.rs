@@ -682,15 +682,11 @@ impl SweepSolver {
 
     /// Tabulates the band models (in band order, as many as `knots` holds; the rest are
     /// computed per sample), so a sample's full-spectrum sums cost interpolations instead of
-    /// an Airy quadrature (see [`BandCoef::eval`]).
-    pub fn tabulate(&self, models: &mut [Option<BandCoef>], knots: &mut [Knot]) {
-        self.tabulate_part(models, knots, 0);
-    }
-
-    /// [`SweepSolver::tabulate`] of a run of consecutive bands whose knots start at `first`
-    /// in the angle's table (`knots` the table from there on): runs of bands split where
-    /// their knots do can be tabulated on as many threads.
-    pub fn tabulate_part(&self, models: &mut [Option<BandCoef>], knots: &mut [Knot], first: usize) {
+    /// an Airy quadrature (see [`BandCoef::eval`]). `models` may be a run of consecutive
+    /// bands whose knots start at `first` in the angle's table (`knots` the table from there
+    /// on): runs split where their knots do ([`SweepSolver::band_knots`]) can be tabulated on
+    /// as many threads.
+    pub fn tabulate(&self, models: &mut [Option<BandCoef>], knots: &mut [Knot], first: usize) {
         let range = self.table_range_nm();
         let mut used = 0;
         for c in models.iter_mut().flatten() {
@@ -1159,28 +1155,35 @@ pub fn resolve_orders<I: DoubleEndedIterator<Item = usize>>(
     }
 }
 
+/// A sweep of `width` x `height` pixels on the paper's rig (420-720 nm in 2 nm bands, 4 nm
+/// FWHM, s-polarised, a film on 1.52 glass), for unit tests.
+#[cfg(test)]
+pub(crate) fn paper_rig_spec(width: usize, height: usize) -> SweepSpec {
+    let mut s = SweepSpec {
+        width,
+        height,
+        bands_nm: HVec::new(),
+        fwhm_nm: HVec::new(),
+        ambient_index: 1.0,
+        substrate_index: 1.52,
+        polarization: crate::optics::Polarization::S,
+        index_range: [1.2, 2.8],
+        thickness_range_nm: [30.0, 2000.0],
+        options: SolverOptions::default(),
+    };
+    for b in 0..151 {
+        let _ = s.bands_nm.push(420.0 + 2.0 * f64::from(b));
+        let _ = s.fwhm_nm.push(4.0);
+    }
+    s
+}
+
 #[cfg(test)]
 mod term_tests {
     use super::*;
 
     fn spec() -> SweepSpec {
-        let mut s = SweepSpec {
-            width: 8,
-            height: 4,
-            bands_nm: HVec::new(),
-            fwhm_nm: HVec::new(),
-            ambient_index: 1.0,
-            substrate_index: 1.52,
-            polarization: crate::optics::Polarization::S,
-            index_range: [1.2, 2.8],
-            thickness_range_nm: [30.0, 2000.0],
-            options: SolverOptions::default(),
-        };
-        for b in 0..151 {
-            let _ = s.bands_nm.push(420.0 + 2.0 * f64::from(b));
-            let _ = s.fwhm_nm.push(4.0);
-        }
-        s
+        paper_rig_spec(8, 4)
     }
 
     /// Sums whose index block is `h` (level, slope) and gradient `g`, from 32 pixels.
