@@ -426,6 +426,9 @@ pub struct BenchReport {
     pub solve_pixels_per_s_per_core: f64,
     /// Time from the last row to the maps, per megapixel, ms.
     pub latency_ms_per_mpix: f64,
+    /// Its parts, ms per megapixel: rows still queued (drain), tally, sums, update, ties
+    /// ([`crate::pipeline::LatencyParts`]).
+    pub latency_parts_ms_per_mpix: [f64; 5],
     /// Sensor of the pipeline and latency figures.
     pub pipeline_sensor: [usize; 2],
     /// Bytes of solver state per pixel (constant in bands, angles and sweeps).
@@ -478,7 +481,10 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     let mut paced = ReplaySource::new(frames, ph, 16).paced(0.5 * pipeline);
     let slow = run_sweep(&mut paced, PipelineConfig::default(), None, &|_| {})
         .map_err(|e| anyhow!("{e}"))?;
-    let latency = slow.solve_latency.as_secs_f64() * 1e3 / ((pw * ph) as f64 / 1e6);
+    let per_mpix = |d: Duration| d.as_secs_f64() * 1e3 / ((pw * ph) as f64 / 1e6);
+    let latency = per_mpix(slow.solve_latency);
+    let lp = slow.latency_parts;
+    let latency_parts = [lp.drain, lp.tally, lp.sums, lp.update, lp.ties].map(per_mpix);
 
     progress("pipeline from the software camera");
     let cam_scene = scene_with(scene_path, 128, if quick { 32 } else { 96 }, None)?;
@@ -552,6 +558,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         pipeline_from_camera_samples_per_s: from_camera,
         solve_pixels_per_s_per_core: solve,
         latency_ms_per_mpix: latency,
+        latency_parts_ms_per_mpix: latency_parts,
         pipeline_sensor: [pw, ph],
         state_bytes_per_pixel: state_bytes_per_pixel(),
         rss,
@@ -605,6 +612,12 @@ pub fn format_table(r: &BenchReport) -> String {
         "latency last row -> maps (paced), ms per Mpix",
         format!("{:.1}", r.latency_ms_per_mpix),
         "<= 50",
+    );
+    let [drain, tally, sums, update, ties] = r.latency_parts_ms_per_mpix;
+    row(
+        "  drain / tally / sums / update / ties",
+        format!("{drain:.0}/{tally:.0}/{sums:.0}/{update:.0}/{ties:.0}"),
+        "",
     );
     row(
         "state, bytes per pixel",

@@ -1253,6 +1253,7 @@ mod tests {
             spectral_candidate: None,
             stream_time: std::time::Duration::ZERO,
             solve_latency: std::time::Duration::ZERO,
+            latency_parts: Default::default(),
             samples: 0,
             state_bytes_per_pixel: 0,
         }

@@ -92,10 +92,29 @@ pub struct SweepOutput {
     pub stream_time: Duration,
     /// Wall time from the last row of the last angle to the maps being ready.
     pub solve_latency: Duration,
+    /// Where that time went ([`LatencyParts`]).
+    pub latency_parts: LatencyParts,
     /// Band samples processed.
     pub samples: u64,
     /// Bytes of solver state per pixel.
     pub state_bytes_per_pixel: usize,
+}
+
+/// The last angle's end, pass by pass: from its last row to the workers' hand-over
+/// (`drain`: rows still queued or being fed and tallied), then [`end_angle_parallel`]'s
+/// passes.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LatencyParts {
+    /// Last row to every worker's state handed over.
+    pub drain: Duration,
+    /// The rows the workers left untallied, and the votes and fit statistics set.
+    pub tally: Duration,
+    /// Window and Schur sums, and the index step.
+    pub sums: Duration,
+    /// Every pixel's update and result.
+    pub update: Duration,
+    /// Ties resolved in image order, their results, the solver's angle end.
+    pub ties: Duration,
 }
 
 /// A sweep that could not be completed.
@@ -377,6 +396,7 @@ pub fn run_sweep(
     let mut reports = Vec::new();
     let mut samples = 0u64;
     let mut last_row_at = Instant::now();
+    let mut latency_parts = LatencyParts::default();
     // The results are made by the last angle's update pass (the angles announced tell which
     // is last), else by a pass of their own once the sweep has ended.
     let angles = source.angles_deg().len();
@@ -451,7 +471,14 @@ pub fn run_sweep(
                         solver.thaw();
                     }
                     let out = last.then_some(results.as_mut_slice());
-                    reports.push(end_angle_parallel(&mut solver, &mut shards, tallies, out));
+                    let mut parts = LatencyParts {
+                        drain: at.elapsed(),
+                        ..LatencyParts::default()
+                    };
+                    let report =
+                        end_angle_parallel(&mut solver, &mut shards, tallies, out, &mut parts);
+                    reports.push(report);
+                    latency_parts = parts;
                     if last {
                         results_at = Some(solver.angles_done());
                     }
@@ -513,6 +540,7 @@ pub fn run_sweep(
         angles: reports,
         stream_time: done - start,
         solve_latency: done - last_row_at,
+        latency_parts,
         samples,
         state_bytes_per_pixel: filmscope_core::solve::state_bytes_per_pixel(),
     })
@@ -593,6 +621,12 @@ fn worker(
     }
 }
 
+/// Bands before a row's last at which its extrema so far are voted ([`Shard::vote_rows`]):
+/// the halving blocks of an angle's end ([`block_bands`]) span about twice the band block,
+/// and an extremum is confirmed a few bands after it, so most of a row's extrema are voted
+/// while the angle streams and few are left to its tally.
+const VOTE_AHEAD_BANDS: u32 = 16;
+
 /// A worker's angle-end pass 1 made row by row: a row is tallied ([`Shard::tally_rows`]) as
 /// soon as it has seen the angle's last band, its state in cache and later rows still
 /// streaming, so that after the angle's last row little is left to tally.
@@ -604,6 +638,9 @@ struct RowTally {
     /// Bands fed to each row of the shard.
     fed: Vec<u32>,
     tally: Box<Tally>,
+    /// Votes of the extrema found before each row's last [`VOTE_AHEAD_BANDS`] bands
+    /// ([`Shard::vote_rows`]): kept apart, as they count whether or not the rows' tallies do.
+    early_votes: Box<RatioHistogram>,
     /// Whether a row completed while rows wait in the queue is left to the angle's end.
     defer_if_behind: bool,
     /// Rows left to the angle's end.
@@ -617,14 +654,16 @@ impl RowTally {
             bands: bands as u32,
             fed: vec![0; rows],
             tally: Box::default(),
+            early_votes: Box::default(),
             defer_if_behind,
             deferred: Vec::new(),
         }
     }
 
-    /// Counts a band fed to image row `row` of `shard`, and tallies the row when that was its
+    /// Counts a band fed to image row `row` of `shard`, votes the row's extrema so far
+    /// [`VOTE_AHEAD_BANDS`] bands before its last, and tallies the row when that was its
     /// last (or defers it, if `behind`: rows wait in the worker's queue).
-    fn fed(&mut self, shard: &Shard<'_>, row: usize, behind: bool) {
+    fn fed(&mut self, shard: &mut Shard<'_>, row: usize, behind: bool) {
         let Some(n) = row
             .checked_sub(shard.first_row)
             .and_then(|k| self.fed.get_mut(k))
@@ -632,6 +671,9 @@ impl RowTally {
             return;
         };
         *n += 1;
+        if *n + VOTE_AHEAD_BANDS == self.bands {
+            shard.vote_rows(&self.solver, row..row + 1, &mut self.early_votes);
+        }
         if *n == self.bands {
             if behind && self.defer_if_behind {
                 self.deferred.push(row);
@@ -646,17 +688,15 @@ impl RowTally {
     /// tallied or deferred at its last feed), the tally and the deferred rows; if any row was
     /// fed more or fewer times, none counts and the whole shard is left.
     fn finish(self, shard: &Shard<'_>) -> ShardTally {
-        if self.fed.iter().all(|&n| n == self.bands) {
-            ShardTally {
-                tally: self.tally,
-                untallied: self.deferred,
-            }
+        let (mut tally, untallied) = if self.fed.iter().all(|&n| n == self.bands) {
+            (self.tally, self.deferred)
         } else {
-            ShardTally {
-                tally: Box::default(),
-                untallied: (shard.first_row..shard.first_row + shard.rows()).collect(),
-            }
-        }
+            let all = (shard.first_row..shard.first_row + shard.rows()).collect();
+            (Box::default(), all)
+        };
+        // The early votes count either way: a row's tally votes only the extrema after them.
+        tally.0.merge(&self.early_votes);
+        ShardTally { tally, untallied }
     }
 }
 
@@ -963,13 +1003,21 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
 /// shard's worker tallied of pass 1 as its rows saw their last band (`None`: nothing); the
 /// rows left are tallied here. At the sweep's last angle, `results` (the image's, row-major;
 /// the shards hold its rows in order) gets every pixel's final result ([`Shard::finish`]) from
-/// the same pass that updates it.
+/// the same pass that updates it. `parts` gets each pass's wall time.
 pub fn end_angle_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],
     tallies: Vec<Option<ShardTally>>,
     results: Option<&mut [PixelResult]>,
+    parts: &mut LatencyParts,
 ) -> AngleReport {
+    let mut clock = Instant::now();
+    let mut lap = || {
+        let now = Instant::now();
+        let t = now - clock;
+        clock = now;
+        t
+    };
     /// `f` of every shard, in shard order, the first on this thread.
     fn each<S: Send, T: Send>(shards: &mut [S], f: impl Fn(&mut S) -> T + Sync) -> Vec<T> {
         let Some((first, rest)) = shards.split_first_mut() else {
@@ -1021,6 +1069,7 @@ pub fn end_angle_parallel(
     }
     solver.set_votes(&hist);
     solver.set_fit_histogram(&fit);
+    parts.tally = lap();
     // Per-row sums merged in row order: the same floating-point result for any sharding.
     let mut rows: Vec<(usize, RatioSums, SchurSums)> = each(shards, |sh| {
         let mut v = Vec::with_capacity(sh.rows());
@@ -1038,6 +1087,7 @@ pub fn end_angle_parallel(
     }
     solver.set_window_sums(&sums);
     solver.set_schur(&schur);
+    parts.sums = lap();
     // Each shard's part of `results`.
     let mut outs: Vec<&mut [PixelResult]> = Vec::new();
     if let Some(mut rest) = results {
@@ -1066,9 +1116,12 @@ pub fn end_angle_parallel(
             ties
         })
     };
+    parts.update = lap();
     filmscope_core::solve::sweep::resolve_orders(solver, shards, |k, _| ties[k].iter().copied());
     for ((sh, out), ties) in shards.iter().zip(outs.iter_mut()).zip(&ties) {
         sh.finish_pixels(solver, out, ties.iter().copied());
     }
-    solver.end_angle()
+    let report = solver.end_angle();
+    parts.ties = lap();
+    report
 }

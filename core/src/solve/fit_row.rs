@@ -15,7 +15,7 @@
 use crate::track::row::LANES;
 use crate::track::usable;
 
-use super::refine::{BandCoef, GnSums, Knot, SampleModel, TableSpan, TERMS};
+use super::refine::{BandCoef, GnSums, Knot, SampleModel, TableSpan, SSE_TERM, TERMS};
 
 /// What the solver keeps of one pixel between samples but its extrema and flags: a copy
 /// out of (or into) its [`FitLanes`] block.
@@ -141,6 +141,13 @@ impl FitLanes {
             saturated: self.saturated[i],
             dead: self.dead[i],
         }
+    }
+
+    /// Lane `i`'s RMS residual at its linearisation point, `None` without samples in its
+    /// sums (what `self.pixel(i).gn.rms()` gives, without copying the other sums).
+    pub fn rms(&self, i: usize) -> Option<f32> {
+        let n = self.gn_samples[i];
+        (n > 0).then(|| libm::sqrtf(self.sums[SSE_TERM][i] / f32::from(n)))
     }
 
     /// Whether each of the first `lanes` lanes has a thickness.
@@ -464,6 +471,9 @@ mod tests {
                 "pixel {i}"
             );
             assert_eq!((l.gn.samples, l.samples), (10, 10), "pixel {i}");
+            // The lane's RMS read in place is the copied sums' (and none without samples).
+            assert_eq!(lanes.rms(i).map(f32::to_bits), Some(l.gn.rms().to_bits()));
         }
+        assert_eq!(FitLanes::EMPTY.rms(0), None);
     }
 }

@@ -441,6 +441,9 @@ pub struct GnSums {
 /// Number of sums a sample adds to ([`GnSums::terms`]).
 pub const TERMS: usize = 16;
 
+/// Where `sse` is in [`GnSums::to_terms`]' array.
+pub const SSE_TERM: usize = 13;
+
 impl GnSums {
     /// Adds one band sample `measured` of a pixel at linearisation point `thickness_nm`
     /// (`order_step_nm` apart from the neighbouring orders), the band's model from `knots`

@@ -53,6 +53,9 @@ pub struct PixelState {
     pub current: ExtremaList,
     /// Extrema at the reference (first) angle.
     pub anchor: ExtremaList,
+    /// How many of `current` have voted already ([`Shard::vote_rows`]); the tally votes the
+    /// rest.
+    pub voted: u8,
 }
 
 impl Default for PixelState {
@@ -62,6 +65,7 @@ impl Default for PixelState {
             current: ExtremaList::new(),
             extrema_seen: 0,
             flags: 0,
+            voted: 0,
         }
     }
 }
@@ -197,7 +201,38 @@ impl<'a> Shard<'a> {
         self.trackers.iter_mut().for_each(TrackerLanes::reset);
         for p in self.pixels.iter_mut() {
             p.current.clear();
+            p.voted = 0;
         }
+    }
+
+    /// Votes the extrema the pixels of image rows `rows` have found so far at this angle and
+    /// not voted yet (their ratios against the reference angle's, as [`Shard::tally`] would
+    /// count them), into `votes`, and marks them voted. Extrema are only ever appended, so a
+    /// row voted before its last bands leaves its tally the few extrema found since: done
+    /// while the angle streams, this takes most of the pairing off the angle's end.
+    pub fn vote_rows(
+        &mut self,
+        solver: &SweepSolver,
+        rows: core::ops::Range<usize>,
+        votes: &mut RatioHistogram,
+    ) {
+        let Some(g) = solver.pair_geometry() else {
+            return;
+        };
+        let spec = solver.spec();
+        let (lo, hi) = self.local_rows(rows);
+        for p in &mut self.pixels[lo * self.width..hi * self.width] {
+            let new = &p.current[usize::from(p.voted).min(p.current.len())..];
+            votes.vote(g, &p.anchor, new, |b| spec.wavelength_at(b));
+            p.voted = p.current.len() as u8;
+        }
+    }
+
+    /// The shard's rows (first, end) of the image rows `rows`, clamped to the shard.
+    fn local_rows(&self, rows: core::ops::Range<usize>) -> (usize, usize) {
+        let local =
+            |r: usize| r.clamp(self.first_row, self.first_row + self.rows()) - self.first_row;
+        (local(rows.start), local(rows.end).max(local(rows.start)))
     }
 
     /// Feeds one row of calibrated reflectance of band `band` (`values.len() == width`;
@@ -263,21 +298,21 @@ impl<'a> Shard<'a> {
     ) {
         let spec = solver.spec();
         let geometry = solver.pair_geometry();
-        let local =
-            |r: usize| r.clamp(self.first_row, self.first_row + self.rows()) - self.first_row;
-        let (lo, hi) = (local(rows.start), local(rows.end).max(local(rows.start)));
+        let (lo, hi) = self.local_rows(rows);
         let (w, blocks) = (self.width, tracker_blocks(self.width, self.width));
         let pixels = &self.pixels[lo * w..hi * w];
         let trackers = row::lanes(&self.trackers[lo * blocks..hi * blocks], w);
+        let fits = row::lanes(&self.fits[lo * blocks..hi * blocks], w);
         // A held noise is not pooled; the held pixels' trackers were not fed.
         let noise_held = solver.noise_held();
-        for (k, (p, (t, lane))) in pixels.iter().zip(trackers).enumerate() {
+        for (p, ((t, lane), (f, _))) in pixels.iter().zip(trackers.zip(fits)) {
             if let Some(g) = geometry {
-                votes.vote(g, &p.anchor, &p.current, |b| spec.wavelength_at(b));
+                // The extrema [`Shard::vote_rows`] has not voted.
+                let new = &p.current[usize::from(p.voted).min(p.current.len())..];
+                votes.vote(g, &p.anchor, new, |b| spec.wavelength_at(b));
             }
-            let gn = self.fit(lo * w + k).gn;
-            if gn.samples > 0 {
-                fit.rms.add(gn.rms());
+            if let Some(rms) = f.rms(lane) {
+                fit.rms.add(rms);
             }
             if !noise_held {
                 fit.noise.add(t.noise_sigma(lane));
@@ -823,5 +858,92 @@ mod held_seed_tests {
         let (found, noise) = one_angle(&free, unseeded);
         assert!(found.iter().all(|&n| n >= 6), "{found:?}");
         assert!(noise.is_some_and(|n| n > 0.0 && n < 0.01), "{noise:?}");
+    }
+}
+
+#[cfg(test)]
+mod vote_tests {
+    use super::*;
+
+    const W: usize = 2 * row::LANES;
+
+    /// One angle of a 800 nm film of 1.38 (two-beam fringes, a ripple that differs pixel by
+    /// pixel) fed to `shard`, its extrema so far voted into `early` `ahead` bands before the
+    /// last (none if `early` is `None`).
+    fn feed(
+        shard: &mut Shard<'_>,
+        solver: &SweepSolver,
+        deg: f64,
+        ahead: usize,
+        mut early: Option<&mut RatioHistogram>,
+    ) {
+        let spec = solver.spec().clone();
+        let cos_t = libm::sqrt(1.0 - spec.x_of(deg) / (1.38 * 1.38));
+        let models = AngleModels {
+            coefs: &[],
+            knots: &[],
+            seeds_held: false,
+        };
+        let bands = spec.bands_nm.len();
+        for (b, &l) in spec.bands_nm.iter().enumerate() {
+            let phase = 4.0 * core::f64::consts::PI * 1.38 * 800.0 * cos_t / l;
+            let values: [f32; W] = core::array::from_fn(|i| {
+                (0.05 + 0.03 * libm::cos(phase)) as f32
+                    + 2e-4 * libm::sinf(7.3 * (b * W + i) as f32)
+            });
+            shard.feed_row(spec.options, models, b, 0, &values);
+            if b + 1 + ahead == bands {
+                if let Some(votes) = early.as_deref_mut() {
+                    shard.vote_rows(solver, 0..1, votes);
+                }
+            }
+        }
+    }
+
+    /// Votes taken while the angle streams and the tally's of the extrema found since add up
+    /// to the tally's of all of them, whenever the early vote is taken: the histogram is the
+    /// same count for count.
+    #[test]
+    fn early_votes_and_the_tally_count_every_extremum_once() {
+        let spec = super::super::sweep::paper_rig_spec(W, 1);
+        for ahead in [0, 5, 16, 60, 150] {
+            let mut whole = None;
+            for early in [false, true] {
+                let mut solver = SweepSolver::new(spec.clone(), None);
+                let mut pixels = [(); W].map(|_| PixelState::default());
+                let mut trackers = [TrackerLanes::EMPTY; 2];
+                let mut fits = [FitLanes::EMPTY; 2];
+                let mut shard = Shard::new(0, W, &mut pixels, &mut trackers, &mut fits);
+                solver.begin_angle(10.0);
+                shard.begin_angle();
+                feed(&mut shard, &solver, 10.0, ahead, None);
+                solver.end_angle_all(core::slice::from_mut(&mut shard));
+                solver.begin_angle(40.0);
+                shard.begin_angle();
+                let mut votes = RatioHistogram::default();
+                feed(
+                    &mut shard,
+                    &solver,
+                    40.0,
+                    ahead,
+                    early.then_some(&mut votes),
+                );
+                let (tallied, _) = shard.tally(&solver);
+                let early_total: u32 = votes.counts.iter().sum();
+                votes.merge(&tallied);
+                let total: u32 = votes.counts.iter().sum();
+                assert!(total >= 2 * W as u32, "ahead {ahead}: {total} votes");
+                if early && (16..=60).contains(&ahead) {
+                    assert!(
+                        2 * early_total > total,
+                        "ahead {ahead}: {early_total} of {total}"
+                    );
+                }
+                match &whole {
+                    None => whole = Some(votes),
+                    Some(w) => assert!(*w == votes, "ahead {ahead}: the counts differ"),
+                }
+            }
+        }
     }
 }

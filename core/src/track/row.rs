@@ -361,12 +361,10 @@ pub fn pixel(blocks: &[TrackerLanes], width: usize, i: usize) -> PixelTracker {
 }
 
 /// Every pixel's block and lane, in pixel order, of a row-major image of `width`-pixel rows
-/// whose trackers are `blocks` (`block.lane(lane)` is the pixel's scalar tracker): a walk over
-/// the pixels without [`pixel`]'s division and ring copy per pixel.
-pub fn lanes(
-    blocks: &[TrackerLanes],
-    width: usize,
-) -> impl Iterator<Item = (&TrackerLanes, usize)> + '_ {
+/// whose blocks of [`LANES`] pixels (trackers, or the fit's lanes) are `blocks` (for a
+/// tracker, `block.lane(lane)` is the pixel's scalar tracker): a walk over the pixels without
+/// [`pixel`]'s division and ring copy per pixel.
+pub fn lanes<T>(blocks: &[T], width: usize) -> impl Iterator<Item = (&T, usize)> + '_ {
     blocks
         .chunks(width.div_ceil(LANES).max(1))
         .flat_map(move |row| (0..width).map(move |col| (&row[col / LANES], col % LANES)))
