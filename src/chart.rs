@@ -432,6 +432,43 @@ impl MapSpec {
     }
 }
 
+/// The scene of one cell of a stability map, named `MAP:X:Y` (`index-thickness:2000:2.8`:
+/// the map's name, then its column's and its row's value; any value, on the map's grid or
+/// not), with the maps' noise seed or `seed`; for `filmscope eval` and `simulate` through
+/// [`GridScene::toml`], to reproduce or bisect one cell's figures.
+pub fn cell_scene(maps: &[MapSpec], cell: &str, seed: Option<u64>) -> Result<GridScene> {
+    let names = || {
+        maps.iter()
+            .map(|m| m.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mut parts = cell.split(':');
+    let (Some(name), Some(x), Some(y), None) =
+        (parts.next(), parts.next(), parts.next(), parts.next())
+    else {
+        return Err(anyhow!(
+            "cell {cell:?}: expected MAP:X:Y, e.g. index-thickness:2000:2.8"
+        ));
+    };
+    let map = maps
+        .iter()
+        .find(|m| m.name == name)
+        .ok_or_else(|| anyhow!("cell {cell:?}: no map {name:?} (maps: {})", names()))?;
+    let value = |v: &str, axis: Axis| {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| anyhow!("cell {cell:?}: {v:?} is not a number ({axis:?})"))
+    };
+    let mut scene = map.cell_scene(value(x, map.x)?, value(y, map.y)?);
+    if let Some(seed) = seed {
+        scene.seed = seed;
+    }
+    Ok(scene)
+}
+
 /// The maps `filmscope stability` draws (coarser with `quick`).
 pub fn stability_maps(quick: bool) -> Vec<MapSpec> {
     let zns = GridScene {

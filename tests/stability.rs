@@ -8,7 +8,9 @@
 //! measured before the software camera's noise fix of session 6 (its noise then repeated
 //! across rows, bands and angles); the tolerances hold with independent noise.
 
-use filmscope::chart::{run_map, settings, stability_maps, Axis, Cell, GridScene, MapSpec};
+use filmscope::chart::{
+    cell_scene, run_map, settings, stability_maps, Axis, Cell, GridScene, MapSpec,
+};
 
 /// Filmscope's tolerances on one map, where it reports any pixel.
 struct Tolerance {
@@ -213,4 +215,32 @@ fn a_thick_film_next_to_the_substrate_index_is_found_by_the_spectrum_search() {
         (Axis::Index, 1.5),
         (Axis::Thickness, 2000.0),
     );
+}
+
+/// `filmscope stability --cell`: one cell's scene, with the map's base and the cell's two
+/// values (any values), the maps' seed unless given; a bad name says what is wrong.
+#[test]
+fn a_cells_scene_is_the_maps_base_with_its_two_values() {
+    let maps = stability_maps(false);
+    let g = cell_scene(&maps, "index-thickness:2000:2.8", None).expect("cell");
+    assert_eq!((g.index, g.thickness_nm, g.seed), (2.8, 2000.0, 7));
+    let base = &maps[0].base;
+    assert_eq!(
+        (g.fwhm_nm, &g.angles_deg, g.size),
+        (base.fwhm_nm, &base.angles_deg, base.size)
+    );
+    let scene = g.scene().expect("the scene file parses");
+    assert!((scene.stack.film.index_at(550.0) - 2.8).abs() < 1e-12);
+    let off = cell_scene(&maps, "fwhm-thickness:1234:5.5", Some(11)).expect("off-grid cell");
+    assert_eq!((off.fwhm_nm, off.thickness_nm, off.seed), (5.5, 1234.0, 11));
+    for (bad, says) in [
+        ("index-thickness:2000", "expected MAP:X:Y"),
+        ("index-thickness:2000:2.8:1", "expected MAP:X:Y"),
+        ("no-such-map:1:2", "no map \"no-such-map\""),
+        ("index-thickness:thick:2.8", "\"thick\" is not a number"),
+        ("index-thickness:2000:NaN", "\"NaN\" is not a number"),
+    ] {
+        let e = cell_scene(&maps, bad, None).expect_err(bad).to_string();
+        assert!(e.contains(bad) && e.contains(says), "{bad}: {e}");
+    }
 }

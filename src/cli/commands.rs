@@ -565,6 +565,18 @@ pub fn stability(out: &Path, quick: bool) -> Result<()> {
     Ok(())
 }
 
+/// `filmscope stability --cell MAP:X:Y`: the cell's scene file, written into `out`.
+pub fn stability_cell(out: &Path, quick: bool, cell: &str, seed: Option<u64>) -> Result<()> {
+    let maps = crate::chart::stability_maps(quick);
+    let scene = crate::chart::cell_scene(&maps, cell, seed)?;
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let name = format!("cell-{}-s{}.toml", cell.replace(':', "-"), scene.seed);
+    let path = out.join(name);
+    crate::io::write_atomic(&path, scene.toml().as_bytes())?;
+    println!("wrote {} ({})", path.display(), scene.describe(&[]));
+    Ok(())
+}
+
 fn illuminant(name: &str) -> Result<Illuminant> {
     Illuminant::from_name(name).ok_or_else(|| {
         let names: Vec<&str> = Illuminant::ALL.iter().map(|i| i.name()).collect();

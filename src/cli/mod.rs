@@ -150,6 +150,14 @@ enum Command {
         /// Grids of 2-3 x 2-3 cells instead of up to 10 x 8.
         #[arg(long)]
         quick: bool,
+        /// Instead of drawing the maps, write one cell's scene file into --out, for `eval`
+        /// or `simulate`: MAP:X:Y, the map's name and its column's and row's values (e.g.
+        /// index-thickness:2000:2.8).
+        #[arg(long)]
+        cell: Option<String>,
+        /// With --cell: the scene's noise seed (default: the maps' own).
+        #[arg(long, requires = "cell")]
+        seed: Option<u64>,
     },
     /// Renders the estimated film as a camera sees it (spectral -> XYZ -> sRGB) at one
     /// angle, with an angle strip from 0 to 70 degrees.
@@ -290,7 +298,13 @@ pub fn main() -> std::process::ExitCode {
         Command::Bench { quick, json, scene } => commands::bench(&scene, quick, json),
         Command::Soak { sweeps, scene } => commands::soak(&scene, sweeps),
         Command::Chart { scene, out, quick } => commands::chart(&scene, &out, quick),
-        Command::Stability { out, quick } => commands::stability(&out, quick),
+        Command::Stability {
+            out,
+            quick,
+            cell: Some(cell),
+            seed,
+        } => commands::stability_cell(&out, quick, &cell, seed),
+        Command::Stability { out, quick, .. } => commands::stability(&out, quick),
         Command::Render {
             maps,
             out,
