@@ -686,7 +686,8 @@ impl RowTally {
 
     /// What was tallied of `shard`: when every row was fed the angle's band count (each was
     /// tallied or deferred at its last feed), the tally and the deferred rows; if any row was
-    /// fed more or fewer times, none counts and the whole shard is left.
+    /// fed more or fewer times, no row's tally counts and the whole shard is left (the early
+    /// votes count either way).
     fn finish(self, shard: &Shard<'_>) -> ShardTally {
         let (mut tally, untallied) = if self.fed.iter().all(|&n| n == self.bands) {
             (self.tally, self.deferred)
