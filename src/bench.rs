@@ -335,13 +335,9 @@ pub fn soak(
             .map_err(|e| anyhow!("{e}"))?;
         let out = run_sweep(&mut source, config, prior.take(), &|_| {})
             .map_err(|e| anyhow!("sweep {i}: {e}"))?;
-        prior = out.index.map(|index| Prior {
-            index,
-            update: PriorUpdate::Shifts,
-            seed: None,
-            max_terms: None,
-            noise_sigma: None,
-        });
+        prior = out
+            .index
+            .map(|index| Prior::new(index, PriorUpdate::Shifts, None));
         std::hint::black_box(&out.results);
         drop(out);
         if i == 1 || i % every.max(1) == 0 || i == sweeps {

@@ -63,25 +63,15 @@ fn disagrees(out: &SweepOutput) -> bool {
 ///   pointed, until it settles. The pass that fits best is kept.
 fn next_pass(last: &SweepOutput, passes: usize) -> Option<Prior> {
     if passes == 1 && unrefined(last) {
-        return last.index.map(|index| Prior {
-            index,
-            update: PriorUpdate::Hold,
-            seed: None,
-            max_terms: None,
-            noise_sigma: None,
-        });
+        return last
+            .index
+            .map(|index| Prior::new(index, PriorUpdate::Hold, None));
     }
     let again = last.model_mismatch
         || (!last.spectral_index && (underfit(last) || disagrees(last)))
         || (last.spectral_index && !settled(last));
     let index = last.spectral_candidate.or(last.index).filter(|_| again)?;
-    Some(Prior {
-        index,
-        update: PriorUpdate::FullSpectra,
-        seed: None,
-        max_terms: None,
-        noise_sigma: None,
-    })
+    Some(Prior::new(index, PriorUpdate::FullSpectra, None))
 }
 
 /// Share of the pixels with fringes left unrefined (their orders unconfirmed by the full
@@ -203,13 +193,11 @@ fn thin_start(
     let mid = spec.bands_nm[nb / 2];
     grid.reject_outliers(&mut thickness, (mid / (8.0 * fit.index)) as f32);
     grid.interpolate(&thickness, &mut seed);
-    let prior = Prior {
-        index: IndexModel::constant(fit.index),
-        update: PriorUpdate::FullSpectra,
-        seed: Some(Arc::new(seed)),
-        max_terms: None,
-        noise_sigma: None,
-    };
+    let prior = Prior::new(
+        IndexModel::constant(fit.index),
+        PriorUpdate::FullSpectra,
+        Some(Arc::new(seed)),
+    );
     Ok(Some((fit, Some(prior))))
 }
 
@@ -307,11 +295,8 @@ fn polish(
         };
         let map: Vec<f32> = passes.out.results.iter().map(|r| r.thickness_nm).collect();
         let frozen = Prior {
-            index,
-            update: PriorUpdate::Frozen,
-            seed: Some(Arc::new(map)),
-            max_terms: None,
             noise_sigma: passes.out.noise_sigma,
+            ..Prior::new(index, PriorUpdate::Frozen, Some(Arc::new(map)))
         };
         let mut pass = run_sweep(source, config.pipeline, Some(frozen), &|_| {})?;
         passes.passes += 1;
@@ -362,11 +347,12 @@ fn drop_term(
 ) -> Result<(), PipelineError> {
     let terms = index.terms() - 1;
     let mut prior = Prior {
-        index: index.truncated(terms),
-        update: PriorUpdate::FullSpectra,
-        seed: passes.seed.clone(),
         max_terms: Some(terms),
-        noise_sigma: None,
+        ..Prior::new(
+            index.truncated(terms),
+            PriorUpdate::FullSpectra,
+            passes.seed.clone(),
+        )
     };
     for _ in 0..MAX_PASSES {
         let pass = run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;

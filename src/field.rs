@@ -731,13 +731,7 @@ pub fn run_wide(
                 .collect();
             let seeds = shared_seeds(strips, &last, &used, w, h);
             let outs = in_rounds(source, strips, &views, capacity, |k, src| {
-                let prior = Prior {
-                    index,
-                    update,
-                    seed: Some(Arc::new(seeds[k].clone())),
-                    max_terms: None,
-                    noise_sigma: None,
-                };
+                let prior = Prior::new(index, update, Some(Arc::new(seeds[k].clone())));
                 run_sweep(src, pipeline, Some(prior), &quiet)
             })?;
             let mut next = held.clone();

@@ -336,13 +336,7 @@ fn a_sweep_from_a_prior_index_finds_the_orders_on_mgf2_400nm() {
         PriorUpdate::Shifts,
         PriorUpdate::FullSpectra,
     ] {
-        let prior = Prior {
-            index,
-            update,
-            seed: None,
-            max_terms: None,
-            noise_sigma: None,
-        };
+        let prior = Prior::new(index, update, None);
         let out =
             run_sweep(&mut source, PipelineConfig::default(), Some(prior), &|_| {}).expect("sweep");
         let valid = out

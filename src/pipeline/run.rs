@@ -313,6 +313,20 @@ pub struct Prior {
     pub noise_sigma: Option<f32>,
 }
 
+impl Prior {
+    /// `index`, moved by `update`, from `seed`'s thicknesses where given; as many index
+    /// terms as the data ask for, and the noise measured by the sweep itself.
+    pub fn new(index: IndexModel, update: PriorUpdate, seed: Option<Arc<Vec<f32>>>) -> Self {
+        Self {
+            index,
+            update,
+            seed,
+            max_terms: None,
+            noise_sigma: None,
+        }
+    }
+}
+
 /// How a sweep treats its prior index.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PriorUpdate {

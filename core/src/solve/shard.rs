@@ -70,6 +70,13 @@ impl Default for PixelState {
     }
 }
 
+impl PixelState {
+    /// The current angle's extrema not voted yet ([`Shard::vote_rows`]).
+    pub fn unvoted(&self) -> &[crate::track::Extremum] {
+        &self.current[usize::from(self.voted).min(self.current.len())..]
+    }
+}
+
 impl AsMut<ExtremaList> for PixelState {
     /// The current angle's extrema, where the tracker puts them.
     fn as_mut(&mut self) -> &mut ExtremaList {
@@ -222,8 +229,7 @@ impl<'a> Shard<'a> {
         let spec = solver.spec();
         let (lo, hi) = self.local_rows(rows);
         for p in &mut self.pixels[lo * self.width..hi * self.width] {
-            let new = &p.current[usize::from(p.voted).min(p.current.len())..];
-            votes.vote(g, &p.anchor, new, |b| spec.wavelength_at(b));
+            votes.vote(g, &p.anchor, p.unvoted(), |b| spec.wavelength_at(b));
             p.voted = p.current.len() as u8;
         }
     }
@@ -307,9 +313,7 @@ impl<'a> Shard<'a> {
         let noise_held = solver.noise_held();
         for (p, ((t, lane), (f, _))) in pixels.iter().zip(trackers.zip(fits)) {
             if let Some(g) = geometry {
-                // The extrema [`Shard::vote_rows`] has not voted.
-                let new = &p.current[usize::from(p.voted).min(p.current.len())..];
-                votes.vote(g, &p.anchor, new, |b| spec.wavelength_at(b));
+                votes.vote(g, &p.anchor, p.unvoted(), |b| spec.wavelength_at(b));
             }
             if let Some(rms) = f.rms(lane) {
                 fit.rms.add(rms);
@@ -794,11 +798,44 @@ mod size_tests {
     }
 }
 
+/// Storage of a one-row shard of two lane blocks, for unit tests.
+#[cfg(test)]
+struct OneRow {
+    pixels: [PixelState; ONE_ROW],
+    trackers: [TrackerLanes; 2],
+    fits: [FitLanes; 2],
+}
+
+/// Pixels of a [`OneRow`].
+#[cfg(test)]
+const ONE_ROW: usize = 2 * row::LANES;
+
+#[cfg(test)]
+impl OneRow {
+    fn new() -> Self {
+        Self {
+            pixels: [(); ONE_ROW].map(|_| PixelState::default()),
+            trackers: [TrackerLanes::EMPTY; 2],
+            fits: [FitLanes::EMPTY; 2],
+        }
+    }
+
+    fn shard(&mut self) -> Shard<'_> {
+        Shard::new(
+            0,
+            ONE_ROW,
+            &mut self.pixels,
+            &mut self.trackers,
+            &mut self.fits,
+        )
+    }
+}
+
 #[cfg(test)]
 mod held_seed_tests {
     use super::*;
 
-    const W: usize = 2 * row::LANES;
+    const W: usize = ONE_ROW;
 
     fn spec() -> SweepSpec {
         super::super::sweep::paper_rig_spec(W, 1)
@@ -809,10 +846,8 @@ mod held_seed_tests {
     /// each pixel found and the tally's pooled noise.
     fn one_angle(solver: &SweepSolver, unseeded: usize) -> ([usize; W], Option<f32>) {
         let spec = solver.spec().clone();
-        let mut pixels = [(); W].map(|_| PixelState::default());
-        let mut trackers = [TrackerLanes::EMPTY; 2];
-        let mut fits = [FitLanes::EMPTY; 2];
-        let mut shard = Shard::new(0, W, &mut pixels, &mut trackers, &mut fits);
+        let mut storage = OneRow::new();
+        let mut shard = storage.shard();
         let index = IndexModel::constant(1.38);
         for i in (0..W).filter(|&i| i != unseeded) {
             shard.seed(i, 500.0, index, &spec);
@@ -865,7 +900,7 @@ mod held_seed_tests {
 mod vote_tests {
     use super::*;
 
-    const W: usize = 2 * row::LANES;
+    const W: usize = ONE_ROW;
 
     /// One angle of a 800 nm film of 1.38 (two-beam fringes, a ripple that differs pixel by
     /// pixel) fed to `shard`, its extrema so far voted into `early` `ahead` bands before the
@@ -910,10 +945,8 @@ mod vote_tests {
             let mut whole = None;
             for early in [false, true] {
                 let mut solver = SweepSolver::new(spec.clone(), None);
-                let mut pixels = [(); W].map(|_| PixelState::default());
-                let mut trackers = [TrackerLanes::EMPTY; 2];
-                let mut fits = [FitLanes::EMPTY; 2];
-                let mut shard = Shard::new(0, W, &mut pixels, &mut trackers, &mut fits);
+                let mut storage = OneRow::new();
+                let mut shard = storage.shard();
                 solver.begin_angle(10.0);
                 shard.begin_angle();
                 feed(&mut shard, &solver, 10.0, ahead, None);
