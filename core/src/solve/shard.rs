@@ -780,11 +780,12 @@ mod size_tests {
     fn pixel_state_size_is_fixed_and_known() {
         // Breakdown: the pixel's state: flags, extrema seen and the two extremum lists
         // 2 x 42 (20 extrema of 2 bytes and a one-byte length), 88 with padding; its tracker
-        // lanes in the row blocks, 76 bytes a pixel (the scalar tracker's 76) and the block's
-        // shared ring position and count, 77 rounded up; its fit lanes in the row blocks:
+        // lanes in the row blocks, 58 bytes a pixel (a ring of nine 2-byte steps; the scalar
+        // tracker's 57, 60 with padding) and the block's shared ring position and count, 59
+        // rounded up; its fit lanes in the row blocks:
         // thickness and order step 8, the sixteen full-spectrum sums 64 (the scalar `GnSums`
         // is 68 with its count and padding), the sums' count and the saturated and dead counts
-        // 6, and the block's shared sample count, 79 rounded up; 244 in all.
+        // 6, and the block's shared sample count, 79 rounded up; 226 in all.
         let sizes = [
             core::mem::size_of::<PixelTracker>(),
             core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES),
@@ -794,7 +795,7 @@ mod size_tests {
             core::mem::size_of::<FitLanes>().div_ceil(row::LANES),
             state_bytes_per_pixel(),
         ];
-        assert_eq!(sizes, [76, 77, 42, 68, 88, 79, 244]);
+        assert_eq!(sizes, [60, 59, 42, 68, 88, 79, 226]);
     }
 }
 

@@ -35,6 +35,42 @@ pub fn usable(v: f32) -> bool {
     v.abs() <= MAX_SAMPLE
 }
 
+/// The tracker works on its samples as steps of `2^-15` from -0.5 ([`to_step`]):
+/// reflectance -0.5 to 1.49997 in steps of 3.1e-5, whose rounding (8.8e-6 RMS) is a
+/// hundredth of a camera's noise (1e-3 at its best). Its ring holds a sample in 2 bytes
+/// instead of 4, and its window sums, sums of whole steps below `2^24`, are exact in `f32`.
+/// The full-spectrum sums take the samples as they came.
+const RING_STEPS_PER_UNIT: f32 = 32_768.0;
+/// The reflectance of ring step 0.
+const RING_ORIGIN: f32 = -0.5;
+
+/// A usable sample `v` as a ring step, as a float (a whole number) and as the ring holds it:
+/// rounded to the nearest step (ties to even), clamped to the ring's range. Written without
+/// a float-to-integer conversion, so a lane loop vectorises: `y + 2^23` (`0 <= y < 2^16`)
+/// is rounded to an integer whose bits, less those of `2^23`, are that integer.
+#[inline(always)]
+fn to_step(v: f32) -> (f32, u16) {
+    const TWO_23: f32 = 8_388_608.0;
+    const TOP: f32 = 65_535.0 / RING_STEPS_PER_UNIT + RING_ORIGIN;
+    // (Selects, not `clamp`: each is one `maxps` / `minps` in a lane loop.)
+    let v = if v < RING_ORIGIN { RING_ORIGIN } else { v };
+    let v = if v > TOP { TOP } else { v };
+    let r = (v - RING_ORIGIN) * RING_STEPS_PER_UNIT + TWO_23;
+    (r - TWO_23, (r.to_bits() - TWO_23.to_bits()) as u16)
+}
+
+/// [`to_step`]'s ring step.
+#[cfg(test)]
+fn to_ring(v: f32) -> u16 {
+    to_step(v).1
+}
+
+/// The reflectance of ring step `q` (exact: a power-of-two scale).
+#[cfg(test)]
+fn from_ring(q: u16) -> f32 {
+    f32::from(q) * (1.0 / RING_STEPS_PER_UNIT) + RING_ORIGIN
+}
+
 /// Peak or valley.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kind {
@@ -157,27 +193,31 @@ impl Mode {
 /// [`PixelTracker::noise_sigma`]): `tau = TAU_PER_D2 * mean |second difference|`.
 const TAU_PER_D2: f32 = PROMINENCE_SIGMA * 0.5 / 1.954;
 
-/// Tracker state of one pixel for one angle: 76 bytes, independent of bands and angles.
+/// Tracker state of one pixel for one angle: 60 bytes, independent of bands and angles.
 ///
-/// The smoothing window's three moments (`sum x`, `sum k x`, `sum k^2 x` with `k = -4..4`
-/// from the window centre) are carried from sample to sample in a few operations instead of
-/// three 9-tap dot products, and recomputed exactly each time the ring wraps (every 9
-/// samples) so rounding cannot accumulate (the update is a marginally stable recursion: an
-/// error in `sum x` would grow quadratically in `sum k^2 x`).
+/// The smoothing window's three moments (`sum q`, `sum k q`, `sum k^2 q` of the ring steps
+/// `q`, with `k = -4..4` from the window centre) are carried from sample to sample in a few
+/// operations instead of three 9-tap dot products. They are whole numbers below `2^24`
+/// (at most 9, 20 and 60 times 65535, and the carry's terms too), so `f32` carries them
+/// exactly and no rounding accumulates (the update is a marginally stable recursion: an
+/// error in `sum q` would grow quadratically in `sum k^2 q`; the tracker on unrounded
+/// samples recomputed them at every wrap of the ring). Smoothed values and the prominence
+/// are in steps; [`PixelTracker::noise_sigma`] is in reflectance.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PixelTracker {
-    /// The last 9 samples; `head` is the oldest (the next to be overwritten).
-    ring: [f32; WINDOW],
-    /// `sum x`, `sum k x`, `sum k^2 x` over the ring.
+    /// The last 9 samples as ring steps ([`to_ring`]); `head` is the oldest (the next to be
+    /// overwritten).
+    ring: [u16; WINDOW],
+    /// `sum q`, `sum k q`, `sum k^2 q` over the ring, whole numbers.
     moments: [f32; 3],
-    /// Current running extreme (smoothed value) and its fractional band.
+    /// Current running extreme (smoothed value, ring steps) and its fractional band.
     ext_val: f32,
     ext_pos: f32,
     /// In `Start` mode: the running minimum (the running maximum is in `ext_*`); a NaN
     /// position marks an extreme still at the band edge.
     min_val: f32,
     min_pos: f32,
-    /// Sum of |second difference|, for the noise estimate.
+    /// Sum of |second difference|, steps, for the noise estimate.
     d2_sum: f32,
     /// Samples seen this angle (saturates).
     seen: u16,
@@ -189,26 +229,15 @@ pub struct PixelTracker {
     pub overflow: bool,
 }
 
-/// `|a - 2 b + v|`: one term of the noise estimate.
+/// `|a - 2 b + v|` of three steps (exact): one term of the noise estimate.
 #[inline(always)]
 fn abs_d2(a: f32, b: f32, v: f32) -> f32 {
     (v - 2.0 * b + a).abs()
 }
 
-/// The window's moments recomputed from a ring in order, oldest first.
-#[inline(always)]
-fn exact_moments(ring: &[f32; WINDOW]) -> [f32; 3] {
-    let (mut m0, mut m1, mut m2) = (0.0f32, 0.0f32, 0.0f32);
-    for (k, &x) in ring.iter().enumerate() {
-        let kk = k as f32 - HALF as f32;
-        m0 += x;
-        m1 += kk * x;
-        m2 += kk * kk * x;
-    }
-    [m0, m1, m2]
-}
-
-/// The window's moments carried one sample on: `old` leaves, `v` enters.
+/// The window's moments carried one sample on (each sample's `k` one less): `old` (at
+/// `k = -4`) leaves, `v` enters at `k = 4`. From a ring of zeros, the moments of a full
+/// window are its own.
 #[inline(always)]
 fn carry_moments([s0, s1, s2]: [f32; 3], old: f32, v: f32) -> [f32; 3] {
     [
@@ -218,8 +247,8 @@ fn carry_moments([s0, s1, s2]: [f32; 3], old: f32, v: f32) -> [f32; 3] {
     ]
 }
 
-/// Smoothed value at the window centre: the 9-point quadratic Savitzky-Golay weights are
-/// `59 - 5 k^2` (sum 231).
+/// Smoothed value at the window centre, steps: the 9-point quadratic Savitzky-Golay weights
+/// are `59 - 5 k^2` (sum 231).
 #[inline(always)]
 fn smoothed([m0, _, m2]: [f32; 3]) -> f32 {
     (59.0 * m0 - 5.0 * m2) * (1.0 / 231.0)
@@ -271,7 +300,7 @@ impl PixelTracker {
     pub fn noise_sigma(&self) -> f32 {
         match self.d2_count() {
             0 => f32::INFINITY,
-            n => self.d2_sum / f32::from(n) / 1.954,
+            n => self.d2_sum / f32::from(n) / 1.954 * (1.0 / RING_STEPS_PER_UNIT),
         }
     }
 
@@ -292,34 +321,28 @@ impl PixelTracker {
     #[inline]
     fn advance(&mut self, value: f32) -> bool {
         let last = before(self.head);
-        let v = if usable(value) {
-            value
+        let (v, q) = if usable(value) {
+            to_step(value)
         } else {
             self.bad_samples = self.bad_samples.saturating_add(1);
             if self.seen == 0 {
                 return false;
             }
-            self.ring[last]
+            (f32::from(self.ring[last]), self.ring[last])
         };
         let slot = usize::from(self.head);
         if self.seen >= 2 {
-            let a = self.ring[before(last as u8)];
-            let b = self.ring[last];
-            self.d2_sum += abs_d2(a, b, v);
+            let a = f32::from(self.ring[before(last as u8)]);
+            self.d2_sum += abs_d2(a, f32::from(self.ring[last]), v);
         }
-        let old = self.ring[slot];
-        self.ring[slot] = v;
+        let old = f32::from(self.ring[slot]);
+        self.ring[slot] = q;
         self.head = if slot + 1 == WINDOW {
             0
         } else {
             slot as u8 + 1
         };
-        self.moments = if self.head == 0 {
-            // The ring is in order, oldest first: recompute exactly.
-            exact_moments(&self.ring)
-        } else {
-            carry_moments(self.moments, old, v)
-        };
+        self.moments = carry_moments(self.moments, old, v);
         self.seen = self.seen.saturating_add(1);
         usize::from(self.seen) >= WINDOW
     }

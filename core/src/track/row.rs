@@ -17,7 +17,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::{
-    abs_d2, before, carry_moments, exact_moments, smoothed, usable, vertex, ExtremaList, Mode,
+    abs_d2, before, carry_moments, smoothed, to_step, usable, vertex, ExtremaList, Mode,
     PixelTracker, TAU_PER_D2, WINDOW,
 };
 
@@ -25,11 +25,11 @@ use super::{
 pub const LANES: usize = 32;
 
 /// Tracker state of [`LANES`] pixels of one row: the fields of [`PixelTracker`] as arrays over
-/// the pixels, with the ring position and sample count shared (77 bytes per pixel).
+/// the pixels, with the ring position and sample count shared (59 bytes per pixel).
 #[derive(Clone, Copy, Debug)]
 pub struct TrackerLanes {
     /// `ring[k][i]`: ring slot `k` of lane `i`.
-    ring: [[f32; LANES]; WINDOW],
+    ring: [[u16; LANES]; WINDOW],
     m0: [f32; LANES],
     m1: [f32; LANES],
     m2: [f32; LANES],
@@ -68,7 +68,7 @@ type Lanes = [f32; LANES];
 impl TrackerLanes {
     /// A block that has seen nothing (every lane a reset [`PixelTracker`]).
     pub const EMPTY: Self = Self {
-        ring: [[0.0; LANES]; WINDOW],
+        ring: [[0; LANES]; WINDOW],
         m0: [0.0; LANES],
         m1: [0.0; LANES],
         m2: [0.0; LANES],
@@ -117,7 +117,7 @@ impl TrackerLanes {
     fn lane_but_ring(&self, i: usize) -> PixelTracker {
         let own = self.out_of_step[i];
         PixelTracker {
-            ring: [0.0; WINDOW],
+            ring: [0; WINDOW],
             moments: [self.m0[i], self.m1[i], self.m2[i]],
             ext_val: self.ext_val[i],
             ext_pos: self.ext_pos[i],
@@ -188,11 +188,10 @@ impl TrackerLanes {
         }
         let seen = self.seen;
         let head = usize::from(self.head);
-        match (seen >= 2, head + 1 == WINDOW) {
-            (false, false) => self.advance::<false, false>(head, values),
-            (false, true) => self.advance::<false, true>(head, values),
-            (true, false) => self.advance::<true, false>(head, values),
-            (true, true) => self.advance::<true, true>(head, values),
+        if seen >= 2 {
+            self.advance::<true>(head, values);
+        } else {
+            self.advance::<false>(head, values);
         }
         self.head = if head + 1 == WINDOW {
             0
@@ -240,37 +239,33 @@ impl TrackerLanes {
         }
     }
 
-    /// [`PixelTracker::advance`] for every lane in step: `D2` when two samples came before,
-    /// `WRAP` when this sample fills the ring's last slot (the moments are then recomputed).
+    /// [`PixelTracker::advance`] for every lane in step: `D2` when two samples came before.
     #[inline(always)]
-    fn advance<const D2: bool, const WRAP: bool>(&mut self, head: usize, values: &Lanes) {
+    fn advance<const D2: bool>(&mut self, head: usize, values: &Lanes) {
         // The ring's rows copied out, so the compiler sees no overlap between them.
         let a_row = self.ring[before(before(head as u8) as u8)];
         let b_row = self.ring[before(head as u8)];
         let old_row = self.ring[head];
-        let mut v_row = [0.0; LANES];
+        let mut q_row = [0; LANES];
         for i in 0..LANES {
             let x = values[i];
-            let b = b_row[i];
-            let v = if usable(x) { x } else { b };
-            v_row[i] = v;
+            let b = f32::from(b_row[i]);
+            let (step, q) = to_step(x);
+            let ok = usable(x);
+            let v = if ok { step } else { b };
+            q_row[i] = if ok { q } else { b_row[i] };
             if D2 {
-                self.d2_sum[i] += abs_d2(a_row[i], b, v);
+                self.d2_sum[i] += abs_d2(f32::from(a_row[i]), b, v);
             }
-            if !WRAP {
-                [self.m0[i], self.m1[i], self.m2[i]] =
-                    carry_moments([self.m0[i], self.m1[i], self.m2[i]], old_row[i], v);
-            }
+            [self.m0[i], self.m1[i], self.m2[i]] = carry_moments(
+                [self.m0[i], self.m1[i], self.m2[i]],
+                f32::from(old_row[i]),
+                v,
+            );
         }
-        self.ring[head] = v_row;
+        self.ring[head] = q_row;
         for i in 0..LANES {
             self.bad_samples[i] = self.bad_samples[i].saturating_add(u16::from(!usable(values[i])));
-        }
-        if WRAP {
-            for i in 0..LANES {
-                let ring = core::array::from_fn(|k| self.ring[k][i]);
-                [self.m0[i], self.m1[i], self.m2[i]] = exact_moments(&ring);
-            }
         }
     }
 

@@ -100,35 +100,67 @@ fn proptest_close_spikes_keep_extrema_in_band_order() {
     );
 }
 
-/// The carried moments give the 9-point quadratic Savitzky-Golay smoothing, slope and
+/// The carried moments are the window's own, exactly (integer sums of its ring steps), over
+/// a long noisy stream, and give the 9-point quadratic Savitzky-Golay smoothing, slope and
 /// curvature (the weights of Savitzky & Golay's tables: smoothing -21 14 39 54 59 ... / 231,
-/// slope -4..4 / 60, curvature 28 7 -8 -17 -20 ... / 462) over a long noisy stream, the
-/// recursion's rounding kept in check by the exact recompute at each wrap.
+/// slope -4..4 / 60, curvature 28 7 -8 -17 -20 ... / 462).
 #[test]
 fn carried_moments_match_the_savitzky_golay_weights() {
-    const SMOOTH: [f32; 9] = [-21.0, 14.0, 39.0, 54.0, 59.0, 54.0, 39.0, 14.0, -21.0];
-    const CURV: [f32; 9] = [28.0, 7.0, -8.0, -17.0, -20.0, -17.0, -8.0, 7.0, 28.0];
+    const SMOOTH: [i64; 9] = [-21, 14, 39, 54, 59, 54, 39, 14, -21];
+    const CURV: [i64; 9] = [28, 7, -8, -17, -20, -17, -8, 7, 28];
     let mut seed = 11u32;
     let mut t = PixelTracker::default();
     let mut out = ExtremaList::new();
-    let mut hist = vec![];
-    for b in 0..1000u16 {
+    let (mut hist, mut raw) = (vec![], vec![]);
+    for b in 0..5000u16 {
         seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
         let v = 0.3 + 0.2 * libm::sinf(f32::from(b) * 0.21) + (seed >> 8) as f32 * 1e-9;
-        hist.push(v);
+        raw.push(f64::from(v));
+        hist.push(i64::from(to_ring(v)));
         t.push(b, v, true, &mut out);
         if hist.len() >= WINDOW {
             let w = &hist[hist.len() - WINDOW..];
-            let dot = |c: &[f32; 9]| w.iter().zip(c).map(|(x, c)| x * c).sum::<f32>();
-            let slope: f32 = w
-                .iter()
-                .enumerate()
-                .map(|(k, x)| (k as f32 - 4.0) * x)
-                .sum();
-            let [m0, m1, m2] = t.moments;
-            assert!(((59.0 * m0 - 5.0 * m2) / 231.0 - dot(&SMOOTH) / 231.0).abs() < 2e-6);
-            assert!((m1 / 60.0 - slope / 60.0).abs() < 2e-6);
-            assert!(((3.0 * m2 - 20.0 * m0) / 462.0 - dot(&CURV) / 462.0).abs() < 2e-6);
+            let dot = |c: &[i64; 9]| w.iter().zip(c).map(|(x, c)| x * c).sum::<i64>();
+            let k = [-4i64, -3, -2, -1, 0, 1, 2, 3, 4];
+            let [m0, m1, m2] = t.moments.map(|m| m as i64);
+            assert!(t.moments.iter().all(|m| m.fract() == 0.0));
+            assert_eq!(m0, w.iter().sum::<i64>());
+            assert_eq!(m1, dot(&k));
+            assert_eq!(m2, dot(&k.map(|k| k * k)));
+            assert_eq!(59 * m0 - 5 * m2, dot(&SMOOTH));
+            assert_eq!(3 * m2 - 20 * m0, dot(&CURV));
         }
     }
+    // The noise estimate is in reflectance: within 0.1 % of the unrounded samples' own.
+    let d2: f64 = raw
+        .windows(3)
+        .map(|w| (w[0] - 2.0 * w[1] + w[2]).abs())
+        .sum();
+    let want = d2 / (raw.len() - 2) as f64 / 1.954;
+    let got = f64::from(t.noise_sigma());
+    assert!((got / want - 1.0).abs() < 1e-3, "{got} against {want}");
+}
+
+/// A ring step is the nearest of the grid (within half a step, 1.53e-5, of the sample), its
+/// reflectance exact, and a sample beyond the ring's range is held at its end.
+#[test]
+fn ring_steps_round_to_the_nearest_and_clamp() {
+    let step = 1.0 / RING_STEPS_PER_UNIT;
+    let mut worst = 0.0f32;
+    // -0.5 to 1.49, inside the ring's range.
+    for k in 0..199_000u32 {
+        let v = -0.5 + k as f32 * 1.0e-5 + (k % 7) as f32 * 1.3e-7;
+        let q = to_ring(v);
+        let back = from_ring(q);
+        worst = worst.max((back - v).abs());
+        // Exact: the step count read back.
+        assert_eq!((back + 0.5) * RING_STEPS_PER_UNIT, f32::from(q));
+    }
+    // Half a step, and the f32 rounding of `v + 0.5` (an ulp of 2 is 2.4e-7).
+    assert!(worst <= 0.5 * step + 2.4e-7, "{worst}");
+    assert!(worst > 0.45 * step, "{worst}");
+    assert_eq!(to_ring(-3.0), 0);
+    assert_eq!(to_ring(2.0), u16::MAX);
+    assert_eq!(to_ring(MAX_SAMPLE), u16::MAX);
+    assert_eq!(from_ring(to_ring(0.25)), 0.25);
 }

@@ -3,7 +3,7 @@ use super::*;
 /// Every field of two trackers, floats by their bits.
 fn same_state(a: &PixelTracker, b: &PixelTracker) -> bool {
     let bits = |t: &PixelTracker| {
-        let mut v: Vec<u32> = t.ring.iter().map(|x| x.to_bits()).collect();
+        let mut v: Vec<u32> = t.ring.iter().map(|&q| u32::from(q)).collect();
         v.extend(t.moments.iter().map(|x| x.to_bits()));
         v.extend(
             [t.ext_val, t.ext_pos, t.min_val, t.min_pos, t.d2_sum]
