@@ -29,7 +29,7 @@ use criterion::{criterion_main, BatchSize, BenchmarkGroup, Criterion, SamplingMo
 use filmscope::calibrate::calibrate_row;
 use filmscope::optics::Polarization;
 use filmscope::pipeline::{calibrate_block, BandModels, Samples, ShardState, SimSource, Source};
-use filmscope::solve::fit_row::{self, FitLanes};
+use filmscope::solve::fit_row::{self, FitLanes, IndexLanes, IndexSampling};
 use filmscope::solve::refine::{BandCoef, GnSums, Knot};
 use filmscope::solve::sweep::SolverOptions;
 use filmscope::solve::{IndexModel, SweepSolver};
@@ -230,22 +230,32 @@ fn bench_refine(c: &mut Criterion) {
     let seed = |blocks: &mut [FitLanes]| {
         for (i, &d) in lin.iter().enumerate() {
             let b = &mut blocks[i / LANES];
-            let mut p = b.pixel(i % LANES);
+            let mut p = b.pixel(i % LANES, [0.0; 8]);
             p.thickness_nm = d as f32;
             p.order_step_nm = order_step as f32;
             b.set_pixel(i % LANES, &p);
         }
     };
-    g.bench_function("fit_lanes_tabled_1024px_x_151b", |bench| {
-        bench.iter(|| {
-            blocks.fill(FitLanes::default());
-            seed(&mut blocks);
-            for (coef, row) in tabled.iter().zip(measured.chunks_exact(PIXELS)) {
-                fit_row::push_row(&mut blocks, row, Some((coef, &knots)));
-            }
-            black_box(&blocks);
+    // Every pixel keeping the index's sums (a small sensor), and one in 16 (a 1 Mpix one).
+    for (name, stride) in [
+        ("fit_lanes_tabled_1024px_x_151b", 1),
+        ("fit_lanes_tabled_1024px_x_151b_index_1_in_16", 16),
+    ] {
+        let sampling = IndexSampling { stride };
+        let mut index = vec![IndexLanes::EMPTY; sampling.blocks_per_row(PIXELS)];
+        g.bench_function(name, |bench| {
+            bench.iter(|| {
+                blocks.fill(FitLanes::default());
+                index.fill(IndexLanes::EMPTY);
+                seed(&mut blocks);
+                for (coef, row) in tabled.iter().zip(measured.chunks_exact(PIXELS)) {
+                    let model = Some((coef, &knots[..]));
+                    fit_row::push_row(&mut blocks, row, model, (sampling, 0, &mut index));
+                }
+                black_box((&blocks, &index));
+            });
         });
-    });
+    }
     g.throughput(Throughput::Elements(BANDS as u64));
     g.bench_function("tabulate_151b", |bench| {
         let mut scratch = coefs.clone();
@@ -375,8 +385,8 @@ impl Prepared {
         let sat = camera.scene().sensor.saturation_counts() as f32;
         let angles = camera.scene().angles_deg.clone();
         assert!(upto < angles.len(), "the scene has {} angles", angles.len());
+        let mut states = ShardState::empty(h, w, spec.index_sampling());
         let mut solver = SweepSolver::new(spec, None);
-        let mut states = ShardState::empty(h, w);
         let (mut raw16, mut raw, mut white, mut dark) =
             (vec![0u16; w], vec![0f32; w], vec![0f32; w], vec![0f32; w]);
         let mut models = BandModels::default();

@@ -30,6 +30,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
 use crossbeam_channel::Sender;
+use filmscope_core::solve::fit_row::IndexSampling;
 use filmscope_core::solve::shard::PixelResult;
 use filmscope_core::solve::{state_bytes_per_pixel, SweepSolver, SweepSpec};
 use filmscope_core::track::row::{blocks_for, push_row, TrackerLanes};
@@ -246,8 +247,8 @@ pub fn sweep_rates(frames: &Frames, rows: usize) -> (f64, f64) {
     let (w, nb) = (frames.width(), frames.bands());
     let mut spec_rows = spec.clone();
     spec_rows.height = rows;
+    let mut states = ShardState::empty(rows, w, spec_rows.index_sampling());
     let mut solver = SweepSolver::new(spec_rows, None);
-    let mut states = ShardState::empty(rows, w);
     let (mut stream, mut solve) = (Duration::ZERO, Duration::ZERO);
     for (a, &deg) in frames.angles_deg.iter().enumerate() {
         solver.begin_angle(deg);
@@ -556,7 +557,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         latency_ms_per_mpix: latency,
         latency_parts_ms_per_mpix: latency_parts,
         pipeline_sensor: [pw, ph],
-        state_bytes_per_pixel: state_bytes_per_pixel(),
+        state_bytes_per_pixel: state_bytes_per_pixel(IndexSampling::for_sensor(2048, 2048), 2048),
         rss,
         rss_error,
         methods,

@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::calibrate::calibrate_row;
-use filmscope_core::solve::fit_row::FitLanes;
+use filmscope_core::solve::fit_row::{FitLanes, IndexLanes, IndexSampling};
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
 use filmscope_core::solve::refine::{AngleModels, BandCoef, Knot};
 use filmscope_core::solve::sweep::SolverOptions;
@@ -149,33 +149,48 @@ pub struct ShardTally {
 type Done = (usize, ShardState, ShardTally);
 
 /// The owned state of a shard of rows: its pixels' states, their extremum trackers and their
-/// thickness, counters and sums (in blocks of a row's pixels).
+/// thickness, counters and sums (in blocks of a row's pixels), and the index's sums of the
+/// pixels that keep them.
 #[derive(Clone, Debug, Default)]
 pub struct ShardState {
     /// Row-major pixel states.
     pub pixels: Vec<PixelState>,
     /// The pixels' trackers.
     pub trackers: Vec<TrackerLanes>,
-    /// The pixels' thickness, counters and sums.
+    /// The pixels' thickness, counters and own sums.
     pub fits: Vec<FitLanes>,
+    /// Which pixels keep the index's sums.
+    pub sampling: IndexSampling,
+    /// Their sums.
+    pub index: Vec<IndexLanes>,
 }
 
 impl ShardState {
-    /// `rows` x `width` pixels that have seen nothing.
-    pub fn empty(rows: usize, width: usize) -> Self {
+    /// `rows` x `width` pixels that have seen nothing, the index's sums kept by the pixels
+    /// `sampling` picks ([`SweepSpec::index_sampling`]).
+    pub fn empty(rows: usize, width: usize, sampling: IndexSampling) -> Self {
         let blocks = tracker_blocks(rows * width, width);
         Self {
             pixels: vec![PixelState::default(); rows * width],
             trackers: vec![TrackerLanes::EMPTY; blocks],
             fits: vec![FitLanes::EMPTY; blocks],
+            sampling,
+            index: vec![IndexLanes::EMPTY; rows * sampling.blocks_per_row(width)],
         }
     }
 
-    /// Pixels of rows of `width` that start at the thicknesses `seed` (NaN: none) with
-    /// `index` ([`Shard::seed`]).
-    pub fn seeded(seed: &[f32], width: usize, index: IndexModel, spec: &SweepSpec) -> Self {
-        let mut state = Self::empty(seed.len().checked_div(width).unwrap_or(0), width);
-        let mut shard = state.shard(0, width);
+    /// Pixels of rows of `width` from image row `first_row` on that start at the
+    /// thicknesses `seed` (NaN: none) with `index` ([`Shard::seed`]).
+    pub fn seeded(
+        first_row: usize,
+        seed: &[f32],
+        width: usize,
+        index: IndexModel,
+        spec: &SweepSpec,
+    ) -> Self {
+        let rows = seed.len().checked_div(width).unwrap_or(0);
+        let mut state = Self::empty(rows, width, spec.index_sampling());
+        let mut shard = state.shard(first_row, width);
         for (i, &d) in seed.iter().enumerate() {
             shard.seed(i, d, index, spec);
         }
@@ -190,6 +205,7 @@ impl ShardState {
             &mut self.pixels,
             &mut self.trackers,
             &mut self.fits,
+            (self.sampling, &mut self.index),
         )
     }
 }
@@ -400,10 +416,14 @@ pub fn run_sweep(
         .map(|i| {
             let (first, rows) = shard_rows(h, workers, i);
             Some(match &seed {
-                Some((map, index)) => {
-                    ShardState::seeded(&map[first * w..(first + rows) * w], w, *index, &spec)
-                }
-                None => ShardState::empty(rows, w),
+                Some((map, index)) => ShardState::seeded(
+                    first,
+                    &map[first * w..(first + rows) * w],
+                    w,
+                    *index,
+                    &spec,
+                ),
+                None => ShardState::empty(rows, w, spec.index_sampling()),
             })
         })
         .collect();
@@ -539,6 +559,8 @@ pub fn run_sweep(
         });
     }
     let done = Instant::now();
+    let state_bytes_per_pixel =
+        filmscope_core::solve::state_bytes_per_pixel(spec.index_sampling(), spec.width);
     Ok(SweepOutput {
         spec,
         results,
@@ -556,7 +578,7 @@ pub fn run_sweep(
         solve_latency: done - last_row_at,
         latency_parts,
         samples,
-        state_bytes_per_pixel: filmscope_core::solve::state_bytes_per_pixel(),
+        state_bytes_per_pixel,
     })
 }
 
@@ -729,8 +751,8 @@ fn feed_held(
     /// Bytes of pixel state a block of rows should keep in cache while its bands pass.
     const BLOCK_BYTES: usize = 256 * 1024;
     let width = shard.width;
-    let block_rows =
-        (BLOCK_BYTES / (width.max(1) * filmscope_core::solve::state_bytes_per_pixel())).max(1);
+    let bytes = filmscope_core::solve::state_bytes_per_pixel(shard.sampling(), width);
+    let block_rows = (BLOCK_BYTES / (width.max(1) * bytes)).max(1);
     let (Some(lo), Some(hi)) = (
         held.iter().map(|h| h.1 as usize).min(),
         held.iter().map(|h| (h.1 + h.2) as usize).max(),

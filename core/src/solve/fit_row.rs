@@ -15,7 +15,9 @@
 use crate::track::row::LANES;
 use crate::track::usable;
 
-use super::refine::{BandCoef, GnSums, Knot, SampleModel, TableSpan, SSE_TERM, TERMS};
+use super::refine::{
+    BandCoef, GnSums, Knot, SampleModel, TableSpan, INDEX_TERMS, PIXEL_TERMS, SSE_TERM,
+};
 
 /// What the solver keeps of one pixel between samples but its extrema and flags: a copy
 /// out of (or into) its [`FitLanes`] block.
@@ -51,13 +53,14 @@ impl Default for PixelFit {
 }
 
 /// [`PixelFit`] of [`LANES`] pixels of one row as arrays over the pixels, the sample count
-/// shared (79 bytes per pixel).
+/// shared (47 bytes per pixel): all but the index's sums, which [`IndexLanes`] keep for a
+/// sample of the pixels.
 #[derive(Clone, Copy, Debug)]
 pub struct FitLanes {
     thickness_nm: [f32; LANES],
     order_step_nm: [f32; LANES],
-    /// `sums[k][i]`: sum `k` ([`GnSums::to_terms`]' order) of lane `i`.
-    sums: [[f32; LANES]; TERMS],
+    /// `sums[k][i]`: sum `k` ([`GnSums::to_pixel_terms`]' order) of lane `i`.
+    sums: [[f32; LANES]; PIXEL_TERMS],
     gn_samples: [u16; LANES],
     saturated: [u16; LANES],
     dead: [u16; LANES],
@@ -73,6 +76,185 @@ impl Default for FitLanes {
 
 /// The samples of one block, padded to [`LANES`].
 type Lanes = [f32; LANES];
+
+/// Pixels that keep the index's sums in a large image: about this many (a 1 Mpix sensor's
+/// index step from one pixel in 16; every pixel of a smaller one).
+pub const INDEX_PIXELS: usize = 65_536;
+
+/// Which pixels keep the shared index's sums ([`IndexLanes`]): one in `stride`, on the
+/// diagonals `(row + col) % stride == 0`, so that every row and every column of the image
+/// has its share (a film in a narrow strip of either is sampled). The index's step is the
+/// least-squares step of these pixels (their thickness eliminated); every pixel's
+/// thickness steps with it. A row's sampled pixels are packed, in column order, into
+/// [`IndexSampling::blocks_per_row`] blocks; with `stride` 1 a pixel's place in them is
+/// its place in the row's [`FitLanes`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct IndexSampling {
+    /// One pixel in `stride` (at least 1).
+    pub stride: usize,
+}
+
+impl Default for IndexSampling {
+    /// Every pixel.
+    fn default() -> Self {
+        Self::ALL
+    }
+}
+
+impl IndexSampling {
+    /// Every pixel.
+    pub const ALL: Self = Self { stride: 1 };
+
+    /// About [`INDEX_PIXELS`] of a `width` x `height` sensor (at least that many; every
+    /// pixel of a sensor with fewer than twice as many).
+    pub fn for_sensor(width: usize, height: usize) -> Self {
+        Self {
+            stride: (width.saturating_mul(height) / INDEX_PIXELS).max(1),
+        }
+    }
+
+    /// Places for sampled pixels in a row of `width` (enough for the row with the most).
+    pub fn slots_per_row(&self, width: usize) -> usize {
+        width.div_ceil(self.stride)
+    }
+
+    /// [`IndexLanes`] blocks per row of `width`.
+    pub fn blocks_per_row(&self, width: usize) -> usize {
+        self.slots_per_row(width).div_ceil(LANES)
+    }
+
+    /// The first sampled column of image row `row`.
+    pub fn first_col(&self, row: usize) -> usize {
+        (self.stride - row % self.stride) % self.stride
+    }
+
+    /// The place of pixel (`row`, `col`) among its row's sampled pixels, if it is one.
+    pub fn slot(&self, row: usize, col: usize) -> Option<usize> {
+        let first = self.first_col(row);
+        let off = col.checked_sub(first)?;
+        (off % self.stride == 0).then_some(off / self.stride)
+    }
+
+    /// Bytes of index sums per pixel of rows of `width`, rounded up.
+    pub fn bytes_per_pixel(&self, width: usize) -> usize {
+        (self.blocks_per_row(width) * core::mem::size_of::<IndexLanes>()).div_ceil(width.max(1))
+    }
+
+    /// Where block `block` of image row `row` keeps its sampled pixels' sums, given the
+    /// row's index blocks `row_blocks` (`lanes` of the block in use).
+    fn block<'a>(
+        &self,
+        row_blocks: &'a mut [IndexLanes],
+        row: usize,
+        block: usize,
+        lanes: usize,
+    ) -> BlockIndex<'a> {
+        if self.stride == 1 {
+            return row_blocks
+                .get_mut(block)
+                .map_or(BlockIndex::None, BlockIndex::Lanes);
+        }
+        let (first, start) = (self.first_col(row), block * LANES);
+        // The block's first sampled column.
+        let col = if start <= first {
+            first
+        } else {
+            first + (start - first).div_ceil(self.stride) * self.stride
+        };
+        if col >= start + lanes {
+            return BlockIndex::None;
+        }
+        BlockIndex::Slots {
+            row: row_blocks,
+            lane: col - start,
+            stride: self.stride,
+            slot: (col - first) / self.stride,
+        }
+    }
+}
+
+/// The index's sums ([`GnSums::to_index_terms`]) of [`LANES`] sampled pixels, as arrays over
+/// the pixels (32 bytes a pixel).
+#[derive(Clone, Copy, Debug)]
+pub struct IndexLanes {
+    /// `sums[k][i]`: sum `k` of lane `i`.
+    sums: [[f32; LANES]; INDEX_TERMS],
+}
+
+impl Default for IndexLanes {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
+impl IndexLanes {
+    /// A block of pixels that have seen nothing.
+    pub const EMPTY: Self = Self {
+        sums: [[0.0; LANES]; INDEX_TERMS],
+    };
+
+    /// Lane `i`'s sums.
+    pub fn terms(&self, i: usize) -> [f32; INDEX_TERMS] {
+        core::array::from_fn(|k| self.sums[k][i])
+    }
+
+    /// Sets lane `i`'s sums.
+    pub fn set_terms(&mut self, i: usize, t: [f32; INDEX_TERMS]) {
+        for (k, t) in t.into_iter().enumerate() {
+            self.sums[k][i] = t;
+        }
+    }
+
+    fn add(&mut self, i: usize, t: [f32; INDEX_TERMS]) {
+        for (k, t) in t.into_iter().enumerate() {
+            self.sums[k][i] += t;
+        }
+    }
+}
+
+/// Where a block of a row keeps its pixels' index sums ([`IndexSampling`]).
+pub enum BlockIndex<'a> {
+    /// None of its pixels keeps them.
+    None,
+    /// Every pixel, lane for lane.
+    Lanes(&'a mut IndexLanes),
+    /// Lanes `lane`, `lane + stride`, ... (packed from place `slot` of the row's blocks
+    /// `row` on).
+    Slots {
+        /// The row's index blocks.
+        row: &'a mut [IndexLanes],
+        /// The block's first sampled lane.
+        lane: usize,
+        /// Lanes between sampled ones.
+        stride: usize,
+        /// Its place in `row`.
+        slot: usize,
+    },
+}
+
+impl BlockIndex<'_> {
+    /// Adds `t` to lane `i`'s sums if it keeps them.
+    #[inline]
+    fn add(&mut self, i: usize, t: [f32; INDEX_TERMS]) {
+        match self {
+            Self::None => {}
+            Self::Lanes(b) => b.add(i, t),
+            Self::Slots {
+                row,
+                lane,
+                stride,
+                slot,
+            } => {
+                if i >= *lane && (i - *lane) % *stride == 0 {
+                    let at = *slot + (i - *lane) / *stride;
+                    if let Some(b) = row.get_mut(at / LANES) {
+                        b.add(at % LANES, t);
+                    }
+                }
+            }
+        }
+    }
+}
 
 /// A lane mask: 1 for the lanes in it, else 0 (not `bool`: a mask of the lanes' width
 /// vectorises).
@@ -121,20 +303,21 @@ impl FitLanes {
     pub const EMPTY: Self = Self {
         thickness_nm: [f32::NAN; LANES],
         order_step_nm: [f32::NAN; LANES],
-        sums: [[0.0; LANES]; TERMS],
+        sums: [[0.0; LANES]; PIXEL_TERMS],
         gn_samples: [0; LANES],
         saturated: [0; LANES],
         dead: [0; LANES],
         samples: 0,
     };
 
-    /// Lane `i` (a copy).
-    pub fn pixel(&self, i: usize) -> PixelFit {
+    /// Lane `i` (a copy), with the index's sums `index` (zeros for a pixel that keeps none).
+    pub fn pixel(&self, i: usize, index: [f32; INDEX_TERMS]) -> PixelFit {
         PixelFit {
             thickness_nm: self.thickness_nm[i],
             order_step_nm: self.order_step_nm[i],
             gn: GnSums::from_terms(
                 core::array::from_fn(|k| self.sums[k][i]),
+                index,
                 self.gn_samples[i],
             ),
             samples: self.samples,
@@ -157,11 +340,11 @@ impl FitLanes {
             .all(|d| d.is_finite())
     }
 
-    /// Stores `p` in lane `i` (all but the shared sample count).
+    /// Stores `p` in lane `i` (all but the shared sample count and the index's sums).
     pub fn set_pixel(&mut self, i: usize, p: &PixelFit) {
         self.thickness_nm[i] = p.thickness_nm;
         self.order_step_nm[i] = p.order_step_nm;
-        for (k, t) in p.gn.to_terms().into_iter().enumerate() {
+        for (k, t) in p.gn.to_pixel_terms().into_iter().enumerate() {
             self.sums[k][i] = t;
         }
         self.gn_samples[i] = p.gn.samples;
@@ -172,8 +355,13 @@ impl FitLanes {
     /// Feeds one band's samples of the block's pixels (`values.len() <= LANES`; `+inf` a
     /// saturated sample, NaN one without a usable reference): counts them, and with the
     /// band's model (`coef` and the angle's `knots`) adds every usable sample of a pixel with
-    /// a thickness to its sums, as [`GnSums::add`] does.
-    pub fn push(&mut self, values: &[f32], model: Option<(&BandCoef, &[Knot])>) {
+    /// a thickness to its sums, as [`GnSums::add`] does (the index's sums to `index`'s).
+    pub fn push(
+        &mut self,
+        values: &[f32],
+        model: Option<(&BandCoef, &[Knot])>,
+        mut index: BlockIndex<'_>,
+    ) {
         let mut v = [0.0; LANES];
         let n = values.len().min(LANES);
         v[..n].copy_from_slice(&values[..n]);
@@ -195,7 +383,7 @@ impl FitLanes {
         // The lanes left to the computed model.
         let mut rest = ok;
         if let Some((span, k)) = coef.table().and_then(|t| Some((t, t.knots(knots)?))) {
-            let inside = self.add_tabled(span, k, &ok, &v, u);
+            let inside = self.add_tabled(span, k, &ok, &v, u, &mut index);
             for i in 0..LANES {
                 rest[i] = ok[i] & !inside[i];
             }
@@ -209,10 +397,11 @@ impl FitLanes {
                 f64::from(self.thickness_nm[i]),
                 f64::from(self.order_step_nm[i]),
             );
-            let t = GnSums::terms(e.into(), v[i], u);
-            for (k, t) in t.into_iter().enumerate() {
+            let s: SampleModel = e.into();
+            for (k, t) in GnSums::pixel_terms(s, v[i], u).into_iter().enumerate() {
                 self.sums[k][i] += t;
             }
+            index.add(i, GnSums::index_terms(s.j_n, v[i] - s.m, u));
             self.gn_samples[i] = self.gn_samples[i].saturating_add(1);
         }
     }
@@ -232,7 +421,15 @@ impl FitLanes {
     /// orders all fall inside the band's table (`span`, its knots `k`) from the table;
     /// returns which (1, else 0).
     #[inline(always)]
-    fn add_tabled(&mut self, span: TableSpan, k: &[Knot], ok: &Mask, v: &Lanes, u: f32) -> Mask {
+    fn add_tabled(
+        &mut self,
+        span: TableSpan,
+        k: &[Knot],
+        ok: &Mask,
+        v: &Lanes,
+        u: f32,
+        index: &mut BlockIndex<'_>,
+    ) -> Mask {
         // Positions of the thickness and the orders either side: knot and fraction.
         // (Separate arrays, each zeroed in place: one struct of them would be zeroed by a
         // call to `memset`, moved by one to `memcpy`.)
@@ -278,18 +475,42 @@ impl FitLanes {
             frac: &frac,
             inv_h: span.inv_h(),
         };
-        if inside.iter().fold(1, |a, &i| a & i) == 1 {
-            self.add_from::<false>(&at, &inside, v, u);
-        } else {
-            self.add_from::<true>(&at, &inside, v, u);
+        let all = inside.iter().fold(1, |a, &i| a & i) == 1;
+        match (all, index) {
+            (true, BlockIndex::Lanes(x)) => self.add_from::<false, true>(&at, &inside, v, u, x),
+            (false, BlockIndex::Lanes(x)) => self.add_from::<true, true>(&at, &inside, v, u, x),
+            (all, index) => {
+                // Few lanes (or none) keep the index's sums: those from each lane's index
+                // derivative and residual, kept by the lane loop.
+                let mut x = IndexLanes::EMPTY;
+                if all {
+                    self.add_from::<false, false>(&at, &inside, v, u, &mut x);
+                } else {
+                    self.add_from::<true, false>(&at, &inside, v, u, &mut x);
+                }
+                if let BlockIndex::Slots { lane, stride, .. } = *index {
+                    for i in (lane..LANES).step_by(stride).filter(|&i| inside[i] != 0) {
+                        index.add(i, GnSums::index_terms(x.sums[0][i], x.sums[1][i], u));
+                    }
+                }
+            }
         }
         inside
     }
 
     /// Adds the samples `v` from the lanes' knots `at`. `MASKED`: only the lanes `inside`
     /// (1, else 0); the others keep their sums (an added zero could change a zero's sign).
+    /// `INDEX`: the index's sums to `x`, lane for lane; else `x`'s first two rows get each
+    /// lane's index derivative and residual.
     #[inline(always)]
-    fn add_from<const MASKED: bool>(&mut self, at: &Tabled<'_>, inside: &Mask, v: &Lanes, u: f32) {
+    fn add_from<const MASKED: bool, const INDEX: bool>(
+        &mut self,
+        at: &Tabled<'_>,
+        inside: &Mask,
+        v: &Lanes,
+        u: f32,
+        x: &mut IndexLanes,
+    ) {
         let [c, lo, hi] = at.pairs;
         for i in 0..LANES {
             let s = SampleModel::from_knots(
@@ -299,11 +520,20 @@ impl FitLanes {
                 (hi.knots(i, [0.0; 2]), at.frac[2][i]),
                 at.inv_h,
             );
-            let t = GnSums::terms(s, v[i], u);
             let add = !MASKED || inside[i] != 0;
-            for (k, t) in t.into_iter().enumerate() {
+            for (k, t) in GnSums::pixel_terms(s, v[i], u).into_iter().enumerate() {
                 let sum = self.sums[k][i];
                 self.sums[k][i] = if add { sum + t } else { sum };
+            }
+            let r = v[i] - s.m;
+            if INDEX {
+                for (k, t) in GnSums::index_terms(s.j_n, r, u).into_iter().enumerate() {
+                    let sum = x.sums[k][i];
+                    x.sums[k][i] = if add { sum + t } else { sum };
+                }
+            } else {
+                x.sums[0][i] = s.j_n;
+                x.sums[1][i] = r;
             }
             self.gn_samples[i] = self.gn_samples[i].saturating_add(u16::from(add));
         }
@@ -326,11 +556,17 @@ fn knot_of(x: f32) -> (u32, f32) {
     (j, x - floor)
 }
 
-/// Feeds band samples `values` of one row to the row's blocks
-/// (`values.len().div_ceil(LANES)` of them): [`FitLanes::push`] for each block.
-pub fn push_row(blocks: &mut [FitLanes], values: &[f32], model: Option<(&BandCoef, &[Knot])>) {
-    for (block, v) in blocks.iter_mut().zip(values.chunks(LANES)) {
-        block.push(v, model);
+/// Feeds band samples `values` of image row `row` to the row's blocks
+/// (`values.len().div_ceil(LANES)` of them): [`FitLanes::push`] for each block, the
+/// index's sums of the pixels `sampling` picks to the row's index blocks `index`.
+pub fn push_row(
+    blocks: &mut [FitLanes],
+    values: &[f32],
+    model: Option<(&BandCoef, &[Knot])>,
+    (sampling, row, index): (IndexSampling, usize, &mut [IndexLanes]),
+) {
+    for (b, (block, v)) in blocks.iter_mut().zip(values.chunks(LANES)).enumerate() {
+        block.push(v, model, sampling.block(index, row, b, v.len()));
     }
 }
 
@@ -351,10 +587,46 @@ mod tests {
     }
 
     /// A row block gives every pixel the sums, counts and sample numbers the scalar
-    /// [`GnSums::add`] gives it, bit for bit: pixels inside the table, at and beyond its
+    /// [`GnSums::add`] gives it, bit for bit (the index's sums to the pixels that keep them,
+    /// every pixel, one in 3, 4 or 64 of them): pixels inside the table, at and beyond its
     /// ends (computed), without a thickness, and samples saturated, dead or corrupted.
     #[test]
     fn lanes_match_the_scalar_sums() {
+        for (stride, row) in [(1, 0), (3, 1), (4, 0), (4, 7), (64, 5)] {
+            lanes_match_the_scalar_sums_with(IndexSampling { stride }, row);
+        }
+    }
+
+    /// The pixel's sums as `row`'s index blocks `index` keep them (zeros where they do not).
+    fn with_index(
+        l: PixelFit,
+        sampling: IndexSampling,
+        row: usize,
+        i: usize,
+        index: &[IndexLanes],
+    ) -> PixelFit {
+        let terms = sampling
+            .slot(row, i)
+            .map_or([0.0; INDEX_TERMS], |k| index[k / LANES].terms(k % LANES));
+        PixelFit {
+            gn: GnSums::from_terms(l.gn.to_pixel_terms(), terms, l.gn.samples),
+            ..l
+        }
+    }
+
+    /// The sums a pixel of `row` keeps under `sampling`, of the scalar's `p`.
+    fn kept(p: &PixelFit, sampling: IndexSampling, row: usize, i: usize) -> [u32; 16] {
+        let index = match sampling.slot(row, i) {
+            Some(_) => p.gn.to_index_terms(),
+            None => [0.0; INDEX_TERMS],
+        };
+        let mut t = [0; 16];
+        t[..8].copy_from_slice(&p.gn.to_pixel_terms().map(f32::to_bits));
+        t[8..].copy_from_slice(&index.map(f32::to_bits));
+        t
+    }
+
+    fn lanes_match_the_scalar_sums_with(sampling: IndexSampling, row: usize) {
         let (coefs, knots, first) = bands();
         let knots = &knots[..first];
         let n = 29;
@@ -367,12 +639,13 @@ mod tests {
             8 => 2000.0,
             _ => 240.0 + 17.3 * i as f32,
         });
-        let mut lanes = FitLanes::EMPTY;
+        let mut lanes = [FitLanes::EMPTY];
+        let mut index = [IndexLanes::EMPTY; 1];
         let mut scalar = [PixelFit::default(); 29];
         for i in 0..n {
             scalar[i].thickness_nm = thickness[i];
             scalar[i].order_step_nm = step;
-            lanes.set_pixel(i, &scalar[i]);
+            lanes[0].set_pixel(i, &scalar[i]);
         }
         for s in 0..12 {
             let coef = coefs[s % 3].as_ref().expect("a band");
@@ -382,7 +655,13 @@ mod tests {
                 2 if i % 6 == 0 => 3e7,
                 _ => 0.1 + 0.01 * ((i * 7 + s * 3) % 13) as f32,
             });
-            lanes.push(&values, Some((coef, knots)));
+            let per_row = sampling.blocks_per_row(n);
+            push_row(
+                &mut lanes,
+                &values,
+                Some((coef, knots)),
+                (sampling, row, &mut index[..per_row]),
+            );
             for (p, &v) in scalar.iter_mut().zip(&values) {
                 p.samples += 1;
                 if v.is_infinite() {
@@ -396,15 +675,39 @@ mod tests {
             }
         }
         for (i, p) in scalar.iter().enumerate() {
-            let l = lanes.pixel(i);
+            let l = with_index(
+                lanes[0].pixel(i, [0.0; INDEX_TERMS]),
+                sampling,
+                row,
+                i,
+                &index,
+            );
             let bits = |f: &PixelFit| {
                 let t = [f.thickness_nm, f.order_step_nm].map(f32::to_bits);
-                let n = [f.samples, f.saturated, f.dead, f.gn.samples];
-                (f.gn.to_terms().map(f32::to_bits), t, n)
+                (t, [f.samples, f.saturated, f.dead, f.gn.samples])
             };
-            assert_eq!(bits(&l), bits(p), "pixel {i}");
+            assert_eq!(bits(&l), bits(p), "pixel {i}, {sampling:?}");
+            assert_eq!(
+                kept(&l, sampling, row, i),
+                kept(p, sampling, row, i),
+                "pixel {i}, {sampling:?}"
+            );
         }
         assert!(scalar.iter().filter(|p| p.gn.samples > 0).count() > 20);
+        // The sampled pixels (and only they) have index sums.
+        let with_sums = (0..n).filter(|&i| {
+            with_index(lanes[0].pixel(i, [0.0; 8]), sampling, row, i, &index)
+                .gn
+                .h_pp[0]
+                != 0.0
+        });
+        let sampled =
+            (0..n).filter(|&i| sampling.slot(row, i).is_some() && scalar[i].gn.samples > 0);
+        assert_eq!(
+            with_sums.collect::<Vec<_>>(),
+            sampled.collect::<Vec<_>>(),
+            "{sampling:?}"
+        );
     }
 
     /// Three bands of n 1.9 on 1.52 at 35 degrees, the first two tabulated over 100-900 nm:
@@ -438,25 +741,39 @@ mod tests {
 
     /// A full block whose every lane is inside the band's table with a usable sample (the
     /// unmasked path the pipeline runs on most blocks) gives [`GnSums::add`]'s sums bit for
-    /// bit.
+    /// bit (the index's to every pixel, or to one in 5).
     #[test]
     fn a_full_block_inside_the_table_matches_the_scalar_sums() {
+        for stride in [1, 5] {
+            a_full_block_matches_with(IndexSampling { stride });
+        }
+    }
+
+    fn a_full_block_matches_with(sampling: IndexSampling) {
         let (coefs, knots, first) = bands();
         let knots = &knots[..first];
         let step = 130.0f32;
-        let mut lanes = FitLanes::EMPTY;
+        let mut lanes = [FitLanes::EMPTY];
+        let mut index = [IndexLanes::EMPTY; 1];
+        let row = 3;
         let mut scalar = [PixelFit::default(); LANES];
         for (i, p) in scalar.iter_mut().enumerate() {
             p.thickness_nm = 250.0 + 11.7 * i as f32;
             p.order_step_nm = step;
-            lanes.set_pixel(i, p);
+            lanes[0].set_pixel(i, p);
         }
         for s in 0..10 {
             // The tabulated bands only.
             let coef = coefs[s % 2].as_ref().expect("a band");
             let values: [f32; LANES] =
                 core::array::from_fn(|i| 0.05 + 0.013 * ((i * 5 + s * 7) % 17) as f32);
-            lanes.push(&values, Some((coef, knots)));
+            let per_row = sampling.blocks_per_row(LANES);
+            push_row(
+                &mut lanes,
+                &values,
+                Some((coef, knots)),
+                (sampling, row, &mut index[..per_row]),
+            );
             for (p, &v) in scalar.iter_mut().zip(&values) {
                 p.samples += 1;
                 let (d, o) = (f64::from(p.thickness_nm), f64::from(p.order_step_nm));
@@ -464,15 +781,24 @@ mod tests {
             }
         }
         for (i, p) in scalar.iter().enumerate() {
-            let l = lanes.pixel(i);
+            let l = with_index(
+                lanes[0].pixel(i, [0.0; INDEX_TERMS]),
+                sampling,
+                row,
+                i,
+                &index,
+            );
             assert_eq!(
-                l.gn.to_terms().map(f32::to_bits),
-                p.gn.to_terms().map(f32::to_bits),
+                kept(&l, sampling, row, i),
+                kept(p, sampling, row, i),
                 "pixel {i}"
             );
             assert_eq!((l.gn.samples, l.samples), (10, 10), "pixel {i}");
             // The lane's RMS read in place is the copied sums' (and none without samples).
-            assert_eq!(lanes.rms(i).map(f32::to_bits), Some(l.gn.rms().to_bits()));
+            assert_eq!(
+                lanes[0].rms(i).map(f32::to_bits),
+                Some(l.gn.rms().to_bits())
+            );
         }
         assert_eq!(FitLanes::EMPTY.rms(0), None);
     }

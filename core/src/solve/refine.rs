@@ -438,11 +438,16 @@ pub struct GnSums {
     pub samples: u16,
 }
 
-/// Number of sums a sample adds to ([`GnSums::terms`]).
-pub const TERMS: usize = 16;
+/// Sums every pixel keeps ([`GnSums::pixel_terms`]): `h_dd`, `h_dp`, `g_d`, `sse`,
+/// `sse_minus`, `sse_plus`.
+pub const PIXEL_TERMS: usize = 8;
 
-/// Where `sse` is in [`GnSums::to_terms`]' array.
-pub const SSE_TERM: usize = 13;
+/// Sums only the shared index's step needs ([`GnSums::index_terms`]): `h_pp`, `g_p`. A
+/// sample of the pixels keeps them ([`super::fit_row::IndexSampling`]).
+pub const INDEX_TERMS: usize = 8;
+
+/// Where `sse` is in [`GnSums::to_pixel_terms`]' array.
+pub const SSE_TERM: usize = 5;
 
 impl GnSums {
     /// Adds one band sample `measured` of a pixel at linearisation point `thickness_nm`
@@ -457,77 +462,93 @@ impl GnSums {
         order_step_nm: f64,
         measured: f64,
     ) {
-        let model = coef.eval(knots, thickness_nm, order_step_nm).into();
-        let t = Self::terms(model, measured as f32, coef.u as f32);
-        let mut sums = self.to_terms();
-        for (s, t) in sums.iter_mut().zip(t) {
+        let model: SampleModel = coef.eval(knots, thickness_nm, order_step_nm).into();
+        let (v, u) = (measured as f32, coef.u as f32);
+        let mut p = self.to_pixel_terms();
+        for (s, t) in p.iter_mut().zip(Self::pixel_terms(model, v, u)) {
             *s += t;
         }
-        *self = Self::from_terms(sums, self.samples.saturating_add(1));
+        let mut x = self.to_index_terms();
+        for (s, t) in x
+            .iter_mut()
+            .zip(Self::index_terms(model.j_n, v - model.m, u))
+        {
+            *s += t;
+        }
+        *self = Self::from_terms(p, x, self.samples.saturating_add(1));
     }
 
-    /// What one sample `v` of a band whose basis variable is `u` adds to each sum, the model
-    /// `s` at the pixel's thickness, in the order of [`GnSums::to_terms`].
+    /// What one sample `v` of a band whose basis variable is `u` adds to each of a pixel's
+    /// own sums, the model `s` at the pixel's thickness, in the order of
+    /// [`GnSums::to_pixel_terms`].
     #[inline(always)]
-    pub(crate) fn terms(s: SampleModel, v: f32, u: f32) -> [f32; TERMS] {
+    pub(crate) fn pixel_terms(s: SampleModel, v: f32, u: f32) -> [f32; PIXEL_TERMS] {
         let r = v - s.m;
-        let (u2, jn2, jdn, jnr) = (u * u, s.j_n * s.j_n, s.j_d * s.j_n, s.j_n * r);
+        let jdn = s.j_d * s.j_n;
         let (rm, rp) = (v - s.m_minus, v - s.m_plus);
         [
             s.j_d * s.j_d,
             jdn,
             jdn * u,
-            jdn * u2,
-            jn2,
-            jn2 * u,
-            jn2 * u2,
-            jn2 * u2 * u,
-            jn2 * u2 * u2,
+            jdn * (u * u),
             s.j_d * r,
-            jnr,
-            jnr * u,
-            jnr * u2,
             r * r,
             rm * rm,
             rp * rp,
         ]
     }
 
-    /// The sums as one array: `h_dd`, `h_dp`, `h_pp`, `g_d`, `g_p`, `sse`, `sse_minus`,
+    /// What one sample adds to each of the index's sums, its index derivative `j_n` and
+    /// residual `r` given, in the order of [`GnSums::to_index_terms`].
+    #[inline(always)]
+    pub(crate) fn index_terms(j_n: f32, r: f32, u: f32) -> [f32; INDEX_TERMS] {
+        let (u2, jn2, jnr) = (u * u, j_n * j_n, j_n * r);
+        [
+            jn2,
+            jn2 * u,
+            jn2 * u2,
+            jn2 * u2 * u,
+            jn2 * u2 * u2,
+            jnr,
+            jnr * u,
+            jnr * u2,
+        ]
+    }
+
+    /// The pixel's own sums as one array: `h_dd`, `h_dp`, `g_d`, `sse`, `sse_minus`,
     /// `sse_plus`.
-    pub fn to_terms(&self) -> [f32; TERMS] {
-        let (p, d, g) = (self.h_pp, self.h_dp, self.g_p);
+    pub fn to_pixel_terms(&self) -> [f32; PIXEL_TERMS] {
+        let d = self.h_dp;
         [
             self.h_dd,
             d[0],
             d[1],
             d[2],
-            p[0],
-            p[1],
-            p[2],
-            p[3],
-            p[4],
             self.g_d,
-            g[0],
-            g[1],
-            g[2],
             self.sse,
             self.sse_minus,
             self.sse_plus,
         ]
     }
 
-    /// The sums from [`GnSums::to_terms`]' array and the count of samples.
-    pub fn from_terms(t: [f32; TERMS], samples: u16) -> Self {
+    /// The index's sums as one array: `h_pp`, `g_p`.
+    pub fn to_index_terms(&self) -> [f32; INDEX_TERMS] {
+        let (p, g) = (self.h_pp, self.g_p);
+        [p[0], p[1], p[2], p[3], p[4], g[0], g[1], g[2]]
+    }
+
+    /// The sums from [`GnSums::to_pixel_terms`]' and [`GnSums::to_index_terms`]' arrays and
+    /// the count of samples.
+    pub fn from_terms(p: [f32; PIXEL_TERMS], x: [f32; INDEX_TERMS], samples: u16) -> Self {
         Self {
-            h_dd: t[0],
-            h_dp: [t[1], t[2], t[3]],
-            h_pp: [t[4], t[5], t[6], t[7], t[8]],
-            g_d: t[9],
-            g_p: [t[10], t[11], t[12]],
-            sse: t[13],
-            sse_minus: t[14],
-            sse_plus: t[15],
+            h_dd: p[0],
+            h_dp: [p[1], p[2], p[3]],
+            h_pp: [x[0], x[1], x[2], x[3], x[4]],
+            g_d: p[4],
+            g_p: [x[5], x[6], x[7]],
+            sse: p[5],
+            sse_minus: p[6],
+            sse_plus: p[7],
             samples,
         }
     }

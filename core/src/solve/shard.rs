@@ -3,11 +3,11 @@
 use crate::track::row::{self, TrackerLanes};
 use crate::track::ExtremaList;
 
-use super::fit_row::{self, FitLanes, PixelFit};
+use super::fit_row::{self, FitLanes, IndexLanes, IndexSampling, PixelFit};
 use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
 use super::order::{Observation, OrderChoice, OrderContext};
-use super::refine::{AngleModels, GnSums};
+use super::refine::{AngleModels, GnSums, INDEX_TERMS};
 use super::sweep::{FitStats, SchurSums, SolverOptions, SweepSolver, SweepSpec};
 use super::IndexModel;
 
@@ -84,12 +84,15 @@ impl AsMut<ExtremaList> for PixelState {
     }
 }
 
-/// Bytes of solver state per pixel: its [`PixelState`] and its shares of the tracker and
-/// fit blocks (each a block of [`row::LANES`] pixels, rounded up).
-pub const fn state_bytes_per_pixel() -> usize {
+/// Bytes of solver state per pixel of rows of `width` whose index's sums `sampling` keeps:
+/// its [`PixelState`], its shares of the tracker and fit blocks (each a block of
+/// [`row::LANES`] pixels, rounded up) and of the row's index blocks ([`IndexLanes`],
+/// rounded up).
+pub fn state_bytes_per_pixel(sampling: IndexSampling, width: usize) -> usize {
     core::mem::size_of::<PixelState>()
         + core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES)
         + core::mem::size_of::<FitLanes>().div_ceil(row::LANES)
+        + sampling.bytes_per_pixel(width)
 }
 
 /// Tracker blocks, and fit blocks, a shard of `pixels` pixels in rows of `width` needs
@@ -111,8 +114,12 @@ pub struct Shard<'a> {
     pub pixels: &'a mut [PixelState],
     /// The pixels' extremum trackers, row after row ([`tracker_blocks`] of them).
     trackers: &'a mut [TrackerLanes],
-    /// The pixels' thickness, counters and sums, in the same blocks.
+    /// The pixels' thickness, counters and own sums, in the same blocks.
     fits: &'a mut [FitLanes],
+    /// Which pixels keep the index's sums.
+    sampling: IndexSampling,
+    /// Their sums, [`IndexSampling::blocks_per_row`] blocks a row.
+    index: &'a mut [IndexLanes],
 }
 
 /// A pixel's final result.
@@ -143,14 +150,16 @@ impl PixelResult {
 }
 
 impl<'a> Shard<'a> {
-    /// A shard over caller-owned states, trackers and fits (`trackers.len()` and
-    /// `fits.len()` must be [`tracker_blocks`]`(pixels.len(), width)`).
+    /// A shard over caller-owned states, trackers, fits and index sums (`trackers.len()`
+    /// and `fits.len()` must be [`tracker_blocks`]`(pixels.len(), width)`, `index.1.len()`
+    /// the rows times `index.0`'s [`IndexSampling::blocks_per_row`]).
     pub fn new(
         first_row: usize,
         width: usize,
         pixels: &'a mut [PixelState],
         trackers: &'a mut [TrackerLanes],
         fits: &'a mut [FitLanes],
+        (sampling, index): (IndexSampling, &'a mut [IndexLanes]),
     ) -> Self {
         let blocks = tracker_blocks(pixels.len(), width);
         assert!(
@@ -158,25 +167,48 @@ impl<'a> Shard<'a> {
             "one tracker and one fit block per {} pixels of a row",
             row::LANES
         );
+        let rows = pixels.len().checked_div(width).unwrap_or(0);
+        assert_eq!(
+            index.len(),
+            rows * sampling.blocks_per_row(width),
+            "the index blocks of every row"
+        );
         Self {
             first_row,
             width,
             pixels,
             trackers,
             fits,
+            sampling,
+            index,
         }
     }
 
-    /// Pixel `i`'s thickness, counters and sums (a copy).
+    /// Pixel `i`'s thickness, counters and sums (a copy; the index's sums are zeros where
+    /// the pixel keeps none).
     pub fn fit(&self, i: usize) -> PixelFit {
         let (b, lane) = row::locate(self.width, i);
-        self.fits[b].pixel(lane)
+        let index = self
+            .index_lane(i)
+            .map_or([0.0; INDEX_TERMS], |(b, l)| self.index[b].terms(l));
+        self.fits[b].pixel(lane, index)
     }
 
-    /// Stores pixel `i`'s thickness, counters and sums.
+    /// Stores pixel `i`'s thickness, counters and sums (the index's where it keeps them).
     fn set_fit(&mut self, i: usize, f: &PixelFit) {
         let (b, lane) = row::locate(self.width, i);
         self.fits[b].set_pixel(lane, f);
+        if let Some((b, l)) = self.index_lane(i) {
+            self.index[b].set_terms(l, f.gn.to_index_terms());
+        }
+    }
+
+    /// The index block and lane of pixel `i`, if it keeps the index's sums.
+    fn index_lane(&self, i: usize) -> Option<(usize, usize)> {
+        let (r, c) = (i / self.width, i % self.width);
+        let slot = self.sampling.slot(self.first_row + r, c)?;
+        let b = r * self.sampling.blocks_per_row(self.width) + slot / row::LANES;
+        Some((b, slot % row::LANES))
     }
 
     /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
@@ -191,6 +223,11 @@ impl<'a> Shard<'a> {
             self.set_fit(i, &f);
             self.pixels[i].flags = flags::FROM_SPECTRUM_SEARCH;
         }
+    }
+
+    /// Which pixels keep the index's sums.
+    pub fn sampling(&self) -> IndexSampling {
+        self.sampling
     }
 
     /// Rows held.
@@ -266,6 +303,9 @@ impl<'a> Shard<'a> {
         let first = (row - self.first_row) * blocks;
         let trackers = &mut self.trackers[first..first + blocks];
         let fits = &mut self.fits[first..first + blocks];
+        let per_row = self.sampling.blocks_per_row(self.width);
+        let local = row - self.first_row;
+        let index = &mut self.index[local * per_row..(local + 1) * per_row];
         if models.seeds_held {
             // A block whose every pixel holds its thickness has no order to choose: its
             // extrema are not needed (measured: the tracker was a quarter of a polishing
@@ -279,7 +319,8 @@ impl<'a> Shard<'a> {
         } else {
             row::push_row(trackers, band as u16, values, options.subband, pixels);
         }
-        fit_row::push_row(fits, values, coef.map(|c| (c, models.knots)));
+        let model = coef.map(|c| (c, models.knots));
+        fit_row::push_row(fits, values, model, (self.sampling, row, index));
     }
 
     /// Angle-end pass 1: every pixel's extremum ratios against the reference angle (the
@@ -330,9 +371,9 @@ impl<'a> Shard<'a> {
 
     /// Angle-end pass 2, one call of `f(row, window, schur)` per image row (rows in order, so
     /// that merging them in row order gives the same floating-point result however the image
-    /// is sharded): the sums of the ratios inside the accepted window, and the pixels'
-    /// contributions to the shared index step (their own thickness eliminated), outliers left
-    /// out.
+    /// is sharded): the sums of the ratios inside the accepted window, and the contributions
+    /// of the pixels that keep the index's sums ([`IndexSampling`]) to the shared index step
+    /// (their own thickness eliminated), outliers left out.
     pub fn sums(&self, solver: &SweepSolver, mut f: impl FnMut(usize, RatioSums, SchurSums)) {
         let spec = solver.spec();
         let window = solver.pair_geometry().zip(solver.ratio_window());
@@ -353,6 +394,9 @@ impl<'a> Shard<'a> {
                     accumulate_window(&mut w, g, windows, &p.anchor, &p.current, |b| {
                         spec.wavelength_at(b)
                     });
+                }
+                if self.index_lane(r * width + c).is_none() {
+                    continue;
                 }
                 let f = self.fit(r * width + c);
                 if !(Self::trusted(&f, limit) && settled(&f)) {
@@ -782,10 +826,16 @@ mod size_tests {
         // 2 x 42 (20 extrema of 2 bytes and a one-byte length), 88 with padding; its tracker
         // lanes in the row blocks, 58 bytes a pixel (a ring of nine 2-byte steps; the scalar
         // tracker's 57, 60 with padding) and the block's shared ring position and count, 59
-        // rounded up; its fit lanes in the row blocks:
-        // thickness and order step 8, the sixteen full-spectrum sums 64 (the scalar `GnSums`
-        // is 68 with its count and padding), the sums' count and the saturated and dead counts
-        // 6, and the block's shared sample count, 79 rounded up; 226 in all.
+        // rounded up; its fit lanes in the row blocks: thickness and order step 8, its own
+        // eight full-spectrum sums 32 (the scalar `GnSums` is 68 with the index's eight, its
+        // count and padding), the sums' count and the saturated and dead counts 6, and the
+        // block's shared sample count, 47 rounded up; 194 in all, and the index's eight sums
+        // (32 bytes) of the pixels that keep them: every pixel of a 320 x 200 sensor (226 in
+        // all), one in 4 of a 640 x 480 one (202), one in 64 of a 2048 x 2048 one (one block
+        // of 32 a row: 0.5 bytes a pixel, 1 rounded up: 195).
+        let small = IndexSampling::for_sensor(320, 200);
+        let vga = IndexSampling::for_sensor(640, 480);
+        let large = IndexSampling::for_sensor(2048, 2048);
         let sizes = [
             core::mem::size_of::<PixelTracker>(),
             core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES),
@@ -793,9 +843,13 @@ mod size_tests {
             core::mem::size_of::<GnSums>(),
             core::mem::size_of::<PixelState>(),
             core::mem::size_of::<FitLanes>().div_ceil(row::LANES),
-            state_bytes_per_pixel(),
+            core::mem::size_of::<IndexLanes>() / row::LANES,
+            state_bytes_per_pixel(small, 320),
+            state_bytes_per_pixel(vga, 640),
+            state_bytes_per_pixel(large, 2048),
         ];
-        assert_eq!(sizes, [60, 59, 42, 68, 88, 79, 226]);
+        assert_eq!(sizes, [60, 59, 42, 68, 88, 47, 32, 226, 202, 195]);
+        assert_eq!((small.stride, vga.stride, large.stride), (1, 4, 64));
     }
 }
 
@@ -805,6 +859,7 @@ struct OneRow {
     pixels: [PixelState; ONE_ROW],
     trackers: [TrackerLanes; 2],
     fits: [FitLanes; 2],
+    index: [IndexLanes; 2],
 }
 
 /// Pixels of a [`OneRow`].
@@ -818,6 +873,7 @@ impl OneRow {
             pixels: [(); ONE_ROW].map(|_| PixelState::default()),
             trackers: [TrackerLanes::EMPTY; 2],
             fits: [FitLanes::EMPTY; 2],
+            index: [IndexLanes::EMPTY; 2],
         }
     }
 
@@ -828,6 +884,7 @@ impl OneRow {
             &mut self.pixels,
             &mut self.trackers,
             &mut self.fits,
+            (IndexSampling::ALL, &mut self.index),
         )
     }
 }

@@ -119,6 +119,11 @@ impl SweepSpec {
         s * s
     }
 
+    /// Which pixels keep the shared index's sums ([`super::fit_row::IndexSampling`]).
+    pub fn index_sampling(&self) -> super::fit_row::IndexSampling {
+        super::fit_row::IndexSampling::for_sensor(self.width, self.height)
+    }
+
     /// The wavelength range in which the tracker reliably finds extrema (clear of the
     /// smoothing window at either end).
     pub fn reliable_range_nm(&self) -> [f64; 2] {
