@@ -30,7 +30,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
 use crossbeam_channel::Sender;
-use filmscope_core::solve::fit_row::IndexSampling;
+use filmscope_core::solve::fit_row::{IndexSampling, INDEX_PIXELS};
 use filmscope_core::solve::shard::PixelResult;
 use filmscope_core::solve::{state_bytes_per_pixel, SweepSolver, SweepSpec};
 use filmscope_core::track::row::{blocks_for, push_row, TrackerLanes};
@@ -557,7 +557,10 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         latency_ms_per_mpix: latency,
         latency_parts_ms_per_mpix: latency_parts,
         pipeline_sensor: [pw, ph],
-        state_bytes_per_pixel: state_bytes_per_pixel(IndexSampling::for_sensor(2048, 2048), 2048),
+        state_bytes_per_pixel: state_bytes_per_pixel(
+            IndexSampling::for_sensor(2048, 2048, INDEX_PIXELS),
+            2048,
+        ),
         rss,
         rss_error,
         methods,

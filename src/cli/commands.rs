@@ -111,18 +111,13 @@ pub fn estimate(
     capture: &Path,
     out: &Path,
     method_name: &str,
-    workers: usize,
-    channel_capacity: usize,
+    pipeline: PipelineConfig,
     brute: (usize, f64),
     (field_name, field_strips): (&str, Option<usize>),
 ) -> Result<()> {
     let config = RunConfig {
         method: method(method_name)?,
-        pipeline: PipelineConfig {
-            channel_capacity,
-            workers,
-            ..PipelineConfig::default()
-        },
+        pipeline,
         brute_grid: BruteGrid {
             index_steps: brute.0,
             thickness_step_nm: brute.1,
@@ -257,13 +252,17 @@ pub fn eval(
     method_name: &str,
     json: bool,
     brute: (usize, f64),
-    ablate: &[String],
+    (ablate, index_pixels): (&[String], usize),
     (field_name, field_strips): (&str, Option<usize>),
 ) -> Result<()> {
     if inputs.is_empty() {
         bail!("eval needs at least one scene file or capture directory");
     }
     let (solver, wide, polish) = ablated(ablate)?;
+    let solver = SolverOptions {
+        index_pixels,
+        ..solver
+    };
     let config = RunConfig {
         method: method(method_name)?,
         brute_grid: BruteGrid {

@@ -6,6 +6,9 @@ mod progress;
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
+use filmscope_core::solve::sweep::SolverOptions;
+
+use crate::pipeline::PipelineConfig;
 
 /// filmscope: thin-film index and thickness maps from hyperspectral angle sweeps.
 #[derive(Debug, Parser)]
@@ -57,6 +60,10 @@ enum Command {
         /// Capacity of each pipeline channel, in messages.
         #[arg(long, default_value_t = 64)]
         channel_capacity: usize,
+        /// About how many pixels keep the shared index's sums (32 bytes each); the index's
+        /// step is theirs. Every pixel of a sensor with fewer than twice as many.
+        #[arg(long, default_value_t = filmscope_core::solve::fit_row::INDEX_PIXELS)]
+        index_pixels: usize,
         /// Brute force: number of index values over the search range (0: a 0.01 step).
         #[arg(long, default_value_t = 0)]
         brute_index_steps: usize,
@@ -100,6 +107,9 @@ enum Command {
         /// polish (the closing Gauss-Newton pass over a replayable source) (comma-separated).
         #[arg(long, value_delimiter = ',')]
         ablate: Vec<String>,
+        /// About how many pixels keep the shared index's sums (see `estimate`).
+        #[arg(long, default_value_t = filmscope_core::solve::fit_row::INDEX_PIXELS)]
+        index_pixels: usize,
         /// Brute force: number of index values over the search range (0: a 0.01 step).
         #[arg(long, default_value_t = 0)]
         brute_index_steps: usize,
@@ -264,6 +274,7 @@ pub fn main() -> std::process::ExitCode {
             method,
             workers,
             channel_capacity,
+            index_pixels,
             brute_index_steps,
             brute_thickness_step,
             field,
@@ -272,8 +283,15 @@ pub fn main() -> std::process::ExitCode {
             &capture,
             &out,
             &method,
-            workers,
-            channel_capacity,
+            PipelineConfig {
+                channel_capacity,
+                workers,
+                solver: SolverOptions {
+                    index_pixels,
+                    ..SolverOptions::default()
+                },
+                ..PipelineConfig::default()
+            },
             (brute_index_steps, brute_thickness_step),
             (&field, field_strips),
         ),
@@ -283,6 +301,7 @@ pub fn main() -> std::process::ExitCode {
             method,
             json,
             ablate,
+            index_pixels,
             brute_index_steps,
             brute_thickness_step,
             field,
@@ -292,7 +311,7 @@ pub fn main() -> std::process::ExitCode {
             &method,
             json,
             (brute_index_steps, brute_thickness_step),
-            &ablate,
+            (&ablate, index_pixels),
             (&field, field_strips),
         ),
         Command::Bench { quick, json, scene } => commands::bench(&scene, quick, json),

@@ -416,13 +416,9 @@ pub fn run_sweep(
         .map(|i| {
             let (first, rows) = shard_rows(h, workers, i);
             Some(match &seed {
-                Some((map, index)) => ShardState::seeded(
-                    first,
-                    &map[first * w..(first + rows) * w],
-                    w,
-                    *index,
-                    &spec,
-                ),
+                Some((map, index)) => {
+                    ShardState::seeded(first, &map[first * w..(first + rows) * w], w, *index, &spec)
+                }
                 None => ShardState::empty(rows, w, spec.index_sampling()),
             })
         })

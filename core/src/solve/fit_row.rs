@@ -77,8 +77,9 @@ impl Default for FitLanes {
 /// The samples of one block, padded to [`LANES`].
 type Lanes = [f32; LANES];
 
-/// Pixels that keep the index's sums in a large image: about this many (a 1 Mpix sensor's
-/// index step from one pixel in 16; every pixel of a smaller one).
+/// Pixels that keep the index's sums in a large image by default
+/// ([`super::sweep::SolverOptions::index_pixels`]): about this many (a 1 Mpix sensor's
+/// index step from one pixel in 16; every pixel of a sensor under 131072).
 pub const INDEX_PIXELS: usize = 65_536;
 
 /// Which pixels keep the shared index's sums ([`IndexLanes`]): one in `stride`, on the
@@ -105,11 +106,11 @@ impl IndexSampling {
     /// Every pixel.
     pub const ALL: Self = Self { stride: 1 };
 
-    /// About [`INDEX_PIXELS`] of a `width` x `height` sensor (at least that many; every
-    /// pixel of a sensor with fewer than twice as many).
-    pub fn for_sensor(width: usize, height: usize) -> Self {
+    /// About `pixels` of a `width` x `height` sensor (at least that many; every pixel of a
+    /// sensor with fewer than twice as many).
+    pub fn for_sensor(width: usize, height: usize, pixels: usize) -> Self {
         Self {
-            stride: (width.saturating_mul(height) / INDEX_PIXELS).max(1),
+            stride: (width.saturating_mul(height) / pixels.max(1)).max(1),
         }
     }
 

@@ -833,9 +833,9 @@ mod size_tests {
         // (32 bytes) of the pixels that keep them: every pixel of a 320 x 200 sensor (226 in
         // all), one in 4 of a 640 x 480 one (202), one in 64 of a 2048 x 2048 one (one block
         // of 32 a row: 0.5 bytes a pixel, 1 rounded up: 195).
-        let small = IndexSampling::for_sensor(320, 200);
-        let vga = IndexSampling::for_sensor(640, 480);
-        let large = IndexSampling::for_sensor(2048, 2048);
+        let small = IndexSampling::for_sensor(320, 200, fit_row::INDEX_PIXELS);
+        let vga = IndexSampling::for_sensor(640, 480, fit_row::INDEX_PIXELS);
+        let large = IndexSampling::for_sensor(2048, 2048, fit_row::INDEX_PIXELS);
         let sizes = [
             core::mem::size_of::<PixelTracker>(),
             core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES),

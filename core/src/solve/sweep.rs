@@ -87,6 +87,10 @@ pub struct SolverOptions {
     pub neighbours: bool,
     /// Extrema placed to a fraction of a band (off: at the band centre).
     pub subband: bool,
+    /// About how many pixels keep the shared index's sums, the rest only their own
+    /// ([`super::fit_row::IndexSampling`]; 32 bytes a pixel that keeps them): the index's
+    /// step is theirs. Every pixel of a sensor with fewer than twice as many.
+    pub index_pixels: usize,
 }
 
 impl Default for SolverOptions {
@@ -96,6 +100,7 @@ impl Default for SolverOptions {
             half_order: true,
             neighbours: true,
             subband: true,
+            index_pixels: super::fit_row::INDEX_PIXELS,
         }
     }
 }
@@ -121,7 +126,11 @@ impl SweepSpec {
 
     /// Which pixels keep the shared index's sums ([`super::fit_row::IndexSampling`]).
     pub fn index_sampling(&self) -> super::fit_row::IndexSampling {
-        super::fit_row::IndexSampling::for_sensor(self.width, self.height)
+        super::fit_row::IndexSampling::for_sensor(
+            self.width,
+            self.height,
+            self.options.index_pixels,
+        )
     }
 
     /// The wavelength range in which the tracker reliably finds extrema (clear of the
