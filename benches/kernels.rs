@@ -241,7 +241,7 @@ fn bench_refine(c: &mut Criterion) {
         ("fit_lanes_tabled_1024px_x_151b", 1),
         ("fit_lanes_tabled_1024px_x_151b_index_1_in_16", 16),
     ] {
-        let sampling = IndexSampling { stride };
+        let sampling = IndexSampling::one_in(stride);
         let mut index = vec![IndexLanes::EMPTY; sampling.blocks_per_row(PIXELS)];
         g.bench_function(name, |bench| {
             bench.iter(|| {

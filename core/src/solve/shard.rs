@@ -187,28 +187,37 @@ impl<'a> Shard<'a> {
     /// Pixel `i`'s thickness, counters and sums (a copy; the index's sums are zeros where
     /// the pixel keeps none).
     pub fn fit(&self, i: usize) -> PixelFit {
-        let (b, lane) = row::locate(self.width, i);
-        let index = self
-            .index_lane(i)
-            .map_or([0.0; INDEX_TERMS], |(b, l)| self.index[b].terms(l));
-        self.fits[b].pixel(lane, index)
+        let (fit, index) = self.lanes_of(i);
+        let terms = index.map_or([0.0; INDEX_TERMS], |(b, l)| self.index[b].terms(l));
+        self.fits[fit.0].pixel(fit.1, terms)
     }
 
     /// Stores pixel `i`'s thickness, counters and sums (the index's where it keeps them).
     fn set_fit(&mut self, i: usize, f: &PixelFit) {
-        let (b, lane) = row::locate(self.width, i);
+        let ((b, lane), index) = self.lanes_of(i);
         self.fits[b].set_pixel(lane, f);
-        if let Some((b, l)) = self.index_lane(i) {
+        if let Some((b, l)) = index {
             self.index[b].set_terms(l, f.gn.to_index_terms());
         }
     }
 
-    /// The index block and lane of pixel `i`, if it keeps the index's sums.
-    fn index_lane(&self, i: usize) -> Option<(usize, usize)> {
-        let (r, c) = (i / self.width, i % self.width);
-        let slot = self.sampling.slot(self.first_row + r, c)?;
-        let b = r * self.sampling.blocks_per_row(self.width) + slot / row::LANES;
-        Some((b, slot % row::LANES))
+    /// Pixel `i`'s fit block and lane, and its index block and lane if it keeps the index's
+    /// sums ([`row::locate`]'s and [`IndexSampling::slot`]'s, one division).
+    #[inline]
+    fn lanes_of(&self, i: usize) -> ((usize, usize), Option<(usize, usize)>) {
+        let w = self.width.max(1);
+        let (r, c) = (i / w, i % w);
+        let fit = (r * w.div_ceil(row::LANES) + c / row::LANES, c % row::LANES);
+        let index = self.sampling.slot(self.first_row + r, c).map(|slot| {
+            let b = r * self.sampling.blocks_per_row(w) + slot / row::LANES;
+            (b, slot % row::LANES)
+        });
+        (fit, index)
+    }
+
+    /// Whether pixel `i` keeps the index's sums.
+    fn keeps_index(&self, i: usize) -> bool {
+        self.lanes_of(i).1.is_some()
     }
 
     /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
@@ -395,7 +404,7 @@ impl<'a> Shard<'a> {
                         spec.wavelength_at(b)
                     });
                 }
-                if self.index_lane(r * width + c).is_none() {
+                if !self.keeps_index(r * width + c) {
                     continue;
                 }
                 let f = self.fit(r * width + c);
@@ -824,15 +833,15 @@ mod size_tests {
     fn pixel_state_size_is_fixed_and_known() {
         // Breakdown: the pixel's state: flags, extrema seen and the two extremum lists
         // 2 x 42 (20 extrema of 2 bytes and a one-byte length), 88 with padding; its tracker
-        // lanes in the row blocks, 58 bytes a pixel (a ring of nine 2-byte steps; the scalar
-        // tracker's 57, 60 with padding) and the block's shared ring position and count, 59
+        // lanes in the row blocks, 56 bytes a pixel (a ring of nine 2-byte steps; the scalar
+        // tracker's 55, 56 with padding) and the block's shared ring position and count, 57
         // rounded up; its fit lanes in the row blocks: thickness and order step 8, its own
         // eight full-spectrum sums 32 (the scalar `GnSums` is 68 with the index's eight, its
         // count and padding), the sums' count and the saturated and dead counts 6, and the
-        // block's shared sample count, 47 rounded up; 194 in all, and the index's eight sums
-        // (32 bytes) of the pixels that keep them: every pixel of a 320 x 200 sensor (226 in
-        // all), one in 4 of a 640 x 480 one (202), one in 64 of a 2048 x 2048 one (one block
-        // of 32 a row: 0.5 bytes a pixel, 1 rounded up: 195).
+        // block's shared sample count, 47 rounded up; 192 in all, and the index's eight sums
+        // (32 bytes) of the pixels that keep them: every pixel of a 320 x 200 sensor (224 in
+        // all), one in 4 of a 640 x 480 one (200), one in 64 of a 2048 x 2048 one (one block
+        // of 32 a row: 0.5 bytes a pixel, 1 rounded up: 193).
         let small = IndexSampling::for_sensor(320, 200, fit_row::INDEX_PIXELS);
         let vga = IndexSampling::for_sensor(640, 480, fit_row::INDEX_PIXELS);
         let large = IndexSampling::for_sensor(2048, 2048, fit_row::INDEX_PIXELS);
@@ -848,8 +857,8 @@ mod size_tests {
             state_bytes_per_pixel(vga, 640),
             state_bytes_per_pixel(large, 2048),
         ];
-        assert_eq!(sizes, [60, 59, 42, 68, 88, 47, 32, 226, 202, 195]);
-        assert_eq!((small.stride, vga.stride, large.stride), (1, 4, 64));
+        assert_eq!(sizes, [56, 57, 42, 68, 88, 47, 32, 224, 200, 193]);
+        assert_eq!([small, vga, large].map(|s| s.stride()), [1, 4, 64]);
     }
 }
 

@@ -193,7 +193,9 @@ impl Mode {
 /// [`PixelTracker::noise_sigma`]): `tau = TAU_PER_D2 * mean |second difference|`.
 const TAU_PER_D2: f32 = PROMINENCE_SIGMA * 0.5 / 1.954;
 
-/// Tracker state of one pixel for one angle: 60 bytes, independent of bands and angles.
+/// Tracker state of one pixel for one angle: 56 bytes, independent of bands and angles
+/// (bad samples are bridged here and counted by the full-spectrum sums,
+/// [`crate::solve::fit_row::FitLanes`]).
 ///
 /// The smoothing window's three moments (`sum q`, `sum k q`, `sum k^2 q` of the ring steps
 /// `q`, with `k = -4..4` from the window centre) are carried from sample to sample in a few
@@ -221,11 +223,9 @@ pub struct PixelTracker {
     d2_sum: f32,
     /// Samples seen this angle (saturates).
     seen: u16,
-    /// Non-finite samples seen this angle (saturated or dead).
-    pub bad_samples: u16,
     head: u8,
     mode: Mode,
-    /// Overflow or bad samples seen.
+    /// More extrema found than the list holds.
     pub overflow: bool,
 }
 
@@ -324,7 +324,6 @@ impl PixelTracker {
         let (v, q) = if usable(value) {
             to_step(value)
         } else {
-            self.bad_samples = self.bad_samples.saturating_add(1);
             if self.seen == 0 {
                 return false;
             }

@@ -25,7 +25,7 @@ use super::{
 pub const LANES: usize = 32;
 
 /// Tracker state of [`LANES`] pixels of one row: the fields of [`PixelTracker`] as arrays over
-/// the pixels, with the ring position and sample count shared (59 bytes per pixel).
+/// the pixels, with the ring position and sample count shared (57 bytes per pixel).
 #[derive(Clone, Copy, Debug)]
 pub struct TrackerLanes {
     /// `ring[k][i]`: ring slot `k` of lane `i`.
@@ -38,7 +38,6 @@ pub struct TrackerLanes {
     ext_pos: [f32; LANES],
     min_val: [f32; LANES],
     min_pos: [f32; LANES],
-    bad_samples: [u16; LANES],
     /// Samples seen by an out-of-step lane (the others have seen `seen`).
     lane_seen: [u16; LANES],
     /// `Mode as u8`.
@@ -77,7 +76,6 @@ impl TrackerLanes {
         ext_pos: [0.0; LANES],
         min_val: [0.0; LANES],
         min_pos: [0.0; LANES],
-        bad_samples: [0; LANES],
         lane_seen: [0; LANES],
         mode: [Mode::Start as u8; LANES],
         overflow: [false; LANES],
@@ -125,7 +123,6 @@ impl TrackerLanes {
             min_pos: self.min_pos[i],
             d2_sum: self.d2_sum[i],
             seen: if own { self.lane_seen[i] } else { self.seen },
-            bad_samples: self.bad_samples[i],
             head: if own { self.lane_head[i] } else { self.head },
             mode: Mode::from_u8(self.mode[i]),
             overflow: self.overflow[i],
@@ -140,7 +137,6 @@ impl TrackerLanes {
         }
         [self.m0[i], self.m1[i], self.m2[i]] = t.moments;
         self.d2_sum[i] = t.d2_sum;
-        self.bad_samples[i] = t.bad_samples;
         self.lane_seen[i] = t.seen;
         self.lane_head[i] = t.head;
         self.set_extremes(i, t);
@@ -201,13 +197,9 @@ impl TrackerLanes {
         self.seen = seen.saturating_add(1);
         if seen == 0 {
             // A lane without a usable first sample stays where it was (the scalar tracker
-            // returns early), one bad sample counted: out of step from now on.
+            // returns early): out of step from now on.
             for i in (0..LANES).filter(|&i| !usable(values[i])) {
-                let t = PixelTracker {
-                    bad_samples: 1,
-                    ..PixelTracker::default()
-                };
-                self.set_lane(i, &t);
+                self.set_lane(i, &PixelTracker::default());
                 self.out_of_step[i] = true;
                 self.any_out_of_step = true;
             }
@@ -264,9 +256,6 @@ impl TrackerLanes {
             );
         }
         self.ring[head] = q_row;
-        for i in 0..LANES {
-            self.bad_samples[i] = self.bad_samples[i].saturating_add(u16::from(!usable(values[i])));
-        }
     }
 
     /// The first smoothed sample ([`PixelTracker::start`]'s first step): every lane in step is

@@ -55,16 +55,18 @@ fn noise_on_a_broad_top_does_not_split_the_peak() {
 }
 
 #[test]
-fn edges_are_not_extrema_and_bad_samples_are_counted() {
+fn edges_are_not_extrema_and_bad_samples_are_bridged() {
     let (out, t) = run((0..60).map(|b| if b == 30 { f32::NAN } else { b as f32 * 0.01 }));
     assert!(out.is_empty(), "{out:?}");
-    assert_eq!(t.bad_samples, 1);
+    // The ramp's second differences are zero, the bridged sample's too (it repeats the one
+    // before, so one difference of a step and its mirror).
+    assert!(t.noise_sigma() < 1e-3, "{}", t.noise_sigma());
 }
 
 #[test]
 fn state_size_is_fixed() {
     assert!(
-        core::mem::size_of::<PixelTracker>() <= 76,
+        core::mem::size_of::<PixelTracker>() <= 56,
         "{}",
         core::mem::size_of::<PixelTracker>()
     );
@@ -79,7 +81,6 @@ fn proptest_huge_finite_samples_are_bad_samples() {
     s[3] = f32::NAN;
     s[10] = -1.124_262_1e38;
     let (out, t) = run(s.iter().copied());
-    assert_eq!(t.bad_samples, 2);
     assert!(out.windows(2).all(|w| w[0].band() <= w[1].band()));
     assert!(t.noise_sigma().is_finite());
 }
