@@ -236,10 +236,12 @@ fn bench_refine(c: &mut Criterion) {
             b.set_pixel(i % LANES, &p);
         }
     };
-    // Every pixel keeping the index's sums (a small sensor), and one in 16 (a 1 Mpix one).
+    // Every pixel keeping the index's sums (a small sensor), one in 16 (a 1 Mpix one: two
+    // lanes of every block) and one in 64 (4 Mpix: one lane of every other block).
     for (name, stride) in [
         ("fit_lanes_tabled_1024px_x_151b", 1),
         ("fit_lanes_tabled_1024px_x_151b_index_1_in_16", 16),
+        ("fit_lanes_tabled_1024px_x_151b_index_1_in_64", 64),
     ] {
         let sampling = IndexSampling::one_in(stride);
         let mut index = vec![IndexLanes::EMPTY; sampling.blocks_per_row(PIXELS)];

@@ -489,20 +489,31 @@ impl FitLanes {
         };
         let all = inside.iter().fold(1, |a, &i| a & i) == 1;
         match (all, index) {
-            (true, BlockIndex::Lanes(x)) => self.add_from::<false, true>(&at, &inside, v, u, x),
-            (false, BlockIndex::Lanes(x)) => self.add_from::<true, true>(&at, &inside, v, u, x),
-            (all, index) => {
-                // Few lanes (or none) keep the index's sums: those from each lane's index
-                // derivative and residual, kept by the lane loop.
-                let mut x = IndexLanes::EMPTY;
+            (true, BlockIndex::Lanes(x)) => {
+                self.add_from::<false, ALL_INDEX, INDEX_TERMS>(&at, &inside, v, u, &mut x.sums)
+            }
+            (false, BlockIndex::Lanes(x)) => {
+                self.add_from::<true, ALL_INDEX, INDEX_TERMS>(&at, &inside, v, u, &mut x.sums)
+            }
+            (all, BlockIndex::None) => {
                 if all {
-                    self.add_from::<false, false>(&at, &inside, v, u, &mut x);
+                    self.add_from::<false, NO_INDEX, 0>(&at, &inside, v, u, &mut []);
                 } else {
-                    self.add_from::<true, false>(&at, &inside, v, u, &mut x);
+                    self.add_from::<true, NO_INDEX, 0>(&at, &inside, v, u, &mut []);
+                }
+            }
+            (all, index) => {
+                // A few lanes keep the index's sums: those from each lane's index derivative
+                // and residual, kept by the lane loop.
+                let mut kept = [[0.0; LANES]; 2];
+                if all {
+                    self.add_from::<false, KEEP_INDEX, 2>(&at, &inside, v, u, &mut kept);
+                } else {
+                    self.add_from::<true, KEEP_INDEX, 2>(&at, &inside, v, u, &mut kept);
                 }
                 if let BlockIndex::Slots { lane, stride, .. } = *index {
                     for i in (lane..LANES).step_by(stride).filter(|&i| inside[i] != 0) {
-                        index.add(i, GnSums::index_terms(x.sums[0][i], x.sums[1][i], u));
+                        index.add(i, GnSums::index_terms(kept[0][i], kept[1][i], u));
                     }
                 }
             }
@@ -512,16 +523,17 @@ impl FitLanes {
 
     /// Adds the samples `v` from the lanes' knots `at`. `MASKED`: only the lanes `inside`
     /// (1, else 0); the others keep their sums (an added zero could change a zero's sign).
-    /// `INDEX`: the index's sums to `x`, lane for lane; else `x`'s first two rows get each
-    /// lane's index derivative and residual.
+    /// `INDEX`: [`ALL_INDEX`], the index's sums to `x` (its [`INDEX_TERMS`] rows), lane for
+    /// lane; [`KEEP_INDEX`], `x`'s two rows get each lane's index derivative and residual;
+    /// [`NO_INDEX`], `x` is empty.
     #[inline(always)]
-    fn add_from<const MASKED: bool, const INDEX: bool>(
+    fn add_from<const MASKED: bool, const INDEX: u8, const N: usize>(
         &mut self,
         at: &Tabled<'_>,
         inside: &Mask,
         v: &Lanes,
         u: f32,
-        x: &mut IndexLanes,
+        x: &mut [Lanes; N],
     ) {
         let [c, lo, hi] = at.pairs;
         for i in 0..LANES {
@@ -538,19 +550,26 @@ impl FitLanes {
                 self.sums[k][i] = if add { sum + t } else { sum };
             }
             let r = v[i] - s.m;
-            if INDEX {
+            if INDEX == ALL_INDEX {
                 for (k, t) in GnSums::index_terms(s.j_n, r, u).into_iter().enumerate() {
-                    let sum = x.sums[k][i];
-                    x.sums[k][i] = if add { sum + t } else { sum };
+                    let sum = x[k][i];
+                    x[k][i] = if add { sum + t } else { sum };
                 }
-            } else {
-                x.sums[0][i] = s.j_n;
-                x.sums[1][i] = r;
+            } else if let (KEEP_INDEX, [jn, res, ..]) = (INDEX, &mut x[..]) {
+                jn[i] = s.j_n;
+                res[i] = r;
             }
             self.gn_samples[i] = self.gn_samples[i].saturating_add(u16::from(add));
         }
     }
 }
+
+/// [`FitLanes::add_from`]: every lane keeps the index's sums.
+const ALL_INDEX: u8 = 0;
+/// [`FitLanes::add_from`]: a few lanes do; their index derivatives and residuals are kept.
+const KEEP_INDEX: u8 = 1;
+/// [`FitLanes::add_from`]: no lane does.
+const NO_INDEX: u8 = 2;
 
 /// The knot and fraction of a table position `0 <= x < 2^22`: `(x as u32, x - knot as f32)`
 /// (what [`BandCoef::eval`] computes), without a float-to-integer conversion, which would

@@ -592,7 +592,10 @@ impl GnSums {
     }
 
     /// Moves the linearisation point by `dd` (thickness) and `dp` (index basis coefficients):
-    /// the gradients and the squared error follow the linear model.
+    /// the gradients and the squared error follow the linear model. A pixel that keeps no
+    /// index sums ([`super::fit_row::IndexSampling`]; zeros here) moves its squared error by
+    /// the thickness's terms only: measured, leaving the index's out for every pixel changed
+    /// no figure `filmscope eval` prints on the config scenes and the thick stability cells.
     pub fn shift(&mut self, dd: f64, dp: [f64; 3]) {
         let h = |i: usize, j: usize| f64::from(self.h_pp[i + j]);
         let h_dp = self.h_dp.map(f64::from);
