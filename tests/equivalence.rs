@@ -9,10 +9,21 @@ use filmscope::io::{Capture, Interleave};
 use filmscope::pipeline::{CaptureSource, PipelineConfig, SimSource, Source};
 use filmscope::simulate::{write_capture, SimulateOptions};
 use filmscope::sweep::MethodResult;
+use filmscope_core::solve::fit_row::INDEX_PIXELS;
 use firmware_sim::SoftwareCamera;
 
 fn run(source: &mut dyn Source, workers: usize, channel_capacity: usize) -> MethodResult {
-    let config = RunConfig {
+    run_keeping(source, workers, channel_capacity, INDEX_PIXELS)
+}
+
+/// [`run`] with about `index_pixels` pixels keeping the index's sums.
+fn run_keeping(
+    source: &mut dyn Source,
+    workers: usize,
+    channel_capacity: usize,
+    index_pixels: usize,
+) -> MethodResult {
+    let mut config = RunConfig {
         pipeline: PipelineConfig {
             channel_capacity,
             workers,
@@ -20,6 +31,7 @@ fn run(source: &mut dyn Source, workers: usize, channel_capacity: usize) -> Meth
         },
         ..RunConfig::default()
     };
+    config.pipeline.solver.index_pixels = index_pixels;
     run_method(source, &config, &|_| {}).expect("run").result
 }
 
@@ -119,6 +131,32 @@ fn uneven_shards_and_partial_lane_blocks_give_the_same_maps() {
         &[(1, 2, 4), (3, 5, 2), (2, 7, 64)],
         "45x23: ",
     );
+}
+
+/// With one pixel in 8 keeping the index's sums (`index_pixels`; a large sensor's default,
+/// on a small one), the pixels that keep them, and so the maps, do not depend on how the
+/// rows are sharded: the sample is chosen by image row and column.
+#[test]
+fn the_index_sample_does_not_depend_on_the_shards() {
+    let text = common::TINY_SCENE
+        .replace("width = 32", "width = 45")
+        .replace("height = 24", "height = 23");
+    let scene = firmware_sim::Scene::from_toml(&text, "tiny-45x23").expect("scene");
+    let keep = 45 * 23 / 8;
+    let camera = |rows| SimSource::new(SoftwareCamera::new(scene.clone()), false, rows);
+    let reference = run_keeping(&mut camera(1).expect("source"), 1, 64, keep);
+    let all = run(&mut camera(1).expect("source"), 1, 64);
+    // The sample was in effect: another index (the whole image's differs in its last bits).
+    assert_ne!(reference.index.a.to_bits(), all.index.a.to_bits());
+    assert!((reference.index.a - all.index.a).abs() < 1e-3);
+    for (rows, workers, cap) in [(1, 2, 4), (3, 5, 2), (2, 7, 64)] {
+        let got = run_keeping(&mut camera(rows).expect("source"), workers, cap, keep);
+        same(
+            &reference,
+            &got,
+            &format!("1 in 8: rows {rows}, workers {workers}, capacity {cap}"),
+        );
+    }
 }
 
 #[test]
