@@ -3,11 +3,13 @@
 //! (structure of arrays), like the tracker's [`crate::track::row::TrackerLanes`].
 //!
 //! A band's row reaches all the block's pixels together, so the table positions, the
-//! interpolation and the sixteen sums are computed lane by lane in loops the compiler
-//! vectorises; only fetching each pixel's knots is one lane at a time. A pixel whose
-//! thickness or order neighbours fall outside the band's table, or a band without a table,
-//! takes the computed model one lane at a time ([`BandCoef::eval`]): both give the sums
-//! [`GnSums::add`] gives, bit for bit.
+//! interpolation and a pixel's own eight sums are computed lane by lane in loops the
+//! compiler vectorises; only fetching each pixel's knots is one lane at a time. The index's
+//! eight sums go to [`IndexLanes`] for the pixels [`IndexSampling`] picks: lane by lane too
+//! where every pixel keeps them, else from each lane's index derivative and residual for
+//! the few that do. A pixel whose thickness or order neighbours fall outside the band's
+//! table, or a band without a table, takes the computed model one lane at a time
+//! ([`BandCoef::eval`]): both give the sums [`GnSums::add`] gives, bit for bit.
 
 // The lane loops index parallel arrays by lane: that is the form that vectorises.
 #![allow(clippy::needless_range_loop)]

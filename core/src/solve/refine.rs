@@ -438,11 +438,11 @@ pub struct GnSums {
     pub samples: u16,
 }
 
-/// Sums every pixel keeps ([`GnSums::pixel_terms`]): `h_dd`, `h_dp`, `g_d`, `sse`,
+/// Sums every pixel keeps ([`GnSums::to_pixel_terms`]): `h_dd`, `h_dp`, `g_d`, `sse`,
 /// `sse_minus`, `sse_plus`.
 pub const PIXEL_TERMS: usize = 8;
 
-/// Sums only the shared index's step needs ([`GnSums::index_terms`]): `h_pp`, `g_p`. A
+/// Sums only the shared index's step needs ([`GnSums::to_index_terms`]): `h_pp`, `g_p`. A
 /// sample of the pixels keeps them ([`super::fit_row::IndexSampling`]).
 pub const INDEX_TERMS: usize = 8;
 

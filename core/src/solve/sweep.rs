@@ -639,7 +639,7 @@ impl SweepSolver {
 
     /// Covariance of the index's basis coefficients (`p0` the index at 550 nm, then the
     /// dispersion terms; zero beyond the model's terms), when an estimate gave one: what the
-    /// index's own uncertainty adds to each pixel's thickness ([`GnSums::thickness_sigma_nm`]).
+    /// index's own uncertainty adds to each pixel's thickness ([`super::refine::GnSums::thickness_sigma_nm`]).
     /// `None` when unknown or not finite.
     pub fn index_covariance(&self) -> Option<[[f64; 3]; 3]> {
         self.index_cov
