@@ -133,7 +133,7 @@ impl IndexSampling {
 
     /// Places for sampled pixels in a row of `width` (enough for the row with the most).
     pub fn slots_per_row(&self, width: usize) -> usize {
-        width.div_ceil(self.stride())
+        (width + self.mask()) >> self.shift
     }
 
     /// [`IndexLanes`] blocks per row of `width`.

@@ -187,37 +187,44 @@ impl<'a> Shard<'a> {
     /// Pixel `i`'s thickness, counters and sums (a copy; the index's sums are zeros where
     /// the pixel keeps none).
     pub fn fit(&self, i: usize) -> PixelFit {
-        let (fit, index) = self.lanes_of(i);
+        let w = self.width.max(1);
+        self.fit_at(i / w, i % w)
+    }
+
+    /// [`Shard::fit`] of the pixel in the shard's row `r`, column `c`.
+    fn fit_at(&self, r: usize, c: usize) -> PixelFit {
+        let (fit, index) = self.lanes_at(r, c);
         let terms = index.map_or([0.0; INDEX_TERMS], |(b, l)| self.index[b].terms(l));
         self.fits[fit.0].pixel(fit.1, terms)
     }
 
     /// Stores pixel `i`'s thickness, counters and sums (the index's where it keeps them).
     fn set_fit(&mut self, i: usize, f: &PixelFit) {
-        let ((b, lane), index) = self.lanes_of(i);
+        let w = self.width.max(1);
+        self.set_fit_at(i / w, i % w, f);
+    }
+
+    /// [`Shard::set_fit`] of the pixel in the shard's row `r`, column `c`.
+    fn set_fit_at(&mut self, r: usize, c: usize, f: &PixelFit) {
+        let ((b, lane), index) = self.lanes_at(r, c);
         self.fits[b].set_pixel(lane, f);
         if let Some((b, l)) = index {
             self.index[b].set_terms(l, f.gn.to_index_terms());
         }
     }
 
-    /// Pixel `i`'s fit block and lane, and its index block and lane if it keeps the index's
-    /// sums ([`row::locate`]'s and [`IndexSampling::slot`]'s, one division).
+    /// The fit (and tracker) block and lane of the pixel in the shard's row `r`, column `c`
+    /// ([`row::locate`]'s), and its index block and lane if it keeps the index's sums: no
+    /// division (the angle-end passes call this for every pixel).
     #[inline]
-    fn lanes_of(&self, i: usize) -> ((usize, usize), Option<(usize, usize)>) {
+    fn lanes_at(&self, r: usize, c: usize) -> ((usize, usize), Option<(usize, usize)>) {
         let w = self.width.max(1);
-        let (r, c) = (i / w, i % w);
         let fit = (r * w.div_ceil(row::LANES) + c / row::LANES, c % row::LANES);
         let index = self.sampling.slot(self.first_row + r, c).map(|slot| {
             let b = r * self.sampling.blocks_per_row(w) + slot / row::LANES;
             (b, slot % row::LANES)
         });
         (fit, index)
-    }
-
-    /// Whether pixel `i` keeps the index's sums.
-    fn keeps_index(&self, i: usize) -> bool {
-        self.lanes_of(i).1.is_some()
     }
 
     /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
@@ -404,10 +411,10 @@ impl<'a> Shard<'a> {
                         spec.wavelength_at(b)
                     });
                 }
-                if !self.keeps_index(r * width + c) {
+                if self.lanes_at(r, c).1.is_none() {
                     continue;
                 }
-                let f = self.fit(r * width + c);
+                let f = self.fit_at(r, c);
                 if !(Self::trusted(&f, limit) && settled(&f)) {
                     continue;
                 }
@@ -462,10 +469,13 @@ impl<'a> Shard<'a> {
         let orders = Self::order_context(solver);
         let finish = out.is_some().then(|| Finish::of(solver));
         let frozen = solver.frozen_seeds();
-        for i in 0..self.pixels.len() {
-            let mut f = self.fit(i);
+        let w = self.width.max(1);
+        let rows = self.pixels.len() / w;
+        for (r, c) in (0..rows).flat_map(|r| (0..w).map(move |c| (r, c))) {
+            let i = r * w + c;
+            let mut f = self.fit_at(r, c);
             // The overflow flag read in place, not through a copy of the pixel's tracker.
-            let (block, lane) = row::locate(self.width, i);
+            let ((block, lane), _) = self.lanes_at(r, c);
             let overflow = self.trackers[block].overflow(lane);
             let p = &mut self.pixels[i];
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
@@ -512,7 +522,7 @@ impl<'a> Shard<'a> {
             {
                 *o = fin.result(p, &f);
             }
-            self.set_fit(i, &f);
+            self.set_fit_at(r, c, &f);
         }
     }
 
