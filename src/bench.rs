@@ -428,7 +428,9 @@ pub struct BenchReport {
     pub latency_parts_ms_per_mpix: [f64; 5],
     /// Sensor of the pipeline and latency figures.
     pub pipeline_sensor: [usize; 2],
-    /// Bytes of solver state per pixel (constant in bands, angles and sweeps).
+    /// Bytes of solver state per pixel of the 2048 x 2048 sensor of the RSS figure (constant
+    /// in bands, angles and sweeps; a sensor under 131072 pixels, whose every pixel keeps
+    /// the index's sums, has 31 more: `state_bytes_per_pixel`).
     pub state_bytes_per_pixel: usize,
     /// Peak memory of a large sweep.
     pub rss: Option<RssFigures>,
@@ -620,7 +622,7 @@ pub fn format_table(r: &BenchReport) -> String {
         "",
     );
     row(
-        "state, bytes per pixel",
+        "state, bytes per pixel (2048x2048)",
         r.state_bytes_per_pixel.to_string(),
         "<= 64",
     );
