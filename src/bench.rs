@@ -428,10 +428,12 @@ pub struct BenchReport {
     pub latency_parts_ms_per_mpix: [f64; 5],
     /// Sensor of the pipeline and latency figures.
     pub pipeline_sensor: [usize; 2],
-    /// Bytes of solver state per pixel of the 2048 x 2048 sensor of the RSS figure (constant
+    /// Bytes of solver state per pixel of the RSS figure's sensor, `state_sensor` (constant
     /// in bands, angles and sweeps; a sensor under 131072 pixels, whose every pixel keeps
-    /// the index's sums, has 31 more: `state_bytes_per_pixel`).
+    /// the index's sums, has 31 more than 2048 x 2048: `state_bytes_per_pixel`).
     pub state_bytes_per_pixel: usize,
+    /// The sensor of `state_bytes_per_pixel`.
+    pub state_sensor: [usize; 2],
     /// Peak memory of a large sweep.
     pub rss: Option<RssFigures>,
     /// Why the memory figure is missing, if it is.
@@ -560,9 +562,10 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         latency_parts_ms_per_mpix: latency_parts,
         pipeline_sensor: [pw, ph],
         state_bytes_per_pixel: state_bytes_per_pixel(
-            IndexSampling::for_sensor(2048, 2048, INDEX_PIXELS),
-            2048,
+            IndexSampling::for_sensor(rw, rh, INDEX_PIXELS),
+            rw,
         ),
+        state_sensor: [rw, rh],
         rss,
         rss_error,
         methods,
@@ -621,8 +624,9 @@ pub fn format_table(r: &BenchReport) -> String {
         format!("{drain:.0}/{tally:.0}/{sums:.0}/{update:.0}/{ties:.0}"),
         "",
     );
+    let [sw, sh] = r.state_sensor;
     row(
-        "state, bytes per pixel (2048x2048)",
+        &format!("state, bytes per pixel ({sw}x{sh})"),
         r.state_bytes_per_pixel.to_string(),
         "<= 64",
     );

@@ -92,10 +92,21 @@ fn same_on_every_path(
     paths: &[(usize, usize, usize)],
     what: &str,
 ) {
+    same_on_every_path_keeping(scene, reference, paths, what, INDEX_PIXELS);
+}
+
+/// [`same_on_every_path`] with about `index_pixels` pixels keeping the index's sums.
+fn same_on_every_path_keeping(
+    scene: &firmware_sim::Scene,
+    reference: &MethodResult,
+    paths: &[(usize, usize, usize)],
+    what: &str,
+    index_pixels: usize,
+) {
     for &(rows, workers, cap) in paths {
         let mut src =
             SimSource::new(SoftwareCamera::new(scene.clone()), false, rows).expect("source");
-        let got = run(&mut src, workers, cap);
+        let got = run_keeping(&mut src, workers, cap, index_pixels);
         same(
             reference,
             &got,
@@ -110,10 +121,7 @@ fn same_on_every_path(
 /// each counted once.
 #[test]
 fn uneven_shards_and_partial_lane_blocks_give_the_same_maps() {
-    let text = common::TINY_SCENE
-        .replace("width = 32", "width = 45")
-        .replace("height = 24", "height = 23");
-    let scene = firmware_sim::Scene::from_toml(&text, "tiny-45x23").expect("scene");
+    let scene = tiny_45x23();
     let reference = run(
         &mut SimSource::new(SoftwareCamera::new(scene.clone()), false, 1).expect("source"),
         1,
@@ -138,25 +146,29 @@ fn uneven_shards_and_partial_lane_blocks_give_the_same_maps() {
 /// rows are sharded: the sample is chosen by image row and column.
 #[test]
 fn the_index_sample_does_not_depend_on_the_shards() {
-    let text = common::TINY_SCENE
-        .replace("width = 32", "width = 45")
-        .replace("height = 24", "height = 23");
-    let scene = firmware_sim::Scene::from_toml(&text, "tiny-45x23").expect("scene");
+    let scene = tiny_45x23();
     let keep = 45 * 23 / 8;
-    let camera = |rows| SimSource::new(SoftwareCamera::new(scene.clone()), false, rows);
-    let reference = run_keeping(&mut camera(1).expect("source"), 1, 64, keep);
-    let all = run(&mut camera(1).expect("source"), 1, 64);
+    let camera = || SimSource::new(SoftwareCamera::new(scene.clone()), false, 1);
+    let reference = run_keeping(&mut camera().expect("source"), 1, 64, keep);
+    let all = run(&mut camera().expect("source"), 1, 64);
     // The sample was in effect: another index (the whole image's differs in its last bits).
     assert_ne!(reference.index.a.to_bits(), all.index.a.to_bits());
     assert!((reference.index.a - all.index.a).abs() < 1e-3);
-    for (rows, workers, cap) in [(1, 2, 4), (3, 5, 2), (2, 7, 64)] {
-        let got = run_keeping(&mut camera(rows).expect("source"), workers, cap, keep);
-        same(
-            &reference,
-            &got,
-            &format!("1 in 8: rows {rows}, workers {workers}, capacity {cap}"),
-        );
-    }
+    same_on_every_path_keeping(
+        &scene,
+        &reference,
+        &[(1, 2, 4), (3, 5, 2), (2, 7, 64)],
+        "1 in 8: ",
+        keep,
+    );
+}
+
+/// The tiny scene at 45 x 23: shards of unequal height, rows ending in a partial lane block.
+fn tiny_45x23() -> firmware_sim::Scene {
+    let text = common::TINY_SCENE
+        .replace("width = 32", "width = 45")
+        .replace("height = 24", "height = 23");
+    firmware_sim::Scene::from_toml(&text, "tiny-45x23").expect("scene")
 }
 
 #[test]

@@ -490,29 +490,14 @@ impl FitLanes {
             inv_h: span.inv_h(),
         };
         let all = inside.iter().fold(1, |a, &i| a & i) == 1;
-        match (all, index) {
-            (true, BlockIndex::Lanes(x)) => {
-                self.add_from::<false, ALL_INDEX, INDEX_TERMS>(&at, &inside, v, u, &mut x.sums)
-            }
-            (false, BlockIndex::Lanes(x)) => {
-                self.add_from::<true, ALL_INDEX, INDEX_TERMS>(&at, &inside, v, u, &mut x.sums)
-            }
-            (all, BlockIndex::None) => {
-                if all {
-                    self.add_from::<false, NO_INDEX, 0>(&at, &inside, v, u, &mut []);
-                } else {
-                    self.add_from::<true, NO_INDEX, 0>(&at, &inside, v, u, &mut []);
-                }
-            }
-            (all, index) => {
+        match index {
+            BlockIndex::Lanes(x) => self.add_with(all, &at, &inside, v, u, &mut x.sums),
+            BlockIndex::None => self.add_with(all, &at, &inside, v, u, &mut []),
+            BlockIndex::Slots { .. } => {
                 // A few lanes keep the index's sums: those from each lane's index derivative
                 // and residual, kept by the lane loop.
                 let mut kept = [[0.0; LANES]; 2];
-                if all {
-                    self.add_from::<false, KEEP_INDEX, 2>(&at, &inside, v, u, &mut kept);
-                } else {
-                    self.add_from::<true, KEEP_INDEX, 2>(&at, &inside, v, u, &mut kept);
-                }
+                self.add_with(all, &at, &inside, v, u, &mut kept);
                 if let BlockIndex::Slots { lane, stride, .. } = *index {
                     for i in (lane..LANES).step_by(stride).filter(|&i| inside[i] != 0) {
                         index.add(i, GnSums::index_terms(kept[0][i], kept[1][i], u));
@@ -523,13 +508,30 @@ impl FitLanes {
         inside
     }
 
+    /// [`FitLanes::add_from`], unmasked if `all` lanes are inside.
+    #[inline(always)]
+    fn add_with<const N: usize>(
+        &mut self,
+        all: bool,
+        at: &Tabled<'_>,
+        inside: &Mask,
+        v: &Lanes,
+        u: f32,
+        x: &mut [Lanes; N],
+    ) {
+        if all {
+            self.add_from::<false, N>(at, inside, v, u, x);
+        } else {
+            self.add_from::<true, N>(at, inside, v, u, x);
+        }
+    }
+
     /// Adds the samples `v` from the lanes' knots `at`. `MASKED`: only the lanes `inside`
     /// (1, else 0); the others keep their sums (an added zero could change a zero's sign).
-    /// `INDEX`: [`ALL_INDEX`], the index's sums to `x` (its [`INDEX_TERMS`] rows), lane for
-    /// lane; [`KEEP_INDEX`], `x`'s two rows get each lane's index derivative and residual;
-    /// [`NO_INDEX`], `x` is empty.
+    /// The index's: with [`INDEX_TERMS`] rows, `x` gets them lane for lane; with two, each
+    /// lane's index derivative and residual; with none, nothing.
     #[inline(always)]
-    fn add_from<const MASKED: bool, const INDEX: u8, const N: usize>(
+    fn add_from<const MASKED: bool, const N: usize>(
         &mut self,
         at: &Tabled<'_>,
         inside: &Mask,
@@ -552,12 +554,12 @@ impl FitLanes {
                 self.sums[k][i] = if add { sum + t } else { sum };
             }
             let r = v[i] - s.m;
-            if INDEX == ALL_INDEX {
+            if N == INDEX_TERMS {
                 for (k, t) in GnSums::index_terms(s.j_n, r, u).into_iter().enumerate() {
                     let sum = x[k][i];
                     x[k][i] = if add { sum + t } else { sum };
                 }
-            } else if let (KEEP_INDEX, [jn, res, ..]) = (INDEX, &mut x[..]) {
+            } else if let [jn, res] = &mut x[..] {
                 jn[i] = s.j_n;
                 res[i] = r;
             }
@@ -565,13 +567,6 @@ impl FitLanes {
         }
     }
 }
-
-/// [`FitLanes::add_from`]: every lane keeps the index's sums.
-const ALL_INDEX: u8 = 0;
-/// [`FitLanes::add_from`]: a few lanes do; their index derivatives and residuals are kept.
-const KEEP_INDEX: u8 = 1;
-/// [`FitLanes::add_from`]: no lane does.
-const NO_INDEX: u8 = 2;
 
 /// The knot and fraction of a table position `0 <= x < 2^22`: `(x as u32, x - knot as f32)`
 /// (what [`BandCoef::eval`] computes), without a float-to-integer conversion, which would
@@ -628,6 +623,24 @@ mod tests {
         for (stride, row) in [(1, 0), (2, 1), (4, 0), (4, 7), (64, 5), (64, 40)] {
             lanes_match_the_scalar_sums_with(IndexSampling::one_in(stride), row);
         }
+    }
+
+    /// Feeds `values` of image row `row` to a one-block row (`lanes`, its index blocks
+    /// `index`) under `sampling`, with the band's model.
+    fn feed(
+        lanes: &mut [FitLanes; 1],
+        index: &mut [IndexLanes; 1],
+        values: &[f32],
+        model: (&BandCoef, &[Knot]),
+        (sampling, row): (IndexSampling, usize),
+    ) {
+        let per_row = sampling.blocks_per_row(values.len());
+        push_row(
+            lanes,
+            values,
+            Some(model),
+            (sampling, row, &mut index[..per_row]),
+        );
     }
 
     /// The pixel's sums as `row`'s index blocks `index` keep them (zeros where they do not).
@@ -688,12 +701,12 @@ mod tests {
                 2 if i % 6 == 0 => 3e7,
                 _ => 0.1 + 0.01 * ((i * 7 + s * 3) % 13) as f32,
             });
-            let per_row = sampling.blocks_per_row(n);
-            push_row(
+            feed(
                 &mut lanes,
+                &mut index,
                 &values,
-                Some((coef, knots)),
-                (sampling, row, &mut index[..per_row]),
+                (coef, knots),
+                (sampling, row),
             );
             for (p, &v) in scalar.iter_mut().zip(&values) {
                 p.samples += 1;
@@ -800,12 +813,12 @@ mod tests {
             let coef = coefs[s % 2].as_ref().expect("a band");
             let values: [f32; LANES] =
                 core::array::from_fn(|i| 0.05 + 0.013 * ((i * 5 + s * 7) % 17) as f32);
-            let per_row = sampling.blocks_per_row(LANES);
-            push_row(
+            feed(
                 &mut lanes,
+                &mut index,
                 &values,
-                Some((coef, knots)),
-                (sampling, row, &mut index[..per_row]),
+                (coef, knots),
+                (sampling, row),
             );
             for (p, &v) in scalar.iter_mut().zip(&values) {
                 p.samples += 1;

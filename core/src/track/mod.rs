@@ -207,7 +207,7 @@ const TAU_PER_D2: f32 = PROMINENCE_SIGMA * 0.5 / 1.954;
 /// are in steps; [`PixelTracker::noise_sigma`] is in reflectance.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PixelTracker {
-    /// The last 9 samples as ring steps ([`to_ring`]); `head` is the oldest (the next to be
+    /// The last 9 samples as ring steps ([`to_step`]); `head` is the oldest (the next to be
     /// overwritten).
     ring: [u16; WINDOW],
     /// `sum q`, `sum k q`, `sum k^2 q` over the ring, whole numbers.
