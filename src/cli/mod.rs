@@ -61,7 +61,8 @@ enum Command {
         #[arg(long, default_value_t = 64)]
         channel_capacity: usize,
         /// About how many pixels keep the shared index's sums (32 bytes each); the index's
-        /// step is theirs. Every pixel of a sensor with fewer than twice as many.
+        /// step, the ratio votes and the pooled noise are theirs. Every pixel of a sensor
+        /// with fewer than twice as many.
         #[arg(long, default_value_t = filmscope_core::solve::fit_row::INDEX_PIXELS)]
         index_pixels: usize,
         /// Brute force: number of index values over the search range (0: a 0.01 step).

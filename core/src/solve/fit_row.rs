@@ -88,7 +88,8 @@ pub const INDEX_PIXELS: usize = 65_536;
 /// two), on the diagonals `(row + col) % stride == 0`, so that every row and every column
 /// of the image has its share (a film in a narrow strip of either is sampled). The index's
 /// step is the least-squares step of these pixels (their thickness eliminated); every
-/// pixel's thickness steps with it. A row's sampled pixels are packed, in column order, into
+/// pixel's thickness steps with it. The same pixels give the image-wide statistics: the
+/// extremum-ratio votes and window sums, the RMS median and the pooled noise. A row's sampled pixels are packed, in column order, into
 /// [`IndexSampling::blocks_per_row`] blocks; with `stride` 1 a pixel's place in them is its
 /// place in the row's [`FitLanes`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -144,6 +145,11 @@ impl IndexSampling {
     /// The first sampled column of image row `row`.
     pub fn first_col(&self, row: usize) -> usize {
         row.wrapping_neg() & self.mask()
+    }
+
+    /// The sampled columns of image row `row` of a row of `width`, in order.
+    pub fn cols(&self, row: usize, width: usize) -> core::iter::StepBy<core::ops::Range<usize>> {
+        (self.first_col(row).min(width)..width).step_by(self.stride())
     }
 
     /// The place of pixel (`row`, `col`) among its row's sampled pixels, if it is one.

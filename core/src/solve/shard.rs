@@ -265,8 +265,8 @@ impl<'a> Shard<'a> {
         }
     }
 
-    /// Votes the extrema the pixels of image rows `rows` have found so far at this angle and
-    /// not voted yet (their ratios against the reference angle's, as [`Shard::tally`] would
+    /// Votes the extrema the sampled pixels ([`IndexSampling`]) of image rows `rows` have
+    /// found so far at this angle and not voted yet (their ratios against the reference angle's, as [`Shard::tally`] would
     /// count them), into `votes`, and marks them voted. Extrema are only ever appended, so a
     /// row voted before its last bands leaves its tally the few extrema found since: done
     /// while the angle streams, this takes most of the pairing off the angle's end.
@@ -281,9 +281,13 @@ impl<'a> Shard<'a> {
         };
         let spec = solver.spec();
         let (lo, hi) = self.local_rows(rows);
-        for p in &mut self.pixels[lo * self.width..hi * self.width] {
-            votes.vote(g, &p.anchor, p.unvoted(), |b| spec.wavelength_at(b));
-            p.voted = p.current.len() as u8;
+        let w = self.width;
+        for r in lo..hi {
+            for c in self.sampling.cols(self.first_row + r, w) {
+                let p = &mut self.pixels[r * w + c];
+                votes.vote(g, &p.anchor, p.unvoted(), |b| spec.wavelength_at(b));
+                p.voted = p.current.len() as u8;
+            }
         }
     }
 
@@ -339,8 +343,11 @@ impl<'a> Shard<'a> {
         fit_row::push_row(fits, values, model, (self.sampling, row, index));
     }
 
-    /// Angle-end pass 1: every pixel's extremum ratios against the reference angle (the
-    /// votes), the RMS residuals of the refined pixels and every pixel's noise.
+    /// Angle-end pass 1, over the pixels that keep the index's sums ([`IndexSampling`]; every
+    /// pixel of a small sensor): their extremum ratios against the reference angle (the
+    /// votes), the RMS residuals of the refined ones and their noise. Image-wide statistics
+    /// (the ratio window, the RMS median, the pooled noise) need no more pixels than the
+    /// index's step does, and the other pixels' state is not walked.
     pub fn tally(&self, solver: &SweepSolver) -> (RatioHistogram, FitStats) {
         let mut votes = RatioHistogram::default();
         let mut fit = FitStats::default();
@@ -362,21 +369,22 @@ impl<'a> Shard<'a> {
         let spec = solver.spec();
         let geometry = solver.pair_geometry();
         let (lo, hi) = self.local_rows(rows);
-        let (w, blocks) = (self.width, tracker_blocks(self.width, self.width));
-        let pixels = &self.pixels[lo * w..hi * w];
-        let trackers = row::lanes(&self.trackers[lo * blocks..hi * blocks], w);
-        let fits = row::lanes(&self.fits[lo * blocks..hi * blocks], w);
+        let w = self.width;
         // A held noise is not pooled; the held pixels' trackers were not fed.
         let noise_held = solver.noise_held();
-        for (p, ((t, lane), (f, _))) in pixels.iter().zip(trackers.zip(fits)) {
-            if let Some(g) = geometry {
-                votes.vote(g, &p.anchor, p.unvoted(), |b| spec.wavelength_at(b));
-            }
-            if let Some(rms) = f.rms(lane) {
-                fit.rms.add(rms);
-            }
-            if !noise_held {
-                fit.noise.add(t.noise_sigma(lane));
+        for r in lo..hi {
+            for c in self.sampling.cols(self.first_row + r, w) {
+                let ((block, lane), _) = self.lanes_at(r, c);
+                let p = &self.pixels[r * w + c];
+                if let Some(g) = geometry {
+                    votes.vote(g, &p.anchor, p.unvoted(), |b| spec.wavelength_at(b));
+                }
+                if let Some(rms) = self.fits[block].rms(lane) {
+                    fit.rms.add(rms);
+                }
+                if !noise_held {
+                    fit.noise.add(self.trackers[block].noise_sigma(lane));
+                }
             }
         }
     }
@@ -387,9 +395,9 @@ impl<'a> Shard<'a> {
 
     /// Angle-end pass 2, one call of `f(row, window, schur)` per image row (rows in order, so
     /// that merging them in row order gives the same floating-point result however the image
-    /// is sharded): the sums of the ratios inside the accepted window, and the contributions
-    /// of the pixels that keep the index's sums ([`IndexSampling`]) to the shared index step
-    /// (their own thickness eliminated), outliers left out.
+    /// is sharded), over the pixels that keep the index's sums ([`IndexSampling`]): the sums
+    /// of their ratios inside the accepted window, and their contributions to the shared
+    /// index step (their own thickness eliminated), outliers left out.
     pub fn sums(&self, solver: &SweepSolver, mut f: impl FnMut(usize, RatioSums, SchurSums)) {
         let spec = solver.spec();
         let window = solver.pair_geometry().zip(solver.ratio_window());
@@ -402,17 +410,15 @@ impl<'a> Shard<'a> {
         let settled =
             |f: &PixelFit| hop.is_none_or(|margin| Self::better_order(f, margin, d_lo).is_none());
         let width = self.width.max(1);
-        for (r, row) in self.pixels.chunks(width).enumerate() {
+        for r in 0..self.rows() {
             let mut w = RatioSums::default();
             let mut s = SchurSums::default();
-            for (c, p) in row.iter().enumerate() {
+            for c in self.sampling.cols(self.first_row + r, width) {
+                let p = &self.pixels[r * width + c];
                 if let Some((g, windows)) = window {
                     accumulate_window(&mut w, g, windows, &p.anchor, &p.current, |b| {
                         spec.wavelength_at(b)
                     });
-                }
-                if self.lanes_at(r, c).1.is_none() {
-                    continue;
                 }
                 let f = self.fit_at(r, c);
                 if !(Self::trusted(&f, limit) && settled(&f)) {
@@ -897,13 +903,21 @@ impl OneRow {
     }
 
     fn shard(&mut self) -> Shard<'_> {
+        self.sampled(IndexSampling::ALL)
+    }
+
+    /// The row as a shard whose pixels of `sampling` keep the index's sums.
+    fn sampled(&mut self, sampling: IndexSampling) -> Shard<'_> {
         Shard::new(
             0,
             ONE_ROW,
             &mut self.pixels,
             &mut self.trackers,
             &mut self.fits,
-            (IndexSampling::ALL, &mut self.index),
+            (
+                sampling,
+                &mut self.index[..sampling.blocks_per_row(ONE_ROW)],
+            ),
         )
     }
 }
@@ -1008,6 +1022,40 @@ mod vote_tests {
                 if let Some(votes) = early.as_deref_mut() {
                     shard.vote_rows(solver, 0..1, votes);
                 }
+            }
+        }
+    }
+
+    /// Only the index's sample of pixels votes and pools its noise: the votes are those of
+    /// its pixels' extrema, count for count, and fewer than every pixel's.
+    #[test]
+    fn the_tally_counts_the_index_sample_only() {
+        let spec = super::super::sweep::paper_rig_spec(W, 1);
+        let mut every = None;
+        for stride in [1, 4] {
+            let mut solver = SweepSolver::new(spec.clone(), None);
+            let mut storage = OneRow::new();
+            let mut shard = storage.sampled(IndexSampling::one_in(stride));
+            solver.begin_angle(10.0);
+            shard.begin_angle();
+            feed(&mut shard, &solver, 10.0, 0, None);
+            solver.end_angle_all(core::slice::from_mut(&mut shard));
+            solver.begin_angle(40.0);
+            shard.begin_angle();
+            feed(&mut shard, &solver, 40.0, 0, None);
+            let (votes, fit) = shard.tally(&solver);
+            let g = solver.pair_geometry().expect("a pair");
+            let mut own = RatioHistogram::default();
+            for p in shard.pixels.iter().step_by(stride) {
+                own.vote(g, &p.anchor, p.unvoted(), |b| spec.wavelength_at(b));
+            }
+            assert!(votes == own, "stride {stride}: not the sample's votes");
+            let pooled: u32 = fit.noise.counts.iter().sum();
+            assert_eq!(pooled as usize, W / stride, "stride {stride}");
+            let total: u32 = votes.counts.iter().sum();
+            match every {
+                None => every = Some(total),
+                Some(all) => assert!(4 * total <= all + W as u32, "{total} of {all}"),
             }
         }
     }

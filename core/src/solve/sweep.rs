@@ -89,7 +89,8 @@ pub struct SolverOptions {
     pub subband: bool,
     /// About how many pixels keep the shared index's sums, the rest only their own
     /// ([`super::fit_row::IndexSampling`]; 32 bytes a pixel that keeps them): the index's
-    /// step is theirs. Every pixel of a sensor with fewer than twice as many.
+    /// step is theirs, and so are the ratio votes, the RMS median and the pooled noise.
+    /// Every pixel of a sensor with fewer than twice as many.
     pub index_pixels: usize,
 }
 
