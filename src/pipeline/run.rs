@@ -19,6 +19,7 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::calibrate::calibrate_row;
+use filmscope_core::solve::anchor::AnchorTail;
 use filmscope_core::solve::fit_row::{FitLanes, IndexLanes, IndexSampling};
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
 use filmscope_core::solve::refine::{AngleModels, BandCoef, Knot};
@@ -27,7 +28,7 @@ use filmscope_core::solve::sweep::{FitStats, SchurSums};
 use filmscope_core::solve::{
     tracker_blocks, AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
 };
-use filmscope_core::track::row::TrackerLanes;
+use filmscope_core::track::row::{TrackerLanes, LANES};
 
 use super::msg::{Samples, StreamMsg};
 use super::source::Source;
@@ -163,6 +164,8 @@ pub struct ShardState {
     pub sampling: IndexSampling,
     /// Their sums.
     pub index: Vec<IndexLanes>,
+    /// Their reference extrema but the last.
+    pub anchors: Vec<AnchorTail>,
 }
 
 impl ShardState {
@@ -176,6 +179,7 @@ impl ShardState {
             fits: vec![FitLanes::EMPTY; blocks],
             sampling,
             index: vec![IndexLanes::EMPTY; rows * sampling.blocks_per_row(width)],
+            anchors: vec![AnchorTail::EMPTY; rows * sampling.blocks_per_row(width) * LANES],
         }
     }
 
@@ -205,7 +209,7 @@ impl ShardState {
             &mut self.pixels,
             &mut self.trackers,
             &mut self.fits,
-            (self.sampling, &mut self.index),
+            (self.sampling, &mut self.index, &mut self.anchors),
         )
     }
 }

@@ -89,7 +89,8 @@ pub const INDEX_PIXELS: usize = 65_536;
 /// of the image has its share (a film in a narrow strip of either is sampled). The index's
 /// step is the least-squares step of these pixels (their thickness eliminated); every
 /// pixel's thickness steps with it. The same pixels give the image-wide statistics: the
-/// extremum-ratio votes and window sums, the RMS median and the pooled noise. A row's sampled pixels are packed, in column order, into
+/// extremum-ratio votes and window sums, the RMS median and the pooled noise. A row's
+/// sampled pixels are packed, in column order, into
 /// [`IndexSampling::blocks_per_row`] blocks; with `stride` 1 a pixel's place in them is its
 /// place in the row's [`FitLanes`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -156,11 +157,6 @@ impl IndexSampling {
     #[inline]
     pub fn slot(&self, row: usize, col: usize) -> Option<usize> {
         ((row + col) & self.mask() == 0).then(|| col >> self.shift)
-    }
-
-    /// Bytes of index sums per pixel of rows of `width`, rounded up.
-    pub fn bytes_per_pixel(&self, width: usize) -> usize {
-        (self.blocks_per_row(width) * core::mem::size_of::<IndexLanes>()).div_ceil(width.max(1))
     }
 
     /// Where block `block` of image row `row` keeps its sampled pixels' sums, given the

@@ -127,6 +127,16 @@ impl OrderContext {
     /// Finds the best order for the observations (the first [`MAX_OBSERVATIONS`]; a pixel's
     /// two extremum lists hold at most that many); `None` without observations.
     pub fn resolve(&self, obs: &[Observation]) -> Option<OrderChoice> {
+        self.resolve_seen(obs, None)
+    }
+
+    /// [`OrderContext::resolve`], the first angle's count of extrema inside the reliable
+    /// range given (`anchor_seen`) where its observations are only some of them.
+    pub fn resolve_seen(
+        &self,
+        obs: &[Observation],
+        anchor_seen: Option<i64>,
+    ) -> Option<OrderChoice> {
         let obs = &obs[..obs.len().min(MAX_OBSERVATIONS)];
         // What every candidate needs of each observation: its order per nm of thickness and
         // its parity, and how many of each angle's lie inside the reliable range.
@@ -139,6 +149,9 @@ impl OrderContext {
             if reliable && o.angle < 2 {
                 seen[o.angle] += 1;
             }
+        }
+        if let Some(n) = anchor_seen {
+            seen[0] = n;
         }
         let prepared = &prepared[..obs.len()];
         let mut root = [[0.0; 2]; 2];

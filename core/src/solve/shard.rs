@@ -3,6 +3,7 @@
 use crate::track::row::{self, TrackerLanes};
 use crate::track::ExtremaList;
 
+use super::anchor::{AnchorHead, AnchorTail};
 use super::fit_row::{self, FitLanes, IndexLanes, IndexSampling, PixelFit};
 use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
@@ -49,19 +50,20 @@ pub struct PixelState {
     pub flags: u16,
     /// Extrema seen over all angles.
     pub extrema_seen: u8,
-    /// Extrema at the current angle.
-    pub current: ExtremaList,
-    /// Extrema at the reference (first) angle.
-    pub anchor: ExtremaList,
     /// How many of `current` have voted already ([`Shard::vote_rows`]); the tally votes the
     /// rest.
     pub voted: u8,
+    /// Extrema at the current angle.
+    pub current: ExtremaList,
+    /// The last extrema at the reference (first) angle (the pixels of the index's sample
+    /// keep the rest: [`AnchorTail`]).
+    pub anchor: AnchorHead,
 }
 
 impl Default for PixelState {
     fn default() -> Self {
         Self {
-            anchor: ExtremaList::new(),
+            anchor: AnchorHead::EMPTY,
             current: ExtremaList::new(),
             extrema_seen: 0,
             flags: 0,
@@ -84,15 +86,17 @@ impl AsMut<ExtremaList> for PixelState {
     }
 }
 
-/// Bytes of solver state per pixel of rows of `width` whose index's sums `sampling` keeps:
-/// its [`PixelState`], its shares of the tracker and fit blocks (each a block of
-/// [`row::LANES`] pixels, rounded up) and of the row's index blocks ([`IndexLanes`],
-/// rounded up).
+/// Bytes of solver state per pixel of rows of `width` whose index's sample `sampling`
+/// picks: its [`PixelState`], its shares of the tracker and fit blocks (each a block of
+/// [`row::LANES`] pixels, rounded up) and of what the row's sampled pixels keep besides
+/// (their index sums, [`IndexLanes`], and reference extrema, [`AnchorTail`]; rounded up).
 pub fn state_bytes_per_pixel(sampling: IndexSampling, width: usize) -> usize {
+    let sample =
+        core::mem::size_of::<IndexLanes>() + row::LANES * core::mem::size_of::<AnchorTail>();
     core::mem::size_of::<PixelState>()
         + core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES)
         + core::mem::size_of::<FitLanes>().div_ceil(row::LANES)
-        + sampling.bytes_per_pixel(width)
+        + (sampling.blocks_per_row(width) * sample).div_ceil(width.max(1))
 }
 
 /// Tracker blocks, and fit blocks, a shard of `pixels` pixels in rows of `width` needs
@@ -120,6 +124,9 @@ pub struct Shard<'a> {
     sampling: IndexSampling,
     /// Their sums, [`IndexSampling::blocks_per_row`] blocks a row.
     index: &'a mut [IndexLanes],
+    /// Their reference extrema but the last ([`PixelState::anchor`]), one per lane of
+    /// `index`.
+    anchors: &'a mut [AnchorTail],
 }
 
 /// A pixel's final result.
@@ -150,17 +157,19 @@ impl PixelResult {
 }
 
 impl<'a> Shard<'a> {
-    /// A shard over caller-owned states, trackers, fits and index sums (`trackers.len()`
-    /// and `fits.len()` must be [`tracker_blocks`]`(pixels.len(), width)`, `index.1.len()`
-    /// the rows times `index.0`'s [`IndexSampling::blocks_per_row`]).
+    /// A shard over caller-owned states, trackers, fits and what the index's sample keeps
+    /// (`trackers.len()` and `fits.len()` must be [`tracker_blocks`]`(pixels.len(), width)`,
+    /// `sample.1.len()` the rows times `sample.0`'s [`IndexSampling::blocks_per_row`],
+    /// `sample.2.len()` [`row::LANES`] times that).
     pub fn new(
         first_row: usize,
         width: usize,
         pixels: &'a mut [PixelState],
         trackers: &'a mut [TrackerLanes],
         fits: &'a mut [FitLanes],
-        (sampling, index): (IndexSampling, &'a mut [IndexLanes]),
+        sample: (IndexSampling, &'a mut [IndexLanes], &'a mut [AnchorTail]),
     ) -> Self {
+        let (sampling, index, anchors) = sample;
         let blocks = tracker_blocks(pixels.len(), width);
         assert!(
             trackers.len() == blocks && fits.len() == blocks,
@@ -173,6 +182,11 @@ impl<'a> Shard<'a> {
             rows * sampling.blocks_per_row(width),
             "the index blocks of every row"
         );
+        assert_eq!(
+            anchors.len(),
+            index.len() * row::LANES,
+            "reference extrema for every index lane"
+        );
         Self {
             first_row,
             width,
@@ -181,6 +195,7 @@ impl<'a> Shard<'a> {
             fits,
             sampling,
             index,
+            anchors,
         }
     }
 
@@ -225,6 +240,14 @@ impl<'a> Shard<'a> {
             (b, slot % row::LANES)
         });
         (fit, index)
+    }
+
+    /// The whole reference extremum list of the pixel in the shard's row `r`, column `c`, if
+    /// it is one of the index's sample (the others keep its last extrema only).
+    fn anchor_at(&self, r: usize, c: usize) -> Option<ExtremaList> {
+        let (_, index) = self.lanes_at(r, c);
+        let head = &self.pixels[r * self.width + c].anchor;
+        index.map(|(b, l)| self.anchors[b * row::LANES + l].join(head))
     }
 
     /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
@@ -284,8 +307,9 @@ impl<'a> Shard<'a> {
         let w = self.width;
         for r in lo..hi {
             for c in self.sampling.cols(self.first_row + r, w) {
+                let anchor = self.anchor_at(r, c).unwrap_or_default();
                 let p = &mut self.pixels[r * w + c];
-                votes.vote(g, &p.anchor, p.unvoted(), |b| spec.wavelength_at(b));
+                votes.vote(g, &anchor, p.unvoted(), |b| spec.wavelength_at(b));
                 p.voted = p.current.len() as u8;
             }
         }
@@ -377,7 +401,8 @@ impl<'a> Shard<'a> {
                 let ((block, lane), _) = self.lanes_at(r, c);
                 let p = &self.pixels[r * w + c];
                 if let Some(g) = geometry {
-                    votes.vote(g, &p.anchor, p.unvoted(), |b| spec.wavelength_at(b));
+                    let anchor = self.anchor_at(r, c).unwrap_or_default();
+                    votes.vote(g, &anchor, p.unvoted(), |b| spec.wavelength_at(b));
                 }
                 if let Some(rms) = self.fits[block].rms(lane) {
                     fit.rms.add(rms);
@@ -414,9 +439,10 @@ impl<'a> Shard<'a> {
             let mut w = RatioSums::default();
             let mut s = SchurSums::default();
             for c in self.sampling.cols(self.first_row + r, width) {
-                let p = &self.pixels[r * width + c];
                 if let Some((g, windows)) = window {
-                    accumulate_window(&mut w, g, windows, &p.anchor, &p.current, |b| {
+                    let anchor = self.anchor_at(r, c).unwrap_or_default();
+                    let current = &self.pixels[r * width + c].current;
+                    accumulate_window(&mut w, g, windows, &anchor, current, |b| {
                         spec.wavelength_at(b)
                     });
                 }
@@ -475,13 +501,15 @@ impl<'a> Shard<'a> {
         let orders = Self::order_context(solver);
         let finish = out.is_some().then(|| Finish::of(solver));
         let frozen = solver.frozen_seeds();
+        let reliable = spec.reliable_range_nm();
         let w = self.width.max(1);
         let rows = self.pixels.len() / w;
         for (r, c) in (0..rows).flat_map(|r| (0..w).map(move |c| (r, c))) {
             let i = r * w + c;
             let mut f = self.fit_at(r, c);
             // The overflow flag read in place, not through a copy of the pixel's tracker.
-            let ((block, lane), _) = self.lanes_at(r, c);
+            let ((block, lane), sample) = self.lanes_at(r, c);
+            let tail = sample.map(|(b, l)| b * row::LANES + l);
             let overflow = self.trackers[block].overflow(lane);
             let p = &mut self.pixels[i];
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
@@ -513,10 +541,17 @@ impl<'a> Shard<'a> {
                 }
             }
             if first_angle {
-                p.anchor = p.current;
+                let inside = p.current.iter().filter(|e| {
+                    (reliable[0]..=reliable[1]).contains(&spec.wavelength_at(e.band()))
+                });
+                p.anchor = AnchorHead::of(&p.current, inside.count());
+                if let Some(t) = tail {
+                    self.anchors[t] = AnchorTail::of(&p.current);
+                }
             }
             if let Some(ctx) = orders.as_ref().filter(|_| !f.thickness_nm.is_finite()) {
-                if let Some(c) = Self::choose(p, spec, ctx) {
+                let whole = tail.map(|t| self.anchors[t].join(&p.anchor));
+                if let Some(c) = Self::choose(p, whole.as_ref(), spec, ctx) {
                     if c.runner_up_cost - c.cost >= AMBIGUITY_MARGIN {
                         Self::set_thickness(p, &mut f, c.thickness_nm, c.order_step_nm, 0);
                     } else {
@@ -598,10 +633,19 @@ impl<'a> Shard<'a> {
         })
     }
 
-    fn choose(p: &PixelState, spec: &SweepSpec, ctx: &OrderContext) -> Option<OrderChoice> {
+    /// The order `p`'s extrema choose: its current ones and its reference ones, the whole
+    /// list `whole` if it keeps it (the index's sample), else its last ones, its order
+    /// search told the whole list's count inside the reliable range.
+    fn choose(
+        p: &PixelState,
+        whole: Option<&ExtremaList>,
+        spec: &SweepSpec,
+        ctx: &OrderContext,
+    ) -> Option<OrderChoice> {
         let mut obs: heapless::Vec<Observation, { 2 * crate::track::MAX_EXTREMA }> =
             heapless::Vec::new();
-        for (angle, list) in [(0, &p.anchor), (1, &p.current)] {
+        let anchor = whole.map_or(p.anchor.extrema(), |l| &l[..]);
+        for (angle, list) in [(0, anchor), (1, &p.current[..])] {
             for e in list.iter() {
                 let _ = obs.push(Observation {
                     wavelength_nm: spec.wavelength_at(e.band()),
@@ -610,7 +654,15 @@ impl<'a> Shard<'a> {
                 });
             }
         }
-        ctx.resolve(&obs)
+        let seen = whole.is_none().then(|| p.anchor.reliable() as i64);
+        ctx.resolve_seen(&obs, seen)
+    }
+
+    /// [`Shard::choose`] of pixel `i` of the shard.
+    fn choose_at(&self, i: usize, spec: &SweepSpec, ctx: &OrderContext) -> Option<OrderChoice> {
+        let w = self.width.max(1);
+        let whole = self.anchor_at(i / w, i % w);
+        Self::choose(&self.pixels[i], whole.as_ref(), spec, ctx)
     }
 
     /// Order resolution, forward (shards in row order): each pixel of `ties` (indices in the
@@ -632,7 +684,7 @@ impl<'a> Shard<'a> {
             if self.fit(i).thickness_nm.is_finite() {
                 continue;
             }
-            let Some(c) = Self::choose(&self.pixels[i], solver.spec(), &ctx) else {
+            let Some(c) = self.choose_at(i, solver.spec(), &ctx) else {
                 continue;
             };
             let left = (i % w > 0).then(|| self.fit(i - 1).thickness_nm);
@@ -666,7 +718,7 @@ impl<'a> Shard<'a> {
             if self.fit(i).thickness_nm.is_finite() {
                 continue;
             }
-            if let Some(c) = Self::choose(&self.pixels[i], solver.spec(), &ctx) {
+            if let Some(c) = self.choose_at(i, solver.spec(), &ctx) {
                 let right = (i % w + 1 < w).then(|| self.fit(i + 1).thickness_nm);
                 let down = if i + w < n {
                     Some(self.fit(i + w).thickness_nm)
@@ -847,17 +899,20 @@ mod size_tests {
 
     #[test]
     fn pixel_state_size_is_fixed_and_known() {
-        // Breakdown: the pixel's state: flags, extrema seen and the two extremum lists
-        // 2 x 42 (20 extrema of 2 bytes and a one-byte length), 88 with padding; its tracker
-        // lanes in the row blocks, 56 bytes a pixel (a ring of nine 2-byte steps; the scalar
-        // tracker's 55, 56 with padding) and the block's shared ring position and count, 57
-        // rounded up; its fit lanes in the row blocks: thickness and order step 8, its own
-        // eight full-spectrum sums 32 (the scalar `GnSums` is 68 with the index's eight, its
-        // count and padding), the sums' count and the saturated and dead counts 6, and the
-        // block's shared sample count, 47 rounded up; 192 in all, and the index's eight sums
-        // (32 bytes) of the pixels that keep them: every pixel of a 320 x 200 sensor (224 in
-        // all), one in 4 of a 640 x 480 one (200), one in 64 of a 2048 x 2048 one (one block
-        // of 32 a row: 0.5 bytes a pixel, 1 rounded up: 193).
+        // Breakdown: the pixel's state: flags, extrema seen and voted, the current angle's
+        // extremum list 42 (20 extrema of 2 bytes and a one-byte length) and the reference
+        // angle's last four with the whole list's count in the reliable range 10: 56; its
+        // tracker lanes in the row blocks, 56 bytes a pixel (a ring of nine 2-byte steps; the
+        // scalar tracker's 55, 56 with padding) and the block's shared ring position and
+        // count, 57 rounded up; its fit lanes in the row blocks: thickness and order step 8,
+        // its own eight full-spectrum sums 32 (the scalar `GnSums` is 68 with the index's
+        // eight, its count and padding), the sums' count and the saturated and dead counts 6,
+        // and the block's shared sample count, 47 rounded up; 160 in all. The pixels of the
+        // index's sample keep the index's eight sums (32 bytes) and the rest of the reference
+        // list (34), in blocks of 32 a row: every pixel of a 320 x 200 sensor (10 blocks a
+        // row, 66 bytes a pixel: 226 in all), one in 4 of a 640 x 480 one (5 blocks, 17 a
+        // pixel rounded up: 177), one in 64 of a 2048 x 2048 one (one block: 2 a pixel
+        // rounded up, 162).
         let small = IndexSampling::for_sensor(320, 200, fit_row::INDEX_PIXELS);
         let vga = IndexSampling::for_sensor(640, 480, fit_row::INDEX_PIXELS);
         let large = IndexSampling::for_sensor(2048, 2048, fit_row::INDEX_PIXELS);
@@ -865,6 +920,8 @@ mod size_tests {
             core::mem::size_of::<PixelTracker>(),
             core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES),
             core::mem::size_of::<ExtremaList>(),
+            core::mem::size_of::<AnchorHead>(),
+            core::mem::size_of::<AnchorTail>(),
             core::mem::size_of::<GnSums>(),
             core::mem::size_of::<PixelState>(),
             core::mem::size_of::<FitLanes>().div_ceil(row::LANES),
@@ -873,7 +930,7 @@ mod size_tests {
             state_bytes_per_pixel(vga, 640),
             state_bytes_per_pixel(large, 2048),
         ];
-        assert_eq!(sizes, [56, 57, 42, 68, 88, 47, 32, 224, 200, 193]);
+        assert_eq!(sizes, [56, 57, 42, 10, 34, 68, 56, 47, 32, 226, 177, 162]);
         assert_eq!([small, vga, large].map(|s| s.stride()), [1, 4, 64]);
     }
 }
@@ -885,6 +942,7 @@ struct OneRow {
     trackers: [TrackerLanes; 2],
     fits: [FitLanes; 2],
     index: [IndexLanes; 2],
+    anchors: [AnchorTail; 2 * row::LANES],
 }
 
 /// Pixels of a [`OneRow`].
@@ -899,6 +957,7 @@ impl OneRow {
             trackers: [TrackerLanes::EMPTY; 2],
             fits: [FitLanes::EMPTY; 2],
             index: [IndexLanes::EMPTY; 2],
+            anchors: [AnchorTail::EMPTY; 2 * row::LANES],
         }
     }
 
@@ -917,6 +976,7 @@ impl OneRow {
             (
                 sampling,
                 &mut self.index[..sampling.blocks_per_row(ONE_ROW)],
+                &mut self.anchors[..sampling.blocks_per_row(ONE_ROW) * row::LANES],
             ),
         )
     }
@@ -1046,8 +1106,11 @@ mod vote_tests {
             let (votes, fit) = shard.tally(&solver);
             let g = solver.pair_geometry().expect("a pair");
             let mut own = RatioHistogram::default();
-            for p in shard.pixels.iter().step_by(stride) {
-                own.vote(g, &p.anchor, p.unvoted(), |b| spec.wavelength_at(b));
+            for c in (0..W).step_by(stride) {
+                let anchor = shard.anchor_at(0, c).expect("a sampled pixel");
+                own.vote(g, &anchor, shard.pixels[c].unvoted(), |b| {
+                    spec.wavelength_at(b)
+                });
             }
             assert!(votes == own, "stride {stride}: not the sample's votes");
             let pooled: u32 = fit.noise.counts.iter().sum();

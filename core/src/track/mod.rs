@@ -92,6 +92,9 @@ const POS_PER_BAND: f32 = 32.0;
 const VALLEY_BIT: u16 = 1 << 15;
 
 impl Extremum {
+    /// A peak at band 0: what an unused slot of a list holds.
+    pub const ZERO: Self = Self(0);
+
     /// An extremum at fractional band `band` (clamped to `0..1024`).
     pub fn new(band: f32, kind: Kind) -> Self {
         let max = f32::from(VALLEY_BIT - 1) / POS_PER_BAND;
@@ -131,7 +134,7 @@ impl ExtremaList {
     /// An empty list.
     pub const fn new() -> Self {
         Self {
-            items: [Extremum(0); MAX_EXTREMA],
+            items: [Extremum::ZERO; MAX_EXTREMA],
             len: 0,
         }
     }
