@@ -375,12 +375,15 @@ struct Prepared {
 }
 
 impl Prepared {
-    fn new(upto: usize) -> Self {
+    /// Angle `upto` of paper-sample1 (96 x 64), the index's sums kept by one pixel in
+    /// `stride` (1: every pixel, as on a sensor this small; 16: as on a 1 Mpix one).
+    fn new(upto: usize, stride: usize) -> Self {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/scenes/paper-sample1.toml");
         let scene = Scene::load(&path).expect("config/scenes/paper-sample1.toml loads");
         let camera = SoftwareCamera::new(scene);
         let source = SimSource::new(camera.clone(), false, 1).expect("a valid sweep spec");
-        let spec = source.spec().clone();
+        let mut spec = source.spec().clone();
+        spec.options.index_pixels = spec.width * spec.height / stride;
         let (w, h) = (spec.width, spec.height);
         let nb = spec.bands_nm.len();
         let options = spec.options;
@@ -441,6 +444,42 @@ impl Prepared {
     }
 }
 
+/// Angle-end phase `k` (0 tally, 1 sums, 2 update) of `before_end`'s state, the earlier
+/// phases run in the set-up.
+fn bench_phase(
+    g: &mut BenchmarkGroup<'_, WallTime>,
+    name: &str,
+    (solver, states): &(SweepSolver, ShardState),
+    k: usize,
+) {
+    let w = solver.spec().width;
+    g.bench_function(name, |bench| {
+        bench.iter_batched(
+            || {
+                let (mut s, mut st) = (solver.clone(), states.clone());
+                if k > 0 {
+                    s.end_tally(&[st.shard(0, w)]);
+                }
+                if k > 1 {
+                    s.end_sums(&[st.shard(0, w)]);
+                }
+                (s, st)
+            },
+            |(mut s, mut st): (SweepSolver, ShardState)| {
+                match k {
+                    0 => s.end_tally(&[st.shard(0, w)]),
+                    1 => s.end_sums(&[st.shard(0, w)]),
+                    _ => {
+                        black_box(s.end_update(&mut [st.shard(0, w)]));
+                    }
+                }
+                (s, st)
+            },
+            BatchSize::LargeInput,
+        );
+    });
+}
+
 fn bench_solve(c: &mut Criterion) {
     let mut g = short(c, "solve");
     // In this scene the 20 and 30 degree pairs give no clear ratio mode (as in the
@@ -450,7 +489,7 @@ fn bench_solve(c: &mut Criterion) {
         (3, "end_angle_40deg_first_index_6144px"),
         (4, "end_angle_50deg_refine_6144px"),
     ] {
-        let prep = Prepared::new(upto);
+        let prep = Prepared::new(upto, 1);
         let (solver, states) = &prep.before_end;
         let w = prep.width;
         // The state must be what the bench claims.
@@ -487,31 +526,19 @@ fn bench_solve(c: &mut Criterion) {
                 ("end_update_50deg_6144px", 2),
             ];
             for (phase, k) in phases {
-                g.bench_function(phase, |bench| {
-                    bench.iter_batched(
-                        || {
-                            let (mut s, mut st) = (solver.clone(), states.clone());
-                            if k > 0 {
-                                s.end_tally(&[st.shard(0, w)]);
-                            }
-                            if k > 1 {
-                                s.end_sums(&[st.shard(0, w)]);
-                            }
-                            (s, st)
-                        },
-                        |(mut s, mut st): (SweepSolver, ShardState)| {
-                            match k {
-                                0 => s.end_tally(&[st.shard(0, w)]),
-                                1 => s.end_sums(&[st.shard(0, w)]),
-                                _ => {
-                                    black_box(s.end_update(&mut [st.shard(0, w)]));
-                                }
-                            }
-                            (s, st)
-                        },
-                        BatchSize::LargeInput,
-                    );
-                });
+                bench_phase(&mut g, phase, &prep.before_end, k);
+            }
+            // As on a large sensor, one pixel in 4 keeps the index's sums and walks more than
+            // the others (in 16 as on a 1 Mpix sensor, the 384 pixels' first index moved
+            // enough at 50 degrees that every pixel chose its order again).
+            let sampled = Prepared::new(upto, 4);
+            g.throughput(Throughput::Elements(states.pixels.len() as u64));
+            for (phase, k) in [
+                ("end_tally_50deg_6144px_1in4", 0),
+                ("end_sums_50deg_6144px_1in4", 1),
+                ("end_update_50deg_6144px_1in4", 2),
+            ] {
+                bench_phase(&mut g, phase, &sampled.before_end, k);
             }
             // The worker's per-sample path at a refining angle: tracker push plus the
             // Gauss-Newton sums, through `Shard::feed_row`.

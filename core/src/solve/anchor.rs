@@ -79,13 +79,15 @@ impl AnchorTail {
         tail
     }
 
+    /// The extrema kept, in band order.
+    pub fn extrema(&self) -> &[Extremum] {
+        &self.items[..usize::from(self.len)]
+    }
+
     /// The whole list: this tail, then `head`.
     pub fn join(&self, head: &AnchorHead) -> ExtremaList {
         let mut list = ExtremaList::new();
-        for &e in self.items[..usize::from(self.len)]
-            .iter()
-            .chain(head.extrema())
-        {
+        for &e in self.extrema().iter().chain(head.extrema()) {
             let _ = list.push(e);
         }
         list

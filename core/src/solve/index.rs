@@ -205,9 +205,9 @@ impl RatioSums {
 
 /// Calls `f(rho, lambda_ref_nm)` for every same-kind pairing of a pixel's extrema whose ratio the pair
 /// geometry allows, reference extremum by reference extremum. `wavelength_nm` maps a fractional band to its wavelength.
-pub fn for_each_ratio(
+pub fn for_each_ratio<'r>(
     geom: &PairGeometry,
-    reference: &[Extremum],
+    reference: impl IntoIterator<Item = &'r Extremum>,
     current: &[Extremum],
     wavelength_nm: impl Fn(f32) -> f64,
     mut f: impl FnMut(f64, f64),
@@ -241,10 +241,10 @@ pub fn for_each_ratio(
 
 impl RatioHistogram {
     /// Adds a pixel's votes.
-    pub fn vote(
+    pub fn vote<'r>(
         &mut self,
         geom: &PairGeometry,
-        reference: &[Extremum],
+        reference: impl IntoIterator<Item = &'r Extremum>,
         current: &[Extremum],
         wavelength_nm: impl Fn(f32) -> f64,
     ) {
@@ -363,11 +363,11 @@ impl RatioHistogram {
 
 /// Adds a pixel's ratios to `sums`: to the totals inside the overall window, to the
 /// wavelength bins inside each bin's own window.
-pub fn accumulate_window(
+pub fn accumulate_window<'r>(
     sums: &mut RatioSums,
     geom: &PairGeometry,
     windows: &RatioWindows,
-    reference: &[Extremum],
+    reference: impl IntoIterator<Item = &'r Extremum>,
     current: &[Extremum],
     wavelength_nm: impl Fn(f32) -> f64,
 ) {

@@ -1,7 +1,7 @@
 //! Per-pixel state of a band of rows, and the shard-local passes of the solver.
 
 use crate::track::row::{self, TrackerLanes};
-use crate::track::ExtremaList;
+use crate::track::{ExtremaList, Extremum};
 
 use super::anchor::{AnchorHead, AnchorTail};
 use super::fit_row::{self, FitLanes, IndexLanes, IndexSampling, PixelFit};
@@ -250,6 +250,20 @@ impl<'a> Shard<'a> {
         index.map(|(b, l)| self.anchors[b * row::LANES + l].join(head))
     }
 
+    /// [`Shard::anchor_at`] in place, in band order (the tail, then the head), of a pixel of
+    /// the index's sample (nothing for another).
+    fn anchor_in(&self, r: usize, c: usize) -> impl Iterator<Item = &Extremum> + '_ {
+        let (_, index) = self.lanes_at(r, c);
+        let (tail, head) = match index {
+            Some((b, l)) => (
+                self.anchors[b * row::LANES + l].extrema(),
+                self.pixels[r * self.width + c].anchor.extrema(),
+            ),
+            None => (&[][..], &[][..]),
+        };
+        tail.iter().chain(head)
+    }
+
     /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
     /// spectra put it ([`super::thin`]): it is refined from the first angle on, needing no
     /// extrema. A NaN thickness leaves it as it was.
@@ -307,10 +321,11 @@ impl<'a> Shard<'a> {
         let w = self.width;
         for r in lo..hi {
             for c in self.sampling.cols(self.first_row + r, w) {
-                let anchor = self.anchor_at(r, c).unwrap_or_default();
-                let p = &mut self.pixels[r * w + c];
-                votes.vote(g, &anchor, p.unvoted(), |b| spec.wavelength_at(b));
-                p.voted = p.current.len() as u8;
+                let p = &self.pixels[r * w + c];
+                votes.vote(g, self.anchor_in(r, c), p.unvoted(), |b| {
+                    spec.wavelength_at(b)
+                });
+                self.pixels[r * w + c].voted = self.pixels[r * w + c].current.len() as u8;
             }
         }
     }
@@ -401,8 +416,9 @@ impl<'a> Shard<'a> {
                 let ((block, lane), _) = self.lanes_at(r, c);
                 let p = &self.pixels[r * w + c];
                 if let Some(g) = geometry {
-                    let anchor = self.anchor_at(r, c).unwrap_or_default();
-                    votes.vote(g, &anchor, p.unvoted(), |b| spec.wavelength_at(b));
+                    votes.vote(g, self.anchor_in(r, c), p.unvoted(), |b| {
+                        spec.wavelength_at(b)
+                    });
                 }
                 if let Some(rms) = self.fits[block].rms(lane) {
                     fit.rms.add(rms);
@@ -440,9 +456,8 @@ impl<'a> Shard<'a> {
             let mut s = SchurSums::default();
             for c in self.sampling.cols(self.first_row + r, width) {
                 if let Some((g, windows)) = window {
-                    let anchor = self.anchor_at(r, c).unwrap_or_default();
                     let current = &self.pixels[r * width + c].current;
-                    accumulate_window(&mut w, g, windows, &anchor, current, |b| {
+                    accumulate_window(&mut w, g, windows, self.anchor_in(r, c), current, |b| {
                         spec.wavelength_at(b)
                     });
                 }
@@ -1108,7 +1123,7 @@ mod vote_tests {
             let mut own = RatioHistogram::default();
             for c in (0..W).step_by(stride) {
                 let anchor = shard.anchor_at(0, c).expect("a sampled pixel");
-                own.vote(g, &anchor, shard.pixels[c].unvoted(), |b| {
+                own.vote(g, anchor.iter(), shard.pixels[c].unvoted(), |b| {
                     spec.wavelength_at(b)
                 });
             }
