@@ -21,6 +21,17 @@ use super::refine::{
     BandCoef, GnSums, Knot, SampleModel, TableSpan, INDEX_TERMS, PIXEL_TERMS, SSE_TERM,
 };
 
+/// A block's thicknesses and sums after an angle end's step ([`FitLanes::steps`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LaneSteps {
+    /// Thickness after the step, nm.
+    pub thickness_nm: [f32; LANES],
+    /// The thickness gradient after it.
+    pub g_d: [f32; LANES],
+    /// The squared error after it.
+    pub sse: [f32; LANES],
+}
+
 /// What the solver keeps of one pixel between samples but its extrema and flags: a copy
 /// out of (or into) its [`FitLanes`] block.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -342,6 +353,50 @@ impl FitLanes {
         }
     }
 
+    /// Every lane's thickness, `g_d` and squared error after the angle end's step with the
+    /// index step `dp`, as [`GnSums::thickness_step`] (clamped to a quarter of the lane's
+    /// order step) and [`GnSums::shift`] give them for a pixel without index sums, the same
+    /// operations in the same order (the same results but for the sign of a zero). One loop
+    /// whose lanes do not wait on each other: pixel by pixel, each step's chain of dependent
+    /// `f64` operations made half the update pass (criterion, `end_update_*_1in4`). A lane
+    /// without a thickness, samples or slope gets a meaningless step: the caller picks.
+    pub fn steps(&self, dp: [f64; 3]) -> LaneSteps {
+        let mut out = LaneSteps {
+            thickness_nm: [f32::NAN; LANES],
+            g_d: [0.0; LANES],
+            sse: [0.0; LANES],
+        };
+        let s = &self.sums;
+        for i in 0..LANES {
+            let h_dd = f64::from(s[0][i]);
+            let h_dp = [s[1][i], s[2][i], s[3][i]].map(f64::from);
+            let g_d = f64::from(s[4][i]);
+            let mut g = g_d;
+            for (h, d) in h_dp.iter().zip(dp) {
+                g -= h * d;
+            }
+            let quarter = 0.25 * f64::from(self.order_step_nm[i]);
+            let step = g / h_dd;
+            let dd = if step < -quarter {
+                -quarter
+            } else if step > quarter {
+                quarter
+            } else {
+                step
+            };
+            out.thickness_nm[i] = (f64::from(self.thickness_nm[i]) + dd) as f32;
+            let mut sse = f64::from(s[SSE_TERM][i]) - 2.0 * g_d * dd + h_dd * dd * dd;
+            let mut new_g_d = g_d - h_dd * dd;
+            for k in 0..3 {
+                sse += 2.0 * h_dp[k] * dd * dp[k];
+                new_g_d -= h_dp[k] * dp[k];
+            }
+            out.g_d[i] = new_g_d as f32;
+            out.sse[i] = sse.max(0.0) as f32;
+        }
+        out
+    }
+
     /// Lane `i`'s RMS residual at its linearisation point, `None` without samples in its
     /// sums (what `self.pixel(i).gn.rms()` gives, without copying the other sums).
     pub fn rms(&self, i: usize) -> Option<f32> {
@@ -614,6 +669,52 @@ mod tests {
             assert_eq!(knot_of(x), (j, x - j as f32), "{x}");
         }
         assert_eq!(knot_of(0.0), (0, 0.0));
+    }
+
+    /// The block's steps are the scalar step and shift of each pixel without index sums,
+    /// bit for bit: steps inside a quarter order, clamped either way, and lanes with and
+    /// without a first-order slope of the index.
+    #[test]
+    fn lane_steps_are_the_scalar_steps() {
+        let dp = [2e-3, -7e-4, 3e-5];
+        let mut block = FitLanes::EMPTY;
+        let mut fits = [PixelFit::default(); LANES];
+        for (i, f) in fits.iter_mut().enumerate() {
+            let x = i as f32;
+            f.thickness_nm = 300.0 + 37.0 * x;
+            f.order_step_nm = 180.0 + x;
+            f.gn = GnSums {
+                h_dd: 0.5 + 0.01 * x,
+                h_dp: [
+                    40.0 - 3.0 * x,
+                    if i % 3 == 0 { 0.0 } else { -8.0 + x },
+                    0.25 * x,
+                ],
+                // Steps from well inside a quarter order to 4 times beyond it, both signs.
+                g_d: (x - 15.5) * (0.05 + 2.0 * (i % 5) as f32),
+                sse: 0.5 + 0.1 * x,
+                sse_minus: 1.0,
+                sse_plus: 2.0,
+                samples: 100,
+                ..GnSums::default()
+            };
+            block.set_pixel(i, f);
+        }
+        let steps = block.steps(dp);
+        let mut clamped = 0;
+        for (i, f) in fits.iter().enumerate() {
+            let quarter = 0.25 * f64::from(f.order_step_nm);
+            let free = f.gn.thickness_step(dp);
+            clamped += usize::from(free.abs() > quarter);
+            let dd = free.clamp(-quarter, quarter);
+            let mut g = f.gn;
+            g.shift(dd, dp);
+            let d = (f64::from(f.thickness_nm) + dd) as f32;
+            assert_eq!(steps.thickness_nm[i].to_bits(), d.to_bits(), "lane {i}");
+            assert_eq!(steps.g_d[i].to_bits(), g.g_d.to_bits(), "lane {i}");
+            assert_eq!(steps.sse[i].to_bits(), g.sse.to_bits(), "lane {i}");
+        }
+        assert!(clamped > 4 && clamped < LANES - 4, "{clamped} clamped");
     }
 
     /// A row block gives every pixel the sums, counts and sample numbers the scalar

@@ -519,11 +519,15 @@ impl<'a> Shard<'a> {
         let reliable = spec.reliable_range_nm();
         let w = self.width.max(1);
         let rows = self.pixels.len() / w;
+        let mut steps = None;
         for (r, c) in (0..rows).flat_map(|r| (0..w).map(move |c| (r, c))) {
             let i = r * w + c;
             let mut f = self.fit_at(r, c);
             // The overflow flag read in place, not through a copy of the pixel's tracker.
             let ((block, lane), sample) = self.lanes_at(r, c);
+            if lane == 0 {
+                steps = None;
+            }
             let tail = sample.map(|(b, l)| b * row::LANES + l);
             let overflow = self.trackers[block].overflow(lane);
             let p = &mut self.pixels[i];
@@ -545,11 +549,19 @@ impl<'a> Shard<'a> {
                 f.thickness_nm += dir * f.order_step_nm;
                 f.gn = GnSums::default();
             } else if f.thickness_nm.is_finite() && f.gn.samples > 0 && f.gn.h_dd > 0.0 {
-                let g = f.gn;
-                let step = f64::from(f.order_step_nm);
-                let dd = g.thickness_step(dp).clamp(-0.25 * step, 0.25 * step);
-                f.thickness_nm = (f64::from(f.thickness_nm) + dd) as f32;
-                f.gn.shift(dd, dp);
+                if sample.is_none() {
+                    // The block's steps in one loop, once a pixel of it needs them.
+                    let s = steps.get_or_insert_with(|| self.fits[block].steps(dp));
+                    f.thickness_nm = s.thickness_nm[lane];
+                    f.gn.g_d = s.g_d[lane];
+                    f.gn.sse = s.sse[lane];
+                } else {
+                    let g = f.gn;
+                    let step = f64::from(f.order_step_nm);
+                    let dd = g.thickness_step(dp).clamp(-0.25 * step, 0.25 * step);
+                    f.thickness_nm = (f64::from(f.thickness_nm) + dd) as f32;
+                    f.gn.shift(dd, dp);
+                }
             } else if f.thickness_nm.is_finite() {
                 if let Some(ratio) = path_ratio {
                     f.thickness_nm = (f64::from(f.thickness_nm) * ratio) as f32;
