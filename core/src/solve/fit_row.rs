@@ -18,7 +18,7 @@ use crate::track::row::LANES;
 use crate::track::usable;
 
 use super::refine::{
-    BandCoef, GnSums, Knot, SampleModel, TableSpan, INDEX_TERMS, PIXEL_TERMS, SSE_TERM,
+    BandCoef, GnSums, Knot, SampleModel, TableSpan, G_D_TERM, INDEX_TERMS, PIXEL_TERMS, SSE_TERM,
 };
 
 /// A block's thicknesses and sums after an angle end's step ([`FitLanes::steps`]).
@@ -370,7 +370,7 @@ impl FitLanes {
         for i in 0..LANES {
             let h_dd = f64::from(s[0][i]);
             let h_dp = [s[1][i], s[2][i], s[3][i]].map(f64::from);
-            let g_d = f64::from(s[4][i]);
+            let g_d = f64::from(s[G_D_TERM][i]);
             let mut g = g_d;
             for (h, d) in h_dp.iter().zip(dp) {
                 g -= h * d;
@@ -395,6 +395,14 @@ impl FitLanes {
             out.sse[i] = sse.max(0.0) as f32;
         }
         out
+    }
+
+    /// Stores lane `i`'s thickness, `g_d` and squared error after a step
+    /// ([`FitLanes::steps`]), the rest of it unchanged.
+    pub fn set_step(&mut self, i: usize, thickness_nm: f32, g_d: f32, sse: f32) {
+        self.thickness_nm[i] = thickness_nm;
+        self.sums[G_D_TERM][i] = g_d;
+        self.sums[SSE_TERM][i] = sse;
     }
 
     /// Lane `i`'s RMS residual at its linearisation point, `None` without samples in its

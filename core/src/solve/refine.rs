@@ -446,6 +446,9 @@ pub const PIXEL_TERMS: usize = 8;
 /// sample of the pixels keeps them ([`super::fit_row::IndexSampling`]).
 pub const INDEX_TERMS: usize = 8;
 
+/// Where `g_d` is in [`GnSums::to_pixel_terms`]' array (`h_dd` and `h_dp` before it).
+pub const G_D_TERM: usize = 4;
+
 /// Where `sse` is in [`GnSums::to_pixel_terms`]' array.
 pub const SSE_TERM: usize = 5;
 

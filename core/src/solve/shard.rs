@@ -528,6 +528,8 @@ impl<'a> Shard<'a> {
             if lane == 0 {
                 steps = None;
             }
+            // Whether only the lane steps' three values changed (all the lanes need back).
+            let mut stepped = false;
             let tail = sample.map(|(b, l)| b * row::LANES + l);
             let overflow = self.trackers[block].overflow(lane);
             let p = &mut self.pixels[i];
@@ -555,6 +557,7 @@ impl<'a> Shard<'a> {
                     f.thickness_nm = s.thickness_nm[lane];
                     f.gn.g_d = s.g_d[lane];
                     f.gn.sse = s.sse[lane];
+                    stepped = f.thickness_nm.is_finite();
                 } else {
                     let g = f.gn;
                     let step = f64::from(f.order_step_nm);
@@ -590,7 +593,11 @@ impl<'a> Shard<'a> {
             {
                 *o = fin.result(p, &f);
             }
-            self.set_fit_at(r, c, &f);
+            if stepped {
+                self.fits[block].set_step(lane, f.thickness_nm, f.gn.g_d, f.gn.sse);
+            } else {
+                self.set_fit_at(r, c, &f);
+            }
         }
     }
 
