@@ -251,6 +251,36 @@ mod tests {
         }
     }
 
+    /// The first angle's longest-wavelength four extrema and its whole list's count choose
+    /// what the whole list does; the count is what the order search uses (a wrong one costs).
+    #[test]
+    fn four_reference_extrema_and_their_count_choose_as_the_whole_list() {
+        for (n, offset) in [(1.37, 0.0), (2.37, 0.5)] {
+            let c = ctx(n, offset);
+            for d in [250.0, 600.0, 1234.0, 1900.0] {
+                let obs = observe(&c, d, offset);
+                let first: heapless::Vec<Observation, 32> =
+                    obs.iter().copied().filter(|o| o.angle == 0).collect();
+                let mut head = first.clone();
+                head.sort_by(|a, b| b.wavelength_nm.total_cmp(&a.wavelength_nm));
+                head.truncate(4);
+                let mut some: heapless::Vec<Observation, 32> = head.iter().copied().collect();
+                some.extend(obs.iter().copied().filter(|o| o.angle == 1));
+                let whole = c.resolve(&obs).expect("a choice");
+                let count = first.len() as i64;
+                let r = c.resolve_seen(&some, Some(count)).expect("a choice");
+                assert!((r.thickness_nm - d).abs() < 1e-6, "n {n} d {d}: {r:?}");
+                assert!(
+                    (r.cost - whole.cost).abs() < 1e-9,
+                    "n {n} d {d}: {r:?} {whole:?}"
+                );
+                assert!(r.runner_up_cost > r.cost + 0.05, "n {n} d {d}: {r:?}");
+                let wrong = c.resolve_seen(&some, Some(count + 3)).expect("a choice");
+                assert!(wrong.cost > r.cost, "n {n} d {d}: {wrong:?}");
+            }
+        }
+    }
+
     #[test]
     fn recovers_the_thickness_of_exact_extrema() {
         for (n, offset) in [(1.37, 0.0), (2.37, 0.5)] {
