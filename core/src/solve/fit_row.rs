@@ -737,21 +737,34 @@ mod tests {
     }
 
     /// Feeds `values` of image row `row` to a one-block row (`lanes`, its index blocks
-    /// `index`) under `sampling`, with the band's model.
+    /// `index`) under `sampling`, with the band's model, and the same samples to `scalar`
+    /// the scalar way (counts, and [`GnSums::add`] for a usable sample of a pixel with a
+    /// thickness).
     fn feed(
-        lanes: &mut [FitLanes; 1],
-        index: &mut [IndexLanes; 1],
+        (lanes, index): (&mut [FitLanes; 1], &mut [IndexLanes; 1]),
+        scalar: &mut [PixelFit],
         values: &[f32],
-        model: (&BandCoef, &[Knot]),
+        (coef, knots): (&BandCoef, &[Knot]),
         (sampling, row): (IndexSampling, usize),
     ) {
         let per_row = sampling.blocks_per_row(values.len());
         push_row(
             lanes,
             values,
-            Some(model),
+            Some((coef, knots)),
             (sampling, row, &mut index[..per_row]),
         );
+        for (p, &v) in scalar.iter_mut().zip(values) {
+            p.samples += 1;
+            if v.is_infinite() {
+                p.saturated += 1;
+            } else if !usable(v) {
+                p.dead += 1;
+            } else if p.thickness_nm.is_finite() {
+                let (d, o) = (f64::from(p.thickness_nm), f64::from(p.order_step_nm));
+                p.gn.add(coef, knots, d, o, f64::from(v));
+            }
+        }
     }
 
     /// The pixel's sums as `row`'s index blocks `index` keep them (zeros where they do not).
@@ -812,24 +825,8 @@ mod tests {
                 2 if i % 6 == 0 => 3e7,
                 _ => 0.1 + 0.01 * ((i * 7 + s * 3) % 13) as f32,
             });
-            feed(
-                &mut lanes,
-                &mut index,
-                &values,
-                (coef, knots),
-                (sampling, row),
-            );
-            for (p, &v) in scalar.iter_mut().zip(&values) {
-                p.samples += 1;
-                if v.is_infinite() {
-                    p.saturated += 1;
-                } else if !usable(v) {
-                    p.dead += 1;
-                } else if p.thickness_nm.is_finite() {
-                    let (d, o) = (f64::from(p.thickness_nm), f64::from(p.order_step_nm));
-                    p.gn.add(coef, knots, d, o, f64::from(v));
-                }
-            }
+            let block = (&mut lanes, &mut index);
+            feed(block, &mut scalar, &values, (coef, knots), (sampling, row));
         }
         for (i, p) in scalar.iter().enumerate() {
             let l = with_index(
@@ -924,18 +921,8 @@ mod tests {
             let coef = coefs[s % 2].as_ref().expect("a band");
             let values: [f32; LANES] =
                 core::array::from_fn(|i| 0.05 + 0.013 * ((i * 5 + s * 7) % 17) as f32);
-            feed(
-                &mut lanes,
-                &mut index,
-                &values,
-                (coef, knots),
-                (sampling, row),
-            );
-            for (p, &v) in scalar.iter_mut().zip(&values) {
-                p.samples += 1;
-                let (d, o) = (f64::from(p.thickness_nm), f64::from(p.order_step_nm));
-                p.gn.add(coef, knots, d, o, f64::from(v));
-            }
+            let block = (&mut lanes, &mut index);
+            feed(block, &mut scalar, &values, (coef, knots), (sampling, row));
         }
         for (i, p) in scalar.iter().enumerate() {
             let l = with_index(

@@ -74,7 +74,7 @@ impl Default for PixelState {
 
 impl PixelState {
     /// The current angle's extrema not voted yet ([`Shard::vote_rows`]).
-    pub fn unvoted(&self) -> &[crate::track::Extremum] {
+    pub fn unvoted(&self) -> &[Extremum] {
         &self.current[usize::from(self.voted).min(self.current.len())..]
     }
 }
@@ -242,26 +242,25 @@ impl<'a> Shard<'a> {
         (fit, index)
     }
 
-    /// The whole reference extremum list of the pixel in the shard's row `r`, column `c`, if
-    /// it is one of the index's sample (the others keep its last extrema only).
-    fn anchor_at(&self, r: usize, c: usize) -> Option<ExtremaList> {
-        let (_, index) = self.lanes_at(r, c);
-        let head = &self.pixels[r * self.width + c].anchor;
-        index.map(|(b, l)| self.anchors[b * row::LANES + l].join(head))
+    /// Where a pixel of the index's sample, at `lane` of the index blocks, keeps the rest of
+    /// its reference extrema ([`AnchorTail`]).
+    fn tail_slot((block, lane): (usize, usize)) -> usize {
+        block * row::LANES + lane
     }
 
-    /// [`Shard::anchor_at`] in place, in band order (the tail, then the head), of a pixel of
-    /// the index's sample (nothing for another).
-    fn anchor_in(&self, r: usize, c: usize) -> impl Iterator<Item = &Extremum> + '_ {
-        let (_, index) = self.lanes_at(r, c);
-        let (tail, head) = match index {
-            Some((b, l)) => (
-                self.anchors[b * row::LANES + l].extrema(),
-                self.pixels[r * self.width + c].anchor.extrema(),
-            ),
-            None => (&[][..], &[][..]),
-        };
-        tail.iter().chain(head)
+    /// The rest of the reference extrema of the pixel in the shard's row `r`, column `c`, if
+    /// it is one of the index's sample (the others keep their last ones only).
+    fn tail_at(&self, r: usize, c: usize) -> Option<&AnchorTail> {
+        self.lanes_at(r, c)
+            .1
+            .map(|lane| &self.anchors[Self::tail_slot(lane)])
+    }
+
+    /// The whole reference extremum list, in place and in band order, of the pixel in the
+    /// shard's row `r`, column `c` of the index's sample (its head alone for another).
+    fn reference_at(&self, r: usize, c: usize) -> impl Iterator<Item = &Extremum> + '_ {
+        let head = &self.pixels[r * self.width + c].anchor;
+        self.tail_at(r, c).unwrap_or(&AnchorTail::EMPTY).whole(head)
     }
 
     /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
@@ -321,11 +320,11 @@ impl<'a> Shard<'a> {
         let w = self.width;
         for r in lo..hi {
             for c in self.sampling.cols(self.first_row + r, w) {
-                let p = &self.pixels[r * w + c];
-                votes.vote(g, self.anchor_in(r, c), p.unvoted(), |b| {
+                let i = r * w + c;
+                votes.vote(g, self.reference_at(r, c), self.pixels[i].unvoted(), |b| {
                     spec.wavelength_at(b)
                 });
-                self.pixels[r * w + c].voted = self.pixels[r * w + c].current.len() as u8;
+                self.pixels[i].voted = self.pixels[i].current.len() as u8;
             }
         }
     }
@@ -416,7 +415,7 @@ impl<'a> Shard<'a> {
                 let ((block, lane), _) = self.lanes_at(r, c);
                 let p = &self.pixels[r * w + c];
                 if let Some(g) = geometry {
-                    votes.vote(g, self.anchor_in(r, c), p.unvoted(), |b| {
+                    votes.vote(g, self.reference_at(r, c), p.unvoted(), |b| {
                         spec.wavelength_at(b)
                     });
                 }
@@ -457,7 +456,7 @@ impl<'a> Shard<'a> {
             for c in self.sampling.cols(self.first_row + r, width) {
                 if let Some((g, windows)) = window {
                     let current = &self.pixels[r * width + c].current;
-                    accumulate_window(&mut w, g, windows, self.anchor_in(r, c), current, |b| {
+                    accumulate_window(&mut w, g, windows, self.reference_at(r, c), current, |b| {
                         spec.wavelength_at(b)
                     });
                 }
@@ -530,7 +529,7 @@ impl<'a> Shard<'a> {
             }
             // Whether only the lane steps' three values changed (all the lanes need back).
             let mut stepped = false;
-            let tail = sample.map(|(b, l)| b * row::LANES + l);
+            let tail = sample.map(Self::tail_slot);
             let overflow = self.trackers[block].overflow(lane);
             let p = &mut self.pixels[i];
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
@@ -580,8 +579,7 @@ impl<'a> Shard<'a> {
                 }
             }
             if let Some(ctx) = orders.as_ref().filter(|_| !f.thickness_nm.is_finite()) {
-                let whole = tail.map(|t| self.anchors[t].join(&p.anchor));
-                if let Some(c) = Self::choose(p, whole.as_ref(), spec, ctx) {
+                if let Some(c) = Self::choose(p, tail.map(|t| &self.anchors[t]), spec, ctx) {
                     if c.runner_up_cost - c.cost >= AMBIGUITY_MARGIN {
                         Self::set_thickness(p, &mut f, c.thickness_nm, c.order_step_nm, 0);
                     } else {
@@ -668,35 +666,35 @@ impl<'a> Shard<'a> {
     }
 
     /// The order `p`'s extrema choose: its current ones and its reference ones, the whole
-    /// list `whole` if it keeps it (the index's sample), else its last ones, its order
+    /// list if it keeps the rest (`tail`: the index's sample), else its last ones, its order
     /// search told the whole list's count inside the reliable range.
     fn choose(
         p: &PixelState,
-        whole: Option<&ExtremaList>,
+        tail: Option<&AnchorTail>,
         spec: &SweepSpec,
         ctx: &OrderContext,
     ) -> Option<OrderChoice> {
         let mut obs: heapless::Vec<Observation, { 2 * crate::track::MAX_EXTREMA }> =
             heapless::Vec::new();
-        let anchor = whole.map_or(p.anchor.extrema(), |l| &l[..]);
-        for (angle, list) in [(0, anchor), (1, &p.current[..])] {
-            for e in list.iter() {
-                let _ = obs.push(Observation {
-                    wavelength_nm: spec.wavelength_at(e.band()),
-                    kind: e.kind(),
-                    angle,
-                });
-            }
+        let reference = tail.unwrap_or(&AnchorTail::EMPTY).whole(&p.anchor);
+        let lists = reference
+            .map(|e| (0, e))
+            .chain(p.current.iter().map(|e| (1, e)));
+        for (angle, e) in lists {
+            let _ = obs.push(Observation {
+                wavelength_nm: spec.wavelength_at(e.band()),
+                kind: e.kind(),
+                angle,
+            });
         }
-        let seen = whole.is_none().then(|| p.anchor.reliable() as i64);
+        let seen = tail.is_none().then(|| p.anchor.reliable() as i64);
         ctx.resolve_seen(&obs, seen)
     }
 
     /// [`Shard::choose`] of pixel `i` of the shard.
     fn choose_at(&self, i: usize, spec: &SweepSpec, ctx: &OrderContext) -> Option<OrderChoice> {
         let w = self.width.max(1);
-        let whole = self.anchor_at(i / w, i % w);
-        Self::choose(&self.pixels[i], whole.as_ref(), spec, ctx)
+        Self::choose(&self.pixels[i], self.tail_at(i / w, i % w), spec, ctx)
     }
 
     /// Order resolution, forward (shards in row order): each pixel of `ties` (indices in the
@@ -1141,8 +1139,9 @@ mod vote_tests {
             let g = solver.pair_geometry().expect("a pair");
             let mut own = RatioHistogram::default();
             for c in (0..W).step_by(stride) {
-                let anchor = shard.anchor_at(0, c).expect("a sampled pixel");
-                own.vote(g, anchor.iter(), shard.pixels[c].unvoted(), |b| {
+                let tail = shard.tail_at(0, c).expect("a sampled pixel");
+                let reference = tail.whole(&shard.pixels[c].anchor);
+                own.vote(g, reference, shard.pixels[c].unvoted(), |b| {
                     spec.wavelength_at(b)
                 });
             }
