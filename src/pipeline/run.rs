@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::calibrate::calibrate_row;
-use filmscope_core::solve::anchor::AnchorTail;
+use filmscope_core::solve::extrema::SampleExtrema;
 use filmscope_core::solve::fit_row::{FitLanes, IndexLanes, IndexSampling};
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
 use filmscope_core::solve::refine::{AngleModels, BandCoef, Knot};
@@ -164,8 +164,8 @@ pub struct ShardState {
     pub sampling: IndexSampling,
     /// Their sums.
     pub index: Vec<IndexLanes>,
-    /// Their reference extrema but the last.
-    pub anchors: Vec<AnchorTail>,
+    /// Their whole extremum lists.
+    pub lists: Vec<SampleExtrema>,
 }
 
 impl ShardState {
@@ -179,7 +179,7 @@ impl ShardState {
             fits: vec![FitLanes::EMPTY; blocks],
             sampling,
             index: vec![IndexLanes::EMPTY; rows * sampling.blocks_per_row(width)],
-            anchors: vec![AnchorTail::EMPTY; rows * sampling.blocks_per_row(width) * LANES],
+            lists: vec![SampleExtrema::EMPTY; rows * sampling.blocks_per_row(width) * LANES],
         }
     }
 
@@ -209,7 +209,7 @@ impl ShardState {
             &mut self.pixels,
             &mut self.trackers,
             &mut self.fits,
-            (self.sampling, &mut self.index, &mut self.anchors),
+            (self.sampling, &mut self.index, &mut self.lists),
         )
     }
 }

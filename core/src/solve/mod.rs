@@ -21,7 +21,7 @@
 //! [`shard`] holds the per-pixel state of a band of rows (the pipeline gives each core one)
 //! and [`sweep`] the global state and the reductions between shards.
 
-pub mod anchor;
+pub mod extrema;
 pub mod fit_row;
 pub mod index;
 pub mod order;

@@ -127,15 +127,15 @@ impl OrderContext {
     /// Finds the best order for the observations (the first [`MAX_OBSERVATIONS`]; a pixel's
     /// two extremum lists hold at most that many); `None` without observations.
     pub fn resolve(&self, obs: &[Observation]) -> Option<OrderChoice> {
-        self.resolve_seen(obs, None)
+        self.resolve_seen(obs, [None; 2])
     }
 
-    /// [`OrderContext::resolve`], the first angle's count of extrema inside the reliable
-    /// range given (`anchor_seen`) where its observations are only some of them.
+    /// [`OrderContext::resolve`], an angle's count of extrema inside the reliable range
+    /// given (`counts[angle]`) where its observations are only some of them.
     pub fn resolve_seen(
         &self,
         obs: &[Observation],
-        anchor_seen: Option<i64>,
+        counts: [Option<i64>; 2],
     ) -> Option<OrderChoice> {
         let obs = &obs[..obs.len().min(MAX_OBSERVATIONS)];
         // What every candidate needs of each observation: its order per nm of thickness and
@@ -150,8 +150,10 @@ impl OrderContext {
                 seen[o.angle] += 1;
             }
         }
-        if let Some(n) = anchor_seen {
-            seen[0] = n;
+        for (seen, count) in seen.iter_mut().zip(counts) {
+            if let Some(n) = count {
+                *seen = n;
+            }
         }
         let prepared = &prepared[..obs.len()];
         let mut root = [[0.0; 2]; 2];
@@ -268,14 +270,18 @@ mod tests {
                 some.extend(obs.iter().copied().filter(|o| o.angle == 1));
                 let whole = c.resolve(&obs).expect("a choice");
                 let count = first.len() as i64;
-                let r = c.resolve_seen(&some, Some(count)).expect("a choice");
+                let r = c
+                    .resolve_seen(&some, [Some(count), None])
+                    .expect("a choice");
                 assert!((r.thickness_nm - d).abs() < 1e-6, "n {n} d {d}: {r:?}");
                 assert!(
                     (r.cost - whole.cost).abs() < 1e-9,
                     "n {n} d {d}: {r:?} {whole:?}"
                 );
                 assert!(r.runner_up_cost > r.cost + 0.05, "n {n} d {d}: {r:?}");
-                let wrong = c.resolve_seen(&some, Some(count + 3)).expect("a choice");
+                let wrong = c
+                    .resolve_seen(&some, [Some(count + 3), None])
+                    .expect("a choice");
                 assert!(wrong.cost > r.cost, "n {n} d {d}: {wrong:?}");
             }
         }

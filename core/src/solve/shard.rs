@@ -1,9 +1,9 @@
 //! Per-pixel state of a band of rows, and the shard-local passes of the solver.
 
 use crate::track::row::{self, TrackerLanes};
-use crate::track::{ExtremaList, Extremum};
+use crate::track::{ExtremaHead, Extremum, LaneSinks};
 
-use super::anchor::{AnchorHead, AnchorTail};
+use super::extrema::{AnchorTail, SampleExtrema};
 use super::fit_row::{self, FitLanes, IndexLanes, IndexSampling, PixelFit};
 use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
@@ -39,7 +39,9 @@ pub const MAX_THICKNESS_SIGMA_NM: f64 = 5.0;
 /// Largest share of unusable samples a valid pixel may have.
 const BAD_SHARE: f64 = 0.1;
 
-/// What the solver keeps about one pixel but its per-sample state: its flags and extrema.
+/// What the solver keeps about one pixel but its per-sample state: its flags and the last
+/// extrema of its current and reference angles (the index's sample keeps the rest,
+/// [`SampleExtrema`]).
 /// The extremum tracker and the thickness, counters and full-spectrum sums live in the
 /// shard's row blocks ([`TrackerLanes`], [`FitLanes`]), where a band's row updates them lane
 /// by lane; this is touched only when an extremum is found and at angle ends. Its size is
@@ -50,49 +52,66 @@ pub struct PixelState {
     pub flags: u16,
     /// Extrema seen over all angles.
     pub extrema_seen: u8,
-    /// How many of `current` have voted already ([`Shard::vote_rows`]); the tally votes the
-    /// rest.
-    pub voted: u8,
-    /// Extrema at the current angle.
-    pub current: ExtremaList,
-    /// The last extrema at the reference (first) angle (the pixels of the index's sample
-    /// keep the rest: [`AnchorTail`]).
-    pub anchor: AnchorHead,
+    /// The last extrema at the current angle.
+    pub current: ExtremaHead,
+    /// The last extrema at the reference (first) angle.
+    pub anchor: ExtremaHead,
 }
 
 impl Default for PixelState {
     fn default() -> Self {
         Self {
-            anchor: AnchorHead::EMPTY,
-            current: ExtremaList::new(),
+            anchor: ExtremaHead::EMPTY,
+            current: ExtremaHead::EMPTY,
             extrema_seen: 0,
             flags: 0,
-            voted: 0,
         }
     }
 }
 
-impl PixelState {
-    /// The current angle's extrema not voted yet ([`Shard::vote_rows`]).
-    pub fn unvoted(&self) -> &[Extremum] {
-        &self.current[usize::from(self.voted).min(self.current.len())..]
-    }
+/// The tracker's sinks of one block of a row: each pixel's [`ExtremaHead`], and the whole
+/// list of those of the index's sample.
+struct BlockSinks<'s> {
+    /// The block's pixels.
+    pixels: &'s mut [PixelState],
+    /// The row's sampled pixels' lists.
+    lists: &'s mut [SampleExtrema],
+    /// Which pixels those are.
+    sampling: IndexSampling,
+    /// The image row.
+    row: usize,
+    /// The block's first column.
+    col: usize,
 }
 
-impl AsMut<ExtremaList> for PixelState {
-    /// The current angle's extrema, where the tracker puts them.
-    fn as_mut(&mut self) -> &mut ExtremaList {
-        &mut self.current
+impl LaneSinks for BlockSinks<'_> {
+    #[inline]
+    fn last_at(&self, i: usize) -> Option<Extremum> {
+        self.pixels
+            .get(i)
+            .and_then(|p| p.current.extrema().last().copied())
+    }
+
+    fn push_at(&mut self, i: usize, e: Extremum) -> Result<(), Extremum> {
+        let Some(p) = self.pixels.get_mut(i) else {
+            return Ok(());
+        };
+        if let Some(slot) = self.sampling.slot(self.row, self.col + i) {
+            // Takes and refuses what the head does.
+            let _ = self.lists[slot].current.push(e);
+        }
+        p.current.push(e)
     }
 }
 
 /// Bytes of solver state per pixel of rows of `width` whose index's sample `sampling`
 /// picks: its [`PixelState`], its shares of the tracker and fit blocks (each a block of
 /// [`row::LANES`] pixels, rounded up) and of what the row's sampled pixels keep besides
-/// (their index sums, [`IndexLanes`], and reference extrema, [`AnchorTail`]; rounded up).
+/// (their index sums, [`IndexLanes`], and whole extremum lists, [`SampleExtrema`]; rounded
+/// up).
 pub fn state_bytes_per_pixel(sampling: IndexSampling, width: usize) -> usize {
     let sample =
-        core::mem::size_of::<IndexLanes>() + row::LANES * core::mem::size_of::<AnchorTail>();
+        core::mem::size_of::<IndexLanes>() + row::LANES * core::mem::size_of::<SampleExtrema>();
     core::mem::size_of::<PixelState>()
         + core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES)
         + core::mem::size_of::<FitLanes>().div_ceil(row::LANES)
@@ -124,9 +143,8 @@ pub struct Shard<'a> {
     sampling: IndexSampling,
     /// Their sums, [`IndexSampling::blocks_per_row`] blocks a row.
     index: &'a mut [IndexLanes],
-    /// Their reference extrema but the last ([`PixelState::anchor`]), one per lane of
-    /// `index`.
-    anchors: &'a mut [AnchorTail],
+    /// Their whole extremum lists, one per lane of `index`.
+    lists: &'a mut [SampleExtrema],
 }
 
 /// A pixel's final result.
@@ -167,9 +185,9 @@ impl<'a> Shard<'a> {
         pixels: &'a mut [PixelState],
         trackers: &'a mut [TrackerLanes],
         fits: &'a mut [FitLanes],
-        sample: (IndexSampling, &'a mut [IndexLanes], &'a mut [AnchorTail]),
+        sample: (IndexSampling, &'a mut [IndexLanes], &'a mut [SampleExtrema]),
     ) -> Self {
-        let (sampling, index, anchors) = sample;
+        let (sampling, index, lists) = sample;
         let blocks = tracker_blocks(pixels.len(), width);
         assert!(
             trackers.len() == blocks && fits.len() == blocks,
@@ -183,9 +201,9 @@ impl<'a> Shard<'a> {
             "the index blocks of every row"
         );
         assert_eq!(
-            anchors.len(),
+            lists.len(),
             index.len() * row::LANES,
-            "reference extrema for every index lane"
+            "extremum lists for every index lane"
         );
         Self {
             first_row,
@@ -195,7 +213,7 @@ impl<'a> Shard<'a> {
             fits,
             sampling,
             index,
-            anchors,
+            lists,
         }
     }
 
@@ -242,25 +260,32 @@ impl<'a> Shard<'a> {
         (fit, index)
     }
 
-    /// Where a pixel of the index's sample, at `lane` of the index blocks, keeps the rest of
-    /// its reference extrema ([`AnchorTail`]).
-    fn tail_slot((block, lane): (usize, usize)) -> usize {
+    /// Where a pixel of the index's sample, at `lane` of the index blocks, keeps its whole
+    /// extremum lists ([`SampleExtrema`]).
+    fn list_slot((block, lane): (usize, usize)) -> usize {
         block * row::LANES + lane
     }
 
-    /// The rest of the reference extrema of the pixel in the shard's row `r`, column `c`, if
-    /// it is one of the index's sample (the others keep their last ones only).
-    fn tail_at(&self, r: usize, c: usize) -> Option<&AnchorTail> {
+    /// The whole extremum lists of the pixel in the shard's row `r`, column `c`, if it is
+    /// one of the index's sample (the others keep their last extrema only).
+    fn lists_at(&self, r: usize, c: usize) -> Option<&SampleExtrema> {
         self.lanes_at(r, c)
             .1
-            .map(|lane| &self.anchors[Self::tail_slot(lane)])
+            .map(|lane| &self.lists[Self::list_slot(lane)])
     }
 
     /// The whole reference extremum list, in place and in band order, of the pixel in the
     /// shard's row `r`, column `c` of the index's sample (its head alone for another).
     fn reference_at(&self, r: usize, c: usize) -> impl Iterator<Item = &Extremum> + '_ {
         let head = &self.pixels[r * self.width + c].anchor;
-        self.tail_at(r, c).unwrap_or(&AnchorTail::EMPTY).whole(head)
+        let tail = self.lists_at(r, c).map_or(&AnchorTail::EMPTY, |l| &l.tail);
+        tail.whole(head)
+    }
+
+    /// The current angle's whole extremum list of the pixel in the shard's row `r`, column
+    /// `c` of the index's sample (empty for another).
+    fn current_at(&self, r: usize, c: usize) -> &[Extremum] {
+        self.lists_at(r, c).map_or(&[], |l| &l.current)
     }
 
     /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
@@ -297,8 +322,8 @@ impl<'a> Shard<'a> {
         self.trackers.iter_mut().for_each(TrackerLanes::reset);
         for p in self.pixels.iter_mut() {
             p.current.clear();
-            p.voted = 0;
         }
+        self.lists.iter_mut().for_each(SampleExtrema::begin_angle);
     }
 
     /// Votes the extrema the sampled pixels ([`IndexSampling`]) of image rows `rows` have
@@ -320,11 +345,15 @@ impl<'a> Shard<'a> {
         let w = self.width;
         for r in lo..hi {
             for c in self.sampling.cols(self.first_row + r, w) {
-                let i = r * w + c;
-                votes.vote(g, self.reference_at(r, c), self.pixels[i].unvoted(), |b| {
+                let (_, Some(lane)) = self.lanes_at(r, c) else {
+                    continue;
+                };
+                let slot = Self::list_slot(lane);
+                let lists = &self.lists[slot];
+                votes.vote(g, self.reference_at(r, c), lists.unvoted(), |b| {
                     spec.wavelength_at(b)
                 });
-                self.pixels[i].voted = self.pixels[i].current.len() as u8;
+                self.lists[slot].voted = self.lists[slot].current.len() as u8;
             }
         }
     }
@@ -364,18 +393,24 @@ impl<'a> Shard<'a> {
         let per_row = self.sampling.blocks_per_row(self.width);
         let local = row - self.first_row;
         let index = &mut self.index[local * per_row..(local + 1) * per_row];
-        if models.seeds_held {
+        let lists =
+            &mut self.lists[local * per_row * row::LANES..(local + 1) * per_row * row::LANES];
+        let lanes = values.chunks(row::LANES).zip(pixels.chunks_mut(row::LANES));
+        for (b, ((t, f), (v, p))) in trackers.iter_mut().zip(fits.iter()).zip(lanes).enumerate() {
             // A block whose every pixel holds its thickness has no order to choose: its
             // extrema are not needed (measured: the tracker was a quarter of a polishing
             // pass at 128 x 96).
-            let lanes = values.chunks(row::LANES).zip(pixels.chunks_mut(row::LANES));
-            for ((t, f), (v, p)) in trackers.iter_mut().zip(fits.iter()).zip(lanes) {
-                if !f.all_have_thickness(v.len()) {
-                    t.push(band as u16, v, options.subband, p);
-                }
+            if models.seeds_held && f.all_have_thickness(v.len()) {
+                continue;
             }
-        } else {
-            row::push_row(trackers, band as u16, values, options.subband, pixels);
+            let mut sinks = BlockSinks {
+                pixels: p,
+                lists: &mut *lists,
+                sampling: self.sampling,
+                row,
+                col: b * row::LANES,
+            };
+            t.push(band as u16, v, options.subband, &mut sinks);
         }
         let model = coef.map(|c| (c, models.knots));
         fit_row::push_row(fits, values, model, (self.sampling, row, index));
@@ -413,9 +448,9 @@ impl<'a> Shard<'a> {
         for r in lo..hi {
             for c in self.sampling.cols(self.first_row + r, w) {
                 let ((block, lane), _) = self.lanes_at(r, c);
-                let p = &self.pixels[r * w + c];
+                let unvoted = self.lists_at(r, c).map_or(&[][..], SampleExtrema::unvoted);
                 if let Some(g) = geometry {
-                    votes.vote(g, self.reference_at(r, c), p.unvoted(), |b| {
+                    votes.vote(g, self.reference_at(r, c), unvoted, |b| {
                         spec.wavelength_at(b)
                     });
                 }
@@ -455,7 +490,7 @@ impl<'a> Shard<'a> {
             let mut s = SchurSums::default();
             for c in self.sampling.cols(self.first_row + r, width) {
                 if let Some((g, windows)) = window {
-                    let current = &self.pixels[r * width + c].current;
+                    let current = self.current_at(r, c);
                     accumulate_window(&mut w, g, windows, self.reference_at(r, c), current, |b| {
                         spec.wavelength_at(b)
                     });
@@ -515,7 +550,6 @@ impl<'a> Shard<'a> {
         let orders = Self::order_context(solver);
         let finish = out.is_some().then(|| Finish::of(solver));
         let frozen = solver.frozen_seeds();
-        let reliable = spec.reliable_range_nm();
         let w = self.width.max(1);
         let rows = self.pixels.len() / w;
         let mut steps = None;
@@ -529,7 +563,7 @@ impl<'a> Shard<'a> {
             }
             // Whether only the lane steps' three values changed (all the lanes need back).
             let mut stepped = false;
-            let tail = sample.map(Self::tail_slot);
+            let slot = sample.map(Self::list_slot);
             let overflow = self.trackers[block].overflow(lane);
             let p = &mut self.pixels[i];
             p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
@@ -570,16 +604,13 @@ impl<'a> Shard<'a> {
                 }
             }
             if first_angle {
-                let inside = p.current.iter().filter(|e| {
-                    (reliable[0]..=reliable[1]).contains(&spec.wavelength_at(e.band()))
-                });
-                p.anchor = AnchorHead::of(&p.current, inside.count());
-                if let Some(t) = tail {
-                    self.anchors[t] = AnchorTail::of(&p.current);
+                p.anchor = p.current;
+                if let Some(t) = slot {
+                    self.lists[t].tail = AnchorTail::of(&self.lists[t].current);
                 }
             }
             if let Some(ctx) = orders.as_ref().filter(|_| !f.thickness_nm.is_finite()) {
-                if let Some(c) = Self::choose(p, tail.map(|t| &self.anchors[t]), spec, ctx) {
+                if let Some(c) = Self::choose(p, slot.map(|t| &self.lists[t]), spec, ctx) {
                     if c.runner_up_cost - c.cost >= AMBIGUITY_MARGIN {
                         Self::set_thickness(p, &mut f, c.thickness_nm, c.order_step_nm, 0);
                     } else {
@@ -665,21 +696,29 @@ impl<'a> Shard<'a> {
         })
     }
 
-    /// The order `p`'s extrema choose: its current ones and its reference ones, the whole
-    /// list if it keeps the rest (`tail`: the index's sample), else its last ones, its order
-    /// search told the whole list's count inside the reliable range.
+    /// The order `p`'s extrema choose: its current and reference angles' whole lists if it
+    /// keeps them (`lists`: the index's sample), else their last extrema, its order search
+    /// told each whole list's count inside the reliable range.
     fn choose(
         p: &PixelState,
-        tail: Option<&AnchorTail>,
+        lists: Option<&SampleExtrema>,
         spec: &SweepSpec,
         ctx: &OrderContext,
     ) -> Option<OrderChoice> {
         let mut obs: heapless::Vec<Observation, { 2 * crate::track::MAX_EXTREMA }> =
             heapless::Vec::new();
-        let reference = tail.unwrap_or(&AnchorTail::EMPTY).whole(&p.anchor);
+        let last = spec.last_reliable_band();
+        let (reference, current, counts) = match lists {
+            Some(l) => (l.tail.whole(&p.anchor), &l.current[..], [None; 2]),
+            None => (
+                AnchorTail::EMPTY.whole(&p.anchor),
+                p.current.extrema(),
+                [&p.anchor, &p.current].map(|h| Some(h.reliable(last) as i64)),
+            ),
+        };
         let lists = reference
             .map(|e| (0, e))
-            .chain(p.current.iter().map(|e| (1, e)));
+            .chain(current.iter().map(|e| (1, e)));
         for (angle, e) in lists {
             let _ = obs.push(Observation {
                 wavelength_nm: spec.wavelength_at(e.band()),
@@ -687,14 +726,13 @@ impl<'a> Shard<'a> {
                 angle,
             });
         }
-        let seen = tail.is_none().then(|| p.anchor.reliable() as i64);
-        ctx.resolve_seen(&obs, seen)
+        ctx.resolve_seen(&obs, counts)
     }
 
     /// [`Shard::choose`] of pixel `i` of the shard.
     fn choose_at(&self, i: usize, spec: &SweepSpec, ctx: &OrderContext) -> Option<OrderChoice> {
         let w = self.width.max(1);
-        Self::choose(&self.pixels[i], self.tail_at(i / w, i % w), spec, ctx)
+        Self::choose(&self.pixels[i], self.lists_at(i / w, i % w), spec, ctx)
     }
 
     /// Order resolution, forward (shards in row order): each pixel of `ties` (indices in the
@@ -927,24 +965,25 @@ impl Finish {
 #[cfg(test)]
 mod size_tests {
     use super::*;
-    use crate::track::PixelTracker;
+    use crate::track::{ExtremaList, PixelTracker};
 
     #[test]
     fn pixel_state_size_is_fixed_and_known() {
-        // Breakdown: the pixel's state: flags, extrema seen and voted, the current angle's
-        // extremum list 42 (20 extrema of 2 bytes and a one-byte length) and the reference
-        // angle's last four with the whole list's count in the reliable range 10: 56; its
-        // tracker lanes in the row blocks, 56 bytes a pixel (a ring of nine 2-byte steps; the
+        // Breakdown: the pixel's state: flags, extrema seen, the current and the reference
+        // angles' last four extrema with their whole lists' lengths and early counts, 10
+        // each: 24 with padding; its tracker lanes in the row blocks, 56 bytes a pixel (a ring of nine 2-byte steps; the
         // scalar tracker's 55, 56 with padding) and the block's shared ring position and
         // count, 57 rounded up; its fit lanes in the row blocks: thickness and order step 8,
         // its own eight full-spectrum sums 32 (the scalar `GnSums` is 68 with the index's
         // eight, its count and padding), the sums' count and the saturated and dead counts 6,
-        // and the block's shared sample count, 47 rounded up; 160 in all. The pixels of the
-        // index's sample keep the index's eight sums (32 bytes) and the rest of the reference
-        // list (34), in blocks of 32 a row: every pixel of a 320 x 200 sensor (10 blocks a
-        // row, 66 bytes a pixel: 226 in all), one in 4 of a 640 x 480 one (5 blocks, 17 a
-        // pixel rounded up: 177), one in 64 of a 2048 x 2048 one (one block: 2 a pixel
-        // rounded up, 162).
+        // and the block's shared sample count, 47 rounded up; 128 in all. The pixels of the
+        // index's sample keep the index's eight sums (32 bytes), the current angle's whole
+        // extremum list (42, 20 extrema of 2 bytes and a one-byte length), how many of it
+        // voted (1) and the rest of the reference list (34; 78 with padding), in blocks of 32
+        // a row: every pixel of a 320 x 200 sensor (10 blocks a row, 110 bytes a pixel: 238
+        // in all), one
+        // in 4 of a 640 x 480 one (5 blocks, 28 a pixel rounded up: 156), one in 64 of a
+        // 2048 x 2048 one (one block: 2 a pixel rounded up, 130).
         let small = IndexSampling::for_sensor(320, 200, fit_row::INDEX_PIXELS);
         let vga = IndexSampling::for_sensor(640, 480, fit_row::INDEX_PIXELS);
         let large = IndexSampling::for_sensor(2048, 2048, fit_row::INDEX_PIXELS);
@@ -952,8 +991,8 @@ mod size_tests {
             core::mem::size_of::<PixelTracker>(),
             core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES),
             core::mem::size_of::<ExtremaList>(),
-            core::mem::size_of::<AnchorHead>(),
-            core::mem::size_of::<AnchorTail>(),
+            core::mem::size_of::<ExtremaHead>(),
+            core::mem::size_of::<SampleExtrema>(),
             core::mem::size_of::<GnSums>(),
             core::mem::size_of::<PixelState>(),
             core::mem::size_of::<FitLanes>().div_ceil(row::LANES),
@@ -962,7 +1001,7 @@ mod size_tests {
             state_bytes_per_pixel(vga, 640),
             state_bytes_per_pixel(large, 2048),
         ];
-        assert_eq!(sizes, [56, 57, 42, 10, 34, 68, 56, 47, 32, 226, 177, 162]);
+        assert_eq!(sizes, [56, 57, 42, 10, 78, 68, 24, 47, 32, 238, 156, 130]);
         assert_eq!([small, vga, large].map(|s| s.stride()), [1, 4, 64]);
     }
 }
@@ -974,7 +1013,7 @@ struct OneRow {
     trackers: [TrackerLanes; 2],
     fits: [FitLanes; 2],
     index: [IndexLanes; 2],
-    anchors: [AnchorTail; 2 * row::LANES],
+    lists: [SampleExtrema; 2 * row::LANES],
 }
 
 /// Pixels of a [`OneRow`].
@@ -989,7 +1028,7 @@ impl OneRow {
             trackers: [TrackerLanes::EMPTY; 2],
             fits: [FitLanes::EMPTY; 2],
             index: [IndexLanes::EMPTY; 2],
-            anchors: [AnchorTail::EMPTY; 2 * row::LANES],
+            lists: [SampleExtrema::EMPTY; 2 * row::LANES],
         }
     }
 
@@ -1008,7 +1047,7 @@ impl OneRow {
             (
                 sampling,
                 &mut self.index[..sampling.blocks_per_row(ONE_ROW)],
-                &mut self.anchors[..sampling.blocks_per_row(ONE_ROW) * row::LANES],
+                &mut self.lists[..sampling.blocks_per_row(ONE_ROW) * row::LANES],
             ),
         )
     }
@@ -1139,11 +1178,9 @@ mod vote_tests {
             let g = solver.pair_geometry().expect("a pair");
             let mut own = RatioHistogram::default();
             for c in (0..W).step_by(stride) {
-                let tail = shard.tail_at(0, c).expect("a sampled pixel");
-                let reference = tail.whole(&shard.pixels[c].anchor);
-                own.vote(g, reference, shard.pixels[c].unvoted(), |b| {
-                    spec.wavelength_at(b)
-                });
+                let lists = shard.lists_at(0, c).expect("a sampled pixel");
+                let reference = lists.tail.whole(&shard.pixels[c].anchor);
+                own.vote(g, reference, lists.unvoted(), |b| spec.wavelength_at(b));
             }
             assert!(votes == own, "stride {stride}: not the sample's votes");
             let pooled: u32 = fit.noise.counts.iter().sum();

@@ -137,11 +137,15 @@ impl SweepSpec {
     /// The wavelength range in which the tracker reliably finds extrema (clear of the
     /// smoothing window at either end).
     pub fn reliable_range_nm(&self) -> [f64; 2] {
-        let n = self.bands_nm.len();
-        let half = crate::track::WINDOW as f32;
-        let a = self.wavelength_at(half);
-        let b = self.wavelength_at((n as f32 - 1.0 - half).max(0.0));
+        let a = self.wavelength_at(crate::track::WINDOW as f32);
+        let b = self.wavelength_at(self.last_reliable_band());
         [a.min(b), a.max(b)]
+    }
+
+    /// The last band of [`SweepSpec::reliable_range_nm`] (its first is
+    /// [`crate::track::WINDOW`]).
+    pub fn last_reliable_band(&self) -> f32 {
+        (self.bands_nm.len() as f32 - 1.0 - crate::track::WINDOW as f32).max(0.0)
     }
 }
 

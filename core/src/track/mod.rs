@@ -8,8 +8,8 @@
 //! pixel's own noise, estimated on the fly from the mean absolute second difference.
 //!
 //! State is a fixed-size [`PixelTracker`] per pixel, reset at each angle, whatever the number of
-//! bands; found extrema go to a caller-owned [`ExtremaList`] of fixed capacity (overflow is a
-//! flag, never growth). The workers run [`row`], the same tracker over a row's pixels at once
+//! bands; found extrema go to a caller-owned [`ExtremumSink`] of fixed capacity (overflow is a
+//! flag, never growth): a whole [`ExtremaList`] or its last extrema, an [`ExtremaHead`]. The workers run [`row`], the same tracker over a row's pixels at once
 //! (structure of arrays, vectorised, the same results bit for bit); [`PixelTracker`] is its
 //! reference and handles its rare events.
 
@@ -119,54 +119,6 @@ impl Extremum {
         } else {
             Kind::Valley
         }
-    }
-}
-
-/// The extrema of one pixel at one angle, in increasing band order: at most
-/// [`MAX_EXTREMA`], 42 bytes (a `heapless::Vec` would spend 8 bytes on its length).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct ExtremaList {
-    items: [Extremum; MAX_EXTREMA],
-    len: u8,
-}
-
-impl ExtremaList {
-    /// An empty list.
-    pub const fn new() -> Self {
-        Self {
-            items: [Extremum::ZERO; MAX_EXTREMA],
-            len: 0,
-        }
-    }
-
-    /// Appends `e`, or hands it back if the list is full.
-    pub fn push(&mut self, e: Extremum) -> Result<(), Extremum> {
-        match self.items.get_mut(usize::from(self.len)) {
-            Some(slot) => {
-                *slot = e;
-                self.len += 1;
-                Ok(())
-            }
-            None => Err(e),
-        }
-    }
-
-    /// Empties the list.
-    pub fn clear(&mut self) {
-        self.len = 0;
-    }
-}
-
-impl AsMut<ExtremaList> for ExtremaList {
-    fn as_mut(&mut self) -> &mut ExtremaList {
-        self
-    }
-}
-
-impl core::ops::Deref for ExtremaList {
-    type Target = [Extremum];
-    fn deref(&self) -> &[Extremum] {
-        &self.items[..usize::from(self.len)]
     }
 }
 
@@ -312,7 +264,7 @@ impl PixelTracker {
     /// repeating the last good sample. Confirmed extrema are pushed to `out`, placed to a
     /// fraction of a band when `subband` (else at the band of the smoothed extreme).
     #[inline]
-    pub fn push(&mut self, band: u16, value: f32, subband: bool, out: &mut ExtremaList) {
+    pub fn push(&mut self, band: u16, value: f32, subband: bool, out: &mut impl ExtremumSink) {
         if self.advance(value) {
             self.decide(band, subband, out);
         }
@@ -352,7 +304,7 @@ impl PixelTracker {
     /// The state machine's half of [`PixelTracker::push`], once the window is full: follows
     /// the smoothed spectrum and emits confirmed extrema.
     #[inline]
-    fn decide(&mut self, band: u16, subband: bool, out: &mut ExtremaList) {
+    fn decide(&mut self, band: u16, subband: bool, out: &mut impl ExtremumSink) {
         let m = self.moments;
         let s = smoothed(m);
         // Its vertex (fractional band), computed only where an extreme moves.
@@ -390,7 +342,7 @@ impl PixelTracker {
 
     /// Before the first extremum: follows both the running maximum and minimum until the
     /// spectrum has moved `tau` away from one of them.
-    fn start(&mut self, s: f32, tau: f32, vertex: impl Fn() -> f32, out: &mut ExtremaList) {
+    fn start(&mut self, s: f32, tau: f32, vertex: impl Fn() -> f32, out: &mut impl ExtremumSink) {
         if usize::from(self.seen) == WINDOW {
             // The first smoothed sample: an extreme here is the band edge, not a fringe.
             self.ext_val = s;
@@ -425,18 +377,23 @@ impl PixelTracker {
         }
     }
 
-    fn emit(&mut self, band: f32, kind: Kind, out: &mut ExtremaList) {
+    fn emit(&mut self, band: f32, kind: Kind, out: &mut impl ExtremumSink) {
         // Sub-band vertices move up to a band either way, so two extrema of a spiky spectrum
         // less than two bands apart could come out of order (found by the property tests):
         // the list stays in increasing band order.
-        let band = out.last().map_or(band, |last| band.max(last.band()));
+        let band = out
+            .last_extremum()
+            .map_or(band, |last| band.max(last.band()));
         if out.push(Extremum::new(band, kind)).is_err() {
             self.overflow = true;
         }
     }
 }
 
+mod lists;
 pub mod row;
+
+pub use lists::{ExtremaHead, ExtremaList, ExtremumSink, LaneSinks, HEAD};
 
 #[cfg(test)]
 mod tests;

@@ -17,8 +17,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::{
-    abs_d2, before, carry_moments, smoothed, to_step, usable, vertex, ExtremaList, Mode,
-    PixelTracker, TAU_PER_D2, WINDOW,
+    abs_d2, before, carry_moments, lists::Lane, smoothed, to_step, usable, vertex, ExtremumSink,
+    LaneSinks, Mode, PixelTracker, TAU_PER_D2, WINDOW,
 };
 
 /// Pixels per block of [`TrackerLanes`].
@@ -152,14 +152,14 @@ impl TrackerLanes {
         self.overflow[i] = t.overflow;
     }
 
-    /// Feeds one band's samples of the block's pixels (`values.len() <= LANES`, one list per
-    /// value): [`PixelTracker::push`] for each lane.
-    pub fn push<L: AsMut<ExtremaList>>(
+    /// Feeds one band's samples of the block's pixels (`values.len() <= LANES`, lane `i`'s
+    /// extrema to `sinks`' lane `i`): [`PixelTracker::push`] for each lane.
+    pub fn push<S: LaneSinks + ?Sized>(
         &mut self,
         band: u16,
         values: &[f32],
         subband: bool,
-        lists: &mut [L],
+        sinks: &mut S,
     ) {
         let mut padded = [0.0; LANES];
         let values: &Lanes = match values.try_into() {
@@ -170,15 +170,12 @@ impl TrackerLanes {
                 &padded
             }
         };
-        // Padding lanes (beyond `lists`) emit to a scratch list.
-        let mut scratch = ExtremaList::new();
         // Out-of-step lanes first, one by one; the row's arithmetic below overwrites them.
         let mut own: heapless::Vec<(u8, PixelTracker), LANES> = heapless::Vec::new();
         if self.any_out_of_step {
             for i in (0..LANES).filter(|&i| self.out_of_step[i]) {
                 let mut t = self.lane(i);
-                let out = lists.get_mut(i).map_or(&mut scratch, AsMut::as_mut);
-                t.push(band, values[i], subband, out);
+                t.push(band, values[i], subband, &mut Lane { sinks, i });
                 let _ = own.push((i as u8, t));
             }
         }
@@ -220,8 +217,7 @@ impl TrackerLanes {
                 for i in (0..LANES).filter(|&i| slow[i] && !skip[i]) {
                     // The state machine reads no ring and writes only the extremes.
                     let mut t = self.lane_but_ring(i);
-                    let out = lists.get_mut(i).map_or(&mut scratch, AsMut::as_mut);
-                    t.decide(band, subband, out);
+                    t.decide(band, subband, &mut Lane { sinks, i });
                     self.set_extremes(i, &t);
                 }
             }
@@ -354,9 +350,9 @@ pub fn lanes<T>(blocks: &[T], width: usize) -> impl Iterator<Item = (&T, usize)>
         .flat_map(move |row| (0..width).map(move |col| (&row[col / LANES], col % LANES)))
 }
 
-/// Feeds band `band` of one row (`values`, one list per value) to the row's blocks
+/// Feeds band `band` of one row (`values`, one sink per value) to the row's blocks
 /// (`values.len().div_ceil(LANES)` of them): [`PixelTracker::push`] for each pixel.
-pub fn push_row<L: AsMut<ExtremaList>>(
+pub fn push_row<L: ExtremumSink>(
     blocks: &mut [TrackerLanes],
     band: u16,
     values: &[f32],

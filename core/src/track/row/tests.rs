@@ -1,4 +1,5 @@
 use super::*;
+use crate::track::ExtremaList;
 
 /// Every field of two trackers, floats by their bits.
 fn same_state(a: &PixelTracker, b: &PixelTracker) -> bool {
