@@ -253,36 +253,43 @@ mod tests {
         }
     }
 
-    /// The first angle's longest-wavelength four extrema and its whole list's count choose
-    /// what the whole list does; the count is what the order search uses (a wrong one costs).
+    /// Each angle's longest-wavelength four extrema and its whole list's count choose what
+    /// the whole lists do, one angle's head or both; the counts are what the order search
+    /// uses (a wrong one costs).
     #[test]
-    fn four_reference_extrema_and_their_count_choose_as_the_whole_list() {
+    fn four_extrema_of_each_angle_and_their_counts_choose_as_the_whole_lists() {
         for (n, offset) in [(1.37, 0.0), (2.37, 0.5)] {
             let c = ctx(n, offset);
             for d in [250.0, 600.0, 1234.0, 1900.0] {
                 let obs = observe(&c, d, offset);
-                let first: heapless::Vec<Observation, 32> =
-                    obs.iter().copied().filter(|o| o.angle == 0).collect();
-                let mut head = first.clone();
-                head.sort_by(|a, b| b.wavelength_nm.total_cmp(&a.wavelength_nm));
-                head.truncate(4);
-                let mut some: heapless::Vec<Observation, 32> = head.iter().copied().collect();
-                some.extend(obs.iter().copied().filter(|o| o.angle == 1));
                 let whole = c.resolve(&obs).expect("a choice");
-                let count = first.len() as i64;
-                let r = c
-                    .resolve_seen(&some, [Some(count), None])
-                    .expect("a choice");
-                assert!((r.thickness_nm - d).abs() < 1e-6, "n {n} d {d}: {r:?}");
-                assert!(
-                    (r.cost - whole.cost).abs() < 1e-9,
-                    "n {n} d {d}: {r:?} {whole:?}"
-                );
-                assert!(r.runner_up_cost > r.cost + 0.05, "n {n} d {d}: {r:?}");
-                let wrong = c
-                    .resolve_seen(&some, [Some(count + 3), None])
-                    .expect("a choice");
-                assert!(wrong.cost > r.cost, "n {n} d {d}: {wrong:?}");
+                let angle = |a: usize| -> heapless::Vec<Observation, 32> {
+                    obs.iter().copied().filter(|o| o.angle == a).collect()
+                };
+                let head = |a: usize| {
+                    let mut h = angle(a);
+                    h.sort_by(|a, b| b.wavelength_nm.total_cmp(&a.wavelength_nm));
+                    h.truncate(4);
+                    h
+                };
+                let counts = [0, 1].map(|a| angle(a).len() as i64);
+                for heads in [[true, false], [false, true], [true, true]] {
+                    let mut some: heapless::Vec<Observation, 32> = heapless::Vec::new();
+                    for a in 0..2 {
+                        some.extend(if heads[a] { head(a) } else { angle(a) });
+                    }
+                    let given = |extra: i64| [0, 1].map(|a| heads[a].then(|| counts[a] + extra));
+                    let r = c.resolve_seen(&some, given(0)).expect("a choice");
+                    let case = format!("n {n} d {d} heads {heads:?}");
+                    assert!((r.thickness_nm - d).abs() < 1e-6, "{case}: {r:?}");
+                    assert!(
+                        (r.cost - whole.cost).abs() < 1e-9,
+                        "{case}: {r:?} {whole:?}"
+                    );
+                    assert!(r.runner_up_cost > r.cost + 0.05, "{case}: {r:?}");
+                    let wrong = c.resolve_seen(&some, given(3)).expect("a choice");
+                    assert!(wrong.cost > r.cost, "{case}: {wrong:?}");
+                }
             }
         }
     }
