@@ -275,8 +275,8 @@ mod tests {
                 let counts = [0, 1].map(|a| angle(a).len() as i64);
                 for heads in [[true, false], [false, true], [true, true]] {
                     let mut some: heapless::Vec<Observation, 32> = heapless::Vec::new();
-                    for a in 0..2 {
-                        some.extend(if heads[a] { head(a) } else { angle(a) });
+                    for (a, &kept) in heads.iter().enumerate() {
+                        some.extend(if kept { head(a) } else { angle(a) });
                     }
                     let given = |extra: i64| [0, 1].map(|a| heads[a].then(|| counts[a] + extra));
                     let r = c.resolve_seen(&some, given(0)).expect("a choice");
