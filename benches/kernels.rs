@@ -3,7 +3,8 @@
 //! - `track/push`: the per-pixel extremum tracker over 1024 pixels x 151 bands of a thin-film
 //!   fringe spectrum, band-major as the pipeline streams it (throughput: pixel-band samples).
 //! - `track/row`: the same spectra through the row kernel the pipeline uses
-//!   (`track::row::push_row`, one row of 1024 pixels per band).
+//!   (`track::row::push_row`, one row of 1024 pixels per band; into whole lists here, the
+//!   workers keep most pixels' last four, `ExtremaHead`).
 //! - `refine/gn_sums_add`: the full-spectrum Gauss-Newton sums over the same 1024 x 151
 //!   samples, band models built once, computed per sample (throughput: samples).
 //! - `refine/gn_sums_add_tabled`: the same from the tabulated band models.

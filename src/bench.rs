@@ -6,8 +6,9 @@
 //! measurements replay them from memory, so the camera's own cost (an Airy sum per sample)
 //! is left out of everything but the figure that names it.
 //!
-//! - `tracker`: the row kernel ([`push_row`], what the workers run) alone, one core,
-//!   pixel-band samples per second.
+//! - `tracker`: the row kernel ([`push_row`], what the workers run, into each pixel's last
+//!   extrema as the workers keep them, [`ExtremaHead`]) alone, one core, pixel-band samples
+//!   per second.
 //! - `stream`: everything a sample costs a worker ([`filmscope_core::solve::Shard::feed_row`]: tracker and the
 //!   full-spectrum sums), one core.
 //! - `solve`: the angle-end passes ([`SweepSolver::end_angle_all`]: votes, index, orders,
@@ -34,7 +35,7 @@ use filmscope_core::solve::fit_row::{IndexSampling, INDEX_PIXELS};
 use filmscope_core::solve::shard::PixelResult;
 use filmscope_core::solve::{state_bytes_per_pixel, SweepSolver, SweepSpec};
 use filmscope_core::track::row::{blocks_for, push_row, TrackerLanes};
-use filmscope_core::track::ExtremaList;
+use filmscope_core::track::ExtremaHead;
 use firmware_sim::{Scene, SoftwareCamera};
 use serde::Serialize;
 
@@ -210,17 +211,17 @@ fn repeat_for(min: Duration, mut f: impl FnMut()) -> (u64, Duration) {
 }
 
 /// Tracker throughput on one core: samples per second of the row kernel the workers use
-/// ([`push_row`], one row of the image per call, band by band).
+/// ([`push_row`], one row of the image per call, band by band, into [`ExtremaHead`]s).
 pub fn tracker_rate(frames: &Frames, min: Duration) -> f64 {
     let w = frames.width();
     let px = w * frames.rows;
     let per_row = blocks_for(1, w);
     let mut blocks = vec![TrackerLanes::EMPTY; blocks_for(frames.rows, w)];
-    let mut lists = vec![ExtremaList::new(); px];
+    let mut lists = vec![ExtremaHead::EMPTY; px];
     let (n, t) = repeat_for(min, || {
         for a in 0..frames.angles_deg.len() {
             blocks.iter_mut().for_each(TrackerLanes::reset);
-            lists.iter_mut().for_each(ExtremaList::clear);
+            lists.iter_mut().for_each(ExtremaHead::clear);
             for b in 0..frames.bands() {
                 for r in 0..frames.rows {
                     push_row(

@@ -29,6 +29,7 @@ use filmscope_core::solve::{
     tracker_blocks, AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
 };
 use filmscope_core::track::row::{TrackerLanes, LANES};
+use filmscope_core::track::{pack_sample, unpack_sample};
 
 use super::msg::{Samples, StreamMsg};
 use super::source::Source;
@@ -125,7 +126,8 @@ pub struct PipelineError(pub String);
 
 /// Rows for a worker, on the data channel (from the calibrate stage).
 enum WorkerMsg {
-    Rows(u16, u32, u32, Vec<f32>),
+    /// `(band, first row, rows, packed samples)` ([`pack_sample`]).
+    Rows(u16, u32, u32, Vec<u16>),
     End,
 }
 
@@ -582,8 +584,9 @@ pub fn run_sweep(
     })
 }
 
-/// Rows of one band a worker holds: `(band, first row, rows, values)`.
-type HeldRows = (u16, u32, u32, Vec<f32>);
+/// Rows of one band a worker holds: `(band, first row, rows, packed samples)`: 2 bytes a
+/// sample ([`pack_sample`]), so a block of 8 bands holds 16 bytes a pixel, not 32.
+type HeldRows = (u16, u32, u32, Vec<u16>);
 
 /// Bands of the block that starts at `band` of an angle's `bands`: `band_block`, but at most
 /// half of the bands left (rounded up). A block is fed once its last band has arrived, so
@@ -759,19 +762,17 @@ fn feed_held(
     ) else {
         return;
     };
+    let mut unpacked = vec![0.0; width];
     for block in (lo..hi).step_by(block_rows) {
         let block_end = (block + block_rows).min(hi);
         for (band, row, n, values) in held.iter() {
             let (first, last) = (*row as usize, (*row + *n) as usize);
             for r in first.max(block)..last.min(block_end) {
                 let k = r - first;
-                shard.feed_row(
-                    options,
-                    models.view(),
-                    usize::from(*band),
-                    r,
-                    &values[k * width..(k + 1) * width],
-                );
+                for (x, &q) in unpacked.iter_mut().zip(&values[k * width..(k + 1) * width]) {
+                    *x = unpack_sample(q);
+                }
+                shard.feed_row(options, models.view(), usize::from(*band), r, &unpacked);
                 tally.fed(shard, r, behind);
             }
         }
@@ -840,7 +841,10 @@ fn calibrate_stage(
                     let i = owner(first + k);
                     let (s_first, s_rows) = shard_rows(height, n_workers, i);
                     let n = (s_first + s_rows - (first + k)).min(rows - k);
-                    let part = values[k * width..(k + n) * width].to_vec();
+                    let part: Vec<u16> = values[k * width..(k + n) * width]
+                        .iter()
+                        .map(|&v| pack_sample(v))
+                        .collect();
                     if workers[i]
                         .send(WorkerMsg::Rows(
                             block.band,

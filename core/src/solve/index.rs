@@ -212,9 +212,9 @@ pub fn for_each_ratio<'r>(
     wavelength_nm: impl Fn(f32) -> f64,
     mut f: impl FnMut(f64, f64),
 ) {
-    // The current extrema's wavelengths once, not once per reference extremum (every pixel
-    // pairs its lists at every angle's end); a list longer than an `ExtremaList` looks its
-    // tail up as it goes.
+    // The current extrema's wavelengths once, not once per reference extremum (every pixel of
+    // the index's sample pairs its lists at every angle's end); a list longer than an
+    // `ExtremaList` looks its tail up as it goes.
     let mut known = [0.0f64; MAX_EXTREMA];
     for (l, c) in known.iter_mut().zip(current) {
         *l = wavelength_nm(c.band());

@@ -9,9 +9,11 @@
 //!    pixel and same-kind extremum pair): its mode is the one index all pixels share
 //!    (method.md eq. 12 with every pixel voting, robust to the pixels whose fringes were
 //!    matched wrongly). This is only the starting point.
-//! 3. Once an index exists, [`order`] gives each pixel its integer interference order from all
-//!    its extrema (parity from the model's reflection phase: half orders for a film above the
-//!    substrate), with neighbours breaking ties, and so a first thickness.
+//! 3. Once an index exists, [`order`] gives each pixel its integer interference order from its
+//!    extrema at two angles (the whole lists for the index's sample, the last four of each
+//!    angle and each list's count for the others, [`extrema`]; parity from the model's
+//!    reflection phase: half orders for a film above the substrate), with neighbours
+//!    breaking ties, and so a first thickness.
 //! 4. From then on every band sample adds to a few per-pixel Gauss-Newton sums ([`refine`]):
 //!    the full spectrum, not just its extrema, pins the thickness to a fraction of a nm, and
 //!    the sums' cross terms, pooled over all pixels (Schur complement), move the shared index.

@@ -1,4 +1,6 @@
-//! The integer interference order of a pixel, from all its extrema and the model.
+//! The integer interference order of a pixel, from its extrema and the model (all of them,
+//! or each angle's last ones with the whole list's count inside the reliable range:
+//! [`OrderContext::resolve_seen`]).
 //!
 //! With the index known, an extremum at `lambda` and incidence `x = (n0 sin theta)^2` sits at
 //! order `q = d u`, `u = 2 sqrt(n(lambda)^2 - x) / lambda`, and `q` must be `o + m` for a peak

@@ -1,7 +1,7 @@
 //! Per-pixel state of a band of rows, and the shard-local passes of the solver.
 
 use crate::track::row::{self, TrackerLanes};
-use crate::track::{ExtremaHead, Extremum, LaneSinks};
+use crate::track::{ExtremaHead, Extremum, ExtremumSink, LaneSinks};
 
 use super::extrema::{AnchorTail, SampleExtrema};
 use super::fit_row::{self, FitLanes, IndexLanes, IndexSampling, PixelFit};
@@ -87,9 +87,7 @@ struct BlockSinks<'s> {
 impl LaneSinks for BlockSinks<'_> {
     #[inline]
     fn last_at(&self, i: usize) -> Option<Extremum> {
-        self.pixels
-            .get(i)
-            .and_then(|p| p.current.extrema().last().copied())
+        self.pixels.get(i).and_then(|p| p.current.last_extremum())
     }
 
     fn push_at(&mut self, i: usize, e: Extremum) -> Result<(), Extremum> {
@@ -326,11 +324,12 @@ impl<'a> Shard<'a> {
         self.lists.iter_mut().for_each(SampleExtrema::begin_angle);
     }
 
-    /// Votes the extrema the sampled pixels ([`IndexSampling`]) of image rows `rows` have
-    /// found so far at this angle and not voted yet (their ratios against the reference angle's, as [`Shard::tally`] would
-    /// count them), into `votes`, and marks them voted. Extrema are only ever appended, so a
-    /// row voted before its last bands leaves its tally the few extrema found since: done
-    /// while the angle streams, this takes most of the pairing off the angle's end.
+    /// Votes the extrema the sampled pixels ([`IndexSampling`]) of image rows `rows` have found
+    /// so far at this angle and not voted yet (their ratios against the reference angle's, as
+    /// [`Shard::tally`] would count them), into `votes`, and marks them voted. Extrema are only
+    /// ever appended, so a row voted before its last bands leaves its tally the few extrema
+    /// found since: done while the angle streams, this takes most of the pairing off the
+    /// angle's end.
     pub fn vote_rows(
         &mut self,
         solver: &SweepSolver,
@@ -345,9 +344,7 @@ impl<'a> Shard<'a> {
         let w = self.width;
         for r in lo..hi {
             for c in self.sampling.cols(self.first_row + r, w) {
-                let (_, Some(lane)) = self.lanes_at(r, c) else {
-                    continue;
-                };
+                let lane = self.lanes_at(r, c).1.expect("a pixel of the sample");
                 let slot = Self::list_slot(lane);
                 let lists = &self.lists[slot];
                 votes.vote(g, self.reference_at(r, c), lists.unvoted(), |b| {
@@ -971,19 +968,19 @@ mod size_tests {
     fn pixel_state_size_is_fixed_and_known() {
         // Breakdown: the pixel's state: flags, extrema seen, the current and the reference
         // angles' last four extrema with their whole lists' lengths and early counts, 10
-        // each: 24 with padding; its tracker lanes in the row blocks, 56 bytes a pixel (a ring of nine 2-byte steps; the
-        // scalar tracker's 55, 56 with padding) and the block's shared ring position and
-        // count, 57 rounded up; its fit lanes in the row blocks: thickness and order step 8,
-        // its own eight full-spectrum sums 32 (the scalar `GnSums` is 68 with the index's
-        // eight, its count and padding), the sums' count and the saturated and dead counts 6,
-        // and the block's shared sample count, 47 rounded up; 128 in all. The pixels of the
-        // index's sample keep the index's eight sums (32 bytes), the current angle's whole
-        // extremum list (42, 20 extrema of 2 bytes and a one-byte length), how many of it
-        // voted (1) and the rest of the reference list (34; 78 with padding), in blocks of 32
-        // a row: every pixel of a 320 x 200 sensor (10 blocks a row, 110 bytes a pixel: 238
-        // in all), one
-        // in 4 of a 640 x 480 one (5 blocks, 28 a pixel rounded up: 156), one in 64 of a
-        // 2048 x 2048 one (one block: 2 a pixel rounded up, 130).
+        // each: 24 with padding; its tracker lanes in the row blocks, 56 bytes a pixel (a
+        // ring of nine 2-byte steps; the scalar tracker's 55, 56 with padding) and the
+        // block's shared ring position and count, 57 rounded up; its fit lanes in the row
+        // blocks: thickness and order step 8, its own eight full-spectrum sums 32 (the
+        // scalar `GnSums` is 68 with the index's eight, its count and padding), the sums'
+        // count and the saturated and dead counts 6, and the block's shared sample count,
+        // 47 rounded up; 128 in all. The pixels of the index's sample keep the index's
+        // eight sums (32 bytes), the current angle's whole extremum list (42, 20 extrema of
+        // 2 bytes and a one-byte length), how many of it voted (1) and the rest of the
+        // reference list (34; 78 with padding), in blocks of 32 a row: every pixel of a
+        // 320 x 200 sensor (10 blocks a row, 110 bytes a pixel: 238 in all), one in 4 of a
+        // 640 x 480 one (5 blocks, 28 a pixel rounded up: 156), one in 64 of a 2048 x 2048
+        // one (one block: 2 a pixel rounded up, 130).
         let small = IndexSampling::for_sensor(320, 200, fit_row::INDEX_PIXELS);
         let vga = IndexSampling::for_sensor(640, 480, fit_row::INDEX_PIXELS);
         let large = IndexSampling::for_sensor(2048, 2048, fit_row::INDEX_PIXELS);

@@ -142,10 +142,13 @@ impl SweepSpec {
         [a.min(b), a.max(b)]
     }
 
-    /// The last band of [`SweepSpec::reliable_range_nm`] (its first is
-    /// [`crate::track::WINDOW`]).
+    /// The last band of [`SweepSpec::reliable_range_nm`]: the smoothing window's length
+    /// before the last band, never before its first, [`crate::track::WINDOW`] (a sweep of
+    /// fewer than `2 WINDOW + 1` bands has that one band: [`crate::track::ExtremaHead`]
+    /// counts the range so).
     pub fn last_reliable_band(&self) -> f32 {
-        (self.bands_nm.len() as f32 - 1.0 - crate::track::WINDOW as f32).max(0.0)
+        let w = crate::track::WINDOW as f32;
+        (self.bands_nm.len() as f32 - 1.0 - w).max(w)
     }
 }
 

@@ -134,7 +134,7 @@ impl ExtremaHead {
     /// The head of `list`.
     pub fn of(list: &[Extremum]) -> Self {
         let mut head = Self::EMPTY;
-        for &e in list.iter().take(MAX_EXTREMA) {
+        for &e in list {
             let _ = head.push(e);
         }
         head
@@ -180,11 +180,11 @@ impl ExtremaHead {
         self.len == 0
     }
 
-    /// How many of the whole list lie in bands `WINDOW..=last` (the range clear of the
-    /// smoothing window at either end, [`crate::solve::SweepSpec::reliable_range_nm`], with
-    /// `last` the band count less `WINDOW + 1`): all but those before band `WINDOW` and
-    /// those kept here past `last` (a list with more than [`HEAD`] extrema in its last
-    /// `WINDOW` bands, never a clean fringe's, counts the earlier ones in).
+    /// How many of the whole list lie in bands `WINDOW..=last` (`last >= WINDOW`: the range
+    /// clear of the smoothing window at either end,
+    /// [`crate::solve::SweepSpec::last_reliable_band`]): all but those before band
+    /// `WINDOW` and those kept here past `last` (a list with more than [`HEAD`] extrema
+    /// past `last`, never a clean fringe's, counts the earlier ones in).
     pub fn reliable(&self, last: f32) -> usize {
         let late = self.extrema().iter().filter(|e| e.band() > last).count();
         self.len().saturating_sub(usize::from(self.early) + late)
@@ -242,11 +242,11 @@ mod tests {
     }
 
     /// The reliable count is the whole list's count of extrema in bands `WINDOW..=last`,
-    /// whichever end of the band the list covers.
+    /// whichever end of the band the list covers, on 100 bands and on 16 (whose range is
+    /// band `WINDOW` alone, [`crate::solve::SweepSpec::last_reliable_band`]).
     #[test]
     fn the_reliable_count_is_the_whole_lists() {
-        let last = 100.0 - 1.0 - WINDOW as f32;
-        for (n, first, step) in [
+        let cases = [
             (0, 0.0, 1.0),
             (5, 0.5, 3.0),
             (12, 2.0, 8.5),
@@ -254,7 +254,13 @@ mod tests {
             (20, 20.0, 4.0),
             (3, 95.0, 1.5),
             (7, 60.0, 5.5),
-        ] {
+        ];
+        let short = [(6, 4.0, 2.5), (4, 7.0, 1.0), (3, 0.5, 4.25)];
+        let sweeps = [(90.0, &cases[..]), (WINDOW as f32, &short[..])];
+        for (n, first, step, last) in sweeps
+            .iter()
+            .flat_map(|&(last, c)| c.iter().map(move |&(n, f, s)| (n, f, s, last)))
+        {
             let l = list(n, first, step);
             let inside = l
                 .iter()
@@ -263,7 +269,7 @@ mod tests {
             assert_eq!(
                 ExtremaHead::of(&l).reliable(last),
                 inside,
-                "{n} from {first} by {step}"
+                "{n} from {first} by {step}, last {last}"
             );
         }
     }

@@ -7,11 +7,12 @@
 //! each extremum to a fraction of a band from the local quadratic's vertex. `tau` follows the
 //! pixel's own noise, estimated on the fly from the mean absolute second difference.
 //!
-//! State is a fixed-size [`PixelTracker`] per pixel, reset at each angle, whatever the number of
-//! bands; found extrema go to a caller-owned [`ExtremumSink`] of fixed capacity (overflow is a
-//! flag, never growth): a whole [`ExtremaList`] or its last extrema, an [`ExtremaHead`]. The workers run [`row`], the same tracker over a row's pixels at once
-//! (structure of arrays, vectorised, the same results bit for bit); [`PixelTracker`] is its
-//! reference and handles its rare events.
+//! State is a fixed-size [`PixelTracker`] per pixel, reset at each angle, whatever the number
+//! of bands; found extrema go to a caller-owned [`ExtremumSink`] of fixed capacity (overflow is
+//! a flag, never growth): a whole [`ExtremaList`] or its last extrema, an [`ExtremaHead`]. The
+//! workers run [`row`], the same tracker over a row's pixels at once (structure of arrays,
+//! vectorised, the same results bit for bit); [`PixelTracker`] is its reference and handles its
+//! rare events.
 
 /// Samples in the smoothing window (odd).
 pub const WINDOW: usize = 9;
@@ -57,6 +58,40 @@ fn to_step(v: f32) -> (f32, u16) {
     let v = if v > TOP { TOP } else { v };
     let r = (v - RING_ORIGIN) * RING_STEPS_PER_UNIT + TWO_23;
     (r - TWO_23, (r.to_bits() - TWO_23.to_bits()) as u16)
+}
+
+/// [`pack_sample`]'s code of a saturated sample (infinite).
+const PACKED_SATURATED: u16 = u16::MAX;
+/// [`pack_sample`]'s code of a sample without a usable value (NaN, or beyond
+/// [`MAX_SAMPLE`]).
+const PACKED_DEAD: u16 = u16::MAX - 1;
+
+/// A calibrated sample in 2 bytes, as the pipeline holds a block of bands before the
+/// tracker and the full-spectrum sums take them: its ring step ([`to_step`], the rounding
+/// the tracker gives it anyway; the sums see it too, 8.8e-6 RMS), clamped below the two
+/// codes kept for a saturated sample (infinite) and one without a usable value, which
+/// [`unpack_sample`] gives back as `+inf` and NaN. Lane loops of it vectorise (no branch, no
+/// float-to-integer conversion).
+#[inline]
+pub fn pack_sample(v: f32) -> u16 {
+    let q = to_step(v).1.min(PACKED_DEAD - 1);
+    let q = if usable(v) { q } else { PACKED_DEAD };
+    if v.is_infinite() {
+        PACKED_SATURATED
+    } else {
+        q
+    }
+}
+
+/// The sample [`pack_sample`] packed as `q`: a ring step's reflectance (exact), `+inf` for a
+/// saturated one, NaN for one without a usable value.
+#[inline]
+pub fn unpack_sample(q: u16) -> f32 {
+    match q {
+        PACKED_SATURATED => f32::INFINITY,
+        PACKED_DEAD => f32::NAN,
+        q => f32::from(q) * (1.0 / RING_STEPS_PER_UNIT) + RING_ORIGIN,
+    }
 }
 
 /// [`to_step`]'s ring step.

@@ -165,3 +165,30 @@ fn ring_steps_round_to_the_nearest_and_clamp() {
     assert_eq!(to_ring(MAX_SAMPLE), u16::MAX);
     assert_eq!(from_ring(to_ring(0.25)), 0.25);
 }
+
+/// A packed sample is its ring step, so the tracker sees it as it would the sample itself;
+/// saturated and unusable samples come back as `+inf` and NaN (the full-spectrum sums count
+/// them apart), and nothing usable is taken for either.
+#[test]
+fn packed_samples_are_their_ring_steps_and_keep_saturated_and_dead_apart() {
+    let mut seed = 5u32;
+    for _ in 0..20_000 {
+        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        let v = -0.6 + 2.2 * (seed >> 8) as f32 / (1u32 << 24) as f32;
+        let back = unpack_sample(pack_sample(v));
+        assert!(usable(back) && back.is_finite(), "{v}: {back}");
+        if v <= 1.4999 {
+            assert_eq!(to_step(back).1, to_ring(v), "{v}");
+            assert_eq!(back, from_ring(to_ring(v)), "{v}");
+        } else {
+            assert!((1.4999..1.5).contains(&back), "{v}: {back}");
+        }
+    }
+    for sat in [f32::INFINITY, f32::NEG_INFINITY] {
+        assert_eq!(unpack_sample(pack_sample(sat)), f32::INFINITY);
+    }
+    for dead in [f32::NAN, 2.0 * MAX_SAMPLE, -2.0 * MAX_SAMPLE] {
+        assert!(unpack_sample(pack_sample(dead)).is_nan(), "{dead}");
+    }
+    assert_eq!(unpack_sample(pack_sample(0.25)), 0.25);
+}
