@@ -319,6 +319,20 @@ fn a_thick_high_index_film_is_not_taken_for_one_without_fringe_pairs() {
     }
 }
 
+/// Scene `name` run twice: every pixel keeping the index's sums and whole extremum lists,
+/// then one pixel in 16 (`index_pixels`, a large sensor's share), the second's report
+/// printed. Each run's report and run, in that order.
+fn every_pixel_and_one_in_16(name: &str) -> [(EvalReport, Run); 2] {
+    let scene = common::scene(name);
+    let pixels = scene.sensor.width * scene.sensor.height;
+    let all = run_scene(name, scene.clone(), &RunConfig::default());
+    let mut config = RunConfig::default();
+    config.pipeline.solver.index_pixels = pixels / 16;
+    let some = run_scene(&format!("{name} 1/16"), scene, &config);
+    eprintln!("{}", serde_json::to_string(&some.0).expect("json"));
+    [all, some]
+}
+
 /// The shared index's step from one pixel in 16 (`index_pixels`; the sums the rest keep
 /// are their own, 32 bytes a pixel fewer): a large sensor's default (1 Mpix keeps 65536),
 /// here on a small scene. Measured by this test: index -0.0003 against -0.0002, MAE 0.19
@@ -328,13 +342,7 @@ fn a_thick_high_index_film_is_not_taken_for_one_without_fringe_pairs() {
 /// same valid shares.
 #[test]
 fn the_index_from_one_pixel_in_16_keeps_the_accuracy() {
-    let scene = common::scene("thin-80nm");
-    let pixels = scene.sensor.width * scene.sensor.height;
-    let (all, all_run) = run_scene("thin-80nm", scene.clone(), &RunConfig::default());
-    let mut config = RunConfig::default();
-    config.pipeline.solver.index_pixels = pixels / 16;
-    let (some, some_run) = run_scene("thin-80nm 1/16", scene, &config);
-    eprintln!("{}", serde_json::to_string(&some).expect("json"));
+    let [(all, all_run), (some, some_run)] = every_pixel_and_one_in_16("thin-80nm");
     // The sample was in effect, and the index's uncertainty says so: that of 1/16 of the
     // pixels, about 4 times the whole image's.
     let sigma = |run: &Run| run.field_model_choice["narrow"]["index_sigma"].as_f64();
@@ -361,13 +369,7 @@ fn the_index_from_one_pixel_in_16_keeps_the_accuracy() {
 /// 99.8 % valid against 99.9 % (session 13).
 #[test]
 fn orders_from_the_last_extrema_keep_the_accuracy_on_a_high_index_film() {
-    let scene = common::scene("paper-sample3");
-    let pixels = scene.sensor.width * scene.sensor.height;
-    let (all, _) = run_scene("paper-sample3", scene.clone(), &RunConfig::default());
-    let mut config = RunConfig::default();
-    config.pipeline.solver.index_pixels = pixels / 16;
-    let (some, _) = run_scene("paper-sample3 1/16", scene, &config);
-    eprintln!("{}", serde_json::to_string(&some).expect("json"));
+    let [(all, _), (some, _)] = every_pixel_and_one_in_16("paper-sample3");
     assert_bounds(&some, "1/16", 0.001, 0.5, 0.98);
     assert!(
         (some.thickness_mae_nm - all.thickness_mae_nm).abs() <= 0.1,

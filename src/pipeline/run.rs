@@ -44,7 +44,8 @@ pub struct PipelineConfig {
     /// Bands a worker holds before feeding them to its pixels row by row: every band streams
     /// past every pixel's state, so on a sensor whose state does not fit the caches a sample
     /// costs its state's memory traffic; holding `band_block` bands divides that traffic by
-    /// `band_block` at `4 * band_block` bytes per pixel of row buffers (1: feed each row as
+    /// `band_block` at `2 * band_block` bytes per pixel of row buffers (packed samples,
+    /// [`pack_sample`]; 1: feed each row as
     /// it arrives). Over an angle's last bands the blocks shrink ([`block_bands`]), so that
     /// little is left to feed when its last row arrives.
     pub band_block: usize,

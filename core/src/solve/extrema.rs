@@ -67,6 +67,15 @@ pub struct SampleExtrema {
     pub tail: AnchorTail,
 }
 
+/// The reference angle's extrema a pixel has, in place and in band order: the whole list
+/// for a pixel of the index's sample (its `lists`), its `head` alone for another.
+pub fn reference<'a>(
+    head: &'a ExtremaHead,
+    lists: Option<&'a SampleExtrema>,
+) -> impl Iterator<Item = &'a Extremum> + 'a {
+    lists.map_or(&AnchorTail::EMPTY, |l| &l.tail).whole(head)
+}
+
 impl SampleExtrema {
     /// Nothing kept.
     pub const EMPTY: Self = Self {

@@ -3,7 +3,7 @@
 use crate::track::row::{self, TrackerLanes};
 use crate::track::{ExtremaHead, Extremum, ExtremumSink, LaneSinks};
 
-use super::extrema::{AnchorTail, SampleExtrema};
+use super::extrema::{self, AnchorTail, SampleExtrema};
 use super::fit_row::{self, FitLanes, IndexLanes, IndexSampling, PixelFit};
 use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
@@ -272,20 +272,6 @@ impl<'a> Shard<'a> {
             .map(|lane| &self.lists[Self::list_slot(lane)])
     }
 
-    /// The whole reference extremum list, in place and in band order, of the pixel in the
-    /// shard's row `r`, column `c` of the index's sample (its head alone for another).
-    fn reference_at(&self, r: usize, c: usize) -> impl Iterator<Item = &Extremum> + '_ {
-        let head = &self.pixels[r * self.width + c].anchor;
-        let tail = self.lists_at(r, c).map_or(&AnchorTail::EMPTY, |l| &l.tail);
-        tail.whole(head)
-    }
-
-    /// The current angle's whole extremum list of the pixel in the shard's row `r`, column
-    /// `c` of the index's sample (empty for another).
-    fn current_at(&self, r: usize, c: usize) -> &[Extremum] {
-        self.lists_at(r, c).map_or(&[], |l| &l.current)
-    }
-
     /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
     /// spectra put it ([`super::thin`]): it is refined from the first angle on, needing no
     /// extrema. A NaN thickness leaves it as it was.
@@ -347,9 +333,8 @@ impl<'a> Shard<'a> {
                 let lane = self.lanes_at(r, c).1.expect("a pixel of the sample");
                 let slot = Self::list_slot(lane);
                 let lists = &self.lists[slot];
-                votes.vote(g, self.reference_at(r, c), lists.unvoted(), |b| {
-                    spec.wavelength_at(b)
-                });
+                let reference = extrema::reference(&self.pixels[r * w + c].anchor, Some(lists));
+                votes.vote(g, reference, lists.unvoted(), |b| spec.wavelength_at(b));
                 self.lists[slot].voted = self.lists[slot].current.len() as u8;
             }
         }
@@ -444,12 +429,12 @@ impl<'a> Shard<'a> {
         let noise_held = solver.noise_held();
         for r in lo..hi {
             for c in self.sampling.cols(self.first_row + r, w) {
-                let ((block, lane), _) = self.lanes_at(r, c);
-                let unvoted = self.lists_at(r, c).map_or(&[][..], SampleExtrema::unvoted);
+                let ((block, lane), sample) = self.lanes_at(r, c);
+                let lists = sample.map(|l| &self.lists[Self::list_slot(l)]);
                 if let Some(g) = geometry {
-                    votes.vote(g, self.reference_at(r, c), unvoted, |b| {
-                        spec.wavelength_at(b)
-                    });
+                    let reference = extrema::reference(&self.pixels[r * w + c].anchor, lists);
+                    let unvoted = lists.map_or(&[][..], SampleExtrema::unvoted);
+                    votes.vote(g, reference, unvoted, |b| spec.wavelength_at(b));
                 }
                 if let Some(rms) = self.fits[block].rms(lane) {
                     fit.rms.add(rms);
@@ -487,8 +472,10 @@ impl<'a> Shard<'a> {
             let mut s = SchurSums::default();
             for c in self.sampling.cols(self.first_row + r, width) {
                 if let Some((g, windows)) = window {
-                    let current = self.current_at(r, c);
-                    accumulate_window(&mut w, g, windows, self.reference_at(r, c), current, |b| {
+                    let lists = self.lists_at(r, c);
+                    let reference = extrema::reference(&self.pixels[r * width + c].anchor, lists);
+                    let current = lists.map_or(&[][..], |l| &l.current);
+                    accumulate_window(&mut w, g, windows, reference, current, |b| {
                         spec.wavelength_at(b)
                     });
                 }
@@ -705,18 +692,17 @@ impl<'a> Shard<'a> {
         let mut obs: heapless::Vec<Observation, { 2 * crate::track::MAX_EXTREMA }> =
             heapless::Vec::new();
         let last = spec.last_reliable_band();
-        let (reference, current, counts) = match lists {
-            Some(l) => (l.tail.whole(&p.anchor), &l.current[..], [None; 2]),
+        let (current, counts) = match lists {
+            Some(l) => (&l.current[..], [None; 2]),
             None => (
-                AnchorTail::EMPTY.whole(&p.anchor),
                 p.current.extrema(),
                 [&p.anchor, &p.current].map(|h| Some(h.reliable(last) as i64)),
             ),
         };
-        let lists = reference
+        let both = extrema::reference(&p.anchor, lists)
             .map(|e| (0, e))
             .chain(current.iter().map(|e| (1, e)));
-        for (angle, e) in lists {
+        for (angle, e) in both {
             let _ = obs.push(Observation {
                 wavelength_nm: spec.wavelength_at(e.band()),
                 kind: e.kind(),
@@ -1176,7 +1162,7 @@ mod vote_tests {
             let mut own = RatioHistogram::default();
             for c in (0..W).step_by(stride) {
                 let lists = shard.lists_at(0, c).expect("a sampled pixel");
-                let reference = lists.tail.whole(&shard.pixels[c].anchor);
+                let reference = extrema::reference(&shard.pixels[c].anchor, Some(lists));
                 own.vote(g, reference, lists.unvoted(), |b| spec.wavelength_at(b));
             }
             assert!(votes == own, "stride {stride}: not the sample's votes");
