@@ -83,6 +83,26 @@ fn maps_do_not_depend_on_rows_per_message_workers_or_channel_capacity() {
     );
 }
 
+#[test]
+fn maps_do_not_depend_on_the_band_block() {
+    // Rows a few at a time, so that an angle's last block is fed in several parts as its
+    // last band arrives (`streams_rows`); blocks of one band, of three (the last blocks
+    // shorter than the final four), the default eight, and one the whole angle.
+    let scene = common::tiny_scene();
+    let mut source = SimSource::new(SoftwareCamera::new(scene.clone()), false, 5).expect("source");
+    let reference = run(&mut source, 2, 64);
+    for band_block in [1, 3, 8, 400] {
+        let mut source =
+            SimSource::new(SoftwareCamera::new(scene.clone()), false, 5).expect("source");
+        let mut config = RunConfig::default();
+        config.pipeline.band_block = band_block;
+        let got = run_method(&mut source, &config, &|_| {})
+            .expect("run")
+            .result;
+        same(&reference, &got, &format!("band block {band_block}"));
+    }
+}
+
 /// Runs `scene` streamed in blocks of `rows` rows to `workers` workers over channels of
 /// capacity `cap`, for each `(rows, workers, cap)` of `paths`, and checks every run gives
 /// `reference`.

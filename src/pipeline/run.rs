@@ -590,14 +590,33 @@ pub fn run_sweep(
 type HeldRows = (u16, u32, u32, Vec<u16>);
 
 /// Bands of the block that starts at `band` of an angle's `bands`: `band_block`, but at most
-/// half of the bands left (rounded up). A block is fed once its last band has arrived, so
-/// whatever is still to feed when the angle's last row arrives is latency: with the blocks
-/// halving towards the end, each is fed while the next (half as many bands) arrives, and
-/// the last block is one band, fed row by row as it arrives.
+/// half of the bands left (rounded up) and at least [`FINAL_BLOCK_BANDS`] (or what is left).
+/// A block is fed once its last band has arrived, so whatever is still to feed when the
+/// angle's last row arrives is latency: with the blocks halving towards the end, each is fed
+/// while the next (half as many bands) arrives, and the angle's last block is fed row by row
+/// as its last band arrives ([`streams_rows`]).
 pub fn block_bands(band: usize, bands: usize, band_block: usize) -> usize {
+    let left = bands.saturating_sub(band);
     band_block
-        .min(bands.saturating_sub(band).div_ceil(2))
+        .min(left.div_ceil(2))
+        .max(FINAL_BLOCK_BANDS.min(band_block))
+        .min(left)
         .max(1)
+}
+
+/// Bands of an angle's last block. Feeding a block costs one pass over its pixels' state
+/// (memory traffic, the same for any number of bands) and each band's arithmetic; the last
+/// block is fed as its last band's rows arrive, so what is left when the angle's last row
+/// arrives is the part of that pass the band's arrival did not cover. One band a block (one
+/// pass a band) left the workers a band behind; four let the block before it be fed while
+/// its first three arrive (session 14).
+pub const FINAL_BLOCK_BANDS: usize = 4;
+
+/// Whether the block of `limit` bands that starts at `first` is the angle's last (of
+/// `bands`): its rows are fed as its last band's rows arrive (in row order), each row of
+/// every band it holds at once.
+pub fn streams_rows(first: usize, limit: usize, bands: usize) -> bool {
+    first + limit >= bands
 }
 
 /// A worker: `block` is `[band_block, bands per angle]`; `last_shard`: whether its rows are
@@ -622,6 +641,9 @@ fn worker(
         let shard_rows = shard.rows();
         let mut tally = RowTally::new(began, bands, shard_rows, last_shard);
         let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);
+        // The block's first band, and the image row below which its held rows were fed
+        // (the angle's last block: [`streams_rows`]).
+        let (mut first_band, mut fed_to) = (0, shard.first_row);
         loop {
             match rows.recv() {
                 Ok(WorkerMsg::Rows(band, row, n, values)) => {
@@ -629,23 +651,39 @@ fn worker(
                     let behind = !rows.is_empty();
                     if held.last().is_none_or(|h| h.0 != band) {
                         if bands_held == limit {
-                            feed_held(&mut shard, options, &models, &mut held, &mut tally, behind);
+                            let all = fed_to..usize::MAX;
+                            feed_held(&mut shard, options, &models, &held, all, &mut tally, behind);
+                            held.clear();
                             bands_held = 0;
                         }
                         if bands_held == 0 {
-                            limit = block_bands(usize::from(band), bands, band_block);
+                            first_band = usize::from(band);
+                            limit = block_bands(first_band, bands, band_block);
+                            fed_to = shard.first_row;
                         }
                         bands_held += 1;
                         rows_of_band = 0;
                     }
                     rows_of_band += n as usize;
+                    let rows_in = row as usize..(row + n) as usize;
                     held.push((band, row, n, values));
-                    // A full block is fed at once, not when the next band starts (a block of
-                    // one band as its rows arrive): the rows still held when the angle ends
-                    // are latency.
                     if limit == 1 || (bands_held == limit && rows_of_band >= shard_rows) {
-                        feed_held(&mut shard, options, &models, &mut held, &mut tally, behind);
+                        // A full block is fed at once, not when the next band starts (a block
+                        // of one band as its rows arrive): the rows still held when the angle
+                        // ends are latency.
+                        let all = fed_to..usize::MAX;
+                        feed_held(&mut shard, options, &models, &held, all, &mut tally, behind);
+                        held.clear();
                         bands_held = 0;
+                    } else if bands_held == limit
+                        && rows_in.start == fed_to
+                        && streams_rows(first_band, limit, bands)
+                    {
+                        let part = fed_to..rows_in.end;
+                        feed_held(
+                            &mut shard, options, &models, &held, part, &mut tally, behind,
+                        );
+                        fed_to = rows_in.end;
                     }
                 }
                 Ok(WorkerMsg::End) => break,
@@ -653,7 +691,9 @@ fn worker(
                 Err(_) => break,
             }
         }
-        feed_held(&mut shard, options, &models, &mut held, &mut tally, true);
+        let left = fed_to..usize::MAX;
+        feed_held(&mut shard, options, &models, &held, left, &mut tally, true);
+        held.clear();
         let tally = tally.finish(&shard);
         if done.send((index, st, tally)).is_err() {
             return;
@@ -741,14 +781,15 @@ impl RowTally {
     }
 }
 
-/// Feeds the held rows to the shard a block of rows at a time, each block's bands in the
-/// order they arrived (so every pixel sees its bands in order), and empties `held`; each
+/// Feeds the held rows of image rows `rows` to the shard a block of rows at a time, each
+/// block's bands in the order they arrived (so every pixel sees its bands in order); each
 /// row's last band of the angle tallies it.
 fn feed_held(
     shard: &mut Shard<'_>,
     options: SolverOptions,
     models: &BandModels,
-    held: &mut Vec<HeldRows>,
+    held: &[HeldRows],
+    rows: std::ops::Range<usize>,
     tally: &mut RowTally,
     behind: bool,
 ) {
@@ -763,10 +804,11 @@ fn feed_held(
     ) else {
         return;
     };
+    let (lo, hi) = (lo.max(rows.start), hi.min(rows.end));
     let mut unpacked = vec![0.0; width];
     for block in (lo..hi).step_by(block_rows) {
         let block_end = (block + block_rows).min(hi);
-        for (band, row, n, values) in held.iter() {
+        for (band, row, n, values) in held {
             let (first, last) = (*row as usize, (*row + *n) as usize);
             for r in first.max(block)..last.min(block_end) {
                 let k = r - first;
@@ -778,7 +820,6 @@ fn feed_held(
             }
         }
     }
-    held.clear();
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -1166,4 +1207,41 @@ pub fn end_angle_parallel(
     let report = solver.end_angle();
     parts.ties = lap();
     report
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{block_bands, streams_rows, FINAL_BLOCK_BANDS};
+
+    /// The blocks an angle of `bands` bands is fed in, as `(first band, bands)`.
+    fn blocks(bands: usize, band_block: usize) -> Vec<(usize, usize)> {
+        let mut out = Vec::new();
+        let mut band = 0;
+        while band < bands {
+            let n = block_bands(band, bands, band_block);
+            out.push((band, n));
+            band += n;
+        }
+        out
+    }
+
+    #[test]
+    fn blocks_shrink_towards_an_angle_end_and_only_the_last_streams() {
+        let b = blocks(161, 8);
+        let mut expected: Vec<_> = (0..19).map(|k| (8 * k, 8)).collect();
+        expected.extend([(152, 5), (157, FINAL_BLOCK_BANDS)]);
+        assert_eq!(b, expected);
+        let streams: Vec<_> = b.iter().map(|&(f, n)| streams_rows(f, n, 161)).collect();
+        assert_eq!(streams.iter().filter(|&&s| s).count(), 1);
+        assert!(streams[streams.len() - 1]);
+        // Short angles and small blocks: every band once, in order, no empty block.
+        for bands in 1..40 {
+            for band_block in [1, 2, 3, 4, 8, 64] {
+                let b = blocks(bands, band_block);
+                assert!(b.iter().all(|&(_, n)| (1..=band_block).contains(&n)));
+                assert_eq!(b.iter().map(|&(_, n)| n).sum::<usize>(), bands);
+            }
+        }
+        assert_eq!(blocks(161, 1).len(), 161);
+    }
 }
