@@ -211,8 +211,9 @@ fn repeat_for(min: Duration, mut f: impl FnMut()) -> (u64, Duration) {
 }
 
 /// Tracker throughput on one core: samples per second of the row kernel the workers use
-/// ([`push_row`], one row of the image per call, band by band, into [`ExtremaHead`]s).
-pub fn tracker_rate(frames: &Frames, min: Duration) -> f64 {
+/// ([`push_row`], one row of the image per call, band by band, into [`ExtremaHead`]s),
+/// compiled for the CPU's widest vectors if `wide` ([`filmscope_core::simd::wide`]).
+pub fn tracker_rate(frames: &Frames, min: Duration, wide: bool) -> f64 {
     let w = frames.width();
     let px = w * frames.rows;
     let per_row = blocks_for(1, w);
@@ -222,17 +223,22 @@ pub fn tracker_rate(frames: &Frames, min: Duration) -> f64 {
         for a in 0..frames.angles_deg.len() {
             blocks.iter_mut().for_each(TrackerLanes::reset);
             lists.iter_mut().for_each(ExtremaHead::clear);
-            for b in 0..frames.bands() {
-                for r in 0..frames.rows {
-                    push_row(
-                        &mut blocks[r * per_row..(r + 1) * per_row],
-                        b as u16,
-                        frames.row(a, b, r),
-                        true,
-                        &mut lists[r * w..(r + 1) * w],
-                    );
+            filmscope_core::simd::wide(wide, {
+                #[inline(always)]
+                || {
+                    for b in 0..frames.bands() {
+                        for r in 0..frames.rows {
+                            push_row(
+                                &mut blocks[r * per_row..(r + 1) * per_row],
+                                b as u16,
+                                frames.row(a, b, r),
+                                true,
+                                &mut lists[r * w..(r + 1) * w],
+                            );
+                        }
+                    }
                 }
-            }
+            });
         }
         std::hint::black_box(&lists);
     });
@@ -242,9 +248,11 @@ pub fn tracker_rate(frames: &Frames, min: Duration) -> f64 {
 
 /// One whole sweep over `frames` (their rows repeated to `rows` rows) on one core, with the
 /// streaming (tracker and sums) and the angle-end passes timed apart: `(stream samples/s,
-/// solve pixels/s)`.
-pub fn sweep_rates(frames: &Frames, rows: usize) -> (f64, f64) {
-    let spec = frames.spec.clone();
+/// solve pixels/s)`; the streaming compiled for the CPU's widest vectors if `wide`
+/// ([`SolverOptions::wide_simd`](filmscope_core::solve::SolverOptions::wide_simd)).
+pub fn sweep_rates(frames: &Frames, rows: usize, wide: bool) -> (f64, f64) {
+    let mut spec = frames.spec.clone();
+    spec.options.wide_simd = wide;
     let (w, nb) = (frames.width(), frames.bands());
     let mut spec_rows = spec.clone();
     spec_rows.height = rows;
@@ -416,6 +424,13 @@ pub struct BenchReport {
     pub tracker_samples_per_s_per_core: f64,
     /// Tracker and full-spectrum sums (a worker's per-sample cost), on one core.
     pub stream_samples_per_s_per_core: f64,
+    /// Whether the figures above (and the pipeline's) ran compiled for AVX2 and FMA
+    /// ([`filmscope_core::simd::wide`]); the portable build's follow.
+    pub wide_simd: bool,
+    /// The tracker alone, portable build (SSE2 on x86-64), on one core.
+    pub tracker_portable_samples_per_s_per_core: f64,
+    /// Tracker and sums, portable build, on one core.
+    pub stream_portable_samples_per_s_per_core: f64,
     /// The whole pipeline on two workers from a replayed source.
     pub pipeline_samples_per_s: f64,
     /// The whole pipeline fed by the software camera (the camera's Airy sums included).
@@ -459,12 +474,14 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     let kernel_scene = scene_with(scene_path, 256, 32, None)?;
     let kernel = Frames::render(&kernel_scene, 32)?;
     progress("tracker");
-    let tracker = tracker_rate(&kernel, min);
+    let tracker = tracker_rate(&kernel, min, true);
+    let tracker_portable = tracker_rate(&kernel, min, false);
     progress("stream and solve");
-    let (stream, solve) = sweep_rates(&kernel, kernel.rows);
+    let (stream, solve) = sweep_rates(&kernel, kernel.rows, true);
+    let (stream_portable, _) = sweep_rates(&kernel, kernel.rows, false);
     if std::env::var_os("FILMSCOPE_BENCH_STREAM_ROWS").is_some() {
         let rows: usize = std::env::var("FILMSCOPE_BENCH_STREAM_ROWS")?.parse()?;
-        let (big, _) = sweep_rates(&kernel, rows);
+        let (big, _) = sweep_rates(&kernel, rows, true);
         eprintln!("stream 256x{rows}: {:.1} M samples/s", big / 1e6);
     }
 
@@ -556,6 +573,9 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         scene: kernel_scene.name.clone(),
         tracker_samples_per_s_per_core: tracker,
         stream_samples_per_s_per_core: stream,
+        wide_simd: filmscope_core::simd::has_avx2_fma(),
+        tracker_portable_samples_per_s_per_core: tracker_portable,
+        stream_portable_samples_per_s_per_core: stream_portable,
         pipeline_samples_per_s: pipeline,
         pipeline_from_camera_samples_per_s: from_camera,
         solve_pixels_per_s_per_core: solve,
@@ -595,6 +615,19 @@ pub fn format_table(r: &BenchReport) -> String {
         "tracker + sums, samples/s per core",
         m(r.stream_samples_per_s_per_core),
         "",
+    );
+    row(
+        "  both, portable build (no AVX2), per core",
+        format!(
+            "{:.0} / {:.0} M",
+            r.tracker_portable_samples_per_s_per_core / 1e6,
+            r.stream_portable_samples_per_s_per_core / 1e6
+        ),
+        if r.wide_simd {
+            "(above: AVX2 + FMA)"
+        } else {
+            "(CPU without AVX2: same)"
+        },
     );
     row(
         &format!(

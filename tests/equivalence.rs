@@ -103,6 +103,38 @@ fn maps_do_not_depend_on_the_band_block() {
     }
 }
 
+#[test]
+fn the_avx2_build_gives_the_portable_builds_maps() {
+    // Both builds of the per-sample loops (`filmscope_core::simd::wide`): the same
+    // operations in the same order, so the same maps bit for bit. On a CPU without AVX2
+    // both runs take the portable build (and the test says so).
+    if !filmscope_core::simd::has_avx2_fma() {
+        eprintln!("this CPU has no AVX2 and FMA: both runs are the portable build");
+    }
+    let scene = common::tiny_scene();
+    let mut results = Vec::new();
+    for wide_simd in [true, false] {
+        let mut source =
+            SimSource::new(SoftwareCamera::new(scene.clone()), false, 3).expect("source");
+        let mut config = RunConfig::default();
+        config.pipeline.solver.wide_simd = wide_simd;
+        results.push(
+            run_method(&mut source, &config, &|_| {})
+                .expect("run")
+                .result,
+        );
+    }
+    assert!(
+        results[0]
+            .thickness_nm
+            .iter()
+            .filter(|x| x.is_finite())
+            .count()
+            > 600
+    );
+    same(&results[0], &results[1], "AVX2 against portable");
+}
+
 /// Runs `scene` streamed in blocks of `rows` rows to `workers` workers over channels of
 /// capacity `cap`, for each `(rows, workers, cap)` of `paths`, and checks every run gives
 /// `reference`.

@@ -26,5 +26,6 @@ pub mod colour;
 pub mod hw;
 pub mod optics;
 pub mod proto;
+pub mod simd;
 pub mod solve;
 pub mod track;

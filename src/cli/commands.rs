@@ -235,11 +235,12 @@ fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig, bool)> {
             "half-order" => o.half_order = false,
             "neighbours" => o.neighbours = false,
             "subband" => o.subband = false,
+            "wide-simd" => o.wide_simd = false,
             "column-map" => f.column_map = false,
             "shared-index" => f.shared_rounds = false,
             "polish" => polish = false,
             other => bail!(
-                "--ablate {other:?}: use refine, half-order, neighbours, subband, column-map, shared-index or polish"
+                "--ablate {other:?}: use refine, half-order, neighbours, subband, wide-simd, column-map, shared-index or polish"
             ),
         }
     }

@@ -104,8 +104,9 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// Switch off filmscope improvements to measure their worth: refine, half-order,
-        /// neighbours, subband, the wide field model's column-map and shared-index, and
-        /// polish (the closing Gauss-Newton pass over a replayable source) (comma-separated).
+        /// neighbours, subband, wide-simd (AVX2: speed only), the wide field model's
+        /// column-map and shared-index, and polish (the closing Gauss-Newton pass over a
+        /// replayable source) (comma-separated).
         #[arg(long, value_delimiter = ',')]
         ablate: Vec<String>,
         /// About how many pixels keep the shared index's sums (see `estimate`).

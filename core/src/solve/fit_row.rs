@@ -435,6 +435,7 @@ impl FitLanes {
     /// saturated sample, NaN one without a usable reference): counts them, and with the
     /// band's model (`coef` and the angle's `knots`) adds every usable sample of a pixel with
     /// a thickness to its sums, as [`GnSums::add`] does (the index's sums to `index`'s).
+    #[inline(always)]
     pub fn push(
         &mut self,
         values: &[f32],
@@ -652,6 +653,7 @@ fn knot_of(x: f32) -> (u32, f32) {
 /// Feeds band samples `values` of image row `row` to the row's blocks
 /// (`values.len().div_ceil(LANES)` of them): [`FitLanes::push`] for each block, the
 /// index's sums of the pixels `sampling` picks to the row's index blocks `index`.
+#[inline(always)]
 pub fn push_row(
     blocks: &mut [FitLanes],
     values: &[f32],

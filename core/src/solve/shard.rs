@@ -358,6 +358,22 @@ impl<'a> Shard<'a> {
         row: usize,
         values: &[f32],
     ) {
+        crate::simd::wide(options.wide_simd, {
+            #[inline(always)]
+            || self.feed_row_any(options, models, band, row, values)
+        });
+    }
+
+    /// [`Shard::feed_row`]'s work, inlined into either build ([`crate::simd::wide`]).
+    #[inline(always)]
+    fn feed_row_any(
+        &mut self,
+        options: SolverOptions,
+        models: AngleModels<'_>,
+        band: usize,
+        row: usize,
+        values: &[f32],
+    ) {
         if !self.holds(row) || values.len() != self.width {
             return;
         }

@@ -92,6 +92,10 @@ pub struct SolverOptions {
     /// step is theirs, and so are the ratio votes, the RMS median and the pooled noise.
     /// Every pixel of a sensor with fewer than twice as many.
     pub index_pixels: usize,
+    /// The per-sample work compiled for the widest vector instructions the CPU has (AVX2
+    /// and FMA on x86-64, [`crate::simd::wide`]); off: the portable build's. The same
+    /// results bit for bit either way.
+    pub wide_simd: bool,
 }
 
 impl Default for SolverOptions {
@@ -102,6 +106,7 @@ impl Default for SolverOptions {
             neighbours: true,
             subband: true,
             index_pixels: super::fit_row::INDEX_PIXELS,
+            wide_simd: true,
         }
     }
 }

@@ -154,6 +154,7 @@ impl TrackerLanes {
 
     /// Feeds one band's samples of the block's pixels (`values.len() <= LANES`, lane `i`'s
     /// extrema to `sinks`' lane `i`): [`PixelTracker::push`] for each lane.
+    #[inline(always)]
     pub fn push<S: LaneSinks + ?Sized>(
         &mut self,
         band: u16,
@@ -352,6 +353,7 @@ pub fn lanes<T>(blocks: &[T], width: usize) -> impl Iterator<Item = (&T, usize)>
 
 /// Feeds band `band` of one row (`values`, one sink per value) to the row's blocks
 /// (`values.len().div_ceil(LANES)` of them): [`PixelTracker::push`] for each pixel.
+#[inline(always)]
 pub fn push_row<L: ExtremumSink>(
     blocks: &mut [TrackerLanes],
     band: u16,
