@@ -18,6 +18,11 @@
 //! - `solve/feed_row_*`: a whole refining angle of that scene through `Shard::feed_row`
 //!   (tracker plus Gauss-Newton sums; throughput: pixel-band samples).
 //!
+//! `track/*` and `refine/*` call the kernels directly: the portable build (SSE2 on x86-64).
+//! `solve/feed_row_*` goes through `Shard::feed_row`, which the workers call, and so runs
+//! compiled for AVX2 and FMA where the CPU has them (`filmscope_core::simd::wide`;
+//! `filmscope bench` prints both builds' figures).
+//!
 //! Run with `cargo bench --bench kernels`.
 
 use std::f64::consts::PI;
