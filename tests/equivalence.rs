@@ -92,13 +92,7 @@ fn maps_do_not_depend_on_the_band_block() {
     let mut source = SimSource::new(SoftwareCamera::new(scene.clone()), false, 5).expect("source");
     let reference = run(&mut source, 2, 64);
     for band_block in [1, 3, 8, 400] {
-        let mut source =
-            SimSource::new(SoftwareCamera::new(scene.clone()), false, 5).expect("source");
-        let mut config = RunConfig::default();
-        config.pipeline.band_block = band_block;
-        let got = run_method(&mut source, &config, &|_| {})
-            .expect("run")
-            .result;
+        let got = run_streamed(&scene, 5, |c| c.pipeline.band_block = band_block);
         same(&reference, &got, &format!("band block {band_block}"));
     }
 }
@@ -112,27 +106,26 @@ fn the_avx2_build_gives_the_portable_builds_maps() {
         eprintln!("this CPU has no AVX2 and FMA: both runs are the portable build");
     }
     let scene = common::tiny_scene();
-    let mut results = Vec::new();
-    for wide_simd in [true, false] {
-        let mut source =
-            SimSource::new(SoftwareCamera::new(scene.clone()), false, 3).expect("source");
-        let mut config = RunConfig::default();
-        config.pipeline.solver.wide_simd = wide_simd;
-        results.push(
-            run_method(&mut source, &config, &|_| {})
-                .expect("run")
-                .result,
-        );
-    }
-    assert!(
-        results[0]
-            .thickness_nm
-            .iter()
-            .filter(|x| x.is_finite())
-            .count()
-            > 600
-    );
-    same(&results[0], &results[1], "AVX2 against portable");
+    let [wide, portable] =
+        [true, false].map(|on| run_streamed(&scene, 3, |c| c.pipeline.solver.wide_simd = on));
+    assert!(wide.thickness_nm.iter().filter(|x| x.is_finite()).count() > 600);
+    same(&wide, &portable, "AVX2 against portable");
+}
+
+/// `scene` from the software camera, `rows` rows a message, with the default configuration
+/// as `set` changes it.
+fn run_streamed(
+    scene: &firmware_sim::Scene,
+    rows: usize,
+    set: impl FnOnce(&mut RunConfig),
+) -> MethodResult {
+    let mut source =
+        SimSource::new(SoftwareCamera::new(scene.clone()), false, rows).expect("source");
+    let mut config = RunConfig::default();
+    set(&mut config);
+    run_method(&mut source, &config, &|_| {})
+        .expect("run")
+        .result
 }
 
 /// Runs `scene` streamed in blocks of `rows` rows to `workers` workers over channels of

@@ -651,9 +651,9 @@ fn worker(
                     let behind = !rows.is_empty();
                     if held.last().is_none_or(|h| h.0 != band) {
                         if bands_held == limit {
-                            let all = fed_to..usize::MAX;
-                            feed_held(&mut shard, options, &models, &held, all, &mut tally, behind);
-                            held.clear();
+                            feed_rest(
+                                &mut shard, options, &models, &mut held, fed_to, &mut tally, behind,
+                            );
                             bands_held = 0;
                         }
                         if bands_held == 0 {
@@ -671,9 +671,9 @@ fn worker(
                         // A full block is fed at once, not when the next band starts (a block
                         // of one band as its rows arrive): the rows still held when the angle
                         // ends are latency.
-                        let all = fed_to..usize::MAX;
-                        feed_held(&mut shard, options, &models, &held, all, &mut tally, behind);
-                        held.clear();
+                        feed_rest(
+                            &mut shard, options, &models, &mut held, fed_to, &mut tally, behind,
+                        );
                         bands_held = 0;
                     } else if bands_held == limit
                         && rows_in.start == fed_to
@@ -691,9 +691,9 @@ fn worker(
                 Err(_) => break,
             }
         }
-        let left = fed_to..usize::MAX;
-        feed_held(&mut shard, options, &models, &held, left, &mut tally, true);
-        held.clear();
+        feed_rest(
+            &mut shard, options, &models, &mut held, fed_to, &mut tally, true,
+        );
         let tally = tally.finish(&shard);
         if done.send((index, st, tally)).is_err() {
             return;
@@ -779,6 +779,29 @@ impl RowTally {
         tally.0.merge(&self.early_votes);
         ShardTally { tally, untallied }
     }
+}
+
+/// Feeds the held rows from image row `from` on ([`feed_held`]) and empties `held`: a block
+/// done (its rows before `from` were fed as they arrived, [`streams_rows`]).
+fn feed_rest(
+    shard: &mut Shard<'_>,
+    options: SolverOptions,
+    models: &BandModels,
+    held: &mut Vec<HeldRows>,
+    from: usize,
+    tally: &mut RowTally,
+    behind: bool,
+) {
+    feed_held(
+        shard,
+        options,
+        models,
+        held,
+        from..usize::MAX,
+        tally,
+        behind,
+    );
+    held.clear();
 }
 
 /// Feeds the held rows of image rows `rows` to the shard a block of rows at a time, each

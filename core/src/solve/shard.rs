@@ -358,60 +358,52 @@ impl<'a> Shard<'a> {
         row: usize,
         values: &[f32],
     ) {
-        crate::simd::wide(options.wide_simd, {
-            #[inline(always)]
-            || self.feed_row_any(options, models, band, row, values)
-        });
-    }
-
-    /// [`Shard::feed_row`]'s work, inlined into either build ([`crate::simd::wide`]).
-    #[inline(always)]
-    fn feed_row_any(
-        &mut self,
-        options: SolverOptions,
-        models: AngleModels<'_>,
-        band: usize,
-        row: usize,
-        values: &[f32],
-    ) {
         if !self.holds(row) || values.len() != self.width {
             return;
         }
-        let start = (row - self.first_row) * self.width;
-        let coef = models
-            .coefs
-            .get(band)
-            .and_then(Option::as_ref)
-            .filter(|_| options.refine);
-        let pixels = &mut self.pixels[start..start + self.width];
-        let blocks = tracker_blocks(self.width, self.width);
-        let first = (row - self.first_row) * blocks;
-        let trackers = &mut self.trackers[first..first + blocks];
-        let fits = &mut self.fits[first..first + blocks];
-        let per_row = self.sampling.blocks_per_row(self.width);
-        let local = row - self.first_row;
-        let index = &mut self.index[local * per_row..(local + 1) * per_row];
-        let lists =
-            &mut self.lists[local * per_row * row::LANES..(local + 1) * per_row * row::LANES];
-        let lanes = values.chunks(row::LANES).zip(pixels.chunks_mut(row::LANES));
-        for (b, ((t, f), (v, p))) in trackers.iter_mut().zip(fits.iter()).zip(lanes).enumerate() {
-            // A block whose every pixel holds its thickness has no order to choose: its
-            // extrema are not needed (measured: the tracker was a quarter of a polishing
-            // pass at 128 x 96).
-            if models.seeds_held && f.all_have_thickness(v.len()) {
-                continue;
+        // The per-sample work, inlined into either build ([`crate::simd::wide`]).
+        crate::simd::wide(options.wide_simd, {
+            #[inline(always)]
+            || {
+                let start = (row - self.first_row) * self.width;
+                let coef = models
+                    .coefs
+                    .get(band)
+                    .and_then(Option::as_ref)
+                    .filter(|_| options.refine);
+                let pixels = &mut self.pixels[start..start + self.width];
+                let blocks = tracker_blocks(self.width, self.width);
+                let first = (row - self.first_row) * blocks;
+                let trackers = &mut self.trackers[first..first + blocks];
+                let fits = &mut self.fits[first..first + blocks];
+                let per_row = self.sampling.blocks_per_row(self.width);
+                let local = row - self.first_row;
+                let index = &mut self.index[local * per_row..(local + 1) * per_row];
+                let lists = &mut self.lists
+                    [local * per_row * row::LANES..(local + 1) * per_row * row::LANES];
+                let lanes = values.chunks(row::LANES).zip(pixels.chunks_mut(row::LANES));
+                for (b, ((t, f), (v, p))) in
+                    trackers.iter_mut().zip(fits.iter()).zip(lanes).enumerate()
+                {
+                    // A block whose every pixel holds its thickness has no order to choose: its
+                    // extrema are not needed (measured: the tracker was a quarter of a polishing
+                    // pass at 128 x 96).
+                    if models.seeds_held && f.all_have_thickness(v.len()) {
+                        continue;
+                    }
+                    let mut sinks = BlockSinks {
+                        pixels: p,
+                        lists: &mut *lists,
+                        sampling: self.sampling,
+                        row,
+                        col: b * row::LANES,
+                    };
+                    t.push(band as u16, v, options.subband, &mut sinks);
+                }
+                let model = coef.map(|c| (c, models.knots));
+                fit_row::push_row(fits, values, model, (self.sampling, row, index));
             }
-            let mut sinks = BlockSinks {
-                pixels: p,
-                lists: &mut *lists,
-                sampling: self.sampling,
-                row,
-                col: b * row::LANES,
-            };
-            t.push(band as u16, v, options.subband, &mut sinks);
-        }
-        let model = coef.map(|c| (c, models.knots));
-        fit_row::push_row(fits, values, model, (self.sampling, row, index));
+        });
     }
 
     /// Angle-end pass 1, over the pixels that keep the index's sums ([`IndexSampling`]; every

@@ -69,9 +69,8 @@ const PACKED_DEAD: u16 = u16::MAX - 1;
 /// A calibrated sample in 2 bytes, as the pipeline holds a block of bands before the
 /// tracker and the full-spectrum sums take them: its ring step (steps of `2^-15` from
 /// -0.5, the rounding the tracker gives it anyway; the sums see it too, 8.8e-6 RMS),
-/// clamped below the two
-/// codes kept for a saturated sample (infinite) and one without a usable value, which
-/// [`unpack_sample`] gives back as `+inf` and NaN. Lane loops of it vectorise (no branch, no
+/// clamped below the two codes kept for a saturated sample (infinite) and one without a
+/// usable value, which [`unpack_sample`] gives back as `+inf` and NaN. Lane loops of it vectorise (no branch, no
 /// float-to-integer conversion).
 #[inline]
 pub fn pack_sample(v: f32) -> u16 {
