@@ -237,6 +237,23 @@ fn carry_moments([s0, s1, s2]: [f32; 3], old: f32, v: f32) -> [f32; 3] {
     ]
 }
 
+/// The window's moments (`sum q`, `sum k q`, `sum k^2 q`, `k = -4..4`) of its samples `w`,
+/// oldest first: what [`carry_moments`] carries, computed afresh (the row kernel's form, which
+/// keeps no moments per pixel). The samples are whole ring steps, so every partial sum is a
+/// whole number below `2^24` and `f32` gives the carried moments exactly, in any order.
+#[inline(always)]
+fn window_moments(w: [f32; WINDOW]) -> [f32; 3] {
+    // Pairs about the centre: `p_k = q_k + q_-k`, `d_k = q_k - q_-k`.
+    // (Written out: `array::map` is not always inlined in the wide build's lane loops.)
+    let p = [w[5] + w[3], w[6] + w[2], w[7] + w[1], w[8] + w[0]];
+    let d = [w[5] - w[3], w[6] - w[2], w[7] - w[1], w[8] - w[0]];
+    [
+        w[HALF] + ((p[0] + p[1]) + (p[2] + p[3])),
+        (d[0] + 2.0 * d[1]) + (3.0 * d[2] + 4.0 * d[3]),
+        (p[0] + 4.0 * p[1]) + (9.0 * p[2] + 16.0 * p[3]),
+    ]
+}
+
 /// Smoothed value at the window centre, steps: the 9-point quadratic Savitzky-Golay weights
 /// are `59 - 5 k^2` (sum 231).
 #[inline(always)]

@@ -17,7 +17,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::{
-    abs_d2, before, carry_moments, lists::Lane, smoothed, to_step, usable, vertex, ExtremumSink,
+    abs_d2, before, lists::Lane, smoothed, to_step, usable, vertex, window_moments, ExtremumSink,
     LaneSinks, Mode, PixelTracker, TAU_PER_D2, WINDOW,
 };
 
@@ -25,14 +25,11 @@ use super::{
 pub const LANES: usize = 32;
 
 /// Tracker state of [`LANES`] pixels of one row: the fields of [`PixelTracker`] as arrays over
-/// the pixels, with the ring position and sample count shared (57 bytes per pixel).
+/// the pixels, with the ring position and sample count shared (45 bytes per pixel).
 #[derive(Clone, Copy, Debug)]
 pub struct TrackerLanes {
     /// `ring[k][i]`: ring slot `k` of lane `i`.
     ring: [[u16; LANES]; WINDOW],
-    m0: [f32; LANES],
-    m1: [f32; LANES],
-    m2: [f32; LANES],
     d2_sum: [f32; LANES],
     ext_val: [f32; LANES],
     ext_pos: [f32; LANES],
@@ -68,9 +65,6 @@ impl TrackerLanes {
     /// A block that has seen nothing (every lane a reset [`PixelTracker`]).
     pub const EMPTY: Self = Self {
         ring: [[0; LANES]; WINDOW],
-        m0: [0.0; LANES],
-        m1: [0.0; LANES],
-        m2: [0.0; LANES],
         d2_sum: [0.0; LANES],
         ext_val: [0.0; LANES],
         ext_pos: [0.0; LANES],
@@ -102,7 +96,7 @@ impl TrackerLanes {
     /// Lane `i`'s noise estimate ([`PixelTracker::noise_sigma`]), its ring not copied.
     #[inline]
     pub fn noise_sigma(&self, i: usize) -> f32 {
-        self.lane_but_ring(i).noise_sigma()
+        self.lane_but_window(i).noise_sigma()
     }
 
     /// Whether lane `i` found more extrema than its list holds.
@@ -111,12 +105,24 @@ impl TrackerLanes {
         self.overflow[i]
     }
 
-    /// Lane `i` as a scalar tracker, its ring left empty.
+    /// Lane `i` as a scalar tracker, its ring left empty (its window's moments computed from
+    /// it).
     fn lane_but_ring(&self, i: usize) -> PixelTracker {
+        let t = self.lane_but_window(i);
+        let head = usize::from(t.head);
+        let q = |j: usize| f32::from(self.ring[(head + j) % WINDOW][i]);
+        PixelTracker {
+            moments: window_moments([q(0), q(1), q(2), q(3), q(4), q(5), q(6), q(7), q(8)]),
+            ..t
+        }
+    }
+
+    /// Lane `i` as a scalar tracker, its ring left empty and its window's moments zero.
+    fn lane_but_window(&self, i: usize) -> PixelTracker {
         let own = self.out_of_step[i];
         PixelTracker {
             ring: [0; WINDOW],
-            moments: [self.m0[i], self.m1[i], self.m2[i]],
+            moments: [0.0; 3],
             ext_val: self.ext_val[i],
             ext_pos: self.ext_pos[i],
             min_val: self.min_val[i],
@@ -135,7 +141,6 @@ impl TrackerLanes {
         for (k, &x) in t.ring.iter().enumerate() {
             self.ring[k][i] = x;
         }
-        [self.m0[i], self.m1[i], self.m2[i]] = t.moments;
         self.d2_sum[i] = t.d2_sum;
         self.lane_seen[i] = t.seen;
         self.lane_head[i] = t.head;
@@ -234,7 +239,6 @@ impl TrackerLanes {
         // The ring's rows copied out, so the compiler sees no overlap between them.
         let a_row = self.ring[before(before(head as u8) as u8)];
         let b_row = self.ring[before(head as u8)];
-        let old_row = self.ring[head];
         let mut q_row = [0; LANES];
         for i in 0..LANES {
             let x = values[i];
@@ -246,11 +250,6 @@ impl TrackerLanes {
             if D2 {
                 self.d2_sum[i] += abs_d2(f32::from(a_row[i]), b, v);
             }
-            [self.m0[i], self.m1[i], self.m2[i]] = carry_moments(
-                [self.m0[i], self.m1[i], self.m2[i]],
-                f32::from(old_row[i]),
-                v,
-            );
         }
         self.ring[head] = q_row;
     }
@@ -258,8 +257,9 @@ impl TrackerLanes {
     /// The first smoothed sample ([`PixelTracker::start`]'s first step): every lane in step is
     /// in `Start` mode, its extremes at the band edge.
     fn first_smoothed(&mut self) {
+        let [m0, _, m2] = lane_moments(&self.ring, self.head);
         for i in 0..LANES {
-            let s = smoothed([self.m0[i], self.m1[i], self.m2[i]]);
+            let s = smoothed([m0[i], 0.0, m2[i]]);
             self.ext_val[i] = s;
             self.ext_pos[i] = f32::NAN;
             self.min_val[i] = s;
@@ -280,8 +280,9 @@ impl TrackerLanes {
     ) -> bool {
         let n = f32::from(self.seen.saturating_sub(2));
         let mut any = false;
+        let [m0, m1, m2] = lane_moments(&self.ring, self.head);
         for i in 0..LANES {
-            let m = [self.m0[i], self.m1[i], self.m2[i]];
+            let m = [m0[i], m1[i], m2[i]];
             let s = smoothed(m);
             let at = vertex(band, m, subband);
             let tau_n = TAU_PER_D2 * self.d2_sum[i];
@@ -319,6 +320,40 @@ impl TrackerLanes {
         }
         any
     }
+}
+
+/// The window's moments ([`window_moments`]) of every lane of `ring`, `head` its oldest slot
+/// (in step lanes: the row's): computed at each band from the ring (exact, so the same as the
+/// scalar tracker's carried ones), 12 bytes a pixel fewer to keep.
+#[inline(always)]
+fn lane_moments(ring: &[[u16; LANES]; WINDOW], head: u8) -> [Lanes; 3] {
+    let head = usize::from(head);
+    // Written out: `array::from_fn` is not always inlined in the wide build's lane loops.
+    let at = |j: usize| {
+        &ring[if head + j >= WINDOW {
+            head + j - WINDOW
+        } else {
+            head + j
+        }]
+    };
+    let rows = [
+        at(0),
+        at(1),
+        at(2),
+        at(3),
+        at(4),
+        at(5),
+        at(6),
+        at(7),
+        at(8),
+    ];
+    let mut m = [[0.0; LANES]; 3];
+    for i in 0..LANES {
+        let q = |j: usize| f32::from(rows[j][i]);
+        let [m0, m1, m2] = window_moments([q(0), q(1), q(2), q(3), q(4), q(5), q(6), q(7), q(8)]);
+        (m[0][i], m[1][i], m[2][i]) = (m0, m1, m2);
+    }
+    m
 }
 
 /// Block `i / LANES` of the `width`-pixel row holding pixel `i` of a row-major image, and the
