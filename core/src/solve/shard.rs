@@ -962,20 +962,21 @@ mod size_tests {
     fn pixel_state_size_is_fixed_and_known() {
         // Breakdown: the pixel's state: flags, extrema seen, the current and the reference
         // angles' last four extrema with their whole lists' lengths and early counts, 10
-        // each: 24 with padding; its tracker lanes in the row blocks, 44 bytes a pixel (a
-        // ring of nine 2-byte steps, the window's moments computed from it; the scalar
-        // tracker carries them, 55 bytes, 56 with padding) and the block's shared ring
-        // position and count, 45 rounded up; its fit lanes in the row
+        // each: 24 with padding; its tracker lanes in the row blocks, 41 bytes a pixel (a
+        // ring of nine 2-byte steps, the window's moments computed from it, its noise sum
+        // and running extremes 20, its lag and overflow flag 2 and mode 1; the scalar
+        // tracker carries the moments, 55 bytes, 56 with padding) and the block's shared
+        // ring position and count, 42 rounded up; its fit lanes in the row
         // blocks: thickness and order step 8, its own eight full-spectrum sums 32 (the
         // scalar `GnSums` is 68 with the index's eight, its count and padding), the sums'
         // count and the saturated and dead counts 6, and the block's shared sample count,
-        // 47 rounded up; 116 in all. The pixels of the index's sample keep the index's
+        // 47 rounded up; 113 in all. The pixels of the index's sample keep the index's
         // eight sums (32 bytes), the current angle's whole extremum list (42, 20 extrema of
         // 2 bytes and a one-byte length), how many of it voted (1) and the rest of the
         // reference list (34; 78 with padding), in blocks of 32 a row: every pixel of a
-        // 320 x 200 sensor (10 blocks a row, 110 bytes a pixel: 226 in all), one in 4 of a
-        // 640 x 480 one (5 blocks, 28 a pixel rounded up: 144), one in 64 of a 2048 x 2048
-        // one (one block: 2 a pixel rounded up, 118).
+        // 320 x 200 sensor (10 blocks a row, 110 bytes a pixel: 223 in all), one in 4 of a
+        // 640 x 480 one (5 blocks, 28 a pixel rounded up: 141), one in 64 of a 2048 x 2048
+        // one (one block: 2 a pixel rounded up, 115).
         let small = IndexSampling::for_sensor(320, 200, fit_row::INDEX_PIXELS);
         let vga = IndexSampling::for_sensor(640, 480, fit_row::INDEX_PIXELS);
         let large = IndexSampling::for_sensor(2048, 2048, fit_row::INDEX_PIXELS);
@@ -993,7 +994,7 @@ mod size_tests {
             state_bytes_per_pixel(vga, 640),
             state_bytes_per_pixel(large, 2048),
         ];
-        assert_eq!(sizes, [56, 45, 42, 10, 78, 68, 24, 47, 32, 226, 144, 118]);
+        assert_eq!(sizes, [56, 42, 42, 10, 78, 68, 24, 47, 32, 223, 141, 115]);
         assert_eq!([small, vga, large].map(|s| s.stride()), [1, 4, 64]);
     }
 }

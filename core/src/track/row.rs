@@ -24,8 +24,11 @@ use super::{
 /// Pixels per block of [`TrackerLanes`].
 pub const LANES: usize = 32;
 
+/// The bit of [`TrackerLanes`]' `lag` that holds a lane's overflow flag.
+const OVERFLOW_BIT: u16 = 1 << 15;
+
 /// Tracker state of [`LANES`] pixels of one row: the fields of [`PixelTracker`] as arrays over
-/// the pixels, with the ring position and sample count shared (45 bytes per pixel).
+/// the pixels, with the ring position and sample count shared (42 bytes per pixel).
 #[derive(Clone, Copy, Debug)]
 pub struct TrackerLanes {
     /// `ring[k][i]`: ring slot `k` of lane `i`.
@@ -35,15 +38,13 @@ pub struct TrackerLanes {
     ext_pos: [f32; LANES],
     min_val: [f32; LANES],
     min_pos: [f32; LANES],
-    /// Samples seen by an out-of-step lane (the others have seen `seen`).
-    lane_seen: [u16; LANES],
+    /// Below [`OVERFLOW_BIT`], the samples by which a lane's window lags the row's: 0 for a
+    /// lane in step, the count of leading unusable samples for one *out of step* (its own
+    /// count is `seen` less that, its ring position `head` less that, mod [`WINDOW`]); the
+    /// lane's overflow flag in [`OVERFLOW_BIT`].
+    lag: [u16; LANES],
     /// `Mode as u8`.
     mode: [u8; LANES],
-    overflow: [bool; LANES],
-    /// Ring position of an out-of-step lane (the others are at `head`).
-    lane_head: [u8; LANES],
-    /// Lanes whose first sample was unusable: their window lags the row's.
-    out_of_step: [bool; LANES],
     /// Samples seen by the lanes in step (saturates).
     seen: u16,
     /// Their ring position.
@@ -70,11 +71,8 @@ impl TrackerLanes {
         ext_pos: [0.0; LANES],
         min_val: [0.0; LANES],
         min_pos: [0.0; LANES],
-        lane_seen: [0; LANES],
+        lag: [0; LANES],
         mode: [Mode::Start as u8; LANES],
-        overflow: [false; LANES],
-        lane_head: [0; LANES],
-        out_of_step: [false; LANES],
         seen: 0,
         head: 0,
         any_out_of_step: false,
@@ -102,7 +100,13 @@ impl TrackerLanes {
     /// Whether lane `i` found more extrema than its list holds.
     #[inline]
     pub fn overflow(&self, i: usize) -> bool {
-        self.overflow[i]
+        self.lag[i] & OVERFLOW_BIT != 0
+    }
+
+    /// Samples by which lane `i`'s window lags the row's (0: in step).
+    #[inline]
+    fn lag(&self, i: usize) -> u16 {
+        self.lag[i] & !OVERFLOW_BIT
     }
 
     /// Lane `i` as a scalar tracker, its ring left empty (its window's moments computed from
@@ -119,7 +123,8 @@ impl TrackerLanes {
 
     /// Lane `i` as a scalar tracker, its ring left empty and its window's moments zero.
     fn lane_but_window(&self, i: usize) -> PixelTracker {
-        let own = self.out_of_step[i];
+        let lag = self.lag(i);
+        let behind = (lag % WINDOW as u16) as u8;
         PixelTracker {
             ring: [0; WINDOW],
             moments: [0.0; 3],
@@ -128,22 +133,27 @@ impl TrackerLanes {
             min_val: self.min_val[i],
             min_pos: self.min_pos[i],
             d2_sum: self.d2_sum[i],
-            seen: if own { self.lane_seen[i] } else { self.seen },
-            head: if own { self.lane_head[i] } else { self.head },
+            seen: self.seen - lag,
+            head: if self.head >= behind {
+                self.head - behind
+            } else {
+                self.head + WINDOW as u8 - behind
+            },
             mode: Mode::from_u8(self.mode[i]),
-            overflow: self.overflow[i],
+            overflow: self.overflow(i),
         }
     }
 
-    /// Stores `t` in lane `i`, whose window must be in step with the row's unless the lane
-    /// is out of step.
+    /// Stores `t` in lane `i`, out of step (its window behind the row's, which has seen
+    /// `self.seen` samples: [`TrackerLanes::push`] calls it once the row's count is updated).
     fn set_lane(&mut self, i: usize, t: &PixelTracker) {
         for (k, &x) in t.ring.iter().enumerate() {
             self.ring[k][i] = x;
         }
         self.d2_sum[i] = t.d2_sum;
-        self.lane_seen[i] = t.seen;
-        self.lane_head[i] = t.head;
+        // At least 1: a lane out of step stays so (the row's count saturates at 65535).
+        let lag = (self.seen - t.seen).clamp(1, !OVERFLOW_BIT);
+        self.lag[i] = lag | (self.lag[i] & OVERFLOW_BIT);
         self.set_extremes(i, t);
     }
 
@@ -154,7 +164,7 @@ impl TrackerLanes {
         self.min_val[i] = t.min_val;
         self.min_pos[i] = t.min_pos;
         self.mode[i] = t.mode as u8;
-        self.overflow[i] = t.overflow;
+        self.lag[i] = self.lag(i) | if t.overflow { OVERFLOW_BIT } else { 0 };
     }
 
     /// Feeds one band's samples of the block's pixels (`values.len() <= LANES`, lane `i`'s
@@ -179,7 +189,7 @@ impl TrackerLanes {
         // Out-of-step lanes first, one by one; the row's arithmetic below overwrites them.
         let mut own: heapless::Vec<(u8, PixelTracker), LANES> = heapless::Vec::new();
         if self.any_out_of_step {
-            for i in (0..LANES).filter(|&i| self.out_of_step[i]) {
+            for i in (0..LANES).filter(|&i| self.lag(i) != 0) {
                 let mut t = self.lane(i);
                 t.push(band, values[i], subband, &mut Lane { sinks, i });
                 let _ = own.push((i as u8, t));
@@ -203,7 +213,6 @@ impl TrackerLanes {
             // returns early): out of step from now on.
             for i in (0..LANES).filter(|&i| !usable(values[i])) {
                 self.set_lane(i, &PixelTracker::default());
-                self.out_of_step[i] = true;
                 self.any_out_of_step = true;
             }
         } else if usize::from(self.seen) == WINDOW {
@@ -211,16 +220,22 @@ impl TrackerLanes {
         } else if usize::from(self.seen) > WINDOW {
             let mut slow = [false; LANES];
             // Once no lane in step is in `Start` mode (a few bands in), its logic is left out.
-            let starting = (self.mode.iter().zip(&self.out_of_step))
-                .fold(false, |a, (&m, &own)| a | (m == Mode::Start as u8 && !own));
+            let start = Mode::Start as u8;
+            let starting = if self.any_out_of_step {
+                (self.mode.iter().zip(&self.lag)).fold(false, |a, (&m, &lag)| {
+                    a | (m == start && lag & !OVERFLOW_BIT == 0)
+                })
+            } else {
+                self.mode.iter().fold(false, |a, &m| a | (m == start))
+            };
             let any = if starting {
                 self.follow::<true>(band, subband, &mut slow)
             } else {
                 self.follow::<false>(band, subband, &mut slow)
             };
             if any {
-                let skip = self.out_of_step;
-                for i in (0..LANES).filter(|&i| slow[i] && !skip[i]) {
+                let lag = self.lag;
+                for i in (0..LANES).filter(|&i| slow[i] && lag[i] & !OVERFLOW_BIT == 0) {
                     // The state machine reads no ring and writes only the extremes.
                     let mut t = self.lane_but_ring(i);
                     t.decide(band, subband, &mut Lane { sinks, i });

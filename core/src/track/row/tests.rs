@@ -73,7 +73,7 @@ fn check(spectra: &[Vec<f32>], bands: usize, subband: bool) -> [usize; 3] {
         scalar.iter().filter(|t| t.overflow).count(),
         blocks
             .iter()
-            .map(|b| b.out_of_step.iter().filter(|&&o| o).count())
+            .map(|b| (0..LANES).filter(|&i| b.lag(i) != 0).count())
             .sum(),
     ]
 }
