@@ -4,6 +4,7 @@
 //! themselves are the core's state machines ([`filmscope_core::calibrate`],
 //! [`filmscope_core::solve`]); this module only wires them to threads and channels.
 
+mod held;
 mod msg;
 mod run;
 mod source;

@@ -18,6 +18,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{bounded, Receiver, Sender};
+
+use super::held::HeldBlock;
 use filmscope_core::calibrate::calibrate_row;
 use filmscope_core::solve::extrema::SampleExtrema;
 use filmscope_core::solve::fit_row::{FitLanes, IndexLanes, IndexSampling};
@@ -49,6 +51,14 @@ pub struct PipelineConfig {
     /// it arrives). Over an angle's last bands the blocks shrink ([`block_bands`]), so that
     /// little is left to feed when its last row arrives.
     pub band_block: usize,
+    /// [`PipelineConfig::band_block`] at a sweep's last angle, at most: the maps' results (16
+    /// bytes a pixel) are allocated as that angle begins, once the workers have shrunk their
+    /// held blocks to this many bands, so the sweep's peak memory holds `2 * band_block`
+    /// bytes a pixel of held bands, or `2 * last_angle_band_block` and the results, not
+    /// both at full size. The last angle fits the full spectra, whose arithmetic, not the
+    /// state's memory traffic, sets its pace: smaller blocks cost it little (`filmscope
+    /// bench`).
+    pub last_angle_band_block: usize,
     /// What the solver may use.
     pub solver: SolverOptions,
 }
@@ -59,6 +69,7 @@ impl Default for PipelineConfig {
             channel_capacity: 64,
             workers: 2,
             band_block: 8,
+            last_angle_band_block: 4,
             solver: SolverOptions::default(),
         }
     }
@@ -135,7 +146,9 @@ enum WorkerMsg {
 /// The state of an angle for a worker, on its own channel (from the coordinator): rows are
 /// read only after it, so rows of the next angle can never reach the previous one's state.
 /// The solver as the angle began tallies the rows that have seen the angle's last band.
-type Start = (ShardState, Arc<BandModels>, Arc<SweepSolver>);
+/// The last element: the angles left in the sweep, this one included (the worker sizes its
+/// held block for the next angle, or gives it back after the last: [`HeldBlock`]).
+type Start = (ShardState, Arc<BandModels>, Arc<SweepSolver>, usize);
 
 /// A shard's angle-end pass 1 ([`Shard::tally`]): votes and fit statistics.
 pub type Tally = (RatioHistogram, FitStats);
@@ -435,9 +448,11 @@ pub fn run_sweep(
     let mut last_row_at = Instant::now();
     let mut latency_parts = LatencyParts::default();
     // The results are made by the last angle's update pass (the angles announced tell which
-    // is last), else by a pass of their own once the sweep has ended.
+    // is last), else by a pass of their own once the sweep has ended. They are allocated
+    // then, once the workers have given back their held blocks' buffers (and the sweep's
+    // peak memory does not hold both).
     let angles = source.angles_deg().len();
-    let mut results = vec![PixelResult::UNSOLVED; w * h];
+    let mut results = Vec::new();
     let mut results_at = None;
 
     std::thread::scope(|scope| -> Result<(), PipelineError> {
@@ -454,7 +469,9 @@ pub fn run_sweep(
             let done = done_tx.clone();
             let (first, _) = shard_rows(h, workers, i);
             let options = spec.options;
-            let block = [config.band_block.max(1), spec.bands_nm.len()];
+            let band_block = config.band_block.max(1);
+            let last_block = config.last_angle_band_block.clamp(1, band_block);
+            let block = [band_block, last_block, spec.bands_nm.len()];
             // The last shard's rows are the last to arrive: it leaves those it cannot keep up
             // with to the angle's end, where all cores tally them (the others have time).
             let last_shard = i + 1 == workers;
@@ -472,9 +489,17 @@ pub fn run_sweep(
                     solver.begin_angle(deg);
                     let snapshot = Arc::new(BandModels::of(&solver, workers));
                     let began = Arc::new((*solver).clone());
+                    let left = angles.saturating_sub(solver.angles_done()).max(1);
+                    if left == 1 {
+                        // The workers shrank their held blocks as the angle before ended.
+                        results = vec![PixelResult::UNSOLVED; w * h];
+                    }
                     for (i, tx) in start_txs.iter().enumerate() {
                         let st = states[i].take().unwrap_or_default();
-                        if tx.send((st, snapshot.clone(), began.clone())).is_err() {
+                        if tx
+                            .send((st, snapshot.clone(), began.clone(), left))
+                            .is_err()
+                        {
                             abort = Some("a worker stopped".to_owned());
                         }
                     }
@@ -548,6 +573,9 @@ pub fn run_sweep(
         )));
     }
     if results_at != Some(solver.angles_done()) {
+        if results.len() != w * h {
+            results = vec![PixelResult::UNSOLVED; w * h];
+        }
         let mut owned: Vec<ShardState> =
             states.into_iter().map(Option::unwrap_or_default).collect();
         std::thread::scope(|scope| {
@@ -585,10 +613,6 @@ pub fn run_sweep(
     })
 }
 
-/// Rows of one band a worker holds: `(band, first row, rows, packed samples)`: 2 bytes a
-/// sample ([`pack_sample`]), so a block of 8 bands holds 16 bytes a pixel, not 32.
-type HeldRows = (u16, u32, u32, Vec<u16>);
-
 /// Bands of the block that starts at `band` of an angle's `bands`: `band_block`, but at most
 /// half of the bands left (rounded up) and at least [`FINAL_BLOCK_BANDS`] (or what is left).
 /// A block is fed once its last band has arrived, so whatever is still to feed when the
@@ -619,7 +643,7 @@ pub fn streams_rows(first: usize, limit: usize, bands: usize) -> bool {
     first + limit >= bands
 }
 
-/// A worker: `block` is `[band_block, bands per angle]`; `last_shard`: whether its rows are
+/// A worker: `block` is `[band_block, band block at the last angle, bands per angle]`; `last_shard`: whether its rows are
 /// the last of each band (it defers the tally of rows it cannot keep up with).
 #[allow(clippy::too_many_arguments)]
 fn worker(
@@ -627,18 +651,24 @@ fn worker(
     first_row: usize,
     width: usize,
     options: SolverOptions,
-    block: [usize; 2],
+    block: [usize; 3],
     last_shard: bool,
     start: Receiver<Start>,
     rows: Receiver<WorkerMsg>,
     done: Sender<Done>,
 ) {
-    let [band_block, bands] = block;
-    let mut held: Vec<HeldRows> = Vec::new();
-    for (mut st, models, began) in start.iter() {
+    let [full_block, last_block, bands] = block;
+    let mut held = HeldBlock::default();
+    for (mut st, models, began, angles_left) in start.iter() {
         let mut shard = st.shard(first_row, width);
         shard.begin_angle();
         let shard_rows = shard.rows();
+        let band_block = if angles_left == 1 {
+            last_block
+        } else {
+            full_block
+        };
+        held.size_for(band_block * shard_rows * width);
         let mut tally = RowTally::new(began, bands, shard_rows, last_shard);
         let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);
         // The block's first band, and the image row below which its held rows were fed
@@ -649,7 +679,14 @@ fn worker(
                 Ok(WorkerMsg::Rows(band, row, n, values)) => {
                     // Rows waiting: the worker is behind the stream.
                     let behind = !rows.is_empty();
-                    if held.last().is_none_or(|h| h.0 != band) {
+                    if !held.fits(values.len()) {
+                        // Only rows sent twice overfill a block: feed what it holds.
+                        feed_rest(
+                            &mut shard, options, &models, &mut held, fed_to, &mut tally, behind,
+                        );
+                        bands_held = 0;
+                    }
+                    if held.last_band().is_none_or(|b| b != band) {
                         if bands_held == limit {
                             feed_rest(
                                 &mut shard, options, &models, &mut held, fed_to, &mut tally, behind,
@@ -666,7 +703,8 @@ fn worker(
                     }
                     rows_of_band += n as usize;
                     let rows_in = row as usize..(row + n) as usize;
-                    held.push((band, row, n, values));
+                    held.push(band, row, n, &values);
+                    drop(values);
                     if limit == 1 || (bands_held == limit && rows_of_band >= shard_rows) {
                         // A full block is fed at once, not when the next band starts (a block
                         // of one band as its rows arrive): the rows still held when the angle
@@ -694,6 +732,13 @@ fn worker(
         feed_rest(
             &mut shard, options, &models, &mut held, fed_to, &mut tally, true,
         );
+        // Before the angle is handed back: the coordinator allocates the results as the
+        // last angle begins, with the held blocks already shrunk.
+        match angles_left {
+            1 => held.release(),
+            2 => held.size_for(last_block * shard_rows * width),
+            _ => {}
+        }
         let tally = tally.finish(&shard);
         if done.send((index, st, tally)).is_err() {
             return;
@@ -787,7 +832,7 @@ fn feed_rest(
     shard: &mut Shard<'_>,
     options: SolverOptions,
     models: &BandModels,
-    held: &mut Vec<HeldRows>,
+    held: &mut HeldBlock,
     from: usize,
     tally: &mut RowTally,
     behind: bool,
@@ -811,7 +856,7 @@ fn feed_held(
     shard: &mut Shard<'_>,
     options: SolverOptions,
     models: &BandModels,
-    held: &[HeldRows],
+    held: &HeldBlock,
     rows: std::ops::Range<usize>,
     tally: &mut RowTally,
     behind: bool,
@@ -822,8 +867,8 @@ fn feed_held(
     let bytes = filmscope_core::solve::state_bytes_per_pixel(shard.sampling(), width);
     let block_rows = (BLOCK_BYTES / (width.max(1) * bytes)).max(1);
     let (Some(lo), Some(hi)) = (
-        held.iter().map(|h| h.1 as usize).min(),
-        held.iter().map(|h| (h.1 + h.2) as usize).max(),
+        held.entries().iter().map(|h| h.image_rows().start).min(),
+        held.entries().iter().map(|h| h.image_rows().end).max(),
     ) else {
         return;
     };
@@ -831,14 +876,14 @@ fn feed_held(
     let mut unpacked = vec![0.0; width];
     for block in (lo..hi).step_by(block_rows) {
         let block_end = (block + block_rows).min(hi);
-        for (band, row, n, values) in held {
-            let (first, last) = (*row as usize, (*row + *n) as usize);
-            for r in first.max(block)..last.min(block_end) {
-                let k = r - first;
-                for (x, &q) in unpacked.iter_mut().zip(&values[k * width..(k + 1) * width]) {
+        for e in held.entries() {
+            let image_rows = e.image_rows();
+            for r in image_rows.start.max(block)..image_rows.end.min(block_end) {
+                let k = r - image_rows.start;
+                for (x, &q) in unpacked.iter_mut().zip(held.row(e, k, width)) {
                     *x = unpack_sample(q);
                 }
-                shard.feed_row(options, models.view(), usize::from(*band), r, &unpacked);
+                shard.feed_row(options, models.view(), usize::from(e.band), r, &unpacked);
                 tally.fed(shard, r, behind);
             }
         }
