@@ -249,7 +249,7 @@ pub fn tracker_rate(frames: &Frames, min: Duration, wide: bool) -> f64 {
 /// One whole sweep over `frames` (their rows repeated to `rows` rows) on one core, with the
 /// streaming (tracker and sums) and the angle-end passes timed apart: `(stream samples/s,
 /// solve pixels/s)`; the streaming compiled for the CPU's widest vectors if `wide`
-/// ([`SolverOptions::wide_simd`](filmscope_core::solve::SolverOptions::wide_simd)).
+/// ([`SolverOptions::wide_simd`](filmscope_core::solve::sweep::SolverOptions::wide_simd)).
 pub fn sweep_rates(frames: &Frames, rows: usize, wide: bool) -> (f64, f64) {
     let mut spec = frames.spec.clone();
     spec.options.wide_simd = wide;

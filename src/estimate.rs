@@ -111,7 +111,7 @@ fn underfit(out: &SweepOutput) -> bool {
     }
 }
 
-/// Share of pixels with an order ([`ordered_fraction`]) below which a first pass is thought
+/// Share of pixels with an order (`ordered_fraction`) below which a first pass is thought
 /// to have missed a film without fringe pairs and the global search on sampled spectra
 /// ([`filmscope_core::solve::thin`]) is tried.
 pub const THIN_SEARCH_BELOW_VALID: f64 = 0.5;
@@ -241,12 +241,12 @@ pub struct Passes {
 }
 
 /// The test of a richer index model on sums linearised at its own result
-/// ([`polish`]).
+/// (`polish`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TermCheck {
     /// Terms of the model tested.
     pub terms: usize,
-    /// The Wald chi-square of its last term ([`SweepSolver::term_chi2`]).
+    /// The Wald chi-square of its last term ([`SweepSolver::term_chi2`](filmscope_core::solve::sweep::SweepSolver::term_chi2)).
     pub chi2: f64,
     /// Whether the term stayed (else the passes after the test ran without it).
     pub kept: bool,
@@ -264,7 +264,7 @@ fn term_confirmed(check: &SweepOutput) -> (f64, bool) {
 /// the pixels it holds.
 const CARRIED_FLAGS: u16 = flags::FROM_SPECTRUM_SEARCH | flags::TRACKER_OVERFLOW;
 
-/// Most Gauss-Newton iterations on the whole spectra ([`polish`]) after the passes.
+/// Most Gauss-Newton iterations on the whole spectra (`polish`) after the passes.
 pub const MAX_POLISH: usize = 3;
 
 /// A polishing step of the index (at 550 nm) below this ends the iterations.
@@ -374,7 +374,7 @@ fn drop_term(
 
 /// The streaming estimator's passes over `source` with one incidence angle per frame: the
 /// first pass, the spectrum search for a film without fringe pairs, and the passes
-/// [`next_pass`] asks for; `on_rows` is told of the first pass's rows.
+/// `next_pass` asks for; `on_rows` is told of the first pass's rows.
 pub fn filmscope_passes(
     source: &mut dyn Source,
     config: &RunConfig,
@@ -522,7 +522,7 @@ pub struct RunConfig {
     /// and the wide model's settings.
     pub field: FieldConfig,
     /// End a replayable estimate with Gauss-Newton iterations on the whole spectra
-    /// ([`polish`]; off: `--ablate polish`, one pass fewer).
+    /// (`polish`; off: `--ablate polish`, one pass fewer).
     pub polish: bool,
 }
 

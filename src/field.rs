@@ -670,7 +670,7 @@ impl WideRun {
 }
 
 /// The rounds that give the strips one index, after their own passes: each strip passes
-/// from the combined index, seeded by the last round's maps ([`shared_seeds`]), first with the
+/// from the combined index, seeded by the last round's maps (`shared_seeds`), first with the
 /// index taken from its full spectra (the strips' indices then combined again), then with
 /// the combined index held. Measured on the 30 degree scenes (`--field wide`, 15 strips):
 /// holding the first combination directly gave paper-sample1 +0.0021 / 0.81 nm / 95.3 %

@@ -48,7 +48,7 @@ pub struct PipelineConfig {
     /// costs its state's memory traffic; holding `band_block` bands divides that traffic by
     /// `band_block` at `2 * band_block` bytes per pixel of row buffers (packed samples,
     /// [`pack_sample`]; 1: feed each row as
-    /// it arrives). Over an angle's last bands the blocks shrink ([`block_bands`]), so that
+    /// it arrives). Over an angle's last bands the blocks shrink (`block_bands`), so that
     /// little is left to feed when its last row arrives.
     pub band_block: usize,
     /// [`PipelineConfig::band_block`] at a sweep's last angle, at most: the maps' results (16

@@ -1,7 +1,7 @@
 //! The rig: device drivers over real transports and live acquisition.
 //!
 //! - [`error`]: [`RigError`], one line naming the port, with its [`ErrorKind`].
-//! - [`line`]: line reading over any `Read + Write`.
+//! - [`line`](mod@line): line reading over any `Read + Write`.
 //! - [`zaber`], [`kurios`]: serial drivers (generic over `Read + Write` and the clock).
 //! - [`wheel`]: the Starlight Xpress HID wheel behind [`wheel::HidTransport`].
 //! - [`camlink`]: the camera-link receiver (any byte stream).
