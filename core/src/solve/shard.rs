@@ -39,6 +39,20 @@ pub const MAX_THICKNESS_SIGMA_NM: f64 = 5.0;
 /// Largest share of unusable samples a valid pixel may have.
 const BAD_SHARE: f64 = 0.1;
 
+/// The bit of [`PixelState::flags`] that tells whether the pixel found an extremum at any
+/// angle so far: the solver's own (a pixel without a thickness is [`flags::NO_FRINGE`]
+/// without, [`flags::AMBIGUOUS_ORDER`] with), never in a result's flags. (It was a byte of
+/// its own, which the struct's alignment rounded to two.)
+pub const SEEN_EXTREMA: u16 = 1 << 15;
+const _: () = {
+    // None of the flags a result reports.
+    let mut i = 0;
+    while i < flags::NAMES.len() {
+        assert!(flags::NAMES[i].0 & SEEN_EXTREMA == 0);
+        i += 1;
+    }
+};
+
 /// What the solver keeps about one pixel but its per-sample state: its flags and the last
 /// extrema of its current and reference angles (the index's sample keeps the rest,
 /// [`SampleExtrema`]).
@@ -48,10 +62,8 @@ const BAD_SHARE: f64 = 0.1;
 /// fixed whatever the number of bands, angles and sweeps (see `state_bytes_per_pixel`).
 #[derive(Clone, Debug)]
 pub struct PixelState {
-    /// Flags (see [`flags`]).
+    /// Flags (see [`flags`]), and [`SEEN_EXTREMA`].
     pub flags: u16,
-    /// Extrema seen over all angles.
-    pub extrema_seen: u8,
     /// The last extrema at the current angle.
     pub current: ExtremaHead,
     /// The last extrema at the reference (first) angle.
@@ -63,7 +75,6 @@ impl Default for PixelState {
         Self {
             anchor: ExtremaHead::EMPTY,
             current: ExtremaHead::EMPTY,
-            extrema_seen: 0,
             flags: 0,
         }
     }
@@ -282,7 +293,8 @@ impl<'a> Shard<'a> {
             f.thickness_nm = thickness_nm;
             f.order_step_nm = (mid / (2.0 * index.at(mid))) as f32;
             self.set_fit(i, &f);
-            self.pixels[i].flags = flags::FROM_SPECTRUM_SEARCH;
+            let p = &mut self.pixels[i];
+            p.flags = flags::FROM_SPECTRUM_SEARCH | (p.flags & SEEN_EXTREMA);
         }
     }
 
@@ -558,7 +570,9 @@ impl<'a> Shard<'a> {
             let slot = sample.map(Self::list_slot);
             let overflow = self.trackers[block].overflow(lane);
             let p = &mut self.pixels[i];
-            p.extrema_seen = p.extrema_seen.saturating_add(p.current.len() as u8);
+            if !p.current.is_empty() {
+                p.flags |= SEEN_EXTREMA;
+            }
             if overflow {
                 p.flags |= flags::TRACKER_OVERFLOW;
             }
@@ -882,7 +896,7 @@ impl Finish {
     }
 
     fn result(&self, p: &PixelState, fit: &PixelFit) -> PixelResult {
-        let mut f = p.flags;
+        let mut f = p.flags & !SEEN_EXTREMA;
         let total = f64::from(fit.samples.max(1));
         if f64::from(fit.saturated) > BAD_SHARE * total {
             f |= flags::SATURATED;
@@ -896,7 +910,7 @@ impl Finish {
         let mut confidence = 0.0f32;
         let mut sigma = f64::NAN;
         if !d.is_finite() {
-            f |= if p.extrema_seen == 0 {
+            f |= if p.flags & SEEN_EXTREMA == 0 {
                 flags::NO_FRINGE
             } else {
                 flags::AMBIGUOUS_ORDER
@@ -960,9 +974,9 @@ mod size_tests {
 
     #[test]
     fn pixel_state_size_is_fixed_and_known() {
-        // Breakdown: the pixel's state: flags, extrema seen, the current and the reference
-        // angles' last four extrema with their whole lists' lengths and early counts, 10
-        // each: 24 with padding; its tracker lanes in the row blocks, 41 bytes a pixel (a
+        // Breakdown: the pixel's state: flags (with whether it saw an extremum), the current
+        // and the reference angles' last four extrema with their whole lists' lengths and
+        // early counts, 10 each: 22; its tracker lanes in the row blocks, 41 bytes a pixel (a
         // ring of nine 2-byte steps, the window's moments computed from it, its noise sum
         // and running extremes 20, its lag and overflow flag 2 and mode 1; the scalar
         // tracker carries the moments, 55 bytes, 56 with padding) and the block's shared
@@ -970,13 +984,13 @@ mod size_tests {
         // blocks: thickness and order step 8, its own eight full-spectrum sums 32 (the
         // scalar `GnSums` is 68 with the index's eight, its count and padding), the sums'
         // count and the saturated and dead counts 6, and the block's shared sample count,
-        // 47 rounded up; 113 in all. The pixels of the index's sample keep the index's
+        // 47 rounded up; 111 in all. The pixels of the index's sample keep the index's
         // eight sums (32 bytes), the current angle's whole extremum list (42, 20 extrema of
         // 2 bytes and a one-byte length), how many of it voted (1) and the rest of the
         // reference list (34; 78 with padding), in blocks of 32 a row: every pixel of a
-        // 320 x 200 sensor (10 blocks a row, 110 bytes a pixel: 223 in all), one in 4 of a
-        // 640 x 480 one (5 blocks, 28 a pixel rounded up: 141), one in 64 of a 2048 x 2048
-        // one (one block: 2 a pixel rounded up, 115).
+        // 320 x 200 sensor (10 blocks a row, 110 bytes a pixel: 221 in all), one in 4 of a
+        // 640 x 480 one (5 blocks, 28 a pixel rounded up: 139), one in 64 of a 2048 x 2048
+        // one (one block: 2 a pixel rounded up, 113).
         let small = IndexSampling::for_sensor(320, 200, fit_row::INDEX_PIXELS);
         let vga = IndexSampling::for_sensor(640, 480, fit_row::INDEX_PIXELS);
         let large = IndexSampling::for_sensor(2048, 2048, fit_row::INDEX_PIXELS);
@@ -994,7 +1008,7 @@ mod size_tests {
             state_bytes_per_pixel(vga, 640),
             state_bytes_per_pixel(large, 2048),
         ];
-        assert_eq!(sizes, [56, 42, 42, 10, 78, 68, 24, 47, 32, 223, 141, 115]);
+        assert_eq!(sizes, [56, 42, 42, 10, 78, 68, 22, 47, 32, 221, 139, 113]);
         assert_eq!([small, vga, large].map(|s| s.stride()), [1, 4, 64]);
     }
 }
