@@ -18,8 +18,6 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{bounded, Receiver, Sender};
-
-use super::held::HeldBlock;
 use filmscope_core::calibrate::calibrate_row;
 use filmscope_core::solve::extrema::SampleExtrema;
 use filmscope_core::solve::fit_row::{FitLanes, IndexLanes, IndexSampling};
@@ -33,6 +31,7 @@ use filmscope_core::solve::{
 use filmscope_core::track::row::{TrackerLanes, LANES};
 use filmscope_core::track::{pack_sample, unpack_sample};
 
+use super::held::HeldBlock;
 use super::msg::{Samples, StreamMsg};
 use super::source::Source;
 
@@ -643,8 +642,9 @@ pub fn streams_rows(first: usize, limit: usize, bands: usize) -> bool {
     first + limit >= bands
 }
 
-/// A worker: `block` is `[band_block, band block at the last angle, bands per angle]`; `last_shard`: whether its rows are
-/// the last of each band (it defers the tally of rows it cannot keep up with).
+/// A worker: `block` is `[band_block, band block at the last angle, bands per angle]`;
+/// `last_shard`: whether its rows are the last of each band (it defers the tally of rows it
+/// cannot keep up with).
 #[allow(clippy::too_many_arguments)]
 fn worker(
     index: usize,
