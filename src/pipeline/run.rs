@@ -658,16 +658,14 @@ fn worker(
     done: Sender<Done>,
 ) {
     let [full_block, last_block, bands] = block;
+    // The band block of an angle with `left` angles left, this one included.
+    let block_of = |left: usize| if left == 1 { last_block } else { full_block };
     let mut held = HeldBlock::default();
     for (mut st, models, began, angles_left) in start.iter() {
         let mut shard = st.shard(first_row, width);
         shard.begin_angle();
         let shard_rows = shard.rows();
-        let band_block = if angles_left == 1 {
-            last_block
-        } else {
-            full_block
-        };
+        let band_block = block_of(angles_left);
         held.size_for(band_block * shard_rows * width);
         let mut tally = RowTally::new(began, bands, shard_rows, last_shard);
         let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);
@@ -704,6 +702,7 @@ fn worker(
                     rows_of_band += n as usize;
                     let rows_in = row as usize..(row + n) as usize;
                     held.push(band, row, n, &values);
+                    // The message's memory goes back before the block is fed.
                     drop(values);
                     if limit == 1 || (bands_held == limit && rows_of_band >= shard_rows) {
                         // A full block is fed at once, not when the next band starts (a block
@@ -732,12 +731,11 @@ fn worker(
         feed_rest(
             &mut shard, options, &models, &mut held, fed_to, &mut tally, true,
         );
-        // Before the angle is handed back: the coordinator allocates the results as the
-        // last angle begins, with the held blocks already shrunk.
+        // Sized for the next angle before this one is handed back: the coordinator allocates
+        // the results as the last angle begins, with the held blocks already shrunk.
         match angles_left {
-            1 => held.release(),
-            2 => held.size_for(last_block * shard_rows * width),
-            _ => {}
+            0 | 1 => held.release(),
+            left => held.size_for(block_of(left - 1) * shard_rows * width),
         }
         let tally = tally.finish(&shard);
         if done.send((index, st, tally)).is_err() {

@@ -27,6 +27,23 @@ pub const LANES: usize = 32;
 /// The bit of [`TrackerLanes`]' `lag` that holds a lane's overflow flag.
 const OVERFLOW_BIT: u16 = 1 << 15;
 
+/// The lag a lane's `lag` word holds (its overflow flag left out): 0 for a lane in step.
+#[inline(always)]
+fn lag_of(word: u16) -> u16 {
+    word & !OVERFLOW_BIT
+}
+
+/// Ring slot `j` places after `head` (`j < 2 * WINDOW`), without a division.
+#[inline(always)]
+fn ring_slot(head: usize, j: usize) -> usize {
+    let s = head + j;
+    if s >= WINDOW {
+        s - WINDOW
+    } else {
+        s
+    }
+}
+
 /// Tracker state of [`LANES`] pixels of one row: the fields of [`PixelTracker`] as arrays over
 /// the pixels, with the ring position and sample count shared (42 bytes per pixel).
 #[derive(Clone, Copy, Debug)]
@@ -106,7 +123,7 @@ impl TrackerLanes {
     /// Samples by which lane `i`'s window lags the row's (0: in step).
     #[inline]
     fn lag(&self, i: usize) -> u16 {
-        self.lag[i] & !OVERFLOW_BIT
+        lag_of(self.lag[i])
     }
 
     /// Lane `i` as a scalar tracker, its ring left empty (its window's moments computed from
@@ -114,7 +131,7 @@ impl TrackerLanes {
     fn lane_but_ring(&self, i: usize) -> PixelTracker {
         let t = self.lane_but_window(i);
         let head = usize::from(t.head);
-        let q = |j: usize| f32::from(self.ring[(head + j) % WINDOW][i]);
+        let q = |j: usize| f32::from(self.ring[ring_slot(head, j)][i]);
         PixelTracker {
             moments: window_moments([q(0), q(1), q(2), q(3), q(4), q(5), q(6), q(7), q(8)]),
             ..t
@@ -124,7 +141,7 @@ impl TrackerLanes {
     /// Lane `i` as a scalar tracker, its ring left empty and its window's moments zero.
     fn lane_but_window(&self, i: usize) -> PixelTracker {
         let lag = self.lag(i);
-        let behind = (lag % WINDOW as u16) as u8;
+        let behind = usize::from(lag) % WINDOW;
         PixelTracker {
             ring: [0; WINDOW],
             moments: [0.0; 3],
@@ -134,11 +151,7 @@ impl TrackerLanes {
             min_pos: self.min_pos[i],
             d2_sum: self.d2_sum[i],
             seen: self.seen - lag,
-            head: if self.head >= behind {
-                self.head - behind
-            } else {
-                self.head + WINDOW as u8 - behind
-            },
+            head: ring_slot(usize::from(self.head), WINDOW - behind) as u8,
             mode: Mode::from_u8(self.mode[i]),
             overflow: self.overflow(i),
         }
@@ -222,9 +235,8 @@ impl TrackerLanes {
             // Once no lane in step is in `Start` mode (a few bands in), its logic is left out.
             let start = Mode::Start as u8;
             let starting = if self.any_out_of_step {
-                (self.mode.iter().zip(&self.lag)).fold(false, |a, (&m, &lag)| {
-                    a | (m == start && lag & !OVERFLOW_BIT == 0)
-                })
+                (self.mode.iter().zip(&self.lag))
+                    .fold(false, |a, (&m, &lag)| a | (m == start && lag_of(lag) == 0))
             } else {
                 self.mode.iter().fold(false, |a, &m| a | (m == start))
             };
@@ -235,7 +247,7 @@ impl TrackerLanes {
             };
             if any {
                 let lag = self.lag;
-                for i in (0..LANES).filter(|&i| slow[i] && lag[i] & !OVERFLOW_BIT == 0) {
+                for i in (0..LANES).filter(|&i| slow[i] && lag_of(lag[i]) == 0) {
                     // The state machine reads no ring and writes only the extremes.
                     let mut t = self.lane_but_ring(i);
                     t.decide(band, subband, &mut Lane { sinks, i });
@@ -344,13 +356,7 @@ impl TrackerLanes {
 fn lane_moments(ring: &[[u16; LANES]; WINDOW], head: u8) -> [Lanes; 3] {
     let head = usize::from(head);
     // Written out: `array::from_fn` is not always inlined in the wide build's lane loops.
-    let at = |j: usize| {
-        &ring[if head + j >= WINDOW {
-            head + j - WINDOW
-        } else {
-            head + j
-        }]
-    };
+    let at = |j: usize| &ring[ring_slot(head, j)];
     let rows = [
         at(0),
         at(1),
