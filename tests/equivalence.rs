@@ -87,20 +87,13 @@ fn maps_do_not_depend_on_rows_per_message_workers_or_channel_capacity() {
 fn maps_do_not_depend_on_the_band_block() {
     // Rows a few at a time, so that an angle's last block is fed in several parts as its
     // last band arrives (`streams_rows`); blocks of one band, of three (the last blocks
-    // shorter than the final four), the default eight, and one the whole angle; the last
-    // angle's own block.
+    // shorter than the final four), the default four, eight, and one the whole angle.
     let scene = common::tiny_scene();
     let mut source = SimSource::new(SoftwareCamera::new(scene.clone()), false, 5).expect("source");
     let reference = run(&mut source, 2, 64);
-    for band_block in [1, 3, 8, 400] {
+    for band_block in [1, 3, 4, 8, 400] {
         let got = run_streamed(&scene, 5, |c| c.pipeline.band_block = band_block);
         same(&reference, &got, &format!("band block {band_block}"));
-    }
-    // The last angle's blocks (shrunk before it, so that its results and the held bands do
-    // not add up): as large as the others, one band, two.
-    for last in [8, 1, 2] {
-        let got = run_streamed(&scene, 5, |c| c.pipeline.last_angle_band_block = last);
-        same(&reference, &got, &format!("last angle's band block {last}"));
     }
 }
 

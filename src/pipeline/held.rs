@@ -5,10 +5,10 @@
 //! ([`filmscope_core::track::pack_sample`], 2 bytes a sample); a worker copies them into its
 //! [`HeldBlock`] and drops the message at once, so what a block holds lives in one allocation
 //! the worker owns rather than in thousands of small ones spread over the allocator's arenas.
-//! That allocation is sized for the angle ([`HeldBlock::size_for`]): the pipeline shrinks it
-//! before the sweep's last angle, whose maps' results are allocated as it begins, and gives it
-//! back after it ([`HeldBlock::release`]), so that the two do not add up at full size in the
-//! sweep's peak memory (`filmscope bench`'s peak RSS).
+//! That allocation is sized once for the sweep ([`HeldBlock::size_for`]) and given back
+//! after its last angle ([`HeldBlock::release`]), before the coordinator allocates the maps'
+//! results, so that the two do not add up in the sweep's peak memory (`filmscope bench`'s
+//! peak RSS).
 
 /// Rows of one band held: the band, the first image row, the number of rows and where their
 /// samples start in the block's buffer.

@@ -46,18 +46,12 @@ pub struct PipelineConfig {
     /// past every pixel's state, so on a sensor whose state does not fit the caches a sample
     /// costs its state's memory traffic; holding `band_block` bands divides that traffic by
     /// `band_block` at `2 * band_block` bytes per pixel of row buffers (packed samples,
-    /// [`pack_sample`]; 1: feed each row as
-    /// it arrives). Over an angle's last bands the blocks shrink (`block_bands`), so that
-    /// little is left to feed when its last row arrives.
+    /// [`pack_sample`]; 1: feed each row as it arrives). Over an angle's last bands the
+    /// blocks shrink (`block_bands`), so that little is left to feed when its last row
+    /// arrives. Four: on a 4 MP sweep the same pace as eight (the software camera's 131-134
+    /// M samples/s either way; two: 119 M), at 8 bytes a pixel of peak memory fewer
+    /// (`filmscope bench-rss-child`: 540.5 -> 508.8 MB; two 492.8).
     pub band_block: usize,
-    /// [`PipelineConfig::band_block`] at a sweep's last angle, at most: the maps' results (16
-    /// bytes a pixel) are allocated as that angle begins, once the workers have shrunk their
-    /// held blocks to this many bands, so the sweep's peak memory holds `2 * band_block`
-    /// bytes a pixel of held bands, or `2 * last_angle_band_block` and the results, not
-    /// both at full size. The last angle fits the full spectra, whose arithmetic, not the
-    /// state's memory traffic, sets its pace: smaller blocks cost it little (`filmscope
-    /// bench`).
-    pub last_angle_band_block: usize,
     /// What the solver may use.
     pub solver: SolverOptions,
 }
@@ -67,8 +61,7 @@ impl Default for PipelineConfig {
         Self {
             channel_capacity: 64,
             workers: 2,
-            band_block: 8,
-            last_angle_band_block: 4,
+            band_block: 4,
             solver: SolverOptions::default(),
         }
     }
@@ -448,8 +441,7 @@ pub fn run_sweep(
     let mut latency_parts = LatencyParts::default();
     // The results are made by the last angle's update pass (the angles announced tell which
     // is last), else by a pass of their own once the sweep has ended. They are allocated
-    // then, once the workers have given back their held blocks' buffers (and the sweep's
-    // peak memory does not hold both).
+    // then, once the trackers are released (the sweep's peak memory does not hold both).
     let angles = source.angles_deg().len();
     let mut results = Vec::new();
     let mut results_at = None;
@@ -469,8 +461,7 @@ pub fn run_sweep(
             let (first, _) = shard_rows(h, workers, i);
             let options = spec.options;
             let band_block = config.band_block.max(1);
-            let last_block = config.last_angle_band_block.clamp(1, band_block);
-            let block = [band_block, last_block, spec.bands_nm.len()];
+            let block = [band_block, spec.bands_nm.len()];
             // The last shard's rows are the last to arrive: it leaves those it cannot keep up
             // with to the angle's end, where all cores tally them (the others have time).
             let last_shard = i + 1 == workers;
@@ -489,10 +480,6 @@ pub fn run_sweep(
                     let snapshot = Arc::new(BandModels::of(&solver, workers));
                     let began = Arc::new((*solver).clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
-                    if left == 1 {
-                        // The workers shrank their held blocks as the angle before ended.
-                        results = vec![PixelResult::UNSOLVED; w * h];
-                    }
                     for (i, tx) in start_txs.iter().enumerate() {
                         let st = states[i].take().unwrap_or_default();
                         if tx
@@ -531,13 +518,28 @@ pub fn run_sweep(
                     if last {
                         solver.thaw();
                     }
-                    let out = last.then_some(results.as_mut_slice());
                     let mut parts = LatencyParts {
                         drain: at.elapsed(),
                         ..LatencyParts::default()
                     };
-                    let report =
-                        end_angle_parallel(&mut solver, &mut shards, tallies, out, &mut parts);
+                    tally_parallel(&mut solver, &mut shards, tallies, &mut parts);
+                    if last {
+                        // The trackers are read no more (their flags kept): the results
+                        // take their memory, not memory of their own on top of the state.
+                        shards.iter_mut().for_each(Shard::keep_tracker_flags);
+                        drop(shards);
+                        for st in owned.iter_mut() {
+                            st.trackers = Vec::new();
+                        }
+                        results = vec![PixelResult::UNSOLVED; w * h];
+                        shards = owned
+                            .iter_mut()
+                            .enumerate()
+                            .map(|(i, st)| st.shard(shard_rows(h, workers, i).0, w))
+                            .collect();
+                    }
+                    let out = last.then_some(results.as_mut_slice());
+                    let report = update_parallel(&mut solver, &mut shards, out, &mut parts);
                     reports.push(report);
                     latency_parts = parts;
                     if last {
@@ -572,11 +574,16 @@ pub fn run_sweep(
         )));
     }
     if results_at != Some(solver.angles_done()) {
+        let mut owned: Vec<ShardState> =
+            states.into_iter().map(Option::unwrap_or_default).collect();
+        // The last update kept the trackers' flags in the pixels': the results take the
+        // trackers' memory.
+        for st in owned.iter_mut() {
+            st.trackers = Vec::new();
+        }
         if results.len() != w * h {
             results = vec![PixelResult::UNSOLVED; w * h];
         }
-        let mut owned: Vec<ShardState> =
-            states.into_iter().map(Option::unwrap_or_default).collect();
         std::thread::scope(|scope| {
             let mut rest = results.as_mut_slice();
             for (i, st) in owned.iter_mut().enumerate() {
@@ -642,7 +649,7 @@ pub fn streams_rows(first: usize, limit: usize, bands: usize) -> bool {
     first + limit >= bands
 }
 
-/// A worker: `block` is `[band_block, band block at the last angle, bands per angle]`;
+/// A worker: `block` is `[band_block, bands per angle]`;
 /// `last_shard`: whether its rows are the last of each band (it defers the tally of rows it
 /// cannot keep up with).
 #[allow(clippy::too_many_arguments)]
@@ -651,21 +658,18 @@ fn worker(
     first_row: usize,
     width: usize,
     options: SolverOptions,
-    block: [usize; 3],
+    block: [usize; 2],
     last_shard: bool,
     start: Receiver<Start>,
     rows: Receiver<WorkerMsg>,
     done: Sender<Done>,
 ) {
-    let [full_block, last_block, bands] = block;
-    // The band block of an angle with `left` angles left, this one included.
-    let block_of = |left: usize| if left == 1 { last_block } else { full_block };
+    let [band_block, bands] = block;
     let mut held = HeldBlock::default();
     for (mut st, models, began, angles_left) in start.iter() {
         let mut shard = st.shard(first_row, width);
         shard.begin_angle();
         let shard_rows = shard.rows();
-        let band_block = block_of(angles_left);
         held.size_for(band_block * shard_rows * width);
         let mut tally = RowTally::new(began, bands, shard_rows, last_shard);
         let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);
@@ -731,11 +735,10 @@ fn worker(
         feed_rest(
             &mut shard, options, &models, &mut held, fed_to, &mut tally, true,
         );
-        // Sized for the next angle before this one is handed back: the coordinator allocates
-        // the results as the last angle begins, with the held blocks already shrunk.
-        match angles_left {
-            0 | 1 => held.release(),
-            left => held.size_for(block_of(left - 1) * shard_rows * width),
+        // After the last angle, given back before the state is: the coordinator allocates
+        // the results then.
+        if angles_left <= 1 {
+            held.release();
         }
         let tally = tally.finish(&shard);
         if done.send((index, st, tally)).is_err() {
@@ -1148,10 +1151,9 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
     })
 }
 
-/// The solver's angle-end passes, each run on all shards at once. `tallies` holds what each
-/// shard's worker tallied of pass 1 as its rows saw their last band (`None`: nothing); the
-/// rows left are tallied here. At the sweep's last angle, `results` (the image's, row-major;
-/// the shards hold its rows in order) gets every pixel's final result ([`Shard::finish`]) from
+/// The solver's angle-end passes, each run on all shards at once: [`tally_parallel`], then
+/// [`update_parallel`]. At the sweep's last angle, `results` (the image's, row-major; the
+/// shards hold its rows in order) gets every pixel's final result ([`Shard::finish`]) from
 /// the same pass that updates it. `parts` gets each pass's wall time.
 pub fn end_angle_parallel(
     solver: &mut SweepSolver,
@@ -1160,31 +1162,47 @@ pub fn end_angle_parallel(
     results: Option<&mut [PixelResult]>,
     parts: &mut LatencyParts,
 ) -> AngleReport {
-    let mut clock = Instant::now();
-    let mut lap = || {
-        let now = Instant::now();
-        let t = now - clock;
-        clock = now;
-        t
+    tally_parallel(solver, shards, tallies, parts);
+    update_parallel(solver, shards, results, parts)
+}
+
+/// `f` of every shard, in shard order, the first on this thread.
+fn each<S: Send, T: Send>(shards: &mut [S], f: impl Fn(&mut S) -> T + Sync) -> Vec<T> {
+    let Some((first, rest)) = shards.split_first_mut() else {
+        return Vec::new();
     };
-    /// `f` of every shard, in shard order, the first on this thread.
-    fn each<S: Send, T: Send>(shards: &mut [S], f: impl Fn(&mut S) -> T + Sync) -> Vec<T> {
-        let Some((first, rest)) = shards.split_first_mut() else {
-            return Vec::new();
-        };
-        std::thread::scope(|s| {
-            let f = &f;
-            let handles: Vec<_> = rest.iter_mut().map(|sh| s.spawn(move || f(sh))).collect();
-            let mut out = vec![f(first)];
-            // A worker's panic is the caller's: dropping its result would lose its votes
-            // (or misalign the ties) silently.
-            out.extend(handles.into_iter().map(|h| {
-                h.join()
-                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
-            }));
-            out
-        })
-    }
+    std::thread::scope(|s| {
+        let f = &f;
+        let handles: Vec<_> = rest.iter_mut().map(|sh| s.spawn(move || f(sh))).collect();
+        let mut out = vec![f(first)];
+        // A worker's panic is the caller's: dropping its result would lose its votes
+        // (or misalign the ties) silently.
+        out.extend(handles.into_iter().map(|h| {
+            h.join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+        }));
+        out
+    })
+}
+
+/// The time since `clock`, which moves on to now.
+fn lap(clock: &mut Instant) -> std::time::Duration {
+    let now = Instant::now();
+    let t = now - *clock;
+    *clock = now;
+    t
+}
+
+/// The angle end's pass 1, the last to read the trackers (their noise): `tallies` holds
+/// what each shard's worker tallied as its rows saw their last band (`None`: nothing); the
+/// rows left are tallied here, and the solver takes the votes and the fit histogram.
+pub fn tally_parallel(
+    solver: &mut SweepSolver,
+    shards: &mut [Shard<'_>],
+    tallies: Vec<Option<ShardTally>>,
+    parts: &mut LatencyParts,
+) {
+    let mut clock = Instant::now();
     let mut hist = RatioHistogram::default();
     let mut fit = FitStats::default();
     // The rows the workers left (all of a shard without its tally) are tallied here, on
@@ -1218,7 +1236,20 @@ pub fn end_angle_parallel(
     }
     solver.set_votes(&hist);
     solver.set_fit_histogram(&fit);
-    parts.tally = lap();
+    parts.tally = lap(&mut clock);
+}
+
+/// The angle end's passes after [`tally_parallel`]: the index's sums, the update (with the
+/// results at the sweep's last angle, as [`end_angle_parallel`] says) and the ties. The
+/// trackers are not read but for their overflow flags, which a shard whose trackers were
+/// released holds in its pixels' flags already ([`Shard::keep_tracker_flags`]).
+pub fn update_parallel(
+    solver: &mut SweepSolver,
+    shards: &mut [Shard<'_>],
+    results: Option<&mut [PixelResult]>,
+    parts: &mut LatencyParts,
+) -> AngleReport {
+    let mut clock = Instant::now();
     // Per-row sums merged in row order: the same floating-point result for any sharding.
     let mut rows: Vec<(usize, RatioSums, SchurSums)> = each(shards, |sh| {
         let mut v = Vec::with_capacity(sh.rows());
@@ -1236,7 +1267,7 @@ pub fn end_angle_parallel(
     }
     solver.set_window_sums(&sums);
     solver.set_schur(&schur);
-    parts.sums = lap();
+    parts.sums = lap(&mut clock);
     // Each shard's part of `results`.
     let mut outs: Vec<&mut [PixelResult]> = Vec::new();
     if let Some(mut rest) = results {
@@ -1265,13 +1296,13 @@ pub fn end_angle_parallel(
             ties
         })
     };
-    parts.update = lap();
+    parts.update = lap(&mut clock);
     filmscope_core::solve::sweep::resolve_orders(solver, shards, |k, _| ties[k].iter().copied());
     for ((sh, out), ties) in shards.iter().zip(outs.iter_mut()).zip(&ties) {
         sh.finish_pixels(solver, out, ties.iter().copied());
     }
     let report = solver.end_angle();
-    parts.ties = lap();
+    parts.ties = lap(&mut clock);
     report
 }
 

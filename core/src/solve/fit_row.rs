@@ -45,11 +45,11 @@ pub struct PixelFit {
     /// Samples seen (the same for every pixel of a row; not stored by
     /// [`FitLanes::set_pixel`]).
     pub samples: u16,
-    /// Saturated samples (`+inf` from calibration).
-    pub saturated: u16,
+    /// Saturated samples (`+inf` from calibration), up to [`BAD_COUNT_MAX`].
+    pub saturated: u8,
     /// Samples without a usable reference (NaN from calibration, or a finite value far
-    /// outside any reflectance).
-    pub dead: u16,
+    /// outside any reflectance), up to [`BAD_COUNT_MAX`].
+    pub dead: u8,
 }
 
 impl Default for PixelFit {
@@ -66,7 +66,7 @@ impl Default for PixelFit {
 }
 
 /// [`PixelFit`] of [`LANES`] pixels of one row as arrays over the pixels, the sample count
-/// shared (47 bytes per pixel): all but the index's sums, which [`IndexLanes`] keep for a
+/// shared (45 bytes per pixel): all but the index's sums, which [`IndexLanes`] keep for a
 /// sample of the pixels.
 #[derive(Clone, Copy, Debug)]
 pub struct FitLanes {
@@ -75,8 +75,8 @@ pub struct FitLanes {
     /// `sums[k][i]`: sum `k` ([`GnSums::to_pixel_terms`]' order) of lane `i`.
     sums: [[f32; LANES]; PIXEL_TERMS],
     gn_samples: [u16; LANES],
-    saturated: [u16; LANES],
-    dead: [u16; LANES],
+    saturated: [u8; LANES],
+    dead: [u8; LANES],
     /// Samples seen by every lane (saturates).
     samples: u16,
 }
@@ -89,6 +89,12 @@ impl Default for FitLanes {
 
 /// The samples of one block, padded to [`LANES`].
 type Lanes = [f32; LANES];
+
+/// Where a pixel's saturated and dead counts stop: a byte each (2 bytes a pixel fewer than
+/// `u16`). A count that reached it is "this many or more", which the results flag whatever
+/// the share of the samples (the share of [`BAD_COUNT_MAX`] of 2550 or more samples would
+/// not be above a tenth; a pixel with 255 unusable samples is not to be trusted anyway).
+pub const BAD_COUNT_MAX: u8 = u8::MAX;
 
 /// Pixels that keep the index's sums in a large image by default
 /// ([`super::sweep::SolverOptions::index_pixels`]): about this many (a 1 Mpix sensor's
@@ -492,8 +498,8 @@ impl FitLanes {
         for i in 0..LANES {
             let saturated = v[i].is_infinite();
             let dead = !usable(v[i]) && !saturated;
-            self.saturated[i] = self.saturated[i].saturating_add(u16::from(saturated));
-            self.dead[i] = self.dead[i].saturating_add(u16::from(dead));
+            self.saturated[i] = self.saturated[i].saturating_add(u8::from(saturated));
+            self.dead[i] = self.dead[i].saturating_add(u8::from(dead));
         }
     }
 
@@ -759,9 +765,9 @@ mod tests {
         for (p, &v) in scalar.iter_mut().zip(values) {
             p.samples += 1;
             if v.is_infinite() {
-                p.saturated += 1;
+                p.saturated = p.saturated.saturating_add(1);
             } else if !usable(v) {
-                p.dead += 1;
+                p.dead = p.dead.saturating_add(1);
             } else if p.thickness_nm.is_finite() {
                 let (d, o) = (f64::from(p.thickness_nm), f64::from(p.order_step_nm));
                 p.gn.add(coef, knots, d, o, f64::from(v));
@@ -840,7 +846,10 @@ mod tests {
             );
             let bits = |f: &PixelFit| {
                 let t = [f.thickness_nm, f.order_step_nm].map(f32::to_bits);
-                (t, [f.samples, f.saturated, f.dead, f.gn.samples])
+                (
+                    t,
+                    [f.samples, f.saturated.into(), f.dead.into(), f.gn.samples],
+                )
             };
             assert_eq!(bits(&l), bits(p), "pixel {i}, {sampling:?}");
             assert_eq!(

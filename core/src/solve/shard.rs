@@ -39,6 +39,13 @@ pub const MAX_THICKNESS_SIGMA_NM: f64 = 5.0;
 /// Largest share of unusable samples a valid pixel may have.
 const BAD_SHARE: f64 = 0.1;
 
+/// Whether `count` unusable samples (saturated, or dead) of a pixel's `samples` are too many
+/// for it to be valid: more than [`BAD_SHARE`] of them, or a count that stopped at its cap
+/// ([`fit_row::BAD_COUNT_MAX`]: that many or more, whatever the share).
+fn too_many_bad(count: u8, samples: u16) -> bool {
+    count == fit_row::BAD_COUNT_MAX || f64::from(count) > BAD_SHARE * f64::from(samples.max(1))
+}
+
 /// The bit of [`PixelState::flags`] that tells whether the pixel found an extremum at any
 /// angle so far: the solver's own (a pixel without a thickness is [`flags::NO_FRINGE`]
 /// without, [`flags::AMBIGUOUS_ORDER`] with), never in a result's flags. (It was a byte of
@@ -186,6 +193,8 @@ impl PixelResult {
 impl<'a> Shard<'a> {
     /// A shard over caller-owned states, trackers, fits and what the index's sample keeps
     /// (`trackers.len()` and `fits.len()` must be [`tracker_blocks`]`(pixels.len(), width)`,
+    /// or `trackers` empty once released at the sweep's last angle end, for the passes after
+    /// [`Shard::tally_rows`] ([`Shard::keep_tracker_flags`]),
     /// `sample.1.len()` the rows times `sample.0`'s [`IndexSampling::blocks_per_row`],
     /// `sample.2.len()` [`row::LANES`] times that).
     pub fn new(
@@ -199,8 +208,8 @@ impl<'a> Shard<'a> {
         let (sampling, index, lists) = sample;
         let blocks = tracker_blocks(pixels.len(), width);
         assert!(
-            trackers.len() == blocks && fits.len() == blocks,
-            "one tracker and one fit block per {} pixels of a row",
+            (trackers.len() == blocks || trackers.is_empty()) && fits.len() == blocks,
+            "one tracker (or none) and one fit block per {} pixels of a row",
             row::LANES
         );
         let rows = pixels.len().checked_div(width).unwrap_or(0);
@@ -311,6 +320,18 @@ impl<'a> Shard<'a> {
     /// Whether image row `row` belongs to this shard.
     pub fn holds(&self, row: usize) -> bool {
         row >= self.first_row && row < self.first_row + self.rows()
+    }
+
+    /// Copies what the angle-end update reads of the trackers, their overflow flags, into
+    /// the pixels' flags, so that the trackers can be released before it (the sweep's last
+    /// angle: the results take their memory).
+    pub fn keep_tracker_flags(&mut self) {
+        let lanes = row::lanes(self.trackers, self.width);
+        for (p, (t, lane)) in self.pixels.iter_mut().zip(lanes) {
+            if t.overflow(lane) {
+                p.flags |= flags::TRACKER_OVERFLOW;
+            }
+        }
     }
 
     /// Starts an angle: resets the trackers and the current extrema.
@@ -568,7 +589,8 @@ impl<'a> Shard<'a> {
             // Whether only the lane steps' three values changed (all the lanes need back).
             let mut stepped = false;
             let slot = sample.map(Self::list_slot);
-            let overflow = self.trackers[block].overflow(lane);
+            // (Released trackers left their flags in the pixel's: `keep_tracker_flags`.)
+            let overflow = self.trackers.get(block).is_some_and(|t| t.overflow(lane));
             let p = &mut self.pixels[i];
             if !p.current.is_empty() {
                 p.flags |= SEEN_EXTREMA;
@@ -897,11 +919,10 @@ impl Finish {
 
     fn result(&self, p: &PixelState, fit: &PixelFit) -> PixelResult {
         let mut f = p.flags & !SEEN_EXTREMA;
-        let total = f64::from(fit.samples.max(1));
-        if f64::from(fit.saturated) > BAD_SHARE * total {
+        if too_many_bad(fit.saturated, fit.samples) {
             f |= flags::SATURATED;
         }
-        if f64::from(fit.dead) > BAD_SHARE * total {
+        if too_many_bad(fit.dead, fit.samples) {
             f |= flags::DEAD;
         } else if fit.dead > 0 {
             f |= flags::MISSING_SAMPLES;
@@ -973,24 +994,36 @@ mod size_tests {
     use crate::track::{ExtremaList, PixelTracker};
 
     #[test]
+    fn unusable_counts_flag_a_tenth_or_a_capped_count() {
+        use super::too_many_bad;
+        // 161 bands x 5 angles: a tenth is 80.5.
+        assert!(!too_many_bad(80, 805) && too_many_bad(81, 805));
+        assert!(!too_many_bad(0, 0) && too_many_bad(1, 0));
+        // 161 bands x 25 angles: a count stopped at its cap is 255 or more, and flags,
+        // though 255 is not a tenth of 4025; one below it is what it says.
+        assert!(too_many_bad(255, 4025) && !too_many_bad(254, 4025));
+    }
+
+    #[test]
     fn pixel_state_size_is_fixed_and_known() {
         // Breakdown: the pixel's state: flags (with whether it saw an extremum), the current
         // and the reference angles' last four extrema with their whole lists' lengths and
-        // early counts, 10 each: 22; its tracker lanes in the row blocks, 41 bytes a pixel (a
+        // early counts, 10 each: 22; its tracker lanes in the row blocks, 37 bytes a pixel (a
         // ring of nine 2-byte steps, the window's moments computed from it, its noise sum
-        // and running extremes 20, its lag and overflow flag 2 and mode 1; the scalar
-        // tracker carries the moments, 55 bytes, 56 with padding) and the block's shared
-        // ring position and count, 42 rounded up; its fit lanes in the row
-        // blocks: thickness and order step 8, its own eight full-spectrum sums 32 (the
-        // scalar `GnSums` is 68 with the index's eight, its count and padding), the sums'
-        // count and the saturated and dead counts 6, and the block's shared sample count,
-        // 47 rounded up; 111 in all. The pixels of the index's sample keep the index's
+        // 4, running extremes 12 (values 4 each, positions 2 each in the 1/32 band an
+        // extremum keeps), its lag and overflow flag 2 and mode 1; the scalar tracker
+        // carries the moments, 51 bytes, 52 with padding) and the block's shared ring
+        // position and count, 38 rounded up; its fit lanes in the row blocks: thickness and
+        // order step 8, its own eight full-spectrum sums 32 (the scalar `GnSums` is 68 with
+        // the index's eight, its count and padding), the sums' count 2 and the saturated and
+        // dead counts 2 (a byte each, capped), and the block's shared sample count, 45
+        // rounded up; 105 in all. The pixels of the index's sample keep the index's
         // eight sums (32 bytes), the current angle's whole extremum list (42, 20 extrema of
         // 2 bytes and a one-byte length), how many of it voted (1) and the rest of the
         // reference list (34; 78 with padding), in blocks of 32 a row: every pixel of a
-        // 320 x 200 sensor (10 blocks a row, 110 bytes a pixel: 221 in all), one in 4 of a
-        // 640 x 480 one (5 blocks, 28 a pixel rounded up: 139), one in 64 of a 2048 x 2048
-        // one (one block: 2 a pixel rounded up, 113).
+        // 320 x 200 sensor (10 blocks a row, 110 bytes a pixel: 215 in all), one in 4 of a
+        // 640 x 480 one (5 blocks, 28 a pixel rounded up: 133), one in 64 of a 2048 x 2048
+        // one (one block: 2 a pixel rounded up, 107).
         let small = IndexSampling::for_sensor(320, 200, fit_row::INDEX_PIXELS);
         let vga = IndexSampling::for_sensor(640, 480, fit_row::INDEX_PIXELS);
         let large = IndexSampling::for_sensor(2048, 2048, fit_row::INDEX_PIXELS);
@@ -1008,7 +1041,7 @@ mod size_tests {
             state_bytes_per_pixel(vga, 640),
             state_bytes_per_pixel(large, 2048),
         ];
-        assert_eq!(sizes, [56, 42, 42, 10, 78, 68, 22, 47, 32, 221, 139, 113]);
+        assert_eq!(sizes, [52, 38, 42, 10, 78, 68, 22, 45, 32, 215, 133, 107]);
         assert_eq!([small, vga, large].map(|s| s.stride()), [1, 4, 64]);
     }
 }

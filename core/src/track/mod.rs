@@ -130,14 +130,26 @@ impl Extremum {
     /// A peak at band 0: what an unused slot of a list holds.
     pub const ZERO: Self = Self(0);
 
-    /// An extremum at fractional band `band` (clamped to `0..1024`).
+    /// An extremum at fractional band `band` (clamped to `0..1024`, rounded to the nearest
+    /// 1/32 band as [`to_pos`] rounds it).
     pub fn new(band: f32, kind: Kind) -> Self {
-        let max = f32::from(VALLEY_BIT - 1) / POS_PER_BAND;
-        let pos = libm::roundf(band.clamp(0.0, max) * POS_PER_BAND) as u16;
+        Self::at(to_pos(band), kind)
+    }
+
+    /// An extremum at position `pos` ([`to_pos`]'s code, below [`EDGE`]).
+    #[inline]
+    fn at(pos: u16, kind: Kind) -> Self {
+        let pos = pos & !VALLEY_BIT;
         Self(match kind {
             Kind::Peak => pos,
             Kind::Valley => pos | VALLEY_BIT,
         })
+    }
+
+    /// Its position as [`to_pos`] codes it.
+    #[inline]
+    fn pos(&self) -> u16 {
+        self.0 & !VALLEY_BIT
     }
 
     /// Position in (fractional) band index.
@@ -154,6 +166,37 @@ impl Extremum {
         } else {
             Kind::Valley
         }
+    }
+}
+
+/// The code of a running extreme still at the band edge (no extremum there): above every
+/// position [`to_pos`] gives.
+const EDGE: u16 = u16::MAX;
+
+/// A fractional band as the tracker keeps a running extreme's position and [`Extremum`]
+/// holds it: in 1/32 band, clamped to `0..1024`, rounded to the nearest, ties away from zero
+/// as `libm::roundf` rounds them (noise-free spectra's whole-number moments put vertices on
+/// ties).
+#[inline(always)]
+fn to_pos(band: f32) -> u16 {
+    pos_code(band) as u16
+}
+
+/// [`to_pos`]'s code as a float (a whole number), written without a float-to-integer
+/// conversion ([`to_step`]'s trick, then the tie it rounded down moved up) so that a lane
+/// loop vectorises; the row kernel narrows a block's codes to `u16` in a loop of their own.
+#[inline(always)]
+fn pos_code(band: f32) -> f32 {
+    const TWO_23: f32 = 8_388_608.0;
+    const MAX: f32 = (VALLEY_BIT - 1) as f32 / POS_PER_BAND;
+    let b = if band > 0.0 { band } else { 0.0 };
+    let b = if b < MAX { b } else { MAX };
+    let x = b * POS_PER_BAND;
+    let q = (x + TWO_23) - TWO_23;
+    if q - x == -0.5 {
+        q + 1.0
+    } else {
+        q
     }
 }
 
@@ -183,7 +226,7 @@ impl Mode {
 /// [`PixelTracker::noise_sigma`]): `tau = TAU_PER_D2 * mean |second difference|`.
 const TAU_PER_D2: f32 = PROMINENCE_SIGMA * 0.5 / 1.954;
 
-/// Tracker state of one pixel for one angle: 56 bytes, independent of bands and angles
+/// Tracker state of one pixel for one angle: 52 bytes, independent of bands and angles
 /// (bad samples are bridged here and counted by the full-spectrum sums,
 /// [`crate::solve::fit_row::FitLanes`]).
 ///
@@ -202,13 +245,14 @@ pub struct PixelTracker {
     ring: [u16; WINDOW],
     /// `sum q`, `sum k q`, `sum k^2 q` over the ring, whole numbers.
     moments: [f32; 3],
-    /// Current running extreme (smoothed value, ring steps) and its fractional band.
+    /// Current running extreme (smoothed value, ring steps) and its position ([`to_pos`]:
+    /// the 1/32 band an emitted extremum is rounded to anyway).
     ext_val: f32,
-    ext_pos: f32,
-    /// In `Start` mode: the running minimum (the running maximum is in `ext_*`); a NaN
-    /// position marks an extreme still at the band edge.
+    ext_pos: u16,
+    /// In `Start` mode: the running minimum (the running maximum is in `ext_*`); [`EDGE`]
+    /// marks an extreme still at the band edge.
     min_val: f32,
-    min_pos: f32,
+    min_pos: u16,
     /// Sum of |second difference|, steps, for the noise estimate.
     d2_sum: f32,
     /// Samples seen this angle (saturates).
@@ -261,10 +305,16 @@ fn smoothed([m0, _, m2]: [f32; 3]) -> f32 {
     (59.0 * m0 - 5.0 * m2) * (1.0 / 231.0)
 }
 
-/// The local quadratic's vertex (fractional band) for the window ending at band `band`,
-/// within a band of the window centre (the centre itself unless `subband`).
+/// The local quadratic's vertex for the window ending at band `band`, within a band of the
+/// window centre (the centre itself unless `subband`), as [`to_pos`] codes it.
 #[inline(always)]
-fn vertex(band: u16, [m0, m1, m2]: [f32; 3], subband: bool) -> f32 {
+fn vertex(band: u16, m: [f32; 3], subband: bool) -> u16 {
+    to_pos(vertex_band(band, m, subband))
+}
+
+/// [`vertex`] as a fractional band (what [`pos_code`] codes).
+#[inline(always)]
+fn vertex_band(band: u16, [m0, m1, m2]: [f32; 3], subband: bool) -> f32 {
     let centre = f32::from(band) - HALF as f32;
     // Slope weights k (sum of squares 60); curvature 3 k^2 - 20 (times 2 / 462).
     let d1 = m1 * (1.0 / 60.0);
@@ -394,13 +444,13 @@ impl PixelTracker {
 
     /// Before the first extremum: follows both the running maximum and minimum until the
     /// spectrum has moved `tau` away from one of them.
-    fn start(&mut self, s: f32, tau: f32, vertex: impl Fn() -> f32, out: &mut impl ExtremumSink) {
+    fn start(&mut self, s: f32, tau: f32, vertex: impl Fn() -> u16, out: &mut impl ExtremumSink) {
         if usize::from(self.seen) == WINDOW {
             // The first smoothed sample: an extreme here is the band edge, not a fringe.
             self.ext_val = s;
-            self.ext_pos = f32::NAN;
+            self.ext_pos = EDGE;
             self.min_val = s;
-            self.min_pos = f32::NAN;
+            self.min_pos = EDGE;
             return;
         }
         if s > self.ext_val {
@@ -413,14 +463,14 @@ impl PixelTracker {
         }
         if s >= self.min_val + tau {
             // Rising: the minimum behind us is a valley unless it is the band edge.
-            if self.min_pos.is_finite() {
+            if self.min_pos != EDGE {
                 self.emit(self.min_pos, Kind::Valley, out);
             }
             self.mode = Mode::SeekMax;
             self.ext_val = s;
             self.ext_pos = vertex();
         } else if s <= self.ext_val - tau {
-            if self.ext_pos.is_finite() {
+            if self.ext_pos != EDGE {
                 self.emit(self.ext_pos, Kind::Peak, out);
             }
             self.mode = Mode::SeekMin;
@@ -429,14 +479,12 @@ impl PixelTracker {
         }
     }
 
-    fn emit(&mut self, band: f32, kind: Kind, out: &mut impl ExtremumSink) {
+    fn emit(&mut self, pos: u16, kind: Kind, out: &mut impl ExtremumSink) {
         // Sub-band vertices move up to a band either way, so two extrema of a spiky spectrum
         // less than two bands apart could come out of order (found by the property tests):
         // the list stays in increasing band order.
-        let band = out
-            .last_extremum()
-            .map_or(band, |last| band.max(last.band()));
-        if out.push(Extremum::new(band, kind)).is_err() {
+        let pos = out.last_extremum().map_or(pos, |last| pos.max(last.pos()));
+        if out.push(Extremum::at(pos, kind)).is_err() {
             self.overflow = true;
         }
     }

@@ -17,8 +17,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::{
-    abs_d2, before, lists::Lane, smoothed, to_step, usable, vertex, window_moments, ExtremumSink,
-    LaneSinks, Mode, PixelTracker, TAU_PER_D2, WINDOW,
+    abs_d2, before, lists::Lane, pos_code, smoothed, to_step, usable, vertex_band, window_moments,
+    ExtremumSink, LaneSinks, Mode, PixelTracker, EDGE, TAU_PER_D2, WINDOW,
 };
 
 /// Pixels per block of [`TrackerLanes`].
@@ -45,16 +45,16 @@ fn ring_slot(head: usize, j: usize) -> usize {
 }
 
 /// Tracker state of [`LANES`] pixels of one row: the fields of [`PixelTracker`] as arrays over
-/// the pixels, with the ring position and sample count shared (42 bytes per pixel).
+/// the pixels, with the ring position and sample count shared (38 bytes per pixel).
 #[derive(Clone, Copy, Debug)]
 pub struct TrackerLanes {
     /// `ring[k][i]`: ring slot `k` of lane `i`.
     ring: [[u16; LANES]; WINDOW],
     d2_sum: [f32; LANES],
     ext_val: [f32; LANES],
-    ext_pos: [f32; LANES],
+    ext_pos: [u16; LANES],
     min_val: [f32; LANES],
-    min_pos: [f32; LANES],
+    min_pos: [u16; LANES],
     /// Below [`OVERFLOW_BIT`], the samples by which a lane's window lags the row's: 0 for a
     /// lane in step, the count of leading unusable samples for one *out of step* (its own
     /// count is `seen` less that, its ring position `head` less that, mod [`WINDOW`]); the
@@ -85,9 +85,9 @@ impl TrackerLanes {
         ring: [[0; LANES]; WINDOW],
         d2_sum: [0.0; LANES],
         ext_val: [0.0; LANES],
-        ext_pos: [0.0; LANES],
+        ext_pos: [0; LANES],
         min_val: [0.0; LANES],
-        min_pos: [0.0; LANES],
+        min_pos: [0; LANES],
         lag: [0; LANES],
         mode: [Mode::Start as u8; LANES],
         seen: 0,
@@ -288,9 +288,9 @@ impl TrackerLanes {
         for i in 0..LANES {
             let s = smoothed([m0[i], 0.0, m2[i]]);
             self.ext_val[i] = s;
-            self.ext_pos[i] = f32::NAN;
+            self.ext_pos[i] = EDGE;
             self.min_val[i] = s;
-            self.min_pos[i] = f32::NAN;
+            self.min_pos[i] = EDGE;
         }
     }
 
@@ -308,12 +308,16 @@ impl TrackerLanes {
         let n = f32::from(self.seen.saturating_sub(2));
         let mut any = false;
         let [m0, m1, m2] = lane_moments(&self.ring, self.head);
+        // The positions' codes as floats, narrowed to the lanes' `u16` after the loop (a
+        // narrowing inside it keeps the loop from vectorising).
+        let mut ext_pos = [0.0; LANES];
+        let mut min_pos = [0.0; LANES];
         for i in 0..LANES {
             let m = [m0[i], m1[i], m2[i]];
             let s = smoothed(m);
-            let at = vertex(band, m, subband);
+            let at = pos_code(vertex_band(band, m, subband));
             let tau_n = TAU_PER_D2 * self.d2_sum[i];
-            let (ev, ep) = (self.ext_val[i], self.ext_pos[i]);
+            let (ev, ep) = (self.ext_val[i], f32::from(self.ext_pos[i]));
             let seek_min = self.mode[i] == Mode::SeekMin as u8;
             // The running extreme (the maximum in `Start` and `SeekMax`) moves ...
             let up = if seek_min { s < ev } else { s > ev };
@@ -326,11 +330,11 @@ impl TrackerLanes {
                 slow[i] = seek_event;
                 any |= seek_event;
                 self.ext_val[i] = new_ev;
-                self.ext_pos[i] = new_ep;
+                ext_pos[i] = new_ep;
                 continue;
             }
             // In `Start`, the running minimum moves too, and either extreme may end it.
-            let (mv, mp) = (self.min_val[i], self.min_pos[i]);
+            let (mv, mp) = (self.min_val[i], f32::from(self.min_pos[i]));
             let start = self.mode[i] == Mode::Start as u8;
             let down = start && s < mv;
             let new_mv = if down { s } else { mv };
@@ -341,11 +345,25 @@ impl TrackerLanes {
             slow[i] = event;
             any |= event;
             self.ext_val[i] = if event { ev } else { new_ev };
-            self.ext_pos[i] = if event { ep } else { new_ep };
+            ext_pos[i] = if event { ep } else { new_ep };
             self.min_val[i] = if event { mv } else { new_mv };
-            self.min_pos[i] = if event { mp } else { new_mp };
+            min_pos[i] = if event { mp } else { new_mp };
+        }
+        narrow(&ext_pos, &mut self.ext_pos);
+        if START {
+            narrow(&min_pos, &mut self.min_pos);
         }
         any
+    }
+}
+
+/// Whole numbers below `2^16` (position codes) as `u16`: the bits of `x + 2^23`, less
+/// those of `2^23` (no float-to-integer conversion, a loop that vectorises).
+#[inline(always)]
+fn narrow(x: &Lanes, out: &mut [u16; LANES]) {
+    const TWO_23: f32 = 8_388_608.0;
+    for i in 0..LANES {
+        out[i] = ((x[i] + TWO_23).to_bits() - TWO_23.to_bits()) as u16;
     }
 }
 

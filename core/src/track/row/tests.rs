@@ -6,12 +6,10 @@ fn same_state(a: &PixelTracker, b: &PixelTracker) -> bool {
     let bits = |t: &PixelTracker| {
         let mut v: Vec<u32> = t.ring.iter().map(|&q| u32::from(q)).collect();
         v.extend(t.moments.iter().map(|x| x.to_bits()));
-        v.extend(
-            [t.ext_val, t.ext_pos, t.min_val, t.min_pos, t.d2_sum]
-                .iter()
-                .map(|x| x.to_bits()),
-        );
+        v.extend([t.ext_val, t.min_val, t.d2_sum].iter().map(|x| x.to_bits()));
         v.extend([
+            u32::from(t.ext_pos),
+            u32::from(t.min_pos),
             u32::from(t.seen),
             u32::from(t.head),
             t.mode as u32,
