@@ -439,9 +439,9 @@ pub struct BenchReport {
     pub solve_pixels_per_s_per_core: f64,
     /// Time from the last row to the maps, per megapixel, ms.
     pub latency_ms_per_mpix: f64,
-    /// Its parts, ms per megapixel: rows still queued (drain), tally, sums, update, ties
-    /// ([`crate::pipeline::LatencyParts`]).
-    pub latency_parts_ms_per_mpix: [f64; 5],
+    /// Its parts, ms per megapixel: rows still queued (drain), tally, the results'
+    /// allocation, sums, update, ties ([`crate::pipeline::LatencyParts`]).
+    pub latency_parts_ms_per_mpix: [f64; 6],
     /// Sensor of the pipeline and latency figures.
     pub pipeline_sensor: [usize; 2],
     /// Bytes of solver state per pixel of the RSS figure's sensor, `state_sensor` (constant
@@ -503,7 +503,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     let per_mpix = |d: Duration| d.as_secs_f64() * 1e3 / ((pw * ph) as f64 / 1e6);
     let latency = per_mpix(slow.solve_latency);
     let lp = slow.latency_parts;
-    let latency_parts = [lp.drain, lp.tally, lp.sums, lp.update, lp.ties].map(per_mpix);
+    let latency_parts = [lp.drain, lp.tally, lp.results, lp.sums, lp.update, lp.ties].map(per_mpix);
 
     progress("pipeline from the software camera");
     let cam_scene = scene_with(scene_path, 128, if quick { 32 } else { 96 }, None)?;
@@ -652,10 +652,10 @@ pub fn format_table(r: &BenchReport) -> String {
         format!("{:.1}", r.latency_ms_per_mpix),
         "<= 50",
     );
-    let [drain, tally, sums, update, ties] = r.latency_parts_ms_per_mpix;
+    let [drain, tally, results, sums, update, ties] = r.latency_parts_ms_per_mpix;
     row(
-        "  drain / tally / sums / update / ties",
-        format!("{drain:.0}/{tally:.0}/{sums:.0}/{update:.0}/{ties:.0}"),
+        "  drain/tally/results/sums/update/ties",
+        format!("{drain:.0}/{tally:.0}/{results:.0}/{sums:.0}/{update:.0}/{ties:.0}"),
         "",
     );
     let [sw, sh] = r.state_sensor;

@@ -11,9 +11,9 @@ mod source;
 
 pub use msg::{RowBlock, Samples, StreamMsg};
 pub use run::{
-    calibrate_block, collect_sweep, end_angle_parallel, for_each_calibrated, run_sweep, BandModels,
-    Calibrated, LatencyParts, PipelineConfig, PipelineError, Prior, PriorUpdate, ShardState,
-    SweepOutput,
+    calibrate_block, collect_sweep, for_each_calibrated, run_sweep, tally_parallel,
+    update_parallel, BandModels, Calibrated, LatencyParts, PipelineConfig, PipelineError, Prior,
+    PriorUpdate, ShardState, SweepOutput,
 };
 pub use source::{
     stream_band_sequential, sweep_spec, CaptureSource, SimSource, Source, DEFAULT_INDEX_RANGE,

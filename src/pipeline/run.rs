@@ -107,14 +107,17 @@ pub struct SweepOutput {
 }
 
 /// The last angle's end, pass by pass: from its last row to the workers' hand-over
-/// (`drain`: rows still queued or being fed and tallied), then [`end_angle_parallel`]'s
-/// passes.
+/// (`drain`: rows still queued or being fed and tallied), then [`tally_parallel`]'s pass,
+/// the results' allocation and [`update_parallel`]'s passes.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct LatencyParts {
     /// Last row to every worker's state handed over.
     pub drain: Duration,
     /// The rows the workers left untallied, and the votes and fit statistics set.
     pub tally: Duration,
+    /// The sweep's last angle: the trackers given back and the results allocated (their
+    /// pages faulted in).
+    pub results: Duration,
     /// Window and Schur sums, and the index step.
     pub sums: Duration,
     /// Every pixel's update and result.
@@ -523,6 +526,7 @@ pub fn run_sweep(
                         ..LatencyParts::default()
                     };
                     tally_parallel(&mut solver, &mut shards, tallies, &mut parts);
+                    let allocated = Instant::now();
                     if last {
                         // The trackers are read no more (their flags kept): the results
                         // take their memory, not memory of their own on top of the state.
@@ -538,6 +542,7 @@ pub fn run_sweep(
                             .map(|(i, st)| st.shard(shard_rows(h, workers, i).0, w))
                             .collect();
                     }
+                    parts.results = allocated.elapsed();
                     let out = last.then_some(results.as_mut_slice());
                     let report = update_parallel(&mut solver, &mut shards, out, &mut parts);
                     reports.push(report);
@@ -1151,21 +1156,6 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
     })
 }
 
-/// The solver's angle-end passes, each run on all shards at once: [`tally_parallel`], then
-/// [`update_parallel`]. At the sweep's last angle, `results` (the image's, row-major; the
-/// shards hold its rows in order) gets every pixel's final result ([`Shard::finish`]) from
-/// the same pass that updates it. `parts` gets each pass's wall time.
-pub fn end_angle_parallel(
-    solver: &mut SweepSolver,
-    shards: &mut [Shard<'_>],
-    tallies: Vec<Option<ShardTally>>,
-    results: Option<&mut [PixelResult]>,
-    parts: &mut LatencyParts,
-) -> AngleReport {
-    tally_parallel(solver, shards, tallies, parts);
-    update_parallel(solver, shards, results, parts)
-}
-
 /// `f` of every shard, in shard order, the first on this thread.
 fn each<S: Send, T: Send>(shards: &mut [S], f: impl Fn(&mut S) -> T + Sync) -> Vec<T> {
     let Some((first, rest)) = shards.split_first_mut() else {
@@ -1193,7 +1183,8 @@ fn lap(clock: &mut Instant) -> std::time::Duration {
     t
 }
 
-/// The angle end's pass 1, the last to read the trackers (their noise): `tallies` holds
+/// The angle end's first pass, run on all shards at once (then [`update_parallel`]), the
+/// last to read the trackers (their noise): `tallies` holds
 /// what each shard's worker tallied as its rows saw their last band (`None`: nothing); the
 /// rows left are tallied here, and the solver takes the votes and the fit histogram.
 pub fn tally_parallel(
@@ -1239,8 +1230,11 @@ pub fn tally_parallel(
     parts.tally = lap(&mut clock);
 }
 
-/// The angle end's passes after [`tally_parallel`]: the index's sums, the update (with the
-/// results at the sweep's last angle, as [`end_angle_parallel`] says) and the ties. The
+/// The angle end's passes after [`tally_parallel`], each run on all shards at once: the
+/// index's sums, the update and the ties. At the sweep's last angle, `results` (the image's,
+/// row-major; the shards hold its rows in order) gets every pixel's final result
+/// ([`Shard::finish`]) from the same pass that updates it. `parts` gets each pass's wall
+/// time. The
 /// trackers are not read but for their overflow flags, which a shard whose trackers were
 /// released holds in its pixels' flags already ([`Shard::keep_tracker_flags`]).
 pub fn update_parallel(

@@ -131,7 +131,7 @@ impl Extremum {
     pub const ZERO: Self = Self(0);
 
     /// An extremum at fractional band `band` (clamped to `0..1024`, rounded to the nearest
-    /// 1/32 band as [`to_pos`] rounds it).
+    /// 1/32 band, ties away from zero).
     pub fn new(band: f32, kind: Kind) -> Self {
         Self::at(to_pos(band), kind)
     }
