@@ -121,17 +121,17 @@ impl LaneSinks for BlockSinks<'_> {
 }
 
 /// Bytes of solver state per pixel of rows of `width` whose index's sample `sampling`
-/// picks: its [`PixelState`], its shares of the tracker and fit blocks (each a block of
-/// [`row::LANES`] pixels, rounded up) and of what the row's sampled pixels keep besides
-/// (their index sums, [`IndexLanes`], and whole extremum lists, [`SampleExtrema`]; rounded
-/// up).
+/// picks: what a row holds, over its pixels, rounded up: each pixel's [`PixelState`], the
+/// row's tracker and fit blocks (one of each per [`row::LANES`] pixels, the last padded)
+/// and what its sampled pixels keep besides (their index sums, [`IndexLanes`], and whole
+/// extremum lists, [`SampleExtrema`]).
 pub fn state_bytes_per_pixel(sampling: IndexSampling, width: usize) -> usize {
-    let sample =
-        core::mem::size_of::<IndexLanes>() + row::LANES * core::mem::size_of::<SampleExtrema>();
-    core::mem::size_of::<PixelState>()
-        + core::mem::size_of::<TrackerLanes>().div_ceil(row::LANES)
-        + core::mem::size_of::<FitLanes>().div_ceil(row::LANES)
-        + (sampling.blocks_per_row(width) * sample).div_ceil(width.max(1))
+    use core::mem::size_of;
+    let sample = size_of::<IndexLanes>() + row::LANES * size_of::<SampleExtrema>();
+    let blocks = row::blocks_for(1, width) * (size_of::<TrackerLanes>() + size_of::<FitLanes>());
+    let row_bytes =
+        width * size_of::<PixelState>() + blocks + sampling.blocks_per_row(width) * sample;
+    row_bytes.div_ceil(width.max(1))
 }
 
 /// Tracker blocks, and fit blocks, a shard of `pixels` pixels in rows of `width` needs
@@ -1013,17 +1013,17 @@ mod size_tests {
         // 4, running extremes 12 (values 4 each, positions 2 each in the 1/32 band an
         // extremum keeps), its lag and overflow flag 2 and mode 1; the scalar tracker
         // carries the moments, 51 bytes, 52 with padding) and the block's shared ring
-        // position and count, 38 rounded up; its fit lanes in the row blocks: thickness and
-        // order step 8, its own eight full-spectrum sums 32 (the scalar `GnSums` is 68 with
-        // the index's eight, its count and padding), the sums' count 2 and the saturated and
-        // dead counts 2 (a byte each, capped), and the block's shared sample count, 45
-        // rounded up; 105 in all. The pixels of the index's sample keep the index's
-        // eight sums (32 bytes), the current angle's whole extremum list (42, 20 extrema of
-        // 2 bytes and a one-byte length), how many of it voted (1) and the rest of the
-        // reference list (34; 78 with padding), in blocks of 32 a row: every pixel of a
-        // 320 x 200 sensor (10 blocks a row, 110 bytes a pixel: 215 in all), one in 4 of a
-        // 640 x 480 one (5 blocks, 28 a pixel rounded up: 133), one in 64 of a 2048 x 2048
-        // one (one block: 2 a pixel rounded up, 107).
+        // position and count, 37.1 a pixel (38 rounded up); its fit lanes in the row blocks:
+        // thickness and order step 8, its own eight full-spectrum sums 32 (the scalar
+        // `GnSums` is 68 with the index's eight, its count and padding), the sums' count 2
+        // and the saturated and dead counts 2 (a byte each, capped), and the block's shared
+        // sample count, 44.1 (45 rounded up); the two blocks 81.2 a pixel. The pixels of the
+        // index's sample keep the index's eight sums (32 bytes), the current angle's whole
+        // extremum list (42, 20 extrema of 2 bytes and a one-byte length), how many of it
+        // voted (1) and the rest of the reference list (34; 78 with padding), in blocks of
+        // 32 a row: every pixel of a 320 x 200 sensor (10 blocks a row, 110 bytes a pixel:
+        // 214 in all, rounded up once), one in 4 of a 640 x 480 one (5 blocks, 27.5 a pixel:
+        // 131), one in 64 of a 2048 x 2048 one (one block: 1.7 a pixel, 105).
         let small = IndexSampling::for_sensor(320, 200, fit_row::INDEX_PIXELS);
         let vga = IndexSampling::for_sensor(640, 480, fit_row::INDEX_PIXELS);
         let large = IndexSampling::for_sensor(2048, 2048, fit_row::INDEX_PIXELS);
@@ -1041,7 +1041,7 @@ mod size_tests {
             state_bytes_per_pixel(vga, 640),
             state_bytes_per_pixel(large, 2048),
         ];
-        assert_eq!(sizes, [52, 38, 42, 10, 78, 68, 22, 45, 32, 215, 133, 107]);
+        assert_eq!(sizes, [52, 38, 42, 10, 78, 68, 22, 45, 32, 214, 131, 105]);
         assert_eq!([small, vga, large].map(|s| s.stride()), [1, 4, 64]);
     }
 }
