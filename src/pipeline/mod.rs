@@ -8,6 +8,7 @@ mod held;
 mod msg;
 mod run;
 mod source;
+mod ties;
 
 pub use msg::{RowBlock, Samples, StreamMsg};
 pub use run::{

@@ -34,6 +34,7 @@ use filmscope_core::track::{pack_sample, unpack_sample};
 use super::held::HeldBlock;
 use super::msg::{Samples, StreamMsg};
 use super::source::Source;
+use super::ties::TieSet;
 
 /// How to run the pipeline.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -1283,17 +1284,17 @@ pub fn update_parallel(
             )
             .collect();
         each(&mut jobs, |(sh, out)| {
-            let mut ties = Vec::new();
+            let mut ties = TieSet::new(sh.pixels.len());
             sh.update(solver, out.as_deref_mut().map(|o| &mut **o), |i| {
-                ties.push(i)
+                ties.insert(i)
             });
             ties
         })
     };
     parts.update = lap(&mut clock);
-    filmscope_core::solve::sweep::resolve_orders(solver, shards, |k, _| ties[k].iter().copied());
+    filmscope_core::solve::sweep::resolve_orders(solver, shards, |k, _| ties[k].iter());
     for ((sh, out), ties) in shards.iter().zip(outs.iter_mut()).zip(&ties) {
-        sh.finish_pixels(solver, out, ties.iter().copied());
+        sh.finish_pixels(solver, out, ties.iter());
     }
     let report = solver.end_angle();
     parts.ties = lap(&mut clock);
