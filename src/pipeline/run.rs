@@ -485,7 +485,12 @@ pub fn run_sweep(
                     let began = Arc::new((*solver).clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
                     for (i, tx) in start_txs.iter().enumerate() {
-                        let st = states[i].take().unwrap_or_default();
+                        let mut st = states[i].take().unwrap_or_default();
+                        if st.trackers.is_empty() {
+                            // Released after the angle announced as the last: a source that
+                            // streams more angles than it announced gets them back.
+                            st.trackers = vec![TrackerLanes::EMPTY; st.fits.len()];
+                        }
                         if tx
                             .send((st, snapshot.clone(), began.clone(), left))
                             .is_err()
@@ -531,7 +536,7 @@ pub fn run_sweep(
                     if last {
                         // The trackers are read no more (their flags kept): the results
                         // take their memory, not memory of their own on top of the state.
-                        shards.iter_mut().for_each(Shard::keep_tracker_flags);
+                        each(&mut shards, Shard::keep_tracker_flags);
                         drop(shards);
                         for st in owned.iter_mut() {
                             st.trackers = Vec::new();
@@ -872,7 +877,7 @@ fn feed_held(
     const BLOCK_BYTES: usize = 256 * 1024;
     let width = shard.width;
     let bytes = filmscope_core::solve::state_bytes_per_pixel(shard.sampling(), width);
-    let block_rows = (BLOCK_BYTES / (width.max(1) * bytes)).max(1);
+    let block_rows = (BLOCK_BYTES / (width * bytes).max(1)).max(1);
     let (Some(lo), Some(hi)) = (
         held.entries().iter().map(|h| h.image_rows().start).min(),
         held.entries().iter().map(|h| h.image_rows().end).max(),

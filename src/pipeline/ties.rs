@@ -8,6 +8,8 @@
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct TieSet {
     words: Vec<u64>,
+    /// The pixels it is for.
+    pixels: usize,
 }
 
 impl TieSet {
@@ -15,13 +17,14 @@ impl TieSet {
     pub fn new(pixels: usize) -> Self {
         Self {
             words: vec![0; pixels.div_ceil(64)],
+            pixels,
         }
     }
 
     /// Adds pixel `i` (one beyond the pixels it was made for is left out).
     pub fn insert(&mut self, i: usize) {
-        if let Some(w) = self.words.get_mut(i / 64) {
-            *w |= 1 << (i % 64);
+        if i < self.pixels {
+            self.words[i / 64] |= 1 << (i % 64);
         }
     }
 
@@ -57,6 +60,11 @@ mod tests {
         rev.reverse();
         assert_eq!(set.iter().rev().collect::<Vec<_>>(), rev);
         assert_eq!(TieSet::new(10).iter().count(), 0);
+        // Beyond the pixels, inside the last word: left out too.
+        let mut short = TieSet::new(10);
+        short.insert(9);
+        short.insert(20);
+        assert_eq!(short.iter().collect::<Vec<_>>(), [9]);
         // A forward and a backward walk meet without a pixel given twice.
         let mut it = set.iter();
         let (a, b) = (it.next(), it.next_back());

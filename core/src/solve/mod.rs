@@ -43,9 +43,11 @@ pub mod flags {
     /// Two interference orders explain the extrema about equally well and no neighbour
     /// decided it.
     pub const AMBIGUOUS_ORDER: u16 = 1 << 1;
-    /// More than a tenth of the samples were saturated.
+    /// More than a tenth of the samples were saturated (or 255 or more of them: the count
+    /// stops there, [`crate::solve::fit_row::BAD_COUNT_MAX`]).
     pub const SATURATED: u16 = 1 << 2;
-    /// More than a tenth of the samples had no usable white reference (dead pixel).
+    /// More than a tenth of the samples had no usable white reference (dead pixel; or 255
+    /// or more of them, as for [`SATURATED`]).
     pub const DEAD: u16 = 1 << 3;
     /// The thickness is outside the search range.
     pub const OUT_OF_RANGE: u16 = 1 << 4;

@@ -1159,6 +1159,70 @@ mod held_seed_tests {
 }
 
 #[cfg(test)]
+mod release_tests {
+    use super::*;
+
+    const W: usize = ONE_ROW;
+
+    /// Feeds one angle to a one-row shard: fringes every 40 bands, but pixel 3 every 12
+    /// (more extrema than a list holds: its tracker overflows).
+    fn feed(shard: &mut Shard<'_>, solver: &SweepSolver) {
+        let spec = solver.spec().clone();
+        shard.begin_angle();
+        let models = AngleModels {
+            coefs: &[],
+            knots: &[],
+            seeds_held: false,
+        };
+        for b in 0..spec.bands_nm.len() {
+            let values: [f32; W] = core::array::from_fn(|i| {
+                let period = if i == 3 { 12.0 } else { 40.0 };
+                let x = b as f32 * core::f32::consts::TAU / period;
+                0.05 + 0.03 * libm::cosf(x) + 1e-4 * libm::sinf(7.3 * (b * W + i) as f32)
+            });
+            shard.feed_row(spec.options, models, b, 0, &values);
+        }
+    }
+
+    /// An overflow found at the sweep's last angle reaches the results whether the update
+    /// reads it from the trackers or, once they are released, from the pixels' flags
+    /// (`keep_tracker_flags`, then a shard without trackers).
+    #[test]
+    fn a_released_tracker_leaves_its_overflow_in_the_results() {
+        let mut solver = SweepSolver::new(
+            super::super::sweep::paper_rig_spec(W, 1),
+            Some(IndexModel::constant(1.38)),
+        );
+        solver.begin_angle(10.0);
+        let run = |release: bool| {
+            let mut storage = OneRow::new();
+            let mut out = [PixelResult::UNSOLVED; W];
+            feed(&mut storage.shard(), &solver);
+            if release {
+                storage.shard().keep_tracker_flags();
+                let mut shard = Shard::new(
+                    0,
+                    W,
+                    &mut storage.pixels,
+                    &mut [],
+                    &mut storage.fits,
+                    (IndexSampling::ALL, &mut storage.index, &mut storage.lists),
+                );
+                shard.update(&solver, Some(&mut out), |_| {});
+            } else {
+                storage.shard().update(&solver, Some(&mut out), |_| {});
+            }
+            out.map(|r| r.flags)
+        };
+        let (kept, released) = (run(false), run(true));
+        assert_eq!(kept, released);
+        let overflow = |f: u16| f & flags::TRACKER_OVERFLOW != 0;
+        assert!(overflow(released[3]), "{:#x}", released[3]);
+        assert_eq!(released.iter().filter(|&&f| overflow(f)).count(), 1);
+    }
+}
+
+#[cfg(test)]
 mod vote_tests {
     use super::*;
 

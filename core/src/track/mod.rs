@@ -409,7 +409,7 @@ impl PixelTracker {
     fn decide(&mut self, band: u16, subband: bool, out: &mut impl ExtremumSink) {
         let m = self.moments;
         let s = smoothed(m);
-        // Its vertex (fractional band), computed only where an extreme moves.
+        // Its vertex ([`to_pos`]'s code), computed only where an extreme moves.
         let vertex = || vertex(band, m, subband);
         // The prominence `tau = TAU_PER_D2 * d2_sum / n` is compared as `x * n > tau * n`:
         // no division per sample.

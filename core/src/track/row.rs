@@ -360,7 +360,7 @@ impl TrackerLanes {
 /// Whole numbers below `2^16` (position codes) as `u16`: the bits of `x + 2^23`, less
 /// those of `2^23` (no float-to-integer conversion, a loop that vectorises).
 #[inline(always)]
-fn narrow(x: &Lanes, out: &mut [u16; LANES]) {
+pub(super) fn narrow(x: &Lanes, out: &mut [u16; LANES]) {
     const TWO_23: f32 = 8_388_608.0;
     for i in 0..LANES {
         out[i] = ((x[i] + TWO_23).to_bits() - TWO_23.to_bits()) as u16;

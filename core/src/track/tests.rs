@@ -192,3 +192,28 @@ fn packed_samples_are_their_ring_steps_and_keep_saturated_and_dead_apart() {
     }
     assert_eq!(unpack_sample(pack_sample(0.25)), 0.25);
 }
+
+/// A running extreme's position code rounds as `Extremum` did (`libm::roundf` of the band
+/// clamped to `0..1024`, in 1/32 band): ties away from zero, NaN and negatives to 0, beyond
+/// the last position to it; the row kernel's narrowing gives every code back.
+#[test]
+fn position_codes_round_as_libm_roundf() {
+    let max = f32::from(VALLEY_BIT - 1) / POS_PER_BAND;
+    let old = |b: f32| libm::roundf(b.clamp(0.0, max) * POS_PER_BAND) as u16;
+    let mut bands: Vec<f32> = (0..4000).map(|k| (k as f32 + 0.5) / POS_PER_BAND).collect();
+    bands.extend((0..4000).map(|k| k as f32 * 0.013_7 + 0.001));
+    bands.extend([0.0, -0.0, -3.0, max, max + 0.01, 1e9, f32::INFINITY]);
+    for b in bands {
+        assert_eq!(to_pos(b), old(b), "band {b}");
+        assert_eq!(
+            Extremum::new(b, Kind::Peak).band(),
+            f32::from(old(b)) / POS_PER_BAND
+        );
+    }
+    assert_eq!(to_pos(f32::NAN), 0);
+    assert_eq!(to_pos(f32::NEG_INFINITY), 0);
+    let codes: [f32; row::LANES] = core::array::from_fn(|i| [0, 1, 32767, 65535][i % 4] as f32);
+    let mut out = [0u16; row::LANES];
+    row::narrow(&codes, &mut out);
+    assert!(out.iter().zip(&codes).all(|(&o, &c)| f32::from(o) == c));
+}
