@@ -446,7 +446,7 @@ pub struct BenchReport {
     pub pipeline_sensor: [usize; 2],
     /// Bytes of solver state per pixel of the RSS figure's sensor, `state_sensor` (constant
     /// in bands, angles and sweeps; a sensor under 131072 pixels, whose every pixel keeps
-    /// the index's sums, has 109 more than 2048 x 2048 (214 against 105): `state_bytes_per_pixel`).
+    /// the index's sums, has 214 against 2048 x 2048's 105: `state_bytes_per_pixel`).
     pub state_bytes_per_pixel: usize,
     /// The sensor of `state_bytes_per_pixel`.
     pub state_sensor: [usize; 2],

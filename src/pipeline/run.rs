@@ -213,6 +213,21 @@ impl ShardState {
         state
     }
 
+    /// Gives the trackers' memory back, once nothing reads them (the sweep's last angle end,
+    /// after [`tally_parallel`] and [`Shard::keep_tracker_flags`]; or after the last update,
+    /// which kept their flags): the results take it.
+    pub fn release_trackers(&mut self) {
+        self.trackers = Vec::new();
+    }
+
+    /// Trackers again for an angle after they were released (a source that streams more
+    /// angles than it announced).
+    fn restore_trackers(&mut self) {
+        if self.trackers.is_empty() {
+            self.trackers = vec![TrackerLanes::EMPTY; self.fits.len()];
+        }
+    }
+
     /// The shard over this state, its first row `first_row`.
     pub fn shard(&mut self, first_row: usize, width: usize) -> Shard<'_> {
         Shard::new(
@@ -486,11 +501,7 @@ pub fn run_sweep(
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
                     for (i, tx) in start_txs.iter().enumerate() {
                         let mut st = states[i].take().unwrap_or_default();
-                        if st.trackers.is_empty() {
-                            // Released after the angle announced as the last: a source that
-                            // streams more angles than it announced gets them back.
-                            st.trackers = vec![TrackerLanes::EMPTY; st.fits.len()];
-                        }
+                        st.restore_trackers();
                         if tx
                             .send((st, snapshot.clone(), began.clone(), left))
                             .is_err()
@@ -532,15 +543,13 @@ pub fn run_sweep(
                         ..LatencyParts::default()
                     };
                     tally_parallel(&mut solver, &mut shards, tallies, &mut parts);
-                    let allocated = Instant::now();
+                    let releasing = Instant::now();
                     if last {
                         // The trackers are read no more (their flags kept): the results
                         // take their memory, not memory of their own on top of the state.
                         each(&mut shards, Shard::keep_tracker_flags);
                         drop(shards);
-                        for st in owned.iter_mut() {
-                            st.trackers = Vec::new();
-                        }
+                        owned.iter_mut().for_each(ShardState::release_trackers);
                         results = vec![PixelResult::UNSOLVED; w * h];
                         shards = owned
                             .iter_mut()
@@ -548,7 +557,7 @@ pub fn run_sweep(
                             .map(|(i, st)| st.shard(shard_rows(h, workers, i).0, w))
                             .collect();
                     }
-                    parts.results = allocated.elapsed();
+                    parts.results = releasing.elapsed();
                     let out = last.then_some(results.as_mut_slice());
                     let report = update_parallel(&mut solver, &mut shards, out, &mut parts);
                     reports.push(report);
@@ -587,11 +596,8 @@ pub fn run_sweep(
     if results_at != Some(solver.angles_done()) {
         let mut owned: Vec<ShardState> =
             states.into_iter().map(Option::unwrap_or_default).collect();
-        // The last update kept the trackers' flags in the pixels': the results take the
-        // trackers' memory.
-        for st in owned.iter_mut() {
-            st.trackers = Vec::new();
-        }
+        // The last update kept the trackers' flags in the pixels'.
+        owned.iter_mut().for_each(ShardState::release_trackers);
         if results.len() != w * h {
             results = vec![PixelResult::UNSOLVED; w * h];
         }
@@ -1190,9 +1196,9 @@ fn lap(clock: &mut Instant) -> std::time::Duration {
 }
 
 /// The angle end's first pass, run on all shards at once (then [`update_parallel`]), the
-/// last to read the trackers (their noise): `tallies` holds
-/// what each shard's worker tallied as its rows saw their last band (`None`: nothing); the
-/// rows left are tallied here, and the solver takes the votes and the fit histogram.
+/// last to read the trackers (their noise): `tallies` holds what each shard's worker tallied
+/// as its rows saw their last band (`None`: nothing); the rows left are tallied here, and
+/// the solver takes the votes and the fit histogram.
 pub fn tally_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],
@@ -1240,9 +1246,9 @@ pub fn tally_parallel(
 /// index's sums, the update and the ties. At the sweep's last angle, `results` (the image's,
 /// row-major; the shards hold its rows in order) gets every pixel's final result
 /// ([`Shard::finish`]) from the same pass that updates it. `parts` gets each pass's wall
-/// time. The
-/// trackers are not read but for their overflow flags, which a shard whose trackers were
-/// released holds in its pixels' flags already ([`Shard::keep_tracker_flags`]).
+/// time. The trackers are not read but for their overflow flags, which a shard whose
+/// trackers were released holds in its pixels' flags already
+/// ([`Shard::keep_tracker_flags`]).
 pub fn update_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],

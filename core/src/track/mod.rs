@@ -45,13 +45,23 @@ const RING_STEPS_PER_UNIT: f32 = 32_768.0;
 /// The reflectance of ring step 0.
 const RING_ORIGIN: f32 = -0.5;
 
+/// `2^23`: `y + 2^23` (`0 <= y < 2^16`) is `y` rounded to a whole number (ties to even), and
+/// its bits, less those of `2^23`, are that number: a float to a small integer without a
+/// float-to-integer conversion, so that a lane loop vectorises ([`to_step`], [`pos_code`],
+/// [`whole_u16`]).
+const TWO_23: f32 = 8_388_608.0;
+
+/// A whole number `w` (`0 <= w < 2^16`, a float) as `u16`, by [`TWO_23`]'s trick.
+#[inline(always)]
+fn whole_u16(w: f32) -> u16 {
+    ((w + TWO_23).to_bits() - TWO_23.to_bits()) as u16
+}
+
 /// A usable sample `v` as a ring step, as a float (a whole number) and as the ring holds it:
-/// rounded to the nearest step (ties to even), clamped to the ring's range. Written without
-/// a float-to-integer conversion, so a lane loop vectorises: `y + 2^23` (`0 <= y < 2^16`)
-/// is rounded to an integer whose bits, less those of `2^23`, are that integer.
+/// rounded to the nearest step (ties to even), clamped to the ring's range, by [`TWO_23`]'s
+/// trick.
 #[inline(always)]
 fn to_step(v: f32) -> (f32, u16) {
-    const TWO_23: f32 = 8_388_608.0;
     const TOP: f32 = 65_535.0 / RING_STEPS_PER_UNIT + RING_ORIGIN;
     // (Selects, not `clamp`: each is one `maxps` / `minps` in a lane loop.)
     let v = if v < RING_ORIGIN { RING_ORIGIN } else { v };
@@ -179,15 +189,14 @@ const EDGE: u16 = u16::MAX;
 /// ties).
 #[inline(always)]
 fn to_pos(band: f32) -> u16 {
-    pos_code(band) as u16
+    whole_u16(pos_code(band))
 }
 
 /// [`to_pos`]'s code as a float (a whole number), written without a float-to-integer
-/// conversion ([`to_step`]'s trick, then the tie it rounded down moved up) so that a lane
+/// conversion ([`TWO_23`]'s rounding, then the tie it rounded down moved up) so that a lane
 /// loop vectorises; the row kernel narrows a block's codes to `u16` in a loop of their own.
 #[inline(always)]
 fn pos_code(band: f32) -> f32 {
-    const TWO_23: f32 = 8_388_608.0;
     const MAX: f32 = (VALLEY_BIT - 1) as f32 / POS_PER_BAND;
     let b = if band > 0.0 { band } else { 0.0 };
     let b = if b < MAX { b } else { MAX };

@@ -17,8 +17,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::{
-    abs_d2, before, lists::Lane, pos_code, smoothed, to_step, usable, vertex_band, window_moments,
-    ExtremumSink, LaneSinks, Mode, PixelTracker, EDGE, TAU_PER_D2, WINDOW,
+    abs_d2, before, lists::Lane, pos_code, smoothed, to_step, usable, vertex_band, whole_u16,
+    window_moments, ExtremumSink, LaneSinks, Mode, PixelTracker, EDGE, TAU_PER_D2, WINDOW,
 };
 
 /// Pixels per block of [`TrackerLanes`].
@@ -357,13 +357,12 @@ impl TrackerLanes {
     }
 }
 
-/// Whole numbers below `2^16` (position codes) as `u16`: the bits of `x + 2^23`, less
-/// those of `2^23` (no float-to-integer conversion, a loop that vectorises).
+/// Whole numbers below `2^16` (position codes) as `u16` ([`whole_u16`]: a loop that
+/// vectorises).
 #[inline(always)]
 pub(super) fn narrow(x: &Lanes, out: &mut [u16; LANES]) {
-    const TWO_23: f32 = 8_388_608.0;
     for i in 0..LANES {
-        out[i] = ((x[i] + TWO_23).to_bits() - TWO_23.to_bits()) as u16;
+        out[i] = whole_u16(x[i]);
     }
 }
 
