@@ -28,6 +28,7 @@ pub mod fit_row;
 pub mod index;
 pub mod order;
 pub mod refine;
+pub mod sample;
 pub mod shard;
 pub mod sweep;
 pub mod thin;

@@ -1,0 +1,1382 @@
+//! The shared film index from the full spectra of a bounded pixel sample.
+//!
+//! The index is a property of the film, not of a pixel, so it is fitted on a fixed sample of
+//! sites spread over the image: every angle, every band of each site's centre pixel, with the
+//! exact passbands, against one thickness per site. Each site also keeps its four row
+//! neighbours (a run of [`RUN`] pixels), whose fourth difference across the run measures the
+//! image's noise without any model (the film's thickness varies smoothly over five pixels).
+//!
+//! 1. **Global search** ([`fit_index`]): a grid over the index at 550 nm and a Cauchy slope,
+//!    each point scored by the best thickness of each of [`SEARCH_SITES`] sites (a dictionary
+//!    over the thickness range, then two Gauss-Newton steps) on a subset of bands. Films with
+//!    more than three fringes across the band are searched again on the band's red half, where
+//!    two parameters follow every material's dispersion closely, so the fringe order is not
+//!    lost to a model too simple for the blue end.
+//! 2. **Joint least squares** (Levenberg-Marquardt) over all sites, angles and bands: the
+//!    index parameters and one thickness a site, the normal equations reduced to the index
+//!    parameters (Schur complement; [`nalgebra`] for the small dense solve), for each model of
+//!    [`ModelKind`].
+//! 3. **Model choice by evidence**: the lowest `chi2 + MODEL_PENALTY x parameters`, chi-square
+//!    in units of the measured noise. A fit whose reduced chi-square stays above
+//!    [`GATE_CHI2_NU`] after a second start is reported as failed: no index rather than a
+//!    confident wrong one.
+//!
+//! Everything works on caller-owned buffers ([`workspace_len`]): nothing allocates.
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::optics::{Dispersion, FilmAtAngle, Indices, Polarization};
+
+/// Pixels a site keeps: its centre and two neighbours each side along the row.
+pub const RUN: usize = 5;
+/// The centre pixel of a site's run.
+pub const CENTRE: usize = RUN / 2;
+/// Most sites a sample holds.
+pub const MAX_SITES: usize = 256;
+/// Sites the global search scores each grid point with.
+pub const SEARCH_SITES: usize = 24;
+/// Bands the global search uses at most (an even subset of the band).
+pub const SEARCH_BANDS: usize = 48;
+/// Most thicknesses of the search's dictionary.
+pub const MAX_DICTIONARY: usize = 1024;
+/// Chi-square (in units of the noise) an index parameter must buy to enter the model (a
+/// 5-sigma gain).
+pub const MODEL_PENALTY: f64 = 25.0;
+/// A reduced chi-square above this after the search means the fit failed (correct fits
+/// measure about 0.9-1.1; wrong minima and wrong metadata 1.2 and up).
+pub const GATE_CHI2_NU: f64 = 1.5;
+/// An index whose standard error at 550 nm exceeds this is reported as under-determined.
+pub const MAX_INDEX_SIGMA: f64 = 0.01;
+/// Fringes across the band above which the search is repeated on the band's red half.
+pub const THICK_FRINGES: f64 = 3.0;
+
+/// Gauss-Hermite nodes and weights (5 points) for the Gaussian passband average.
+const GH_X: [f64; 5] = [
+    -2.020_182_870_456_086,
+    -0.958_572_464_613_819,
+    0.0,
+    0.958_572_464_613_819,
+    2.020_182_870_456_086,
+];
+const GH_W: [f64; 5] = [
+    0.019_953_242_059_046,
+    0.393_619_323_152_241,
+    0.945_308_720_482_942,
+    0.393_619_323_152_241,
+    0.019_953_242_059_046,
+];
+/// The passband is truncated at 1.5 FWHM: its variance is 0.9946 of the untruncated one's.
+const TRUNCATED_SIGMA: f64 = 0.997_3;
+/// Index step of the numerical `dR/dn`.
+const INDEX_STEP: f64 = 1e-5;
+/// Wavelength (um) at which the models' index is quoted and searched.
+const L0_UM: f64 = 0.55;
+
+/// The index models the sample is fitted with, simplest first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ModelKind {
+    /// `n` constant.
+    Constant,
+    /// `n = a + b / l^2` (l in um).
+    Cauchy2,
+    /// One-pole Sellmeier `n^2 = 1 + S l^2 / (l^2 - L^2)`.
+    Sellmeier1,
+    /// `n = a + b / l^2 + c / l^4`.
+    Cauchy3,
+    /// One-pole Sellmeier with a constant, `n^2 = A + S l^2 / (l^2 - L^2)`.
+    Sellmeier1c,
+}
+
+impl ModelKind {
+    /// Every model, simplest first.
+    pub const ALL: [ModelKind; 5] = [
+        Self::Constant,
+        Self::Cauchy2,
+        Self::Sellmeier1,
+        Self::Cauchy3,
+        Self::Sellmeier1c,
+    ];
+
+    /// Free parameters.
+    pub fn params(self) -> usize {
+        match self {
+            Self::Constant => 1,
+            Self::Cauchy2 | Self::Sellmeier1 => 2,
+            Self::Cauchy3 | Self::Sellmeier1c => 3,
+        }
+    }
+
+    /// The name reports use.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Constant => "constant",
+            Self::Cauchy2 => "cauchy",
+            Self::Sellmeier1 => "sellmeier",
+            Self::Cauchy3 => "cauchy3",
+            Self::Sellmeier1c => "sellmeier_constant",
+        }
+    }
+
+    /// The model with parameters `p` (Cauchy: `a`, `b` um^2, `c` um^4; Sellmeier: `S`,
+    /// `L^2` um^2, then `A`).
+    pub fn dispersion(self, p: &[f64; 3]) -> Dispersion {
+        match self {
+            Self::Constant => Dispersion::constant(p[0]),
+            Self::Cauchy2 => Dispersion::cauchy(p[0], p[1]),
+            Self::Cauchy3 => Dispersion::Cauchy {
+                a: p[0],
+                b_um2: p[1],
+                c_um4: p[2],
+            },
+            Self::Sellmeier1 | Self::Sellmeier1c => Dispersion::Sellmeier {
+                a: if self == Self::Sellmeier1 { 1.0 } else { p[2] },
+                b: [p[0], 0.0, 0.0],
+                c_um: [libm::sqrt(p[1].max(0.0)), 0.0, 0.0],
+            },
+        }
+    }
+
+    /// The index at `l_um` and its derivatives by each parameter.
+    fn eval(self, p: &[f64; 3], l_um: f64) -> (f64, [f64; 3]) {
+        let l2 = l_um * l_um;
+        match self {
+            Self::Constant => (p[0], [1.0, 0.0, 0.0]),
+            Self::Cauchy2 => (p[0] + p[1] / l2, [1.0, 1.0 / l2, 0.0]),
+            Self::Cauchy3 => (
+                p[0] + p[1] / l2 + p[2] / (l2 * l2),
+                [1.0, 1.0 / l2, 1.0 / (l2 * l2)],
+            ),
+            Self::Sellmeier1 | Self::Sellmeier1c => {
+                let a = if self == Self::Sellmeier1 { 1.0 } else { p[2] };
+                let den = l2 - p[1];
+                let f = l2 / den;
+                let n2 = a + p[0] * f;
+                if !(n2 > 0.0 && den > 0.0) {
+                    return (f64::NAN, [0.0; 3]);
+                }
+                let n = libm::sqrt(n2);
+                let h = 0.5 / n;
+                let da = if self == Self::Sellmeier1 { 0.0 } else { h };
+                (n, [h * f, h * p[0] * l2 / (den * den), da])
+            }
+        }
+    }
+
+    /// Whether `p` is a physical model over `[lo_nm, hi_nm]`: the index inside `range`,
+    /// normal dispersion (falling with wavelength), a Sellmeier pole below the band.
+    fn physical(self, p: &[f64; 3], lo_nm: f64, hi_nm: f64, range: [f64; 2]) -> bool {
+        if let Self::Sellmeier1 | Self::Sellmeier1c = self {
+            let l_lo = lo_nm * 1e-3;
+            if !(p[0] > 0.0 && p[1] >= 0.0 && p[1] < 0.8 * l_lo * l_lo) {
+                return false;
+            }
+            if self == Self::Sellmeier1c && !(0.5..=range[1] * range[1]).contains(&p[2]) {
+                return false;
+            }
+        }
+        let mut last = f64::INFINITY;
+        for i in 0..=16 {
+            let l = lo_nm + (hi_nm - lo_nm) * f64::from(i) / 16.0;
+            let n = self.eval(p, l * 1e-3).0;
+            if !(n >= range[0] && n <= range[1]) || n > last + 1e-9 {
+                return false;
+            }
+            last = n;
+        }
+        true
+    }
+}
+
+/// The sweep's geometry and optics as the sample fit needs them.
+#[derive(Clone, Copy, Debug)]
+pub struct Geometry<'a> {
+    /// Band centres, nm.
+    pub bands_nm: &'a [f64],
+    /// Band FWHM, nm (one per band).
+    pub fwhm_nm: &'a [f64],
+    /// Incidence angles of the angles held so far, degrees, in streaming order.
+    pub angles_deg: &'a [f64],
+    /// Ambient index.
+    pub ambient_index: f64,
+    /// Substrate index.
+    pub substrate_index: f64,
+    /// Polarisation of the measured light.
+    pub polarization: Polarization,
+    /// Film index search range.
+    pub index_range: [f64; 2],
+    /// Thickness search range, nm.
+    pub thickness_range_nm: [f64; 2],
+}
+
+/// The sampled spectra: site `k`, run pixel `j`, angle `a`, band `b` at
+/// `((k * RUN + j) * angle_stride + a) * bands + b` (NaN: no usable value).
+#[derive(Clone, Copy, Debug)]
+pub struct Spectra<'a> {
+    /// The values.
+    pub values: &'a [f32],
+    /// Sites.
+    pub sites: usize,
+    /// Angles the buffer has room for (the fit reads the first `angles_deg.len()`).
+    pub angle_stride: usize,
+}
+
+impl Spectra<'_> {
+    #[inline]
+    fn at(&self, bands: usize, k: usize, j: usize, a: usize, b: usize) -> f32 {
+        self.values[((k * RUN + j) * self.angle_stride + a) * bands + b]
+    }
+}
+
+/// One model's fit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Candidate {
+    /// The model.
+    pub kind: ModelKind,
+    /// Its parameters ([`ModelKind::dispersion`]).
+    pub params: [f64; 3],
+    /// Chi-square in units of the noise.
+    pub chi2: f64,
+    /// Reduced chi-square.
+    pub chi2_nu: f64,
+    /// `chi2 + MODEL_PENALTY x parameters`.
+    pub score: f64,
+    /// Standard error of the index at 550 nm.
+    pub n550_sigma: f64,
+    /// Whether the model is physical over the band (only physical models are chosen).
+    pub physical: bool,
+}
+
+/// Why the sample gave no index.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Failure {
+    /// Fewer than two angles, or too few usable sites.
+    TooLittleData,
+    /// No model fits the spectra within the noise, even from a second start.
+    NoFit,
+    /// The index is under-determined (its standard error exceeds [`MAX_INDEX_SIGMA`]).
+    Underdetermined,
+}
+
+impl Failure {
+    /// One line for reports.
+    pub fn message(self) -> &'static str {
+        match self {
+            Self::TooLittleData => "too few usable sampled pixels or angles to fit an index",
+            Self::NoFit => "no index model fits the sampled spectra within their noise (reduced chi-square above the gate after two starts): wrong metadata (angles, polarisation, substrate) or a film the single-layer model cannot describe",
+            Self::Underdetermined => "the sampled spectra do not determine the index (its standard error at 550 nm exceeds 0.01): a film too thin or too close to its substrate's index",
+        }
+    }
+}
+
+/// What the sample fit found.
+#[derive(Clone, Debug)]
+pub struct SampleFit {
+    /// The chosen model's fit (the best even when [`SampleFit::failure`] is set).
+    pub best: Option<Candidate>,
+    /// Every model tried.
+    pub candidates: heapless::Vec<Candidate, 5>,
+    /// Why the fit is not to be trusted, if it is not.
+    pub failure: Option<Failure>,
+    /// The image's noise (reflectance), from the runs' fourth differences.
+    pub noise_sigma: f64,
+    /// Each site's thickness under the chosen model, nm (NaN: site not used).
+    pub thickness_nm: [f32; MAX_SITES],
+    /// Sites used.
+    pub sites_used: usize,
+    /// Starts the refinement needed (1, or 2 when the first failed the gate).
+    pub starts: usize,
+    /// Whether the global search ran (no warm start, or the warm start failed the gate).
+    pub searched: bool,
+}
+
+impl SampleFit {
+    /// The chosen index model, unless the fit failed.
+    pub fn index(&self) -> Option<Dispersion> {
+        match (self.failure, self.best) {
+            (None, Some(c)) => Some(c.kind.dispersion(&c.params)),
+            _ => None,
+        }
+    }
+}
+
+/// `f32` values of workspace [`fit_index`] needs for `sites` sites, `angles` angles and
+/// `bands` bands.
+pub fn workspace_len(sites: usize, angles: usize, bands: usize) -> usize {
+    let noise = sites.min(MAX_SITES) * angles * bands;
+    let dictionary = MAX_DICTIONARY * angles * SEARCH_BANDS.min(bands);
+    noise.max(dictionary)
+}
+
+/// Sites of a `width x height` image for a sample of about `sites`: a grid with the image's
+/// aspect, each site `(row, first column of its run)`, runs inside the image. Fewer when the
+/// image is too small.
+pub fn site_grid(width: usize, height: usize, sites: usize) -> heapless::Vec<(u32, u32), MAX_SITES> {
+    let mut out = heapless::Vec::new();
+    if width < RUN || height == 0 || sites == 0 {
+        return out;
+    }
+    let sites = sites.min(MAX_SITES);
+    let aspect = width as f64 / height as f64;
+    let mut gy = (libm::sqrt(sites as f64 / aspect).round() as usize).clamp(1, height);
+    let mut gx = (sites / gy).clamp(1, width / RUN);
+    while gx * gy > sites && gy > 1 {
+        gy -= 1;
+    }
+    gx = gx.min(sites / gy).max(1);
+    for iy in 0..gy {
+        let row = ((2 * iy + 1) * height / (2 * gy)).min(height - 1);
+        for ix in 0..gx {
+            let centre = (2 * ix + 1) * width / (2 * gx);
+            let first = centre.saturating_sub(CENTRE).min(width - RUN);
+            let _ = out.push((row as u32, first as u32));
+        }
+    }
+    out
+}
+
+/// Fits the shared index model to the sampled spectra. `start` warm-starts the refinement
+/// (the last fit, or the last sweep's on a line); the global search runs when there is none
+/// or it fails the gate. `scratch` holds at least [`workspace_len`] values.
+pub fn fit_index(
+    geo: &Geometry<'_>,
+    spectra: &Spectra<'_>,
+    start: Option<(ModelKind, [f64; 3])>,
+    scratch: &mut [f32],
+) -> SampleFit {
+    let mut fit = SampleFit {
+        best: None,
+        candidates: heapless::Vec::new(),
+        failure: Some(Failure::TooLittleData),
+        noise_sigma: f64::NAN,
+        thickness_nm: [f32::NAN; MAX_SITES],
+        sites_used: 0,
+        starts: 0,
+        searched: false,
+    };
+    let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
+    let sites = spectra.sites.min(MAX_SITES);
+    if na < 1 || nb < 8 || sites == 0 || scratch.len() < workspace_len(sites, na, nb) {
+        return fit;
+    }
+    fit.noise_sigma = noise_sigma(geo, spectra, scratch);
+    // Usable sites: at most a tenth of the centre's samples missing.
+    let mut usable = [false; MAX_SITES];
+    for (k, u) in usable.iter_mut().enumerate().take(sites) {
+        let bad = (0..na)
+            .flat_map(|a| (0..nb).map(move |b| (a, b)))
+            .filter(|&(a, b)| !spectra.at(nb, k, CENTRE, a, b).is_finite())
+            .count();
+        *u = bad * 10 <= na * nb;
+    }
+    fit.sites_used = usable.iter().filter(|&&u| u).count();
+    let sigma = fit.noise_sigma;
+    if fit.sites_used < 2 || !(sigma > 0.0 && sigma.is_finite()) {
+        return fit;
+    }
+    let problem = Problem {
+        geo,
+        spectra,
+        usable: &usable[..sites],
+        sigma,
+    };
+    // Warm start first: refine and keep if it passes the gate.
+    let mut thick = [f64::NAN; MAX_SITES];
+    if let Some((kind, p)) = start {
+        if problem.start_thicknesses(kind, &p, &mut thick, scratch).is_some() {
+            let mut refined = thick;
+            if let Some(cand) = problem.refine(kind, p, &mut refined) {
+                if cand.chi2_nu <= GATE_CHI2_NU {
+                    fit.starts = 1;
+                    return problem.choose(fit, cand, &refined);
+                }
+            }
+        }
+    }
+    fit.searched = true;
+    // Global search on the full band, then (thick films) on the red half.
+    let mut starts: heapless::Vec<[f64; 3], 4> = heapless::Vec::new();
+    let full = problem.search(geo.bands_nm.len(), 0, scratch);
+    if let Some((p, fringes)) = full {
+        let _ = starts.push(p);
+        if fringes > THICK_FRINGES {
+            let mid = geo.bands_nm.len() / 2;
+            if let Some((p, _)) = problem.search(geo.bands_nm.len(), mid, scratch) {
+                let _ = starts.push(p);
+            }
+        }
+    }
+    let mut best: Option<(Candidate, [f64; MAX_SITES])> = None;
+    for p in &starts {
+        fit.starts += 1;
+        let mut t = [f64::NAN; MAX_SITES];
+        if problem.start_thicknesses(ModelKind::Cauchy2, p, &mut t, scratch).is_none() {
+            continue;
+        }
+        if let Some(c) = problem.refine(ModelKind::Cauchy2, *p, &mut t) {
+            if best.as_ref().is_none_or(|(b, _)| c.chi2 < b.chi2) {
+                best = Some((c, t));
+            }
+        }
+    }
+    match best {
+        Some((c, t)) => problem.choose(fit, c, &t),
+        None => {
+            fit.failure = Some(Failure::NoFit);
+            fit
+        }
+    }
+}
+
+/// The image noise: a robust scale (MAD) of the runs' fourth differences across the row,
+/// over `sqrt(70)` (the fourth difference of white noise has 70 times its variance).
+fn noise_sigma(geo: &Geometry<'_>, spectra: &Spectra<'_>, scratch: &mut [f32]) -> f64 {
+    let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
+    let mut n = 0;
+    for k in 0..spectra.sites.min(MAX_SITES) {
+        for a in 0..na {
+            for b in 0..nb {
+                let v: [f32; RUN] = core::array::from_fn(|j| spectra.at(nb, k, j, a, b));
+                let d = v[0] - 4.0 * v[1] + 6.0 * v[2] - 4.0 * v[3] + v[4];
+                if d.is_finite() {
+                    scratch[n] = d.abs();
+                    n += 1;
+                }
+            }
+        }
+    }
+    if n < 16 {
+        return f64::NAN;
+    }
+    let (_, m, _) = scratch[..n].select_nth_unstable_by(n / 2, f32::total_cmp);
+    f64::from(*m) * 1.4826 / libm::sqrt(70.0)
+}
+
+/// The stack at one quadrature node: its weight, wavelength and film.
+#[derive(Clone, Copy)]
+struct Node {
+    weight: f64,
+    l_um: f64,
+    phase_per_nm: f64,
+    film: FilmAtAngle,
+    /// `dR/dn` at the node needs the film one index step up.
+    film_up: FilmAtAngle,
+    dn_dp: [f64; 3],
+}
+
+/// A fitting problem: the geometry, the spectra, the usable sites and the noise.
+struct Problem<'a> {
+    geo: &'a Geometry<'a>,
+    spectra: &'a Spectra<'a>,
+    usable: &'a [bool],
+    sigma: f64,
+}
+
+/// Per-site normal-equation sums of one iteration.
+#[derive(Clone, Copy, Default)]
+struct SiteSums {
+    sse: f64,
+    n: usize,
+    jdd: f64,
+    jdp: [f64; 3],
+    gd: f64,
+}
+
+impl Problem<'_> {
+    fn indices(&self, film: f64) -> Indices {
+        Indices {
+            ambient: self.geo.ambient_index,
+            film,
+            substrate: self.geo.substrate_index,
+        }
+    }
+
+    /// The 5 Gauss-Hermite nodes of band `b` at angle `a` under model `(kind, p)` (fewer for
+    /// a zero FWHM); `None` where a wave does not propagate.
+    fn nodes(&self, kind: ModelKind, p: &[f64; 3], a: usize, b: usize) -> Option<([Node; 5], usize)> {
+        let (l0, fwhm) = (self.geo.bands_nm[b], self.geo.fwhm_nm[b]);
+        let sigma = fwhm / 2.354_82 * TRUNCATED_SIGMA;
+        let count = if sigma > 0.0 { 5 } else { 1 };
+        let deg = self.geo.angles_deg[a];
+        let pol = self.geo.polarization;
+        let node = |i: usize| -> Option<Node> {
+            let (l, w) = if count == 1 {
+                (l0, 1.0)
+            } else {
+                (
+                    l0 + core::f64::consts::SQRT_2 * sigma * GH_X[i],
+                    GH_W[i] / libm::sqrt(core::f64::consts::PI),
+                )
+            };
+            let (n, dn_dp) = kind.eval(p, l * 1e-3);
+            if !n.is_finite() {
+                return None;
+            }
+            let film = FilmAtAngle::new(self.indices(n), deg, pol)?;
+            let film_up = FilmAtAngle::new(self.indices(n + INDEX_STEP), deg, pol)?;
+            Some(Node {
+                weight: w,
+                l_um: l * 1e-3,
+                phase_per_nm: 4.0 * core::f64::consts::PI * film.kz_film / l,
+                film,
+                film_up,
+                dn_dp,
+            })
+        };
+        let first = node(0)?;
+        let mut nodes = [first; 5];
+        for (i, n) in nodes.iter_mut().enumerate().take(count).skip(1) {
+            *n = node(i)?;
+        }
+        Some((nodes, count))
+    }
+
+    /// One pass computing the full normal equations: per-site sums and the pooled index
+    /// blocks `(H_pp, g_p)`, chi-square (in noise units) and residual count.
+    fn normal(
+        &self,
+        kind: ModelKind,
+        p: &[f64; 3],
+        t: &[f64; MAX_SITES],
+        sites: &mut [SiteSums; MAX_SITES],
+    ) -> Option<(Matrix3<f64>, Vector3<f64>, f64, usize)> {
+        let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        *sites = [SiteSums::default(); MAX_SITES];
+        let mut hpp = Matrix3::zeros();
+        let mut gp = Vector3::zeros();
+        for a in 0..na {
+            for b in 0..nb {
+                let (nodes, count) = self.nodes(kind, p, a, b)?;
+                for (k, s) in sites.iter_mut().enumerate().take(self.usable.len()) {
+                    if !self.usable[k] {
+                        continue;
+                    }
+                    let y = self.spectra.at(nb, k, CENTRE, a, b);
+                    if !y.is_finite() {
+                        continue;
+                    }
+                    let d = t[k];
+                    let (mut m, mut jd) = (0.0, 0.0);
+                    let mut jp = Vector3::zeros();
+                    for nd in &nodes[..count] {
+                        let ph = nd.phase_per_nm * d;
+                        let (sn, cs) = (libm::sin(ph), libm::cos(ph));
+                        let r = nd.film.reflectance_at_cos(cs);
+                        let ph_up = 4.0 * core::f64::consts::PI * nd.film_up.kz_film * d
+                            / (nd.l_um * 1e3);
+                        let r_up = nd.film_up.reflectance_at_phase(ph_up);
+                        let dr_dn = (r_up - r) / INDEX_STEP;
+                        m += nd.weight * r;
+                        jd += nd.weight
+                            * nd.film.reflectance_slope_at_cos(cs)
+                            * -sn
+                            * nd.phase_per_nm;
+                        for q in 0..3 {
+                            jp[q] += nd.weight * dr_dn * nd.dn_dp[q];
+                        }
+                    }
+                    let res = f64::from(y) - m;
+                    s.sse += res * res;
+                    s.n += 1;
+                    s.jdd += jd * jd;
+                    s.gd += jd * res;
+                    for q in 0..3 {
+                        s.jdp[q] += jd * jp[q];
+                    }
+                    hpp += jp * jp.transpose();
+                    gp += jp * res;
+                }
+            }
+        }
+        let (mut sse, mut n) = (0.0, 0);
+        for s in sites.iter() {
+            sse += s.sse;
+            n += s.n;
+        }
+        let w = 1.0 / (self.sigma * self.sigma);
+        Some((hpp * w, gp * w, sse * w, n))
+    }
+
+    /// Levenberg-Marquardt on every usable site from `(kind, p)` and thicknesses `t`
+    /// (updated in place).
+    fn refine(&self, kind: ModelKind, mut p: [f64; 3], t: &mut [f64; MAX_SITES]) -> Option<Candidate> {
+        let np = kind.params();
+        let w = 1.0 / (self.sigma * self.sigma);
+        let mut sites = [SiteSums::default(); MAX_SITES];
+        let (mut hpp, mut gp, mut chi2, mut n) = self.normal(kind, &p, t, &mut sites)?;
+        let mut lambda = 1e-3;
+        let mut cov = Matrix3::zeros();
+        for _ in 0..40 {
+            // Reduce to the index parameters (Schur complement of the thickness block).
+            let mut h = hpp;
+            let mut g = gp;
+            for (k, s) in sites.iter().enumerate().take(self.usable.len()) {
+                if !self.usable[k] || s.jdd <= 0.0 {
+                    continue;
+                }
+                let jdd = s.jdd * w * (1.0 + lambda);
+                let jdp = Vector3::from(s.jdp) * w;
+                h -= jdp * jdp.transpose() / jdd;
+                g -= jdp * (s.gd * w / jdd);
+            }
+            let mut hd = Matrix3::identity();
+            for i in 0..np {
+                for j in 0..np {
+                    hd[(i, j)] = h[(i, j)];
+                }
+                hd[(i, i)] = h[(i, i)] * (1.0 + lambda) + 1e-12;
+            }
+            let gr = Vector3::new(g[0], if np > 1 { g[1] } else { 0.0 }, if np > 2 { g[2] } else { 0.0 });
+            let Some(dp) = hd.cholesky().map(|c| c.solve(&gr)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let mut p_new = p;
+            for q in 0..np {
+                p_new[q] += dp[q];
+            }
+            let mut t_new = *t;
+            let mut ok = true;
+            for (k, s) in sites.iter().enumerate().take(self.usable.len()) {
+                if !self.usable[k] || s.jdd <= 0.0 {
+                    continue;
+                }
+                let jdd = s.jdd * w * (1.0 + lambda);
+                let jdp = Vector3::from(s.jdp) * w;
+                let step = (s.gd * w - jdp.dot(&dp)) / jdd;
+                t_new[k] = t[k] + step;
+                if !(t_new[k] > 0.0) {
+                    ok = false;
+                }
+            }
+            let trial = if ok {
+                let mut trial_sites = [SiteSums::default(); MAX_SITES];
+                self.normal(kind, &p_new, &t_new, &mut trial_sites)
+                    .map(|r| (r, trial_sites))
+            } else {
+                None
+            };
+            match trial {
+                Some(((h2, g2, c2, n2), s2)) if c2 < chi2 => {
+                    let gain = chi2 - c2;
+                    p = p_new;
+                    *t = t_new;
+                    (hpp, gp, chi2, n, sites) = (h2, g2, c2, n2, s2);
+                    lambda = (lambda * 0.3).max(1e-7);
+                    if gain < 1e-3 * chi2.max(1.0) * 1e-2 {
+                        break;
+                    }
+                }
+                _ => {
+                    lambda *= 10.0;
+                    if lambda > 1e8 {
+                        break;
+                    }
+                }
+            }
+        }
+        // Covariance of the index parameters at the solution (undamped Schur complement).
+        let mut h = hpp;
+        for (k, s) in sites.iter().enumerate().take(self.usable.len()) {
+            if !self.usable[k] || s.jdd <= 0.0 {
+                continue;
+            }
+            let jdp = Vector3::from(s.jdp) * w;
+            h -= jdp * jdp.transpose() / (s.jdd * w);
+        }
+        let mut hd = Matrix3::identity();
+        for i in 0..np {
+            for j in 0..np {
+                hd[(i, j)] = h[(i, j)];
+            }
+        }
+        if let Some(inv) = hd.try_inverse() {
+            cov = inv;
+        }
+        let used = self.usable.iter().filter(|&&u| u).count();
+        let dof = n.saturating_sub(np + used).max(1);
+        let chi2_nu = chi2 / dof as f64;
+        let (_, g550) = kind.eval(&p, L0_UM);
+        let gv = Vector3::from(g550);
+        let mut var = 0.0;
+        for i in 0..np {
+            for j in 0..np {
+                var += gv[i] * cov[(i, j)] * gv[j];
+            }
+        }
+        // Scale by the reduced chi-square when the fit is worse than the noise.
+        let n550_sigma = libm::sqrt(var.max(0.0) * chi2_nu.max(1.0));
+        let lo = self.geo.bands_nm.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = self.geo.bands_nm.iter().copied().fold(0.0, f64::max);
+        Some(Candidate {
+            kind,
+            params: p,
+            chi2,
+            chi2_nu,
+            score: chi2 + MODEL_PENALTY * np as f64,
+            n550_sigma,
+            physical: kind.physical(&p, lo, hi, self.geo.index_range),
+        })
+    }
+
+    /// Every model refined from the two-term Cauchy fit `base`; the simplest that the data
+    /// ask for chosen, with the gate and a second start.
+    fn choose(&self, mut fit: SampleFit, base: Candidate, t: &[f64; MAX_SITES]) -> SampleFit {
+        let lo = self.geo.bands_nm.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = self.geo.bands_nm.iter().copied().fold(0.0, f64::max);
+        let n_at = |c: &Candidate, l_nm: f64| c.kind.eval(&c.params, l_nm * 1e-3).0;
+        let mut best: Option<(Candidate, [f64; MAX_SITES])> = None;
+        let base = if base.kind == ModelKind::Cauchy2 {
+            base
+        } else {
+            // A warm start of another kind: its Cauchy fit over the band.
+            let mut tt = *t;
+            match self.refine(ModelKind::Cauchy2, cauchy_through(&base, lo, hi), &mut tt) {
+                Some(c) => c,
+                None => base,
+            }
+        };
+        for kind in ModelKind::ALL {
+            let start = match kind {
+                ModelKind::Constant => [n_at(&base, 550.0), 0.0, 0.0],
+                ModelKind::Cauchy2 => base.params,
+                ModelKind::Cauchy3 => [base.params[0], base.params[1], 0.0],
+                ModelKind::Sellmeier1 | ModelKind::Sellmeier1c => {
+                    match sellmeier_through(&base, lo, hi) {
+                        Some(s) => s,
+                        None => continue,
+                    }
+                }
+            };
+            let mut tt = *t;
+            let cand = if kind == ModelKind::Cauchy2 {
+                Some(base)
+            } else {
+                self.refine(kind, start, &mut tt)
+            };
+            let Some(c) = cand else { continue };
+            let _ = fit.candidates.push(c);
+            if c.physical && best.as_ref().is_none_or(|(b, _)| c.score < b.score) {
+                best = Some((c, if kind == ModelKind::Cauchy2 { *t } else { tt }));
+            }
+        }
+        let Some((c, tt)) = best else {
+            fit.failure = Some(Failure::NoFit);
+            return fit;
+        };
+        fit.best = Some(c);
+        for (k, slot) in fit.thickness_nm.iter_mut().enumerate() {
+            *slot = if k < self.usable.len() && self.usable[k] {
+                tt[k] as f32
+            } else {
+                f32::NAN
+            };
+        }
+        fit.failure = if c.chi2_nu > GATE_CHI2_NU {
+            Some(Failure::NoFit)
+        } else if c.n550_sigma > MAX_INDEX_SIGMA {
+            Some(Failure::Underdetermined)
+        } else {
+            None
+        };
+        fit
+    }
+
+    /// Each usable site's best thickness under `(kind, p)` over the thickness range, on the
+    /// search bands; the summed chi-square (noise units).
+    fn start_thicknesses(
+        &self,
+        kind: ModelKind,
+        p: &[f64; 3],
+        t: &mut [f64; MAX_SITES],
+        scratch: &mut [f32],
+    ) -> Option<f64> {
+        let all: [usize; MAX_SITES] = core::array::from_fn(|k| k);
+        let n = self.usable.len();
+        let sites = &all[..n];
+        self.score_point(kind, p, sites, self.geo.bands_nm.len(), 0, scratch, Some(t))
+    }
+
+    /// The global search over `(n550, b)` on bands `from..bands` (every so many): the best
+    /// grid point refined locally, as Cauchy parameters, and the fringes its best site
+    /// thickness puts across the whole band.
+    fn search(&self, bands: usize, from: usize, scratch: &mut [f32]) -> Option<([f64; 3], f64)> {
+        // The search's sites: usable ones, spread over the sample.
+        let mut chosen: heapless::Vec<usize, SEARCH_SITES> = heapless::Vec::new();
+        let used: heapless::Vec<usize, MAX_SITES> =
+            (0..self.usable.len()).filter(|&k| self.usable[k]).collect();
+        let step = used.len().div_ceil(SEARCH_SITES).max(1);
+        for &k in used.iter().step_by(step) {
+            if chosen.push(k).is_err() {
+                break;
+            }
+        }
+        let [lo, hi] = self.geo.index_range;
+        let n_steps = (((hi - lo) / 0.05).ceil() as usize).clamp(1, 200);
+        const B_STEPS: usize = 7;
+        let mut grid = [[f64::INFINITY; B_STEPS]; 201];
+        let point = |i: usize, j: usize| -> [f64; 3] {
+            let n550 = lo + (hi - lo) * i as f64 / n_steps as f64;
+            let b = 0.02 * j as f64;
+            [n550 - b / (L0_UM * L0_UM), b, 0.0]
+        };
+        for (i, row) in grid.iter_mut().enumerate().take(n_steps + 1) {
+            for (j, cell) in row.iter_mut().enumerate() {
+                let p = point(i, j);
+                let l_lo = self.geo.bands_nm[from];
+                if ModelKind::Cauchy2.eval(&p, l_lo * 1e-3).0 > hi + 0.3 {
+                    continue;
+                }
+                if let Some(s) =
+                    self.score_point(ModelKind::Cauchy2, &p, &chosen, bands, from, scratch, None)
+                {
+                    *cell = s;
+                }
+            }
+        }
+        // The three deepest local minima, each refined on a finer grid.
+        let mut minima: heapless::Vec<(f64, usize, usize), 64> = heapless::Vec::new();
+        for i in 0..=n_steps {
+            for j in 0..B_STEPS {
+                let v = grid[i][j];
+                if !v.is_finite() {
+                    continue;
+                }
+                let mut is_min = true;
+                for di in -1i32..=1 {
+                    for dj in -1i32..=1 {
+                        let (ii, jj) = (i as i32 + di, j as i32 + dj);
+                        if (di, dj) == (0, 0) || ii < 0 || jj < 0 || ii > n_steps as i32 || jj >= B_STEPS as i32 {
+                            continue;
+                        }
+                        if grid[ii as usize][jj as usize] < v {
+                            is_min = false;
+                        }
+                    }
+                }
+                if is_min && minima.push((v, i, j)).is_err() {
+                    break;
+                }
+            }
+        }
+        minima.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let mut best: Option<(f64, [f64; 3])> = None;
+        for &(_, i, j) in minima.iter().take(3) {
+            let c = point(i, j);
+            let (n0, b0) = (c[0] + c[1] / (L0_UM * L0_UM), c[1]);
+            for di in -5i32..=5 {
+                for dj in -4i32..=4 {
+                    let n550 = n0 + 0.01 * f64::from(di);
+                    let b = b0 + 0.005 * f64::from(dj);
+                    if b < 0.0 || n550 < lo || n550 > hi {
+                        continue;
+                    }
+                    let p = [n550 - b / (L0_UM * L0_UM), b, 0.0];
+                    if let Some(s) =
+                        self.score_point(ModelKind::Cauchy2, &p, &chosen, bands, from, scratch, None)
+                    {
+                        if best.is_none_or(|(bs, _)| s < bs) {
+                            best = Some((s, p));
+                        }
+                    }
+                }
+            }
+        }
+        let (_, p) = best?;
+        // Fringes across the whole band at the search sites' median thickness.
+        let mut t = [f64::NAN; MAX_SITES];
+        self.score_point(ModelKind::Cauchy2, &p, &chosen, bands, from, scratch, Some(&mut t))?;
+        let mut ts: heapless::Vec<f64, MAX_SITES> =
+            chosen.iter().map(|&k| t[k]).filter(|x| x.is_finite()).collect();
+        ts.sort_unstable_by(f64::total_cmp);
+        let d = *ts.get(ts.len() / 2)?;
+        let b = &self.geo.bands_nm;
+        let (l_lo, l_hi) = (b[0].min(b[b.len() - 1]), b[0].max(b[b.len() - 1]));
+        let n = ModelKind::Cauchy2.eval(&p, L0_UM).0;
+        let fringes = 2.0 * n * d * (1.0 / l_lo - 1.0 / l_hi);
+        Some((p, fringes))
+    }
+
+    /// Summed chi-square (noise units) of `sites`, each at its best thickness under
+    /// `(kind, p)`, on every so many of bands `from..bands` with passband-damped centre
+    /// wavelengths; writes the thicknesses into `t` when given.
+    #[allow(clippy::too_many_arguments)]
+    fn score_point(
+        &self,
+        kind: ModelKind,
+        p: &[f64; 3],
+        sites: &[usize],
+        bands: usize,
+        from: usize,
+        scratch: &mut [f32],
+        mut t: Option<&mut [f64; MAX_SITES]>,
+    ) -> Option<f64> {
+        let geo = self.geo;
+        let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
+        let span = bands - from;
+        let stride = span.div_ceil(SEARCH_BANDS).max(1);
+        let picked: heapless::Vec<usize, SEARCH_BANDS> = (from..bands).step_by(stride).collect();
+        let nbs = picked.len();
+        // Films and passband damping per (angle, band).
+        let mut films: heapless::Vec<(FilmAtAngle, f64, f64), { 16 * SEARCH_BANDS }> =
+            heapless::Vec::new();
+        for a in 0..na.min(16) {
+            for &b in &picked {
+                let l = geo.bands_nm[b];
+                let n = kind.eval(p, l * 1e-3).0;
+                if !n.is_finite() {
+                    return None;
+                }
+                let f = FilmAtAngle::new(self.indices(n), geo.angles_deg[a], geo.polarization)?;
+                let k = 4.0 * core::f64::consts::PI * f.kz_film / l;
+                let s_l = geo.fwhm_nm[b] / 2.354_82;
+                let _ = films.push((f, k, s_l / l));
+            }
+        }
+        let nv = films.len();
+        let [t_lo, t_hi] = geo.thickness_range_nm;
+        let k_max = films.iter().map(|f| f.1).fold(0.0, f64::max);
+        let mut h = 0.5 / k_max.max(1e-9);
+        let mut count = ((t_hi - t_lo) / h) as usize + 1;
+        if count > MAX_DICTIONARY {
+            count = MAX_DICTIONARY;
+            h = (t_hi - t_lo) / (count - 1) as f64;
+        }
+        if scratch.len() < count * nv {
+            return None;
+        }
+        let model = |f: &(FilmAtAngle, f64, f64), d: f64| -> f64 {
+            let ph = f.1 * d;
+            let damp = libm::exp(-0.5 * (ph * f.2) * (ph * f.2));
+            f.0.reflectance_at_cos(damp * libm::cos(ph))
+        };
+        let mut m2 = [0.0f64; MAX_DICTIONARY];
+        for i in 0..count {
+            let d = t_lo + h * i as f64;
+            let row = &mut scratch[i * nv..(i + 1) * nv];
+            let mut s = 0.0;
+            for (v, f) in row.iter_mut().zip(films.iter()) {
+                let m = model(f, d);
+                *v = m as f32;
+                s += m * m;
+            }
+            m2[i] = s;
+        }
+        let w = 1.0 / (self.sigma * self.sigma);
+        let mut total = 0.0;
+        let mut y = [0.0f32; 16 * SEARCH_BANDS];
+        for &k in sites {
+            if !self.usable[k] {
+                continue;
+            }
+            let mut y2 = 0.0;
+            let mut missing = false;
+            for a in 0..na.min(16) {
+                for (jb, &b) in picked.iter().enumerate() {
+                    let v = self.spectra.at(nb, k, CENTRE, a, b);
+                    y[a * nbs + jb] = v;
+                    if !v.is_finite() {
+                        missing = true;
+                    }
+                    y2 += f64::from(v) * f64::from(v);
+                }
+            }
+            if missing {
+                // Fill a missing value with the site's mean: it adds a constant to every
+                // thickness's score.
+                let (mut s, mut c) = (0.0, 0);
+                for v in &y[..nv] {
+                    if v.is_finite() {
+                        s += f64::from(*v);
+                        c += 1;
+                    }
+                }
+                let mean = if c > 0 { (s / c as f64) as f32 } else { 0.0 };
+                y2 = 0.0;
+                for v in &mut y[..nv] {
+                    if !v.is_finite() {
+                        *v = mean;
+                    }
+                    y2 += f64::from(*v) * f64::from(*v);
+                }
+            }
+            let mut best = (f64::INFINITY, 0usize);
+            for i in 0..count {
+                let row = &scratch[i * nv..(i + 1) * nv];
+                let mut dot = 0.0f32;
+                for (m, v) in row.iter().zip(&y[..nv]) {
+                    dot += m * v;
+                }
+                let sse = m2[i] - 2.0 * f64::from(dot) + y2;
+                if sse < best.0 {
+                    best = (sse, i);
+                }
+            }
+            // Two Gauss-Newton steps on the thickness.
+            let mut d = t_lo + h * best.1 as f64;
+            let mut sse = best.0;
+            for _ in 0..2 {
+                let (mut jj, mut jr, mut s2) = (0.0f64, 0.0f64, 0.0f64);
+                for (f, v) in films.iter().zip(&y[..nv]) {
+                    let m = model(f, d);
+                    let dm = (model(f, d + 0.01) - m) / 0.01;
+                    let r = f64::from(*v) - m;
+                    jj += dm * dm;
+                    jr += dm * r;
+                    s2 += r * r;
+                }
+                sse = s2;
+                if jj <= 0.0 {
+                    break;
+                }
+                let step = (jr / jj).clamp(-h, h);
+                let d_new = (d + step).clamp(t_lo, t_hi);
+                let s_new: f64 = films
+                    .iter()
+                    .zip(&y[..nv])
+                    .map(|(f, v)| {
+                        let r = f64::from(*v) - model(f, d_new);
+                        r * r
+                    })
+                    .sum();
+                if s_new < sse {
+                    d = d_new;
+                    sse = s_new;
+                } else {
+                    break;
+                }
+            }
+            if let Some(t) = t.as_deref_mut() {
+                t[k] = d;
+            }
+            total += sse * w;
+        }
+        Some(total)
+    }
+}
+
+/// The two-term Cauchy model closest to `c` over `[lo_nm, hi_nm]` (least squares in `n`
+/// against `1 / l^2`).
+fn cauchy_through(c: &Candidate, lo_nm: f64, hi_nm: f64) -> [f64; 3] {
+    let (mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0);
+    let m = 17;
+    for i in 0..m {
+        let l = (lo_nm + (hi_nm - lo_nm) * i as f64 / (m - 1) as f64) * 1e-3;
+        let x = 1.0 / (l * l);
+        let y = c.kind.eval(&c.params, l).0;
+        sx += x;
+        sy += y;
+        sxx += x * x;
+        sxy += x * y;
+    }
+    let mf = m as f64;
+    let b = (mf * sxy - sx * sy) / (mf * sxx - sx * sx);
+    [(sy - b * sx) / mf, b, 0.0]
+}
+
+/// The one-pole Sellmeier model `n^2 = 1 + S l^2 / (l^2 - L^2)` closest to `c` over
+/// `[lo_nm, hi_nm]`: a scan over the pole, `S` by least squares at each; `None` for a film
+/// whose index is not above 1 across the band.
+fn sellmeier_through(c: &Candidate, lo_nm: f64, hi_nm: f64) -> Option<[f64; 3]> {
+    let m = 17;
+    let l_lo = lo_nm * 1e-3;
+    let mut best: Option<(f64, [f64; 3])> = None;
+    for step in 0..40 {
+        let l2p = 0.8 * l_lo * l_lo * f64::from(step) / 40.0;
+        // n^2 - 1 = S f(l): least squares S = sum(f y) / sum(f f).
+        let (mut sfy, mut sff) = (0.0, 0.0);
+        for i in 0..m {
+            let l = (lo_nm + (hi_nm - lo_nm) * i as f64 / (m - 1) as f64) * 1e-3;
+            let n = c.kind.eval(&c.params, l).0;
+            let f = l * l / (l * l - l2p);
+            sfy += f * (n * n - 1.0);
+            sff += f * f;
+        }
+        let s = sfy / sff;
+        if s <= 0.0 {
+            continue;
+        }
+        let p = [s, l2p, 1.0];
+        let mut err = 0.0;
+        for i in 0..m {
+            let l = (lo_nm + (hi_nm - lo_nm) * i as f64 / (m - 1) as f64) * 1e-3;
+            let d = ModelKind::Sellmeier1.eval(&p, l).0 - c.kind.eval(&c.params, l).0;
+            err += d * d;
+        }
+        if best.is_none_or(|(e, _)| err < e) {
+            best = Some((err, p));
+        }
+    }
+    best.map(|(_, p)| p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optics::{FilmStack, Passband};
+
+    /// A small deterministic generator for test noise (xorshift, Box-Muller).
+    struct Noise(u64);
+    impl Noise {
+        fn uniform(&mut self) -> f64 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 7;
+            self.0 ^= self.0 << 17;
+            (self.0 >> 11) as f64 / (1u64 << 53) as f64
+        }
+        fn normal(&mut self) -> f64 {
+            let (u, v) = (self.uniform().max(1e-300), self.uniform());
+            libm::sqrt(-2.0 * libm::log(u)) * libm::cos(2.0 * core::f64::consts::PI * v)
+        }
+    }
+
+    struct Case {
+        film: Dispersion,
+        substrate: f64,
+        base_nm: f64,
+        angles: &'static [f64],
+        bands: (f64, f64, f64),
+        fwhm: f64,
+        pol: Polarization,
+        noise: f64,
+    }
+
+    fn run(case: &Case, seed: u64) -> (SampleFit, Vec<f32>) {
+        let mut bands = Vec::new();
+        let mut l = case.bands.0;
+        while l <= case.bands.1 + 1e-9 {
+            bands.push(l);
+            l += case.bands.2;
+        }
+        let fwhm = vec![case.fwhm; bands.len()];
+        let stack = FilmStack {
+            ambient_index: 1.0,
+            film: case.film,
+            substrate: Dispersion::constant(case.substrate),
+            polarization: case.pol,
+        };
+        let sites = 32;
+        let (na, nb) = (case.angles.len(), bands.len());
+        let mut values = vec![0.0f32; sites * RUN * na * nb];
+        let mut rng = Noise(seed | 1);
+        let mut truth = Vec::new();
+        for k in 0..sites {
+            let centre = case.base_nm * (1.0 + 0.1 * (k as f64 / sites as f64 - 0.5));
+            truth.push(centre as f32);
+            for j in 0..RUN {
+                let d = centre + 0.3 * (j as f64 - 2.0);
+                for (a, &deg) in case.angles.iter().enumerate() {
+                    for (b, &l) in bands.iter().enumerate() {
+                        let r = stack.band_reflectance(d, deg, &Passband::gaussian(l, case.fwhm));
+                        values[((k * RUN + j) * na + a) * nb + b] =
+                            (r + case.noise * rng.normal()) as f32;
+                    }
+                }
+            }
+        }
+        let geo = Geometry {
+            bands_nm: &bands,
+            fwhm_nm: &fwhm,
+            angles_deg: case.angles,
+            ambient_index: 1.0,
+            substrate_index: case.substrate,
+            polarization: case.pol,
+            index_range: [1.2, 3.0],
+            thickness_range_nm: [10.0, 3000.0],
+        };
+        let spectra = Spectra {
+            values: &values,
+            sites,
+            angle_stride: na,
+        };
+        let mut scratch = vec![0.0f32; workspace_len(sites, na, nb)];
+        (fit_index(&geo, &spectra, None, &mut scratch), truth)
+    }
+
+    fn check(case: &Case, tol_n: f64, tol_d: f64) -> SampleFit {
+        let (fit, truth) = run(case, 7);
+        let n = fit.index().expect("an index").index_at(550.0);
+        let err = n - case.film.index_at(550.0);
+        assert!(err.abs() <= tol_n, "n(550) off by {err}: {fit:?}");
+        for (k, &t) in truth.iter().enumerate() {
+            assert!(
+                (fit.thickness_nm[k] - t).abs() <= tol_d as f32,
+                "site {k}: {} against {t}",
+                fit.thickness_nm[k]
+            );
+        }
+        let c = fit.best.expect("a best fit");
+        assert!(c.chi2_nu < 1.3, "chi2/nu {}", c.chi2_nu);
+        fit
+    }
+
+    #[test]
+    fn noise_is_measured_from_the_runs() {
+        let case = Case {
+            film: Dispersion::constant(1.38),
+            substrate: 1.52,
+            base_nm: 400.0,
+            angles: &[10.0, 30.0, 50.0],
+            bands: (420.0, 720.0, 3.0),
+            fwhm: 4.0,
+            pol: Polarization::S,
+            noise: 0.003,
+        };
+        let (fit, _) = run(&case, 3);
+        assert!((fit.noise_sigma / 0.003 - 1.0).abs() < 0.05, "{}", fit.noise_sigma);
+    }
+
+    #[test]
+    fn a_thin_high_index_oxide_with_real_dispersion() {
+        // TiO2-like: one-pole Sellmeier, 150 nm on glass, p light.
+        let film = Dispersion::Sellmeier {
+            a: 1.0,
+            b: [4.9, 0.0, 0.0],
+            c_um: [0.21, 0.0, 0.0],
+        };
+        let fit = check(
+            &Case {
+                film,
+                substrate: 1.52,
+                base_nm: 150.0,
+                angles: &[10.0, 30.0, 50.0, 65.0],
+                bands: (400.0, 720.0, 4.0),
+                fwhm: 8.0,
+                pol: Polarization::P,
+                noise: 0.003,
+            },
+            0.005,
+            2.0,
+        );
+        assert!(fit.best.is_some_and(|c| c.kind.params() >= 2));
+    }
+
+    #[test]
+    fn a_thick_dispersive_film_keeps_its_fringe_order() {
+        let film = Dispersion::Sellmeier {
+            a: 1.0,
+            b: [3.9, 0.0, 0.0],
+            c_um: [0.2, 0.0, 0.0],
+        };
+        check(
+            &Case {
+                film,
+                substrate: 1.6,
+                base_nm: 1600.0,
+                angles: &[5.0, 25.0, 45.0],
+                bands: (400.0, 720.0, 2.0),
+                fwhm: 4.0,
+                pol: Polarization::S,
+                noise: 0.003,
+            },
+            0.003,
+            2.0,
+        );
+    }
+
+    #[test]
+    fn a_constant_index_stays_constant() {
+        let fit = check(
+            &Case {
+                film: Dispersion::constant(1.37),
+                substrate: 1.65,
+                base_nm: 400.0,
+                angles: &[10.0, 20.0, 30.0, 40.0, 50.0],
+                bands: (420.0, 720.0, 2.0),
+                fwhm: 4.0,
+                pol: Polarization::S,
+                noise: 0.003,
+            },
+            0.001,
+            1.0,
+        );
+        assert_eq!(fit.best.map(|c| c.kind), Some(ModelKind::Constant));
+    }
+
+    #[test]
+    fn wrong_metadata_is_caught_by_the_gate() {
+        // Simulated in p light, fitted as s.
+        let case = Case {
+            film: Dispersion::constant(1.9),
+            substrate: 1.52,
+            base_nm: 300.0,
+            angles: &[10.0, 35.0, 60.0],
+            bands: (420.0, 720.0, 3.0),
+            fwhm: 4.0,
+            pol: Polarization::P,
+            noise: 0.002,
+        };
+        let (fit, _) = run(&case, 5);
+        assert!(fit.index().is_some());
+        let wrong = Case {
+            pol: Polarization::S,
+            ..case
+        };
+        // The same spectra fitted as s light: simulate p, fit s.
+        let (p_fit, _) = run_mislabelled(&wrong, Polarization::P, 5);
+        assert_eq!(p_fit.failure, Some(Failure::NoFit), "{p_fit:?}");
+    }
+
+    fn run_mislabelled(case: &Case, truth_pol: Polarization, seed: u64) -> (SampleFit, Vec<f32>) {
+        // Simulate with `truth_pol`, fit with `case.pol`.
+        let mut bands = Vec::new();
+        let mut l = case.bands.0;
+        while l <= case.bands.1 + 1e-9 {
+            bands.push(l);
+            l += case.bands.2;
+        }
+        let fwhm = vec![case.fwhm; bands.len()];
+        let stack = FilmStack {
+            ambient_index: 1.0,
+            film: case.film,
+            substrate: Dispersion::constant(case.substrate),
+            polarization: truth_pol,
+        };
+        let sites = 32;
+        let (na, nb) = (case.angles.len(), bands.len());
+        let mut values = vec![0.0f32; sites * RUN * na * nb];
+        let mut rng = Noise(seed | 1);
+        for k in 0..sites {
+            let centre = case.base_nm * (1.0 + 0.1 * (k as f64 / sites as f64 - 0.5));
+            for j in 0..RUN {
+                for (a, &deg) in case.angles.iter().enumerate() {
+                    for (b, &l) in bands.iter().enumerate() {
+                        let r = stack.band_reflectance(
+                            centre + 0.3 * (j as f64 - 2.0),
+                            deg,
+                            &Passband::gaussian(l, case.fwhm),
+                        );
+                        values[((k * RUN + j) * na + a) * nb + b] =
+                            (r + case.noise * rng.normal()) as f32;
+                    }
+                }
+            }
+        }
+        let geo = Geometry {
+            bands_nm: &bands,
+            fwhm_nm: &fwhm,
+            angles_deg: case.angles,
+            ambient_index: 1.0,
+            substrate_index: case.substrate,
+            polarization: case.pol,
+            index_range: [1.2, 3.0],
+            thickness_range_nm: [10.0, 3000.0],
+        };
+        let spectra = Spectra {
+            values: &values,
+            sites,
+            angle_stride: na,
+        };
+        let mut scratch = vec![0.0f32; workspace_len(sites, na, nb)];
+        (fit_index(&geo, &spectra, None, &mut scratch), Vec::new())
+    }
+
+    #[test]
+    fn site_grid_spreads_runs_inside_the_image() {
+        let g = site_grid(640, 480, 64);
+        assert!(g.len() >= 48 && g.len() <= 64, "{}", g.len());
+        for &(r, c) in &g {
+            assert!((r as usize) < 480 && c as usize + RUN <= 640);
+        }
+        assert!(site_grid(3, 10, 16).is_empty());
+    }
+}
