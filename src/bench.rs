@@ -527,7 +527,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
             n + 0.5 * crate::baseline::DEFAULT_INDEX_STEP,
         );
     }
-    let mut defaults: Vec<Setting> = [Method::Filmscope, Method::Paper, Method::Brute]
+    let defaults: Vec<Setting> = [Method::Filmscope, Method::Paper, Method::Brute]
         .into_iter()
         .map(|method| {
             let config = RunConfig {
@@ -537,14 +537,6 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
             Setting::new(method.name(), config)
         })
         .collect();
-    // The streaming estimator without its closing Gauss-Newton pass: what one pass costs.
-    defaults.push(Setting::new(
-        "filmscope -polish",
-        RunConfig {
-            polish: false,
-            ..RunConfig::default()
-        },
-    ));
     let methods = measure(&m_scene, &defaults)?;
     let time = |m: &str| {
         methods

@@ -69,13 +69,6 @@ pub fn settings(quick: bool) -> Vec<Setting> {
             }),
         ),
         Setting::new(
-            "-polish",
-            RunConfig {
-                polish: false,
-                ..fs(full)
-            },
-        ),
-        Setting::new(
             "-subband",
             fs(SolverOptions {
                 subband: false,

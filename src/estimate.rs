@@ -4,17 +4,17 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
+use filmscope_core::solve::sample::SampleFit;
 use filmscope_core::solve::shard::MAX_THICKNESS_SIGMA_NM;
-use filmscope_core::solve::sweep::{
-    MAX_DISPERSION, MAX_DISPERSION_PER_EXCESS, MISMATCH_FLOOR, MISMATCH_RATIO, SPECTRAL_TERM_CHI2,
-};
-use filmscope_core::solve::thin::{SampleGrid, SampledSpectra, ThinFit};
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
 use serde_json::json;
 
 use crate::baseline::{brute, paper, BruteGrid};
 use crate::export::png::{write_map_png, MapPreview};
 use crate::field::{FieldConfig, FieldModel};
+use crate::index_fit::{
+    choice_json, fringes_across_band, index_model, SampleTap, SEEDED_BELOW_FRINGES,
+};
 use crate::io::{write_atomic, write_f32_map, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::pipeline::{
     collect_sweep, for_each_calibrated, run_sweep, Calibrated, PipelineConfig, PipelineError,
@@ -22,423 +22,95 @@ use crate::pipeline::{
 };
 use filmscope_core::optics::FieldOfView;
 
-/// Most passes over a replayable source (the first from the extremum shifts, the others with
-/// the index from the full spectra).
-pub const MAX_PASSES: usize = 5;
-use crate::simulate::dispersion_json;
 use crate::sweep::{Method, MethodResult};
 
-/// An index step from the full spectra below this (at 550 nm) is at rest.
-pub const SETTLED_INDEX_STEP: f64 = 2e-3;
-
-/// Whether a full-spectrum pass ended with its index at rest: the last step moved it by
-/// less than [`SETTLED_INDEX_STEP`] and no pixel had to choose its order again.
-fn settled(out: &SweepOutput) -> bool {
-    out.angles
-        .last()
-        .is_some_and(|a| a.refined && a.spectral_index_step.abs() < SETTLED_INDEX_STEP)
-}
-
-/// A full-spectrum index step at least this large (at 550 nm) at the end of an
-/// extremum-shift pass calls for a pass with the index from the full spectra.
-pub const DISAGREE_INDEX_STEP: f64 = 1e-3;
-
-/// Whether the full spectra, at the sweep's end, would move the extremum-shift index by
-/// [`DISAGREE_INDEX_STEP`] or more: the extremum shifts of few pixels (a small sensor or
-/// region) give a noisy index, which the pixels' thicknesses then absorb (measured on a
-/// 24 x 16 crop of paper-sample1: index error 0.0064, thickness MAE 2.8 nm; from the full
-/// spectra 0.0004, 0.28 nm; paper-sample3 0.0011, 0.26 nm -> 0.0001, 0.09 nm).
-fn disagrees(out: &SweepOutput) -> bool {
-    out.angles
-        .last()
-        .is_some_and(|a| a.refined && a.spectral_index_step.abs() >= DISAGREE_INDEX_STEP)
-}
-
-/// The pass to run after `last` (the `passes`-th), if any:
-/// - an index that arrived only with the last angle left the orders unconfirmed by the full
-///   spectra: after the first pass, pass again with it held, so every pixel is refined;
-/// - spectra the extremum-shift index does not explain (real dispersion, a high index), or
-///   whose full-spectrum step would move it measurably ([`disagrees`]): pass again with the
-///   index from the full spectra, starting where the last pass's full-spectrum step
-///   pointed, until it settles. The pass that fits best is kept.
-fn next_pass(last: &SweepOutput, passes: usize) -> Option<Prior> {
-    if passes == 1 && unrefined(last) {
-        return last
-            .index
-            .map(|index| Prior::new(index, PriorUpdate::Hold, None));
-    }
-    let again = last.model_mismatch
-        || (!last.spectral_index && (underfit(last) || disagrees(last)))
-        || (last.spectral_index && !settled(last));
-    let index = last.spectral_candidate.or(last.index).filter(|_| again)?;
-    Some(Prior::new(index, PriorUpdate::FullSpectra, None))
-}
-
-/// Share of the pixels with fringes left unrefined (their orders unconfirmed by the full
-/// spectra, so flagged) above which a pass with the index held follows. Measured: at a 1 nm
-/// band step a 700 nm film of index 1.38 got its index only at the third angle and left
-/// 61 of 192 pixels unrefined (67.7 % valid); most was the threshold then.
-pub const UNREFINED_SHARE: f64 = 0.1;
-
-/// Whether more than [`UNREFINED_SHARE`] of the pixels with fringes were never refined on
-/// the full spectra (the index came too late in the sweep).
-fn unrefined(out: &SweepOutput) -> bool {
-    let with_fringes = out
-        .results
-        .iter()
-        .filter(|r| r.flags & flags::NO_FRINGE == 0);
-    let (mut n, mut not_refined) = (0usize, 0usize);
-    for r in with_fringes {
-        n += 1;
-        if r.flags & flags::NOT_REFINED != 0 {
-            not_refined += 1;
-        }
-    }
-    n > 0 && not_refined as f64 > UNREFINED_SHARE * n as f64
-}
-
-/// A fit residual above this many times the pixels' own noise asks for a richer index
-/// model (well-modelled scenes measure 0.83-1.03; a held two-term Cauchy index on real ZnS
-/// 1.39).
-pub const UNDERFIT_RATIO: f64 = 1.25;
-
-/// Whether the spectra are fitted clearly worse than their noise allows (though not so badly
-/// that the model is wrong): a full-spectrum pass may find a better index.
-fn underfit(out: &SweepOutput) -> bool {
-    match (out.residual_sigma, out.noise_sigma) {
-        (Some(r), Some(n)) => r > UNDERFIT_RATIO * f64::from(n),
-        _ => false,
-    }
-}
-
-/// Share of pixels with an order (`ordered_fraction`) below which a first pass is thought
-/// to have missed a film without fringe pairs and the global search on sampled spectra
-/// ([`filmscope_core::solve::thin`]) is tried.
-pub const THIN_SEARCH_BELOW_VALID: f64 = 0.5;
-
-fn valid_fraction(out: &SweepOutput) -> f64 {
-    let valid = out
-        .results
-        .iter()
-        .filter(|r| r.flags & flags::INVALID == 0)
-        .count();
-    valid as f64 / out.results.len().max(1) as f64
-}
-
-/// Share of the pixels valid or flagged only `imprecise`: with an order whose thickness
-/// only the shared index's uncertainty blurs (a thick high-index film's first pass, whose
-/// extremum-shift index is loose: measured, n 2.8 / 2000 nm on 1.52 went through the
-/// search for films without a fringe pair and came out 0.0101 low in index).
-fn ordered_fraction(out: &SweepOutput) -> f64 {
-    let ordered = out
-        .results
-        .iter()
-        .filter(|r| r.flags & flags::INVALID & !flags::IMPRECISE == 0)
-        .count();
-    ordered as f64 / out.results.len().max(1) as f64
-}
-
-/// The start of a pass for a film without fringe pairs: the index and a thickness map from
-/// the global (index, thickness) search on a grid of sampled pixels' spectra (streamed once
-/// more from the source; at most [`thin::MAX_SAMPLED_PIXELS`] spectra held), if its fit is as
-/// good as the pixels' noise allows (the [`SweepSolver::model_mismatch`] rule).
-fn thin_start(
-    source: &mut dyn Source,
-    last: &SweepOutput,
-) -> Result<Option<(ThinFit, Option<Prior>)>, PipelineError> {
-    let spec = last.spec.clone();
-    let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
-    let grid = SampleGrid::for_image(w, h);
-    let px = grid.len();
-    let mut angles = Vec::new();
-    let mut values: Vec<f32> = Vec::new();
-    for_each_calibrated(source, |event| match event {
-        Calibrated::Angle(deg) => {
-            angles.push(deg);
-            values.resize(angles.len() * nb * px, f32::NAN);
-        }
-        Calibrated::Rows {
-            angle,
-            band,
-            first_row,
-            rows,
-            values: v,
-        } => {
-            for k in 0..px {
-                let (x, y) = grid.pixel(k);
-                if (first_row..first_row + rows).contains(&y) {
-                    values[(angle * nb + band) * px + k] = v[(y - first_row) * w + x];
-                }
-            }
-        }
-    })?;
-    let sample = SampledSpectra {
-        spec: &spec,
-        angles_deg: &angles,
-        pixels: px,
-        values: &values,
-    };
-    let mut sse = vec![0.0; sample.scratch_len()];
-    let mut thickness = vec![f32::NAN; px];
-    let Some(fit) = sample.fit(&mut sse, &mut thickness) else {
-        return Ok(None);
-    };
-    let noise = last.noise_sigma.map_or(0.0, f64::from);
-    if fit.rms > MISMATCH_RATIO * noise + MISMATCH_FLOOR {
-        return Ok(Some((fit, None)));
-    }
-    let mut seed = vec![f32::NAN; w * h];
-    // A sample in another basin than its neighbours (a quarter of an order away) would
-    // spread its wrong order to the pixels around it.
-    let mid = spec.bands_nm[nb / 2];
-    grid.reject_outliers(&mut thickness, (mid / (8.0 * fit.index)) as f32);
-    grid.interpolate(&thickness, &mut seed);
-    let prior = Prior::new(
-        IndexModel::constant(fit.index),
-        PriorUpdate::FullSpectra,
-        Some(Arc::new(seed)),
-    );
-    Ok(Some((fit, Some(prior))))
-}
-
-/// The next seeded pass's thickness map: this pass's thickness where it has one, else the
-/// old seed.
-fn carry_seed(seed: &[f32], pass: &SweepOutput) -> Arc<Vec<f32>> {
-    Arc::new(
-        seed.iter()
-            .zip(&pass.results)
-            .map(|(&s, r)| {
-                if r.thickness_nm.is_finite() {
-                    r.thickness_nm
-                } else {
-                    s
-                }
-            })
-            .collect(),
-    )
-}
-
-/// Orders passes: a pass the model explains before one it does not, then by residual.
-fn fit_rank(out: &SweepOutput) -> (bool, f64) {
-    (
-        out.model_mismatch,
-        out.residual_sigma.unwrap_or(f64::INFINITY),
-    )
-}
-
-/// What the passes over one sweep ended with.
+/// What the estimator's passes over one sweep ended with.
 pub struct Passes {
-    /// The pass kept.
+    /// The per-pixel pass.
     pub out: SweepOutput,
-    /// Passes run.
+    /// Passes over the data: the sample's stream and the per-pixel pass (one for a live
+    /// source, which holds the sample as it streams).
     pub passes: usize,
-    /// The spectrum search's fit and whether its passes were kept.
-    pub search: Option<(ThinFit, bool)>,
-    /// The thickness map later passes started from (a film without fringe pairs).
-    pub seed: Option<Arc<Vec<f32>>>,
-    /// The test of the index model's last term, if the passes ended with more than one.
-    pub term_check: Option<TermCheck>,
+    /// The index fit on the sample's full spectra (`None`: a live source's one pass).
+    pub fit: Option<SampleFit>,
+    /// How the index model was chosen, as JSON (`summary.json` `index_model_choice`).
+    pub choice: serde_json::Value,
 }
 
-/// The test of a richer index model on sums linearised at its own result
-/// (`polish`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct TermCheck {
-    /// Terms of the model tested.
-    pub terms: usize,
-    /// The Wald chi-square of its last term ([`SweepSolver::term_chi2`](filmscope_core::solve::sweep::SweepSolver::term_chi2)).
-    pub chi2: f64,
-    /// Whether the term stayed (else the passes after the test ran without it).
-    pub kept: bool,
-}
-
-/// Whether a check pass confirms the last term of the model it held: a chi-square of at
-/// least [`SPECTRAL_TERM_CHI2`] (or none computed: nothing to judge by).
-fn term_confirmed(check: &SweepOutput) -> (f64, bool) {
-    let chi2 = check.angles.last().map_or(f64::NAN, |a| a.term_chi2);
-    (chi2, chi2.is_nan() || chi2 >= SPECTRAL_TERM_CHI2)
-}
-
-/// Flags a polishing pass keeps from the pass before: whether the spectrum search seeded
-/// the pixel, and what the extremum tracker found, which a polishing pass does not run for
-/// the pixels it holds.
-const CARRIED_FLAGS: u16 = flags::FROM_SPECTRUM_SEARCH | flags::TRACKER_OVERFLOW;
-
-/// Most Gauss-Newton iterations on the whole spectra (`polish`) after the passes.
-pub const MAX_POLISH: usize = 3;
-
-/// A polishing step of the index (at 550 nm) below this ends the iterations.
-pub const POLISHED_INDEX_STEP: f64 = 1e-3;
-
-/// Gauss-Newton iterations on the whole spectra from where the passes ended, each a pass with
-/// the index and every pixel's thickness held at the last result ([`PriorUpdate::Frozen`]):
-/// its sums are all linearised there, and its last angle tests the index model's last term
-/// and takes one step.
-///
-/// A streaming pass adds each angle's sums at the thicknesses and index of its time; the
-/// thicknesses step as the angles arrive, so the earlier angles' sums stay linearised where
-/// they were. For a thin film, whose index and thickness trade, that bias is large against
-/// the index's own sigma (measured: n 1.6 / 50 nm on 1.52, camera seed 10, thickness steps
-/// of 0.16 nm on average halved the reduced index gradient; the full-spectrum pass took a
-/// Cauchy term its sums put at chi-square 47 while the whole spectra at its result put it
-/// at 3.5, and ended 0.0065 low). A term that fails the test is dropped and the passes run
-/// again without it (at most as many terms) until the index settles, then are polished.
-fn polish(
-    source: &mut dyn Source,
-    config: &RunConfig,
-    passes: &mut Passes,
-) -> Result<(), PipelineError> {
-    let mut iterations = 0;
-    while iterations < MAX_POLISH {
-        let Some(index) = passes.out.index.filter(|_| !passes.out.model_mismatch) else {
-            return Ok(());
-        };
-        let map: Vec<f32> = passes.out.results.iter().map(|r| r.thickness_nm).collect();
-        let frozen = Prior {
-            noise_sigma: passes.out.noise_sigma,
-            ..Prior::new(index, PriorUpdate::Frozen, Some(Arc::new(map)))
-        };
-        let mut pass = run_sweep(source, config.pipeline, Some(frozen), &|_| {})?;
-        passes.passes += 1;
-        iterations += 1;
-        if index.terms() > 1 {
-            let (chi2, kept) = term_confirmed(&pass);
-            passes.term_check = Some(TermCheck {
-                terms: index.terms(),
-                chi2,
-                kept,
-            });
-            if !kept {
-                drop_term(source, config, passes, index)?;
-                continue;
-            }
-        }
-        if pass.model_mismatch || valid_fraction(&pass) < valid_fraction(&passes.out) {
-            return Ok(());
-        }
-        // Every pixel was seeded here, only the search's seeds say so; and the held pixels'
-        // extrema were not tracked: what the pass before found of them stands.
-        for (r, before) in pass.results.iter_mut().zip(&passes.out.results) {
-            r.flags = (r.flags & !CARRIED_FLAGS) | (before.flags & CARRIED_FLAGS);
-        }
-        for (a, before) in pass.angles.iter_mut().zip(&passes.out.angles) {
-            a.pair = before.pair;
-        }
-        pass.index_fit = passes.out.index_fit;
-        let step = pass.angles.last().map_or(0.0, |a| a.spectral_index_step);
-        if let Some(s) = &passes.seed {
-            passes.seed = Some(carry_seed(s, &pass));
-        }
-        passes.out = pass;
-        if step.abs() < POLISHED_INDEX_STEP {
-            break;
-        }
-    }
-    Ok(())
-}
-
-/// Runs full-spectrum passes with `index`'s last term dropped (and no more terms than
-/// that) until the index settles; the last is kept.
-fn drop_term(
-    source: &mut dyn Source,
-    config: &RunConfig,
-    passes: &mut Passes,
-    index: IndexModel,
-) -> Result<(), PipelineError> {
-    let terms = index.terms() - 1;
-    let mut prior = Prior {
-        max_terms: Some(terms),
-        ..Prior::new(
-            index.truncated(terms),
-            PriorUpdate::FullSpectra,
-            passes.seed.clone(),
-        )
-    };
-    for _ in 0..MAX_PASSES {
-        let pass = run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;
-        passes.passes += 1;
-        if let Some(s) = &passes.seed {
-            passes.seed = Some(carry_seed(s, &pass));
-            prior.seed = passes.seed.clone();
-        }
-        let next = pass.spectral_candidate.or(pass.index);
-        let done = settled(&pass) || pass.model_mismatch;
-        passes.out = pass;
-        match next {
-            Some(index) if !done => prior.index = index,
-            _ => break,
-        }
-    }
-    Ok(())
-}
-
-/// The streaming estimator's passes over `source` with one incidence angle per frame: the
-/// first pass, the spectrum search for a film without fringe pairs, and the passes
-/// `next_pass` asks for; `on_rows` is told of the first pass's rows.
+/// The streaming estimator over `source` with one incidence angle per frame: the sampled
+/// sites' full spectra give the shared index ([`crate::index_fit`]), and one streaming pass
+/// holding that index gives every pixel its order and thickness. A replayable source streams
+/// twice (the sample, then every pixel); a live one once, the sample held as it streams and
+/// the index refitted as each angle completes. `on_rows` is told of the first stream's rows.
 pub fn filmscope_passes(
     source: &mut dyn Source,
     config: &RunConfig,
     on_rows: &(dyn Fn(u64) + Sync),
 ) -> Result<Passes, PipelineError> {
-    let mut out = run_sweep(source, config.pipeline, None, on_rows)?;
-    let mut passes = 1;
-    // Further passes over the same data (`next_pass`); `latest` is the last pass when
-    // it is not the best, which `out` keeps.
-    let mut latest: Option<SweepOutput> = None;
-    let can_pass = config.pipeline.solver.refine && source.replayable();
-    // A film without fringe pairs: every later pass starts its pixels from a
-    // thickness map (the search's, then the last pass's).
-    let mut seed: Option<Arc<Vec<f32>>> = None;
-    // The search's fit and whether its passes were kept.
-    let mut search: Option<(ThinFit, bool)> = None;
-    // Also after a model mismatch: the extremum shifts may have found an index from noise
-    // extrema (a thick film next to the substrate's index, whose fringes drown in the
-    // noise); the search's pass is kept only if it explains the spectra and solves more.
-    if can_pass && ordered_fraction(&out) < THIN_SEARCH_BELOW_VALID {
-        if let Some((fit, start)) = thin_start(source, &out)? {
-            search = Some((fit, false));
-            if let Some(prior) = start {
-                let pass = run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;
-                passes += 1;
-                if !pass.model_mismatch && valid_fraction(&pass) > valid_fraction(&out) {
-                    seed = prior.seed.map(|s| carry_seed(&s, &pass));
-                    search = Some((fit, true));
-                    out = pass;
-                }
-            }
-        }
+    let spec = source.spec().clone();
+    let mut tap = SampleTap::new(&spec, config.sample_sites, source.angles_deg().len());
+    if !source.replayable() {
+        // A live camera streams once: the index from its extremum shifts.
+        let out = run_sweep(source, config.pipeline, None, on_rows)?;
+        return Ok(Passes {
+            out,
+            passes: 1,
+            fit: None,
+            choice: json!({"index_source": "extremum shifts (a live source streams once)", "passes": 1}),
+        });
     }
-    while can_pass && passes < MAX_PASSES {
-        let Some(mut prior) = next_pass(latest.as_ref().unwrap_or(&out), passes) else {
-            break;
-        };
-        if let Some(s) = &seed {
-            prior.seed = Some(s.clone());
-            prior.update = PriorUpdate::FullSpectra;
+    for_each_calibrated(source, |event| match event {
+        Calibrated::Angle(deg) => tap.angle(deg),
+        Calibrated::Rows {
+            band,
+            first_row,
+            rows,
+            values,
+            ..
+        } => {
+            tap.rows(band, first_row, rows, values);
+            on_rows(rows as u64);
         }
-        let pass = run_sweep(source, config.pipeline, Some(prior.clone()), &|_| {})?;
-        passes += 1;
-        if let Some(s) = &seed {
-            seed = Some(carry_seed(s, &pass));
-        }
-        if prior.update == PriorUpdate::Hold || fit_rank(&pass) < fit_rank(&out) {
-            out = pass;
-            latest = None;
-        } else {
-            latest = Some(pass);
-        }
-    }
-    let mut passes = Passes {
-        out,
-        passes,
-        search,
-        seed,
-        term_check: None,
+    })?;
+    let fit = tap.fit(&spec, None);
+    let index = index_model(&fit);
+    let seed = if fringes_across_band(&spec, &fit) < SEEDED_BELOW_FRINGES {
+        tap.seed_map(&fit, spec.width, spec.height).map(Arc::new)
+    } else {
+        None
     };
-    if can_pass && config.polish {
-        polish(source, config, &mut passes)?;
+    let prior = index.map(|i| Prior::new(i, PriorUpdate::Hold, seed));
+    let out = run_sweep(source, config.pipeline, prior, &|_| {})?;
+    let (out, fit, choice) = finish(out, fit, &tap, 2);
+    Ok(Passes {
+        out,
+        passes: 2,
+        fit: Some(fit),
+        choice,
+    })
+}
+
+/// The per-pixel pass's output under the sample's fit: a failed fit leaves no index and
+/// every pixel flagged, never a confident wrong number.
+fn finish(
+    mut out: SweepOutput,
+    fit: SampleFit,
+    tap: &SampleTap,
+    passes: usize,
+) -> (SweepOutput, SampleFit, serde_json::Value) {
+    let choice = choice_json(&fit, tap, passes);
+    if fit.index().is_none() {
+        out.index = None;
+        out.model_mismatch = true;
+        for r in &mut out.results {
+            r.flags |= flags::MODEL_MISMATCH;
+            r.thickness_nm = f32::NAN;
+            r.confidence = 0.0;
+        }
+    } else if let Some(c) = fit.best {
+        out.index_sigma = c.n550_sigma;
     }
-    Ok(passes)
+    (out, fit, choice)
 }
 
 /// The per-angle progress of a pass, as JSON (`summary.json` `angle_reports`).
@@ -463,50 +135,15 @@ pub fn angle_reports(out: &SweepOutput) -> serde_json::Value {
     serde_json::Value::Array(reports)
 }
 
-/// The index model chosen and its evidence, for `summary.json` (null without an index).
-pub fn model_choice(
-    out: &SweepOutput,
-    passes: usize,
-    search: Option<(ThinFit, bool)>,
-    term_check: Option<TermCheck>,
-) -> serde_json::Value {
-    let Some(index) = out.index else {
-        return serde_json::Value::Null;
-    };
-    let finite = |x: f64| x.is_finite().then_some(x);
-    let f = out.index_fit;
-    let seeded = search.is_some_and(|(_, kept)| kept);
-    json!({
-        "residual_sigma": out.residual_sigma,
-        "noise_sigma": out.noise_sigma,
-        "passes": passes,
-        "index_source": match (seeded, out.spectral_index) {
-            (true, _) => "spectrum search, then full spectra",
-            (false, true) => "full spectra",
-            (false, false) => "extremum shifts",
-        },
-        "spectrum_search": search.map(|(t, kept)| json!({
-            "index": t.index,
-            "rms": t.rms,
-            "sampled_pixels": t.pixels,
-            "kept": kept,
-            "criterion": format!("tried when fewer than {THIN_SEARCH_BELOW_VALID} of the pixels are valid or flagged only imprecise after the first pass; its passes run if its fit residual is within {MISMATCH_RATIO} x the pixels' noise + {MISMATCH_FLOOR}, and are kept if they leave more pixels valid"),
-        })),
-        "full_spectrum_chi2_gains": out.spectral_gains.map(finite),
-        "term_check": term_check.map(|c| json!({
-            "terms": c.terms,
-            "chi2": finite(c.chi2),
-            "kept": c.kept,
-            "criterion": format!("a pass held at the model and seeded with its thicknesses (every sum linearised at the result): the last term stays if its Wald chi-square is at least {SPECTRAL_TERM_CHI2}, else the passes run again without it"),
-        })),
-        "full_spectrum_criterion": format!("another pass holds the index when it came too late to refine more than {UNREFINED_SHARE} of the pixels with fringes; a pass takes it from the full spectra when the fit residual exceeds {UNDERFIT_RATIO} x the pixels' noise or the full spectra would move the extremum-shift index by {DISAGREE_INDEX_STEP} or more; an extra Cauchy term enters only once the simpler model has settled, if it lowers the chi-square by {SPECTRAL_TERM_CHI2} (5 sigma) and keeps the dispersion physical (normal, at most {MAX_DISPERSION} and {MAX_DISPERSION_PER_EXCESS} x (n - 1) across the band)"),
-        "chosen": (["constant", "cauchy", "cauchy3"])[index.terms() - 1],
-        "extremum_fit_chosen": f.map(|f| if f.dispersive { "cauchy" } else { "constant" }),
-        "chi2_constant": f.map(|f| f.chi2_constant),
-        "chi2_cauchy": f.and_then(|f| finite(f.chi2_cauchy)),
-        "wavelength_bins": f.map(|f| f.bins),
-        "criterion": "Cauchy only if its chi-square gain, in units of its own reduced chi-square, exceeds 25, the constant model's reduced chi-square exceeds 2, and 0 <= b <= 0.2 um^2 with n inside the search range across the band",
-    })
+/// The name of an index model, as `summary.json` `index_model` gives it.
+pub fn index_model_name(m: &IndexModel) -> &'static str {
+    match (m.pole, m.terms()) {
+        (Some(p), _) if p.a == 1.0 => "sellmeier",
+        (Some(_), _) => "sellmeier_constant",
+        (None, 1) => "constant",
+        (None, 2) => "cauchy",
+        _ => "cauchy3",
+    }
 }
 
 /// How to run a method.
@@ -521,9 +158,8 @@ pub struct RunConfig {
     /// The field model of the streaming method: chosen from the data (default), or forced,
     /// and the wide model's settings.
     pub field: FieldConfig,
-    /// End a replayable estimate with Gauss-Newton iterations on the whole spectra
-    /// (`polish`; off: `--ablate polish`, one pass fewer).
-    pub polish: bool,
+    /// Sites whose full spectra give the shared index ([`crate::index_fit`]).
+    pub sample_sites: usize,
 }
 
 impl Default for RunConfig {
@@ -533,7 +169,7 @@ impl Default for RunConfig {
             pipeline: PipelineConfig::default(),
             brute_grid: BruteGrid::default(),
             field: FieldConfig::default(),
-            polish: true,
+            sample_sites: crate::index_fit::DEFAULT_SITES,
         }
     }
 }
@@ -569,9 +205,9 @@ pub struct Run {
 pub fn result_from_sweep(out: &SweepOutput) -> MethodResult {
     let mut notes = Vec::new();
     if out.index.is_none() {
-        notes.push("no angle pair resolved the fringe shift: no index, no thickness".to_owned());
+        notes.push("no index: every pixel is NaN".to_owned());
     }
-    if out.model_mismatch {
+    if out.model_mismatch && out.index.is_some() {
         notes.push(format!(
             "model mismatch: the film model leaves residuals of {:.4} against a noise of {:.4}; the index is unreliable and every pixel is flagged",
             out.residual_sigma.unwrap_or(f64::NAN),
@@ -794,8 +430,8 @@ pub fn write_outputs(
     let summary = json!({
         "refractive_index": r.index.at(550.0),
         "refractive_index_sigma": r.index_sigma,
-        "dispersion": dispersion_json(&r.index.dispersion()),
-        "index_model": (["constant", "cauchy", "cauchy3"])[r.index.terms() - 1],
+        "dispersion": crate::index_fit::dispersion_json(r.index.dispersion(), &run.spec.bands_nm),
+        "index_model": index_model_name(&r.index),
         "index_model_choice": run.model_choice,
         "field_model": run.field_model.map(FieldModel::name),
         "field_model_choice": run.field_model_choice,

@@ -31,10 +31,7 @@ use filmscope_core::optics::FieldOfView;
 use filmscope_core::solve::{flags, IndexModel, PixelResult, SweepSpec};
 use serde_json::json;
 
-use crate::estimate::{
-    angle_reports, filmscope_passes, model_choice, result_from_sweep, Passes, Run, RunConfig,
-    UNDERFIT_RATIO,
-};
+use crate::estimate::{angle_reports, filmscope_passes, result_from_sweep, Passes, Run, RunConfig};
 use crate::pipeline::{
     run_sweep, PipelineConfig, PipelineError, Prior, PriorUpdate, RowBlock, Samples, Source,
     StreamMsg, SweepOutput,
@@ -977,10 +974,18 @@ pub fn run_filmscope(
     Ok(run)
 }
 
+/// A narrow-model fit residual above this many times the pixels' noise calls for the wide
+/// model (well-modelled scenes measure 0.83-1.03).
+pub const UNDERFIT_RATIO: f64 = 1.25;
+
 /// The narrow model's run.
 fn narrow_run(source: &dyn Source, p: &Passes, t0: Instant) -> Run {
+    let mut result = result_from_sweep(&p.out);
+    if let Some(f) = p.fit.as_ref().and_then(|f| f.failure) {
+        result.notes.push(f.message().to_owned());
+    }
     Run {
-        result: result_from_sweep(&p.out),
+        result,
         spec: source.spec().clone(),
         angles_deg: source.angles_deg(),
         seconds: t0.elapsed().as_secs_f64(),
@@ -988,7 +993,7 @@ fn narrow_run(source: &dyn Source, p: &Passes, t0: Instant) -> Run {
         state_bytes_per_pixel: Some(p.out.state_bytes_per_pixel),
         samples: p.out.samples,
         angle_reports: angle_reports(&p.out),
-        model_choice: model_choice(&p.out, p.passes, p.search, p.term_check),
+        model_choice: p.choice.clone(),
         field_model: Some(FieldModel::Narrow),
         field_model_choice: serde_json::Value::Null,
     }
@@ -1030,14 +1035,7 @@ fn wide_run(source: &dyn Source, wide: &WideRun, t0: Instant) -> Run {
         notes,
     };
     let strips: Vec<_> = (0..wide.strips.len())
-        .map(|k| {
-            model_choice(
-                wide.last(k),
-                wide.own[k].passes,
-                wide.own[k].search,
-                wide.own[k].term_check,
-            )
-        })
+        .map(|k| wide.own[k].choice.clone())
         .collect();
     let chosen = wide
         .combined

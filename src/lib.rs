@@ -41,6 +41,8 @@ pub mod export;
 #[cfg(feature = "std")]
 pub mod field;
 #[cfg(feature = "std")]
+pub mod index_fit;
+#[cfg(feature = "std")]
 pub mod io;
 #[cfg(feature = "std")]
 pub mod pipeline;

@@ -127,7 +127,7 @@ pub fn estimate(
             strips: field_strips,
             ..FieldConfig::default()
         },
-        polish: true,
+        sample_sites: crate::index_fit::DEFAULT_SITES,
     };
     let cap = Capture::load(capture)?;
     for key in &cap.unknown_keys {
@@ -225,10 +225,9 @@ fn eval_one(path: &Path, config: &RunConfig) -> Result<(EvalReport, Run)> {
 
 /// Solver options and the wide field model's settings with the named improvements switched
 /// off.
-fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig, bool)> {
+fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig)> {
     let mut o = SolverOptions::default();
     let mut f = FieldConfig::default();
-    let mut polish = true;
     for name in list {
         match name.as_str() {
             "refine" => o.refine = false,
@@ -238,13 +237,12 @@ fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig, bool)> {
             "wide-simd" => o.wide_simd = false,
             "column-map" => f.column_map = false,
             "shared-index" => f.shared_rounds = false,
-            "polish" => polish = false,
             other => bail!(
-                "--ablate {other:?}: use refine, half-order, neighbours, subband, wide-simd, column-map, shared-index or polish"
+                "--ablate {other:?}: use refine, half-order, neighbours, subband, wide-simd, column-map or shared-index"
             ),
         }
     }
-    Ok((o, f, polish))
+    Ok((o, f))
 }
 
 /// `filmscope eval`.
@@ -259,7 +257,7 @@ pub fn eval(
     if inputs.is_empty() {
         bail!("eval needs at least one scene file or capture directory");
     }
-    let (solver, wide, polish) = ablated(ablate)?;
+    let (solver, wide) = ablated(ablate)?;
     let solver = SolverOptions {
         index_pixels,
         ..solver
@@ -279,7 +277,7 @@ pub fn eval(
             strips: field_strips,
             ..wide
         },
-        polish,
+        sample_sites: crate::index_fit::DEFAULT_SITES,
     };
     if !json {
         println!(

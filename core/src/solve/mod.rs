@@ -108,7 +108,7 @@ pub mod flags {
 
 /// The film index model the solver works with: Cauchy
 /// `n = a + b_um2 / lambda_um^2 + c_um4 / lambda_um^4` (`b_um2 = c_um4 = 0`: a constant
-/// index; `c_um4 = 0`: two terms).
+/// index; `c_um4 = 0`: two terms), or a one-pole Sellmeier ([`Pole`]) when `pole` is set.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IndexModel {
     /// Constant term.
@@ -117,6 +117,20 @@ pub struct IndexModel {
     pub b_um2: f64,
     /// Second dispersion term, um^4.
     pub c_um4: f64,
+    /// A one-pole Sellmeier model, which replaces the Cauchy terms when set (the basis
+    /// functions, [`IndexModel::to_basis`] and its kin, serve Cauchy models only).
+    pub pole: Option<Pole>,
+}
+
+/// One-pole Sellmeier: `n^2 = a + s lambda^2 / (lambda^2 - l_um^2)`, lambda in um.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pole {
+    /// Constant term of `n^2` (1 for the classic form).
+    pub a: f64,
+    /// Oscillator strength.
+    pub s: f64,
+    /// Resonance wavelength, um.
+    pub l_um: f64,
 }
 
 /// Reference wavelength of the index basis ([`IndexModel::to_basis`]), nm.
@@ -129,6 +143,7 @@ impl IndexModel {
             a: n,
             b_um2: 0.0,
             c_um4: 0.0,
+            pole: None,
         }
     }
 
@@ -138,6 +153,37 @@ impl IndexModel {
             a,
             b_um2,
             c_um4: 0.0,
+            pole: None,
+        }
+    }
+
+    /// The model of an optics dispersion: constant, Cauchy, or a Sellmeier with one pole
+    /// (`None` for more poles).
+    pub fn from_dispersion(d: crate::optics::Dispersion) -> Option<Self> {
+        use crate::optics::Dispersion as D;
+        match d {
+            D::Constant { n } => Some(Self::constant(n)),
+            D::Cauchy { a, b_um2, c_um4 } => Some(Self {
+                a,
+                b_um2,
+                c_um4,
+                pole: None,
+            }),
+            D::Sellmeier { a, b, c_um } => {
+                if b[1] != 0.0 || b[2] != 0.0 {
+                    return None;
+                }
+                Some(Self {
+                    a: 0.0,
+                    b_um2: 0.0,
+                    c_um4: 0.0,
+                    pole: Some(Pole {
+                        a,
+                        s: b[0],
+                        l_um: c_um[0],
+                    }),
+                })
+            }
         }
     }
 
@@ -146,11 +192,18 @@ impl IndexModel {
     pub fn at(&self, wavelength_nm: f64) -> f64 {
         let l = wavelength_nm * 1e-3;
         let l2 = l * l;
+        if let Some(p) = self.pole {
+            return libm::sqrt(p.a + p.s * l2 / (l2 - p.l_um * p.l_um));
+        }
         self.a + self.b_um2 / l2 + self.c_um4 / (l2 * l2)
     }
 
-    /// Terms the model uses: 1 (constant), 2 or 3.
+    /// Terms the model uses: 1 (constant), 2 or 3 (a Sellmeier pole: 2, or 3 with a
+    /// constant other than 1).
     pub fn terms(&self) -> usize {
+        if let Some(p) = self.pole {
+            return if p.a == 1.0 { 2 } else { 3 };
+        }
         if self.c_um4 != 0.0 {
             3
         } else if self.b_um2 != 0.0 {
@@ -187,6 +240,7 @@ impl IndexModel {
             a: p[0] - b - c,
             b_um2: b * l2,
             c_um4: c * l4,
+            pole: None,
         }
     }
 
@@ -207,6 +261,13 @@ impl IndexModel {
 
     /// As an optics dispersion.
     pub fn dispersion(&self) -> crate::optics::Dispersion {
+        if let Some(p) = self.pole {
+            return crate::optics::Dispersion::Sellmeier {
+                a: p.a,
+                b: [p.s, 0.0, 0.0],
+                c_um: [p.l_um, 0.0, 0.0],
+            };
+        }
         match self.terms() {
             1 => crate::optics::Dispersion::constant(self.a),
             _ => crate::optics::Dispersion::Cauchy {
@@ -228,6 +289,7 @@ mod model_tests {
             a: 2.266,
             b_um2: 0.0258,
             c_um4: 0.0032,
+            pole: None,
         };
         let p = m.to_basis();
         let back = IndexModel::from_basis(p);

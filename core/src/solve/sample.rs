@@ -310,7 +310,11 @@ pub fn workspace_len(sites: usize, angles: usize, bands: usize) -> usize {
 /// Sites of a `width x height` image for a sample of about `sites`: a grid with the image's
 /// aspect, each site `(row, first column of its run)`, runs inside the image. Fewer when the
 /// image is too small.
-pub fn site_grid(width: usize, height: usize, sites: usize) -> heapless::Vec<(u32, u32), MAX_SITES> {
+pub fn site_grid(
+    width: usize,
+    height: usize,
+    sites: usize,
+) -> heapless::Vec<(u32, u32), MAX_SITES> {
     let mut out = heapless::Vec::new();
     if width < RUN || height == 0 || sites == 0 {
         return out;
@@ -358,7 +362,8 @@ pub fn fit_index(
     if na < 1 || nb < 8 || sites == 0 || scratch.len() < workspace_len(sites, na, nb) {
         return fit;
     }
-    fit.noise_sigma = noise_sigma(geo, spectra, scratch);
+    let mut site_sigma = [f64::NAN; MAX_SITES];
+    fit.noise_sigma = noise_sigma(geo, spectra, scratch, &mut site_sigma);
     // Usable sites: at most a tenth of the centre's samples missing.
     let mut usable = [false; MAX_SITES];
     for (k, u) in usable.iter_mut().enumerate().take(sites) {
@@ -369,20 +374,30 @@ pub fn fit_index(
         *u = bad * 10 <= na * nb;
     }
     fit.sites_used = usable.iter().filter(|&&u| u).count();
-    let sigma = fit.noise_sigma;
-    if fit.sites_used < 2 || !(sigma > 0.0 && sigma.is_finite()) {
+    for (k, u) in usable.iter_mut().enumerate().take(sites) {
+        *u &= site_sigma[k] > 0.0 && site_sigma[k].is_finite();
+    }
+    fit.sites_used = usable.iter().filter(|&&u| u).count();
+    if fit.sites_used < 2 {
         return fit;
+    }
+    let mut weight = [0.0; MAX_SITES];
+    for (w, s) in weight.iter_mut().zip(&site_sigma) {
+        *w = 1.0 / (s * s);
     }
     let problem = Problem {
         geo,
         spectra,
         usable: &usable[..sites],
-        sigma,
+        weight,
     };
     // Warm start first: refine and keep if it passes the gate.
     let mut thick = [f64::NAN; MAX_SITES];
     if let Some((kind, p)) = start {
-        if problem.start_thicknesses(kind, &p, &mut thick, scratch).is_some() {
+        if problem
+            .start_thicknesses(kind, &p, &mut thick, scratch)
+            .is_some()
+        {
             let mut refined = thick;
             if let Some(cand) = problem.refine(kind, p, &mut refined) {
                 if cand.chi2_nu <= GATE_CHI2_NU {
@@ -409,7 +424,10 @@ pub fn fit_index(
     for p in &starts {
         fit.starts += 1;
         let mut t = [f64::NAN; MAX_SITES];
-        if problem.start_thicknesses(ModelKind::Cauchy2, p, &mut t, scratch).is_none() {
+        if problem
+            .start_thicknesses(ModelKind::Cauchy2, p, &mut t, scratch)
+            .is_none()
+        {
             continue;
         }
         if let Some(c) = problem.refine(ModelKind::Cauchy2, *p, &mut t) {
@@ -427,12 +445,21 @@ pub fn fit_index(
     }
 }
 
-/// The image noise: a robust scale (MAD) of the runs' fourth differences across the row,
-/// over `sqrt(70)` (the fourth difference of white noise has 70 times its variance).
-fn noise_sigma(geo: &Geometry<'_>, spectra: &Spectra<'_>, scratch: &mut [f32]) -> f64 {
+/// Each site's noise, `site_sigma`, from its run's fourth differences across the row: the
+/// RMS of those within 4 robust sigmas of zero (a step or a hot pixel left out), over
+/// `sqrt(70)` (the fourth difference of white noise has 70 times its variance). Sites see
+/// different noise (vignetting, shot noise at their own reflectance), so each is weighed by
+/// its own. Returns the median site's.
+fn noise_sigma(
+    geo: &Geometry<'_>,
+    spectra: &Spectra<'_>,
+    scratch: &mut [f32],
+    site_sigma: &mut [f64; MAX_SITES],
+) -> f64 {
     let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
-    let mut n = 0;
-    for k in 0..spectra.sites.min(MAX_SITES) {
+    let sites = spectra.sites.min(MAX_SITES);
+    for (k, out) in site_sigma.iter_mut().enumerate().take(sites) {
+        let mut n = 0;
         for a in 0..na {
             for b in 0..nb {
                 let v: [f32; RUN] = core::array::from_fn(|j| spectra.at(nb, k, j, a, b));
@@ -443,12 +470,35 @@ fn noise_sigma(geo: &Geometry<'_>, spectra: &Spectra<'_>, scratch: &mut [f32]) -
                 }
             }
         }
+        if n < 16 {
+            continue;
+        }
+        let (_, m, _) = scratch[..n].select_nth_unstable_by(n / 2, f32::total_cmp);
+        let cut = 4.0 * 1.4826 * f64::from(*m);
+        let (mut sum, mut count) = (0.0, 0usize);
+        for &d in &scratch[..n] {
+            let d = f64::from(d);
+            if d <= cut {
+                sum += d * d;
+                count += 1;
+            }
+        }
+        if count > 0 {
+            *out = libm::sqrt(sum / count as f64 / 70.0);
+        }
     }
-    if n < 16 {
+    let mut n = 0;
+    for &s in site_sigma.iter().take(sites) {
+        if s.is_finite() {
+            scratch[n] = s as f32;
+            n += 1;
+        }
+    }
+    if n == 0 {
         return f64::NAN;
     }
     let (_, m, _) = scratch[..n].select_nth_unstable_by(n / 2, f32::total_cmp);
-    f64::from(*m) * 1.4826 / libm::sqrt(70.0)
+    f64::from(*m)
 }
 
 /// The stack at one quadrature node: its weight, wavelength and film.
@@ -468,7 +518,8 @@ struct Problem<'a> {
     geo: &'a Geometry<'a>,
     spectra: &'a Spectra<'a>,
     usable: &'a [bool],
-    sigma: f64,
+    /// Each site's weight, one over its noise variance.
+    weight: [f64; MAX_SITES],
 }
 
 /// Per-site normal-equation sums of one iteration.
@@ -492,7 +543,13 @@ impl Problem<'_> {
 
     /// The 5 Gauss-Hermite nodes of band `b` at angle `a` under model `(kind, p)` (fewer for
     /// a zero FWHM); `None` where a wave does not propagate.
-    fn nodes(&self, kind: ModelKind, p: &[f64; 3], a: usize, b: usize) -> Option<([Node; 5], usize)> {
+    fn nodes(
+        &self,
+        kind: ModelKind,
+        p: &[f64; 3],
+        a: usize,
+        b: usize,
+    ) -> Option<([Node; 5], usize)> {
         let (l0, fwhm) = (self.geo.bands_nm[b], self.geo.fwhm_nm[b]);
         let sigma = fwhm / 2.354_82 * TRUNCATED_SIGMA;
         let count = if sigma > 0.0 { 5 } else { 1 };
@@ -561,8 +618,8 @@ impl Problem<'_> {
                         let ph = nd.phase_per_nm * d;
                         let (sn, cs) = (libm::sin(ph), libm::cos(ph));
                         let r = nd.film.reflectance_at_cos(cs);
-                        let ph_up = 4.0 * core::f64::consts::PI * nd.film_up.kz_film * d
-                            / (nd.l_um * 1e3);
+                        let ph_up =
+                            4.0 * core::f64::consts::PI * nd.film_up.kz_film * d / (nd.l_um * 1e3);
                         let r_up = nd.film_up.reflectance_at_phase(ph_up);
                         let dr_dn = (r_up - r) / INDEX_STEP;
                         m += nd.weight * r;
@@ -575,15 +632,16 @@ impl Problem<'_> {
                         }
                     }
                     let res = f64::from(y) - m;
-                    s.sse += res * res;
+                    let w = self.weight[k];
+                    s.sse += w * res * res;
                     s.n += 1;
-                    s.jdd += jd * jd;
-                    s.gd += jd * res;
+                    s.jdd += w * jd * jd;
+                    s.gd += w * jd * res;
                     for q in 0..3 {
-                        s.jdp[q] += jd * jp[q];
+                        s.jdp[q] += w * jd * jp[q];
                     }
-                    hpp += jp * jp.transpose();
-                    gp += jp * res;
+                    hpp += jp * jp.transpose() * w;
+                    gp += jp * (res * w);
                 }
             }
         }
@@ -592,15 +650,19 @@ impl Problem<'_> {
             sse += s.sse;
             n += s.n;
         }
-        let w = 1.0 / (self.sigma * self.sigma);
-        Some((hpp * w, gp * w, sse * w, n))
+        Some((hpp, gp, sse, n))
     }
 
     /// Levenberg-Marquardt on every usable site from `(kind, p)` and thicknesses `t`
     /// (updated in place).
-    fn refine(&self, kind: ModelKind, mut p: [f64; 3], t: &mut [f64; MAX_SITES]) -> Option<Candidate> {
+    fn refine(
+        &self,
+        kind: ModelKind,
+        mut p: [f64; 3],
+        t: &mut [f64; MAX_SITES],
+    ) -> Option<Candidate> {
         let np = kind.params();
-        let w = 1.0 / (self.sigma * self.sigma);
+        let w = 1.0;
         let mut sites = [SiteSums::default(); MAX_SITES];
         let (mut hpp, mut gp, mut chi2, mut n) = self.normal(kind, &p, t, &mut sites)?;
         let mut lambda = 1e-3;
@@ -625,7 +687,11 @@ impl Problem<'_> {
                 }
                 hd[(i, i)] = h[(i, i)] * (1.0 + lambda) + 1e-12;
             }
-            let gr = Vector3::new(g[0], if np > 1 { g[1] } else { 0.0 }, if np > 2 { g[2] } else { 0.0 });
+            let gr = Vector3::new(
+                g[0],
+                if np > 1 { g[1] } else { 0.0 },
+                if np > 2 { g[2] } else { 0.0 },
+            );
             let Some(dp) = hd.cholesky().map(|c| c.solve(&gr)) else {
                 lambda *= 10.0;
                 continue;
@@ -705,7 +771,12 @@ impl Problem<'_> {
         }
         // Scale by the reduced chi-square when the fit is worse than the noise.
         let n550_sigma = libm::sqrt(var.max(0.0) * chi2_nu.max(1.0));
-        let lo = self.geo.bands_nm.iter().copied().fold(f64::INFINITY, f64::min);
+        let lo = self
+            .geo
+            .bands_nm
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min);
         let hi = self.geo.bands_nm.iter().copied().fold(0.0, f64::max);
         Some(Candidate {
             kind,
@@ -721,7 +792,12 @@ impl Problem<'_> {
     /// Every model refined from the two-term Cauchy fit `base`; the simplest that the data
     /// ask for chosen, with the gate and a second start.
     fn choose(&self, mut fit: SampleFit, base: Candidate, t: &[f64; MAX_SITES]) -> SampleFit {
-        let lo = self.geo.bands_nm.iter().copied().fold(f64::INFINITY, f64::min);
+        let lo = self
+            .geo
+            .bands_nm
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min);
         let hi = self.geo.bands_nm.iter().copied().fold(0.0, f64::max);
         let n_at = |c: &Candidate, l_nm: f64| c.kind.eval(&c.params, l_nm * 1e-3).0;
         let mut best: Option<(Candidate, [f64; MAX_SITES])> = None;
@@ -845,7 +921,12 @@ impl Problem<'_> {
                 for di in -1i32..=1 {
                     for dj in -1i32..=1 {
                         let (ii, jj) = (i as i32 + di, j as i32 + dj);
-                        if (di, dj) == (0, 0) || ii < 0 || jj < 0 || ii > n_steps as i32 || jj >= B_STEPS as i32 {
+                        if (di, dj) == (0, 0)
+                            || ii < 0
+                            || jj < 0
+                            || ii > n_steps as i32
+                            || jj >= B_STEPS as i32
+                        {
                             continue;
                         }
                         if grid[ii as usize][jj as usize] < v {
@@ -871,9 +952,15 @@ impl Problem<'_> {
                         continue;
                     }
                     let p = [n550 - b / (L0_UM * L0_UM), b, 0.0];
-                    if let Some(s) =
-                        self.score_point(ModelKind::Cauchy2, &p, &chosen, bands, from, scratch, None)
-                    {
+                    if let Some(s) = self.score_point(
+                        ModelKind::Cauchy2,
+                        &p,
+                        &chosen,
+                        bands,
+                        from,
+                        scratch,
+                        None,
+                    ) {
                         if best.is_none_or(|(bs, _)| s < bs) {
                             best = Some((s, p));
                         }
@@ -884,9 +971,20 @@ impl Problem<'_> {
         let (_, p) = best?;
         // Fringes across the whole band at the search sites' median thickness.
         let mut t = [f64::NAN; MAX_SITES];
-        self.score_point(ModelKind::Cauchy2, &p, &chosen, bands, from, scratch, Some(&mut t))?;
-        let mut ts: heapless::Vec<f64, MAX_SITES> =
-            chosen.iter().map(|&k| t[k]).filter(|x| x.is_finite()).collect();
+        self.score_point(
+            ModelKind::Cauchy2,
+            &p,
+            &chosen,
+            bands,
+            from,
+            scratch,
+            Some(&mut t),
+        )?;
+        let mut ts: heapless::Vec<f64, MAX_SITES> = chosen
+            .iter()
+            .map(|&k| t[k])
+            .filter(|x| x.is_finite())
+            .collect();
         ts.sort_unstable_by(f64::total_cmp);
         let d = *ts.get(ts.len() / 2)?;
         let b = &self.geo.bands_nm;
@@ -961,7 +1059,6 @@ impl Problem<'_> {
             }
             m2[i] = s;
         }
-        let w = 1.0 / (self.sigma * self.sigma);
         let mut total = 0.0;
         let mut y = [0.0f32; 16 * SEARCH_BANDS];
         for &k in sites {
@@ -1048,7 +1145,7 @@ impl Problem<'_> {
             if let Some(t) = t.as_deref_mut() {
                 t[k] = d;
             }
-            total += sse * w;
+            total += sse * self.weight[k];
         }
         Some(total)
     }
@@ -1222,7 +1319,11 @@ mod tests {
             noise: 0.003,
         };
         let (fit, _) = run(&case, 3);
-        assert!((fit.noise_sigma / 0.003 - 1.0).abs() < 0.05, "{}", fit.noise_sigma);
+        assert!(
+            (fit.noise_sigma / 0.003 - 1.0).abs() < 0.05,
+            "{}",
+            fit.noise_sigma
+        );
     }
 
     #[test]
