@@ -6,6 +6,8 @@
 //!   angles and bands, and the sensor.
 //! - [`camera`]: renders band frames row by row, as raw counts with noise or as true band
 //!   reflectance, in any row order with the same result.
+//! - [`random`]: random coating scenes drawn from the material library, for
+//!   `filmscope eval --random`.
 //! - [`rng`]: the deterministic generator behind thickness maps and noise.
 //! - [`clock`]: the virtual clock (motion and settle times cost no wall time in tests).
 //! - [`world`]: where the simulated stage points and what the filter passes.
@@ -17,6 +19,7 @@ pub mod camera;
 pub mod camlink;
 pub mod clock;
 pub mod kurios;
+pub mod random;
 pub mod rng;
 pub mod scene;
 pub mod serial;

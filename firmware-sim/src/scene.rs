@@ -425,15 +425,12 @@ fn dispersion(d: DispersionFile) -> Result<Dispersion, String> {
             cc[..c_um.len()].copy_from_slice(&c_um);
             Dispersion::Sellmeier { a, b: bb, c_um: cc }
         }
-        DispersionFile::Material { name } => match name.as_str() {
-            "zns-debenham" => materials::zns_debenham(),
-            "mgf2-dodge" => materials::MGF2_DODGE_O,
-            other => {
-                return Err(format!(
-                    "[film.dispersion] unknown material {other:?} (known: zns-debenham, mgf2-dodge)"
-                ))
-            }
-        },
+        DispersionFile::Material { name } => materials::by_name(&name).ok_or_else(|| {
+            format!(
+                "[film.dispersion] unknown material {name:?} (known: {}, and zns-debenham, mgf2-dodge)",
+                materials::names().join(", ")
+            )
+        })?,
     })
 }
 
