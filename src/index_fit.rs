@@ -278,7 +278,7 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
         "passes": passes,
         "candidates": candidates,
         "criterion": format!(
-            "lowest chi2 + {MODEL_PENALTY} x parameters among physical models (index inside the search range and falling with wavelength, a Sellmeier pole below the band), chi2 in units of the noise measured from each site's run of {RUN} pixels; the fit fails when its reduced chi-square exceeds {GATE_CHI2_NU} after a second start"
+            "lowest chi2 + {MODEL_PENALTY} x parameters (a constant index counted as two, the Cauchy model with its slope held at zero) among physical models (index inside the search range and falling with wavelength, a Sellmeier pole below the band), chi2 in units of the noise measured from each site's run of {RUN} pixels; the fit fails when its reduced chi-square exceeds {GATE_CHI2_NU} after a second start"
         ),
         "models": ModelKind::ALL.iter().map(|k| k.name()).collect::<Vec<_>>(),
     })

@@ -31,7 +31,6 @@ pub mod refine;
 pub mod sample;
 pub mod shard;
 pub mod sweep;
-pub mod thin;
 
 pub use shard::{state_bytes_per_pixel, tracker_blocks, PixelResult, PixelState, Shard};
 pub use sweep::{AngleReport, SweepSolver, SweepSpec};
@@ -69,7 +68,7 @@ pub mod flags {
     /// sample), too few to make the pixel [`DEAD`]: the thickness stands, but is worth a look.
     pub const MISSING_SAMPLES: u16 = 1 << 11;
     /// No fringe pair: the thickness started from the global (index, thickness) search on
-    /// sampled spectra ([`super::thin`]) and was refined on the pixel's own full spectrum.
+    /// a pixel sample's full spectra ([`super::sample`]) and was refined on the pixel's own full spectrum.
     pub const FROM_SPECTRUM_SEARCH: u16 = 1 << 12;
     /// The thickness is too uncertain to report: its 1-sigma from the full-spectrum fit
     /// (the pixel's residual over `sqrt(sum J_d^2)`) exceeds

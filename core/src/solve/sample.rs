@@ -783,7 +783,10 @@ impl Problem<'_> {
             params: p,
             chi2,
             chi2_nu,
-            score: chi2 + MODEL_PENALTY * np as f64,
+            // A constant index is the two-term Cauchy model with its slope held at zero: it
+            // saves no penalty against the evidence of a weak but real dispersion (held
+            // constant, a 180 nm MgF2 film's index came out 0.0035 low, free 0.0005).
+            score: chi2 + MODEL_PENALTY * np.max(2) as f64,
             n550_sigma,
             physical: kind.physical(&p, lo, hi, self.geo.index_range),
         })
@@ -1390,7 +1393,10 @@ mod tests {
             0.001,
             1.0,
         );
-        assert_eq!(fit.best.map(|c| c.kind), Some(ModelKind::Constant));
+        // Constant, or a Cauchy model that bends by less than 0.002 across the band.
+        let c = fit.best.expect("a fit");
+        let d = c.kind.dispersion(&c.params);
+        assert!((d.index_at(420.0) - d.index_at(720.0)).abs() < 0.002, "{c:?}");
     }
 
     #[test]

@@ -293,7 +293,7 @@ impl<'a> Shard<'a> {
     }
 
     /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
-    /// spectra put it ([`super::thin`]): it is refined from the first angle on, needing no
+    /// spectra put it ([`super::sample`]): it is refined from the first angle on, needing no
     /// extrema. A NaN thickness leaves it as it was.
     pub fn seed(&mut self, i: usize, thickness_nm: f32, index: IndexModel, spec: &SweepSpec) {
         if thickness_nm.is_finite() {
