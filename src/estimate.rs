@@ -17,8 +17,8 @@ use crate::index_fit::{
 };
 use crate::io::{write_atomic, write_f32_map, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::pipeline::{
-    collect_sweep, for_each_calibrated, run_sweep, Calibrated, PipelineConfig, PipelineError,
-    Prior, PriorUpdate, Source, SweepOutput,
+    collect_sweep, for_each_calibrated, run_sweep, run_sweep_sampled, Calibrated, PipelineConfig, PipelineError,
+    Prior, PriorUpdate, SampleHook, Source, SweepOutput,
 };
 use filmscope_core::optics::FieldOfView;
 
@@ -49,14 +49,33 @@ pub fn filmscope_passes(
 ) -> Result<Passes, PipelineError> {
     let spec = source.spec().clone();
     let mut tap = SampleTap::new(&spec, config.sample_sites, source.angles_deg().len());
-    if !source.replayable() {
-        // A live camera streams once: the index from its extremum shifts.
-        let out = run_sweep(source, config.pipeline, None, on_rows)?;
+    if config.one_pass || !source.replayable() {
+        // A live camera streams once: the sample is held as it streams and refitted as each
+        // angle completes (from the second on), warm-started from the last fit.
+        let tap = std::sync::Mutex::new(tap);
+        let mut last: Option<SampleFit> = None;
+        let mut refit = |t: &SampleTap| -> Option<IndexModel> {
+            if t.angles() < 2 {
+                return None;
+            }
+            let fit = t.fit(&spec, last.as_ref());
+            let m = index_model(&fit);
+            last = Some(fit);
+            m
+        };
+        let hook = SampleHook {
+            tap: &tap,
+            refit: &mut refit,
+        };
+        let out = run_sweep_sampled(source, config.pipeline, hook, on_rows)?;
+        let tap = tap.into_inner().unwrap_or_else(|e| e.into_inner());
+        let fit = last.unwrap_or_else(|| tap.fit(&spec, None));
+        let (out, fit, choice) = finish(out, fit, &tap, 1);
         return Ok(Passes {
             out,
             passes: 1,
-            fit: None,
-            choice: json!({"index_source": "extremum shifts (a live source streams once)", "passes": 1}),
+            fit: Some(fit),
+            choice,
         });
     }
     for_each_calibrated(source, |event| match event {
@@ -160,6 +179,9 @@ pub struct RunConfig {
     pub field: FieldConfig,
     /// Sites whose full spectra give the shared index ([`crate::index_fit`]).
     pub sample_sites: usize,
+    /// Stream once, as from a live camera, even when the source could be replayed (the
+    /// index refitted on the sample as each angle completes).
+    pub one_pass: bool,
 }
 
 impl Default for RunConfig {
@@ -170,6 +192,7 @@ impl Default for RunConfig {
             brute_grid: BruteGrid::default(),
             field: FieldConfig::default(),
             sample_sites: crate::index_fit::DEFAULT_SITES,
+            one_pass: false,
         }
     }
 }

@@ -52,6 +52,16 @@ impl SampleTap {
         }
     }
 
+    /// The held value of site `k`'s run pixel `j` at angle `a`, band `b` (NaN: none).
+    pub fn value(&self, k: usize, j: usize, a: usize, b: usize) -> f32 {
+        self.values[((k * RUN + j) * self.angle_stride + a) * self.bands + b]
+    }
+
+    /// The sites, `(row, first column of the run)`.
+    pub fn sites(&self) -> &[(u32, u32)] {
+        &self.sites
+    }
+
     /// Bytes the held spectra take.
     pub fn bytes(&self) -> usize {
         self.values.len() * 4

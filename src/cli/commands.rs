@@ -128,6 +128,7 @@ pub fn estimate(
             ..FieldConfig::default()
         },
         sample_sites: crate::index_fit::DEFAULT_SITES,
+        one_pass: false,
     };
     let cap = Capture::load(capture)?;
     for key in &cap.unknown_keys {
@@ -278,6 +279,7 @@ pub fn eval(
             ..wide
         },
         sample_sites: crate::index_fit::DEFAULT_SITES,
+        one_pass: false,
     };
     if !json {
         println!(

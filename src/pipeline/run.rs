@@ -14,7 +14,7 @@
 //! coordinator, which runs the rest of the solver's angle-end passes on all cores (one scoped
 //! thread per shard) and hands the state back with the next angle.
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{bounded, Receiver, Sender};
@@ -35,6 +35,7 @@ use super::held::HeldBlock;
 use super::msg::{Samples, StreamMsg};
 use super::source::Source;
 use super::ties::TieSet;
+use crate::index_fit::SampleTap;
 
 /// How to run the pipeline.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -400,6 +401,38 @@ pub fn run_sweep(
     prior: Option<Prior>,
     on_rows: &(dyn Fn(u64) + Sync),
 ) -> Result<SweepOutput, PipelineError> {
+    sweep(source, config, prior, None, on_rows)
+}
+
+/// A pixel sample held as the sweep streams ([`crate::index_fit`]) and what the caller makes
+/// of it as each angle completes.
+pub struct SampleHook<'a> {
+    /// The sample the calibrate stage feeds with every calibrated block.
+    pub tap: &'a Mutex<SampleTap>,
+    /// Called with the sample at each angle's end (before the solver's): the index the
+    /// solver takes from then on, if any ([`SweepSolver::set_external_index`]).
+    pub refit: &'a mut dyn FnMut(&SampleTap) -> Option<IndexModel>,
+}
+
+/// [`run_sweep`] for a source that streams once: the index comes from `hook`'s sample,
+/// refitted as each angle completes, instead of from the extremum shifts.
+pub fn run_sweep_sampled(
+    source: &mut dyn Source,
+    config: PipelineConfig,
+    hook: SampleHook<'_>,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<SweepOutput, PipelineError> {
+    sweep(source, config, None, Some(hook), on_rows)
+}
+
+fn sweep(
+    source: &mut dyn Source,
+    config: PipelineConfig,
+    prior: Option<Prior>,
+    mut hook: Option<SampleHook<'_>>,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<SweepOutput, PipelineError> {
+    let tap = hook.as_ref().map(|h| h.tap);
     let mut spec = source.spec().clone();
     spec.options = config.solver;
     let (w, h) = (spec.width, spec.height);
@@ -489,7 +522,9 @@ pub fn run_sweep(
         }
         drop(done_tx);
         scope.spawn(move || source.stream(&src_tx));
-        scope.spawn(move || calibrate_stage(src_rx, ctl_tx, worker_txs, w, h, workers, on_rows));
+        scope.spawn(move || {
+            calibrate_stage(src_rx, ctl_tx, worker_txs, (w, h), workers, tap, on_rows)
+        });
 
         let mut abort = None;
         for msg in ctl_rx.iter() {
@@ -537,6 +572,12 @@ pub fn run_sweep(
                     let last = solver.angles_done() + 1 == angles;
                     if last {
                         solver.thaw();
+                    }
+                    if let Some(hook) = hook.as_mut() {
+                        let sample = hook.tap.lock().unwrap_or_else(|e| e.into_inner());
+                        if let Some(m) = (hook.refit)(&sample) {
+                            solver.set_external_index(m);
+                        }
                     }
                     let mut parts = LatencyParts {
                         drain: at.elapsed(),
@@ -908,14 +949,13 @@ fn feed_held(
     }
 }
 
-#[allow(clippy::too_many_arguments)]
 fn calibrate_stage(
     rx: Receiver<StreamMsg>,
     control: Sender<Control>,
     workers: Vec<Sender<WorkerMsg>>,
-    width: usize,
-    height: usize,
+    (width, height): (usize, usize),
     n_workers: usize,
+    tap: Option<&Mutex<SampleTap>>,
     on_rows: &(dyn Fn(u64) + Sync),
 ) {
     let owner = |row: usize| {
@@ -934,6 +974,11 @@ fn calibrate_stage(
         match msg {
             StreamMsg::Angle { incidence_deg } => {
                 in_angle = true;
+                if let Some(t) = tap {
+                    t.lock()
+                        .unwrap_or_else(|e| e.into_inner())
+                        .angle(incidence_deg);
+                }
                 if control.send(Control::Angle(incidence_deg)).is_err() {
                     return;
                 }
@@ -962,6 +1007,14 @@ fn calibrate_stage(
                         rows * width
                     )));
                     return;
+                }
+                if let Some(t) = tap {
+                    t.lock().unwrap_or_else(|e| e.into_inner()).rows(
+                        usize::from(block.band),
+                        first,
+                        rows,
+                        &values,
+                    );
                 }
                 // Split the block at shard boundaries.
                 let mut k = 0;

@@ -224,6 +224,14 @@ impl IndexModel {
     /// The same model as `n = p0 + p1 u + p2 u^2` ([`IndexModel::basis_u`]): `p0` is the
     /// index at 550 nm.
     pub fn to_basis(&self) -> [f64; 3] {
+        if self.pole.is_some() {
+            // The model's second-order expansion in `u` at 550 nm (`u = 0`), by central
+            // differences: what an index step between two models means for the solver.
+            let at_u = |u: f64| self.at(BASIS_NM / libm::sqrt(1.0 + u));
+            let h = 0.05;
+            let (m, p0, p) = (at_u(-h), at_u(0.0), at_u(h));
+            return [p0, (p - m) / (2.0 * h), (p - 2.0 * p0 + m) / (2.0 * h * h)];
+        }
         let l0 = BASIS_NM * 1e-3;
         let (b, c) = (self.b_um2 / (l0 * l0), self.c_um4 / (l0 * l0 * l0 * l0));
         [self.a + b + c, b + 2.0 * c, c]

@@ -25,7 +25,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::optics::{Dispersion, FilmAtAngle, Indices, Polarization};
+use crate::optics::{Dispersion, FilmAtAngle, Indices, Passband, Polarization};
 
 /// Pixels a site keeps: its centre and two neighbours each side along the row.
 pub const RUN: usize = 5;
@@ -36,7 +36,12 @@ pub const MAX_SITES: usize = 256;
 /// Sites the global search scores each grid point with.
 pub const SEARCH_SITES: usize = 24;
 /// Bands the global search uses at most (an even subset of the band).
-pub const SEARCH_BANDS: usize = 48;
+pub const SEARCH_BANDS: usize = 96;
+/// Bands a site's thickness is seated on at most (the dictionary under a known model): four
+/// or more a fringe for films of up to 15 fringes across the band.
+pub const SEAT_BANDS: usize = 128;
+/// Most angles the search and the seating use (the first ones).
+const SEARCH_ANGLES: usize = 16;
 /// Most thicknesses of the search's dictionary.
 pub const MAX_DICTIONARY: usize = 1024;
 /// Chi-square (in units of the noise) an index parameter must buy to enter the model (a
@@ -47,26 +52,21 @@ pub const MODEL_PENALTY: f64 = 25.0;
 pub const GATE_CHI2_NU: f64 = 1.5;
 /// An index whose standard error at 550 nm exceeds this is reported as under-determined.
 pub const MAX_INDEX_SIGMA: f64 = 0.01;
+/// A model whose refined fit leaves a reduced chi-square above this has its sites seated
+/// again under it and is refined once more.
+pub const RESEAT_CHI2_NU: f64 = 1.2;
+/// Most starts the refinement tries before it reports a failed fit.
+pub const MAX_STARTS: usize = 3;
 /// Fringes across the band above which the search is repeated on the band's red half.
 pub const THICK_FRINGES: f64 = 3.0;
 
-/// Gauss-Hermite nodes and weights (5 points) for the Gaussian passband average.
-const GH_X: [f64; 5] = [
-    -2.020_182_870_456_086,
-    -0.958_572_464_613_819,
-    0.0,
-    0.958_572_464_613_819,
-    2.020_182_870_456_086,
-];
-const GH_W: [f64; 5] = [
-    0.019_953_242_059_046,
-    0.393_619_323_152_241,
-    0.945_308_720_482_942,
-    0.393_619_323_152_241,
-    0.019_953_242_059_046,
-];
-/// The passband is truncated at 1.5 FWHM: its variance is 0.9946 of the untruncated one's.
-const TRUNCATED_SIGMA: f64 = 0.997_3;
+/// Most quadrature nodes of a band's passband in the fit (Simpson over the truncated Gaussian
+/// of [`Passband`], the definition the capture format gives): as many as keep the film's
+/// phase step between nodes under [`NODE_PHASE`] for the thickest site, at least 5.
+const NODES: usize = 33;
+/// Largest phase step between quadrature nodes, rad (a thick high-index film turns its phase
+/// by 8 rad across an 8 nm passband: five nodes left model errors of the noise's size).
+const NODE_PHASE: f64 = 0.3;
 /// Index step of the numerical `dR/dn`.
 const INDEX_STEP: f64 = 1e-5;
 /// Wavelength (um) at which the models' index is quoted and searched.
@@ -162,8 +162,9 @@ impl ModelKind {
         }
     }
 
-    /// Whether `p` is a physical model over `[lo_nm, hi_nm]`: the index inside `range`,
-    /// normal dispersion (falling with wavelength), a Sellmeier pole below the band.
+    /// Whether `p` is a physical model over `[lo_nm, hi_nm]`: the index at 550 nm inside
+    /// `range`, above 1 and falling with wavelength (normal dispersion) across the band, a
+    /// Sellmeier pole below the band.
     fn physical(self, p: &[f64; 3], lo_nm: f64, hi_nm: f64, range: [f64; 2]) -> bool {
         if let Self::Sellmeier1 | Self::Sellmeier1c = self {
             let l_lo = lo_nm * 1e-3;
@@ -174,11 +175,15 @@ impl ModelKind {
                 return false;
             }
         }
+        let n550 = self.eval(p, L0_UM).0;
+        if !(n550 >= range[0] && n550 <= range[1]) {
+            return false;
+        }
         let mut last = f64::INFINITY;
         for i in 0..=16 {
             let l = lo_nm + (hi_nm - lo_nm) * f64::from(i) / 16.0;
             let n = self.eval(p, l * 1e-3).0;
-            if !(n >= range[0] && n <= range[1]) || n > last + 1e-9 {
+            if !(n > 1.0) || n > last + 1e-9 {
                 return false;
             }
             last = n;
@@ -303,7 +308,7 @@ impl SampleFit {
 /// `bands` bands.
 pub fn workspace_len(sites: usize, angles: usize, bands: usize) -> usize {
     let noise = sites.min(MAX_SITES) * angles * bands;
-    let dictionary = MAX_DICTIONARY * angles * SEARCH_BANDS.min(bands);
+    let dictionary = MAX_DICTIONARY * angles.min(SEARCH_ANGLES) * SEAT_BANDS.min(bands);
     noise.max(dictionary)
 }
 
@@ -402,27 +407,33 @@ pub fn fit_index(
             if let Some(cand) = problem.refine(kind, p, &mut refined) {
                 if cand.chi2_nu <= GATE_CHI2_NU {
                     fit.starts = 1;
-                    return problem.choose(fit, cand, &refined);
+                    return problem.choose(fit, cand, &refined, scratch);
                 }
             }
         }
     }
     fit.searched = true;
     // Global search on the full band, then (thick films) on the red half.
-    let mut starts: heapless::Vec<[f64; 3], 4> = heapless::Vec::new();
-    let full = problem.search(geo.bands_nm.len(), 0, scratch);
-    if let Some((p, fringes)) = full {
-        let _ = starts.push(p);
+    let mut starts: heapless::Vec<[f64; 3], 6> = heapless::Vec::new();
+    if let Some((found, fringes)) = problem.search(geo.bands_nm.len(), 0, scratch) {
+        let mut red = None;
         if fringes > THICK_FRINGES {
             let mid = geo.bands_nm.len() / 2;
-            if let Some((p, _)) = problem.search(geo.bands_nm.len(), mid, scratch) {
-                let _ = starts.push(p);
+            red = problem.search(geo.bands_nm.len(), mid, scratch).map(|r| r.0);
+        }
+        // Interleaved, best of each search first.
+        for i in 0..3 {
+            for list in [Some(&found), red.as_ref()].into_iter().flatten() {
+                if let Some(&(_, p)) = list.get(i) {
+                    let _ = starts.push(p);
+                }
             }
         }
     }
-    let mut best: Option<(Candidate, [f64; MAX_SITES])> = None;
+    // Each start refined as a two-term Cauchy model; the models chosen from the best, and
+    // from the next while the choice fails the gate.
+    let mut bases: heapless::Vec<(Candidate, [f64; MAX_SITES]), 6> = heapless::Vec::new();
     for p in &starts {
-        fit.starts += 1;
         let mut t = [f64::NAN; MAX_SITES];
         if problem
             .start_thicknesses(ModelKind::Cauchy2, p, &mut t, scratch)
@@ -431,13 +442,32 @@ pub fn fit_index(
             continue;
         }
         if let Some(c) = problem.refine(ModelKind::Cauchy2, *p, &mut t) {
-            if best.as_ref().is_none_or(|(b, _)| c.chi2 < b.chi2) {
-                best = Some((c, t));
-            }
+            let _ = bases.push((c, t));
         }
     }
-    match best {
-        Some((c, t)) => problem.choose(fit, c, &t),
+    bases.sort_unstable_by(|a, b| a.0.chi2.total_cmp(&b.0.chi2));
+    let mut result: Option<SampleFit> = None;
+    for (c, t) in bases.iter().take(MAX_STARTS) {
+        fit.starts += 1;
+        let tried = problem.choose(fit.clone(), *c, t, scratch);
+        let better = match (&result, tried.best) {
+            (None, _) => true,
+            (Some(r), Some(b)) => r.best.is_none_or(|rb| b.score < rb.score),
+            (Some(_), None) => false,
+        };
+        let passed = tried.failure.is_none();
+        if better {
+            result = Some(tried);
+        }
+        if passed {
+            break;
+        }
+    }
+    match result {
+        Some(mut r) => {
+            r.starts = fit.starts;
+            r
+        }
         None => {
             fit.failure = Some(Failure::NoFit);
             fit
@@ -501,6 +531,9 @@ fn noise_sigma(
     f64::from(*m)
 }
 
+/// Starting points of the refinement: the search's scores and Cauchy parameters, best first.
+type Starts = heapless::Vec<(f64, [f64; 3]), 3>;
+
 /// The stack at one quadrature node: its weight, wavelength and film.
 #[derive(Clone, Copy)]
 struct Node {
@@ -549,21 +582,17 @@ impl Problem<'_> {
         p: &[f64; 3],
         a: usize,
         b: usize,
-    ) -> Option<([Node; 5], usize)> {
+        d_max: f64,
+    ) -> Option<([Node; NODES], usize)> {
         let (l0, fwhm) = (self.geo.bands_nm[b], self.geo.fwhm_nm[b]);
-        let sigma = fwhm / 2.354_82 * TRUNCATED_SIGMA;
-        let count = if sigma > 0.0 { 5 } else { 1 };
+        // The phase turns by about 4 pi n d / l^2 per nm of wavelength.
+        let n0 = kind.eval(p, l0 * 1e-3).0;
+        let span = 4.0 * core::f64::consts::PI * n0 * d_max / (l0 * l0) * 3.0 * fwhm;
+        let count = ((span / NODE_PHASE).ceil() as usize + 1).clamp(5, NODES);
+        let band = Passband::gaussian_with_nodes(l0, fwhm, count);
         let deg = self.geo.angles_deg[a];
         let pol = self.geo.polarization;
-        let node = |i: usize| -> Option<Node> {
-            let (l, w) = if count == 1 {
-                (l0, 1.0)
-            } else {
-                (
-                    l0 + core::f64::consts::SQRT_2 * sigma * GH_X[i],
-                    GH_W[i] / libm::sqrt(core::f64::consts::PI),
-                )
-            };
+        let node = |(l, w): (f64, f64)| -> Option<Node> {
             let (n, dn_dp) = kind.eval(p, l * 1e-3);
             if !n.is_finite() {
                 return None;
@@ -579,10 +608,13 @@ impl Problem<'_> {
                 dn_dp,
             })
         };
-        let first = node(0)?;
-        let mut nodes = [first; 5];
-        for (i, n) in nodes.iter_mut().enumerate().take(count).skip(1) {
-            *n = node(i)?;
+        let mut it = band.nodes();
+        let first = node(it.next()?)?;
+        let mut nodes = [first; NODES];
+        let mut count = 1;
+        for (slot, nd) in nodes.iter_mut().skip(1).zip(it) {
+            *slot = node(nd)?;
+            count += 1;
         }
         Some((nodes, count))
     }
@@ -600,9 +632,13 @@ impl Problem<'_> {
         *sites = [SiteSums::default(); MAX_SITES];
         let mut hpp = Matrix3::zeros();
         let mut gp = Vector3::zeros();
+        let d_max = (0..self.usable.len())
+            .filter(|&k| self.usable[k])
+            .map(|k| t[k])
+            .fold(0.0, f64::max);
         for a in 0..na {
             for b in 0..nb {
-                let (nodes, count) = self.nodes(kind, p, a, b)?;
+                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
                 for (k, s) in sites.iter_mut().enumerate().take(self.usable.len()) {
                     if !self.usable[k] {
                         continue;
@@ -728,7 +764,9 @@ impl Problem<'_> {
                     *t = t_new;
                     (hpp, gp, chi2, n, sites) = (h2, g2, c2, n2, s2);
                     lambda = (lambda * 0.3).max(1e-7);
-                    if gain < 1e-3 * chi2.max(1.0) * 1e-2 {
+                    // A gain this small changes no model choice (a parameter costs
+                    // MODEL_PENALTY) nor any index digit reported.
+                    if gain < 0.05 + 1e-7 * chi2 {
                         break;
                     }
                 }
@@ -794,7 +832,13 @@ impl Problem<'_> {
 
     /// Every model refined from the two-term Cauchy fit `base`; the simplest that the data
     /// ask for chosen, with the gate and a second start.
-    fn choose(&self, mut fit: SampleFit, base: Candidate, t: &[f64; MAX_SITES]) -> SampleFit {
+    fn choose(
+        &self,
+        mut fit: SampleFit,
+        base: Candidate,
+        t: &[f64; MAX_SITES],
+        scratch: &mut [f32],
+    ) -> SampleFit {
         let lo = self
             .geo
             .bands_nm
@@ -814,13 +858,25 @@ impl Problem<'_> {
                 None => base,
             }
         };
+        // The richest curve fitted so far: where the Sellmeier models start.
+        let mut richest = base;
+        if base.kind != ModelKind::Cauchy2 {
+            // A warm start of another kind stands as its own candidate.
+            let _ = fit.candidates.push(base);
+            if base.physical {
+                best = Some((base, *t));
+            }
+        }
         for kind in ModelKind::ALL {
+            if kind == base.kind && kind != ModelKind::Cauchy2 {
+                continue;
+            }
             let start = match kind {
                 ModelKind::Constant => [n_at(&base, 550.0), 0.0, 0.0],
                 ModelKind::Cauchy2 => base.params,
                 ModelKind::Cauchy3 => [base.params[0], base.params[1], 0.0],
                 ModelKind::Sellmeier1 | ModelKind::Sellmeier1c => {
-                    match sellmeier_through(&base, lo, hi) {
+                    match sellmeier_through(&richest, lo, hi, kind == ModelKind::Sellmeier1c) {
                         Some(s) => s,
                         None => continue,
                     }
@@ -832,7 +888,26 @@ impl Problem<'_> {
             } else {
                 self.refine(kind, start, &mut tt)
             };
-            let Some(c) = cand else { continue };
+            let Some(mut c) = cand else { continue };
+            // Sites left in another fringe order by a simpler model's fit: each seated
+            // again under this model (the dictionary), then refined once more.
+            if kind != ModelKind::Cauchy2 && c.chi2_nu > RESEAT_CHI2_NU {
+                let mut again = [f64::NAN; MAX_SITES];
+                if self
+                    .start_thicknesses(kind, &c.params, &mut again, scratch)
+                    .is_some()
+                {
+                    if let Some(c2) = self.refine(kind, c.params, &mut again) {
+                        if c2.chi2 < c.chi2 {
+                            c = c2;
+                            tt = again;
+                        }
+                    }
+                }
+            }
+            if c.chi2 < richest.chi2 {
+                richest = c;
+            }
             let _ = fit.candidates.push(c);
             if c.physical && best.as_ref().is_none_or(|(b, _)| c.score < b.score) {
                 best = Some((c, if kind == ModelKind::Cauchy2 { *t } else { tt }));
@@ -878,7 +953,7 @@ impl Problem<'_> {
     /// The global search over `(n550, b)` on bands `from..bands` (every so many): the best
     /// grid point refined locally, as Cauchy parameters, and the fringes its best site
     /// thickness puts across the whole band.
-    fn search(&self, bands: usize, from: usize, scratch: &mut [f32]) -> Option<([f64; 3], f64)> {
+    fn search(&self, bands: usize, from: usize, scratch: &mut [f32]) -> Option<(Starts, f64)> {
         // The search's sites: usable ones, spread over the sample.
         let mut chosen: heapless::Vec<usize, SEARCH_SITES> = heapless::Vec::new();
         let used: heapless::Vec<usize, MAX_SITES> =
@@ -943,8 +1018,9 @@ impl Problem<'_> {
             }
         }
         minima.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        let mut best: Option<(f64, [f64; 3])> = None;
+        let mut found: Starts = heapless::Vec::new();
         for &(_, i, j) in minima.iter().take(3) {
+            let mut best: Option<(f64, [f64; 3])> = None;
             let c = point(i, j);
             let (n0, b0) = (c[0] + c[1] / (L0_UM * L0_UM), c[1]);
             for di in -5i32..=5 {
@@ -970,8 +1046,12 @@ impl Problem<'_> {
                     }
                 }
             }
+            if let Some((score, p)) = best {
+                let _ = found.push((score, p));
+            }
         }
-        let (_, p) = best?;
+        found.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let (_, p) = *found.first()?;
         // Fringes across the whole band at the search sites' median thickness.
         let mut t = [f64::NAN; MAX_SITES];
         self.score_point(
@@ -994,11 +1074,12 @@ impl Problem<'_> {
         let (l_lo, l_hi) = (b[0].min(b[b.len() - 1]), b[0].max(b[b.len() - 1]));
         let n = ModelKind::Cauchy2.eval(&p, L0_UM).0;
         let fringes = 2.0 * n * d * (1.0 / l_lo - 1.0 / l_hi);
-        Some((p, fringes))
+        Some((found, fringes))
     }
 
     /// Summed chi-square (noise units) of `sites`, each at its best thickness under
-    /// `(kind, p)`, on every so many of bands `from..bands` with passband-damped centre
+    /// `(kind, p)`, on every so many of bands `from..bands` (at most [`SEARCH_BANDS`], or
+    /// [`SEAT_BANDS`] when the thicknesses are wanted) with passband-damped centre
     /// wavelengths; writes the thicknesses into `t` when given.
     #[allow(clippy::too_many_arguments)]
     fn score_point(
@@ -1014,13 +1095,15 @@ impl Problem<'_> {
         let geo = self.geo;
         let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
         let span = bands - from;
-        let stride = span.div_ceil(SEARCH_BANDS).max(1);
-        let picked: heapless::Vec<usize, SEARCH_BANDS> = (from..bands).step_by(stride).collect();
+        // Scoring a grid point takes the search's bands; seating sites, more of them.
+        let max_bands = if t.is_some() { SEAT_BANDS } else { SEARCH_BANDS };
+        let stride = span.div_ceil(max_bands).max(1);
+        let picked: heapless::Vec<usize, SEAT_BANDS> = (from..bands).step_by(stride).collect();
         let nbs = picked.len();
         // Films and passband damping per (angle, band).
-        let mut films: heapless::Vec<(FilmAtAngle, f64, f64), { 16 * SEARCH_BANDS }> =
+        let mut films: heapless::Vec<(FilmAtAngle, f64, f64), { SEARCH_ANGLES * SEAT_BANDS }> =
             heapless::Vec::new();
-        for a in 0..na.min(16) {
+        for a in 0..na.min(SEARCH_ANGLES) {
             for &b in &picked {
                 let l = geo.bands_nm[b];
                 let n = kind.eval(p, l * 1e-3).0;
@@ -1063,14 +1146,14 @@ impl Problem<'_> {
             m2[i] = s;
         }
         let mut total = 0.0;
-        let mut y = [0.0f32; 16 * SEARCH_BANDS];
+        let mut y = [0.0f32; SEARCH_ANGLES * SEAT_BANDS];
         for &k in sites {
             if !self.usable[k] {
                 continue;
             }
             let mut y2 = 0.0;
             let mut missing = false;
-            for a in 0..na.min(16) {
+            for a in 0..na.min(SEARCH_ANGLES) {
                 for (jb, &b) in picked.iter().enumerate() {
                     let v = self.spectra.at(nb, k, CENTRE, a, b);
                     y[a * nbs + jb] = v;
@@ -1173,36 +1256,55 @@ fn cauchy_through(c: &Candidate, lo_nm: f64, hi_nm: f64) -> [f64; 3] {
     [(sy - b * sx) / mf, b, 0.0]
 }
 
-/// The one-pole Sellmeier model `n^2 = 1 + S l^2 / (l^2 - L^2)` closest to `c` over
-/// `[lo_nm, hi_nm]`: a scan over the pole, `S` by least squares at each; `None` for a film
-/// whose index is not above 1 across the band.
-fn sellmeier_through(c: &Candidate, lo_nm: f64, hi_nm: f64) -> Option<[f64; 3]> {
+/// The one-pole Sellmeier model closest to `c` over `[lo_nm, hi_nm]`: `n^2 = A + S l^2 /
+/// (l^2 - L^2)` with `A = 1` (`with_constant` false) or free, by a scan over the pole with
+/// `S` (and `A`) by linear least squares in `n^2` at each; `None` when no pole gives a
+/// positive strength.
+fn sellmeier_through(c: &Candidate, lo_nm: f64, hi_nm: f64, with_constant: bool) -> Option<[f64; 3]> {
     let m = 17;
     let l_lo = lo_nm * 1e-3;
+    let at = |i: usize| (lo_nm + (hi_nm - lo_nm) * i as f64 / (m - 1) as f64) * 1e-3;
+    let kind = if with_constant {
+        ModelKind::Sellmeier1c
+    } else {
+        ModelKind::Sellmeier1
+    };
     let mut best: Option<(f64, [f64; 3])> = None;
-    for step in 0..40 {
-        let l2p = 0.8 * l_lo * l_lo * f64::from(step) / 40.0;
-        // n^2 - 1 = S f(l): least squares S = sum(f y) / sum(f f).
-        let (mut sfy, mut sff) = (0.0, 0.0);
+    for step in 0..80 {
+        let l2p = 0.8 * l_lo * l_lo * f64::from(step) / 80.0;
+        // y = n^2 = A + S f: least squares in (A, S), or S alone with A = 1.
+        let (mut sf, mut sy, mut sff, mut sfy) = (0.0, 0.0, 0.0, 0.0);
         for i in 0..m {
-            let l = (lo_nm + (hi_nm - lo_nm) * i as f64 / (m - 1) as f64) * 1e-3;
+            let l = at(i);
             let n = c.kind.eval(&c.params, l).0;
             let f = l * l / (l * l - l2p);
-            sfy += f * (n * n - 1.0);
+            let y = n * n;
+            sf += f;
+            sy += y;
             sff += f * f;
+            sfy += f * y;
         }
-        let s = sfy / sff;
-        if s <= 0.0 {
+        let mf = m as f64;
+        let (a, s) = if with_constant {
+            let det = mf * sff - sf * sf;
+            if det.abs() < 1e-18 {
+                continue;
+            }
+            let s = (mf * sfy - sf * sy) / det;
+            ((sy - s * sf) / mf, s)
+        } else {
+            (1.0, (sfy - sf) / sff)
+        };
+        if s <= 0.0 || a <= 0.0 {
             continue;
         }
-        let p = [s, l2p, 1.0];
+        let p = [s, l2p, a];
         let mut err = 0.0;
         for i in 0..m {
-            let l = (lo_nm + (hi_nm - lo_nm) * i as f64 / (m - 1) as f64) * 1e-3;
-            let d = ModelKind::Sellmeier1.eval(&p, l).0 - c.kind.eval(&c.params, l).0;
+            let d = kind.eval(&p, at(i)).0 - c.kind.eval(&c.params, at(i)).0;
             err += d * d;
         }
-        if best.is_none_or(|(e, _)| err < e) {
+        if err.is_finite() && best.is_none_or(|(e, _)| err < e) {
             best = Some((err, p));
         }
     }

@@ -468,6 +468,9 @@ pub struct SweepSolver {
     rms_median: Option<f32>,
     noise_median: Option<f32>,
     pending_dp: [f64; 3],
+    /// An index from outside the sweep's own evidence (the full spectra of a pixel sample)
+    /// that the next angle end takes ([`SweepSolver::set_external_index`]).
+    external: Option<IndexModel>,
     next_index: Option<IndexModel>,
     refined_steps: usize,
     last_refined: bool,
@@ -506,6 +509,7 @@ impl SweepSolver {
             rms_median: None,
             noise_median: None,
             pending_dp: [0.0; 3],
+            external: None,
             next_index: None,
             refined_steps: 0,
             last_refined: false,
@@ -548,6 +552,13 @@ impl SweepSolver {
     pub fn with_spectral_index(mut self) -> Self {
         self.spectral_index = self.index.is_some();
         self
+    }
+
+    /// The index this angle's end takes, from outside the sweep's own evidence (the full
+    /// spectra of a pixel sample, refitted as each angle completes): it replaces the
+    /// extremum-shift estimate, and pixels follow it as they follow any index step.
+    pub fn set_external_index(&mut self, index: IndexModel) {
+        self.external = Some(index);
     }
 
     /// Holds the prior index for the whole sweep (the extremum-shift fit is still made and
@@ -957,7 +968,9 @@ impl SweepSolver {
         }
         let (range, span) = (self.spec.index_range, self.band_span_nm());
         self.fit = combine(&self.pairs).and_then(|c| fit_index(&self.pair_bins, c, range, span));
-        self.next_index = if self.held_index {
+        self.next_index = if let Some(m) = self.external.take() {
+            Some(m)
+        } else if self.held_index {
             self.index
         } else if self.spectral_index {
             spectral_next.or(self.index)
