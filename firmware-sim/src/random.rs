@@ -178,8 +178,11 @@ pub fn draw(seed: u64, i: usize) -> RandomScene {
     let noise = round_to(uniform(&mut rng, NOISE_PERCENT), 0.01);
     let width = integer(&mut rng, WIDTH);
     let height = integer(&mut rng, HEIGHT);
-    let interleave = [CubeInterleave::Bsq, CubeInterleave::Bil, CubeInterleave::Bip]
-        [integer(&mut rng, [0, 2])];
+    let interleave = [
+        CubeInterleave::Bsq,
+        CubeInterleave::Bil,
+        CubeInterleave::Bip,
+    ][integer(&mut rng, [0, 2])];
     let big_endian = rng.uniform() < 0.5;
     let scene_seed = rng.next_u64() >> 16;
     let name = format!("random-{seed}-{i}");
@@ -297,12 +300,11 @@ mod tests {
             assert!((sub - film).abs() >= MIN_INDEX_GAP, "{}", r.toml);
             assert!((BASE_THICKNESS_NM[0]..=BASE_THICKNESS_NM[1]).contains(&r.base_thickness_nm));
             assert!(s.thickness_nm.iter().all(|&t| t > 0.0));
-            let (tmin, tmax) = s.thickness_nm.iter().fold((f32::MAX, 0.0f32), |(a, b), &t| {
-                (a.min(t), b.max(t))
-            });
-            let [lo, hi] = s
-                .thickness_range_nm
-                .unwrap_or(DEFAULT_THICKNESS_RANGE_NM);
+            let (tmin, tmax) = s
+                .thickness_nm
+                .iter()
+                .fold((f32::MAX, 0.0f32), |(a, b), &t| (a.min(t), b.max(t)));
+            let [lo, hi] = s.thickness_range_nm.unwrap_or(DEFAULT_THICKNESS_RANGE_NM);
             assert!(
                 f64::from(tmin) >= lo && f64::from(tmax) <= hi,
                 "{tmin}..{tmax} outside the search range {lo}..{hi}"
