@@ -262,14 +262,14 @@ fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig, bool)> {
 /// `filmscope eval`.
 pub fn eval(
     inputs: &[PathBuf],
-    random: Option<(usize, u64)>,
+    random: Option<(usize, u64, Option<PathBuf>)>,
     method_name: &str,
     json: bool,
     brute: (usize, f64),
     (ablate, index_pixels): (&[String], usize),
     (field_name, field_strips): (&str, Option<usize>),
 ) -> Result<()> {
-    match (inputs.is_empty(), random) {
+    match (inputs.is_empty(), &random) {
         (true, None) => {
             bail!("eval needs at least one scene file or capture directory, or --random N")
         }
@@ -298,8 +298,8 @@ pub fn eval(
         },
         polish,
     };
-    if let Some((count, seed)) = random {
-        return eval_random(count, seed, &config, json);
+    if let Some((count, seed, save)) = random {
+        return eval_random(count, seed, &config, json, save.as_deref());
     }
     if !json {
         println!(
@@ -369,7 +369,23 @@ pub fn eval(
 
 /// `filmscope eval --random N --seed S`: the rows as they are done, then the closing line
 /// (or, with `json`, one JSON object at the end).
-fn eval_random(count: usize, seed: u64, config: &RunConfig, json: bool) -> Result<()> {
+fn eval_random(
+    count: usize,
+    seed: u64,
+    config: &RunConfig,
+    json: bool,
+    save_scenes: Option<&Path>,
+) -> Result<()> {
+    if let Some(dir) = save_scenes {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create", dir.display()))?;
+        for i in 0..count {
+            let drawn = firmware_sim::random::draw(seed, i);
+            let path = dir.join(format!("{}.toml", drawn.scene.name));
+            write_atomic(&path, drawn.toml.as_bytes())
+                .with_context(|| format!("{}: cannot write", path.display()))?;
+        }
+    }
     let work = std::env::temp_dir().join(format!("filmscope-random-{}-{seed}", std::process::id()));
     std::fs::create_dir_all(&work).with_context(|| format!("{}: cannot create", work.display()))?;
     if !json {

@@ -109,6 +109,10 @@ enum Command {
         /// With --random: the set's seed (the same seed draws the same scenes).
         #[arg(long, default_value_t = 1, requires = "random")]
         seed: u64,
+        /// With --random: also write each drawn scene's file into DIR
+        /// (`random-SEED-I.toml`), so a row can be run again with `eval FILE`.
+        #[arg(long, value_name = "DIR", requires = "random")]
+        save_scenes: Option<PathBuf>,
         /// filmscope (default), paper or brute.
         #[arg(long, default_value = "filmscope")]
         method: String,
@@ -315,6 +319,7 @@ pub fn main() -> std::process::ExitCode {
             inputs,
             random,
             seed,
+            save_scenes,
             method,
             json,
             ablate,
@@ -325,7 +330,7 @@ pub fn main() -> std::process::ExitCode {
             field_strips,
         } => commands::eval(
             &inputs,
-            random.map(|n| (n, seed)),
+            random.map(|n| (n, seed, save_scenes)),
             &method,
             json,
             (brute_index_steps, brute_thickness_step),
