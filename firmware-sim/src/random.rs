@@ -138,7 +138,7 @@ pub fn draw(seed: u64, i: usize) -> RandomScene {
         (lo.ln() + (hi.ln() - lo.ln()) * rng.uniform())
             .exp()
             .clamp(lo, hi),
-        0.1,
+        10.0,
     );
     let gradient = [
         round_to(base * uniform(&mut rng, [-0.15, 0.15]), 10.0),
