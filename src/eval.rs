@@ -378,11 +378,12 @@ impl Criteria {
                 failed.push(name.to_owned());
             }
         }
+        // A NaN index with valid pixels counts as silently wrong too.
+        let index_close = score.index_error.abs() <= self.index_silently_wrong;
         Verdict {
             passed: failed.is_empty(),
             failed,
-            index_silently_wrong: !(score.index_error.abs() <= self.index_silently_wrong)
-                && score.valid_fraction > 0.0,
+            index_silently_wrong: !index_close && score.valid_fraction > 0.0,
         }
     }
 }

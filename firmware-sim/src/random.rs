@@ -323,8 +323,9 @@ mod tests {
             }
             let b = &s.bands_nm;
             assert!((BAND_START_NM[0]..=BAND_START_NM[1]).contains(&b[0]));
-            assert!(*b.last().unwrap() <= BAND_STOP_NM[1]);
-            assert!(*b.last().unwrap() > BAND_STOP_NM[0] - BAND_STEP_NM[1]);
+            let last = b[b.len() - 1];
+            assert!(last <= BAND_STOP_NM[1]);
+            assert!(last > BAND_STOP_NM[0] - BAND_STEP_NM[1]);
             let step = b[1] - b[0];
             assert!(
                 (BAND_STEP_NM[0] - 1e-9..=BAND_STEP_NM[1] + 1e-9).contains(&step),
