@@ -116,7 +116,8 @@ enum Command {
         /// filmscope (default), paper or brute.
         #[arg(long, default_value = "filmscope")]
         method: String,
-        /// One JSON object per input on stdout instead of a table.
+        /// One JSON object per input on stdout instead of a table (with --random: one
+        /// object, every scene's row in `rows`).
         #[arg(long)]
         json: bool,
         /// Switch off filmscope improvements to measure their worth: refine, half-order,
