@@ -15,7 +15,7 @@ use filmscope_core::optics::{Dispersion, FilmStack, Polarization};
 use serde::Serialize;
 
 use crate::appearance::spectral::{capture_passbands, BandSpectrum, FilmColour};
-use crate::estimate::Run;
+use crate::estimate::{Run, RunConfig};
 use crate::io::read_cube;
 
 /// Thickness errors above this are failures (nm).
@@ -150,6 +150,49 @@ pub struct EvalReport {
     pub field_model_choice: serde_json::Value,
 }
 
+/// Thickness errors of an estimate against the truth, pixel by pixel.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ThicknessErrors {
+    /// Mean absolute error over valid pixels, nm (NaN without any).
+    pub mae_nm: f64,
+    /// RMS error over valid pixels, nm (NaN without any).
+    pub rmse_nm: f64,
+    /// Largest error over valid pixels, nm (NaN without any).
+    pub max_nm: f64,
+    /// Share of pixels with a (finite) thickness.
+    pub valid_fraction: f64,
+    /// Share of all pixels that are valid but more than [`SILENT_FAILURE_NM`] off.
+    pub silent_failure_rate: f64,
+}
+
+/// Thickness errors of `estimate_nm` (NaN: no estimate) against `truth_nm`, pixel by pixel
+/// over the pixels both have.
+pub fn thickness_errors(truth_nm: &[f32], estimate_nm: &[f32]) -> ThicknessErrors {
+    let n_px = truth_nm.len().min(estimate_nm.len());
+    let mut errs = Vec::new();
+    let mut silent = 0usize;
+    for (&t, &e) in truth_nm.iter().zip(estimate_nm) {
+        let (t, e) = (f64::from(t), f64::from(e));
+        if e.is_finite() {
+            let d = (e - t).abs();
+            if d > SILENT_FAILURE_NM {
+                silent += 1;
+            }
+            errs.push(d);
+        }
+    }
+    let nv = errs.len().max(1) as f64;
+    let none = errs.is_empty();
+    let or_nan = |x: f64| if none { f64::NAN } else { x };
+    ThicknessErrors {
+        mae_nm: or_nan(errs.iter().sum::<f64>() / nv),
+        rmse_nm: or_nan((errs.iter().map(|e| e * e).sum::<f64>() / nv).sqrt()),
+        max_nm: or_nan(errs.iter().copied().fold(0.0, f64::max)),
+        valid_fraction: errs.len() as f64 / n_px.max(1) as f64,
+        silent_failure_rate: silent as f64 / n_px.max(1) as f64,
+    }
+}
+
 /// Compares a run with the truth.
 pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
     let r = &run.result;
@@ -165,27 +208,10 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
         film: est_film,
         ..true_stack
     };
-    let mut errs = Vec::new();
-    let mut silent = 0usize;
-    let mut valid_px = Vec::new();
-    for i in 0..n_px {
-        let (t, e) = (
-            f64::from(truth.thickness_nm[i]),
-            f64::from(r.thickness_nm[i]),
-        );
-        if e.is_finite() {
-            let d = (e - t).abs();
-            if d > SILENT_FAILURE_NM {
-                silent += 1;
-            }
-            errs.push(d);
-            valid_px.push(i);
-        }
-    }
-    let nv = errs.len().max(1) as f64;
-    let mae = errs.iter().sum::<f64>() / nv;
-    let rmse = (errs.iter().map(|e| e * e).sum::<f64>() / nv).sqrt();
-    let max = errs.iter().copied().fold(0.0, f64::max);
+    let errors = thickness_errors(&truth.thickness_nm[..n_px], &r.thickness_nm[..n_px]);
+    let valid_px: Vec<usize> = (0..n_px)
+        .filter(|&i| r.thickness_nm[i].is_finite())
+        .collect();
     // Colour and spectra on at most ~4000 valid pixels (evenly strided) per angle.
     let stride = (valid_px.len() / 4000).max(1);
     let sample: Vec<usize> = valid_px.iter().copied().step_by(stride).collect();
@@ -239,11 +265,11 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
         index_true: n_true,
         index_estimated: n_est,
         index_error: n_est - n_true,
-        thickness_mae_nm: if errs.is_empty() { f64::NAN } else { mae },
-        thickness_rmse_nm: if errs.is_empty() { f64::NAN } else { rmse },
-        thickness_max_error_nm: if errs.is_empty() { f64::NAN } else { max },
-        valid_fraction: errs.len() as f64 / n_px.max(1) as f64,
-        silent_failure_rate: silent as f64 / n_px.max(1) as f64,
+        thickness_mae_nm: errors.mae_nm,
+        thickness_rmse_nm: errors.rmse_nm,
+        thickness_max_error_nm: errors.max_nm,
+        valid_fraction: errors.valid_fraction,
+        silent_failure_rate: errors.silent_failure_rate,
         spectral_rmse: mean(&rmse_all),
         delta_e76_mean: mean(&de76_all),
         delta_e2000_mean: mean(&de00_all),
@@ -253,5 +279,410 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
         seconds: run.seconds,
         field_model: run.field_model.map(|m| m.name().to_owned()),
         field_model_choice: run.field_model_choice.clone(),
+    }
+}
+
+/// The pass criteria of the random evaluation ([`random_eval`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Criteria {
+    /// Largest |index error| at 550 nm.
+    pub index_abs: f64,
+    /// Largest |index error| at 550 nm for films thinner than [`Criteria::thin_below_nm`].
+    pub index_abs_thin: f64,
+    /// Base thickness under which a film counts as thin, nm.
+    pub thin_below_nm: f64,
+    /// Largest thickness MAE over valid pixels, nm.
+    pub mae_nm: f64,
+    /// Smallest valid share.
+    pub valid_min: f64,
+    /// Largest silently-wrong share (valid and more than [`SILENT_FAILURE_NM`] off).
+    pub silent_max: f64,
+    /// Largest mean CIEDE2000 over angles.
+    pub delta_e2000_max: f64,
+    /// An |index error| beyond this, with any pixel reported valid, is "index silently
+    /// wrong".
+    pub index_silently_wrong: f64,
+}
+
+/// The random evaluation's criteria: |index error| <= 0.005 (0.02 under 100 nm), MAE <= 2 nm,
+/// valid >= 95 %, silent <= 0.1 %, mean CIEDE2000 <= 1; index silently wrong beyond 0.02.
+pub const RANDOM_CRITERIA: Criteria = Criteria {
+    index_abs: 0.005,
+    index_abs_thin: 0.02,
+    thin_below_nm: 100.0,
+    mae_nm: 2.0,
+    valid_min: 0.95,
+    silent_max: 0.001,
+    delta_e2000_max: 1.0,
+    index_silently_wrong: 0.02,
+};
+
+/// The figures a verdict is drawn from.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Score {
+    /// Estimated minus true index at 550 nm.
+    pub index_error: f64,
+    /// Thickness MAE over valid pixels, nm.
+    pub thickness_mae_nm: f64,
+    /// Share of pixels with a thickness.
+    pub valid_fraction: f64,
+    /// Share of all pixels valid but more than [`SILENT_FAILURE_NM`] off.
+    pub silent_failure_rate: f64,
+    /// Mean CIEDE2000 over valid pixels and angles.
+    pub delta_e2000_mean: f64,
+}
+
+impl Score {
+    /// The score of an evaluation.
+    pub fn of(report: &EvalReport) -> Self {
+        Self {
+            index_error: report.index_error,
+            thickness_mae_nm: report.thickness_mae_nm,
+            valid_fraction: report.valid_fraction,
+            silent_failure_rate: report.silent_failure_rate,
+            delta_e2000_mean: report.delta_e2000_mean,
+        }
+    }
+}
+
+/// Whether a scene passed, and why not.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Verdict {
+    /// Every criterion met.
+    pub passed: bool,
+    /// The criteria not met: `index`, `MAE`, `valid`, `silent`, `dE00` (a NaN figure fails
+    /// its criterion).
+    pub failed: Vec<String>,
+    /// |index error| beyond [`Criteria::index_silently_wrong`] while some pixel is reported
+    /// valid.
+    pub index_silently_wrong: bool,
+}
+
+impl Criteria {
+    /// The verdict on `score` for a film of base thickness `base_thickness_nm`.
+    pub fn judge(&self, score: &Score, base_thickness_nm: f64) -> Verdict {
+        let index_tol = if base_thickness_nm < self.thin_below_nm {
+            self.index_abs_thin
+        } else {
+            self.index_abs
+        };
+        let mut failed = Vec::new();
+        for (name, ok) in [
+            ("index", score.index_error.abs() <= index_tol),
+            ("MAE", score.thickness_mae_nm <= self.mae_nm),
+            ("valid", score.valid_fraction >= self.valid_min),
+            ("silent", score.silent_failure_rate <= self.silent_max),
+            ("dE00", score.delta_e2000_mean <= self.delta_e2000_max),
+        ] {
+            if !ok {
+                failed.push(name.to_owned());
+            }
+        }
+        // A NaN index with valid pixels counts as silently wrong too.
+        let index_close = score.index_error.abs() <= self.index_silently_wrong;
+        Verdict {
+            passed: failed.is_empty(),
+            failed,
+            index_silently_wrong: !index_close && score.valid_fraction > 0.0,
+        }
+    }
+}
+
+/// One random scene: what was drawn, its score and verdict (a row of `eval --random`).
+#[derive(Clone, Debug, Serialize)]
+pub struct RandomRow {
+    /// Index of the scene in its set.
+    pub i: usize,
+    /// Scene name (`random-SEED-I`).
+    pub scene: String,
+    /// The film's material ([`filmscope_core::optics::materials::NAMES`]).
+    pub material: String,
+    /// The film's true n at 550 nm.
+    pub film_index: f64,
+    /// Base thickness, nm.
+    pub base_thickness_nm: f64,
+    /// True when the thickness map has a step.
+    pub step: bool,
+    /// Substrate index.
+    pub substrate_index: f64,
+    /// Stage angles in sweep order, degrees.
+    pub angles_deg: Vec<f64>,
+    /// First and last band centre and the step, nm.
+    pub bands_nm: [f64; 3],
+    /// Number of bands.
+    pub band_count: usize,
+    /// Passband FWHM, nm.
+    pub fwhm_nm: f64,
+    /// Polarisation: s, p or unpolarized.
+    pub polarization: String,
+    /// `raw` (counts with white and dark references) or `float` (reflectance with noise).
+    pub sensor: String,
+    /// The float scenes' reflectance noise, percent.
+    pub reflectance_noise_percent: Option<f64>,
+    /// Interleave of the written capture: bsq, bil or bip.
+    pub interleave: String,
+    /// Byte order of the written capture: little or big.
+    pub byte_order: String,
+    /// Sensor width and height, pixels.
+    pub size: [usize; 2],
+    /// Estimated index at 550 nm (absent when the scene failed before a result).
+    pub index_estimated: Option<f64>,
+    /// The figures judged (absent when the scene failed before a result).
+    pub score: Option<Score>,
+    /// Wall time of the scene (simulate, write, read, estimate, score), seconds.
+    pub seconds: f64,
+    /// The estimator's own time, seconds.
+    pub estimate_seconds: Option<f64>,
+    /// Every criterion met.
+    pub passed: bool,
+    /// The criteria not met (`error` when the scene failed before a result).
+    pub failed: Vec<String>,
+    /// |index error| > 0.02 while some pixel is reported valid.
+    pub index_silently_wrong: bool,
+    /// What went wrong, when the scene failed before a result.
+    pub note: Option<String>,
+}
+
+impl RandomRow {
+    /// The column titles of [`RandomRow::table_row`].
+    pub fn table_header() -> String {
+        format!(
+            "{:>3} {:<13} {:>7} {:>5} {:>6} {:<28} {:<13} {:>4} {:<5} {:<11} {:>8} {:>7} {:>6} {:>6} {:>6} {:>5}  {}",
+            "#",
+            "material",
+            "d nm",
+            "step",
+            "sub n",
+            "angles deg",
+            "bands nm",
+            "fwhm",
+            "pol",
+            "sensor",
+            "n err",
+            "MAE nm",
+            "valid",
+            "silent",
+            "dE00",
+            "s",
+            "verdict"
+        )
+    }
+
+    /// One line of the table.
+    pub fn table_row(&self) -> String {
+        let angles: Vec<String> = self.angles_deg.iter().map(|a| format!("{a}")).collect();
+        let [first, last, step] = self.bands_nm;
+        let bands = format!("{first}-{last}/{step}");
+        let sensor = format!(
+            "{}/{}/{}",
+            self.sensor,
+            self.interleave,
+            if self.byte_order == "big" { "be" } else { "le" }
+        );
+        let pol = match self.polarization.as_str() {
+            "unpolarized" => "unpol",
+            p => p,
+        };
+        let f = |x: Option<f64>, w: usize, p: usize, pct: bool, sign: bool| match x {
+            None => format!("{:>w$}", "-"),
+            Some(v) if pct => format!("{:>w$.p$}", 100.0 * v),
+            Some(v) if sign => format!("{v:>+w$.p$}"),
+            Some(v) => format!("{v:>w$.p$}"),
+        };
+        let s = self.score;
+        let mut verdict = if self.passed {
+            "PASS".to_owned()
+        } else {
+            format!("FAIL {}", self.failed.join(","))
+        };
+        if self.index_silently_wrong {
+            verdict.push_str(" INDEX-SILENTLY-WRONG");
+        }
+        if let Some(note) = &self.note {
+            verdict.push_str(&format!(" ({note})"));
+        }
+        format!(
+            "{:>3} {:<13} {:>7.1} {:>5} {:>6.3} {:<28} {:<13} {:>4.1} {:<5} {:<11} {} {} {} {} {} {:>5.2}  {verdict}",
+            self.i,
+            self.material,
+            self.base_thickness_nm,
+            if self.step { "yes" } else { "no" },
+            self.substrate_index,
+            angles.join(","),
+            bands,
+            self.fwhm_nm,
+            pol,
+            sensor,
+            f(s.map(|s| s.index_error), 8, 4, false, true),
+            f(s.map(|s| s.thickness_mae_nm), 7, 2, false, false),
+            f(s.map(|s| s.valid_fraction), 5, 1, true, false) + "%",
+            f(s.map(|s| s.silent_failure_rate), 5, 2, true, false) + "%",
+            f(s.map(|s| s.delta_e2000_mean), 6, 3, false, false),
+            self.seconds,
+        )
+    }
+}
+
+/// A random evaluation: every scene's row and the totals.
+#[derive(Clone, Debug, Serialize)]
+pub struct RandomEval {
+    /// The set's seed.
+    pub seed: u64,
+    /// Scenes run.
+    pub count: usize,
+    /// Scenes that passed.
+    pub passed: usize,
+    /// Scenes whose index was silently wrong.
+    pub index_silently_wrong: usize,
+    /// Wall time of the whole evaluation, seconds.
+    pub seconds: f64,
+    /// The criteria applied.
+    pub criteria: Criteria,
+    /// One row per scene, in order.
+    pub rows: Vec<RandomRow>,
+}
+
+impl RandomEval {
+    /// `random eval: P of N passed, K index silently wrong`.
+    pub fn closing_line(&self) -> String {
+        format!(
+            "random eval: {} of {} passed, {} index silently wrong",
+            self.passed, self.count, self.index_silently_wrong
+        )
+    }
+}
+
+/// Runs random scene `i` of set `seed` as a user would: draws it
+/// ([`firmware_sim::random::draw`]), writes its capture into `work_dir/scene-I` with the
+/// drawn interleave, byte order and sensor model, reads it back from disk, estimates with
+/// `config` and judges the result by [`RANDOM_CRITERIA`]. The capture is removed after. An
+/// error or panic on the way is a failed row with a note, never an error of this function.
+pub fn random_scene(seed: u64, i: usize, config: &RunConfig, work_dir: &Path) -> RandomRow {
+    let t0 = std::time::Instant::now();
+    let drawn = firmware_sim::random::draw(seed, i);
+    let scene = &drawn.scene;
+    let dir = work_dir.join(format!("scene-{i}"));
+    let attempt = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        simulate_and_estimate(&drawn, config, &dir)
+    }));
+    let _ = std::fs::remove_dir_all(&dir);
+    let bands = &scene.bands_nm;
+    let mut row = RandomRow {
+        i,
+        scene: scene.name.clone(),
+        material: drawn.material.to_owned(),
+        film_index: scene.stack.film.index_at(550.0),
+        base_thickness_nm: drawn.base_thickness_nm,
+        step: drawn.has_step,
+        substrate_index: scene.stack.substrate.index_at(550.0),
+        angles_deg: scene.angles_deg.clone(),
+        bands_nm: [
+            bands[0],
+            bands[bands.len() - 1],
+            if bands.len() > 1 {
+                bands[1] - bands[0]
+            } else {
+                0.0
+            },
+        ],
+        band_count: bands.len(),
+        fwhm_nm: scene.fwhm_nm,
+        polarization: scene.stack.polarization.name().to_owned(),
+        sensor: if drawn.float_reflectance {
+            "float"
+        } else {
+            "raw"
+        }
+        .to_owned(),
+        reflectance_noise_percent: scene.sensor.reflectance_noise_percent,
+        interleave: drawn.interleave.name().to_owned(),
+        byte_order: if drawn.big_endian { "big" } else { "little" }.to_owned(),
+        size: [scene.sensor.width, scene.sensor.height],
+        index_estimated: None,
+        score: None,
+        seconds: 0.0,
+        estimate_seconds: None,
+        passed: false,
+        failed: vec!["error".to_owned()],
+        index_silently_wrong: false,
+        note: None,
+    };
+    match attempt {
+        Ok(Ok(report)) => {
+            let score = Score::of(&report);
+            let verdict = RANDOM_CRITERIA.judge(&score, drawn.base_thickness_nm);
+            row.index_estimated = Some(report.index_estimated);
+            row.score = Some(score);
+            row.estimate_seconds = Some(report.seconds);
+            row.passed = verdict.passed;
+            row.failed = verdict.failed;
+            row.index_silently_wrong = verdict.index_silently_wrong;
+        }
+        Ok(Err(e)) => row.note = Some(e),
+        Err(panic) => {
+            let message = panic
+                .downcast_ref::<String>()
+                .map(String::as_str)
+                .or_else(|| panic.downcast_ref::<&str>().copied())
+                .unwrap_or("?");
+            row.note = Some(format!("panic: {message}"));
+        }
+    }
+    row.seconds = t0.elapsed().as_secs_f64();
+    row
+}
+
+/// Writes the drawn scene's capture into `dir`, estimates from it and evaluates.
+fn simulate_and_estimate(
+    drawn: &firmware_sim::random::RandomScene,
+    config: &RunConfig,
+    dir: &Path,
+) -> Result<EvalReport, String> {
+    use crate::io::{ByteOrder, Capture, Interleave};
+    let scene = &drawn.scene;
+    let opts = crate::simulate::SimulateOptions {
+        noise_free: false,
+        interleave: Interleave::from_name(drawn.interleave.name()).unwrap_or(Interleave::Bil),
+        byte_order: if drawn.big_endian {
+            ByteOrder::Big
+        } else {
+            ByteOrder::Little
+        },
+        float_reflectance: drawn.float_reflectance,
+    };
+    let toml = crate::simulate::write_capture(scene, dir, opts, &|_| {})
+        .map_err(|e| format!("simulate: {e}"))?;
+    let cap = Capture::load(&toml).map_err(|e| format!("read: {e}"))?;
+    let fov = cap.lens.field_of_view();
+    let mut source = crate::pipeline::CaptureSource::new(cap).map_err(|e| format!("read: {e}"))?;
+    let run = crate::estimate::run_method_in_field(&mut source, config, fov, &|_| {})
+        .map_err(|e| format!("estimate: {e}"))?;
+    Ok(evaluate(&scene.name, &Truth::of_scene(scene), &run))
+}
+
+/// Runs scenes `0..count` of random set `seed` one after another ([`random_scene`]), with
+/// captures in `work_dir`; `on_row` is given every row as it is done.
+pub fn random_eval(
+    count: usize,
+    seed: u64,
+    config: &RunConfig,
+    work_dir: &Path,
+    on_row: &mut dyn FnMut(&RandomRow),
+) -> RandomEval {
+    let t0 = std::time::Instant::now();
+    let mut rows = Vec::with_capacity(count);
+    for i in 0..count {
+        let row = random_scene(seed, i, config, work_dir);
+        on_row(&row);
+        rows.push(row);
+    }
+    RandomEval {
+        seed,
+        count,
+        passed: rows.iter().filter(|r| r.passed).count(),
+        index_silently_wrong: rows.iter().filter(|r| r.index_silently_wrong).count(),
+        seconds: t0.elapsed().as_secs_f64(),
+        criteria: RANDOM_CRITERIA,
+        rows,
     }
 }

@@ -3,7 +3,8 @@
 //!
 //! Layout: `capture.toml`; per angle `aNN.hdr/.img` (raw 12-bit counts as uint16, BIL, with
 //! `whiteNN` and `darkNN` float32 references averaged over the scene's `white_frames`), or,
-//! noise-free, float32 reflectance without references; `truth/thickness_nm.hdr/.img` and
+//! noise-free or as [`SimulateOptions::float_reflectance`], float32 reflectance without
+//! references; any interleave and byte order; `truth/thickness_nm.hdr/.img` and
 //! `truth.json`. A scene with a lens field of view writes it as `[lens] horizontal_fov_deg`
 //! (filmscope's extension of the capture format).
 
@@ -14,8 +15,8 @@ use firmware_sim::{Scene, SoftwareCamera};
 use serde_json::json;
 
 use crate::io::{
-    write_atomic, write_f32_map, Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave,
-    Lens, Sample, Search,
+    write_atomic, write_f32_map, Angle, ByteOrder, Capture, DataType, EnviHeader, EnviWriter,
+    Interleave, Lens, Sample, Search,
 };
 
 /// A capture that could not be written, with the file at fault.
@@ -30,6 +31,14 @@ pub struct SimulateOptions {
     pub noise_free: bool,
     /// Interleave of the cubes.
     pub interleave: Interleave,
+    /// Byte order of the cubes' values.
+    pub byte_order: ByteOrder,
+    /// Float32 reflectance without references, each sample being its counts over the
+    /// references' (`(raw - dark) / (white - dark)`, noise and all; NaN where white does
+    /// not exceed dark), instead of raw counts with white and dark references. With the
+    /// scene's `reflectance_noise_percent` this is the true reflectance plus that noise.
+    /// Ignored with `noise_free`.
+    pub float_reflectance: bool,
 }
 
 impl Default for SimulateOptions {
@@ -37,6 +46,8 @@ impl Default for SimulateOptions {
         Self {
             noise_free: false,
             interleave: Interleave::Bil,
+            byte_order: ByteOrder::Little,
+            float_reflectance: false,
         }
     }
 }
@@ -61,7 +72,7 @@ pub fn dispersion_json(d: &Dispersion) -> serde_json::Value {
 fn header(
     scene: &Scene,
     data_type: DataType,
-    interleave: Interleave,
+    opts: SimulateOptions,
     description: &str,
 ) -> EnviHeader {
     let s = &scene.sensor;
@@ -70,8 +81,9 @@ fn header(
         s.height,
         scene.bands_nm.len(),
         data_type,
-        interleave,
+        opts.interleave,
     );
+    h.byte_order = opts.byte_order;
     h.wavelength_nm = Some(scene.bands_nm.clone());
     h.fwhm_nm = Some(vec![scene.fwhm_nm; scene.bands_nm.len()]);
     h.description = Some(description.to_owned());
@@ -100,7 +112,7 @@ pub fn write_capture(
         let cube_path = out_dir.join(format!("a{tag}.hdr"));
         let desc = format!("filmscope simulate: {} at {deg} deg", scene.name);
         if opts.noise_free {
-            let hd = header(scene, DataType::F32, opts.interleave, &desc);
+            let hd = header(scene, DataType::F32, opts, &desc);
             let mut cube = EnviWriter::create(&cube_path, &hd).map_err(|e| err(&cube_path, &e))?;
             for b in 0..bands {
                 for r in 0..h {
@@ -118,21 +130,51 @@ pub fn write_capture(
                 dark: None,
                 white_reflectance: 1.0,
             });
+        } else if opts.float_reflectance {
+            let hd = header(scene, DataType::F32, opts, &desc);
+            let mut cube = EnviWriter::create(&cube_path, &hd).map_err(|e| err(&cube_path, &e))?;
+            let (mut white, mut dark) = (vec![0f32; w], vec![0f32; w]);
+            for b in 0..bands {
+                for r in 0..h {
+                    camera.raw_row(a, b, r, &mut raw16);
+                    camera.white_row(a, b, r, &mut white);
+                    camera.dark_row(a, b, r, &mut dark);
+                    for (((o, &c), &wh), &dk) in row.iter_mut().zip(&raw16).zip(&white).zip(&dark) {
+                        let span = wh - dk;
+                        *o = if span > 0.0 {
+                            (f32::from(c) - dk) / span
+                        } else {
+                            f32::NAN
+                        };
+                    }
+                    cube.write_band_row(b, r, &row)
+                        .map_err(|e| err(&cube_path, &e))?;
+                    on_rows(1);
+                }
+            }
+            cube.finish().map_err(|e| err(&cube_path, &e))?;
+            angles.push(Angle {
+                incidence_deg: deg,
+                cube: cube_path,
+                white: None,
+                dark: None,
+                white_reflectance: 1.0,
+            });
         } else {
-            let mut hd = header(scene, DataType::U16, opts.interleave, &desc);
+            let mut hd = header(scene, DataType::U16, opts, &desc);
             hd.extra.push(("saturation counts".into(), sat.clone()));
             let white_path = out_dir.join(format!("white{tag}.hdr"));
             let dark_path = out_dir.join(format!("dark{tag}.hdr"));
             let href = header(
                 scene,
                 DataType::F32,
-                opts.interleave,
+                opts,
                 "white reference (averaged counts)",
             );
             let dref = header(
                 scene,
                 DataType::F32,
-                opts.interleave,
+                opts,
                 "dark reference (averaged counts)",
             );
             let mut cube = EnviWriter::create(&cube_path, &hd).map_err(|e| err(&cube_path, &e))?;

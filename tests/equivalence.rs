@@ -230,6 +230,7 @@ fn replayed_captures_match_the_stream_in_every_interleave() {
             let opts = SimulateOptions {
                 noise_free,
                 interleave,
+                ..SimulateOptions::default()
             };
             write_capture(&scene, dir.path(), opts, &|_| {}).expect("capture");
             let cap = Capture::load(dir.path()).expect("capture loads");
@@ -280,6 +281,7 @@ fn capture_angle_order_does_not_change_the_maps() {
     let opts = SimulateOptions {
         noise_free: false,
         interleave: Interleave::Bil,
+        ..SimulateOptions::default()
     };
     write_capture(&scene, dir.path(), opts, &|_| {}).expect("capture");
     let load = || Capture::load(dir.path()).expect("capture loads");

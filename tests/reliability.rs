@@ -74,6 +74,7 @@ fn nan_and_inf_in_a_float_cube_are_flagged_pixels_not_errors() {
     let opts = SimulateOptions {
         noise_free: true,
         interleave: Interleave::Bil,
+        ..SimulateOptions::default()
     };
     write_capture(&common::tiny_scene(), dir.path(), opts, &|_| {}).expect("capture");
     let clean = estimate(dir.path());

@@ -164,3 +164,73 @@ fn bad_scene_files_get_one_line_naming_the_file() {
     assert!(!missing.status.success());
     assert!(String::from_utf8_lossy(&missing.stderr).contains("/nonexistent/scene.toml"));
 }
+
+/// A float-reflectance capture (`SimulateOptions::float_reflectance`) of a scene with
+/// reflectance noise 0 holds the true band reflectance to the ADC's rounding, without
+/// references; written big endian in any interleave it reads back the same values.
+#[test]
+fn float_reflectance_capture_holds_the_reflectance_in_any_layout() {
+    use filmscope::io::{ByteOrder, Interleave};
+    let text = r#"
+name = "float"
+seed = 3
+[film.dispersion]
+model = "material"
+name = "ta2o5"
+[film.thickness]
+base_nm = 300.0
+gradient_nm = [40.0, 0.0]
+[substrate]
+index = 1.52
+[rig]
+angles_deg = [10.0, 40.0]
+bands_nm = [420.0, 720.0, 10.0]
+fwhm_nm = 5.0
+[sensor]
+width = 12
+height = 8
+reflectance_noise_percent = 0.0
+"#;
+    let sc = Scene::from_toml(text, "float").expect("scene");
+    let camera = firmware_sim::SoftwareCamera::new(sc.clone());
+    let mut first: Option<Vec<f32>> = None;
+    for interleave in [Interleave::Bsq, Interleave::Bil, Interleave::Bip] {
+        for byte_order in [ByteOrder::Little, ByteOrder::Big] {
+            let dir = tempdir();
+            let opts = SimulateOptions {
+                interleave,
+                byte_order,
+                float_reflectance: true,
+                ..SimulateOptions::default()
+            };
+            write_capture(&sc, dir.path(), opts, &|_| {}).expect("capture");
+            let cap = Capture::load(dir.path()).expect("capture loads");
+            assert!(cap
+                .angles
+                .iter()
+                .all(|a| a.white.is_none() && a.dark.is_none()));
+            let cube = read_cube(dir.path().join("a40.hdr")).expect("cube");
+            assert_eq!(cube.header.data_type, DataType::F32);
+            assert_eq!(cube.header.byte_order, byte_order);
+            assert_eq!(cube.header.interleave, interleave);
+            let mut row = vec![0f32; cube.samples];
+            for b in 0..cube.bands {
+                for l in 0..cube.lines {
+                    camera.reflectance_row(1, b, l, &mut row);
+                    let start = (b * cube.lines + l) * cube.samples;
+                    for (got, want) in cube.data[start..start + cube.samples].iter().zip(&row) {
+                        // One count of rounding over at least ~2500 counts of white.
+                        assert!(
+                            (got - want).abs() < 1e-3,
+                            "band {b} line {l}: {got} vs {want}"
+                        );
+                    }
+                }
+            }
+            match &first {
+                None => first = Some(cube.data),
+                Some(f) => assert_eq!(f, &cube.data, "{interleave:?} {byte_order:?}"),
+            }
+        }
+    }
+}

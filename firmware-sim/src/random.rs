@@ -113,9 +113,10 @@ fn integer(rng: &mut Rng, [lo, hi]: [usize; 2]) -> usize {
     lo + (rng.next_u64() % (hi - lo + 1) as u64) as usize
 }
 
-/// `x` rounded to a multiple of `step`.
-fn round_to(x: f64, step: f64) -> f64 {
-    (x / step).round() * step
+/// `x` rounded to a multiple of `1 / per_unit` (divided last, so that 61.9 prints as
+/// 61.9 and not 61.900000000000006).
+fn round_to(x: f64, per_unit: f64) -> f64 {
+    (x * per_unit).round() / per_unit
 }
 
 /// Scene `i` of the random set `seed`.
@@ -127,7 +128,7 @@ pub fn draw(seed: u64, i: usize) -> RandomScene {
         .map(|d| d.index_at(550.0))
         .unwrap_or(1.5);
     let substrate = loop {
-        let n = round_to(uniform(&mut rng, SUBSTRATE_INDEX), 1e-3);
+        let n = round_to(uniform(&mut rng, SUBSTRATE_INDEX), 1000.0);
         if (n - film_n).abs() >= MIN_INDEX_GAP && n < SUBSTRATE_INDEX[1] {
             break n;
         }
@@ -137,20 +138,20 @@ pub fn draw(seed: u64, i: usize) -> RandomScene {
         (lo.ln() + (hi.ln() - lo.ln()) * rng.uniform())
             .exp()
             .clamp(lo, hi),
-        0.1,
+        10.0,
     );
     let gradient = [
-        round_to(base * uniform(&mut rng, [-0.15, 0.15]), 0.1),
-        round_to(base * uniform(&mut rng, [-0.15, 0.15]), 0.1),
+        round_to(base * uniform(&mut rng, [-0.15, 0.15]), 10.0),
+        round_to(base * uniform(&mut rng, [-0.15, 0.15]), 10.0),
     ];
     let bumps = integer(&mut rng, [0, 4]);
-    let bump_height = round_to(1.0 + base * uniform(&mut rng, [0.02, 0.06]), 0.1);
-    let bump_sigma = round_to(uniform(&mut rng, [0.08, 0.25]), 0.01);
+    let bump_height = round_to(1.0 + base * uniform(&mut rng, [0.02, 0.06]), 10.0);
+    let bump_sigma = round_to(uniform(&mut rng, [0.08, 0.25]), 100.0);
     let has_step = rng.uniform() < 1.0 / 3.0;
     let step = if has_step {
         let sign = if rng.uniform() < 0.5 { -1.0 } else { 1.0 };
-        let x = round_to(uniform(&mut rng, [0.3, 0.7]), 0.01);
-        let h = round_to(sign * base * uniform(&mut rng, [0.03, 0.12]), 0.1);
+        let x = round_to(uniform(&mut rng, [0.3, 0.7]), 100.0);
+        let h = round_to(sign * base * uniform(&mut rng, [0.03, 0.12]), 10.0);
         format!("steps = [{{ x = {x:?}, height_nm = {h:?} }}]\n")
     } else {
         String::new()
@@ -158,7 +159,7 @@ pub fn draw(seed: u64, i: usize) -> RandomScene {
     let n_angles = integer(&mut rng, ANGLE_COUNT);
     let mut angles: Vec<f64> = Vec::with_capacity(n_angles);
     while angles.len() < n_angles {
-        let a = round_to(uniform(&mut rng, ANGLE_DEG), 0.5);
+        let a = round_to(uniform(&mut rng, ANGLE_DEG), 2.0);
         if angles.iter().all(|b| (a - b).abs() >= MIN_ANGLE_GAP_DEG) {
             angles.push(a);
         }
@@ -171,15 +172,18 @@ pub fn draw(seed: u64, i: usize) -> RandomScene {
     }
     let start = uniform(&mut rng, BAND_START_NM).round();
     let stop = uniform(&mut rng, BAND_STOP_NM).round();
-    let step_nm = round_to(uniform(&mut rng, BAND_STEP_NM), 0.5);
-    let fwhm = round_to(uniform(&mut rng, FWHM_NM), 0.1);
+    let step_nm = round_to(uniform(&mut rng, BAND_STEP_NM), 2.0);
+    let fwhm = round_to(uniform(&mut rng, FWHM_NM), 10.0);
     let polarization = ["s", "p", "unpolarized"][integer(&mut rng, [0, 2])];
     let float_reflectance = rng.uniform() < 0.5;
-    let noise = round_to(uniform(&mut rng, NOISE_PERCENT), 0.01);
+    let noise = round_to(uniform(&mut rng, NOISE_PERCENT), 100.0);
     let width = integer(&mut rng, WIDTH);
     let height = integer(&mut rng, HEIGHT);
-    let interleave = [CubeInterleave::Bsq, CubeInterleave::Bil, CubeInterleave::Bip]
-        [integer(&mut rng, [0, 2])];
+    let interleave = [
+        CubeInterleave::Bsq,
+        CubeInterleave::Bil,
+        CubeInterleave::Bip,
+    ][integer(&mut rng, [0, 2])];
     let big_endian = rng.uniform() < 0.5;
     let scene_seed = rng.next_u64() >> 16;
     let name = format!("random-{seed}-{i}");
@@ -297,12 +301,11 @@ mod tests {
             assert!((sub - film).abs() >= MIN_INDEX_GAP, "{}", r.toml);
             assert!((BASE_THICKNESS_NM[0]..=BASE_THICKNESS_NM[1]).contains(&r.base_thickness_nm));
             assert!(s.thickness_nm.iter().all(|&t| t > 0.0));
-            let (tmin, tmax) = s.thickness_nm.iter().fold((f32::MAX, 0.0f32), |(a, b), &t| {
-                (a.min(t), b.max(t))
-            });
-            let [lo, hi] = s
-                .thickness_range_nm
-                .unwrap_or(DEFAULT_THICKNESS_RANGE_NM);
+            let (tmin, tmax) = s
+                .thickness_nm
+                .iter()
+                .fold((f32::MAX, 0.0f32), |(a, b), &t| (a.min(t), b.max(t)));
+            let [lo, hi] = s.thickness_range_nm.unwrap_or(DEFAULT_THICKNESS_RANGE_NM);
             assert!(
                 f64::from(tmin) >= lo && f64::from(tmax) <= hi,
                 "{tmin}..{tmax} outside the search range {lo}..{hi}"
@@ -320,8 +323,9 @@ mod tests {
             }
             let b = &s.bands_nm;
             assert!((BAND_START_NM[0]..=BAND_START_NM[1]).contains(&b[0]));
-            assert!(*b.last().unwrap() <= BAND_STOP_NM[1]);
-            assert!(*b.last().unwrap() > BAND_STOP_NM[0] - BAND_STEP_NM[1]);
+            let last = b[b.len() - 1];
+            assert!(last <= BAND_STOP_NM[1]);
+            assert!(last > BAND_STOP_NM[0] - BAND_STEP_NM[1]);
             let step = b[1] - b[0];
             assert!(
                 (BAND_STEP_NM[0] - 1e-9..=BAND_STEP_NM[1] + 1e-9).contains(&step),

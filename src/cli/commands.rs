@@ -16,7 +16,7 @@ use crate::estimate::{run_method_in_field, write_outputs, Run, RunConfig};
 use crate::eval::{evaluate, EvalReport, Truth};
 use crate::export::gltf;
 use crate::field::{FieldChoice, FieldConfig};
-use crate::io::{write_atomic, Capture, Interleave};
+use crate::io::{write_atomic, ByteOrder, Capture, Interleave};
 use crate::pipeline::{CaptureSource, PipelineConfig, SimSource, Source};
 use crate::simulate::{write_capture, SimulateOptions};
 use crate::sweep::Method;
@@ -79,10 +79,20 @@ fn run_in_field_with_bar(
 }
 
 /// `filmscope simulate`.
-pub fn simulate(scene_path: &Path, out: &Path, noise_free: bool, interleave: &str) -> Result<()> {
+pub fn simulate(
+    scene_path: &Path,
+    out: &Path,
+    noise_free: bool,
+    (interleave, byte_order): (&str, &str),
+) -> Result<()> {
     let scene = Scene::load(scene_path)?;
     let interleave = Interleave::from_name(interleave)
         .ok_or_else(|| anyhow!("--interleave {interleave:?}: use bil, bsq or bip"))?;
+    let byte_order = match byte_order {
+        "little" => ByteOrder::Little,
+        "big" => ByteOrder::Big,
+        other => bail!("--byte-order {other:?}: use little or big"),
+    };
     let total = (scene.angles_deg.len() * scene.bands_nm.len() * scene.sensor.height) as u64;
     let bar = rows_bar(total, &scene.name);
     let toml = write_capture(
@@ -91,6 +101,8 @@ pub fn simulate(scene_path: &Path, out: &Path, noise_free: bool, interleave: &st
         SimulateOptions {
             noise_free,
             interleave,
+            byte_order,
+            float_reflectance: false,
         },
         &|n| bar.inc(n),
     )?;
@@ -249,14 +261,19 @@ fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig)> {
 /// `filmscope eval`.
 pub fn eval(
     inputs: &[PathBuf],
+    random: Option<(usize, u64, Option<PathBuf>)>,
     method_name: &str,
     json: bool,
     brute: (usize, f64),
     (ablate, index_pixels): (&[String], usize),
     (field_name, field_strips): (&str, Option<usize>),
 ) -> Result<()> {
-    if inputs.is_empty() {
-        bail!("eval needs at least one scene file or capture directory");
+    match (inputs.is_empty(), &random) {
+        (true, None) => {
+            bail!("eval needs at least one scene file or capture directory, or --random N")
+        }
+        (false, Some(_)) => bail!("eval --random draws its own scenes: give no inputs"),
+        _ => {}
     }
     let (solver, wide) = ablated(ablate)?;
     let solver = SolverOptions {
@@ -281,6 +298,9 @@ pub fn eval(
         sample_sites: crate::index_fit::DEFAULT_SITES,
         one_pass: false,
     };
+    if let Some((count, seed, save)) = random {
+        return eval_random(count, seed, &config, json, save.as_deref());
+    }
     if !json {
         println!(
             "{:<22} {:<9} {:>8} {:>9} {:>8} {:>8} {:>7} {:>8} {:>7} {:>7} {:>7} {:>7}",
@@ -343,6 +363,48 @@ pub fn eval(
                 r.seconds
             );
         }
+    }
+    Ok(())
+}
+
+/// `filmscope eval --random N --seed S`: the rows as they are done, then the closing line
+/// (or, with `json`, one JSON object at the end).
+fn eval_random(
+    count: usize,
+    seed: u64,
+    config: &RunConfig,
+    json: bool,
+    save_scenes: Option<&Path>,
+) -> Result<()> {
+    if let Some(dir) = save_scenes {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create", dir.display()))?;
+        for i in 0..count {
+            let drawn = firmware_sim::random::draw(seed, i);
+            let path = dir.join(format!("{}.toml", drawn.scene.name));
+            write_atomic(&path, drawn.toml.as_bytes())
+                .with_context(|| format!("{}: cannot write", path.display()))?;
+        }
+    }
+    let work = std::env::temp_dir().join(format!("filmscope-random-{}-{seed}", std::process::id()));
+    std::fs::create_dir_all(&work).with_context(|| format!("{}: cannot create", work.display()))?;
+    if !json {
+        println!("{}", crate::eval::RandomRow::table_header());
+    }
+    let result = crate::eval::random_eval(count, seed, config, &work, &mut |row| {
+        if !json {
+            println!("{}", row.table_row());
+        }
+    });
+    let _ = std::fs::remove_dir_all(&work);
+    if json {
+        println!("{}", serde_json::to_string(&result)?);
+    } else {
+        println!(
+            "{} ({:.1} s, seed {seed})",
+            result.closing_line(),
+            result.seconds
+        );
     }
     Ok(())
 }

@@ -43,6 +43,9 @@ enum Command {
         /// Cube interleave: bil (default, the camera link's order), bsq or bip.
         #[arg(long, default_value = "bil")]
         interleave: String,
+        /// Byte order of the cubes' values: little (default) or big.
+        #[arg(long, default_value = "little")]
+        byte_order: String,
     },
     /// Estimates index and thickness maps from a capture.
     Estimate {
@@ -97,10 +100,24 @@ enum Command {
     Eval {
         /// Scene files (.toml) or capture directories with truth.
         inputs: Vec<PathBuf>,
+        /// Instead of inputs, N random coating scenes (a library material on a random
+        /// substrate, thickness map, angles, bands, FWHM, polarisation, sensor model and
+        /// capture layout), each written to a temporary capture, estimated from disk and
+        /// judged PASS or FAIL; one row per scene and a closing count.
+        #[arg(long, value_name = "N")]
+        random: Option<usize>,
+        /// With --random: the set's seed (the same seed draws the same scenes).
+        #[arg(long, default_value_t = 1, requires = "random")]
+        seed: u64,
+        /// With --random: also write each drawn scene's file into DIR
+        /// (`random-SEED-I.toml`), so a row can be run again with `eval FILE`.
+        #[arg(long, value_name = "DIR", requires = "random")]
+        save_scenes: Option<PathBuf>,
         /// filmscope (default), paper or brute.
         #[arg(long, default_value = "filmscope")]
         method: String,
-        /// One JSON object per input on stdout instead of a table.
+        /// One JSON object per input on stdout instead of a table (with --random: one
+        /// object, every scene's row in `rows`).
         #[arg(long)]
         json: bool,
         /// Switch off filmscope improvements to measure their worth: refine, half-order,
@@ -269,7 +286,8 @@ pub fn main() -> std::process::ExitCode {
             out,
             noise_free,
             interleave,
-        } => commands::simulate(&scene, &out, noise_free, &interleave),
+            byte_order,
+        } => commands::simulate(&scene, &out, noise_free, (&interleave, &byte_order)),
         Command::Estimate {
             capture,
             out,
@@ -300,6 +318,9 @@ pub fn main() -> std::process::ExitCode {
         Command::Acquire { rig, out, sim } => commands::acquire(&rig, &out, sim),
         Command::Eval {
             inputs,
+            random,
+            seed,
+            save_scenes,
             method,
             json,
             ablate,
@@ -310,6 +331,7 @@ pub fn main() -> std::process::ExitCode {
             field_strips,
         } => commands::eval(
             &inputs,
+            random.map(|n| (n, seed, save_scenes)),
             &method,
             json,
             (brute_index_steps, brute_thickness_step),

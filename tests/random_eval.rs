@@ -1,0 +1,204 @@
+//! The random evaluation (`filmscope eval --random`): its scoring and verdicts on hand-made
+//! figures, and every drawn scene of a small set simulated, written, read back and estimated
+//! without an error. (Whether today's estimator passes the scenes is the evaluation's own
+//! output, not asserted here.)
+
+mod common;
+
+use filmscope::estimate::{run_method, RunConfig};
+use filmscope::eval::{
+    evaluate, random_eval, thickness_errors, Score, Truth, RANDOM_CRITERIA, SILENT_FAILURE_NM,
+};
+use filmscope::io::Capture;
+use filmscope::pipeline::CaptureSource;
+use filmscope::simulate::{write_capture, SimulateOptions};
+use filmscope_core::optics::Dispersion;
+use filmscope_core::solve::IndexModel;
+
+fn perfect() -> Score {
+    Score {
+        index_error: 0.0,
+        thickness_mae_nm: 0.0,
+        valid_fraction: 1.0,
+        silent_failure_rate: 0.0,
+        delta_e2000_mean: 0.0,
+    }
+}
+
+/// A criterion's name, how to set its figure, a value at its limit and one just past it.
+type Case = (&'static str, fn(&mut Score, f64), f64, f64);
+
+/// A perfect score passes; each criterion fails alone at just past its limit and passes at
+/// it; NaN figures fail.
+#[test]
+fn verdicts_follow_the_criteria() {
+    let c = RANDOM_CRITERIA;
+    let v = c.judge(&perfect(), 500.0);
+    assert!(v.passed && v.failed.is_empty() && !v.index_silently_wrong);
+    let cases: [Case; 5] = [
+        ("index", |s, x| s.index_error = x, 0.005, 0.0051),
+        ("MAE", |s, x| s.thickness_mae_nm = x, 2.0, 2.01),
+        ("valid", |s, x| s.valid_fraction = x, 0.95, 0.949),
+        ("silent", |s, x| s.silent_failure_rate = x, 0.001, 0.0011),
+        ("dE00", |s, x| s.delta_e2000_mean = x, 1.0, 1.01),
+    ];
+    for (name, set, ok, bad) in cases {
+        let mut s = perfect();
+        set(&mut s, ok);
+        assert!(c.judge(&s, 500.0).passed, "{name} at its limit");
+        set(&mut s, bad);
+        let v = c.judge(&s, 500.0);
+        assert_eq!(v.failed, vec![name.to_owned()], "{name} past its limit");
+        set(&mut s, f64::NAN);
+        assert_eq!(
+            c.judge(&s, 500.0).failed,
+            vec![name.to_owned()],
+            "{name} NaN"
+        );
+    }
+    // Films under 100 nm get 0.02 on the index.
+    let s = Score {
+        index_error: -0.015,
+        ..perfect()
+    };
+    assert!(c.judge(&s, 99.0).passed);
+    assert_eq!(c.judge(&s, 100.0).failed, vec!["index".to_owned()]);
+}
+
+/// An index 0.03 off with valid pixels is "index silently wrong", even on a thin film whose
+/// index tolerance is 0.02; with no pixel valid it is not (nothing was claimed).
+#[test]
+fn an_index_off_by_003_with_valid_pixels_is_silently_wrong() {
+    let c = RANDOM_CRITERIA;
+    let s = Score {
+        index_error: 0.03,
+        ..perfect()
+    };
+    for base in [80.0, 800.0] {
+        let v = c.judge(&s, base);
+        assert!(v.index_silently_wrong && !v.passed, "{base}");
+        assert_eq!(v.failed, vec!["index".to_owned()]);
+    }
+    let none_valid = Score {
+        index_error: -0.03,
+        valid_fraction: 0.0,
+        thickness_mae_nm: f64::NAN,
+        ..perfect()
+    };
+    assert!(!c.judge(&none_valid, 800.0).index_silently_wrong);
+    let close = Score {
+        index_error: 0.019,
+        ..perfect()
+    };
+    assert!(!c.judge(&close, 800.0).index_silently_wrong);
+}
+
+/// MAE, RMSE, largest error, valid and silent shares on a hand-made example.
+#[test]
+fn thickness_errors_by_hand() {
+    let truth = [100.0f32, 200.0, 300.0, 400.0, 500.0];
+    let estimate = [101.0f32, f32::NAN, 330.0, 398.0, f32::INFINITY];
+    let e = thickness_errors(&truth, &estimate);
+    // Valid: 101 (1 off), 330 (30 off: silent), 398 (2 off).
+    assert!((e.mae_nm - 11.0).abs() < 1e-9, "{}", e.mae_nm);
+    assert!((e.rmse_nm - (905.0f64 / 3.0).sqrt()).abs() < 1e-9);
+    assert!((e.max_nm - 30.0).abs() < 1e-9);
+    assert!((e.valid_fraction - 0.6).abs() < 1e-12);
+    assert!((e.silent_failure_rate - 0.2).abs() < 1e-12);
+    const { assert!(30.0 > SILENT_FAILURE_NM) };
+    let none = thickness_errors(&truth, &[f32::NAN; 5]);
+    assert!(none.mae_nm.is_nan() && none.valid_fraction == 0.0 && none.silent_failure_rate == 0.0);
+}
+
+/// `evaluate` on a real run whose result is replaced by the truth scores perfectly and
+/// passes; the same with the index 0.03 high is failed on the index and counted silently
+/// wrong, with a colour difference.
+#[test]
+fn evaluate_scores_a_perfect_result_as_passing() {
+    let drawn = firmware_sim::random::draw(1, 0);
+    let dir = common::tempdir();
+    let toml = write_capture(
+        &drawn.scene,
+        dir.path(),
+        SimulateOptions::default(),
+        &|_| {},
+    )
+    .expect("capture");
+    let cap = Capture::load(&toml).expect("capture loads");
+    let mut source = CaptureSource::new(cap).expect("source");
+    let mut run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
+    let n = 1.9;
+    let truth = Truth {
+        film: Dispersion::constant(n),
+        substrate_index: drawn.scene.stack.substrate.index_at(550.0),
+        ambient_index: 1.0,
+        polarization: drawn.scene.stack.polarization,
+        thickness_nm: drawn.scene.thickness_nm.clone(),
+    };
+    run.result.thickness_nm = truth.thickness_nm.clone();
+    run.result.index = IndexModel::constant(n);
+    let report = evaluate("perfect", &truth, &run);
+    let score = Score::of(&report);
+    assert_eq!(score.index_error, 0.0);
+    assert_eq!(score.thickness_mae_nm, 0.0);
+    assert_eq!(score.valid_fraction, 1.0);
+    assert_eq!(score.silent_failure_rate, 0.0);
+    assert!(
+        score.delta_e2000_mean.abs() < 1e-9,
+        "{}",
+        score.delta_e2000_mean
+    );
+    let v = RANDOM_CRITERIA.judge(&score, drawn.base_thickness_nm);
+    assert!(v.passed && !v.index_silently_wrong, "{v:?}");
+
+    run.result.index = IndexModel::constant(n + 0.03);
+    let off = Score::of(&evaluate("off", &truth, &run));
+    assert!((off.index_error - 0.03).abs() < 1e-12);
+    assert!(off.delta_e2000_mean > 0.0);
+    let v = RANDOM_CRITERIA.judge(&off, drawn.base_thickness_nm);
+    assert!(!v.passed && v.index_silently_wrong);
+    assert!(v.failed.contains(&"index".to_owned()));
+}
+
+/// Every scene of a small fixed set is drawn, written (raw and float, several interleaves
+/// and both byte orders), read back and estimated without an error or panic, with finite
+/// figures; the rows and the closing line are printable and serialisable.
+#[test]
+fn every_drawn_scene_simulates_and_estimates() {
+    let dir = common::tempdir();
+    let (seed, count) = (3, 4);
+    let mut seen = 0;
+    let result = random_eval(count, seed, &RunConfig::default(), dir.path(), &mut |_| {
+        seen += 1
+    });
+    assert_eq!(seen, count);
+    assert_eq!(result.rows.len(), count);
+    for row in &result.rows {
+        assert_eq!(row.note, None, "{}", row.table_row());
+        let s = row.score.expect("a score");
+        assert!(s.index_error.is_finite(), "{}", row.table_row());
+        assert!(s.valid_fraction > 0.0, "{}", row.table_row());
+        assert!(s.thickness_mae_nm.is_finite() && s.delta_e2000_mean.is_finite());
+        assert_eq!(row.passed, row.failed.is_empty());
+        assert!(!row.table_row().is_empty());
+    }
+    let kinds: std::collections::HashSet<_> = result
+        .rows
+        .iter()
+        .map(|r| (r.sensor.clone(), r.interleave.clone(), r.byte_order.clone()))
+        .collect();
+    assert!(kinds.len() >= 3, "{kinds:?}");
+    assert!(result.rows.iter().any(|r| r.sensor == "raw"));
+    assert!(result.rows.iter().any(|r| r.sensor == "float"));
+    assert_eq!(
+        result.closing_line(),
+        format!(
+            "random eval: {} of {count} passed, {} index silently wrong",
+            result.passed, result.index_silently_wrong
+        )
+    );
+    let json = serde_json::to_value(&result).expect("json");
+    assert_eq!(json["rows"].as_array().map(Vec::len), Some(count));
+    // The captures are removed after each scene.
+    assert_eq!(std::fs::read_dir(dir.path()).expect("dir").count(), 0);
+}
