@@ -1079,6 +1079,13 @@ impl SweepSolver {
     /// model (index, dispersion) then does not explain the spectra: every pixel is flagged
     /// [`super::flags::MODEL_MISMATCH`] and its confidence scaled down.
     pub fn model_mismatch(&self) -> bool {
+        if self.held_index {
+            // A held index was judged where it was fitted (the full spectra of a pixel
+            // sample, against their own noise, [`super::sample`]); the pixels' typical
+            // residual here also carries the per-pixel model's quadrature error, which a
+            // thick, high-index film under a wide passband makes larger than the noise.
+            return false;
+        }
         match (self.residual_sigma, self.noise_median) {
             (Some(r), Some(n)) => r > MISMATCH_RATIO * f64::from(n) + MISMATCH_FLOOR,
             _ => false,
