@@ -17,8 +17,8 @@ use crate::index_fit::{
 };
 use crate::io::{write_atomic, write_f32_map, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::pipeline::{
-    collect_sweep, for_each_calibrated, run_sweep, run_sweep_sampled, Calibrated, PipelineConfig, PipelineError,
-    Prior, PriorUpdate, SampleHook, Source, SweepOutput,
+    collect_sweep, for_each_calibrated, run_sweep, run_sweep_sampled, Calibrated, PipelineConfig,
+    PipelineError, Prior, PriorUpdate, SampleHook, Source, SweepOutput,
 };
 use filmscope_core::optics::FieldOfView;
 

@@ -91,6 +91,14 @@ impl SampleTap {
         }
     }
 
+    /// A copy holding only the first `angles` angles (those complete while the stream goes
+    /// on into the next), so it can be fitted without holding up the stream.
+    pub fn complete(&self, angles: usize) -> Self {
+        let mut copy = self.clone();
+        copy.angles_deg.truncate(angles);
+        copy
+    }
+
     /// Calibrated rows `first_row..first_row + rows` of `band` at the current angle.
     pub fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]) {
         let Some(a) = self.angles_deg.len().checked_sub(1) else {

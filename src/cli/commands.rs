@@ -118,6 +118,15 @@ pub fn simulate(
     Ok(())
 }
 
+/// `--sample-sites` must hold enough sites to fit an index and no more than the fit holds.
+fn check_index_args(index: super::IndexArgs) -> Result<()> {
+    let max = filmscope_core::solve::sample::MAX_SITES;
+    if !(4..=max).contains(&index.sample_sites) {
+        bail!("--sample-sites {}: must be 4 to {max}", index.sample_sites);
+    }
+    Ok(())
+}
+
 /// `filmscope estimate`.
 pub fn estimate(
     capture: &Path,
@@ -126,7 +135,9 @@ pub fn estimate(
     pipeline: PipelineConfig,
     brute: (usize, f64),
     (field_name, field_strips): (&str, Option<usize>),
+    index: super::IndexArgs,
 ) -> Result<()> {
+    check_index_args(index)?;
     let config = RunConfig {
         method: method(method_name)?,
         pipeline,
@@ -139,8 +150,8 @@ pub fn estimate(
             strips: field_strips,
             ..FieldConfig::default()
         },
-        sample_sites: crate::index_fit::DEFAULT_SITES,
-        one_pass: false,
+        sample_sites: index.sample_sites,
+        one_pass: index.one_pass,
     };
     let cap = Capture::load(capture)?;
     for key in &cap.unknown_keys {
@@ -267,7 +278,9 @@ pub fn eval(
     brute: (usize, f64),
     (ablate, index_pixels): (&[String], usize),
     (field_name, field_strips): (&str, Option<usize>),
+    index: super::IndexArgs,
 ) -> Result<()> {
+    check_index_args(index)?;
     match (inputs.is_empty(), &random) {
         (true, None) => {
             bail!("eval needs at least one scene file or capture directory, or --random N")
@@ -295,8 +308,8 @@ pub fn eval(
             strips: field_strips,
             ..wide
         },
-        sample_sites: crate::index_fit::DEFAULT_SITES,
-        one_pass: false,
+        sample_sites: index.sample_sites,
+        one_pass: index.one_pass,
     };
     if let Some((count, seed, save)) = random {
         return eval_random(count, seed, &config, json, save.as_deref());

@@ -5,10 +5,23 @@ mod progress;
 
 use std::path::PathBuf;
 
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 use filmscope_core::solve::sweep::SolverOptions;
 
 use crate::pipeline::PipelineConfig;
+
+/// How the streaming method gets the shared index.
+#[derive(Clone, Copy, Debug, Args)]
+pub struct IndexArgs {
+    /// Sites (runs of five pixels spread over the image) whose full spectra give the shared
+    /// index.
+    #[arg(long, default_value_t = crate::index_fit::DEFAULT_SITES)]
+    pub sample_sites: usize,
+    /// Stream the capture once, as a live camera does: the index refitted on the sample as
+    /// each angle completes (default: the sample's stream, then every pixel's).
+    #[arg(long)]
+    pub one_pass: bool,
+}
 
 /// filmscope: thin-film index and thickness maps from hyperspectral angle sweeps.
 #[derive(Debug, Parser)]
@@ -82,6 +95,8 @@ enum Command {
         /// Wide field model: number of strips of columns (default: from the angle spread).
         #[arg(long)]
         field_strips: Option<usize>,
+        #[command(flatten)]
+        index: IndexArgs,
     },
     /// Sweeps a rig (stage x filter x camera), streams every frame into the estimator,
     /// records the raw sweep as a capture in OUT/capture and writes the maps into OUT.
@@ -121,9 +136,8 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// Switch off filmscope improvements to measure their worth: refine, half-order,
-        /// neighbours, subband, wide-simd (AVX2: speed only), the wide field model's
-        /// column-map and shared-index, and polish (the closing Gauss-Newton pass over a
-        /// replayable source) (comma-separated).
+        /// neighbours, subband, wide-simd (AVX2: speed only), and the wide field model's
+        /// column-map and shared-index (comma-separated).
         #[arg(long, value_delimiter = ',')]
         ablate: Vec<String>,
         /// About how many pixels keep the shared index's sums (see `estimate`).
@@ -143,6 +157,8 @@ enum Command {
         /// Wide field model: number of strips of columns (default: from the angle spread).
         #[arg(long)]
         field_strips: Option<usize>,
+        #[command(flatten)]
+        index: IndexArgs,
     },
     /// Measures speed and memory (tracker, pipeline, solve, latency, state, peak RSS) and the
     /// baselines' cost on the same data, and prints one table.
@@ -299,6 +315,7 @@ pub fn main() -> std::process::ExitCode {
             brute_thickness_step,
             field,
             field_strips,
+            index,
         } => commands::estimate(
             &capture,
             &out,
@@ -314,6 +331,7 @@ pub fn main() -> std::process::ExitCode {
             },
             (brute_index_steps, brute_thickness_step),
             (&field, field_strips),
+            index,
         ),
         Command::Acquire { rig, out, sim } => commands::acquire(&rig, &out, sim),
         Command::Eval {
@@ -329,6 +347,7 @@ pub fn main() -> std::process::ExitCode {
             brute_thickness_step,
             field,
             field_strips,
+            index,
         } => commands::eval(
             &inputs,
             random.map(|n| (n, seed, save_scenes)),
@@ -337,6 +356,7 @@ pub fn main() -> std::process::ExitCode {
             (brute_index_steps, brute_thickness_step),
             (&ablate, index_pixels),
             (&field, field_strips),
+            index,
         ),
         Command::Bench { quick, json, scene } => commands::bench(&scene, quick, json),
         Command::Soak { sweeps, scene } => commands::soak(&scene, sweeps),

@@ -409,8 +409,9 @@ pub fn run_sweep(
 pub struct SampleHook<'a> {
     /// The sample the calibrate stage feeds with every calibrated block.
     pub tap: &'a Mutex<SampleTap>,
-    /// Called with the sample at each angle's end (before the solver's): the index the
-    /// solver takes from then on, if any ([`SweepSolver::set_external_index`]).
+    /// Called at each angle's end (before the solver's) with the sample's complete angles
+    /// (the stream goes on meanwhile): the index the solver takes from then on, if any
+    /// ([`SweepSolver::set_external_index`]).
     pub refit: &'a mut dyn FnMut(&SampleTap) -> Option<IndexModel>,
 }
 
@@ -574,7 +575,12 @@ fn sweep(
                         solver.thaw();
                     }
                     if let Some(hook) = hook.as_mut() {
-                        let sample = hook.tap.lock().unwrap_or_else(|e| e.into_inner());
+                        let complete = solver.angles_done() + 1;
+                        let sample = hook
+                            .tap
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner())
+                            .complete(complete);
                         if let Some(m) = (hook.refit)(&sample) {
                             solver.set_external_index(m);
                         }

@@ -419,7 +419,9 @@ pub fn fit_index(
         let mut red = None;
         if fringes > THICK_FRINGES {
             let mid = geo.bands_nm.len() / 2;
-            red = problem.search(geo.bands_nm.len(), mid, scratch).map(|r| r.0);
+            red = problem
+                .search(geo.bands_nm.len(), mid, scratch)
+                .map(|r| r.0);
         }
         // Interleaved, best of each search first.
         for i in 0..3 {
@@ -1096,7 +1098,11 @@ impl Problem<'_> {
         let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
         let span = bands - from;
         // Scoring a grid point takes the search's bands; seating sites, more of them.
-        let max_bands = if t.is_some() { SEAT_BANDS } else { SEARCH_BANDS };
+        let max_bands = if t.is_some() {
+            SEAT_BANDS
+        } else {
+            SEARCH_BANDS
+        };
         let stride = span.div_ceil(max_bands).max(1);
         let picked: heapless::Vec<usize, SEAT_BANDS> = (from..bands).step_by(stride).collect();
         let nbs = picked.len();
@@ -1260,7 +1266,12 @@ fn cauchy_through(c: &Candidate, lo_nm: f64, hi_nm: f64) -> [f64; 3] {
 /// (l^2 - L^2)` with `A = 1` (`with_constant` false) or free, by a scan over the pole with
 /// `S` (and `A`) by linear least squares in `n^2` at each; `None` when no pole gives a
 /// positive strength.
-fn sellmeier_through(c: &Candidate, lo_nm: f64, hi_nm: f64, with_constant: bool) -> Option<[f64; 3]> {
+fn sellmeier_through(
+    c: &Candidate,
+    lo_nm: f64,
+    hi_nm: f64,
+    with_constant: bool,
+) -> Option<[f64; 3]> {
     let m = 17;
     let l_lo = lo_nm * 1e-3;
     let at = |i: usize| (lo_nm + (hi_nm - lo_nm) * i as f64 / (m - 1) as f64) * 1e-3;
@@ -1498,7 +1509,10 @@ mod tests {
         // Constant, or a Cauchy model that bends by less than 0.002 across the band.
         let c = fit.best.expect("a fit");
         let d = c.kind.dispersion(&c.params);
-        assert!((d.index_at(420.0) - d.index_at(720.0)).abs() < 0.002, "{c:?}");
+        assert!(
+            (d.index_at(420.0) - d.index_at(720.0)).abs() < 0.002,
+            "{c:?}"
+        );
     }
 
     #[test]
