@@ -16,7 +16,7 @@ pub const DEFAULT_SITES: usize = 64;
 
 /// Fringes across the band under which the per-pixel pass starts every pixel from the
 /// sample's thickness map rather than from its own extrema (a film with no fringe pair).
-pub const SEEDED_BELOW_FRINGES: f64 = 1.0;
+pub const SEEDED_BELOW_FRINGES: f64 = 2.0;
 
 /// The sampled sites' calibrated spectra, held as the sweep streams.
 #[derive(Clone, Debug)]
