@@ -555,6 +555,7 @@ fn random_serial_faults(rng: &mut FaultRng, commands: u64) -> SerialFaults {
         reject: pick(4, rng),
         split: rng.chance(30).then(|| rng.below(8) as usize + 1),
         vanish_after: rng.chance(4).then(|| rng.below(commands) as usize + 1),
+        babble: None,
     }
 }
 
@@ -610,6 +611,7 @@ fn random_device_faults_over_many_sweeps_end_complete_or_with_a_clear_error() {
                 .then(|| (rng.below(frames) + 1, rng.below(24) as u32)),
             garbage_before,
             vanish_at: rng.chance(8).then(|| rng.below(frames) + 1),
+            ..CameraFaults::default()
         };
         o.stage_faults = random_serial_faults(&mut rng, 12);
         o.filter_faults = random_serial_faults(&mut rng, 3 * bands);

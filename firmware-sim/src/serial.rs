@@ -73,6 +73,10 @@ pub struct SerialFaults {
     pub split: Option<usize>,
     /// The device disappears after this many commands (the port then fails).
     pub vanish_after: Option<usize>,
+    /// From this command on the device never falls silent: whenever it has nothing else to
+    /// send it sends this text again (a stage streaming info lines, a filter repeating its
+    /// `>` prompt).
+    pub babble: Option<(usize, String)>,
 }
 
 /// A serial device: firmware plus the byte stream, the transcript and the faults.
@@ -161,6 +165,13 @@ impl<F: LineFirmware> SerialDevice<F> {
 
     /// Up to `max` bytes for the host (fewer when replies are split).
     pub fn transmit(&mut self, max: usize) -> Vec<u8> {
+        if self.tx.is_empty() && !self.gone {
+            if let Some((from, text)) = &self.faults.babble {
+                if self.commands >= *from {
+                    self.tx.extend(text.bytes());
+                }
+            }
+        }
         let n = self.faults.split.map_or(max, |s| s.max(1).min(max));
         let n = n.min(self.tx.len());
         self.tx.drain(..n).collect()

@@ -399,6 +399,8 @@ fn quiet_on_broken_pipe() {
     }));
 }
 
+/// One line of text safe for a terminal: whitespace runs joined into single spaces, other
+/// control characters escaped.
 fn one_line(s: &str) -> String {
-    s.split_whitespace().collect::<Vec<_>>().join(" ")
+    crate::limits::printable(&s.split_whitespace().collect::<Vec<_>>().join(" "))
 }
