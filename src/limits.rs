@@ -47,7 +47,7 @@ pub fn check_index_range(key: &str, [lo, hi]: [f64; 2]) -> Result<(), String> {
     if !(lo.is_finite() && hi.is_finite() && MIN_INDEX <= lo && lo < hi && hi <= MAX_INDEX) {
         return Err(bad(
             key,
-            format!("[{lo}, {hi}]"),
+            format!("[{lo:?}, {hi:?}]"),
             &format!("finite {MIN_INDEX} <= low < high <= {MAX_INDEX}"),
         ));
     }
@@ -59,7 +59,7 @@ pub fn check_thickness_range(key: &str, [lo, hi]: [f64; 2]) -> Result<(), String
     if !(lo.is_finite() && hi.is_finite() && 0.0 < lo && lo < hi && hi <= MAX_THICKNESS_NM) {
         return Err(bad(
             key,
-            format!("[{lo}, {hi}]"),
+            format!("[{lo:?}, {hi:?}]"),
             &format!("finite 0 < low < high <= {MAX_THICKNESS_NM} nm"),
         ));
     }
@@ -77,20 +77,20 @@ pub fn check_sample(
     if !(substrate.is_finite() && (MIN_INDEX..=MAX_INDEX).contains(&substrate)) {
         return Err(bad(
             substrate_key,
-            substrate,
+            format!("{substrate:?}"),
             &format!("a finite index in [{MIN_INDEX}, {MAX_INDEX}]"),
         ));
     }
     if !(ambient.is_finite() && (MIN_INDEX..=MAX_AMBIENT_INDEX).contains(&ambient)) {
         return Err(bad(
             ambient_key,
-            ambient,
+            format!("{ambient:?}"),
             &format!("a finite index in [{MIN_INDEX}, {MAX_AMBIENT_INDEX}]"),
         ));
     }
     if ambient > substrate {
         return Err(format!(
-            "{ambient_key} = {ambient} is above {substrate_key} = {substrate}: the light must come from the lower-index side"
+            "{ambient_key} = {ambient:?} is above {substrate_key} = {substrate:?}: the light must come from the lower-index side"
         ));
     }
     Ok(())
@@ -108,14 +108,14 @@ pub fn check_bands(
         if !(w.is_finite() && (MIN_WAVELENGTH_NM..=MAX_WAVELENGTH_NM).contains(&w)) {
             return Err(bad(
                 &format!("{key}[{i}]"),
-                w,
+                format!("{w:?}"),
                 &format!("a wavelength in [{MIN_WAVELENGTH_NM}, {MAX_WAVELENGTH_NM}] nm"),
             ));
         }
         if i > 0 && w <= bands_nm[i - 1] {
             return Err(bad(
                 &format!("{key}[{i}]"),
-                w,
+                format!("{w:?}"),
                 &format!(
                     "wavelengths in increasing order (the band before is {} nm)",
                     bands_nm[i - 1]
@@ -135,7 +135,7 @@ pub fn check_bands(
             if !(w.is_finite() && w > 0.0 && w <= MAX_FWHM_NM) {
                 return Err(bad(
                     &format!("{fwhm_key}[{i}]"),
-                    w,
+                    format!("{w:?}"),
                     &format!("a passband width in (0, {MAX_FWHM_NM}] nm"),
                 ));
             }
@@ -189,7 +189,7 @@ pub fn check_cli(
     {
         return Err(bad(
             "--brute-thickness-step",
-            s,
+            format!("{s:?}"),
             &format!("a step in [{MIN_BRUTE_THICKNESS_STEP_NM}, {MAX_BRUTE_THICKNESS_STEP_NM}] nm"),
         ));
     }
@@ -256,7 +256,12 @@ pub fn parse_bytes(text: &str) -> Result<u64, String> {
 }
 
 fn gib(bytes: u64) -> String {
-    format!("{:.2} GiB", bytes as f64 / f64::from(1u32 << 30))
+    let b = bytes as f64;
+    if b >= f64::from(1u32 << 30) {
+        format!("{:.1} GiB", b / f64::from(1u32 << 30))
+    } else {
+        format!("{:.1} MiB", b / f64::from(1u32 << 20))
+    }
 }
 
 /// Refuses a run needing `needed` bytes when it exceeds `budget` (the `--max-memory`

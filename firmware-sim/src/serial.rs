@@ -77,6 +77,9 @@ pub struct SerialFaults {
     /// send it sends this text again (a stage streaming info lines, a filter repeating its
     /// `>` prompt).
     pub babble: Option<(usize, String)>,
+    /// Commands with this text (terminator excluded) get this reply instead of their own
+    /// (a wrong reading, device text with control characters).
+    pub replace: Vec<(String, String)>,
 }
 
 /// A serial device: firmware plus the byte stream, the transcript and the faults.
@@ -143,7 +146,15 @@ impl<F: LineFirmware> SerialDevice<F> {
         });
         let reject = self.faults.reject.contains(&n);
         let reply = self.firmware.respond(line, now_us, reject);
-        let reply = if self.faults.swallow.contains(&n) {
+        let replaced = self
+            .faults
+            .replace
+            .iter()
+            .find(|(cmd, _)| cmd.trim() == line.trim())
+            .map(|(_, reply)| reply.clone());
+        let reply = if let Some(r) = replaced {
+            r
+        } else if self.faults.swallow.contains(&n) {
             String::new()
         } else if self.faults.garbage.contains(&n) {
             "\u{7f}#~@@ xq\r\n".to_owned()

@@ -79,6 +79,10 @@ enum Command {
         /// Wide field model: number of strips of columns (default: from the angle spread).
         #[arg(long)]
         field_strips: Option<usize>,
+        /// Memory the run may use (bytes, or with K, M, G, T); default: what the machine
+        /// has available. A capture needing more is refused before any work.
+        #[arg(long)]
+        max_memory: Option<String>,
     },
     /// Sweeps a rig (stage x filter x camera), streams every frame into the estimator,
     /// records the raw sweep as a capture in OUT/capture and writes the maps into OUT.
@@ -92,6 +96,10 @@ enum Command {
         /// Start firmware-sim and talk to it over real ptys and a socket.
         #[arg(long)]
         sim: bool,
+        /// Memory the run may use (bytes, or with K, M, G, T); default: what the machine
+        /// has available. A sweep needing more is refused before any device moves.
+        #[arg(long)]
+        max_memory: Option<String>,
     },
     /// Accuracy against the truth on scene files or simulated capture directories.
     Eval {
@@ -281,10 +289,13 @@ pub fn main() -> std::process::ExitCode {
             brute_thickness_step,
             field,
             field_strips,
+            max_memory,
         } => commands::estimate(
             &capture,
             &out,
             &method,
+            (workers, channel_capacity, index_pixels),
+            max_memory.as_deref(),
             PipelineConfig {
                 channel_capacity,
                 workers,
@@ -297,7 +308,12 @@ pub fn main() -> std::process::ExitCode {
             (brute_index_steps, brute_thickness_step),
             (&field, field_strips),
         ),
-        Command::Acquire { rig, out, sim } => commands::acquire(&rig, &out, sim),
+        Command::Acquire {
+            rig,
+            out,
+            sim,
+            max_memory,
+        } => commands::acquire(&rig, &out, sim, max_memory.as_deref()),
         Command::Eval {
             inputs,
             method,

@@ -223,7 +223,7 @@ fn finite_in(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), String> {
         Ok(())
     } else {
         Err(format!(
-            "{key} = {v}: expected a finite number in [{lo}, {hi}]"
+            "{key} = {v:?}: expected a finite number in [{lo:?}, {hi:?}]"
         ))
     }
 }
@@ -233,7 +233,7 @@ fn ms_in(key: &str, v: u64, lo: u64, hi: u64) -> Result<(), String> {
     if (lo..=hi).contains(&v) {
         Ok(())
     } else {
-        Err(format!("{key} = {v}: expected {lo} to {hi} ms"))
+        Err(format!("{key} = {v:?}: expected {lo:?} to {hi:?} ms"))
     }
 }
 
@@ -295,24 +295,24 @@ impl RigConfig {
         let [lo, hi] = self.stage.limits_deg;
         if !(lo.is_finite() && hi.is_finite() && lo < hi) {
             return Err(format!(
-                "stage.limits_deg = [{lo}, {hi}]: expected finite low < high"
+                "stage.limits_deg = [{lo:?}, {hi:?}]: expected finite low < high"
             ));
         }
         for (i, &a) in s.angles_deg.iter().enumerate() {
             if !(a.is_finite() && (0.0..90.0).contains(&a)) {
                 return Err(format!(
-                    "sweep.angles_deg[{i}] = {a}: expected an incidence angle in [0, 90) degrees"
+                    "sweep.angles_deg[{i}] = {a:?}: expected an incidence angle in [0, 90) degrees"
                 ));
             }
             if let Some(j) = s.angles_deg[..i].iter().position(|&b| (b - a).abs() < 1e-6) {
                 return Err(format!(
-                    "sweep.angles_deg[{i}] = {a}: the same angle as sweep.angles_deg[{j}]"
+                    "sweep.angles_deg[{i}] = {a:?}: the same angle as sweep.angles_deg[{j}]"
                 ));
             }
             let stage = a + s.stage_offset_deg;
             if !(stage >= lo && stage <= hi) {
                 return Err(format!(
-                    "sweep.angles_deg[{i}] = {a} puts the stage at {stage} deg, outside stage.limits_deg [{lo}, {hi}]"
+                    "sweep.angles_deg[{i}] = {a:?} puts the stage at {stage:?} deg, outside stage.limits_deg [{lo:?}, {hi:?}]"
                 ));
             }
         }
@@ -323,7 +323,7 @@ impl RigConfig {
             || !(count <= max)
         {
             return Err(format!(
-                "sweep.bands_nm = [{a}, {b}, {step}]: expected [first, last, step > 0], finite, at most {max} bands"
+                "sweep.bands_nm = [{a:?}, {b:?}, {step:?}]: expected [first, last, step > 0], finite, at most {max} bands"
             ));
         }
         limits::check_bands("sweep.bands_nm", &s.bands(), "sweep.fwhm_nm", None)?;
@@ -356,7 +356,7 @@ impl RigConfig {
         for (key, v) in [("camera.width", c.width), ("camera.height", c.height)] {
             if !(1..=MAX_CAMERA_PIXELS).contains(&v) {
                 return Err(format!(
-                    "{key} = {v}: expected 1 to {MAX_CAMERA_PIXELS} pixels"
+                    "{key} = {v:?}: expected 1 to {MAX_CAMERA_PIXELS} pixels"
                 ));
             }
         }
