@@ -249,7 +249,7 @@ pub fn parse_bytes(text: &str) -> Result<u64, String> {
         .parse()
         .map_err(|_| bad("--max-memory", text, "bytes, or a number with K, M, G or T"))?;
     let bytes = v * 1024f64.powi(shift);
-    if !(bytes.is_finite() && bytes >= 1.0 && bytes < 1.8e19) {
+    if !(1.0..1.8e19).contains(&bytes) {
         return Err(bad("--max-memory", text, "a positive size below 16 EiB"));
     }
     Ok(bytes as u64)

@@ -978,7 +978,7 @@ fn hardening_ctrl_c_mid_sweep_keeps_a_loadable_capture_and_its_log() {
     let rig_path = dir.path().join("rig.toml");
     std::fs::write(&rig_path, rig).expect("rig");
     let out = dir.path().join("run");
-    let mut child = common::filmscope()
+    let child = common::filmscope()
         .args([
             "acquire",
             "--sim",

@@ -273,6 +273,25 @@ fn eval_one(path: &Path, config: &RunConfig) -> Result<(EvalReport, Run)> {
         Input::Capture(dir) => {
             let truth = Truth::of_capture_dir(&dir).map_err(|e| anyhow!(e))?;
             let cap = Capture::load(&dir)?;
+            let info = cap.check()?;
+            crate::limits::check_memory(
+                &format!(
+                    "{}: {} x {} px, {} bands, {} angles",
+                    cap.path.display(),
+                    info.samples,
+                    info.lines,
+                    info.bands,
+                    cap.angles.len()
+                ),
+                crate::limits::run_bytes(
+                    (info.samples as u64).saturating_mul(info.lines as u64),
+                    info.bands as u64,
+                    cap.angles.len() as u64,
+                    config.method != Method::Filmscope,
+                ),
+                None,
+            )
+            .map_err(|e| anyhow!(e))?;
             let fov = cap.lens.field_of_view();
             let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
             let name = dir.display().to_string();
@@ -318,6 +337,15 @@ pub fn eval(
     if inputs.is_empty() {
         bail!("eval needs at least one scene file or capture directory");
     }
+    let defaults = PipelineConfig::default();
+    crate::limits::check_cli(
+        defaults.workers,
+        defaults.channel_capacity,
+        index_pixels,
+        brute.0,
+        brute.1,
+    )
+    .map_err(|e| anyhow!(e))?;
     let (solver, wide, polish) = ablated(ablate)?;
     let solver = SolverOptions {
         index_pixels,

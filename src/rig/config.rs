@@ -319,9 +319,8 @@ impl RigConfig {
         let [a, b, step] = s.bands_nm;
         let max = filmscope_core::solve::sweep::MAX_BANDS as f64;
         let count = (b - a) / step + 1.0;
-        if !(a.is_finite() && b.is_finite() && step.is_finite() && step > 0.0 && b >= a)
-            || !(count <= max)
-        {
+        let ok = a.is_finite() && b.is_finite() && step.is_finite() && step > 0.0 && b >= a;
+        if !(ok && count <= max) {
             return Err(format!(
                 "sweep.bands_nm = [{a:?}, {b:?}, {step:?}]: expected [first, last, step > 0], finite, at most {max} bands"
             ));

@@ -645,6 +645,20 @@ fn guess_factor(wavelengths: Option<&[f64]>) -> f64 {
     }
 }
 
+/// Refuses FIFOs, devices and directories: opening or reading them would block or never
+/// end (a FIFO named as a header, `/dev/zero` as a data file).
+pub(crate) fn not_special(path: &Path) -> std::io::Result<()> {
+    let meta = std::fs::metadata(path)?;
+    if meta.is_file() {
+        Ok(())
+    } else {
+        Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file (a FIFO, device or directory)",
+        ))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -783,19 +797,5 @@ mod tests {
                 }
             }
         }
-    }
-}
-
-/// Refuses FIFOs, devices and directories: opening or reading them would block or never
-/// end (a FIFO named as a header, `/dev/zero` as a data file).
-pub(crate) fn not_special(path: &Path) -> std::io::Result<()> {
-    let meta = std::fs::metadata(path)?;
-    if meta.is_file() {
-        Ok(())
-    } else {
-        Err(std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            "not a regular file (a FIFO, device or directory)",
-        ))
     }
 }
