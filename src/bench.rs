@@ -454,7 +454,7 @@ pub struct BenchReport {
     pub rss: Option<RssFigures>,
     /// Why the memory figure is missing, if it is.
     pub rss_error: Option<String>,
-    /// The three methods on the same sweep, and filmscope without its polishing pass.
+    /// The three methods on the same sweep.
     pub methods: Vec<Point>,
     /// Sensor of the methods' sweep.
     pub methods_sensor: [usize; 2],
@@ -462,8 +462,6 @@ pub struct BenchReport {
     pub speedup_vs_brute: f64,
     /// Time of `paper` over time of `filmscope`.
     pub speedup_vs_paper: f64,
-    /// Time of `brute` over time of `filmscope -polish` (one pass fewer).
-    pub speedup_vs_brute_without_polish: f64,
 }
 
 /// Runs every measurement. `scene_path` gives the spectra (the paper's MgF2 sample by default).
@@ -559,7 +557,6 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         time("brute") / time("filmscope"),
         time("paper") / time("filmscope"),
     );
-    let speedup_vs_brute_without_polish = time("brute") / time("filmscope -polish");
     Ok(BenchReport {
         quick,
         scene: kernel_scene.name.clone(),
@@ -585,7 +582,6 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         methods_sensor: [mw, mh],
         speedup_vs_brute,
         speedup_vs_paper,
-        speedup_vs_brute_without_polish,
     })
 }
 
@@ -675,11 +671,6 @@ pub fn format_table(r: &BenchReport) -> String {
         ),
         format!("{:.0}x", r.speedup_vs_brute),
         ">= 100x",
-    );
-    row(
-        "speedup vs brute, filmscope -polish",
-        format!("{:.0}x", r.speedup_vs_brute_without_polish),
-        "",
     );
     row(
         "speedup vs paper",

@@ -369,17 +369,28 @@ pub fn flag_counts(map: &[u16]) -> serde_json::Value {
 #[error("{0}")]
 pub struct OutputError(pub String);
 
-/// Writes the maps, the preview and `summary.json` into `dir` (each file atomically, the
-/// summary last, so a complete summary means complete outputs). Returns the summary.
+/// Writes the maps, the preview and `summary.json` as one unit into the folder `dir`
+/// ([`crate::io::OutputDir`]: written beside it, then swapped in whole, one writer at a
+/// time). Returns the summary.
 pub fn write_outputs(
     dir: &Path,
     run: &Run,
     source_label: &str,
 ) -> Result<serde_json::Value, OutputError> {
+    let out = crate::io::OutputDir::begin(dir).map_err(|e| OutputError(e.to_string()))?;
+    let summary = write_outputs_into(out.path(), run, source_label)?;
+    out.commit().map_err(|e| OutputError(e.to_string()))?;
+    Ok(summary)
+}
+
+/// Writes the maps, the preview and `summary.json` into the existing folder `dir` (a
+/// staging folder of [`crate::io::OutputDir`]). Returns the summary.
+pub fn write_outputs_into(
+    dir: &Path,
+    run: &Run,
+    source_label: &str,
+) -> Result<serde_json::Value, OutputError> {
     let err = |p: &Path, e: &dyn std::fmt::Display| OutputError(format!("{}: {e}", p.display()));
-    std::fs::create_dir_all(dir).map_err(|e| err(dir, &e))?;
-    // Temporaries of an earlier run that was killed mid-write.
-    crate::io::remove_stale_temps(dir);
     let (w, h) = (run.spec.width, run.spec.height);
     let r = &run.result;
     let thick = dir.join("thickness_nm.hdr");

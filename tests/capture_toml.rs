@@ -282,7 +282,7 @@ fn value_errors() -> TestResult {
         &VALID.replace("index_range = [1.2, 3.0]", "index_range = [3.0, 1.2]"),
         none,
         "capture.toml",
-        "search.index_range = [3, 1.2]",
+        "search.index_range = [3.0, 1.2]",
     )?;
     Ok(())
 }

@@ -555,6 +555,7 @@ fn random_serial_faults(rng: &mut FaultRng, commands: u64) -> SerialFaults {
         reject: pick(4, rng),
         split: rng.chance(30).then(|| rng.below(8) as usize + 1),
         vanish_after: rng.chance(4).then(|| rng.below(commands) as usize + 1),
+        ..SerialFaults::default()
     }
 }
 
@@ -610,6 +611,7 @@ fn random_device_faults_over_many_sweeps_end_complete_or_with_a_clear_error() {
                 .then(|| (rng.below(frames) + 1, rng.below(24) as u32)),
             garbage_before,
             vanish_at: rng.chance(8).then(|| rng.below(frames) + 1),
+            ..CameraFaults::default()
         };
         o.stage_faults = random_serial_faults(&mut rng, 12);
         o.filter_faults = random_serial_faults(&mut rng, 3 * bands);
@@ -680,4 +682,372 @@ fn random_device_faults_over_many_sweeps_end_complete_or_with_a_clear_error() {
         "device faults: {sweeps} sweeps (seed {seed:#x}): {complete} complete, {partial} stopped with a loadable partial capture, {unusable} stopped with fewer than two angles; errors {errors:?}"
     );
     assert_eq!(complete + partial + unusable, sweeps);
+}
+
+// ---- Hardening (issue 27): every exchange bounded, bad values refused before motion ----
+
+/// A small sweep (3 angles x 26 bands, 78 frames per angle) for the hardening tests.
+fn small_config() -> RigConfig {
+    let mut c = rig_config();
+    c.sweep.angles_deg = vec![10.0, 30.0, 50.0];
+    c.sweep.bands_nm = [420.0, 720.0, 12.0];
+    c.stage.timeout_ms = 200;
+    c.filter.timeout_ms = 200;
+    c
+}
+
+/// The first camera frame of the third angle of [`small_config`]'s sweep.
+const THIRD_ANGLE_FRAME: u64 = 2 * 78 + 1;
+
+/// Runs a sweep with `o`'s faults, which must stop it within `seconds` with one line of
+/// printable text containing every one of `must`, leaving `acquisition.json` saying what is
+/// missing and (with two complete angles) a loadable capture. Returns the error and the
+/// simulated rig.
+fn stops_in_bounded_time(
+    o: RigOptions,
+    seconds: f64,
+    must: &[&str],
+) -> (String, firmware_sim::serve::SimRig) {
+    let dir = common::tempdir();
+    let t0 = std::time::Instant::now();
+    let (result, sim) = acquire_with(small_config(), o, dir.path());
+    let e = result.expect_err("the sweep stops");
+    let took = t0.elapsed().as_secs_f64();
+    assert!(took < seconds, "{took:.1} s: {e}");
+    assert!(!e.chars().any(char::is_control), "{e:?}");
+    for m in must {
+        assert!(e.contains(m), "{e:?} lacks {m:?}");
+    }
+    let log: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("capture/acquisition.json")).expect("log"),
+    )
+    .expect("json");
+    assert_eq!(log["complete"], false, "{log}");
+    assert!(
+        !log["angles_missing_deg"]
+            .as_array()
+            .expect("missing")
+            .is_empty(),
+        "{log}"
+    );
+    if log["angles_done_deg"].as_array().expect("done").len() >= 2 {
+        Capture::load(dir.path().join("capture")).expect("the partial capture loads");
+    }
+    let leftovers: Vec<String> = std::fs::read_dir(dir.path().parent().expect("parent"))
+        .expect("tmp")
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| {
+            let base = dir
+                .path()
+                .file_name()
+                .and_then(|b| b.to_str())
+                .unwrap_or("");
+            n.starts_with(base) && n != base
+        })
+        .collect();
+    assert!(leftovers.is_empty(), "staging or lock left: {leftovers:?}");
+    (e, sim)
+}
+
+#[test]
+fn hardening_camera_trickling_bytes_under_its_timeout_hits_the_deadline() {
+    let mut o = options(&small_config());
+    // One byte every 150 ms: no single read of the 300 ms link timeout ever times out.
+    o.camera_faults.trickle = Some((THIRD_ANGLE_FRAME, 150));
+    let (e, sim) = stops_in_bounded_time(o, 8.0, &["not complete within", "the leader"]);
+    assert!(e.contains(&sim.camera.to_string()), "{e}");
+    assert!(e.contains("2 complete angle(s)"), "{e}");
+}
+
+#[test]
+fn hardening_camera_frames_for_another_frame_id_end_with_one_line() {
+    let mut o = options(&small_config());
+    o.camera_faults.wrong_frame_id = Some(THIRD_ANGLE_FRAME);
+    let (e, sim) = stops_in_bounded_time(o, 8.0, &["other frames"]);
+    assert!(e.contains(&sim.camera.to_string()), "{e}");
+}
+
+#[test]
+fn hardening_camera_leaders_without_rows_end_with_one_line() {
+    let mut o = options(&small_config());
+    o.camera_faults.leaders_without_rows = Some(THIRD_ANGLE_FRAME);
+    let (e, sim) = stops_in_bounded_time(o, 8.0, &["the frame"]);
+    assert!(e.contains(&sim.camera.to_string()), "{e}");
+}
+
+#[test]
+fn hardening_stage_sending_endless_info_lines_ends_with_one_line() {
+    let mut o = options(&small_config());
+    o.stage_faults.babble = Some((1, "#01 0 00 endless info\r\n".into()));
+    let (e, sim) = stops_in_bounded_time(o, 8.0, &["lines without the reply"]);
+    assert!(e.contains(&sim.stage_port), "{e}");
+}
+
+#[test]
+fn hardening_stage_replying_as_another_device_ends_with_one_line() {
+    let mut o = options(&small_config());
+    o.stage_reply_address = Some(2);
+    let (e, sim) = stops_in_bounded_time(o, 8.0, &["from device 2", "not device 1"]);
+    assert!(e.contains(&sim.stage_port), "{e}");
+}
+
+#[test]
+fn hardening_filter_repeating_its_prompt_ends_with_one_line() {
+    let mut o = options(&small_config());
+    // Mid-sweep: prepare takes about 8 commands, each band 2.
+    o.filter_faults.babble = Some((8 + 2 * 2 * 26 + 5, ">".into()));
+    let (e, sim) = stops_in_bounded_time(o, 8.0, &["empty prompts"]);
+    assert!(e.contains(&sim.filter_port), "{e}");
+}
+
+#[test]
+fn hardening_camera_connect_has_a_deadline() {
+    // A non-routable address: the connect fails at once, times out after the link
+    // timeout, or (behind a proxy that answers every address) succeeds; never hangs.
+    let t0 = std::time::Instant::now();
+    let r = filmscope::rig::connect_camera("tcp:10.255.255.1:9", 32, 300);
+    assert!(t0.elapsed().as_secs_f64() < 3.0, "{:?}", t0.elapsed());
+    if let Err(e) = r {
+        assert!(e.to_string().contains("tcp:10.255.255.1:9"), "{e}");
+    }
+    // Nothing listening: one line naming the address, at once.
+    let free = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let addr = format!("tcp:{}", free.local_addr().expect("addr"));
+    drop(free);
+    let e = filmscope::rig::connect_camera(&addr, 32, 300)
+        .err()
+        .expect("nothing listens");
+    assert!(
+        e.to_string().contains(&addr) && e.to_string().contains("cannot connect"),
+        "{e}"
+    );
+}
+
+#[test]
+fn hardening_filter_reading_back_nan_is_refused() {
+    let mut o = options(&small_config());
+    o.filter_faults.replace = vec![("WL?".into(), "WL=NaN\r>".into())];
+    let (e, sim) = stops_in_bounded_time(o, 8.0, &["reads NaN nm"]);
+    assert!(e.contains(&sim.filter_port), "{e}");
+}
+
+#[test]
+fn hardening_device_text_is_escaped_before_it_is_shown() {
+    let mut o = options(&small_config());
+    o.filter_faults.replace = vec![(
+        "WL?".into(),
+        "\u{1b}[2J\u{1b}[31mCommand error\0 CMD_X\u{7}\r>".into(),
+    )];
+    let (e, _sim) = stops_in_bounded_time(o, 8.0, &["filter refused", "\\u{1b}[2J", "\\0"]);
+    assert!(!e.contains('\u{1b}') && !e.contains('\0'), "{e:?}");
+}
+
+#[test]
+fn hardening_rig_toml_values_are_refused_before_any_motion() {
+    let base = std::fs::read_to_string(format!("{}/config/rig.toml", env!("CARGO_MANIFEST_DIR")))
+        .expect("rig.toml");
+    let dir = common::tempdir();
+    for (from, to, want) in [
+        (
+            "bands_nm = [420.0, 720.0, 3.0]",
+            "bands_nm = [420.0, 720.0, 1e-300]",
+            "sweep.bands_nm = [420.0, 720.0, 1e-300]",
+        ),
+        (
+            "bands_nm = [420.0, 720.0, 3.0]",
+            "bands_nm = [420.0, 720.0, 1e-9]",
+            "sweep.bands_nm = [420.0, 720.0, 1e-9]",
+        ),
+        (
+            "angles_deg = [10.0, 25.0, 40.0, 55.0]",
+            "angles_deg = [10.0, 25.0, 25.0, 55.0]",
+            "sweep.angles_deg[2] = 25.0: the same angle",
+        ),
+        (
+            "angles_deg = [10.0, 25.0, 40.0, 55.0]",
+            "angles_deg = [10.0, 25.0, 40.0, 95.0]",
+            "sweep.angles_deg[3] = 95.0",
+        ),
+        (
+            "substrate_index = 1.52",
+            "substrate_index = -1.52",
+            "sample.substrate_index = -1.52",
+        ),
+        (
+            "thickness_range_nm = [50.0, 2000.0]",
+            "thickness_range_nm = [2000.0, 50.0]",
+            "search.thickness_range_nm = [2000.0, 50.0]",
+        ),
+        (
+            "index_range = [1.2, 3.0]",
+            "index_range = [1.2, 1e300]",
+            "search.index_range = [1.2, 1e300]",
+        ),
+        (
+            "ambient_index = 1.0",
+            "ambient_index = 1e9",
+            "sample.ambient_index = 1000000000.0",
+        ),
+        ("fwhm_nm = 5.0", "fwhm_nm = 0.0", "sweep.fwhm_nm = 0.0"),
+        ("width = 32", "width = 0", "camera.width = 0"),
+        (
+            "timeout_ms = 2000",
+            "timeout_ms = 0",
+            "camera.timeout_ms = 0",
+        ),
+    ] {
+        assert!(base.contains(from), "{from}");
+        let path = dir.path().join("rig.toml");
+        std::fs::write(&path, base.replacen(from, to, 1)).expect("write");
+        let e = RigConfig::load(&path).expect_err(to).to_string();
+        assert!(
+            e.contains(want) && e.contains("rig.toml") && !e.contains('\n'),
+            "{to}: {e}"
+        );
+    }
+    let path = dir.path().join("angles.toml");
+    let many: Vec<String> = (0..10_000)
+        .map(|i| format!("{}", i as f64 * 0.008))
+        .collect();
+    std::fs::write(
+        &path,
+        base.replacen(
+            "angles_deg = [10.0, 25.0, 40.0, 55.0]",
+            &format!("angles_deg = [{}]", many.join(", ")),
+            1,
+        ),
+    )
+    .expect("write");
+    let e = RigConfig::load(&path)
+        .expect_err("10000 angles")
+        .to_string();
+    assert!(e.contains("sweep.angles_deg = 10000 angles"), "{e}");
+}
+
+#[test]
+fn hardening_failed_rerun_never_replaces_a_complete_acquisition() {
+    let dir = common::tempdir();
+    let out = dir.path().join("run");
+    let c = small_config();
+    let (first, _sim) = acquire_with(c.clone(), options(&c), &out);
+    first.expect("the first sweep completes");
+    let mut o = options(&c);
+    o.camera_faults.vanish_at = Some(THIRD_ANGLE_FRAME);
+    let (second, _sim) = acquire_with(c, o, &out);
+    let e = second.expect_err("the second sweep stops");
+    assert!(e.contains("run.partial"), "{e}");
+    // The complete result is untouched: its summary and its three-angle capture.
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary"))
+            .expect("json");
+    assert_eq!(summary["acquisition"]["complete"], true);
+    assert_eq!(
+        Capture::load(out.join("capture"))
+            .expect("capture")
+            .angles
+            .len(),
+        3
+    );
+    let log: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("run.partial/capture/acquisition.json"))
+            .expect("partial log"),
+    )
+    .expect("json");
+    assert_eq!(log["complete"], false);
+    assert_eq!(
+        Capture::load(dir.path().join("run.partial/capture"))
+            .expect("partial capture")
+            .angles
+            .len(),
+        2
+    );
+}
+
+#[test]
+fn hardening_ctrl_c_mid_sweep_keeps_a_loadable_capture_and_its_log() {
+    let dir = common::tempdir();
+    let root = env!("CARGO_MANIFEST_DIR");
+    let rig = std::fs::read_to_string(format!("{root}/config/rig.toml"))
+        .expect("rig.toml")
+        .replace(
+            "scene = \"scenes/rig-tiny.toml\"",
+            &format!("scene = \"{root}/config/scenes/rig-tiny.toml\""),
+        )
+        .replace("speed = 200.0", "speed = 50.0");
+    let rig_path = dir.path().join("rig.toml");
+    std::fs::write(&rig_path, rig).expect("rig");
+    let out = dir.path().join("run");
+    let child = common::filmscope()
+        .args([
+            "acquire",
+            "--sim",
+            "--rig",
+            common::s(&rig_path),
+            "--out",
+            common::s(&out),
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    // Wait for the first complete angle (capture.toml in the staging folder), then Ctrl-C.
+    let t0 = std::time::Instant::now();
+    let staged = || {
+        std::fs::read_dir(dir.path())
+            .ok()
+            .into_iter()
+            .flatten()
+            .filter_map(Result::ok)
+            .any(|e| {
+                e.file_name().to_string_lossy().starts_with("run.tmp-")
+                    && e.path().join("capture/capture.toml").exists()
+            })
+    };
+    while !staged() && t0.elapsed().as_secs() < 20 {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let pid = child.id().to_string();
+    let killed = std::process::Command::new("kill")
+        .args(["-INT", &pid])
+        .status()
+        .expect("kill");
+    assert!(killed.success());
+    let output = child.wait_with_output().expect("wait");
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("interrupted") && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    let log: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("capture/acquisition.json")).expect("log"),
+    )
+    .expect("json");
+    assert_eq!(log["complete"], false);
+    assert!(log["error"]
+        .as_str()
+        .is_some_and(|e| e.contains("interrupted")));
+    let done = log["angles_done_deg"].as_array().expect("done").len();
+    assert!(
+        done >= 1
+            && !log["angles_missing_deg"]
+                .as_array()
+                .expect("missing")
+                .is_empty()
+    );
+    if done >= 2 {
+        Capture::load(out.join("capture")).expect("loads");
+    }
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .expect("dir")
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        !names
+            .iter()
+            .any(|n| n.starts_with("run.tmp-") || n == "run.lock"),
+        "{names:?}"
+    );
 }

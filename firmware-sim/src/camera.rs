@@ -80,7 +80,8 @@ impl SoftwareCamera {
                 models.push(BandModel::new(scene.stack, angle, scene.passband(b)));
             }
         }
-        let lo = scene.bands_nm[0];
+        // A scene without bands renders nothing (no panic: a caller may build one).
+        let lo = scene.bands_nm.first().copied().unwrap_or(0.0);
         let hi = *scene.bands_nm.last().unwrap_or(&lo);
         let throughput = scene
             .bands_nm

@@ -30,6 +30,15 @@ pub struct CameraFaults {
     pub garbage_before: Vec<u64>,
     /// The camera disappears when this frame is triggered.
     pub vanish_at: Option<u64>,
+    /// From this frame on, every byte comes alone, this many wall milliseconds after the
+    /// one before (under the host's read timeout, so no single read times out).
+    pub trickle: Option<(u64, u64)>,
+    /// From this frame on, frames are tagged for another frame id and sent again and again
+    /// until the host says something.
+    pub wrong_frame_id: Option<u64>,
+    /// From this frame on, the camera answers with its leader alone, again and again, and
+    /// never sends a row.
+    pub leaders_without_rows: Option<u64>,
 }
 
 /// What to do after sending a frame's bytes.
@@ -39,7 +48,14 @@ pub enum After {
     Continue,
     /// Close the connection and stop serving.
     Vanish,
+    /// Send the bytes one at a time, this long apart.
+    Trickle(std::time::Duration),
+    /// Send the bytes again every this long until the host sends something.
+    Repeat(std::time::Duration),
 }
+
+/// How often a repeating camera sends its bytes again.
+const REPEAT_EVERY: std::time::Duration = std::time::Duration::from_millis(20);
 
 /// The camera firmware.
 pub struct CameraFirmware {
@@ -117,7 +133,12 @@ impl CameraFirmware {
         let angle = Self::nearest(&scene.angles_deg, state.stage_deg);
         let band = Self::nearest(&scene.bands_nm, state.lambda_nm);
         let (w, h) = (self.camera.width(), self.camera.height());
-        let frame_id = header.frame_id;
+        let from = |f: Option<u64>| f.is_some_and(|f| n >= f);
+        let frame_id = if from(self.faults.wrong_frame_id) {
+            header.frame_id.wrapping_add(1000)
+        } else {
+            header.frame_id
+        };
         let t_ns = now_us * 1000;
         let leader = Leader {
             pixel_format: fscl::MONO16,
@@ -135,6 +156,9 @@ impl CameraFirmware {
             frame_id,
             &leader.to_bytes(),
         );
+        if from(self.faults.leaders_without_rows) {
+            return (out, After::Repeat(REPEAT_EVERY));
+        }
         let has = |list: &[FrameRow], r: u32| list.contains(&(n, r));
         let rows_sent = self
             .faults
@@ -205,6 +229,10 @@ impl CameraFirmware {
             },
         };
         self.push(&mut out, kind::TRAILER, 0, frame_id, &trailer.to_bytes());
-        (out, After::Continue)
+        match self.faults.trickle {
+            Some((f, ms)) if n >= f => (out, After::Trickle(std::time::Duration::from_millis(ms))),
+            _ if from(self.faults.wrong_frame_id) => (out, After::Repeat(REPEAT_EVERY)),
+            _ => (out, After::Continue),
+        }
     }
 }

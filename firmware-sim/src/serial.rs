@@ -73,6 +73,13 @@ pub struct SerialFaults {
     pub split: Option<usize>,
     /// The device disappears after this many commands (the port then fails).
     pub vanish_after: Option<usize>,
+    /// From this command on the device never falls silent: whenever it has nothing else to
+    /// send it sends this text again (a stage streaming info lines, a filter repeating its
+    /// `>` prompt).
+    pub babble: Option<(usize, String)>,
+    /// Commands with this text (terminator excluded) get this reply instead of their own
+    /// (a wrong reading, device text with control characters).
+    pub replace: Vec<(String, String)>,
 }
 
 /// A serial device: firmware plus the byte stream, the transcript and the faults.
@@ -139,7 +146,15 @@ impl<F: LineFirmware> SerialDevice<F> {
         });
         let reject = self.faults.reject.contains(&n);
         let reply = self.firmware.respond(line, now_us, reject);
-        let reply = if self.faults.swallow.contains(&n) {
+        let replaced = self
+            .faults
+            .replace
+            .iter()
+            .find(|(cmd, _)| cmd.trim() == line.trim())
+            .map(|(_, reply)| reply.clone());
+        let reply = if let Some(r) = replaced {
+            r
+        } else if self.faults.swallow.contains(&n) {
             String::new()
         } else if self.faults.garbage.contains(&n) {
             "\u{7f}#~@@ xq\r\n".to_owned()
@@ -161,6 +176,13 @@ impl<F: LineFirmware> SerialDevice<F> {
 
     /// Up to `max` bytes for the host (fewer when replies are split).
     pub fn transmit(&mut self, max: usize) -> Vec<u8> {
+        if self.tx.is_empty() && !self.gone {
+            if let Some((from, text)) = &self.faults.babble {
+                if self.commands >= *from {
+                    self.tx.extend(text.bytes());
+                }
+            }
+        }
         let n = self.faults.split.map_or(max, |s| s.max(1).min(max));
         let n = n.min(self.tx.len());
         self.tx.drain(..n).collect()

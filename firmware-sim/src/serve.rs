@@ -61,6 +61,8 @@ pub struct RigOptions {
     pub filter_faults: SerialFaults,
     /// Camera faults.
     pub camera_faults: CameraFaults,
+    /// `Some(address)`: the stage answers as the device at this address.
+    pub stage_reply_address: Option<u8>,
     /// `Some(path)`: the camera on a Unix socket instead of TCP.
     pub unix_socket: Option<PathBuf>,
 }
@@ -78,6 +80,7 @@ impl RigOptions {
             motion_fault: None,
             filter_faults: SerialFaults::default(),
             camera_faults: CameraFaults::default(),
+            stage_reply_address: None,
             unix_socket: None,
         }
     }
@@ -164,17 +167,30 @@ fn serve_camera<S: Read + Write>(
 ) -> After {
     let mut buf: Vec<u8> = Vec::new();
     let mut chunk = [0u8; 4096];
+    // Bytes to send again while the host is silent (fault injection), and when next.
+    let mut repeat: Option<(Vec<u8>, Duration, std::time::Instant)> = None;
     while !stop.load(Ordering::SeqCst) {
         match stream.read(&mut chunk) {
             Ok(0) => return After::Continue, // the host hung up
-            Ok(n) => buf.extend_from_slice(&chunk[..n]),
+            Ok(n) => {
+                repeat = None;
+                buf.extend_from_slice(&chunk[..n]);
+            }
             Err(e)
                 if matches!(
                     e.kind(),
                     io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
                 ) =>
             {
-                continue
+                if let Some((bytes, every, next)) = repeat.as_mut() {
+                    if std::time::Instant::now() >= *next {
+                        if stream.write_all(bytes).is_err() {
+                            return After::Continue;
+                        }
+                        *next = std::time::Instant::now() + *every;
+                    }
+                }
+                continue;
             }
             Err(_) => return After::Continue,
         }
@@ -190,11 +206,34 @@ fn serve_camera<S: Read + Write>(
                 } => {
                     let (bytes, after) = firmware.answer(header, payload, clock.now_us());
                     buf.drain(..consumed);
-                    if after == After::Vanish {
-                        return After::Vanish;
-                    }
-                    if stream.write_all(&bytes).is_err() {
-                        return After::Continue;
+                    match after {
+                        After::Vanish => return After::Vanish,
+                        After::Continue => {
+                            if stream.write_all(&bytes).is_err() {
+                                return After::Continue;
+                            }
+                        }
+                        After::Repeat(every) => {
+                            if stream.write_all(&bytes).is_err() {
+                                return After::Continue;
+                            }
+                            repeat = Some((bytes, every, std::time::Instant::now() + every));
+                        }
+                        After::Trickle(gap) => {
+                            for b in bytes {
+                                if stop.load(Ordering::SeqCst) {
+                                    return After::Continue;
+                                }
+                                if stream
+                                    .write_all(&[b])
+                                    .and_then(|()| stream.flush())
+                                    .is_err()
+                                {
+                                    return After::Continue;
+                                }
+                                std::thread::sleep(gap);
+                            }
+                        }
                     }
                 }
                 Decoded::Incomplete { .. } => break,
@@ -276,6 +315,9 @@ pub fn start(options: RigOptions) -> io::Result<SimRig> {
     let mut stage_fw = ZaberStage::new(1, spd, limits, 20.0, world.clone());
     if let Some(f) = options.motion_fault {
         stage_fw = stage_fw.with_fault(f);
+    }
+    if let Some(a) = options.stage_reply_address {
+        stage_fw = stage_fw.with_reply_address(a);
     }
     let stage = Arc::new(Mutex::new(SerialDevice::new(
         stage_fw,

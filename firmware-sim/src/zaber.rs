@@ -31,6 +31,7 @@ pub struct ZaberStage {
     warning: &'static str,
     moves: usize,
     fault: Option<MotionFault>,
+    reply_as: Option<u8>,
     world: World,
 }
 
@@ -57,8 +58,16 @@ impl ZaberStage {
             warning: "WR",
             moves: 0,
             fault: None,
+            reply_as: None,
             world,
         }
+    }
+
+    /// Answers every command as if it were the device at `address` (a misconfigured or
+    /// impersonating unit: the host must not take the reply for its own).
+    pub fn with_reply_address(mut self, address: u8) -> Self {
+        self.reply_as = Some(address);
+        self
     }
 
     /// Injects a motion fault.
@@ -171,7 +180,7 @@ impl LineFirmware for ZaberStage {
         }
         let busy = self.busy(now_us);
         zaber::reply_line(
-            self.device,
+            self.reply_as.unwrap_or(self.device),
             cmd.axis,
             cmd.id,
             ok,

@@ -128,16 +128,33 @@ fn check_index_args(index: super::IndexArgs) -> Result<()> {
 }
 
 /// `filmscope estimate`.
+/// The `--max-memory` budget, if given.
+fn memory_budget(max_memory: Option<&str>) -> Result<Option<u64>> {
+    max_memory
+        .map(crate::limits::parse_bytes)
+        .transpose()
+        .map_err(|e| anyhow!(e))
+}
+
+/// `filmscope estimate`: every value checked, the output folder checked against the inputs
+/// and locked, and the memory needed compared with the budget, before any computation; the
+/// result swapped in whole.
+#[allow(clippy::too_many_arguments)]
 pub fn estimate(
     capture: &Path,
     out: &Path,
     method_name: &str,
+    (workers, channel_capacity, index_pixels): (usize, usize, usize),
+    max_memory: Option<&str>,
     pipeline: PipelineConfig,
     brute: (usize, f64),
     (field_name, field_strips): (&str, Option<usize>),
     index: super::IndexArgs,
 ) -> Result<()> {
     check_index_args(index)?;
+    crate::limits::check_cli(workers, channel_capacity, index_pixels, brute.0, brute.1)
+        .map_err(|e| anyhow!(e))?;
+    let budget = memory_budget(max_memory)?;
     let config = RunConfig {
         method: method(method_name)?,
         pipeline,
@@ -156,15 +173,39 @@ pub fn estimate(
     let cap = Capture::load(capture)?;
     for key in &cap.unknown_keys {
         eprintln!(
-            "filmscope: warning: {}: unknown key {key} (ignored)",
-            cap.path.display()
+            "filmscope: warning: {}: unknown key {} (ignored)",
+            cap.path.display(),
+            crate::limits::printable(key)
         );
     }
+    check_capture_outside(&cap, out)?;
+    let info = cap.check()?;
+    let pixels = (info.samples as u64).saturating_mul(info.lines as u64);
+    crate::limits::check_memory(
+        &format!(
+            "{}: {} x {} px, {} bands, {} angles",
+            cap.path.display(),
+            info.samples,
+            info.lines,
+            info.bands,
+            cap.angles.len()
+        ),
+        crate::limits::run_bytes(
+            pixels,
+            info.bands as u64,
+            cap.angles.len() as u64,
+            config.method != Method::Filmscope,
+        ),
+        budget,
+    )
+    .map_err(|e| anyhow!(e))?;
+    let out_dir = crate::io::OutputDir::begin(out)?;
     let label = cap.path.display().to_string();
     let fov = cap.lens.field_of_view();
     let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
     let run = run_in_field_with_bar(&mut source, &config, fov, &label)?;
-    let summary = write_outputs(out, &run, &label)?;
+    let summary = crate::estimate::write_outputs_into(out_dir.path(), &run, &label)?;
+    out_dir.commit()?;
     for note in &run.result.notes {
         eprintln!("filmscope: note: {note}");
     }
@@ -182,6 +223,25 @@ pub fn estimate(
         run.seconds,
         out.display()
     );
+    Ok(())
+}
+
+/// Refuses an `--out` that is the capture's folder, lies inside it, or holds any file the
+/// capture uses (the result replaces the folder whole).
+fn check_capture_outside(cap: &Capture, out: &Path) -> Result<()> {
+    let mut files = vec![cap.path.clone()];
+    for a in &cap.angles {
+        files.push(a.cube.clone());
+        files.extend(a.white.iter().cloned());
+        files.extend(a.dark.iter().cloned());
+    }
+    let folder = cap
+        .path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+        .to_path_buf();
+    crate::io::check_outside_inputs("--out", out, &files, &[folder])?;
     Ok(())
 }
 
@@ -238,6 +298,25 @@ fn eval_one(path: &Path, config: &RunConfig) -> Result<(EvalReport, Run)> {
         Input::Capture(dir) => {
             let truth = Truth::of_capture_dir(&dir).map_err(|e| anyhow!(e))?;
             let cap = Capture::load(&dir)?;
+            let info = cap.check()?;
+            crate::limits::check_memory(
+                &format!(
+                    "{}: {} x {} px, {} bands, {} angles",
+                    cap.path.display(),
+                    info.samples,
+                    info.lines,
+                    info.bands,
+                    cap.angles.len()
+                ),
+                crate::limits::run_bytes(
+                    (info.samples as u64).saturating_mul(info.lines as u64),
+                    info.bands as u64,
+                    cap.angles.len() as u64,
+                    config.method != Method::Filmscope,
+                ),
+                None,
+            )
+            .map_err(|e| anyhow!(e))?;
             let fov = cap.lens.field_of_view();
             let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
             let name = dir.display().to_string();
@@ -288,6 +367,15 @@ pub fn eval(
         (false, Some(_)) => bail!("eval --random draws its own scenes: give no inputs"),
         _ => {}
     }
+    let defaults = PipelineConfig::default();
+    crate::limits::check_cli(
+        defaults.workers,
+        defaults.channel_capacity,
+        index_pixels,
+        brute.0,
+        brute.1,
+    )
+    .map_err(|e| anyhow!(e))?;
     let (solver, wide) = ablated(ablate)?;
     let solver = SolverOptions {
         index_pixels,
@@ -422,10 +510,36 @@ fn eval_random(
     Ok(())
 }
 
-/// `filmscope acquire`.
-pub fn acquire(rig: &Path, out: &Path, sim: bool) -> Result<()> {
+/// `filmscope acquire`: the rig file checked in full, the output checked against the
+/// inputs and the memory needed against the budget, before any device moves. Ctrl-C stops
+/// the sweep at the next band and keeps the angles taken.
+pub fn acquire(rig: &Path, out: &Path, sim: bool, max_memory: Option<&str>) -> Result<()> {
+    let budget = memory_budget(max_memory)?;
     let config = crate::rig::RigConfig::load(rig)?;
     let s = &config.sweep;
+    let mut inputs = vec![rig.to_path_buf()];
+    inputs.extend(config.sim.as_ref().map(|s| s.scene.clone()));
+    crate::io::check_outside_inputs("--out", out, &inputs, &[])?;
+    let c = &config.camera;
+    crate::limits::check_memory(
+        &format!(
+            "{}: camera {} x {} px, {} bands, {} angles",
+            rig.display(),
+            c.width,
+            c.height,
+            s.bands().len(),
+            s.angles_deg.len()
+        ),
+        crate::limits::run_bytes(
+            u64::from(c.width) * u64::from(c.height),
+            s.bands().len() as u64,
+            s.angles_deg.len() as u64,
+            false,
+        ),
+        budget,
+    )
+    .map_err(|e| anyhow!(e))?;
+    crate::rig::acquire::stop_on_ctrl_c();
     let total = (s.angles_deg.len() * s.bands().len() * config.camera.height as usize) as u64;
     let bar = rows_bar(total, if sim { "acquire (sim)" } else { "acquire" });
     let summary =

@@ -97,6 +97,10 @@ enum Command {
         field_strips: Option<usize>,
         #[command(flatten)]
         index: IndexArgs,
+        /// Memory the run may use (bytes, or with K, M, G, T); default: what the machine
+        /// has available. A capture needing more is refused before any work.
+        #[arg(long)]
+        max_memory: Option<String>,
     },
     /// Sweeps a rig (stage x filter x camera), streams every frame into the estimator,
     /// records the raw sweep as a capture in OUT/capture and writes the maps into OUT.
@@ -110,6 +114,10 @@ enum Command {
         /// Start firmware-sim and talk to it over real ptys and a socket.
         #[arg(long)]
         sim: bool,
+        /// Memory the run may use (bytes, or with K, M, G, T); default: what the machine
+        /// has available. A sweep needing more is refused before any device moves.
+        #[arg(long)]
+        max_memory: Option<String>,
     },
     /// Accuracy against the truth on scene files or simulated capture directories.
     Eval {
@@ -316,10 +324,13 @@ pub fn main() -> std::process::ExitCode {
             field,
             field_strips,
             index,
+            max_memory,
         } => commands::estimate(
             &capture,
             &out,
             &method,
+            (workers, channel_capacity, index_pixels),
+            max_memory.as_deref(),
             PipelineConfig {
                 channel_capacity,
                 workers,
@@ -333,7 +344,12 @@ pub fn main() -> std::process::ExitCode {
             (&field, field_strips),
             index,
         ),
-        Command::Acquire { rig, out, sim } => commands::acquire(&rig, &out, sim),
+        Command::Acquire {
+            rig,
+            out,
+            sim,
+            max_memory,
+        } => commands::acquire(&rig, &out, sim, max_memory.as_deref()),
         Command::Eval {
             inputs,
             random,
@@ -441,6 +457,8 @@ fn quiet_on_broken_pipe() {
     }));
 }
 
+/// One line of text safe for a terminal: whitespace runs joined into single spaces, other
+/// control characters escaped.
 fn one_line(s: &str) -> String {
-    s.split_whitespace().collect::<Vec<_>>().join(" ")
+    crate::limits::printable(&s.split_whitespace().collect::<Vec<_>>().join(" "))
 }

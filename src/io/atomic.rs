@@ -9,7 +9,8 @@
 //!
 //! Use [`write_atomic`] when the whole content is in memory (JSON summaries, headers), and
 //! [`TempFile`] when the output is produced piecewise (cube data, PNG encoders: it
-//! implements [`Write`] and [`Seek`]).
+//! implements [`Write`] and [`Seek`]). A temporary file a killed process left behind lies
+//! in a result's staging folder, which [`crate::io::OutputDir`] removes whole.
 
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, Seek, SeekFrom, Write};
@@ -133,45 +134,6 @@ impl TempFile {
     }
 }
 
-/// Removes temporary files that a killed process left in `dir` (`.NAME.PID-N.tmp`, see
-/// [`TempFile`]): those of processes no longer running. A `SIGKILL` or a power cut skips
-/// the drop that would have removed them; the next run that writes into the same folder
-/// calls this first. Returns how many were removed. Where process liveness cannot be told
-/// (no `/proc`), nothing is removed.
-pub fn remove_stale_temps(dir: &Path) -> usize {
-    let proc_dir = Path::new("/proc");
-    if !proc_dir.join("self").exists() {
-        return 0;
-    }
-    let Ok(entries) = fs::read_dir(dir) else {
-        return 0;
-    };
-    let own = std::process::id();
-    let mut removed = 0;
-    for entry in entries.filter_map(Result::ok) {
-        let name = entry.file_name();
-        let Some(pid) = name.to_str().and_then(temp_owner) else {
-            continue;
-        };
-        if pid != own
-            && !proc_dir.join(pid.to_string()).exists()
-            && fs::remove_file(entry.path()).is_ok()
-        {
-            removed += 1;
-        }
-    }
-    removed
-}
-
-/// The process id in a temporary name `.NAME.PID-N.tmp`, if `name` is one.
-fn temp_owner(name: &str) -> Option<u32> {
-    let stem = name.strip_prefix('.')?.strip_suffix(".tmp")?;
-    let (rest, n) = stem.rsplit_once('-')?;
-    let (_, pid) = rest.rsplit_once('.')?;
-    n.parse::<u64>().ok()?;
-    pid.parse().ok()
-}
-
 /// Makes the rename itself durable where the platform allows it (best effort).
 fn sync_parent_dir(target: &Path) {
     #[cfg(unix)]
@@ -243,28 +205,6 @@ mod tests {
         }
         assert_eq!(fs::read(&path)?, b"old");
         assert_eq!(temp_files_in(dir.path()), 0);
-        Ok(())
-    }
-
-    #[test]
-    fn stale_temporaries_of_dead_processes_are_removed() -> io::Result<()> {
-        let dir = tempfile::tempdir()?;
-        // PIDs above the kernel's maximum (4194304) never run.
-        let dead = dir.path().join(".summary.json.4999999-3.tmp");
-        let own = dir
-            .path()
-            .join(format!(".map.img.{}-0.tmp", std::process::id()));
-        let other = dir.path().join("notes.tmp");
-        for p in [&dead, &own, &other] {
-            fs::write(p, b"x")?;
-        }
-        assert_eq!(temp_owner(".summary.json.4999999-3.tmp"), Some(4_999_999));
-        assert_eq!(temp_owner("notes.tmp"), None);
-        if Path::new("/proc/self").exists() {
-            assert_eq!(remove_stale_temps(dir.path()), 1);
-            assert!(!dead.exists());
-        }
-        assert!(own.exists() && other.exists());
         Ok(())
     }
 

@@ -241,13 +241,12 @@ pub enum CaptureErrorKind {
         /// The angle.
         incidence_deg: f64,
     },
-    /// An index of refraction that is not a finite positive number.
-    #[error("{key} = {value}: expected a finite, positive number")]
-    BadIndex {
-        /// `sample.substrate_index` or `sample.ambient_index`.
-        key: &'static str,
-        /// The value.
-        value: f64,
+    /// A value outside its bounds (see [`crate::limits`]): the key, the value and what is
+    /// expected, in one line.
+    #[error("{message}")]
+    BadValue {
+        /// `key = value: expected ...`.
+        message: String,
     },
     /// `polarization` is not `s`, `p` or `unpolarized`.
     #[error("sample.polarization = \"{value}\": expected \"s\", \"p\" or \"unpolarized\"")]
@@ -280,16 +279,6 @@ pub enum CaptureErrorKind {
         index: usize,
         /// The value.
         value: f64,
-    },
-    /// A `[search]` range that is not `0 < low < high`, finite.
-    #[error("search.{key} = [{low}, {high}]: expected finite 0 < low < high")]
-    BadRange {
-        /// `index_range` or `thickness_range_nm`.
-        key: &'static str,
-        /// Lower bound.
-        low: f64,
-        /// Upper bound.
-        high: f64,
     },
     /// A cube or reference header does not exist.
     #[error("{role} of [[angle]] {index} not found: {}", .path.display())]
@@ -496,23 +485,19 @@ impl Capture {
     /// Checks the values alone (no file access): indices, angles, reflectances, ranges.
     pub fn check_values(&self) -> Result<(), CaptureError> {
         let err = |kind| CaptureError::new(&self.path, kind);
-        for (key, value) in [
-            ("sample.substrate_index", self.sample.substrate_index),
-            ("sample.ambient_index", self.sample.ambient_index),
-        ] {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(err(CaptureErrorKind::BadIndex { key, value }));
-            }
+        let bad = |message: String| err(CaptureErrorKind::BadValue { message });
+        crate::limits::check_sample(
+            "sample.ambient_index",
+            self.sample.ambient_index,
+            "sample.substrate_index",
+            self.sample.substrate_index,
+        )
+        .map_err(bad)?;
+        if let Some(r) = self.search.index_range {
+            crate::limits::check_index_range("search.index_range", r).map_err(bad)?;
         }
-        for (key, range) in [
-            ("index_range", self.search.index_range),
-            ("thickness_range_nm", self.search.thickness_range_nm),
-        ] {
-            if let Some([low, high]) = range {
-                if !(low.is_finite() && high.is_finite() && 0.0 < low && low < high) {
-                    return Err(err(CaptureErrorKind::BadRange { key, low, high }));
-                }
-            }
+        if let Some(r) = self.search.thickness_range_nm {
+            crate::limits::check_thickness_range("search.thickness_range_nm", r).map_err(bad)?;
         }
         if let Some(value) = self.lens.horizontal_fov_deg {
             if crate::optics::FieldOfView::new(value).is_none() {
@@ -524,6 +509,7 @@ impl Capture {
                 found: self.angles.len(),
             }));
         }
+        crate::limits::check_angle_count("[[angle]]", self.angles.len()).map_err(bad)?;
         for (i, angle) in self.angles.iter().enumerate() {
             let index = i + 1;
             let deg = angle.incidence_deg;
@@ -610,6 +596,17 @@ impl Capture {
                     check_reference(role, &reference, &cube, &cube_name)
                         .map_err(|kind| CaptureError::new(path, kind))?;
                 }
+            }
+        }
+        if let Some((h, _)) = &first {
+            if let Some(bands) = &h.wavelength_nm {
+                crate::limits::check_bands("wavelength", bands, "fwhm", h.fwhm_nm.as_deref())
+                    .map_err(|message| {
+                        CaptureError::new(
+                            &self.angles[0].cube,
+                            CaptureErrorKind::BadValue { message },
+                        )
+                    })?;
             }
         }
         match first {
@@ -725,27 +722,12 @@ impl Capture {
     }
 }
 
-/// Reads a capture file, refusing absurd sizes.
+/// Reads a capture file, refusing absurd sizes and anything but a regular file (a FIFO
+/// would block, a device never end).
 fn read_text(path: &Path) -> Result<String, CaptureError> {
-    use std::io::Read as _;
     let io_err = |action, err| CaptureError::new(path, CaptureErrorKind::Io { action, err });
-    let file = std::fs::File::open(path).map_err(|e| io_err("cannot open", e))?;
-    let mut bytes = Vec::new();
-    file.take(MAX_CAPTURE_BYTES + 1)
-        .read_to_end(&mut bytes)
-        .map_err(|e| io_err("cannot read", e))?;
-    if bytes.len() as u64 > MAX_CAPTURE_BYTES {
-        return Err(io_err(
-            "cannot read",
-            io::Error::other(format!("file is over {MAX_CAPTURE_BYTES} bytes")),
-        ));
-    }
-    String::from_utf8(bytes).map_err(|_| {
-        io_err(
-            "cannot read",
-            io::Error::new(io::ErrorKind::InvalidData, "not UTF-8 text"),
-        )
-    })
+    std::fs::metadata(path).map_err(|e| io_err("cannot open", e))?;
+    crate::limits::read_small(path, MAX_CAPTURE_BYTES).map_err(|e| io_err("cannot read", e))
 }
 
 /// 1-based line holding byte `offset` of `text`.

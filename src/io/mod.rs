@@ -10,7 +10,9 @@
 //! - [`capture`]: `capture.toml`, one angle sweep of one sample ([`capture::Capture`]),
 //!   validated against the cubes it names before any pixel is read.
 //! - [`atomic`]: write-to-temporary-then-rename, so an interrupted run leaves either the
-//!   old file or the new one, never a torn one. Reused for every output filmscope writes.
+//!   old file or the new one, never a torn one. Used for every single-file output.
+//! - [`output`]: a result folder (maps, summary, recorded capture) as one unit: written
+//!   beside its target, swapped in whole, one writer at a time ([`output::OutputDir`]).
 //!
 //! Errors ([`envi::EnviError`], [`capture::CaptureError`]) display as one line that names
 //! the file at fault and the problem, ready for the CLI to print as is. No function here
@@ -21,10 +23,12 @@
 pub mod atomic;
 pub mod capture;
 pub mod envi;
+pub mod output;
 
-pub use atomic::{remove_stale_temps, write_atomic, TempFile};
+pub use atomic::{write_atomic, TempFile};
 pub use capture::{Angle, Capture, CaptureError, CaptureErrorKind, CubeInfo, Lens, Sample, Search};
 pub use envi::{
     read_cube, write_f32_map, BandRow, ByteOrder, Cube, DataType, EnviError, EnviErrorKind,
     EnviHeader, EnviReader, EnviWriter, Interleave,
 };
+pub use output::{check_outside_inputs, OutputDir, OutputDirError};

@@ -38,6 +38,10 @@ pub fn sweep_spec(
     index_range: [f64; 2],
     thickness_range_nm: [f64; 2],
 ) -> Result<SweepSpec, String> {
+    // Every source passes here: bounded ranges keep the search finite in time and memory.
+    crate::limits::check_index_range("search.index_range", index_range)?;
+    crate::limits::check_thickness_range("search.thickness_range_nm", thickness_range_nm)?;
+    crate::limits::check_bands("wavelength", bands_nm, "fwhm", fwhm_nm)?;
     if bands_nm.len() < 16 {
         return Err(format!(
             "{} bands: at least 16 are needed to find fringes",

@@ -17,6 +17,7 @@
 //! more) replay the recorded capture, so the maps equal `estimate` on that capture.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use crossbeam_channel::Sender;
 use filmscope_core::hw::{
@@ -36,6 +37,24 @@ use crate::pipeline::{
     sweep_spec, CaptureSource, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
     DEFAULT_THICKNESS_RANGE_NM,
 };
+
+/// Set by Ctrl-C: the sweep stops at the next band.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// Makes Ctrl-C (SIGINT, SIGTERM) stop the sweep at the next band, keeping the angles
+/// taken and writing `acquisition.json`; a second one ends the process at once (its
+/// staging folder is removed by the next run into the same output).
+pub fn stop_on_ctrl_c() {
+    let _ = ctrlc::set_handler(|| {
+        if INTERRUPTED.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+    });
+}
+
+fn interrupted() -> bool {
+    INTERRUPTED.load(Ordering::SeqCst)
+}
 
 /// A stage as the sweep uses it.
 pub type DynStage = Box<dyn Stage<Error = RigError> + Send>;
@@ -273,6 +292,8 @@ impl Acquisition {
             self.config.camera.height as usize,
         );
         let sat = self.config.camera.saturation_counts;
+        // Until an angle is complete, every planned angle is missing.
+        self.log.angles_missing_deg = self.config.sweep.angles_deg.clone();
         self.rig.stage.home().map_err(e)?;
         self.rig.filter.prepare().map_err(e)?;
         if let (Some(wheel), Some(wc)) = (self.rig.wheel.as_mut(), self.config.wheel.as_ref()) {
@@ -307,6 +328,9 @@ impl Acquisition {
             let mut white = vec![0f32; w * h];
             let mut read_nm = Vec::with_capacity(self.bands_nm.len());
             for b in 0..self.bands_nm.len() {
+                if interrupted() {
+                    return Err("interrupted (Ctrl-C)".into());
+                }
                 let lambda = self.rig.filter.tune_nm(self.bands_nm[b]).map_err(e)?;
                 read_nm.push(lambda);
                 let req = |kind| FrameRequest {
@@ -496,7 +520,11 @@ pub fn run(
     run_rig(rig, config, out, run_config, on_rows)
 }
 
-/// Sweeps an open `rig`, recording into `out/capture` and writing the maps into `out`.
+/// Sweeps an open `rig`, recording into `out/capture` and writing the maps into `out`,
+/// all as one unit ([`crate::io::OutputDir`]): locked and checked for writability before
+/// any device moves, swapped in whole when complete. A sweep that stops early keeps its
+/// capture and `acquisition.json`: in `out` when `out` held no result, else in
+/// `out.partial`, never over a complete result.
 pub fn run_rig(
     rig: Rig,
     config: RigConfig,
@@ -504,30 +532,42 @@ pub fn run_rig(
     run_config: &crate::estimate::RunConfig,
     on_rows: &(dyn Fn(u64) + Sync),
 ) -> Result<serde_json::Value, String> {
-    let capture_dir = out.join("capture");
+    let out_dir = crate::io::OutputDir::begin(out).map_err(|e| e.to_string())?;
+    let capture_dir = out_dir.path().join("capture");
+    let final_capture = out_dir.target().join("capture");
     let mut acq = Acquisition::new(rig, config, &capture_dir)?;
     let result = crate::estimate::run_method(&mut acq, run_config, on_rows);
     let run = match result {
         Ok(run) => run,
         Err(e) => {
             let kept = acq.log.angles_done_deg.len();
+            drop(acq);
+            let place = out_dir.commit_partial().map_err(|x| {
+                format!("acquisition stopped: {e}; the partial capture could not be kept: {x}")
+            })?;
             return Err(format!(
                 "acquisition stopped: {e}; {kept} complete angle(s) kept in {} (see acquisition.json)",
-                capture_dir.display()
+                place.join("capture").display()
             ));
         }
     };
-    let mut summary = crate::estimate::write_outputs(out, &run, &capture_dir.display().to_string())
-        .map_err(|e| e.to_string())?;
+    let mut summary = crate::estimate::write_outputs_into(
+        out_dir.path(),
+        &run,
+        &final_capture.display().to_string(),
+    )
+    .map_err(|e| e.to_string())?;
     if let Some(o) = summary.as_object_mut() {
         o.insert(
             "acquisition".into(),
             serde_json::to_value(&acq.log).unwrap_or_default(),
         );
     }
-    let path = out.join("summary.json");
+    let path = out_dir.path().join("summary.json");
     let text = serde_json::to_string_pretty(&summary).map_err(|e| io_err(&path, &e))?;
     write_atomic(&path, text.as_bytes()).map_err(|e| io_err(&path, &e))?;
+    drop(acq);
+    out_dir.commit().map_err(|e| e.to_string())?;
     Ok(summary)
 }
 

@@ -11,6 +11,7 @@
 
 use std::collections::VecDeque;
 use std::io::{Read, Write};
+use std::time::{Duration, Instant};
 
 use filmscope_core::hw::{
     ErrorKind, ErrorType, FrameInfo, FrameRequest, LineCamera, LineEvent, RowLoss,
@@ -72,9 +73,20 @@ pub struct CamLink<S> {
     max_width: u32,
     /// Triggers per frame when no leader comes.
     pub attempts: u32,
+    /// The link timeout, ms (the stream's read timeout): sizes the overall deadlines.
+    pub timeout_ms: u64,
     /// Faults seen so far.
     pub stats: LinkStats,
+    /// When the exchange under way must end, and what it waits for.
+    deadline: Option<(Instant, &'static str)>,
+    /// Messages skipped (other frames, other kinds) since the exchange began.
+    skipped: u64,
+    /// Bytes received since the exchange began.
+    received: u64,
 }
+
+/// Most messages of other frames or kinds skipped in one exchange beyond its own rows.
+const MAX_SKIPPED: u64 = 256;
 
 impl<S: Read + Write> CamLink<S> {
     /// A receiver over `stream` (whose read timeout is the link's timeout), called `name`
@@ -91,8 +103,54 @@ impl<S: Read + Write> CamLink<S> {
             pending: VecDeque::new(),
             max_width,
             attempts: 3,
+            timeout_ms: 2000,
             stats: LinkStats::default(),
+            deadline: None,
+            skipped: 0,
+            received: 0,
         }
+    }
+
+    /// Starts an exchange that must end within `ms` milliseconds of wall time, whatever
+    /// the camera sends meanwhile.
+    fn begin(&mut self, ms: u64, what: &'static str) {
+        self.deadline = Some((Instant::now() + Duration::from_millis(ms), what));
+        self.skipped = 0;
+        self.received = 0;
+    }
+
+    /// The error ending an exchange that ran past its deadline: what was awaited and what
+    /// the camera did meanwhile.
+    fn overdue(&self, what: &str, ms: u64) -> RigError {
+        let did = if self.received == 0 {
+            "sent nothing".to_owned()
+        } else {
+            format!(
+                "sent {} bytes and {} messages of other frames or kinds",
+                self.received, self.skipped
+            )
+        };
+        self.err(
+            ErrorKind::Timeout,
+            format!("{what} not complete within {ms} ms: the camera {did}"),
+        )
+    }
+
+    /// Counts a skipped message; too many in one exchange end it.
+    fn skip(&mut self, limit: u64) -> Result<(), RigError> {
+        self.stats.stale_messages += 1;
+        self.skipped += 1;
+        if self.skipped > limit {
+            let what = self.deadline.map_or("the frame", |(_, w)| w);
+            return Err(self.err(
+                ErrorKind::Protocol,
+                format!(
+                    "{what}: the camera sent {} messages of other frames or kinds instead",
+                    self.skipped
+                ),
+            ));
+        }
+        Ok(())
     }
 
     fn err(&self, kind: ErrorKind, message: impl Into<String>) -> RigError {
@@ -137,6 +195,13 @@ impl<S: Read + Write> CamLink<S> {
                     Decoded::Incomplete { .. } => {}
                 }
             }
+            if let Some((at, what)) = self.deadline {
+                let now = Instant::now();
+                if now >= at {
+                    let ms = self.timeout_ms;
+                    return Err(self.overdue(what, ms));
+                }
+            }
             let mut chunk = [0u8; 16 * 1024];
             match self.stream.read(&mut chunk) {
                 Ok(0) => {
@@ -145,7 +210,10 @@ impl<S: Read + Write> CamLink<S> {
                         "camera disconnected (end of stream)",
                     ))
                 }
-                Ok(n) => self.buf.extend_from_slice(&chunk[..n]),
+                Ok(n) => {
+                    self.received += n as u64;
+                    self.buf.extend_from_slice(&chunk[..n]);
+                }
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                 Err(e) => return Err(RigError::io(&self.name, &e)),
             }
@@ -177,7 +245,7 @@ impl<S: Read + Write> CamLink<S> {
         loop {
             let (h, p) = self.next_message()?;
             if h.frame_id != id {
-                self.stats.stale_messages += 1;
+                self.skip(MAX_SKIPPED)?;
                 continue;
             }
             match h.kind {
@@ -219,9 +287,14 @@ impl<S: Read + Write> CamLink<S> {
                         ),
                     ))
                 }
-                _ => self.stats.stale_messages += 1,
+                _ => self.skip(MAX_SKIPPED)?,
             }
         }
+    }
+
+    /// Whether the exchange under way has run past its deadline.
+    fn past_deadline(&self) -> bool {
+        self.deadline.is_some_and(|(at, _)| Instant::now() >= at)
     }
 
     /// Queues `Lost` events for every row of the current frame not seen, then `End`.
@@ -296,7 +369,19 @@ impl<S: Read + Write> LineCamera for CamLink<S> {
             let id = self.next_frame_id;
             self.next_frame_id += 1;
             self.send_trigger(id, &request)?;
-            match self.await_leader(id) {
+            // An attempt ends within twice the link timeout, whatever arrives meanwhile.
+            self.begin(2 * self.timeout_ms, "the leader");
+            let leader = self.await_leader(id);
+            if let Ok(info) = &leader {
+                // The frame's rows: three link timeouts, and one more per 64 rows.
+                let ms = self
+                    .timeout_ms
+                    .saturating_mul(3 + u64::from(info.rows) / 64);
+                self.begin(ms, "the frame");
+            } else {
+                self.deadline = None;
+            }
+            match leader {
                 Err(e) if e.kind == ErrorKind::Timeout && left > 1 => {
                     left -= 1;
                     self.stats.trigger_retries += 1;
@@ -320,15 +405,22 @@ impl<S: Read + Write> LineCamera for CamLink<S> {
             };
             let (h, p) = match self.next_message() {
                 Ok(m) => m,
-                Err(e) if e.kind == ErrorKind::Timeout => {
+                // A read timeout is a stall: the frame ends with its missing rows lost. A
+                // frame past its overall deadline ends the exchange with an error.
+                Err(e) if e.kind == ErrorKind::Timeout && !self.past_deadline() => {
                     self.stats.stalled_frames += 1;
                     self.finish_frame(None);
                     continue;
                 }
-                Err(e) => return Err(e),
+                Err(e) => {
+                    self.frame = None;
+                    self.deadline = None;
+                    return Err(e);
+                }
             };
+            let rows = u64::from(self.frame.as_ref().map_or(0, |f| f.rows));
             if h.frame_id != id {
-                self.stats.stale_messages += 1;
+                self.skip(MAX_SKIPPED + rows)?;
                 continue;
             }
             match h.kind {
@@ -345,7 +437,7 @@ impl<S: Read + Write> LineCamera for CamLink<S> {
                     }
                     self.finish_frame(sent);
                 }
-                _ => self.stats.stale_messages += 1,
+                _ => self.skip(MAX_SKIPPED + rows)?,
             }
         }
     }

@@ -211,6 +211,32 @@ fn speed() -> f64 {
     50.0
 }
 
+/// Most pixels a camera row or frame may have along one side.
+const MAX_CAMERA_PIXELS: u32 = 1 << 16;
+
+/// Largest rig file read, bytes.
+const MAX_RIG_BYTES: u64 = 1 << 20;
+
+/// `key = value` in `[lo, hi]` and finite, or one line saying it is not.
+fn finite_in(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), String> {
+    if v.is_finite() && v >= lo && v <= hi {
+        Ok(())
+    } else {
+        Err(format!(
+            "{key} = {v:?}: expected a finite number in [{lo:?}, {hi:?}]"
+        ))
+    }
+}
+
+/// A duration in milliseconds in `[lo, hi]`, or one line saying it is not.
+fn ms_in(key: &str, v: u64, lo: u64, hi: u64) -> Result<(), String> {
+    if (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        Err(format!("{key} = {v:?}: expected {lo:?} to {hi:?} ms"))
+    }
+}
+
 /// A rig file that cannot be used.
 #[derive(Debug, thiserror::Error)]
 #[error("{path}: {problem}")]
@@ -228,7 +254,8 @@ impl RigConfig {
             path: path.to_path_buf(),
             problem,
         };
-        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
+        let text =
+            crate::limits::read_small(path, MAX_RIG_BYTES).map_err(|e| err(e.to_string()))?;
         let mut c: Self = toml::from_str(&text)
             .map_err(|e| err(e.message().split_whitespace().collect::<Vec<_>>().join(" ")))?;
         if let Some(sim) = c.sim.as_mut() {
@@ -241,41 +268,113 @@ impl RigConfig {
     }
 
     fn check(&self) -> Result<(), String> {
+        use crate::limits;
         let s = &self.sweep;
-        if s.angles_deg.len() < 2 {
-            return Err("[sweep] angles_deg: at least two angles".into());
-        }
-        let [lo, hi] = self.stage.limits_deg;
-        if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
+        limits::check_sample(
+            "sample.ambient_index",
+            self.sample.ambient_index,
+            "sample.substrate_index",
+            self.sample.substrate_index,
+        )?;
+        if filmscope_core::optics::Polarization::from_name(&self.sample.polarization).is_none() {
             return Err(format!(
-                "[stage] limits_deg [{lo}, {hi}]: low must be below high"
+                "sample.polarization = {:?}: use s, p or unpolarized",
+                self.sample.polarization
             ));
         }
-        for &a in &s.angles_deg {
+        if let Some(search) = &self.search {
+            if let Some(r) = search.index_range {
+                limits::check_index_range("search.index_range", r)?;
+            }
+            if let Some(r) = search.thickness_range_nm {
+                limits::check_thickness_range("search.thickness_range_nm", r)?;
+            }
+        }
+        limits::check_angle_count("sweep.angles_deg", s.angles_deg.len())?;
+        finite_in("sweep.stage_offset_deg", s.stage_offset_deg, -360.0, 360.0)?;
+        let [lo, hi] = self.stage.limits_deg;
+        if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+            return Err(format!(
+                "stage.limits_deg = [{lo:?}, {hi:?}]: expected finite low < high"
+            ));
+        }
+        for (i, &a) in s.angles_deg.iter().enumerate() {
+            if !(a.is_finite() && (0.0..90.0).contains(&a)) {
+                return Err(format!(
+                    "sweep.angles_deg[{i}] = {a:?}: expected an incidence angle in [0, 90) degrees"
+                ));
+            }
+            if let Some(j) = s.angles_deg[..i].iter().position(|&b| (b - a).abs() < 1e-6) {
+                return Err(format!(
+                    "sweep.angles_deg[{i}] = {a:?}: the same angle as sweep.angles_deg[{j}]"
+                ));
+            }
             let stage = a + s.stage_offset_deg;
             if !(stage >= lo && stage <= hi) {
                 return Err(format!(
-                    "[sweep] angle {a} deg puts the stage at {stage} deg, outside its limits [{lo}, {hi}]"
+                    "sweep.angles_deg[{i}] = {a:?} puts the stage at {stage:?} deg, outside stage.limits_deg [{lo:?}, {hi:?}]"
                 ));
             }
         }
         let [a, b, step] = s.bands_nm;
-        if !(step > 0.0 && b >= a && a > 0.0) {
+        let max = filmscope_core::solve::sweep::MAX_BANDS as f64;
+        let count = (b - a) / step + 1.0;
+        let ok = a.is_finite() && b.is_finite() && step.is_finite() && step > 0.0 && b >= a;
+        if !(ok && count <= max) {
             return Err(format!(
-                "[sweep] bands_nm [{a}, {b}, {step}]: want [first, last, step > 0]"
+                "sweep.bands_nm = [{a:?}, {b:?}, {step:?}]: expected [first, last, step > 0], finite, at most {max} bands"
             ));
         }
-        if self.stage.steps_per_deg.is_nan() || self.stage.steps_per_deg <= 0.0 {
-            return Err("[stage] steps_per_deg must be positive".into());
-        }
-        if self.camera.width == 0 || self.camera.height == 0 {
-            return Err("[camera] width and height must be positive".into());
-        }
-        if filmscope_core::optics::Polarization::from_name(&self.sample.polarization).is_none() {
+        limits::check_bands("sweep.bands_nm", &s.bands(), "sweep.fwhm_nm", None)?;
+        finite_in(
+            "sweep.fwhm_nm",
+            s.fwhm_nm,
+            f64::MIN_POSITIVE,
+            limits::MAX_FWHM_NM,
+        )?;
+        finite_in("stage.steps_per_deg", self.stage.steps_per_deg, 1e-3, 1e7)?;
+        ms_in("stage.timeout_ms", self.stage.timeout_ms, 1, 60_000)?;
+        ms_in("stage.poll_ms", self.stage.poll_ms, 1, 10_000)?;
+        ms_in("filter.timeout_ms", self.filter.timeout_ms, 1, 60_000)?;
+        ms_in("filter.settle_ms", self.filter.settle_ms, 0, 60_000)?;
+        if ![1, 2, 4, 8].contains(&self.filter.bandwidth) {
             return Err(format!(
-                "[sample] polarization {:?}: use s, p or unpolarized",
-                self.sample.polarization
+                "filter.bandwidth = {}: expected 2 (wide), 4 (medium) or 8 (narrow)",
+                self.filter.bandwidth
             ));
+        }
+        for (key, baud) in [
+            ("stage.baud", self.stage.baud),
+            ("filter.baud", self.filter.baud),
+        ] {
+            if !(300..=4_000_000).contains(&baud) {
+                return Err(format!("{key} = {baud}: expected 300 to 4000000"));
+            }
+        }
+        let c = &self.camera;
+        for (key, v) in [("camera.width", c.width), ("camera.height", c.height)] {
+            if !(1..=MAX_CAMERA_PIXELS).contains(&v) {
+                return Err(format!(
+                    "{key} = {v:?}: expected 1 to {MAX_CAMERA_PIXELS} pixels"
+                ));
+            }
+        }
+        finite_in(
+            "camera.saturation_counts",
+            c.saturation_counts,
+            1.0,
+            65_535.0,
+        )?;
+        ms_in("camera.timeout_ms", c.timeout_ms, 1, 60_000)?;
+        if let Some(w) = &self.wheel {
+            for (key, slot) in [("wheel.slot", w.slot), ("wheel.block_slot", w.block_slot)] {
+                if slot > 15 {
+                    return Err(format!("{key} = {slot}: expected a slot 0 to 15"));
+                }
+            }
+        }
+        if let Some(sim) = &self.sim {
+            finite_in("sim.speed", sim.speed, 1e-3, 1e6)?;
         }
         Ok(())
     }

@@ -17,12 +17,14 @@ pub struct RigError {
 }
 
 impl RigError {
-    /// An error of `kind` on `device`.
+    /// An error of `kind` on `device`. Control characters in either (a device's own text:
+    /// escape sequences, NUL bytes, line ends) are escaped so the error cannot drive a
+    /// terminal or split a log line ([`crate::limits::printable`]).
     pub fn new(device: &str, kind: ErrorKind, message: impl Into<String>) -> Self {
         Self {
-            device: device.to_owned(),
+            device: crate::limits::printable(device),
             kind,
-            message: message.into(),
+            message: crate::limits::printable(&message.into()),
         }
     }
 

@@ -27,7 +27,13 @@ pub struct KuriosConfig {
     pub attempts: u32,
     /// Largest difference between the wavelength asked for and read back, nm.
     pub tolerance_nm: f64,
+    /// Longest exchange (one command and its reply, whatever the filter sends meanwhile),
+    /// ms of wall time.
+    pub exchange_timeout_ms: u64,
 }
+
+/// Most empty prompts read while waiting for the answer to one query.
+const MAX_EMPTY_PROMPTS: usize = 16;
 
 impl Default for KuriosConfig {
     fn default() -> Self {
@@ -38,6 +44,7 @@ impl Default for KuriosConfig {
             ready_status: 2,
             attempts: 3,
             tolerance_nm: 0.01,
+            exchange_timeout_ms: 2_000,
         }
     }
 }
@@ -70,10 +77,23 @@ impl<T: Read + Write, C: Clock> Kurios<T, C> {
 
     fn once(&mut self, command: &str) -> Result<Vec<String>, RigError> {
         self.io.send(command.as_bytes())?;
+        self.io.begin(self.config.exchange_timeout_ms);
         let mut lines = Vec::new();
+        let mut prompts = 0;
         // A query always has an answer: an empty one was a stray prompt (the power-up
-        // prompt, or the end of a reply that timed out), so read on to the next.
+        // prompt, or the end of a reply that timed out), so read on to the next; a filter
+        // repeating its prompt without ever answering is a fault.
         while lines.is_empty() {
+            prompts += 1;
+            if prompts > MAX_EMPTY_PROMPTS {
+                return Err(self.err(
+                    ErrorKind::Fault,
+                    format!(
+                        "sent {MAX_EMPTY_PROMPTS} empty prompts without an answer to `{}`",
+                        command.trim()
+                    ),
+                ));
+            }
             let text = self.io.read_until(&[kurios::PROMPT])?;
             lines = text
                 .split(['\r', '\n'])
@@ -183,7 +203,8 @@ impl<T: Read + Write, C: Clock> TunableFilter for Kurios<T, C> {
         self.exchange(&cmd)?;
         self.clock.delay_us(self.config.settle_us);
         let got = self.query_number("WL")?;
-        if (got - lambda_nm).abs() > self.config.tolerance_nm {
+        // NaN or infinity read back is no wavelength: refused like a wrong one.
+        if !(got.is_finite() && (got - lambda_nm).abs() <= self.config.tolerance_nm) {
             return Err(self.err(
                 ErrorKind::Fault,
                 format!("filter reads {got} nm after tuning to {lambda_nm} nm"),

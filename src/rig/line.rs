@@ -15,6 +15,8 @@ pub struct LineIo<T> {
     port: T,
     name: String,
     buf: Vec<u8>,
+    /// When the exchange under way must end (wall time), and its length in ms.
+    deadline: Option<(std::time::Instant, u64)>,
 }
 
 impl<T: Read + Write> LineIo<T> {
@@ -24,7 +26,20 @@ impl<T: Read + Write> LineIo<T> {
             port,
             name: name.to_owned(),
             buf: Vec::new(),
+            deadline: None,
         }
+    }
+
+    /// Starts an exchange that must end within `ms` milliseconds of wall time: a device
+    /// sending a byte now and then, each under the port's read timeout, cannot hold it
+    /// longer. `0` lifts the deadline.
+    pub fn begin(&mut self, ms: u64) {
+        self.deadline = (ms > 0).then(|| {
+            (
+                std::time::Instant::now() + std::time::Duration::from_millis(ms),
+                ms,
+            )
+        });
     }
 
     /// The port's name.
@@ -41,6 +56,21 @@ impl<T: Read + Write> LineIo<T> {
     }
 
     fn fill(&mut self) -> Result<(), RigError> {
+        if let Some((at, ms)) = self.deadline {
+            if std::time::Instant::now() >= at {
+                let got = crate::limits::printable(&String::from_utf8_lossy(
+                    &self.buf[..self.buf.len().min(40)],
+                ));
+                return Err(RigError::new(
+                    &self.name,
+                    ErrorKind::Timeout,
+                    format!(
+                        "no complete reply within {ms} ms ({} bytes of an unfinished line: {got:?})",
+                        self.buf.len()
+                    ),
+                ));
+            }
+        }
         let mut chunk = [0u8; 256];
         match self.port.read(&mut chunk) {
             Ok(0) => Err(RigError::new(

@@ -98,18 +98,46 @@ pub fn connect_camera(
         )
     };
     let camera: acquire::DynCamera = if let Some(a) = address.strip_prefix("tcp:") {
-        let s = TcpStream::connect(a).map_err(fail)?;
+        // The connect has its own deadline (a host that drops packets would hold it for
+        // minutes): the link timeout per address the name resolves to.
+        let connect_timeout = Duration::from_millis(timeout_ms.max(1));
+        let mut last = None;
+        let mut stream = None;
+        for addr in std::net::ToSocketAddrs::to_socket_addrs(a).map_err(fail)? {
+            match TcpStream::connect_timeout(&addr, connect_timeout) {
+                Ok(s) => {
+                    stream = Some(s);
+                    break;
+                }
+                Err(e) => last = Some(e),
+            }
+        }
+        let s = match (stream, last) {
+            (Some(s), _) => s,
+            (None, Some(e)) => return Err(fail(e)),
+            (None, None) => {
+                return Err(RigError::new(
+                    address,
+                    ErrorKind::Disconnected,
+                    "cannot connect: the name resolves to no address",
+                ))
+            }
+        };
         s.set_read_timeout(timeout).map_err(fail)?;
         let _ = s.set_nodelay(true);
+        let mut link = CamLink::new(s, address, width);
+        link.timeout_ms = timeout_ms.max(1);
         Box::new(CountedCamera {
-            link: CamLink::new(s, address, width),
+            link,
             stats: stats.clone(),
         })
     } else if let Some(p) = address.strip_prefix("unix:") {
         let s = UnixStream::connect(p).map_err(fail)?;
         s.set_read_timeout(timeout).map_err(fail)?;
+        let mut link = CamLink::new(s, address, width);
+        link.timeout_ms = timeout_ms.max(1);
         Box::new(CountedCamera {
-            link: CamLink::new(s, address, width),
+            link,
             stats: stats.clone(),
         })
     } else {
@@ -150,6 +178,8 @@ pub fn open_with_clock<C: filmscope_core::hw::Clock + Clone + Send + 'static>(
             steps_per_deg: s.steps_per_deg,
             limits_deg: s.limits_deg,
             poll_us: s.poll_ms * 1000,
+            // Each exchange: its attempts' read timeouts and as much again.
+            exchange_timeout_ms: 2 * s.timeout_ms.max(1),
             ..ZaberConfig::default()
         },
     );
@@ -162,6 +192,7 @@ pub fn open_with_clock<C: filmscope_core::hw::Clock + Clone + Send + 'static>(
         KuriosConfig {
             bandwidth: f.bandwidth,
             settle_us: f.settle_ms * 1000,
+            exchange_timeout_ms: 2 * f.timeout_ms.max(1),
             ..KuriosConfig::default()
         },
     );

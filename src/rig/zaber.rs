@@ -32,7 +32,13 @@ pub struct ZaberConfig {
     pub motion_timeout_us: u64,
     /// Attempts per command on timeouts and garbled replies.
     pub attempts: u32,
+    /// Longest exchange (one command and its reply, whatever the stage sends meanwhile),
+    /// ms of wall time.
+    pub exchange_timeout_ms: u64,
 }
+
+/// Most lines (info lines, alerts, late replies) skipped while waiting for one reply.
+const MAX_SKIPPED_LINES: usize = 64;
 
 impl Default for ZaberConfig {
     fn default() -> Self {
@@ -44,6 +50,7 @@ impl Default for ZaberConfig {
             poll_us: 20_000,
             motion_timeout_us: 60_000_000,
             attempts: 3,
+            exchange_timeout_ms: 2_000,
         }
     }
 }
@@ -91,9 +98,23 @@ impl<T: Read + Write, C: Clock> Zaber<T, C> {
         let line = zaber::command(c.device, c.axis, Some(id), text)
             .ok_or_else(|| self.err(ErrorKind::OutOfRange, format!("command too long: {text}")))?;
         self.io.send(line.as_bytes())?;
+        self.io.begin(self.config.exchange_timeout_ms);
+        let mut skipped = 0;
         loop {
             let line = self.io.read_until(b"\n")?;
             match zaber::parse(&line) {
+                Ok(zaber::Message::Reply(r))
+                    if r.id == Some(id) && (r.device != c.device || r.axis != c.axis) =>
+                {
+                    self.io.discard();
+                    return Err(self.err(
+                        ErrorKind::Protocol,
+                        format!(
+                            "the reply to `{text}` comes from device {} axis {}, not device {} axis {} (rig.toml stage.device, stage.axis)",
+                            r.device, r.axis, c.device, c.axis
+                        ),
+                    ));
+                }
                 Ok(zaber::Message::Reply(r)) if r.id == Some(id) => {
                     return Ok(ZaberReply {
                         accepted: r.accepted,
@@ -102,8 +123,21 @@ impl<T: Read + Write, C: Clock> Zaber<T, C> {
                         data: r.data.to_owned(),
                     })
                 }
-                // A late reply to an earlier attempt, an info line, an alert, a blank.
-                Ok(_) | Err(zaber::ParseError::Empty) => {}
+                // A late reply to an earlier attempt, an info line, an alert, a blank: a few
+                // are normal, an endless stream is a fault.
+                Ok(_) | Err(zaber::ParseError::Empty) => {
+                    skipped += 1;
+                    if skipped >= MAX_SKIPPED_LINES {
+                        self.io.discard();
+                        return Err(self.err(
+                            ErrorKind::Fault,
+                            format!(
+                                "sent {skipped} lines without the reply to `{text}` (last: {:?})",
+                                crate::limits::printable(line.trim())
+                            ),
+                        ));
+                    }
+                }
                 Err(e) => {
                     self.io.discard();
                     return Err(self.err(

@@ -222,6 +222,7 @@ impl EnviHeader {
 
     /// Reads and parses the header file at `path` (at most 16 MiB are read).
     pub fn read(path: &Path) -> Result<Self, EnviError> {
+        not_special(path).map_err(|e| EnviErrorKind::io("cannot open header", e).at(path))?;
         let file = std::fs::File::open(path)
             .map_err(|e| EnviErrorKind::io("cannot open header", e).at(path))?;
         let mut bytes = Vec::new();
@@ -641,6 +642,20 @@ fn guess_factor(wavelengths: Option<&[f64]>) -> f64 {
     match wavelengths {
         Some(list) if !list.is_empty() && list.iter().all(|&v| v < 10.0) => 1000.0,
         _ => 1.0,
+    }
+}
+
+/// Refuses FIFOs, devices and directories: opening or reading them would block or never
+/// end (a FIFO named as a header, `/dev/zero` as a data file).
+pub(crate) fn not_special(path: &Path) -> std::io::Result<()> {
+    let meta = std::fs::metadata(path)?;
+    if meta.is_file() {
+        Ok(())
+    } else {
+        Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file (a FIFO, device or directory)",
+        ))
     }
 }
 

@@ -291,6 +291,14 @@ pub(crate) fn file_name(path: &Path) -> String {
 
 /// A zeroed buffer of `len` elements, or an error instead of an allocation failure abort.
 pub(crate) fn zeroed<T: Clone + Default>(len: usize) -> Result<Vec<T>, EnviErrorKind> {
+    let bytes = len.saturating_mul(std::mem::size_of::<T>());
+    // An overcommitting kernel grants any reservation and kills the process when the
+    // zeros are written: compare with the memory the machine has first.
+    if bytes > 64 << 20
+        && crate::limits::available_memory().is_some_and(|avail| bytes as u64 > avail)
+    {
+        return Err(EnviErrorKind::OutOfMemory { bytes });
+    }
     let mut buf = Vec::new();
     buf.try_reserve_exact(len)
         .map_err(|_| EnviErrorKind::OutOfMemory {

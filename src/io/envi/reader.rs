@@ -69,6 +69,8 @@ impl EnviReader {
         let data_path =
             find_data_file(&base, header.interleave).map_err(|kind| kind.at(hdr_path))?;
 
+        super::header::not_special(&data_path)
+            .map_err(|e| EnviErrorKind::io("cannot open data", e).at(&data_path))?;
         let file = File::open(&data_path)
             .map_err(|e| EnviErrorKind::io("cannot open data", e).at(&data_path))?;
         let actual = file
