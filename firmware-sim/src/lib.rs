@@ -17,6 +17,7 @@ pub mod camera;
 pub mod camlink;
 pub mod clock;
 pub mod kurios;
+pub mod line;
 pub mod rng;
 pub mod scene;
 pub mod serial;
