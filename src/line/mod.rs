@@ -68,14 +68,14 @@ mod tests {
     #[test]
     fn times_and_ids() {
         let t = UNIX_EPOCH + Duration::from_millis(1_795_905_000_123);
-        assert_eq!(utc_iso(t), "2026-11-28T17:10:00.123Z");
+        assert_eq!(utc_iso(t), "2026-11-28T22:30:00.123Z");
         assert_eq!(utc_iso(UNIX_EPOCH), "1970-01-01T00:00:00.000Z");
         assert_eq!(
             utc_iso(UNIX_EPOCH + Duration::from_secs(951_782_400)),
             "2000-02-29T00:00:00.000Z"
         );
         let id = sample_id(42, t);
-        assert_eq!(id, "S000042-20261128T171000Z");
+        assert_eq!(id, "S000042-20261128T223000Z");
         assert_eq!(counter_of(&id), Some(42));
         assert_eq!(counter_of("S1234567-x"), Some(1_234_567));
         assert_eq!(counter_of(".tmp-S1"), None);
