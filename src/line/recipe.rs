@@ -515,9 +515,9 @@ mod tests {
 
     #[test]
     fn errors_name_file_key_and_value() {
-        let e = parse(&MIN.replace("tolerance = 0.03", "tolerance = -1")).unwrap_err();
+        let e = parse(&MIN.replace("tolerance = 0.03", "tolerance = -1")).expect_err("an error");
         assert_eq!(e, "r.toml: index.tolerance = -1: must be a positive number");
-        let e = parse(&format!("{MIN}colour = 3\n")).unwrap_err();
+        let e = parse(&format!("{MIN}colour = 3\n")).expect_err("an error");
         assert!(
             e.starts_with("r.toml: line 8: unknown field `colour`"),
             "{e}"
@@ -527,22 +527,22 @@ mod tests {
             &MIN.replace("mode", "x")
                 .replace("[index]", "[index]\nmode = \"sometimes\""),
         )
-        .unwrap_err();
+        .expect_err("an error");
         assert!(e.contains("line 3") && e.contains("sometimes"), "{e}");
-        let e = parse(&format!("{MIN}tolerance_nm = 4\n")).unwrap_err();
+        let e = parse(&format!("{MIN}tolerance_nm = 4\n")).expect_err("an error");
         assert!(e.contains("both tolerance_nm and tolerance_percent"), "{e}");
         let e = parse(&format!(
             "{MIN}[[roi]]\nx = 0\ny = 0\nwidth = 0\nheight = 3\n"
         ))
-        .unwrap_err();
+        .expect_err("an error");
         assert!(e.contains("roi[0]"), "{e}");
-        let e = parse(&format!("{MIN}[retention]\nraw = \"some\"\n")).unwrap_err();
+        let e = parse(&format!("{MIN}[retention]\nraw = \"some\"\n")).expect_err("an error");
         assert!(e.contains("some") && e.contains("line 9"), "{e}");
         let r = parse(&format!(
             "{MIN}[[roi]]\nx = 30\ny = 0\nwidth = 4\nheight = 3\n"
         ))
         .expect("roi");
-        let e = r.check_sensor(32, 24).unwrap_err();
+        let e = r.check_sensor(32, 24).expect_err("an error");
         assert!(e.contains("outside the 32 x 24 sensor"), "{e}");
     }
 }

@@ -18,7 +18,7 @@ pub fn keeps_raw(spec: &RetentionSpec, counter: u64, pass: bool) -> bool {
 
 /// Which of the kept sweeps (oldest first: name and bytes) to delete, oldest first, so the
 /// rest fit `budget` bytes.
-pub fn over_budget<'a>(kept: &'a [(String, u64)], budget: u64) -> Vec<&'a str> {
+pub fn over_budget(kept: &[(String, u64)], budget: u64) -> Vec<&str> {
     let mut total: u64 = kept.iter().map(|(_, b)| b).sum();
     let mut out = Vec::new();
     for (name, bytes) in kept {

@@ -274,14 +274,20 @@ pub struct Alarm {
     pub limits: Limits,
 }
 
-/// Limits of each variable from the history's oldest `baseline` points, once it holds
-/// `min_points`.
+/// Limits of one variable from the passing points among the history's oldest `baseline`
+/// (a failed sample is no part of the process the limits describe), once the history
+/// holds `min_points` and at least two of them passed.
 pub fn limits_of(h: &History, v: Variable, baseline: usize, min_points: usize) -> Option<Limits> {
     if h.len() < min_points {
         return None;
     }
-    let s = h.series(v);
-    imr_limits(&s[..s.len().min(baseline)])
+    let s: Vec<f64> = h
+        .points()
+        .take(baseline)
+        .filter(|p| p.pass)
+        .map(|p| v.of(p))
+        .collect();
+    imr_limits(&s)
 }
 
 /// The alarms the history's newest point raises.
@@ -398,6 +404,13 @@ mod tests {
         let l = limits_of(&h, Variable::ThicknessMeanNm, 3, 5).expect("limits");
         assert!(close(l.center, 4.0) && close(l.mr_bar, 1.0));
         assert!(limits_of(&h, Variable::ThicknessMeanNm, 3, 6).is_none());
+        // A failed sample among them is left out of the limits: 3 _ 5 -> centre 4, MR-bar 2.
+        let mut g = h.clone();
+        if let Some(p) = g.points.get_mut(1) {
+            p.pass = false;
+        }
+        let l = limits_of(&g, Variable::ThicknessMeanNm, 3, 5).expect("limits");
+        assert!(close(l.center, 4.0) && close(l.mr_bar, 2.0) && l.n == 2);
         // Newest 7 is beyond 4 + 3 / 1.128 = 6.66; and 3..7 rises five times only.
         let a = alarms(&h, 3, 5);
         assert_eq!(a.len(), 1, "{a:?}");

@@ -241,7 +241,7 @@ pub fn regions(mask: &[u8], width: usize, height: usize) -> Vec<Region> {
             area_px: area,
         });
     }
-    out.sort_by(|a, b| b.area_px.cmp(&a.area_px));
+    out.sort_by_key(|r| std::cmp::Reverse(r.area_px));
     out
 }
 
