@@ -520,3 +520,50 @@ fn a_bad_recipe_is_one_line_naming_file_and_key() {
         "{err}"
     );
 }
+
+/// A held index the film disagrees with is re-solved over the rig's whole range, and the
+/// sample fails on its index; `solve` searches the whole range at once.
+#[test]
+fn a_disagreeing_held_index_is_re_solved() {
+    let dir = tempdir();
+    let base = recipe(dir.path(), None, "");
+    let text = std::fs::read_to_string(&base).expect("recipe");
+    let hold = dir.path().join("hold.toml");
+    std::fs::write(
+        &hold,
+        text.replace("nominal = 2.10 ", "nominal = 2.05 ")
+            .replace("mode = \"carry\"", "mode = \"hold\""),
+    )
+    .expect("write");
+    let out = dir.path().join("hold");
+    let run = inspect(&hold, &out, &["--samples", "1"])
+        .output()
+        .expect("run");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let r = &samples(&out)[0];
+    assert_eq!(r["index_resolved"], true, "{r}");
+    let n = r["refractive_index"].as_f64().expect("index");
+    assert!((n - 2.10).abs() < 0.01, "re-solved index {n}");
+    assert_eq!(r["verdict"], "FAIL");
+    assert!(r["reasons"][0]
+        .as_str()
+        .is_some_and(|t| t.starts_with("index 2.1")));
+    let solve = dir.path().join("solve.toml");
+    std::fs::write(&solve, text.replace("mode = \"carry\"", "mode = \"solve\"")).expect("write");
+    let out = dir.path().join("solve");
+    let run = inspect(&solve, &out, &["--samples", "1"])
+        .output()
+        .expect("run");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let r = &samples(&out)[0];
+    assert_eq!(r["index_resolved"], false);
+    assert_eq!(r["verdict"], "PASS", "{r}");
+}
