@@ -323,9 +323,19 @@ fn three_simulated_samples_judged_written_and_published() {
     }
 }
 
+/// Sample records of a results.jsonl being written: a line still being written is skipped.
+fn samples_so_far(out: &Path) -> usize {
+    std::fs::read_to_string(out.join("results.jsonl"))
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter(|r| r["kind"] == "sample")
+        .count()
+}
+
 fn wait_for_samples(out: &Path, n: usize, child: &mut Child) {
     let t0 = Instant::now();
-    while samples(out).len() < n {
+    while samples_so_far(out) < n {
         assert!(
             child.try_wait().expect("wait").is_none(),
             "inspect ended early"
@@ -566,4 +576,39 @@ fn a_disagreeing_held_index_is_re_solved() {
     let r = &samples(&out)[0];
     assert_eq!(r["index_resolved"], false);
     assert_eq!(r["verdict"], "PASS", "{r}");
+}
+
+/// A crash after a sample's folder was renamed into place but before its line was
+/// appended: the restart appends the record from the folder's record.json, once.
+#[test]
+fn a_folder_without_its_line_gets_it_on_restart() {
+    let dir = tempdir();
+    let rec = recipe(dir.path(), None, "");
+    let out = dir.path().join("line");
+    let run = inspect(&rec, &out, &["--samples", "2"])
+        .output()
+        .expect("run");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let text = std::fs::read_to_string(out.join("results.jsonl")).expect("results");
+    let first_line = text.lines().next().expect("line");
+    let lost: Value = serde_json::from_str(text.lines().last().expect("last")).expect("json");
+    std::fs::write(out.join("results.jsonl"), format!("{first_line}\n")).expect("cut");
+    let run = inspect(&rec, &out, &["--samples", "1"])
+        .output()
+        .expect("restart");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let recs = samples(&out);
+    let counters: Vec<u64> = recs.iter().filter_map(|r| r["counter"].as_u64()).collect();
+    assert_eq!(counters, vec![1, 2, 3]);
+    assert_eq!(recs[1], lost, "the record came back as it was");
+    let log = std::fs::read_to_string(out.join("inspect.log")).expect("log");
+    assert!(log.contains("recovered: record of S000002"), "{log}");
 }

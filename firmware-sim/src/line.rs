@@ -120,3 +120,44 @@ impl SampleSequence {
         (s, kind)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn base() -> Scene {
+        Scene::from_toml(
+            include_str!("../../config/scenes/rig-tiny.toml"),
+            "rig-tiny",
+        )
+        .expect("scene")
+    }
+
+    #[test]
+    fn the_line_is_deterministic_with_defects_and_drift() {
+        let seq = SampleSequence::new(base(), 3);
+        let kinds: Vec<SampleKind> = (0..8).map(|k| seq.kind(k)).collect();
+        use SampleKind::*;
+        assert_eq!(
+            kinds,
+            vec![Nominal, Defect, Nominal, Nominal, Shifted, Nominal, Nominal, Nominal]
+        );
+        let (a, _) = seq.scene(2);
+        let (b, _) = seq.scene(2);
+        assert_eq!(a.thickness_nm, b.thickness_nm);
+        assert_eq!(a.seed, b.seed);
+        let mean = |s: &Scene| {
+            s.thickness_nm.iter().map(|&t| f64::from(t)).sum::<f64>() / s.thickness_nm.len() as f64
+        };
+        let (d, _) = seq.scene(1);
+        let (w, h) = (d.sensor.width, d.sensor.height);
+        let centre = d.thickness_nm[h / 2 * w + w / 2] - seq.base.thickness_nm[h / 2 * w + w / 2];
+        assert!(centre > 140.0, "patch {centre}");
+        let (sh, _) = seq.scene(4);
+        assert!(mean(&sh) > 1.12 * mean(&seq.base));
+        // Drift: 0.3 nm a sample, scatter 1.5 nm: 100 samples on, 30 nm thicker give or take.
+        let (late, _) = seq.scene(100);
+        let drift = mean(&late) - mean(&seq.base);
+        assert!((drift - 30.0).abs() < 8.0, "{drift}");
+    }
+}
