@@ -357,6 +357,12 @@ fn restart_after_kill_9_continues_numbering() {
         .spawn()
         .expect("spawn");
     wait_for_samples(&out, 2, &mut child);
+    // A second inspect on the same folder is refused while the first runs.
+    let second = inspect(&rec, &out, &["--samples", "1"])
+        .output()
+        .expect("second");
+    assert!(!second.status.success());
+    assert!(String::from_utf8_lossy(&second.stderr).contains("another inspect"));
     // Let it get into the next sample, then SIGKILL.
     std::thread::sleep(Duration::from_millis(400));
     child.kill().expect("kill -9");

@@ -90,6 +90,55 @@ pub struct Line {
     latencies_ms: Vec<f64>,
     alarms_raised: u64,
     passed: u64,
+    _lock: DirLock,
+}
+
+/// `DIR/inspect.lock`, holding the pid of the `inspect` that writes `DIR`; removed when the
+/// line is dropped. A lock whose process is gone (a kill -9) is taken over.
+struct DirLock(PathBuf);
+
+impl Drop for DirLock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+fn take_lock(out: &Path) -> Result<DirLock, InspectError> {
+    let path = out.join("inspect.lock");
+    let me = std::process::id();
+    for _ in 0..2 {
+        match OpenOptions::new().write(true).create_new(true).open(&path) {
+            Ok(mut f) => {
+                let _ = writeln!(f, "{me}");
+                let _ = f.sync_all();
+                return Ok(DirLock(path));
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                let pid = std::fs::read_to_string(&path)
+                    .ok()
+                    .and_then(|t| t.trim().parse::<u32>().ok());
+                let alive = pid.is_some_and(|p| {
+                    p != me
+                        && std::fs::read(format!("/proc/{p}/cmdline"))
+                            .is_ok_and(|c| String::from_utf8_lossy(&c).contains("inspect"))
+                });
+                if alive {
+                    return Err(InspectError(format!(
+                        "{}: another inspect (pid {}) writes this folder",
+                        path.display(),
+                        pid.unwrap_or(0)
+                    )));
+                }
+                // Left by a process that is gone: take it over.
+                let _ = std::fs::remove_file(&path);
+            }
+            Err(e) => return Err(ie(&path.display().to_string())(&e)),
+        }
+    }
+    Err(InspectError(format!(
+        "{}: cannot take the lock",
+        path.display()
+    )))
 }
 
 impl Line {
@@ -100,6 +149,7 @@ impl Line {
         let samples_dir = out.join("samples");
         std::fs::create_dir_all(&samples_dir)
             .map_err(|e| ie(&samples_dir.display().to_string())(&e))?;
+        let lock = take_lock(&out)?;
         let logpath = out.join("inspect.log");
         let logfile = OpenOptions::new()
             .append(true)
@@ -130,6 +180,7 @@ impl Line {
             alarms_raised: 0,
             passed: 0,
             log,
+            _lock: lock,
             opts,
         };
         line.say(&format!(
