@@ -161,7 +161,10 @@ pub struct Roi {
 impl Roi {
     /// Whether pixel (x, y) is inside.
     pub fn contains(&self, x: usize, y: usize) -> bool {
-        x >= self.x && x < self.x + self.width && y >= self.y && y < self.y + self.height
+        x >= self.x
+            && x < self.x.saturating_add(self.width)
+            && y >= self.y
+            && y < self.y.saturating_add(self.height)
     }
 }
 
@@ -456,7 +459,7 @@ impl Recipe {
     /// Checks the recipe against a sensor of `width` x `height` pixels.
     pub fn check_sensor(&self, width: usize, height: usize) -> Result<(), String> {
         for (i, r) in self.roi.iter().enumerate() {
-            if r.x + r.width > width || r.y + r.height > height {
+            if r.x.saturating_add(r.width) > width || r.y.saturating_add(r.height) > height {
                 return Err(format!(
                     "roi[{i}] = {{ x = {}, y = {}, width = {}, height = {} }}: outside the {width} x {height} sensor",
                     r.x, r.y, r.width, r.height
@@ -472,8 +475,11 @@ fn toml_line(e: &toml::de::Error, text: &str) -> String {
     let msg = e.message().replace('\n', " ");
     match e.span() {
         Some(span) => {
-            let line = text[..span.start.min(text.len())].matches('\n').count() + 1;
-            let snippet = text[span.start.min(text.len())..span.end.min(text.len())]
+            let before = text.as_bytes().get(..span.start).unwrap_or(text.as_bytes());
+            let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+            let snippet = text
+                .get(span.start..span.end)
+                .unwrap_or("")
                 .lines()
                 .next()
                 .unwrap_or("")
