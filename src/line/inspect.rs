@@ -163,7 +163,9 @@ impl Line {
             )
             .map_err(|e| InspectError(format!("{}: {e}", opts.recipe_path.display())))?;
         let r = &opts.recipe.retention;
-        let (log, rec) = ResultsLog::open(&out, r.results_rotate_bytes, r.results_keep)
+        // Alarms share the stream: keep enough records for a full history of samples.
+        let keep_last = opts.recipe.spc.history.saturating_mul(8);
+        let (log, rec) = ResultsLog::open(&out, r.results_rotate_bytes, r.results_keep, keep_last)
             .map_err(|e| InspectError(e.to_string()))?;
         let mut line = Self {
             samples_dir,
@@ -185,7 +187,7 @@ impl Line {
         };
         line.say(&format!(
             "start: {} record(s) found{}{}",
-            rec.records.len(),
+            rec.read,
             if rec.torn_bytes > 0 {
                 format!(", a torn last line of {} bytes cut", rec.torn_bytes)
             } else {
@@ -198,7 +200,8 @@ impl Line {
             }
         ));
         let mut records = rec.records;
-        line.recover_folders(&mut records)?;
+        line.counter = rec.max_counter;
+        line.recover_folders(&mut records, rec.max_counter)?;
         for r in &records {
             if let Some(c) = r["counter"].as_u64() {
                 line.counter = line.counter.max(c);
@@ -265,12 +268,11 @@ impl Line {
         let _ = self.logfile.flush();
     }
 
-    fn recover_folders(&mut self, records: &mut Vec<Value>) -> Result<(), InspectError> {
-        let max_rec = records
-            .iter()
-            .filter_map(|r| r["counter"].as_u64())
-            .max()
-            .unwrap_or(0);
+    fn recover_folders(
+        &mut self,
+        records: &mut std::collections::VecDeque<Value>,
+        max_rec: u64,
+    ) -> Result<(), InspectError> {
         let mut names: Vec<String> = std::fs::read_dir(&self.samples_dir)
             .map_err(|e| ie(&self.samples_dir.display().to_string())(&e))?
             .flatten()
@@ -298,7 +300,7 @@ impl Line {
                         .append(&r)
                         .map_err(|e| InspectError(e.to_string()))?;
                     self.say(&format!("recovered: record of {n} appended"));
-                    records.push(r);
+                    records.push_back(r);
                 }
                 None => self.say(&format!("recovered: {n} has no record.json; left as is")),
             }

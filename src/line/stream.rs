@@ -50,8 +50,12 @@ pub struct ResultsLog {
 /// What [`ResultsLog::open`] found.
 #[derive(Debug, Default)]
 pub struct Recovered {
-    /// Every readable record, oldest first (rotated files first).
-    pub records: Vec<Value>,
+    /// The newest readable records (at most the number asked for), oldest first.
+    pub records: std::collections::VecDeque<Value>,
+    /// Records read in all.
+    pub read: usize,
+    /// The highest `counter` of any record.
+    pub max_counter: u64,
     /// Bytes of a torn last line cut off.
     pub torn_bytes: u64,
     /// Lines that were not JSON (skipped).
@@ -65,18 +69,20 @@ impl ResultsLog {
     }
 
     /// Opens (or creates) `dir/results.jsonl` for appending, cutting a torn last line (a
-    /// write a crash interrupted), and reads back every record of it and its rotations.
+    /// write a crash interrupted), and reads back it and its rotations, keeping the newest
+    /// `keep_last` records.
     pub fn open(
         dir: &Path,
         rotate_bytes: u64,
         keep: usize,
+        keep_last: usize,
     ) -> Result<(Self, Recovered), StreamError> {
         let path = Self::path_in(dir);
         let mut rec = Recovered::default();
         for k in (1..=keep.max(1)).rev() {
             let p = rotated(&path, k);
             if let Ok(text) = std::fs::read_to_string(&p) {
-                parse_lines(&text, &mut rec);
+                parse_lines(&text, &mut rec, keep_last);
             }
         }
         let mut file = OpenOptions::new()
@@ -94,7 +100,11 @@ impl ResultsLog {
             file.sync_all().map_err(io(&path))?;
         }
         file.seek(SeekFrom::End(0)).map_err(io(&path))?;
-        parse_lines(&String::from_utf8_lossy(&bytes[..whole]), &mut rec);
+        parse_lines(
+            &String::from_utf8_lossy(&bytes[..whole]),
+            &mut rec,
+            keep_last,
+        );
         Ok((
             Self {
                 path,
@@ -153,10 +163,19 @@ fn rotated(path: &Path, k: usize) -> PathBuf {
     PathBuf::from(s)
 }
 
-fn parse_lines(text: &str, rec: &mut Recovered) {
+fn parse_lines(text: &str, rec: &mut Recovered, keep_last: usize) {
     for line in text.lines().filter(|l| !l.trim().is_empty()) {
         match serde_json::from_str::<Value>(line) {
-            Ok(v) => rec.records.push(v),
+            Ok(v) => {
+                rec.read += 1;
+                if let Some(c) = v["counter"].as_u64() {
+                    rec.max_counter = rec.max_counter.max(c);
+                }
+                rec.records.push_back(v);
+                while rec.records.len() > keep_last {
+                    rec.records.pop_front();
+                }
+            }
             Err(_) => rec.bad_lines += 1,
         }
     }
@@ -310,7 +329,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("dir");
         let p = ResultsLog::path_in(dir.path());
         std::fs::write(&p, "{\"a\":1}\n{\"a\":2}\n{\"a\":").expect("write");
-        let (mut log, rec) = ResultsLog::open(dir.path(), 1 << 20, 2).expect("open");
+        let (mut log, rec) = ResultsLog::open(dir.path(), 1 << 20, 2, 100).expect("open");
         assert_eq!(rec.records.len(), 2);
         assert_eq!(rec.torn_bytes, 5);
         log.append(&json!({"a": 3})).expect("append");
@@ -321,7 +340,7 @@ mod tests {
     #[test]
     fn rotation_keeps_k_files_and_reads_back_in_order() {
         let dir = tempfile::tempdir().expect("dir");
-        let (mut log, _) = ResultsLog::open(dir.path(), 40, 2).expect("open");
+        let (mut log, _) = ResultsLog::open(dir.path(), 40, 2, 100).expect("open");
         for i in 0..10 {
             log.append(&json!({"i": i, "pad": "xxxxxxxxxx"}))
                 .expect("append");
@@ -329,8 +348,11 @@ mod tests {
         let p = ResultsLog::path_in(dir.path());
         assert!(rotated(&p, 1).exists() && rotated(&p, 2).exists());
         assert!(!rotated(&p, 3).exists());
-        let (_, rec) = ResultsLog::open(dir.path(), 40, 2).expect("reopen");
+        let (_, rec) = ResultsLog::open(dir.path(), 40, 2, 100).expect("reopen");
         let ids: Vec<i64> = rec.records.iter().filter_map(|r| r["i"].as_i64()).collect();
         assert_eq!(ids, vec![7, 8, 9]);
+        let (_, rec) = ResultsLog::open(dir.path(), 40, 2, 2).expect("reopen");
+        let ids: Vec<i64> = rec.records.iter().filter_map(|r| r["i"].as_i64()).collect();
+        assert_eq!((ids, rec.read), (vec![8, 9], 3));
     }
 }
