@@ -618,3 +618,32 @@ fn a_folder_without_its_line_gets_it_on_restart() {
     let log = std::fs::read_to_string(out.join("inspect.log")).expect("log");
     assert!(log.contains("recovered: record of S000002"), "{log}");
 }
+
+/// Without `--sim` and without the devices, each sample's sweep fails: the log gets a
+/// device error line a sample, no record or folder is written, and three in a row stop the
+/// run with an error.
+#[test]
+fn device_errors_are_logged_and_three_in_a_row_stop() {
+    let dir = tempdir();
+    let rec = recipe(dir.path(), None, "");
+    let out = dir.path().join("line");
+    let run = filmscope()
+        .args([
+            "inspect",
+            "--rig",
+            s(&rig()),
+            "--recipe",
+            s(&rec),
+            "--out",
+            s(&out),
+        ])
+        .output()
+        .expect("run");
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("three samples in a row failed"), "{err}");
+    let log = std::fs::read_to_string(out.join("inspect.log")).expect("log");
+    assert_eq!(log.matches(" device error: sample S").count(), 3, "{log}");
+    assert!(samples(&out).is_empty());
+    assert!(folders(&out).is_empty(), "no half-written folder left");
+}
