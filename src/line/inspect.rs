@@ -767,3 +767,39 @@ pub fn overlay_png(
     crate::export::png::render_rgb_png(w, h, &rgb, scale)
         .map_err(|e| InspectError(format!("overlay: {e}")))
 }
+
+/// Per-sample latencies, ms (last row to verdict published), of `samples` samples of the
+/// demo recipe (`config/recipes/demo.toml`, built in, without MQTT or status page) on
+/// firmware-sim behind the rig file `rig`, in a temporary folder removed afterwards: the
+/// figure `filmscope bench` reports.
+pub fn bench_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectError> {
+    let path = Path::new("config/recipes/demo.toml");
+    let mut recipe = Recipe::parse(include_str!("../../config/recipes/demo.toml"), path)
+        .map_err(|e| InspectError(e.to_string()))?;
+    recipe.mqtt = None;
+    recipe.status = None;
+    let rig = RigConfig::load(rig).map_err(|e| InspectError(e.to_string()))?;
+    let out = std::env::temp_dir().join(format!(
+        "filmscope-bench-inspect-{}-{}",
+        std::process::id(),
+        utc_iso(SystemTime::now()).replace([':', '.'], "")
+    ));
+    let result = (|| {
+        let mut line = Line::open(InspectOptions {
+            rig,
+            recipe,
+            recipe_path: path.to_owned(),
+            out: out.clone(),
+            sim: true,
+            status_port: None,
+            mqtt_port: None,
+        })?;
+        let mut l = Vec::new();
+        for _ in 0..samples {
+            l.push(line.measure()?.published_ms);
+        }
+        Ok(l)
+    })();
+    let _ = std::fs::remove_dir_all(&out);
+    result
+}
