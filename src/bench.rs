@@ -713,13 +713,11 @@ pub fn format_table(r: &BenchReport) -> String {
         (Some(l), _) if !l.is_empty() => {
             let mut v = l.clone();
             v.sort_by(f64::total_cmp);
+            let target = format!("(median / max of {}; 32x24 sim)", v.len());
             row(
-                &format!(
-                    "inspect, last row -> verdict published, ms ({} samples)",
-                    v.len()
-                ),
+                "inspect, last row -> verdict published, ms",
                 format!("{:.0} / {:.0}", v[v.len() / 2], v[v.len() - 1]),
-                "(median / max; 32x24 sim)",
+                &target,
             );
         }
         (_, Some(e)) => row("inspect latency", "failed".into(), e),
