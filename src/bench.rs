@@ -462,6 +462,11 @@ pub struct BenchReport {
     pub speedup_vs_brute: f64,
     /// Time of `paper` over time of `filmscope`.
     pub speedup_vs_paper: f64,
+    /// `filmscope inspect` on firmware-sim (config/rig.toml, demo recipe): last row to
+    /// verdict published, ms, per sample.
+    pub inspect_latency_ms: Option<Vec<f64>>,
+    /// Why the inspect latency is missing, if it is.
+    pub inspect_latency_error: Option<String>,
 }
 
 /// Runs every measurement. `scene_path` gives the spectra (the paper's MgF2 sample by default).
@@ -557,6 +562,14 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         time("brute") / time("filmscope"),
         time("paper") / time("filmscope"),
     );
+    progress("inspect: last row to verdict published (firmware-sim, demo recipe)");
+    let (inspect_latency_ms, inspect_latency_error) = match crate::line::inspect::bench_latency(
+        Path::new("config/rig.toml"),
+        if quick { 3 } else { 10 },
+    ) {
+        Ok(l) => (Some(l), None),
+        Err(e) => (None, Some(e.to_string())),
+    };
     Ok(BenchReport {
         quick,
         scene: kernel_scene.name.clone(),
@@ -582,6 +595,8 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         methods_sensor: [mw, mh],
         speedup_vs_brute,
         speedup_vs_paper,
+        inspect_latency_ms,
+        inspect_latency_error,
     })
 }
 
@@ -677,6 +692,20 @@ pub fn format_table(r: &BenchReport) -> String {
         format!("{:.1}x", r.speedup_vs_paper),
         "",
     );
+    match (&r.inspect_latency_ms, &r.inspect_latency_error) {
+        (Some(l), _) if !l.is_empty() => {
+            let mut v = l.clone();
+            v.sort_by(f64::total_cmp);
+            let target = format!("(median / max of {}; 32x24 sim)", v.len());
+            row(
+                "inspect, last row -> verdict published, ms",
+                format!("{:.0} / {:.0}", v[v.len() / 2], v[v.len() - 1]),
+                &target,
+            );
+        }
+        (_, Some(e)) => row("inspect latency", "failed".into(), e),
+        _ => {}
+    }
     s.push('\n');
     s.push_str(&format!(
         "{:<18} {:>12} {:>10} {:>10} {:>7}\n",

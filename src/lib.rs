@@ -47,6 +47,8 @@ pub mod io;
 #[cfg(feature = "std")]
 pub mod limits;
 #[cfg(feature = "std")]
+pub mod line;
+#[cfg(feature = "std")]
 pub mod pipeline;
 #[cfg(feature = "std")]
 pub mod report;

@@ -20,6 +20,7 @@ pub mod camlink;
 pub mod clock;
 pub mod kurios;
 pub mod random;
+pub mod line;
 pub mod rng;
 pub mod scene;
 pub mod serial;

@@ -1,6 +1,6 @@
 //! Fuzzing on the stable toolchain: a seeded mutator over small seed corpora and one target
-//! per untrusted-input parser (the ENVI header, capture.toml, the camera-link receiver, the
-//! device reply parsers). A target panics on a bug (a panic inside the parser, or a broken
+//! per untrusted-input parser (the ENVI header, capture.toml, inspection recipes, the
+//! camera-link receiver, the device reply parsers). A target panics on a bug (a panic inside the parser, or a broken
 //! round trip); the driver (`src/main.rs`) catches it and saves the input.
 //!
 //! Every saved crash and every seed is replayed by `tests/regressions.rs`, so a crash, once
@@ -10,6 +10,7 @@ use std::io::{Read, Write};
 use std::path::Path;
 
 use filmscope::io::{Capture, EnviHeader};
+use filmscope::line::recipe::Recipe;
 use filmscope::rig::CamLink;
 use filmscope_core::hw::{FrameKind, FrameRequest, LineCamera, LineEvent};
 use filmscope_core::proto::{fscl, kurios, sxwheel, zaber};
@@ -196,6 +197,37 @@ pub const TARGETS: &[Target] = &[
         run: sxwheel_report,
         dict: &["\u{0}", "\u{1}", "\u{ff}"],
     },
+    Target {
+        name: "recipe_toml",
+        run: recipe_toml,
+        dict: &[
+            "film = \"",
+            "[index]\n",
+            "[thickness]\n",
+            "[acceptance]\n",
+            "[[roi]]\n",
+            "[spc]\n",
+            "[retention]\n",
+            "[mqtt]\n",
+            "[status]\n",
+            "nominal = ",
+            "tolerance = ",
+            "mode = \"hold\"",
+            "tolerance_percent = ",
+            "tolerance_nm = ",
+            "raw = \"every_nth\"",
+            "every_n = ",
+            "width = ",
+            "-1",
+            "1e400",
+            "nan",
+            "inf",
+            "\"",
+            "é",
+            "\n",
+            "=",
+        ],
+    },
 ];
 
 /// The target called `name`.
@@ -284,6 +316,30 @@ fn envi_file(data: &[u8]) -> bool {
         assert_eq!(cube.data.len(), h.samples * h.lines * h.bands);
         true
     })
+}
+
+/// Inspection recipe text: parsing and checks never panic; errors are one line naming the
+/// file; an accepted recipe has positive tolerances and judges a sensor without panicking.
+fn recipe_toml(data: &[u8]) -> bool {
+    let text = String::from_utf8_lossy(data);
+    match Recipe::parse(&text, Path::new("/fuzz/recipe.toml")) {
+        Ok(r) => {
+            assert!(r.index.tolerance > 0.0 && r.thickness.tolerance() > 0.0);
+            let _ = r.check_sensor(8, 6);
+            let t = vec![r.thickness.nominal_nm as f32; 48];
+            let _ = filmscope::line::verdict::judge(&r, 8, 6, &t, r.index.nominal);
+            true
+        }
+        Err(e) => {
+            let msg = e.to_string();
+            assert!(!msg.contains('\n'), "multi-line error: {msg:?}");
+            assert!(
+                msg.contains("recipe.toml"),
+                "{msg:?} does not name the file"
+            );
+            false
+        }
+    }
 }
 
 /// capture.toml text: parsing and value checks never panic, errors are one line and name

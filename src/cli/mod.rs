@@ -1,6 +1,7 @@
 //! The command line: argument parsing and the commands. `main.rs` only calls [`main`].
 
 mod commands;
+mod inspect;
 mod progress;
 
 use std::path::PathBuf;
@@ -118,6 +119,35 @@ enum Command {
         /// has available. A sweep needing more is refused before any device moves.
         #[arg(long)]
         max_memory: Option<String>,
+    },
+    /// On a production line: measures sample after sample against a recipe (verdict, mask,
+    /// results.jsonl, MQTT, status page, trends and alarms) until --samples are done or
+    /// SIGINT/SIGTERM (the sample under way is finished first).
+    Inspect {
+        /// The rig file (see config/rig.toml).
+        #[arg(long, default_value = "config/rig.toml")]
+        rig: PathBuf,
+        /// The recipe (see config/recipes/demo.toml).
+        #[arg(long)]
+        recipe: PathBuf,
+        /// Output folder (results.jsonl, inspect.log, samples/).
+        #[arg(long)]
+        out: PathBuf,
+        /// Drive firmware-sim's line of samples.
+        #[arg(long)]
+        sim: bool,
+        /// Stop after this many samples (default: until stopped).
+        #[arg(long)]
+        samples: Option<u64>,
+        /// Status page port instead of the recipe's (0: any free one).
+        #[arg(long)]
+        status_port: Option<u16>,
+        /// MQTT broker port instead of the recipe's.
+        #[arg(long)]
+        mqtt_port: Option<u16>,
+        /// One JSON summary line at the end (and no per-sample lines).
+        #[arg(long)]
+        json: bool,
     },
     /// Accuracy against the truth on scene files or simulated capture directories.
     Eval {
@@ -350,6 +380,25 @@ pub fn main() -> std::process::ExitCode {
             sim,
             max_memory,
         } => commands::acquire(&rig, &out, sim, max_memory.as_deref()),
+        Command::Inspect {
+            rig,
+            recipe,
+            out,
+            sim,
+            samples,
+            status_port,
+            mqtt_port,
+            json,
+        } => inspect::inspect(&inspect::Args {
+            rig: &rig,
+            recipe: &recipe,
+            out: &out,
+            sim,
+            samples,
+            status_port,
+            mqtt_port,
+            json,
+        }),
         Command::Eval {
             inputs,
             random,

@@ -562,6 +562,11 @@ pub fn run_rig(
             "acquisition".into(),
             serde_json::to_value(&acq.log).unwrap_or_default(),
         );
+        o.insert(
+            "timestamp".into(),
+            json!(crate::line::utc_iso(std::time::SystemTime::now())),
+        );
+        o.insert("version".into(), json!(env!("CARGO_PKG_VERSION")));
     }
     let path = out_dir.path().join("summary.json");
     let text = serde_json::to_string_pretty(&summary).map_err(|e| io_err(&path, &e))?;

@@ -1,0 +1,126 @@
+//! `filmscope inspect`: the command-line glue around [`crate::line::inspect::Line`].
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{anyhow, Context, Result};
+
+use crate::line::inspect::{InspectOptions, Line};
+use crate::line::recipe::Recipe;
+
+/// What `inspect` is told on the command line.
+pub struct Args<'a> {
+    /// Rig file.
+    pub rig: &'a Path,
+    /// Recipe file.
+    pub recipe: &'a Path,
+    /// Output folder.
+    pub out: &'a Path,
+    /// firmware-sim's line of samples.
+    pub sim: bool,
+    /// Stop after this many samples.
+    pub samples: Option<u64>,
+    /// Status page port override.
+    pub status_port: Option<u16>,
+    /// MQTT port override.
+    pub mqtt_port: Option<u16>,
+    /// Closing summary as JSON.
+    pub json: bool,
+}
+
+/// Runs `filmscope inspect` until `samples` are done or SIGINT/SIGTERM (the sample under
+/// way is finished first).
+pub fn inspect(a: &Args<'_>) -> Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, stop.clone()).context("signal handler")?;
+    }
+    let rig = crate::rig::RigConfig::load(a.rig)?;
+    let recipe = Recipe::load(a.recipe)?;
+    let mut line = Line::open(InspectOptions {
+        rig,
+        recipe,
+        recipe_path: a.recipe.to_owned(),
+        out: a.out.to_owned(),
+        sim: a.sim,
+        status_port: a.status_port,
+        mqtt_port: a.mqtt_port,
+    })
+    .map_err(|e| anyhow!(e))?;
+    if let Some(url) = line.status_url() {
+        eprintln!("status page: {url}");
+    }
+    let mut errors_in_a_row = 0;
+    while a.samples.is_none_or(|n| line.measured < n) && !stop.load(Ordering::SeqCst) {
+        match line.measure() {
+            Ok(o) => {
+                errors_in_a_row = 0;
+                let r = &o.record;
+                let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+                if !a.json {
+                    println!(
+                        "{} {} n={:.4} thickness {:.1} +- {:.2} nm [{:.1}..{:.1}] valid {:.1}% latency {:.1} ms{}",
+                        r["sample_id"].as_str().unwrap_or(""),
+                        r["verdict"].as_str().unwrap_or(""),
+                        f(&r["refractive_index"]),
+                        f(&r["thickness_nm"]["mean"]),
+                        f(&r["thickness_nm"]["std"]),
+                        f(&r["thickness_nm"]["min"]),
+                        f(&r["thickness_nm"]["max"]),
+                        100.0 * f(&r["valid_fraction"]),
+                        o.published_ms,
+                        r["reasons"]
+                            .as_array()
+                            .filter(|v| !v.is_empty())
+                            .map(|v| format!(
+                                ": {}",
+                                v.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join("; ")
+                            ))
+                            .unwrap_or_default()
+                    );
+                    for al in &o.alarms {
+                        println!(
+                            "  alarm: {} rule {} ({})",
+                            al["variable"].as_str().unwrap_or(""),
+                            al["rule"],
+                            al["text"].as_str().unwrap_or("")
+                        );
+                    }
+                }
+            }
+            Err(e) => {
+                errors_in_a_row += 1;
+                eprintln!("filmscope: {e}");
+                if errors_in_a_row >= 3 {
+                    return Err(anyhow!(
+                        "three samples in a row failed on the rig; stopping"
+                    ));
+                }
+                std::thread::sleep(Duration::from_secs(1));
+            }
+        }
+    }
+    let delivered = line.flush(Duration::from_secs(5));
+    let mut summary = line.summary();
+    summary["mqtt_all_acknowledged"] = serde_json::json!(delivered);
+    summary["stopped_by_signal"] = serde_json::json!(stop.load(Ordering::SeqCst));
+    line.say(&format!("stop: {summary}"));
+    if a.json {
+        println!("{summary}");
+    } else {
+        let l = &summary["latency_ms"];
+        println!(
+            "{} sample(s): {} passed, {} failed, {} alarm(s); latency (last row to verdict published) median {} ms, max {} ms; results in {}",
+            summary["samples"], summary["passed"], summary["failed"], summary["alarms"],
+            l["median"].as_f64().map_or("-".into(), |v| format!("{v:.1}")),
+            l["max"].as_f64().map_or("-".into(), |v| format!("{v:.1}")),
+            a.out.join("results.jsonl").display()
+        );
+        if delivered == Some(false) {
+            println!("mqtt: not every record was acknowledged by the broker within 5 s (see inspect.log)");
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,805 @@
+//! The inspection loop: for each sample, sweep the rig (or firmware-sim's line of samples),
+//! estimate while it streams, judge against the recipe, write the sample's folder (to a
+//! temporary name, renamed when whole), append its record to `results.jsonl`, publish it
+//! (MQTT, status page), update the trends and raise alarms, then apply the retention policy.
+//!
+//! `DIR` after a crash: folders still under a temporary name are deleted; a folder renamed
+//! into place whose record had not been appended yet gets it appended from its
+//! `record.json`; numbering continues after the highest counter seen in folders or records.
+
+use std::fs::{File, OpenOptions};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+use std::time::{Duration, Instant, SystemTime};
+
+use serde_json::{json, Value};
+
+use super::recipe::{IndexMode, Recipe};
+use super::retention;
+use super::spc::{self, History, Point, Variable};
+use super::status::StatusServer;
+use super::stream::{MqttPublisher, ResultsLog};
+use super::verdict::{self, Verdict};
+use super::{counter_of, sample_id, utc_iso};
+use crate::estimate::{run_method, write_outputs, Run, RunConfig};
+use crate::io::{write_atomic, Capture};
+use crate::pipeline::{CaptureSource, DEFAULT_INDEX_RANGE};
+use crate::rig::acquire::{open_sim_with, sim_options, Acquisition};
+use crate::rig::config::SearchConfig;
+use crate::rig::RigConfig;
+use firmware_sim::line::SampleSequence;
+
+/// An inspection that cannot go on: one line.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct InspectError(pub String);
+
+fn ie(what: &str) -> impl FnOnce(&dyn std::fmt::Display) -> InspectError + '_ {
+    move |e| InspectError(format!("{what}: {e}"))
+}
+
+/// What `inspect` is told.
+#[derive(Clone, Debug)]
+pub struct InspectOptions {
+    /// The rig.
+    pub rig: RigConfig,
+    /// The recipe.
+    pub recipe: Recipe,
+    /// The recipe's file (named in records).
+    pub recipe_path: PathBuf,
+    /// Output folder.
+    pub out: PathBuf,
+    /// Drive firmware-sim's line of samples.
+    pub sim: bool,
+    /// Status page port instead of the recipe's (0: any free one).
+    pub status_port: Option<u16>,
+    /// MQTT broker port instead of the recipe's.
+    pub mqtt_port: Option<u16>,
+}
+
+/// One measured sample.
+#[derive(Clone, Debug)]
+pub struct SampleOutcome {
+    /// Its record (the line of `results.jsonl`).
+    pub record: Value,
+    /// Alarm records it raised.
+    pub alarms: Vec<Value>,
+    /// Last row to verdict published (results.jsonl, MQTT queue, status page), ms.
+    pub published_ms: f64,
+    /// Its folder.
+    pub folder: PathBuf,
+}
+
+/// The line.
+pub struct Line {
+    opts: InspectOptions,
+    samples_dir: PathBuf,
+    log: ResultsLog,
+    logfile: File,
+    history: History,
+    counter: u64,
+    last_index: Option<f64>,
+    mqtt: Option<MqttPublisher>,
+    status: Option<StatusServer>,
+    sequence: Option<SampleSequence>,
+    mqtt_down: bool,
+    /// Samples measured by this process.
+    pub measured: u64,
+    latencies_ms: Vec<f64>,
+    alarms_raised: u64,
+    passed: u64,
+    _lock: DirLock,
+}
+
+/// `DIR/inspect.lock`, holding the pid of the `inspect` that writes `DIR`; removed when the
+/// line is dropped. A lock whose process is gone (a kill -9) is taken over.
+struct DirLock(PathBuf);
+
+impl Drop for DirLock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+fn take_lock(out: &Path) -> Result<DirLock, InspectError> {
+    let path = out.join("inspect.lock");
+    let me = std::process::id();
+    for _ in 0..2 {
+        match OpenOptions::new().write(true).create_new(true).open(&path) {
+            Ok(mut f) => {
+                let _ = writeln!(f, "{me}");
+                let _ = f.sync_all();
+                return Ok(DirLock(path));
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                let pid = std::fs::read_to_string(&path)
+                    .ok()
+                    .and_then(|t| t.trim().parse::<u32>().ok());
+                let alive = pid.is_some_and(|p| {
+                    p != me
+                        && std::fs::read(format!("/proc/{p}/cmdline"))
+                            .is_ok_and(|c| String::from_utf8_lossy(&c).contains("inspect"))
+                });
+                if alive {
+                    return Err(InspectError(format!(
+                        "{}: another inspect (pid {}) writes this folder",
+                        path.display(),
+                        pid.unwrap_or(0)
+                    )));
+                }
+                // Left by a process that is gone: take it over.
+                let _ = std::fs::remove_file(&path);
+            }
+            Err(e) => return Err(ie(&path.display().to_string())(&e)),
+        }
+    }
+    Err(InspectError(format!(
+        "{}: cannot take the lock",
+        path.display()
+    )))
+}
+
+impl Line {
+    /// Opens `opts.out`, recovering what a crash left, and starts the MQTT client and the
+    /// status page the recipe names.
+    pub fn open(opts: InspectOptions) -> Result<Self, InspectError> {
+        let out = opts.out.clone();
+        let samples_dir = out.join("samples");
+        std::fs::create_dir_all(&samples_dir)
+            .map_err(|e| ie(&samples_dir.display().to_string())(&e))?;
+        let lock = take_lock(&out)?;
+        let logpath = out.join("inspect.log");
+        let logfile = OpenOptions::new()
+            .append(true)
+            .create(true)
+            .open(&logpath)
+            .map_err(|e| ie(&logpath.display().to_string())(&e))?;
+        opts.recipe
+            .check_sensor(
+                opts.rig.camera.width as usize,
+                opts.rig.camera.height as usize,
+            )
+            .map_err(|e| InspectError(format!("{}: {e}", opts.recipe_path.display())))?;
+        let r = &opts.recipe.retention;
+        // Alarms share the stream: keep enough records for a full history of samples.
+        let keep_last = opts.recipe.spc.history.saturating_mul(8);
+        let (log, rec) = ResultsLog::open(&out, r.results_rotate_bytes, r.results_keep, keep_last)
+            .map_err(|e| InspectError(e.to_string()))?;
+        let mut line = Self {
+            samples_dir,
+            logfile,
+            history: History::new(opts.recipe.spc.history),
+            counter: 0,
+            last_index: None,
+            mqtt: None,
+            status: None,
+            sequence: None,
+            mqtt_down: false,
+            measured: 0,
+            latencies_ms: Vec::new(),
+            alarms_raised: 0,
+            passed: 0,
+            log,
+            _lock: lock,
+            opts,
+        };
+        line.say(&format!(
+            "start: {} record(s) found{}{}",
+            rec.read,
+            if rec.torn_bytes > 0 {
+                format!(", a torn last line of {} bytes cut", rec.torn_bytes)
+            } else {
+                String::new()
+            },
+            if rec.bad_lines > 0 {
+                format!(", {} unreadable line(s) skipped", rec.bad_lines)
+            } else {
+                String::new()
+            }
+        ));
+        let mut records = rec.records;
+        line.counter = rec.max_counter;
+        line.recover_folders(&mut records, rec.max_counter)?;
+        for r in &records {
+            if let Some(c) = r["counter"].as_u64() {
+                line.counter = line.counter.max(c);
+            }
+            if r["kind"] == "sample" {
+                line.push_history(r);
+            }
+        }
+        if line.opts.sim {
+            let sim =
+                line.opts.rig.sim.clone().ok_or_else(|| {
+                    InspectError("--sim needs a [sim] table in the rig file".into())
+                })?;
+            let o = sim_options(&line.opts.rig, &sim.scene, sim.speed).map_err(InspectError)?;
+            let s = &line.opts.recipe.sim;
+            let mut seq = SampleSequence::new(o.scene, s.seed);
+            seq.drift_nm_per_sample = s.drift_nm_per_sample;
+            seq.defect_every = s.defect_every;
+            line.sequence = Some(seq);
+        }
+        if let Some(mut m) = line.opts.recipe.mqtt.clone() {
+            if let Some(p) = line.opts.mqtt_port {
+                m.port = p;
+            }
+            line.say(&format!(
+                "mqtt: publishing to {}:{} topic {}",
+                m.host, m.port, m.topic
+            ));
+            line.mqtt = Some(MqttPublisher::connect(&m));
+        }
+        let status = match (&line.opts.recipe.status, line.opts.status_port) {
+            (Some(s), p) => Some((s.bind.clone(), p.unwrap_or(s.port))),
+            (None, Some(p)) => Some(("127.0.0.1".to_owned(), p)),
+            (None, None) => None,
+        };
+        if let Some((bind, port)) = status {
+            match StatusServer::start(&bind, port, &line.opts.recipe.film) {
+                Ok(server) => {
+                    line.say(&format!("status page: {}", server.url()));
+                    line.status = Some(server);
+                    line.refresh_status_history();
+                }
+                // The line goes on without its page; the log says why.
+                Err(e) => line.say(&format!("device error: {e}; no status page")),
+            }
+        }
+        Ok(line)
+    }
+
+    /// The status page's URL, if served.
+    pub fn status_url(&self) -> Option<String> {
+        self.status.as_ref().map(StatusServer::url)
+    }
+
+    /// The highest sample counter so far.
+    pub fn counter(&self) -> u64 {
+        self.counter
+    }
+
+    /// Appends a UTC-stamped line to `inspect.log` (and standard error).
+    pub fn say(&mut self, text: &str) {
+        let line = format!("{} {text}\n", utc_iso(SystemTime::now()));
+        let _ = self.logfile.write_all(line.as_bytes());
+        let _ = self.logfile.flush();
+    }
+
+    fn recover_folders(
+        &mut self,
+        records: &mut std::collections::VecDeque<Value>,
+        max_rec: u64,
+    ) -> Result<(), InspectError> {
+        let mut names: Vec<String> = std::fs::read_dir(&self.samples_dir)
+            .map_err(|e| ie(&self.samples_dir.display().to_string())(&e))?
+            .flatten()
+            .filter_map(|e| e.file_name().into_string().ok())
+            .collect();
+        names.sort();
+        for n in names {
+            let p = self.samples_dir.join(&n);
+            if n.starts_with(".tmp-") {
+                let _ = std::fs::remove_dir_all(&p);
+                self.say(&format!("recovered: removed the half-written {n}"));
+                continue;
+            }
+            let Some(c) = counter_of(&n) else { continue };
+            self.counter = self.counter.max(c);
+            if c <= max_rec {
+                continue;
+            }
+            match std::fs::read_to_string(p.join("record.json"))
+                .ok()
+                .and_then(|t| serde_json::from_str::<Value>(&t).ok())
+            {
+                Some(r) => {
+                    self.log
+                        .append(&r)
+                        .map_err(|e| InspectError(e.to_string()))?;
+                    self.say(&format!("recovered: record of {n} appended"));
+                    records.push_back(r);
+                }
+                None => self.say(&format!("recovered: {n} has no record.json; left as is")),
+            }
+        }
+        Ok(())
+    }
+
+    fn push_history(&mut self, r: &Value) {
+        let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+        let index = f(&r["refractive_index"]);
+        if index.is_finite() {
+            self.last_index = Some(index);
+        }
+        self.history.push(Point {
+            sample_id: r["sample_id"].as_str().unwrap_or("").to_owned(),
+            index,
+            thickness_mean: f(&r["thickness_nm"]["mean"]),
+            thickness_std: f(&r["thickness_nm"]["std"]),
+            pass: r["verdict"] == "PASS",
+        });
+    }
+
+    /// `/api/history`'s body: points, limits, capability, the recipe's limits.
+    pub fn history_json(&self) -> Value {
+        let s = &self.opts.recipe.spc;
+        let [lsl, usl] = self.opts.recipe.thickness.limits();
+        let ix = &self.opts.recipe.index;
+        let mut limits = serde_json::Map::new();
+        let mut cap = serde_json::Map::new();
+        for v in Variable::ALL {
+            limits.insert(
+                v.name().into(),
+                json!(spc::limits_of(&self.history, v, s.baseline, s.min_points)),
+            );
+        }
+        let series = |v| self.history.series(v);
+        cap.insert(
+            Variable::ThicknessMeanNm.name().into(),
+            json!(spc::capability(
+                &series(Variable::ThicknessMeanNm),
+                lsl,
+                usl
+            )),
+        );
+        cap.insert(
+            Variable::RefractiveIndex.name().into(),
+            json!(spc::capability(
+                &series(Variable::RefractiveIndex),
+                ix.nominal - ix.tolerance,
+                ix.nominal + ix.tolerance
+            )),
+        );
+        json!({
+            "points": self.history.points().collect::<Vec<_>>(),
+            "limits": limits,
+            "capability": cap,
+            "spec": {"lsl": lsl, "usl": usl, "index_lsl": ix.nominal - ix.tolerance, "index_usl": ix.nominal + ix.tolerance},
+        })
+    }
+
+    fn refresh_status_history(&mut self) {
+        let h = self.history_json();
+        if let Some(s) = &self.status {
+            s.set_history(h);
+        }
+    }
+
+    /// Measures the next sample.
+    pub fn measure(&mut self) -> Result<SampleOutcome, InspectError> {
+        self.counter += 1;
+        let counter = self.counter;
+        let t = SystemTime::now();
+        let id = sample_id(counter, t);
+        let timestamp = utc_iso(t);
+        let tmp = self.samples_dir.join(format!(".tmp-{id}"));
+        let _ = std::fs::remove_dir_all(&tmp);
+        std::fs::create_dir_all(&tmp).map_err(|e| ie(&tmp.display().to_string())(&e))?;
+        let result = self.sweep(counter, &tmp);
+        let (run, last_row, acq_log, resolved, sim_kind) = match result {
+            Ok(x) => x,
+            Err(e) => {
+                let _ = std::fs::remove_dir_all(&tmp);
+                self.say(&format!("device error: sample {id}: {e}"));
+                return Err(e);
+            }
+        };
+        let recipe = &self.opts.recipe;
+        let (w, h) = (run.spec.width, run.spec.height);
+        let index = run.result.index.at(550.0);
+        let v = verdict::judge(recipe, w, h, &run.result.thickness_nm, index);
+        let mut summary = write_outputs(&tmp, &run, &format!("inspect sample {id}"))
+            .map_err(|e| InspectError(e.to_string()))?;
+        write_mask(&tmp, w, h, &v)?;
+        let png = overlay_png(recipe, w, h, &run.result.thickness_nm, &v)?;
+        let png_path = tmp.join("overlay.png");
+        write_atomic(&png_path, &png).map_err(|e| ie(&png_path.display().to_string())(&e))?;
+        let keep = retention::keeps_raw(&recipe.retention, counter, v.pass);
+        let recipe_name = self
+            .opts
+            .recipe_path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let mut record = json!({
+            "kind": "sample",
+            "sample_id": id,
+            "counter": counter,
+            "timestamp": timestamp,
+            "film": recipe.film,
+            "recipe": recipe_name,
+            "verdict": v.word(),
+            "reasons": v.reasons,
+            "refractive_index": finite(index),
+            "index_mode": recipe.index.mode,
+            "index_resolved": resolved,
+            "thickness_nm": {
+                "mean": finite(v.thickness.mean),
+                "std": finite(v.thickness.std),
+                "min": finite(v.thickness.min),
+                "max": finite(v.thickness.max),
+            },
+            "valid_fraction": v.valid_fraction,
+            "out_of_tolerance_px": v.out_of_tolerance_px,
+            "regions": v.regions.iter().take(20).collect::<Vec<_>>(),
+            "raw_kept": keep,
+            "folder": format!("samples/{id}"),
+            "version": env!("CARGO_PKG_VERSION"),
+        });
+        if let Some(k) = sim_kind {
+            record["sim_sample"] = json!(k);
+        }
+        if let Some(o) = summary.as_object_mut() {
+            o.insert("sample_id".into(), json!(id));
+            o.insert("timestamp".into(), json!(timestamp));
+            o.insert("version".into(), json!(env!("CARGO_PKG_VERSION")));
+            o.insert(
+                "recipe".into(),
+                json!({"file": self.opts.recipe_path.display().to_string(), "film": recipe.film, "settings": recipe}),
+            );
+            o.insert(
+                "verdict".into(),
+                json!({"verdict": v.word(), "reasons": v.reasons, "thickness_nm": v.thickness,
+                       "valid_fraction": v.valid_fraction, "judged_px": v.judged_px,
+                       "out_of_tolerance_px": v.out_of_tolerance_px, "regions": v.regions,
+                       "mask": "oot_mask.hdr", "overlay": "overlay.png"}),
+            );
+            o.insert("acquisition".into(), acq_log);
+        }
+        let sp = tmp.join("summary.json");
+        let text = serde_json::to_string_pretty(&summary).map_err(|e| ie("summary")(&e))?;
+        write_atomic(&sp, text.as_bytes()).map_err(|e| ie(&sp.display().to_string())(&e))?;
+        let capture = tmp.join("capture");
+        if keep {
+            retention::references_to_u16(&capture).map_err(InspectError)?;
+        } else {
+            let _ = std::fs::remove_dir_all(&capture);
+        }
+        let latency_ms = last_row.elapsed().as_secs_f64() * 1e3;
+        record["latency_ms"] = json!(latency_ms);
+        let rp = tmp.join("record.json");
+        write_atomic(&rp, record.to_string().as_bytes())
+            .map_err(|e| ie(&rp.display().to_string())(&e))?;
+        let folder = self.samples_dir.join(&id);
+        std::fs::rename(&tmp, &folder).map_err(|e| ie(&folder.display().to_string())(&e))?;
+        sync_dir(&self.samples_dir);
+        // The record, then the alarms, on disk and on the wire.
+        self.log
+            .append(&record)
+            .map_err(|e| InspectError(e.to_string()))?;
+        self.publish(&record);
+        self.push_history(&record);
+        let s = &self.opts.recipe.spc;
+        let mut alarms = Vec::new();
+        for a in spc::alarms(&self.history, s.baseline, s.min_points) {
+            let rec = json!({
+                "kind": "alarm",
+                "sample_id": id,
+                "counter": counter,
+                "timestamp": utc_iso(SystemTime::now()),
+                "variable": a.variable.name(),
+                "rule": a.rule.number(),
+                "text": a.rule.text(),
+                "value": finite(a.value),
+                "center": a.limits.center,
+                "ucl": a.limits.ucl,
+                "lcl": a.limits.lcl,
+            });
+            self.log
+                .append(&rec)
+                .map_err(|e| InspectError(e.to_string()))?;
+            self.publish(&rec);
+            alarms.push(rec);
+        }
+        let history = self.history_json();
+        if let Some(st) = &self.status {
+            st.publish_sample(&record, Some(png), history, &alarms);
+        }
+        let published_ms = last_row.elapsed().as_secs_f64() * 1e3;
+        self.latencies_ms.push(published_ms);
+        self.measured += 1;
+        self.passed += u64::from(v.pass);
+        self.alarms_raised += alarms.len() as u64;
+        self.say(&format!(
+            "sample {id} {} n={} thickness mean {:.1} std {:.2} min {:.1} max {:.1} nm valid {:.1}% latency {:.1} ms (verdict {:.1} ms){}{}",
+            v.word(),
+            fmt4(index),
+            v.thickness.mean,
+            v.thickness.std,
+            v.thickness.min,
+            v.thickness.max,
+            100.0 * v.valid_fraction,
+            published_ms,
+            latency_ms,
+            if resolved { " index re-solved" } else { "" },
+            if v.reasons.is_empty() {
+                String::new()
+            } else {
+                format!(": {}", v.reasons.join("; "))
+            }
+        ));
+        for a in &alarms {
+            self.say(&format!(
+                "alarm {id} {} rule {}: {} (value {}, centre {:.4}, limits {:.4}..{:.4})",
+                a["variable"].as_str().unwrap_or(""),
+                a["rule"],
+                a["text"].as_str().unwrap_or(""),
+                a["value"],
+                a["center"].as_f64().unwrap_or(f64::NAN),
+                a["lcl"].as_f64().unwrap_or(f64::NAN),
+                a["ucl"].as_f64().unwrap_or(f64::NAN)
+            ));
+        }
+        if self.opts.recipe.retention.raw != super::recipe::RawPolicy::None {
+            match retention::enforce_budget(
+                &self.samples_dir,
+                self.opts.recipe.retention.raw_budget_bytes,
+            ) {
+                Ok(gone) if !gone.is_empty() => {
+                    self.say(&format!(
+                        "retention: raw sweeps of {} deleted (budget)",
+                        gone.join(", ")
+                    ));
+                }
+                Ok(_) => {}
+                Err(e) => self.say(&format!("retention: {e}")),
+            }
+        }
+        Ok(SampleOutcome {
+            record,
+            alarms,
+            published_ms,
+            folder,
+        })
+    }
+
+    fn publish(&mut self, record: &Value) {
+        let Some(m) = self.mqtt.as_mut() else { return };
+        let r = m.publish(record);
+        let err = m.take_error();
+        match (r, err) {
+            (Err(e), _) => self.say(&format!("mqtt: record not queued: {e}")),
+            (Ok(()), Some(e)) if !self.mqtt_down => {
+                self.mqtt_down = true;
+                self.say(&format!(
+                    "mqtt: broker unreachable: {e} (records wait in the queue)"
+                ));
+            }
+            (Ok(()), None) if self.mqtt_down && m.connected() => {
+                self.mqtt_down = false;
+                self.say("mqtt: broker reached again");
+            }
+            _ => {}
+        }
+    }
+
+    /// The sweep of sample `counter` into `tmp/capture`, estimated as it streams, with a
+    /// re-solve over the whole index range when the held index disagrees.
+    #[allow(clippy::type_complexity)]
+    fn sweep(
+        &mut self,
+        counter: u64,
+        tmp: &Path,
+    ) -> Result<(Run, Instant, Value, bool, Option<&'static str>), InspectError> {
+        let mut cfg = self.opts.rig.clone();
+        let ix = &self.opts.recipe.index;
+        let full = cfg
+            .search
+            .as_ref()
+            .and_then(|s| s.index_range)
+            .unwrap_or(DEFAULT_INDEX_RANGE);
+        let centre = match ix.mode {
+            IndexMode::Hold => Some(ix.nominal),
+            IndexMode::Carry => Some(self.last_index.unwrap_or(ix.nominal)),
+            IndexMode::Solve => None,
+        };
+        if let Some(c) = centre {
+            let lo = (c - ix.resolve_above).max(full[0]);
+            let hi = (c + ix.resolve_above).min(full[1]);
+            if lo < hi {
+                let thick = cfg.search.as_ref().and_then(|s| s.thickness_range_nm);
+                cfg.search = Some(SearchConfig {
+                    index_range: Some([lo, hi]),
+                    thickness_range_nm: thick,
+                });
+            }
+        }
+        let mut sim_kind = None;
+        let mut _sim = None;
+        let rig = if let Some(seq) = &self.sequence {
+            let (scene, kind) = seq.scene(counter - 1);
+            sim_kind = Some(kind.name());
+            let sim = cfg
+                .sim
+                .clone()
+                .ok_or_else(|| InspectError("no [sim]".into()))?;
+            let mut o = firmware_sim::serve::RigOptions::new(scene);
+            o.speed = sim.speed;
+            o.steps_per_deg = cfg.stage.steps_per_deg;
+            o.stage_limits_deg = cfg.stage.limits_deg;
+            let (sim_rig, rig) = open_sim_with(&mut cfg, o).map_err(InspectError)?;
+            _sim = Some(sim_rig);
+            rig
+        } else {
+            let wheel: Option<Box<dyn crate::rig::HidTransport + Send>> = match &cfg.wheel {
+                Some(_) => Some(Box::new(
+                    crate::rig::wheel::HidapiTransport::open().map_err(|e| ie("wheel")(&e))?,
+                )),
+                None => None,
+            };
+            crate::rig::open(&cfg, wheel).map_err(|e| InspectError(e.to_string()))?
+        };
+        let total = (cfg.sweep.angles_deg.len()
+            * cfg.sweep.bands().len()
+            * cfg.camera.height as usize) as u64;
+        let capture_dir = tmp.join("capture");
+        let mut acq = Acquisition::new(rig, cfg, &capture_dir).map_err(InspectError)?;
+        let seen = AtomicU64::new(0);
+        let last_row: Mutex<Option<Instant>> = Mutex::new(None);
+        let on_rows = |n: u64| {
+            if seen.fetch_add(n, Ordering::SeqCst) + n >= total {
+                let mut l = last_row.lock().unwrap_or_else(|p| p.into_inner());
+                l.get_or_insert_with(Instant::now);
+            }
+        };
+        let run = run_method(&mut acq, &RunConfig::default(), &on_rows).map_err(|e| {
+            InspectError(format!(
+                "acquisition stopped: {e}; {} complete angle(s)",
+                acq.log.angles_done_deg.len()
+            ))
+        })?;
+        drop(_sim);
+        let last = last_row
+            .into_inner()
+            .unwrap_or_else(|p| p.into_inner())
+            .unwrap_or_else(Instant::now);
+        let acq_log = serde_json::to_value(&acq.log).unwrap_or_default();
+        drop(acq);
+        let n = run.result.index.at(550.0);
+        let disagree =
+            centre.is_some_and(|c| !n.is_finite() || (n - c).abs() > ix.resolve_above / 2.0);
+        if !disagree {
+            return Ok((run, last, acq_log, false, sim_kind));
+        }
+        let mut cap = Capture::load(&capture_dir).map_err(|e| InspectError(e.to_string()))?;
+        cap.search.index_range = Some(full);
+        let mut src = CaptureSource::new(cap).map_err(InspectError)?;
+        let run2 = run_method(&mut src, &RunConfig::default(), &|_| {})
+            .map_err(|e| InspectError(format!("re-solve: {e}")))?;
+        Ok((run2, last, acq_log, true, sim_kind))
+    }
+
+    /// Waits up to `timeout` for the broker to acknowledge every published record; `None`
+    /// without MQTT.
+    pub fn flush(&self, timeout: Duration) -> Option<bool> {
+        self.mqtt.as_ref().map(|m| m.flush(timeout))
+    }
+
+    /// What this process did, for the closing summary.
+    pub fn summary(&self) -> Value {
+        let mut l = self.latencies_ms.clone();
+        l.sort_by(f64::total_cmp);
+        let pct = |p: f64| {
+            if l.is_empty() {
+                Value::Null
+            } else {
+                json!(l[((l.len() - 1) as f64 * p).round() as usize])
+            }
+        };
+        json!({
+            "samples": self.measured,
+            "passed": self.passed,
+            "failed": self.measured - self.passed,
+            "alarms": self.alarms_raised,
+            "last_counter": self.counter,
+            "latency_ms": {"median": pct(0.5), "p95": pct(0.95), "max": pct(1.0),
+                           "measured": "last row of the sweep to the verdict published (results.jsonl fsynced, MQTT queued, status page updated)"},
+            "mqtt": self.mqtt.as_ref().map(|m| json!({"sent": m.sent(), "acked": m.acked()})),
+            "status": self.status_url(),
+            "out": self.opts.out.display().to_string(),
+        })
+    }
+}
+
+fn finite(v: f64) -> Value {
+    if v.is_finite() {
+        json!(v)
+    } else {
+        Value::Null
+    }
+}
+
+fn fmt4(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.4}")
+    } else {
+        "none".into()
+    }
+}
+
+fn sync_dir(dir: &Path) {
+    if let Ok(d) = File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
+/// Writes `oot_mask.hdr`/`.img`: ENVI uint8 (data type 1), the verdict's mask.
+fn write_mask(dir: &Path, w: usize, h: usize, v: &Verdict) -> Result<(), InspectError> {
+    let img = dir.join("oot_mask.img");
+    write_atomic(&img, &v.mask).map_err(|e| ie(&img.display().to_string())(&e))?;
+    let hdr = format!(
+        "ENVI\ndescription = {{\n  out-of-tolerance mask: 0=within 1=out of tolerance 2=no thickness 3=outside the regions of interest}}\nsamples = {w}\nlines = {h}\nbands = 1\nheader offset = 0\nfile type = ENVI Standard\ndata type = 1\ninterleave = bsq\nbyte order = 0\n"
+    );
+    let hp = dir.join("oot_mask.hdr");
+    write_atomic(&hp, hdr.as_bytes()).map_err(|e| ie(&hp.display().to_string())(&e))
+}
+
+/// The thickness preview (viridis over the recipe's tolerance band) with out-of-tolerance
+/// pixels in red, pixels without a thickness black and pixels outside the regions of
+/// interest dimmed; 8x enlarged.
+pub fn overlay_png(
+    recipe: &Recipe,
+    w: usize,
+    h: usize,
+    thickness: &[f32],
+    v: &Verdict,
+) -> Result<Vec<u8>, InspectError> {
+    let [lo, hi] = recipe.thickness.limits();
+    let rgb: Vec<[u8; 3]> = (0..w * h)
+        .map(|i| {
+            let t = f64::from(thickness.get(i).copied().unwrap_or(f32::NAN));
+            let base = if t.is_finite() {
+                crate::export::colormap::viridis(((t - lo) / (hi - lo)).clamp(0.0, 1.0))
+            } else {
+                [0, 0, 0]
+            };
+            match v.mask.get(i).copied().unwrap_or(verdict::MASK_IGNORED) {
+                verdict::MASK_OUT => [230, 20, 20],
+                verdict::MASK_IGNORED => base.map(|c| c / 3),
+                _ => base,
+            }
+        })
+        .collect();
+    let scale = (320 / w.max(1)).clamp(1, 16);
+    crate::export::png::render_rgb_png(w, h, &rgb, scale)
+        .map_err(|e| InspectError(format!("overlay: {e}")))
+}
+
+/// Per-sample latencies, ms (last row to verdict published), of `samples` samples of the
+/// demo recipe (`config/recipes/demo.toml`, built in, without MQTT or status page) on
+/// firmware-sim behind the rig file `rig`, in a temporary folder removed afterwards: the
+/// figure `filmscope bench` reports.
+pub fn bench_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectError> {
+    let path = Path::new("config/recipes/demo.toml");
+    let mut recipe = Recipe::parse(include_str!("../../config/recipes/demo.toml"), path)
+        .map_err(|e| InspectError(e.to_string()))?;
+    recipe.mqtt = None;
+    recipe.status = None;
+    let rig = RigConfig::load(rig).map_err(|e| InspectError(e.to_string()))?;
+    let out = std::env::temp_dir().join(format!(
+        "filmscope-bench-inspect-{}-{}",
+        std::process::id(),
+        utc_iso(SystemTime::now()).replace([':', '.'], "")
+    ));
+    let result = (|| {
+        let mut line = Line::open(InspectOptions {
+            rig,
+            recipe,
+            recipe_path: path.to_owned(),
+            out: out.clone(),
+            sim: true,
+            status_port: None,
+            mqtt_port: None,
+        })?;
+        let mut l = Vec::new();
+        for _ in 0..samples {
+            l.push(line.measure()?.published_ms);
+        }
+        Ok(l)
+    })();
+    let _ = std::fs::remove_dir_all(&out);
+    result
+}

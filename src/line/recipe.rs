@@ -1,0 +1,554 @@
+//! The recipe: what a good sample of one film is, how the index is carried from sample to
+//! sample, and where the results go. TOML, unknown keys refused; see
+//! `config/recipes/demo.toml` for every key with its meaning.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+/// A recipe that cannot be used: one line naming the file, the key and the value at fault.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {problem}")]
+pub struct RecipeError {
+    /// The recipe file.
+    pub path: PathBuf,
+    /// What is wrong.
+    pub problem: String,
+}
+
+/// A recipe.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Recipe {
+    /// The film's name (e.g. "ZnS AR coat").
+    pub film: String,
+    /// The film index.
+    pub index: IndexSpec,
+    /// The film thickness.
+    pub thickness: ThicknessSpec,
+    /// Acceptance beyond the thickness band.
+    #[serde(default)]
+    pub acceptance: Acceptance,
+    /// Regions of interest (`[[roi]]`); none: the whole sensor.
+    #[serde(default)]
+    pub roi: Vec<Roi>,
+    /// Control charts and run rules.
+    #[serde(default)]
+    pub spc: SpcSpec,
+    /// What is kept on disk.
+    #[serde(default)]
+    pub retention: RetentionSpec,
+    /// The MQTT broker the results go to (none: not published).
+    #[serde(default)]
+    pub mqtt: Option<MqttSpec>,
+    /// The status page (none: not served).
+    #[serde(default)]
+    pub status: Option<StatusSpec>,
+    /// The simulated line (`--sim` only).
+    #[serde(default)]
+    pub sim: SimSpec,
+}
+
+/// How the index is obtained for each sample.
+#[derive(Clone, Copy, Debug, Deserialize, serde::Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum IndexMode {
+    /// The search is held around the recipe's nominal index.
+    Hold,
+    /// The search is held around the last sample's index.
+    Carry,
+    /// The index is searched over the rig's whole range every time.
+    Solve,
+}
+
+/// `[index]`.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct IndexSpec {
+    /// Nominal index (at 550 nm).
+    pub nominal: f64,
+    /// Allowed deviation from nominal (absolute).
+    pub tolerance: f64,
+    /// `hold`, `carry` or `solve` (default `carry`).
+    #[serde(default = "carry")]
+    pub mode: IndexMode,
+    /// Hold and carry search within this much of the held index; a result further than
+    /// half of it (or none) re-solves over the rig's whole range (default 0.02).
+    #[serde(default = "resolve_default")]
+    pub resolve_above: f64,
+}
+
+fn carry() -> IndexMode {
+    IndexMode::Carry
+}
+fn resolve_default() -> f64 {
+    0.02
+}
+
+/// `[thickness]`: give exactly one of `tolerance_nm` and `tolerance_percent`.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ThicknessSpec {
+    /// Nominal thickness, nm.
+    pub nominal_nm: f64,
+    /// Allowed deviation of every pixel and of the mean, nm.
+    #[serde(default)]
+    pub tolerance_nm: Option<f64>,
+    /// Allowed deviation, percent of nominal.
+    #[serde(default)]
+    pub tolerance_percent: Option<f64>,
+    /// Largest standard deviation of the thickness over the judged pixels, nm.
+    #[serde(default)]
+    pub max_std_nm: Option<f64>,
+}
+
+impl ThicknessSpec {
+    /// The tolerance in nm.
+    pub fn tolerance(&self) -> f64 {
+        match (self.tolerance_nm, self.tolerance_percent) {
+            (Some(t), _) => t,
+            (None, Some(p)) => self.nominal_nm * p / 100.0,
+            (None, None) => 0.0,
+        }
+    }
+
+    /// `[low, high]` nm.
+    pub fn limits(&self) -> [f64; 2] {
+        let t = self.tolerance();
+        [self.nominal_nm - t, self.nominal_nm + t]
+    }
+}
+
+/// `[acceptance]`.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Acceptance {
+    /// Smallest share of judged pixels with a thickness (default 0.9).
+    #[serde(default = "min_valid_default")]
+    pub min_valid_fraction: f64,
+    /// Largest connected out-of-tolerance region allowed, pixels (default 0: none).
+    #[serde(default)]
+    pub max_defect_area_px: usize,
+}
+
+fn min_valid_default() -> f64 {
+    0.9
+}
+
+impl Default for Acceptance {
+    fn default() -> Self {
+        Self {
+            min_valid_fraction: min_valid_default(),
+            max_defect_area_px: 0,
+        }
+    }
+}
+
+/// `[[roi]]`: a rectangle of pixels judged.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq, Eq)]
+#[serde(deny_unknown_fields)]
+pub struct Roi {
+    /// First column.
+    pub x: usize,
+    /// First row.
+    pub y: usize,
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+}
+
+impl Roi {
+    /// Whether pixel (x, y) is inside.
+    pub fn contains(&self, x: usize, y: usize) -> bool {
+        x >= self.x
+            && x < self.x.saturating_add(self.width)
+            && y >= self.y
+            && y < self.y.saturating_add(self.height)
+    }
+}
+
+/// `[spc]`.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SpcSpec {
+    /// Samples kept in the rolling history (default 500).
+    #[serde(default = "history_default")]
+    pub history: usize,
+    /// Samples the control limits are computed from: the oldest of the history (default 25).
+    #[serde(default = "baseline_default")]
+    pub baseline: usize,
+    /// Fewest samples before limits and rules apply (default 8).
+    #[serde(default = "min_points_default")]
+    pub min_points: usize,
+}
+
+fn history_default() -> usize {
+    500
+}
+fn baseline_default() -> usize {
+    25
+}
+fn min_points_default() -> usize {
+    8
+}
+
+impl Default for SpcSpec {
+    fn default() -> Self {
+        Self {
+            history: history_default(),
+            baseline: baseline_default(),
+            min_points: min_points_default(),
+        }
+    }
+}
+
+/// Which raw sweeps are kept.
+#[derive(Clone, Copy, Debug, Deserialize, serde::Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum RawPolicy {
+    /// None.
+    None,
+    /// Those of failed samples.
+    Failed,
+    /// Every `every_n`-th sample's (and every failed one's).
+    EveryNth,
+    /// All.
+    All,
+}
+
+/// `[retention]`.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RetentionSpec {
+    /// `none`, `failed` (default), `every_nth` or `all`.
+    #[serde(default = "failed")]
+    pub raw: RawPolicy,
+    /// For `every_nth`.
+    #[serde(default = "every_default")]
+    pub every_n: u64,
+    /// Most bytes the kept raw sweeps may take; the oldest go first (default 1 GiB).
+    #[serde(default = "budget_default")]
+    pub raw_budget_bytes: u64,
+    /// `results.jsonl` is rotated past this size (default 64 MiB).
+    #[serde(default = "rotate_default")]
+    pub results_rotate_bytes: u64,
+    /// Rotated results files kept (default 8).
+    #[serde(default = "rotated_keep_default")]
+    pub results_keep: usize,
+}
+
+fn failed() -> RawPolicy {
+    RawPolicy::Failed
+}
+fn every_default() -> u64 {
+    10
+}
+fn budget_default() -> u64 {
+    1 << 30
+}
+fn rotate_default() -> u64 {
+    64 << 20
+}
+fn rotated_keep_default() -> usize {
+    8
+}
+
+impl Default for RetentionSpec {
+    fn default() -> Self {
+        Self {
+            raw: failed(),
+            every_n: every_default(),
+            raw_budget_bytes: budget_default(),
+            results_rotate_bytes: rotate_default(),
+            results_keep: rotated_keep_default(),
+        }
+    }
+}
+
+/// `[mqtt]`.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MqttSpec {
+    /// Broker host (default 127.0.0.1).
+    #[serde(default = "localhost")]
+    pub host: String,
+    /// Broker port (default 1883).
+    #[serde(default = "mqtt_port")]
+    pub port: u16,
+    /// Topic of the sample records and alarms (default `filmscope/results`).
+    #[serde(default = "topic_default")]
+    pub topic: String,
+    /// Client id (default `filmscope-inspect`).
+    #[serde(default = "client_default")]
+    pub client_id: String,
+}
+
+fn localhost() -> String {
+    "127.0.0.1".into()
+}
+fn mqtt_port() -> u16 {
+    1883
+}
+fn topic_default() -> String {
+    "filmscope/results".into()
+}
+fn client_default() -> String {
+    "filmscope-inspect".into()
+}
+
+/// `[status]`.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct StatusSpec {
+    /// Address to listen on (default 127.0.0.1).
+    #[serde(default = "localhost")]
+    pub bind: String,
+    /// Port (default 8088; 0: any free one, printed).
+    #[serde(default = "status_port")]
+    pub port: u16,
+}
+
+fn status_port() -> u16 {
+    8088
+}
+
+/// `[sim]`: the simulated line behind `--sim`.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SimSpec {
+    /// Seed of the sample sequence (default 1).
+    #[serde(default = "one")]
+    pub seed: u64,
+    /// Thickness drift per sample, nm (default 0.3).
+    #[serde(default = "drift_default")]
+    pub drift_nm_per_sample: f64,
+    /// Every how many samples an out-of-tolerance one comes (default 7; 0: never).
+    #[serde(default = "defect_every_default")]
+    pub defect_every: u64,
+}
+
+fn one() -> u64 {
+    1
+}
+fn drift_default() -> f64 {
+    0.3
+}
+fn defect_every_default() -> u64 {
+    7
+}
+
+impl Default for SimSpec {
+    fn default() -> Self {
+        Self {
+            seed: 1,
+            drift_nm_per_sample: drift_default(),
+            defect_every: defect_every_default(),
+        }
+    }
+}
+
+impl Recipe {
+    /// Reads and checks a recipe file.
+    pub fn load(path: &Path) -> Result<Self, RecipeError> {
+        let text = std::fs::read_to_string(path).map_err(|e| RecipeError {
+            path: path.to_owned(),
+            problem: format!("cannot read: {e}"),
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses and checks recipe text; `path` names it in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, RecipeError> {
+        let err = |problem: String| RecipeError {
+            path: path.to_owned(),
+            problem,
+        };
+        let recipe: Recipe = toml::from_str(text).map_err(|e| err(toml_line(&e, text)))?;
+        recipe.check().map_err(err)?;
+        Ok(recipe)
+    }
+
+    /// The checks beyond the types: each names its key and value.
+    fn check(&self) -> Result<(), String> {
+        let positive = |key: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{key} = {v}: must be a positive number"))
+            }
+        };
+        if self.film.trim().is_empty() {
+            return Err("film = \"\": give the film's name".into());
+        }
+        positive("index.nominal", self.index.nominal)?;
+        positive("index.tolerance", self.index.tolerance)?;
+        positive("index.resolve_above", self.index.resolve_above)?;
+        positive("thickness.nominal_nm", self.thickness.nominal_nm)?;
+        match (
+            self.thickness.tolerance_nm,
+            self.thickness.tolerance_percent,
+        ) {
+            (Some(_), Some(_)) => {
+                return Err(
+                    "thickness: both tolerance_nm and tolerance_percent given: give one".into(),
+                )
+            }
+            (None, None) => {
+                return Err("thickness: give tolerance_nm or tolerance_percent".into());
+            }
+            (Some(t), None) => positive("thickness.tolerance_nm", t)?,
+            (None, Some(p)) => {
+                positive("thickness.tolerance_percent", p)?;
+                if p >= 100.0 {
+                    return Err(format!(
+                        "thickness.tolerance_percent = {p}: must be below 100"
+                    ));
+                }
+            }
+        }
+        if let Some(s) = self.thickness.max_std_nm {
+            positive("thickness.max_std_nm", s)?;
+        }
+        let v = self.acceptance.min_valid_fraction;
+        if !(0.0..=1.0).contains(&v) {
+            return Err(format!(
+                "acceptance.min_valid_fraction = {v}: must be within 0..1"
+            ));
+        }
+        for (i, r) in self.roi.iter().enumerate() {
+            if r.width == 0 || r.height == 0 {
+                return Err(format!(
+                    "roi[{i}]: width = {}, height = {}: an empty rectangle",
+                    r.width, r.height
+                ));
+            }
+        }
+        if self.spc.history < 2 {
+            return Err(format!(
+                "spc.history = {}: keep at least 2 samples",
+                self.spc.history
+            ));
+        }
+        if self.spc.baseline < 2 || self.spc.min_points < 2 {
+            return Err(format!(
+                "spc.baseline = {}, spc.min_points = {}: both at least 2",
+                self.spc.baseline, self.spc.min_points
+            ));
+        }
+        if self.retention.raw == RawPolicy::EveryNth && self.retention.every_n == 0 {
+            return Err("retention.every_n = 0: must be at least 1".into());
+        }
+        if self.retention.results_rotate_bytes < 4096 {
+            return Err(format!(
+                "retention.results_rotate_bytes = {}: at least 4096",
+                self.retention.results_rotate_bytes
+            ));
+        }
+        if let Some(m) = &self.mqtt {
+            if m.topic.is_empty() || m.topic.contains(['+', '#']) {
+                return Err(format!(
+                    "mqtt.topic = {:?}: a topic to publish to, without wildcards",
+                    m.topic
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks the recipe against a sensor of `width` x `height` pixels.
+    pub fn check_sensor(&self, width: usize, height: usize) -> Result<(), String> {
+        for (i, r) in self.roi.iter().enumerate() {
+            if r.x.saturating_add(r.width) > width || r.y.saturating_add(r.height) > height {
+                return Err(format!(
+                    "roi[{i}] = {{ x = {}, y = {}, width = {}, height = {} }}: outside the {width} x {height} sensor",
+                    r.x, r.y, r.width, r.height
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A TOML error in one line: the key path and the problem, with the line number.
+fn toml_line(e: &toml::de::Error, text: &str) -> String {
+    let msg = e.message().replace('\n', " ");
+    match e.span() {
+        Some(span) => {
+            let before = text.as_bytes().get(..span.start).unwrap_or(text.as_bytes());
+            let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+            let snippet = text
+                .get(span.start..span.end)
+                .unwrap_or("")
+                .lines()
+                .next()
+                .unwrap_or("")
+                .trim();
+            format!("line {line}: {msg} (at {snippet:?})")
+        }
+        None => msg,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) const DEMO: &str = include_str!("../../config/recipes/demo.toml");
+
+    fn parse(t: &str) -> Result<Recipe, String> {
+        Recipe::parse(t, Path::new("r.toml")).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn demo_recipe_parses() {
+        let r = parse(DEMO).expect("demo");
+        assert_eq!(r.index.mode, IndexMode::Carry);
+        assert!(r.thickness.tolerance() > 0.0);
+        assert!(r.mqtt.is_some());
+    }
+
+    const MIN: &str = "film = \"f\"\n[index]\nnominal = 2.1\ntolerance = 0.03\n[thickness]\nnominal_nm = 600\ntolerance_percent = 5\n";
+
+    #[test]
+    fn defaults_and_percent() {
+        let r = parse(MIN).expect("min");
+        assert_eq!(r.thickness.limits(), [570.0, 630.0]);
+        assert_eq!(r.retention.raw, RawPolicy::Failed);
+        assert_eq!(r.spc.history, 500);
+        assert!(r.mqtt.is_none());
+    }
+
+    #[test]
+    fn errors_name_file_key_and_value() {
+        let e = parse(&MIN.replace("tolerance = 0.03", "tolerance = -1")).expect_err("an error");
+        assert_eq!(e, "r.toml: index.tolerance = -1: must be a positive number");
+        let e = parse(&format!("{MIN}colour = 3\n")).expect_err("an error");
+        assert!(
+            e.starts_with("r.toml: line 8: unknown field `colour`"),
+            "{e}"
+        );
+        assert!(!e.contains('\n'));
+        let e = parse(
+            &MIN.replace("mode", "x")
+                .replace("[index]", "[index]\nmode = \"sometimes\""),
+        )
+        .expect_err("an error");
+        assert!(e.contains("line 3") && e.contains("sometimes"), "{e}");
+        let e = parse(&format!("{MIN}tolerance_nm = 4\n")).expect_err("an error");
+        assert!(e.contains("both tolerance_nm and tolerance_percent"), "{e}");
+        let e = parse(&format!(
+            "{MIN}[[roi]]\nx = 0\ny = 0\nwidth = 0\nheight = 3\n"
+        ))
+        .expect_err("an error");
+        assert!(e.contains("roi[0]"), "{e}");
+        let e = parse(&format!("{MIN}[retention]\nraw = \"some\"\n")).expect_err("an error");
+        assert!(e.contains("some") && e.contains("line 9"), "{e}");
+        let r = parse(&format!(
+            "{MIN}[[roi]]\nx = 30\ny = 0\nwidth = 4\nheight = 3\n"
+        ))
+        .expect("roi");
+        let e = r.check_sensor(32, 24).expect_err("an error");
+        assert!(e.contains("outside the 32 x 24 sensor"), "{e}");
+    }
+}

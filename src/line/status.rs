@@ -1,0 +1,381 @@
+//! The status page: a small HTTP server (`tiny_http`) with a live page (latest thickness
+//! map with its out-of-tolerance overlay and verdict, the trend with its control limits,
+//! the alarms; it polls `/api/latest` every second), `/api/latest`, `/api/history`,
+//! `/latest.png` and Prometheus `/metrics`.
+
+use std::collections::VecDeque;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+
+use serde_json::{json, Value};
+use tiny_http::{Header, Response, Server};
+
+/// Alarms the page and `/api/latest` show.
+pub const RECENT_ALARMS: usize = 50;
+
+/// The server could not start.
+#[derive(Debug, thiserror::Error)]
+#[error("status page on {addr}: {problem}")]
+pub struct StatusError {
+    /// Where it was to listen.
+    pub addr: String,
+    /// Why it could not.
+    pub problem: String,
+}
+
+/// What the page shows.
+#[derive(Debug, Default)]
+pub struct StatusState {
+    /// The latest sample record.
+    pub latest: Option<Value>,
+    /// Its overlay PNG.
+    pub latest_png: Option<Vec<u8>>,
+    /// `/api/history`'s body.
+    pub history: Value,
+    /// Recent alarm records, newest last.
+    pub alarms: VecDeque<Value>,
+    /// Samples, passed, failed and alarms since start.
+    pub counts: Counts,
+    /// Pages served (`/`).
+    pub page_hits: u64,
+    /// The film, for the title.
+    pub film: String,
+}
+
+/// Counters for `/metrics`.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct Counts {
+    /// Samples.
+    pub samples: u64,
+    /// Passed.
+    pub passed: u64,
+    /// Failed.
+    pub failed: u64,
+    /// Alarms.
+    pub alarms: u64,
+}
+
+/// A running status server; stops when dropped.
+pub struct StatusServer {
+    addr: SocketAddr,
+    state: Arc<Mutex<StatusState>>,
+    server: Arc<Server>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl StatusServer {
+    /// Listens on `bind:port` (port 0: any free one).
+    pub fn start(bind: &str, port: u16, film: &str) -> Result<Self, StatusError> {
+        let where_ = format!("{bind}:{port}");
+        let server = Server::http(&where_).map_err(|e| StatusError {
+            addr: where_.clone(),
+            problem: e.to_string(),
+        })?;
+        let addr = server.server_addr().to_ip().ok_or_else(|| StatusError {
+            addr: where_.clone(),
+            problem: "not an IP socket".into(),
+        })?;
+        let server = Arc::new(server);
+        let state = Arc::new(Mutex::new(StatusState {
+            history: json!({"points": [], "limits": {}, "capability": {}}),
+            film: film.to_owned(),
+            ..StatusState::default()
+        }));
+        let (s, st) = (server.clone(), state.clone());
+        let thread = std::thread::Builder::new()
+            .name("status".into())
+            .spawn(move || {
+                for req in s.incoming_requests() {
+                    let (body, ctype, code) = route(req.url(), &st);
+                    let mut resp = Response::from_data(body).with_status_code(code);
+                    if let Ok(h) = Header::from_bytes("Content-Type", ctype) {
+                        resp = resp.with_header(h);
+                    }
+                    if let Ok(h) = Header::from_bytes("Cache-Control", "no-store") {
+                        resp = resp.with_header(h);
+                    }
+                    let _ = req.respond(resp);
+                }
+            })
+            .map_err(|e| StatusError {
+                addr: where_.clone(),
+                problem: e.to_string(),
+            })?;
+        Ok(Self {
+            addr,
+            state,
+            server,
+            thread: Some(thread),
+        })
+    }
+
+    /// Where it listens.
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// The page's URL.
+    pub fn url(&self) -> String {
+        format!("http://{}/", self.addr)
+    }
+
+    /// Shows a new sample: its record, overlay PNG, the history body and its alarms.
+    pub fn publish_sample(
+        &self,
+        record: &Value,
+        png: Option<Vec<u8>>,
+        history: Value,
+        alarms: &[Value],
+    ) {
+        let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        s.counts.samples += 1;
+        if record["verdict"] == "PASS" {
+            s.counts.passed += 1;
+        } else {
+            s.counts.failed += 1;
+        }
+        s.latest = Some(record.clone());
+        if png.is_some() {
+            s.latest_png = png;
+        }
+        s.history = history;
+        for a in alarms {
+            s.counts.alarms += 1;
+            s.alarms.push_back(a.clone());
+            while s.alarms.len() > RECENT_ALARMS {
+                s.alarms.pop_front();
+            }
+        }
+    }
+
+    /// Replaces `/api/history`'s body.
+    pub fn set_history(&self, history: Value) {
+        self.state.lock().unwrap_or_else(|p| p.into_inner()).history = history;
+    }
+
+    /// Pages served so far.
+    pub fn page_hits(&self) -> u64 {
+        self.state
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .page_hits
+    }
+}
+
+impl Drop for StatusServer {
+    fn drop(&mut self) {
+        self.server.unblock();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn route(url: &str, st: &Mutex<StatusState>) -> (Vec<u8>, &'static str, u16) {
+    let path = url.split('?').next().unwrap_or("/");
+    let mut s = st.lock().unwrap_or_else(|p| p.into_inner());
+    match path {
+        "/" | "/index.html" => {
+            s.page_hits += 1;
+            (page(&s).into_bytes(), "text/html; charset=utf-8", 200)
+        }
+        "/api/latest" => (latest(&s).to_string().into_bytes(), "application/json", 200),
+        "/api/history" => (s.history.to_string().into_bytes(), "application/json", 200),
+        "/metrics" => (metrics(&s).into_bytes(), "text/plain; version=0.0.4", 200),
+        "/latest.png" => match &s.latest_png {
+            Some(p) => (p.clone(), "image/png", 200),
+            None => (b"no sample yet".to_vec(), "text/plain", 404),
+        },
+        _ => (b"not found".to_vec(), "text/plain", 404),
+    }
+}
+
+fn latest(s: &StatusState) -> Value {
+    json!({
+        "sample": s.latest,
+        "alarms": s.alarms.iter().rev().take(10).collect::<Vec<_>>(),
+        "counts": s.counts,
+    })
+}
+
+/// Prometheus text exposition of the counters and the latest sample.
+fn metrics(s: &StatusState) -> String {
+    let mut m = String::new();
+    let mut put = |name: &str, kind: &str, help: &str, v: f64| {
+        m.push_str(&format!(
+            "# HELP {name} {help}\n# TYPE {name} {kind}\n{name} {v}\n"
+        ));
+    };
+    let c = s.counts;
+    put(
+        "filmscope_samples_total",
+        "counter",
+        "Samples measured.",
+        c.samples as f64,
+    );
+    put(
+        "filmscope_samples_passed_total",
+        "counter",
+        "Samples that passed.",
+        c.passed as f64,
+    );
+    put(
+        "filmscope_samples_failed_total",
+        "counter",
+        "Samples that failed.",
+        c.failed as f64,
+    );
+    put(
+        "filmscope_alarms_total",
+        "counter",
+        "Run-rule alarms raised.",
+        c.alarms as f64,
+    );
+    if let Some(l) = &s.latest {
+        let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+        put(
+            "filmscope_last_pass",
+            "gauge",
+            "1 if the latest sample passed.",
+            if l["verdict"] == "PASS" { 1.0 } else { 0.0 },
+        );
+        put(
+            "filmscope_last_refractive_index",
+            "gauge",
+            "Index of the latest sample.",
+            f(&l["refractive_index"]),
+        );
+        put(
+            "filmscope_last_thickness_mean_nm",
+            "gauge",
+            "Mean thickness of the latest sample, nm.",
+            f(&l["thickness_nm"]["mean"]),
+        );
+        put(
+            "filmscope_last_thickness_std_nm",
+            "gauge",
+            "Thickness spread of the latest sample, nm.",
+            f(&l["thickness_nm"]["std"]),
+        );
+        put(
+            "filmscope_last_valid_fraction",
+            "gauge",
+            "Valid share of the latest sample.",
+            f(&l["valid_fraction"]),
+        );
+        put(
+            "filmscope_last_latency_seconds",
+            "gauge",
+            "Last row to verdict published, latest sample.",
+            f(&l["latency_ms"]) / 1000.0,
+        );
+    }
+    let cap = &s.history["capability"]["thickness_mean_nm"];
+    if let Some(v) = cap["cpk"].as_f64() {
+        put(
+            "filmscope_thickness_cpk",
+            "gauge",
+            "Cpk of the mean thickness over the history.",
+            v,
+        );
+    }
+    if let Some(v) = cap["ppk"].as_f64() {
+        put(
+            "filmscope_thickness_ppk",
+            "gauge",
+            "Ppk of the mean thickness over the history.",
+            v,
+        );
+    }
+    m
+}
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+fn page(s: &StatusState) -> String {
+    let id = s
+        .latest
+        .as_ref()
+        .and_then(|l| l["sample_id"].as_str())
+        .unwrap_or("none yet");
+    PAGE.replace("{FILM}", &esc(&s.film))
+        .replace("{SAMPLE_ID}", &esc(id))
+}
+
+const PAGE: &str = r##"<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>filmscope inspect: {FILM}</title>
+<style>
+body{font-family:sans-serif;margin:1em;background:#fafafa;color:#222}
+.v{font-size:2em;font-weight:bold;padding:.1em .4em;border-radius:.2em}
+.PASS{background:#2e7d32;color:#fff}.FAIL{background:#c62828;color:#fff}
+#row{display:flex;gap:2em;flex-wrap:wrap}img{image-rendering:pixelated;width:320px;border:1px solid #ccc}
+td,th{padding:.1em .6em;text-align:left}#alarms li{color:#b71c1c}
+</style></head>
+<body data-polls="0">
+<h1>{FILM}</h1>
+<p>Sample <b id="sample-id">{SAMPLE_ID}</b> <span id="verdict" class="v">&ndash;</span> <span id="time"></span></p>
+<ul id="reasons"></ul>
+<div id="row">
+<div><h2>Thickness, out of tolerance marked</h2><img id="map" alt="latest thickness map" src="/latest.png"></div>
+<div><h2>Latest</h2><table id="stats"></table></div>
+</div>
+<h2>Trend: mean thickness (nm), control limits</h2>
+<div id="trend"></div>
+<p id="capability"></p>
+<h2>Alarms</h2><ul id="alarms"></ul>
+<script>
+let polls = 0, shown = null;
+const $ = (id) => document.getElementById(id);
+function fmt(v, d) { return (typeof v === 'number') ? v.toFixed(d) : '-'; }
+function drawTrend(h) {
+  const pts = (h.points || []).slice(-100), W = 640, H = 220, P = 40;
+  if (pts.length === 0) { $('trend').innerHTML = '<p>no samples yet</p>'; return; }
+  const ys = pts.map(p => p.thickness_mean).filter(v => typeof v === 'number');
+  const lim = (h.limits || {}).thickness_mean_nm, spec = h.spec || {};
+  const all = ys.concat(lim ? [lim.ucl, lim.lcl] : []).concat([spec.lsl, spec.usl].filter(v => typeof v === 'number'));
+  let lo = Math.min(...all), hi = Math.max(...all); if (hi - lo < 1e-9) { lo -= 1; hi += 1; }
+  const x = (i) => P + i * (W - 2 * P) / Math.max(1, pts.length - 1);
+  const y = (v) => H - P / 2 - (v - lo) * (H - P) / (hi - lo);
+  let s = `<svg id="trend-svg" xmlns="http://www.w3.org/2000/svg" width="${W}" height="${H}" style="background:#fff;border:1px solid #ccc">`;
+  const line = (v, c, t, dash) => { s += `<line x1="${P}" x2="${W - P}" y1="${y(v)}" y2="${y(v)}" stroke="${c}" ${dash ? 'stroke-dasharray="4 3"' : ''}/><text x="${W - P + 2}" y="${y(v) + 4}" font-size="10" fill="${c}">${t}</text>`; };
+  if (lim) { line(lim.center, '#1565c0', 'CL', false); line(lim.ucl, '#e65100', 'UCL', true); line(lim.lcl, '#e65100', 'LCL', true); }
+  if (typeof spec.usl === 'number') { line(spec.usl, '#c62828', 'USL', false); line(spec.lsl, '#c62828', 'LSL', false); }
+  s += '<polyline fill="none" stroke="#333" points="' + pts.map((p, i) => `${x(i)},${y(p.thickness_mean)}`).join(' ') + '"/>';
+  pts.forEach((p, i) => { s += `<circle cx="${x(i)}" cy="${y(p.thickness_mean)}" r="3" fill="${p.pass ? '#2e7d32' : '#c62828'}"><title>${p.sample_id}</title></circle>`; });
+  s += `<text x="4" y="12" font-size="10">${fmt(hi, 1)}</text><text x="4" y="${H - 4}" font-size="10">${fmt(lo, 1)}</text></svg>`;
+  $('trend').innerHTML = s;
+  const c = (h.capability || {}).thickness_mean_nm;
+  $('capability').textContent = c ? `Cpk ${fmt(c.cpk, 2)}, Ppk ${fmt(c.ppk, 2)} over ${pts.length} samples` : '';
+}
+async function tick() {
+  try {
+    const j = await (await fetch('/api/latest', {cache: 'no-store'})).json();
+    polls += 1; document.body.dataset.polls = String(polls);
+    const r = j.sample;
+    if (r && r.sample_id !== shown) {
+      shown = r.sample_id;
+      $('sample-id').textContent = r.sample_id;
+      $('verdict').textContent = r.verdict; $('verdict').className = 'v ' + r.verdict;
+      $('time').textContent = r.timestamp;
+      $('reasons').innerHTML = (r.reasons || []).map(t => `<li>${t}</li>`).join('');
+      $('map').src = '/latest.png?id=' + encodeURIComponent(r.sample_id);
+      const t = r.thickness_nm || {};
+      $('stats').innerHTML = `<tr><th>index</th><td>${fmt(r.refractive_index, 4)}</td></tr>` +
+        `<tr><th>thickness mean</th><td>${fmt(t.mean, 1)} nm</td></tr><tr><th>std</th><td>${fmt(t.std, 2)} nm</td></tr>` +
+        `<tr><th>min / max</th><td>${fmt(t.min, 1)} / ${fmt(t.max, 1)} nm</td></tr>` +
+        `<tr><th>valid</th><td>${fmt(100 * r.valid_fraction, 1)} %</td></tr><tr><th>latency</th><td>${fmt(r.latency_ms, 0)} ms</td></tr>`;
+      drawTrend(await (await fetch('/api/history', {cache: 'no-store'})).json());
+    }
+    $('alarms').innerHTML = (j.alarms || []).map(a => `<li>${a.sample_id}: ${a.variable} rule ${a.rule} (${a.text}), value ${fmt(a.value, 3)}</li>`).join('');
+  } catch (e) { document.body.dataset.error = String(e); }
+}
+tick(); setInterval(tick, 1000);
+</script>
+</body></html>
+"##;

@@ -1,0 +1,189 @@
+//! The status page of `filmscope inspect` in headless Chromium: the page, loaded once, shows
+//! a sample published after it loaded (it polls `/api/latest`), with the trend's control
+//! limits; the JSON API and Prometheus `/metrics` over plain HTTP.
+//!
+//! Chromium is `FILMSCOPE_CHROMIUM` if set, else `chromium` or `chromium-browser` on the
+//! PATH; with `FILMSCOPE_REQUIRE_CHROMIUM=1` a missing browser is a failure.
+
+mod common;
+
+use std::io::{Read, Write};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use filmscope::line::status::StatusServer;
+use serde_json::{json, Value};
+
+fn chromium() -> Result<PathBuf, String> {
+    if let Some(p) = std::env::var_os("FILMSCOPE_CHROMIUM") {
+        return Ok(PathBuf::from(p));
+    }
+    for name in ["chromium", "chromium-browser"] {
+        let found = Command::new(name)
+            .arg("--version")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        if found {
+            return Ok(PathBuf::from(name));
+        }
+    }
+    Err("neither FILMSCOPE_CHROMIUM nor chromium / chromium-browser on the PATH".into())
+}
+
+fn get(addr: std::net::SocketAddr, path: &str) -> (String, String) {
+    let mut s = std::net::TcpStream::connect(addr).expect("connect");
+    write!(s, "GET {path} HTTP/1.0\r\nHost: x\r\n\r\n").expect("send");
+    let mut body = String::new();
+    s.read_to_string(&mut body).expect("read");
+    let (head, rest) = body.split_once("\r\n\r\n").expect("http");
+    (head.to_owned(), rest.to_owned())
+}
+
+fn record(id: &str, verdict: &str, mean: f64) -> Value {
+    json!({"kind": "sample", "sample_id": id, "timestamp": "2026-11-25T23:00:00.000Z",
+           "verdict": verdict, "reasons": if verdict == "PASS" { json!([]) } else { json!(["mean thickness out"]) },
+           "refractive_index": 2.1, "thickness_nm": {"mean": mean, "std": 3.0, "min": mean - 9.0, "max": mean + 9.0},
+           "valid_fraction": 0.99, "latency_ms": 12.5})
+}
+
+fn history(means: &[f64]) -> Value {
+    let points: Vec<Value> = means
+        .iter()
+        .enumerate()
+        .map(|(i, m)| json!({"sample_id": format!("S{:06}", i + 1), "index": 2.1, "thickness_mean": m, "thickness_std": 3.0, "pass": true}))
+        .collect();
+    json!({"points": points,
+           "limits": {"thickness_mean_nm": {"center": 620.0, "ucl": 626.0, "lcl": 614.0, "sigma": 2.0, "mr_bar": 2.256, "n": 8}},
+           "capability": {"thickness_mean_nm": {"cpk": 1.5, "ppk": 1.4, "mean": 620.0, "sigma_within": 2.0, "sigma_overall": 2.1}},
+           "spec": {"lsl": 570.0, "usl": 670.0}})
+}
+
+#[test]
+fn api_and_metrics_answer_over_http() {
+    let server = StatusServer::start("127.0.0.1", 0, "test film").expect("server");
+    assert!(server.addr().ip().is_loopback());
+    let (head, body) = get(server.addr(), "/api/latest");
+    assert!(
+        head.starts_with("HTTP/1.") && head.contains("200"),
+        "{head}"
+    );
+    let v: Value = serde_json::from_str(&body).expect("json");
+    assert!(v["sample"].is_null());
+    server.publish_sample(&record("S000001-A", "FAIL", 640.0), None, history(&[640.0]), &[json!({"kind": "alarm", "sample_id": "S000001-A", "variable": "thickness_mean_nm", "rule": 1, "text": "a point beyond 3 sigma", "value": 640.0})]);
+    let v: Value = serde_json::from_str(&get(server.addr(), "/api/latest").1).expect("json");
+    assert_eq!(v["sample"]["sample_id"], "S000001-A");
+    assert_eq!(v["alarms"][0]["rule"], 1);
+    let h: Value = serde_json::from_str(&get(server.addr(), "/api/history").1).expect("json");
+    assert_eq!(h["points"].as_array().map(Vec::len), Some(1));
+    let (_, m) = get(server.addr(), "/metrics");
+    for line in [
+        "filmscope_samples_total 1",
+        "filmscope_samples_failed_total 1",
+        "filmscope_alarms_total 1",
+        "filmscope_last_pass 0",
+        "filmscope_last_thickness_mean_nm 640",
+        "filmscope_thickness_cpk 1.5",
+        "# TYPE filmscope_samples_total counter",
+    ] {
+        assert!(m.lines().any(|l| l == line), "{line} in\n{m}");
+    }
+    let (head, _) = get(server.addr(), "/nothing");
+    assert!(head.contains("404"), "{head}");
+}
+
+#[test]
+fn status_page_shows_a_new_sample_without_reload_in_chromium() {
+    let browser = match chromium() {
+        Ok(b) => b,
+        Err(why) => {
+            let required = std::env::var("FILMSCOPE_REQUIRE_CHROMIUM").is_ok_and(|v| v == "1");
+            assert!(!required, "FILMSCOPE_REQUIRE_CHROMIUM=1 but {why}");
+            eprintln!("skipped: no headless browser ({why})");
+            return;
+        }
+    };
+    let dir = common::tempdir();
+    let server = StatusServer::start("127.0.0.1", 0, "demo film").expect("server");
+    let means = [618.0, 621.0, 619.5, 622.0, 620.0, 617.0, 623.0, 620.5];
+    server.publish_sample(
+        &record("S000001-FIRST", "PASS", 620.0),
+        None,
+        history(&means),
+        &[],
+    );
+    let url = server.url();
+    let stdout_path = dir.path().join("dom.html");
+    let mut child = Command::new(&browser)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--virtual-time-budget=15000",
+            "--dump-dom",
+        ])
+        .arg(format!(
+            "--user-data-dir={}",
+            dir.path().join("profile").display()
+        ))
+        .arg(&url)
+        .stdout(std::fs::File::create(&stdout_path).expect("stdout"))
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start chromium");
+    // The new sample arrives once the page has been served: only polling can show it.
+    let t0 = Instant::now();
+    while server.page_hits() == 0 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "chromium never asked for the page"
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let mut means2 = means.to_vec();
+    means2.push(650.0);
+    server.publish_sample(
+        &record("S000002-SECOND", "FAIL", 650.0),
+        None,
+        history(&means2),
+        &[],
+    );
+    let t0 = Instant::now();
+    while child.try_wait().expect("wait").is_none() {
+        if t0.elapsed() > Duration::from_secs(120) {
+            let _ = child.kill();
+            panic!("chromium took over 120 s");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let dom = std::fs::read_to_string(&stdout_path).expect("dom");
+    assert_eq!(server.page_hits(), 1, "the page was loaded once");
+    assert!(
+        dom.contains("id=\"sample-id\">S000002-SECOND<"),
+        "new sample shown:\n{dom}"
+    );
+    assert!(dom.contains("class=\"v FAIL\""), "verdict shown");
+    assert!(dom.contains("mean thickness out"), "reasons shown");
+    assert!(dom.contains("id=\"trend-svg\""), "trend drawn");
+    for l in ["UCL", "LCL", "CL", "USL", "LSL"] {
+        assert!(
+            dom.contains(&format!(">{l}</text>")),
+            "{l} line on the trend"
+        );
+    }
+    assert!(dom.contains("Cpk 1.50"), "capability shown");
+    let polls: u32 = dom
+        .split("data-polls=\"")
+        .nth(1)
+        .and_then(|r| r.split('"').next())
+        .and_then(|n| n.parse().ok())
+        .expect("data-polls");
+    assert!(polls >= 2, "polled {polls} times");
+}
