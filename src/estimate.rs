@@ -21,8 +21,16 @@ use crate::pipeline::{
     PipelineError, Prior, PriorUpdate, SampleHook, Source, SweepOutput,
 };
 use filmscope_core::optics::FieldOfView;
+use filmscope_core::solve::sample::CENTRE;
 
 use crate::sweep::{Method, MethodResult};
+
+/// A sampled site whose per-pixel thickness is this far from the sample fit's disagrees
+/// (the 20 nm at which a thickness counts as wrong).
+pub const SITE_AGREEMENT_NM: f32 = 20.0;
+
+/// Share of disagreeing sites above which the per-pixel pass is not trusted.
+pub const MAX_DISAGREEING_SITES: f64 = 0.1;
 
 /// What the estimator's passes over one sweep ended with.
 pub struct Passes {
@@ -70,7 +78,8 @@ pub fn filmscope_passes(
         let out = run_sweep_sampled(source, config.pipeline, hook, on_rows)?;
         let tap = tap.into_inner().unwrap_or_else(|e| e.into_inner());
         let fit = last.unwrap_or_else(|| tap.fit(&spec, None));
-        let (out, fit, choice) = finish(out, fit, &tap, 1);
+        let (out, fit, mut choice) = finish(out, fit, &tap, 1);
+        let out = flag_if_disagreeing(&tap, &fit, out, &mut choice)?;
         return Ok(Passes {
             out,
             passes: 1,
@@ -98,15 +107,76 @@ pub fn filmscope_passes(
     } else {
         None
     };
+    let seeded = seed.is_some();
     let prior = index.map(|i| Prior::new(i, PriorUpdate::Hold, seed));
-    let out = run_sweep(source, config.pipeline, prior, &|_| {})?;
-    let (out, fit, choice) = finish(out, fit, &tap, 2);
-    Ok(Passes {
+    let mut out = run_sweep(source, config.pipeline, prior, &|_| {})?;
+    let mut passes = 2;
+    // The per-pixel pass must agree with the sample's own thicknesses; where it does not
+    // (orders from extrema gone wrong), every pixel starts from the sample's map instead.
+    if let (Some(i), false) = (index, seeded) {
+        if sites_disagree(&tap, &fit, &out) > MAX_DISAGREEING_SITES {
+            if let Some(map) = tap.seed_map(&fit, spec.width, spec.height) {
+                let prior = Prior::new(i, PriorUpdate::Hold, Some(Arc::new(map)));
+                out = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
+                passes += 1;
+            }
+        }
+    }
+    let (out, fit, mut choice) = finish(out, fit, &tap, passes);
+    flag_if_disagreeing(&tap, &fit, out, &mut choice).map(|out| Passes {
         out,
-        passes: 2,
+        passes,
         fit: Some(fit),
         choice,
     })
+}
+
+/// Share of the sampled sites, among those the per-pixel pass reports, whose thickness
+/// there is more than [`SITE_AGREEMENT_NM`] from the sample fit's own.
+fn sites_disagree(tap: &SampleTap, fit: &SampleFit, out: &SweepOutput) -> f64 {
+    let w = out.spec.width;
+    let (mut compared, mut off) = (0usize, 0usize);
+    for (k, &(r, c)) in tap.sites().iter().enumerate() {
+        let i = r as usize * w + c as usize + CENTRE;
+        let (Some(p), Some(&t)) = (out.results.get(i), fit.thickness_nm.get(k)) else {
+            continue;
+        };
+        if p.thickness_nm.is_finite() && t.is_finite() {
+            compared += 1;
+            if (p.thickness_nm - t).abs() > SITE_AGREEMENT_NM {
+                off += 1;
+            }
+        }
+    }
+    if compared == 0 {
+        0.0
+    } else {
+        off as f64 / compared as f64
+    }
+}
+
+/// A per-pixel pass that still disagrees with the sample is not reported: every pixel NaN,
+/// flagged `order_rejected`, with the figure in `index_model_choice`.
+fn flag_if_disagreeing(
+    tap: &SampleTap,
+    fit: &SampleFit,
+    mut out: SweepOutput,
+    choice: &mut serde_json::Value,
+) -> Result<SweepOutput, PipelineError> {
+    let share = sites_disagree(tap, fit, &out);
+    choice["sites_disagreeing"] = json!(share);
+    if share > MAX_DISAGREEING_SITES {
+        for r in &mut out.results {
+            r.flags |= flags::ORDER_REJECTED;
+            r.thickness_nm = f32::NAN;
+            r.confidence = 0.0;
+        }
+        choice["per_pixel_failure"] = json!(format!(
+            "{:.0} % of the sampled sites' per-pixel thicknesses are more than {SITE_AGREEMENT_NM} nm from the sample fit's: every pixel flagged",
+            share * 100.0
+        ));
+    }
+    Ok(out)
 }
 
 /// The per-pixel pass's output under the sample's fit: a failed fit leaves no index and

@@ -5,7 +5,7 @@
 use filmscope_core::optics::Dispersion;
 use filmscope_core::solve::sample::{
     fit_index, site_grid, workspace_len, Failure, Geometry, ModelKind, SampleFit, Spectra, CENTRE,
-    GATE_CHI2_NU, MODEL_PENALTY, RUN,
+    CONSTANT_PREFERENCE, GATE_CHI2_NU, MODEL_PENALTY, RUN,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
 use serde_json::json;
@@ -296,7 +296,7 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
         "passes": passes,
         "candidates": candidates,
         "criterion": format!(
-            "lowest chi2 + {MODEL_PENALTY} x parameters (a constant index counted as two, the Cauchy model with its slope held at zero) among physical models (index inside the search range and falling with wavelength, a Sellmeier pole below the band), chi2 in units of the noise measured from each site's run of {RUN} pixels; the fit fails when its reduced chi-square exceeds {GATE_CHI2_NU} after a second start"
+            "lowest chi2 + {MODEL_PENALTY} x parameters (a constant index counted as two, the Cauchy model with its slope held at zero, preferred unless the slope gains {CONSTANT_PREFERENCE}) among physical models (index inside the search range and falling with wavelength, a Sellmeier pole below the band), chi2 in units of the noise measured from each site's run of {RUN} pixels; the fit fails when its reduced chi-square exceeds {GATE_CHI2_NU} after a second start"
         ),
         "models": ModelKind::ALL.iter().map(|k| k.name()).collect::<Vec<_>>(),
     })

@@ -55,15 +55,41 @@ pub const MAX_INDEX_SIGMA: f64 = 0.01;
 /// A model whose refined fit leaves a reduced chi-square above this has its sites seated
 /// again under it and is refined once more.
 pub const RESEAT_CHI2_NU: f64 = 1.2;
+/// Chi-square a dispersion slope must gain over a constant index (two sigma) to be
+/// preferred, the two otherwise costing the same ([`MODEL_PENALTY`] x 2).
+pub const CONSTANT_PREFERENCE: f64 = 4.0;
+/// Most bands the fit takes.
+pub const MAX_BANDS: usize = 1024;
 /// Most starts the refinement tries before it reports a failed fit.
 pub const MAX_STARTS: usize = 3;
 /// Fringes across the band above which the search is repeated on the band's red half.
 pub const THICK_FRINGES: f64 = 3.0;
 
-/// Most quadrature nodes of a band's passband in the fit (Simpson over the truncated Gaussian
-/// of [`Passband`], the definition the capture format gives): as many as keep the film's
-/// phase step between nodes under [`NODE_PHASE`] for the thickest site, at least 5.
+/// Most quadrature nodes of a band's passband in the fit. Where the film's phase turns by
+/// little across the passband, five Gauss-Hermite nodes; beyond, Simpson over the truncated
+/// Gaussian of [`Passband`] (the definition the capture format gives) with as many nodes as
+/// keep the phase step between nodes under [`NODE_PHASE`] for the thickest site, at least
+/// [`MIN_SIMPSON`].
 const NODES: usize = 33;
+/// Fewest Simpson nodes: fewer do not hold the truncated Gaussian's moments.
+const MIN_SIMPSON: usize = 17;
+/// Gauss-Hermite nodes and weights (5 points) for the Gaussian passband average.
+const GH_X: [f64; 5] = [
+    -2.020_182_870_456_086,
+    -0.958_572_464_613_819,
+    0.0,
+    0.958_572_464_613_819,
+    2.020_182_870_456_086,
+];
+const GH_W: [f64; 5] = [
+    0.019_953_242_059_046,
+    0.393_619_323_152_241,
+    0.945_308_720_482_942,
+    0.393_619_323_152_241,
+    0.019_953_242_059_046,
+];
+/// The passband is truncated at 1.5 FWHM: its variance is 0.9946 of the untruncated one's.
+const TRUNCATED_SIGMA: f64 = 0.997_3;
 /// Largest phase step between quadrature nodes, rad (a thick high-index film turns its phase
 /// by 8 rad across an 8 nm passband: five nodes left model errors of the noise's size).
 const NODE_PHASE: f64 = 0.3;
@@ -326,7 +352,7 @@ pub fn site_grid(
     }
     let sites = sites.min(MAX_SITES);
     let aspect = width as f64 / height as f64;
-    let mut gy = (libm::sqrt(sites as f64 / aspect).round() as usize).clamp(1, height);
+    let mut gy = (libm::round(libm::sqrt(sites as f64 / aspect)) as usize).clamp(1, height);
     let mut gx = (sites / gy).clamp(1, width / RUN);
     while gx * gy > sites && gy > 1 {
         gy -= 1;
@@ -364,7 +390,11 @@ pub fn fit_index(
     };
     let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
     let sites = spectra.sites.min(MAX_SITES);
-    if na < 1 || nb < 8 || sites == 0 || scratch.len() < workspace_len(sites, na, nb) {
+    if na < 1
+        || !(8..=MAX_BANDS).contains(&nb)
+        || sites == 0
+        || scratch.len() < workspace_len(sites, na, nb)
+    {
         return fit;
     }
     let mut site_sigma = [f64::NAN; MAX_SITES];
@@ -590,8 +620,7 @@ impl Problem<'_> {
         // The phase turns by about 4 pi n d / l^2 per nm of wavelength.
         let n0 = kind.eval(p, l0 * 1e-3).0;
         let span = 4.0 * core::f64::consts::PI * n0 * d_max / (l0 * l0) * 3.0 * fwhm;
-        let count = ((span / NODE_PHASE).ceil() as usize + 1).clamp(5, NODES);
-        let band = Passband::gaussian_with_nodes(l0, fwhm, count);
+        let simpson = libm::ceil(span / NODE_PHASE) as usize + 1;
         let deg = self.geo.angles_deg[a];
         let pol = self.geo.polarization;
         let node = |(l, w): (f64, f64)| -> Option<Node> {
@@ -610,6 +639,30 @@ impl Problem<'_> {
                 dn_dp,
             })
         };
+        let sigma = fwhm / 2.354_82 * TRUNCATED_SIGMA;
+        if simpson <= GH_X.len() || !(sigma > 0.0) {
+            // Fringes wider than the passband: five Gauss-Hermite nodes hold the Gaussian's
+            // moments (five Simpson nodes do not: paper sample 3's index came out 0.0005
+            // high with them, 0.0002 with these).
+            let count = if sigma > 0.0 { GH_X.len() } else { 1 };
+            let at = |i: usize| {
+                if count == 1 {
+                    (l0, 1.0)
+                } else {
+                    (
+                        l0 + core::f64::consts::SQRT_2 * sigma * GH_X[i],
+                        GH_W[i] / libm::sqrt(core::f64::consts::PI),
+                    )
+                }
+            };
+            let first = node(at(0))?;
+            let mut nodes = [first; NODES];
+            for (i, slot) in nodes.iter_mut().enumerate().take(count).skip(1) {
+                *slot = node(at(i))?;
+            }
+            return Some((nodes, count));
+        }
+        let band = Passband::gaussian_with_nodes(l0, fwhm, simpson.clamp(MIN_SIMPSON, NODES));
         let mut it = band.nodes();
         let first = node(it.next()?)?;
         let mut nodes = [first; NODES];
@@ -825,8 +878,10 @@ impl Problem<'_> {
             chi2_nu,
             // A constant index is the two-term Cauchy model with its slope held at zero: it
             // saves no penalty against the evidence of a weak but real dispersion (held
-            // constant, a 180 nm MgF2 film's index came out 0.0035 low, free 0.0005).
-            score: chi2 + MODEL_PENALTY * np.max(2) as f64,
+            // constant, a 180 nm MgF2 film's index came out 0.0035 low, free 0.0005), only
+            // a slope that gains less than CONSTANT_PREFERENCE.
+            score: chi2 + MODEL_PENALTY * np.max(2) as f64
+                - if np == 1 { CONSTANT_PREFERENCE } else { 0.0 },
             n550_sigma,
             physical: kind.physical(&p, lo, hi, self.geo.index_range),
         })
@@ -967,7 +1022,7 @@ impl Problem<'_> {
             }
         }
         let [lo, hi] = self.geo.index_range;
-        let n_steps = (((hi - lo) / 0.05).ceil() as usize).clamp(1, 200);
+        let n_steps = (libm::ceil((hi - lo) / 0.05) as usize).clamp(1, 200);
         const B_STEPS: usize = 7;
         let mut grid = [[f64::INFINITY; B_STEPS]; 201];
         let point = |i: usize, j: usize| -> [f64; 3] {
