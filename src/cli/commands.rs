@@ -349,6 +349,7 @@ fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig)> {
 }
 
 /// `filmscope eval`.
+#[allow(clippy::too_many_arguments)]
 pub fn eval(
     inputs: &[PathBuf],
     random: Option<(usize, u64, Option<PathBuf>)>,

@@ -209,7 +209,7 @@ impl ModelKind {
         for i in 0..=16 {
             let l = lo_nm + (hi_nm - lo_nm) * f64::from(i) / 16.0;
             let n = self.eval(p, l * 1e-3).0;
-            if !(n > 1.0) || n > last + 1e-9 {
+            if n.is_nan() || n <= 1.0 || n > last + 1e-9 {
                 return false;
             }
             last = n;
@@ -640,7 +640,7 @@ impl Problem<'_> {
             })
         };
         let sigma = fwhm / 2.354_82 * TRUNCATED_SIGMA;
-        if simpson <= GH_X.len() || !(sigma > 0.0) {
+        if simpson <= GH_X.len() || sigma.is_nan() || sigma <= 0.0 {
             // Fringes wider than the passband: five Gauss-Hermite nodes hold the Gaussian's
             // moments (five Simpson nodes do not: paper sample 3's index came out 0.0005
             // high with them, 0.0002 with these).
@@ -801,7 +801,7 @@ impl Problem<'_> {
                 let jdp = Vector3::from(s.jdp) * w;
                 let step = (s.gd * w - jdp.dot(&dp)) / jdd;
                 t_new[k] = t[k] + step;
-                if !(t_new[k] > 0.0) {
+                if t_new[k].is_nan() || t_new[k] <= 0.0 {
                     ok = false;
                 }
             }
