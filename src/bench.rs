@@ -500,9 +500,16 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     // Latency: the same sweep from a camera at half that rate, so no rows queue up (at full
     // speed the last row waits behind the queued ones: that is throughput, counted above).
     progress("latency (camera at half the pipeline's rate)");
+    // Streamed once, as from a live camera: the index refitted on the sample as each angle
+    // completes, the last angle's refit included in the latency.
     let mut paced = ReplaySource::new(frames, ph, 16).paced(0.5 * pipeline);
-    let slow = run_sweep(&mut paced, PipelineConfig::default(), None, &|_| {})
-        .map_err(|e| anyhow!("{e}"))?;
+    let live = RunConfig {
+        one_pass: true,
+        ..RunConfig::default()
+    };
+    let slow = crate::estimate::filmscope_passes(&mut paced, &live, &|_| {})
+        .map_err(|e| anyhow!("{e}"))?
+        .out;
     let per_mpix = |d: Duration| d.as_secs_f64() * 1e3 / ((pw * ph) as f64 / 1e6);
     let latency = per_mpix(slow.solve_latency);
     let lp = slow.latency_parts;

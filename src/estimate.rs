@@ -62,11 +62,14 @@ pub fn filmscope_passes(
         // angle completes (from the second on), warm-started from the last fit.
         let tap = std::sync::Mutex::new(tap);
         let mut last: Option<SampleFit> = None;
+        let total = source.angles_deg().len();
         let mut refit = |t: &SampleTap| -> Option<IndexModel> {
             if t.angles() < 2 {
                 return None;
             }
-            let fit = t.fit(&spec, last.as_ref());
+            // The last angle's refit stands between the last row and the maps: it refines
+            // the model chosen so far rather than choosing again.
+            let fit = t.fit(&spec, last.as_ref(), t.angles() < total);
             let m = index_model(&fit);
             last = Some(fit);
             m
@@ -77,7 +80,7 @@ pub fn filmscope_passes(
         };
         let out = run_sweep_sampled(source, config.pipeline, hook, on_rows)?;
         let tap = tap.into_inner().unwrap_or_else(|e| e.into_inner());
-        let fit = last.unwrap_or_else(|| tap.fit(&spec, None));
+        let fit = last.unwrap_or_else(|| tap.fit(&spec, None, true));
         let (out, fit, mut choice) = finish(out, fit, &tap, 1);
         let out = flag_if_disagreeing(&tap, &fit, out, &mut choice)?;
         return Ok(Passes {
@@ -100,7 +103,7 @@ pub fn filmscope_passes(
             on_rows(rows as u64);
         }
     })?;
-    let fit = tap.fit(&spec, None);
+    let fit = tap.fit(&spec, None, true);
     let index = index_model(&fit);
     let seed = if fringes_across_band(&spec, &fit) < SEEDED_BELOW_FRINGES {
         tap.seed_map(&fit, spec.width, spec.height).map(Arc::new)

@@ -61,7 +61,7 @@ impl Truth {
         let film = match v.get("dispersion") {
             None | Some(serde_json::Value::Null) => Dispersion::constant(n),
             Some(d) => parse_dispersion(d)
-                .ok_or_else(|| bad("dispersion is neither null, cauchy nor sellmeier"))?,
+                .ok_or_else(|| bad("dispersion is neither null, constant, cauchy nor sellmeier"))?,
         };
         let pol = v
             .get("polarization")
@@ -80,7 +80,8 @@ impl Truth {
     }
 }
 
-/// Parses a `dispersion` object of a summary or truth file (`cauchy` or `sellmeier`).
+/// Parses a `dispersion` object of a summary or truth file (`constant`, `cauchy` or
+/// `sellmeier`).
 pub(crate) fn parse_dispersion(d: &serde_json::Value) -> Option<Dispersion> {
     let f = |k: &str| d.get(k).and_then(serde_json::Value::as_f64);
     let arr = |k: &str| -> Option<[f64; 3]> {
@@ -92,6 +93,7 @@ pub(crate) fn parse_dispersion(d: &serde_json::Value) -> Option<Dispersion> {
         Some(out)
     };
     match d.get("model")?.as_str()? {
+        "constant" => Some(Dispersion::constant(f("n")?)),
         "cauchy" => Some(Dispersion::Cauchy {
             a: f("a")?,
             b_um2: f("b_um2")?,

@@ -4,8 +4,8 @@
 
 use filmscope_core::optics::Dispersion;
 use filmscope_core::solve::sample::{
-    fit_index, site_grid, workspace_len, Failure, Geometry, ModelKind, SampleFit, Spectra, CENTRE,
-    CONSTANT_PREFERENCE, GATE_CHI2_NU, MODEL_PENALTY, RUN,
+    fit_index, site_grid, workspace_len, Failure, Geometry, ModelKind, SampleFit, Spectra, Start,
+    CENTRE, CONSTANT_PREFERENCE, GATE_CHI2_NU, MODEL_PENALTY, RUN,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
 use serde_json::json;
@@ -121,8 +121,10 @@ impl SampleTap {
         }
     }
 
-    /// Fits the index on the angles held so far (warm-started from `start`).
-    pub fn fit(&self, spec: &SweepSpec, start: Option<&SampleFit>) -> SampleFit {
+    /// Fits the index on the angles held so far, warm-started from `start`; `reselect`:
+    /// every model refitted and chosen again from it (else only its model refined, kept if
+    /// it passes the gate).
+    pub fn fit(&self, spec: &SweepSpec, start: Option<&SampleFit>, reselect: bool) -> SampleFit {
         let geo = Geometry {
             bands_nm: &spec.bands_nm,
             fwhm_nm: &spec.fwhm_nm,
@@ -140,7 +142,11 @@ impl SampleTap {
         };
         let mut scratch =
             vec![0.0f32; workspace_len(self.sites.len(), self.angles_deg.len(), self.bands)];
-        let start = start.and_then(|f| f.best).map(|c| (c.kind, c.params));
+        let start = start.and_then(|f| f.best).map(|c| Start {
+            kind: c.kind,
+            params: c.params,
+            reselect,
+        });
         fit_index(&geo, &spectra, start, &mut scratch)
     }
 

@@ -51,8 +51,9 @@ impl SampleFilm {
             .ok_or_else(|| bad("no finite refractive_index: the estimate found no index".into()))?;
         let film = match &summary["dispersion"] {
             serde_json::Value::Null => Dispersion::constant(n),
-            d => parse_dispersion(d)
-                .ok_or_else(|| bad("dispersion is neither null, cauchy nor sellmeier".into()))?,
+            d => parse_dispersion(d).ok_or_else(|| {
+                bad("dispersion is neither null, constant, cauchy nor sellmeier".into())
+            })?,
         };
 
         let thick_path = maps_dir.join("thickness_nm.hdr");

@@ -299,6 +299,18 @@ impl Failure {
     }
 }
 
+/// A warm start of the fit: the last fit's model and parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Start {
+    /// The model.
+    pub kind: ModelKind,
+    /// Its parameters ([`ModelKind::dispersion`]).
+    pub params: [f64; 3],
+    /// Whether every model is refitted and chosen again (else only this one is refined,
+    /// and kept if it passes the gate: the fast refit a live sweep's last angle takes).
+    pub reselect: bool,
+}
+
 /// What the sample fit found.
 #[derive(Clone, Debug)]
 pub struct SampleFit {
@@ -375,7 +387,7 @@ pub fn site_grid(
 pub fn fit_index(
     geo: &Geometry<'_>,
     spectra: &Spectra<'_>,
-    start: Option<(ModelKind, [f64; 3])>,
+    start: Option<Start>,
     scratch: &mut [f32],
 ) -> SampleFit {
     let mut fit = SampleFit {
@@ -428,7 +440,12 @@ pub fn fit_index(
     };
     // Warm start first: refine and keep if it passes the gate.
     let mut thick = [f64::NAN; MAX_SITES];
-    if let Some((kind, p)) = start {
+    if let Some(Start {
+        kind,
+        params: p,
+        reselect,
+    }) = start
+    {
         if problem
             .start_thicknesses(kind, &p, &mut thick, scratch)
             .is_some()
@@ -437,6 +454,10 @@ pub fn fit_index(
             if let Some(cand) = problem.refine(kind, p, &mut refined) {
                 if cand.chi2_nu <= GATE_CHI2_NU {
                     fit.starts = 1;
+                    if !reselect {
+                        let _ = fit.candidates.push(cand);
+                        return problem.settle(fit, cand, &refined);
+                    }
                     return problem.choose(fit, cand, &refined, scratch);
                 }
             }
@@ -974,6 +995,11 @@ impl Problem<'_> {
             fit.failure = Some(Failure::NoFit);
             return fit;
         };
+        self.settle(fit, c, &tt)
+    }
+
+    /// `fit` ending with `c` and its sites' thicknesses `tt`, judged by the gate.
+    fn settle(&self, mut fit: SampleFit, c: Candidate, tt: &[f64; MAX_SITES]) -> SampleFit {
         fit.best = Some(c);
         for (k, slot) in fit.thickness_nm.iter_mut().enumerate() {
             *slot = if k < self.usable.len() && self.usable[k] {
