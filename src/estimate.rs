@@ -21,7 +21,6 @@ use crate::pipeline::{
     PipelineError, Prior, PriorUpdate, SampleHook, Source, SweepOutput,
 };
 use filmscope_core::optics::FieldOfView;
-use filmscope_core::solve::sample::CENTRE;
 
 use crate::sweep::{Method, MethodResult};
 
@@ -139,8 +138,8 @@ pub fn filmscope_passes(
 fn sites_disagree(tap: &SampleTap, fit: &SampleFit, out: &SweepOutput) -> f64 {
     let w = out.spec.width;
     let (mut compared, mut off) = (0usize, 0usize);
-    for (k, &(r, c)) in tap.sites().iter().enumerate() {
-        let i = r as usize * w + c as usize + CENTRE;
+    for (k, (r, c)) in tap.centres().enumerate() {
+        let i = r * w + c;
         let (Some(p), Some(&t)) = (out.results.get(i), fit.thickness_nm.get(k)) else {
             continue;
         };

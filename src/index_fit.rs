@@ -4,8 +4,9 @@
 
 use filmscope_core::optics::Dispersion;
 use filmscope_core::solve::sample::{
-    fit_index, site_grid, workspace_len, Failure, Geometry, ModelKind, SampleFit, Spectra, Start,
-    CENTRE, CONSTANT_PREFERENCE, GATE_CHI2_NU, MODEL_PENALTY, RUN,
+    fit_index, run_pixel, runs_along_columns, site_grid, workspace_len, Failure, Geometry,
+    ModelKind, SampleFit, Spectra, Start, CENTRE, CONSTANT_PREFERENCE, GATE_CHI2_NU, MODEL_PENALTY,
+    RUN,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
 use serde_json::json;
@@ -23,10 +24,10 @@ pub const SEEDED_BELOW_FRINGES: f64 = 2.0;
 pub struct SampleTap {
     width: usize,
     bands: usize,
-    /// Sites `(row, first column of the run)`, row-major over the site grid.
+    /// Sites: the `(row, column)` of each run's first pixel.
     sites: Vec<(u32, u32)>,
-    /// Columns of the site grid.
-    grid_cols: usize,
+    /// Whether the runs go down the columns (an image narrower than a run).
+    along_columns: bool,
     angle_stride: usize,
     angles_deg: Vec<f64>,
     values: Vec<f32>,
@@ -37,8 +38,6 @@ impl SampleTap {
     /// if more arrive).
     pub fn new(spec: &SweepSpec, sites: usize, angles: usize) -> Self {
         let grid = site_grid(spec.width, spec.height, sites);
-        let first_row = grid.first().map(|s| s.0);
-        let grid_cols = grid.iter().take_while(|s| Some(s.0) == first_row).count();
         let angle_stride = angles.max(1);
         let bands = spec.bands_nm.len();
         Self {
@@ -46,7 +45,7 @@ impl SampleTap {
             bands,
             values: vec![f32::NAN; grid.len() * RUN * angle_stride * bands],
             sites: grid.to_vec(),
-            grid_cols,
+            along_columns: runs_along_columns(spec.width, spec.height),
             angle_stride,
             angles_deg: Vec::new(),
         }
@@ -57,9 +56,11 @@ impl SampleTap {
         self.values[((k * RUN + j) * self.angle_stride + a) * self.bands + b]
     }
 
-    /// The sites, `(row, first column of the run)`.
-    pub fn sites(&self) -> &[(u32, u32)] {
-        &self.sites
+    /// Each site's centre pixel, `(row, column)`.
+    pub fn centres(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.sites
+            .iter()
+            .map(|&(r, c)| run_pixel(r as usize, c as usize, CENTRE, self.along_columns))
     }
 
     /// Bytes the held spectra take.
@@ -108,13 +109,12 @@ impl SampleTap {
             return;
         }
         for (k, &(r, c)) in self.sites.iter().enumerate() {
-            let (r, c) = (r as usize, c as usize);
-            if !(first_row..first_row + rows).contains(&r) {
-                continue;
-            }
-            let row = &values[(r - first_row) * self.width..];
             for j in 0..RUN {
-                if let Some(&v) = row.get(c + j) {
+                let (y, x) = run_pixel(r as usize, c as usize, j, self.along_columns);
+                if !(first_row..first_row + rows).contains(&y) || x >= self.width {
+                    continue;
+                }
+                if let Some(&v) = values.get((y - first_row) * self.width + x) {
                     self.values[((k * RUN + j) * self.angle_stride + a) * self.bands + band] = v;
                 }
             }
@@ -151,56 +151,58 @@ impl SampleTap {
     }
 
     /// Every pixel's starting thickness from the sites' (bilinear over the site grid, the
-    /// nearest site beyond it), for a film without fringe pairs; `None` if too few sites
-    /// have one.
+    /// nearest sites beyond it), for a film without fringe pairs; `None` if fewer than two
+    /// sites have one.
     pub fn seed_map(&self, fit: &SampleFit, width: usize, height: usize) -> Option<Vec<f32>> {
-        let cols = self.grid_cols.max(1);
-        let rows = self.sites.len() / cols;
-        if rows == 0
-            || fit.thickness_nm[..self.sites.len()]
-                .iter()
-                .filter(|t| t.is_finite())
-                .count()
-                < 2
-        {
-            return None;
-        }
-        let thick = |iy: usize, ix: usize| fit.thickness_nm[iy * cols + ix];
-        let row_of = |iy: usize| self.sites[iy * cols].0 as f64;
-        let col_of = |ix: usize| (self.sites[ix].1 as usize + CENTRE) as f64;
-        // Fill missing sites from the mean of the finite ones.
-        let finite: Vec<f32> = fit.thickness_nm[..self.sites.len()]
+        let n = self.sites.len();
+        let finite: Vec<f32> = fit.thickness_nm[..n]
             .iter()
             .copied()
             .filter(|t| t.is_finite())
             .collect();
+        if finite.len() < 2 {
+            return None;
+        }
+        // A missing site takes the mean of the others.
         let mean = finite.iter().sum::<f32>() / finite.len() as f32;
-        let at = |iy: usize, ix: usize| {
-            let t = thick(iy, ix);
+        // The grid's distinct centre rows and columns, and each cell's site.
+        let centres: Vec<(usize, usize)> = self.centres().collect();
+        let mut rows: Vec<usize> = centres.iter().map(|c| c.0).collect();
+        let mut cols: Vec<usize> = centres.iter().map(|c| c.1).collect();
+        rows.sort_unstable();
+        rows.dedup();
+        cols.sort_unstable();
+        cols.dedup();
+        let mut cell = vec![mean; rows.len() * cols.len()];
+        for (k, &(r, c)) in centres.iter().enumerate() {
+            let (Ok(iy), Ok(ix)) = (rows.binary_search(&r), cols.binary_search(&c)) else {
+                continue;
+            };
+            let t = fit.thickness_nm[k];
             if t.is_finite() {
-                t
-            } else {
-                mean
+                cell[iy * cols.len() + ix] = t;
+            }
+        }
+        let bracket = |x: usize, pos: &[usize]| -> (usize, usize, f64) {
+            match pos.iter().position(|&p| p >= x) {
+                Some(0) | None if pos.len() == 1 => (0, 0, 0.0),
+                Some(0) => (0, 0, 0.0),
+                None => (pos.len() - 1, pos.len() - 1, 0.0),
+                Some(i) => (
+                    i - 1,
+                    i,
+                    (x - pos[i - 1]) as f64 / (pos[i] - pos[i - 1]) as f64,
+                ),
             }
         };
-        let bracket = |x: f64, n: usize, pos: &dyn Fn(usize) -> f64| -> (usize, usize, f64) {
-            if n == 1 || x <= pos(0) {
-                return (0, 0, 0.0);
-            }
-            for i in 0..n - 1 {
-                if x <= pos(i + 1) {
-                    return (i, i + 1, (x - pos(i)) / (pos(i + 1) - pos(i)));
-                }
-            }
-            (n - 1, n - 1, 0.0)
-        };
+        let at = |iy: usize, ix: usize| f64::from(cell[iy * cols.len() + ix]);
         let mut map = vec![f32::NAN; width * height];
         for y in 0..height {
-            let (y0, y1, fy) = bracket(y as f64, rows, &row_of);
+            let (y0, y1, fy) = bracket(y, &rows);
             for x in 0..width {
-                let (x0, x1, fx) = bracket(x as f64, cols, &col_of);
-                let top = at(y0, x0) as f64 * (1.0 - fx) + at(y0, x1) as f64 * fx;
-                let bottom = at(y1, x0) as f64 * (1.0 - fx) + at(y1, x1) as f64 * fx;
+                let (x0, x1, fx) = bracket(x, &cols);
+                let top = at(y0, x0) * (1.0 - fx) + at(y0, x1) * fx;
+                let bottom = at(y1, x0) * (1.0 - fx) + at(y1, x1) * fx;
                 map[y * width + x] = (top * (1.0 - fy) + bottom * fy) as f32;
             }
         }

@@ -145,6 +145,7 @@ fn noisy_capture_within_a_unit_and_a_wrong_index_is_seen() {
         serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
     let n = summary["refractive_index"].as_f64().expect("n");
     summary["refractive_index"] = serde_json::json!(n + 0.02);
+    summary["dispersion"] = serde_json::json!({"model": "constant", "n": n + 0.02});
     std::fs::write(&path, summary.to_string()).expect("write");
     let (bad_mean, bad_p95) = overall(&compare_json(&est));
     assert!(

@@ -269,10 +269,13 @@ impl Drop for OutputDir {
     }
 }
 
+/// Times a lock is tried (20 ms apart while another writer is still writing its pid).
+const LOCK_TRIES: usize = 50;
+
 /// Creates `lock` exclusively with this process's pid; a lock of a process no longer
 /// running is taken over, one of a running process refused.
 fn take_lock(lock: &Path) -> Result<(), OutputDirError> {
-    for _ in 0..3 {
+    for _ in 0..LOCK_TRIES {
         match OpenOptions::new().write(true).create_new(true).open(lock) {
             Ok(mut f) => {
                 let _ = writeln!(f, "{}", std::process::id());
@@ -292,7 +295,11 @@ fn take_lock(lock: &Path) -> Result<(), OutputDirError> {
                             ),
                         ))
                     }
-                    // Being created this instant, or not ours: not taken over.
+                    // Being created this instant: its pid follows within moments.
+                    Err(_) if text.trim().is_empty() => {
+                        std::thread::sleep(std::time::Duration::from_millis(20));
+                    }
+                    // Not ours: not taken over.
                     Err(_) => {
                         return Err(fail(
                             lock,

@@ -23,7 +23,7 @@ use super::status::StatusServer;
 use super::stream::{MqttPublisher, ResultsLog};
 use super::verdict::{self, Verdict};
 use super::{counter_of, sample_id, utc_iso};
-use crate::estimate::{run_method, write_outputs, Run, RunConfig};
+use crate::estimate::{run_method, write_outputs_into, Run, RunConfig};
 use crate::io::{write_atomic, Capture};
 use crate::pipeline::{CaptureSource, DEFAULT_INDEX_RANGE};
 use crate::rig::acquire::{open_sim_with, sim_options, Acquisition};
@@ -391,7 +391,9 @@ impl Line {
         let (w, h) = (run.spec.width, run.spec.height);
         let index = run.result.index.at(550.0);
         let v = verdict::judge(recipe, w, h, &run.result.thickness_nm, index);
-        let mut summary = write_outputs(&tmp, &run, &format!("inspect sample {id}"))
+        // The sample's folder is staged as a whole (renamed in when complete): the maps go
+        // into it beside the sweep's capture.
+        let mut summary = write_outputs_into(&tmp, &run, &format!("inspect sample {id}"))
             .map_err(|e| InspectError(e.to_string()))?;
         write_mask(&tmp, w, h, &v)?;
         let png = overlay_png(recipe, w, h, &run.result.thickness_nm, &v)?;

@@ -455,6 +455,12 @@ impl Source for Acquisition {
         self.config.sweep.angles_deg.clone()
     }
 
+    /// A rig streams once, as it measures: the estimator holds its pixel sample as the rows
+    /// pass and emits the maps when the sweep ends (a later stream replays the recording).
+    fn replayable(&self) -> bool {
+        false
+    }
+
     fn stream(&mut self, tx: &Sender<StreamMsg>) {
         if self.acquired {
             // Later passes replay what was recorded.

@@ -350,14 +350,42 @@ pub fn workspace_len(sites: usize, angles: usize, bands: usize) -> usize {
     noise.max(dictionary)
 }
 
-/// Sites of a `width x height` image for a sample of about `sites`: a grid with the image's
-/// aspect, each site `(row, first column of its run)`, runs inside the image. Fewer when the
-/// image is too small.
+/// Whether a `width x height` image's runs go down its columns (an image narrower than a
+/// run, such as a strip of columns) rather than along its rows.
+pub fn runs_along_columns(width: usize, height: usize) -> bool {
+    width < RUN && height >= RUN
+}
+
+/// Pixel `j` of the run that starts at `(row, col)`: along the row, or down the column
+/// ([`runs_along_columns`]).
+pub fn run_pixel(row: usize, col: usize, j: usize, along_columns: bool) -> (usize, usize) {
+    if along_columns {
+        (row + j, col)
+    } else {
+        (row, col + j)
+    }
+}
+
+/// Sites of a `width x height` image for a sample of about `sites`: a rectilinear grid with
+/// the image's aspect, each site the `(row, column)` of its run's first pixel, runs inside
+/// the image (along rows, or down columns, [`runs_along_columns`]). Fewer when the image is
+/// too small.
 pub fn site_grid(
     width: usize,
     height: usize,
     sites: usize,
 ) -> heapless::Vec<(u32, u32), MAX_SITES> {
+    if runs_along_columns(width, height) {
+        return along_rows(height, width, sites)
+            .into_iter()
+            .map(|(r, c)| (c, r))
+            .collect();
+    }
+    along_rows(width, height, sites)
+}
+
+/// [`site_grid`] with runs along the rows.
+fn along_rows(width: usize, height: usize, sites: usize) -> heapless::Vec<(u32, u32), MAX_SITES> {
     let mut out = heapless::Vec::new();
     if width < RUN || height == 0 || sites == 0 {
         return out;
@@ -1681,6 +1709,12 @@ mod tests {
         for &(r, c) in &g {
             assert!((r as usize) < 480 && c as usize + RUN <= 640);
         }
-        assert!(site_grid(3, 10, 16).is_empty());
+        assert!(site_grid(3, 3, 16).is_empty());
+        // A strip narrower than a run: runs down its columns, inside it.
+        let g = site_grid(4, 60, 16);
+        assert!(!g.is_empty());
+        for &(r, c) in &g {
+            assert!(r as usize + RUN <= 60 && (c as usize) < 4);
+        }
     }
 }
