@@ -231,10 +231,15 @@ fn sx_wheel_counts_selects_refuses_and_notices_unplugging() {
     );
 }
 
+/// The recorded capture estimated as the rig's sweep was: streamed once (`--one-pass`).
 fn estimate(capture: &Path) -> filmscope::sweep::MethodResult {
     let cap = Capture::load(capture).expect("recorded capture loads");
     let mut src = CaptureSource::new(cap).expect("source");
-    run_method(&mut src, &RunConfig::default(), &|_| {})
+    let once = RunConfig {
+        one_pass: true,
+        ..RunConfig::default()
+    };
+    run_method(&mut src, &once, &|_| {})
         .expect("estimate")
         .result
 }

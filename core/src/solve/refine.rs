@@ -21,14 +21,14 @@ use super::IndexModel;
 pub const INDEX_STEP: f64 = 1e-4;
 
 /// Gauss-Hermite nodes and weights (5 points) for the Gaussian passband average.
-const GH_X: [f64; 5] = [
+pub(crate) const GH_X: [f64; 5] = [
     -2.020_182_870_456_086,
     -0.958_572_464_613_819,
     0.0,
     0.958_572_464_613_819,
     2.020_182_870_456_086,
 ];
-const GH_W: [f64; 5] = [
+pub(crate) const GH_W: [f64; 5] = [
     0.019_953_242_059_046,
     0.393_619_323_152_241,
     0.945_308_720_482_942,
@@ -37,7 +37,7 @@ const GH_W: [f64; 5] = [
 ];
 /// The passband is truncated at 1.5 FWHM (3.53 sigma): its variance is 0.9946 of the
 /// untruncated Gaussian's.
-const TRUNCATED_SIGMA: f64 = 0.997_3;
+pub(crate) const TRUNCATED_SIGMA: f64 = 0.997_3;
 
 /// One quadrature node of a band: the stack at the node's wavelength.
 #[derive(Clone, Copy, Debug)]

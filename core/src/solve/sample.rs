@@ -25,6 +25,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use super::refine::{GH_W, GH_X, TRUNCATED_SIGMA};
 use crate::optics::{Dispersion, FilmAtAngle, Indices, Passband, Polarization};
 
 /// Pixels a site keeps: its centre and two neighbours each side along the row.
@@ -73,23 +74,6 @@ pub const THICK_FRINGES: f64 = 3.0;
 const NODES: usize = 33;
 /// Fewest Simpson nodes: fewer do not hold the truncated Gaussian's moments.
 const MIN_SIMPSON: usize = 17;
-/// Gauss-Hermite nodes and weights (5 points) for the Gaussian passband average.
-const GH_X: [f64; 5] = [
-    -2.020_182_870_456_086,
-    -0.958_572_464_613_819,
-    0.0,
-    0.958_572_464_613_819,
-    2.020_182_870_456_086,
-];
-const GH_W: [f64; 5] = [
-    0.019_953_242_059_046,
-    0.393_619_323_152_241,
-    0.945_308_720_482_942,
-    0.393_619_323_152_241,
-    0.019_953_242_059_046,
-];
-/// The passband is truncated at 1.5 FWHM: its variance is 0.9946 of the untruncated one's.
-const TRUNCATED_SIGMA: f64 = 0.997_3;
 /// Largest phase step between quadrature nodes, rad (a thick high-index film turns its phase
 /// by 8 rad across an 8 nm passband: five nodes left model errors of the noise's size).
 const NODE_PHASE: f64 = 0.3;
@@ -1463,6 +1447,11 @@ mod tests {
     }
 
     fn run(case: &Case, seed: u64) -> (SampleFit, Vec<f32>) {
+        run_as(case, case.pol, seed)
+    }
+
+    /// Simulates `case` in `truth_pol` light and fits it as `case.pol` light.
+    fn run_as(case: &Case, truth_pol: Polarization, seed: u64) -> (SampleFit, Vec<f32>) {
         let mut bands = Vec::new();
         let mut l = case.bands.0;
         while l <= case.bands.1 + 1e-9 {
@@ -1474,7 +1463,7 @@ mod tests {
             ambient_index: 1.0,
             film: case.film,
             substrate: Dispersion::constant(case.substrate),
-            polarization: case.pol,
+            polarization: truth_pol,
         };
         let sites = 32;
         let (na, nb) = (case.angles.len(), bands.len());
@@ -1644,62 +1633,8 @@ mod tests {
             ..case
         };
         // The same spectra fitted as s light: simulate p, fit s.
-        let (p_fit, _) = run_mislabelled(&wrong, Polarization::P, 5);
+        let (p_fit, _) = run_as(&wrong, Polarization::P, 5);
         assert_eq!(p_fit.failure, Some(Failure::NoFit), "{p_fit:?}");
-    }
-
-    fn run_mislabelled(case: &Case, truth_pol: Polarization, seed: u64) -> (SampleFit, Vec<f32>) {
-        // Simulate with `truth_pol`, fit with `case.pol`.
-        let mut bands = Vec::new();
-        let mut l = case.bands.0;
-        while l <= case.bands.1 + 1e-9 {
-            bands.push(l);
-            l += case.bands.2;
-        }
-        let fwhm = vec![case.fwhm; bands.len()];
-        let stack = FilmStack {
-            ambient_index: 1.0,
-            film: case.film,
-            substrate: Dispersion::constant(case.substrate),
-            polarization: truth_pol,
-        };
-        let sites = 32;
-        let (na, nb) = (case.angles.len(), bands.len());
-        let mut values = vec![0.0f32; sites * RUN * na * nb];
-        let mut rng = Noise(seed | 1);
-        for k in 0..sites {
-            let centre = case.base_nm * (1.0 + 0.1 * (k as f64 / sites as f64 - 0.5));
-            for j in 0..RUN {
-                for (a, &deg) in case.angles.iter().enumerate() {
-                    for (b, &l) in bands.iter().enumerate() {
-                        let r = stack.band_reflectance(
-                            centre + 0.3 * (j as f64 - 2.0),
-                            deg,
-                            &Passband::gaussian(l, case.fwhm),
-                        );
-                        values[((k * RUN + j) * na + a) * nb + b] =
-                            (r + case.noise * rng.normal()) as f32;
-                    }
-                }
-            }
-        }
-        let geo = Geometry {
-            bands_nm: &bands,
-            fwhm_nm: &fwhm,
-            angles_deg: case.angles,
-            ambient_index: 1.0,
-            substrate_index: case.substrate,
-            polarization: case.pol,
-            index_range: [1.2, 3.0],
-            thickness_range_nm: [10.0, 3000.0],
-        };
-        let spectra = Spectra {
-            values: &values,
-            sites,
-            angle_stride: na,
-        };
-        let mut scratch = vec![0.0f32; workspace_len(sites, na, nb)];
-        (fit_index(&geo, &spectra, None, &mut scratch), Vec::new())
     }
 
     #[test]
