@@ -77,9 +77,10 @@ enum Command {
         /// Capacity of each pipeline channel, in messages.
         #[arg(long, default_value_t = 64)]
         channel_capacity: usize,
-        /// About how many pixels keep the shared index's sums (32 bytes each); the index's
-        /// step, the ratio votes and the pooled noise are theirs. Every pixel of a sensor
-        /// with fewer than twice as many.
+        /// About how many pixels keep whole extremum lists and the pooled sums (32 bytes
+        /// each), the others their last extrema only; every pixel of a sensor with fewer
+        /// than twice as many. The index itself comes from the pixel sample
+        /// (`--sample-sites`).
         #[arg(long, default_value_t = filmscope_core::solve::fit_row::INDEX_PIXELS)]
         index_pixels: usize,
         /// Brute force: number of index values over the search range (0: a 0.01 step).
@@ -178,7 +179,8 @@ enum Command {
         /// column-map and shared-index (comma-separated).
         #[arg(long, value_delimiter = ',')]
         ablate: Vec<String>,
-        /// About how many pixels keep the shared index's sums (see `estimate`).
+        /// About how many pixels keep whole extremum lists and the pooled sums (see
+        /// `estimate`).
         #[arg(long, default_value_t = filmscope_core::solve::fit_row::INDEX_PIXELS)]
         index_pixels: usize,
         /// Brute force: number of index values over the search range (0: a 0.01 step).
