@@ -127,6 +127,30 @@ fn check_index_args(index: super::IndexArgs) -> Result<()> {
     Ok(())
 }
 
+/// Refuses a capture whose run with `method` would need more memory than `budget` (or, with
+/// none, than the machine has available), before any work.
+fn check_capture_memory(cap: &Capture, method: Method, budget: Option<u64>) -> Result<()> {
+    let info = cap.check()?;
+    crate::limits::check_memory(
+        &format!(
+            "{}: {} x {} px, {} bands, {} angles",
+            cap.path.display(),
+            info.samples,
+            info.lines,
+            info.bands,
+            cap.angles.len()
+        ),
+        crate::limits::run_bytes(
+            (info.samples as u64).saturating_mul(info.lines as u64),
+            info.bands as u64,
+            cap.angles.len() as u64,
+            method != Method::Filmscope,
+        ),
+        budget,
+    )
+    .map_err(|e| anyhow!(e))
+}
+
 /// `filmscope estimate`.
 /// The `--max-memory` budget, if given.
 fn memory_budget(max_memory: Option<&str>) -> Result<Option<u64>> {
@@ -179,26 +203,7 @@ pub fn estimate(
         );
     }
     check_capture_outside(&cap, out)?;
-    let info = cap.check()?;
-    let pixels = (info.samples as u64).saturating_mul(info.lines as u64);
-    crate::limits::check_memory(
-        &format!(
-            "{}: {} x {} px, {} bands, {} angles",
-            cap.path.display(),
-            info.samples,
-            info.lines,
-            info.bands,
-            cap.angles.len()
-        ),
-        crate::limits::run_bytes(
-            pixels,
-            info.bands as u64,
-            cap.angles.len() as u64,
-            config.method != Method::Filmscope,
-        ),
-        budget,
-    )
-    .map_err(|e| anyhow!(e))?;
+    check_capture_memory(&cap, config.method, budget)?;
     let out_dir = crate::io::OutputDir::begin(out)?;
     let label = cap.path.display().to_string();
     let fov = cap.lens.field_of_view();
@@ -298,25 +303,7 @@ fn eval_one(path: &Path, config: &RunConfig) -> Result<(EvalReport, Run)> {
         Input::Capture(dir) => {
             let truth = Truth::of_capture_dir(&dir).map_err(|e| anyhow!(e))?;
             let cap = Capture::load(&dir)?;
-            let info = cap.check()?;
-            crate::limits::check_memory(
-                &format!(
-                    "{}: {} x {} px, {} bands, {} angles",
-                    cap.path.display(),
-                    info.samples,
-                    info.lines,
-                    info.bands,
-                    cap.angles.len()
-                ),
-                crate::limits::run_bytes(
-                    (info.samples as u64).saturating_mul(info.lines as u64),
-                    info.bands as u64,
-                    cap.angles.len() as u64,
-                    config.method != Method::Filmscope,
-                ),
-                None,
-            )
-            .map_err(|e| anyhow!(e))?;
+            check_capture_memory(&cap, config.method, None)?;
             let fov = cap.lens.field_of_view();
             let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
             let name = dir.display().to_string();

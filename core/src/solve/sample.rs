@@ -432,7 +432,6 @@ pub fn fit_index(
             .count();
         *u = bad * 10 <= na * nb;
     }
-    fit.sites_used = usable.iter().filter(|&&u| u).count();
     for (k, u) in usable.iter_mut().enumerate().take(sites) {
         *u &= site_sigma[k] > 0.0 && site_sigma[k].is_finite();
     }
@@ -786,7 +785,6 @@ impl Problem<'_> {
         t: &mut [f64; MAX_SITES],
     ) -> Option<Candidate> {
         let np = kind.params();
-        let w = 1.0;
         let mut sites = [SiteSums::default(); MAX_SITES];
         let (mut hpp, mut gp, mut chi2, mut n) = self.normal(kind, &p, t, &mut sites)?;
         let mut lambda = 1e-3;
@@ -799,10 +797,10 @@ impl Problem<'_> {
                 if !self.usable[k] || s.jdd <= 0.0 {
                     continue;
                 }
-                let jdd = s.jdd * w * (1.0 + lambda);
-                let jdp = Vector3::from(s.jdp) * w;
+                let jdd = s.jdd * (1.0 + lambda);
+                let jdp = Vector3::from(s.jdp);
                 h -= jdp * jdp.transpose() / jdd;
-                g -= jdp * (s.gd * w / jdd);
+                g -= jdp * (s.gd / jdd);
             }
             let mut hd = Matrix3::identity();
             for i in 0..np {
@@ -830,9 +828,9 @@ impl Problem<'_> {
                 if !self.usable[k] || s.jdd <= 0.0 {
                     continue;
                 }
-                let jdd = s.jdd * w * (1.0 + lambda);
-                let jdp = Vector3::from(s.jdp) * w;
-                let step = (s.gd * w - jdp.dot(&dp)) / jdd;
+                let jdd = s.jdd * (1.0 + lambda);
+                let jdp = Vector3::from(s.jdp);
+                let step = (s.gd - jdp.dot(&dp)) / jdd;
                 t_new[k] = t[k] + step;
                 if t_new[k].is_nan() || t_new[k] <= 0.0 {
                     ok = false;
@@ -872,8 +870,8 @@ impl Problem<'_> {
             if !self.usable[k] || s.jdd <= 0.0 {
                 continue;
             }
-            let jdp = Vector3::from(s.jdp) * w;
-            h -= jdp * jdp.transpose() / (s.jdd * w);
+            let jdp = Vector3::from(s.jdp);
+            h -= jdp * jdp.transpose() / s.jdd;
         }
         let mut hd = Matrix3::identity();
         for i in 0..np {
