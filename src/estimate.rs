@@ -13,7 +13,7 @@ use crate::baseline::{brute, paper, BruteGrid};
 use crate::export::png::{write_map_png, MapPreview};
 use crate::field::{FieldConfig, FieldModel};
 use crate::index_fit::{
-    choice_json, fringes_across_band, index_model, SampleTap, SEEDED_BELOW_FRINGES,
+    choice_json, fringes_across_band, index_model, PixelTap, SampleTap, SEEDED_BELOW_FRINGES,
 };
 use crate::io::{write_atomic, write_f32_map, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::pipeline::{
@@ -61,6 +61,7 @@ pub fn filmscope_passes(
         // angle completes (from the second on), warm-started from the last fit.
         let tap = std::sync::Mutex::new(tap);
         let mut last: Option<SampleFit> = None;
+        let mut fit_seconds = f64::NAN;
         let total = source.angles_deg().len();
         let mut refit = |t: &SampleTap| -> Option<IndexModel> {
             if t.angles() < 2 {
@@ -68,7 +69,9 @@ pub fn filmscope_passes(
             }
             // The last angle's refit stands between the last row and the maps: it refines
             // the model chosen so far rather than choosing again.
+            let began = Instant::now();
             let fit = t.fit(&spec, last.as_ref(), t.angles() < total);
+            fit_seconds = began.elapsed().as_secs_f64();
             let m = index_model(&fit);
             last = Some(fit);
             m
@@ -81,6 +84,7 @@ pub fn filmscope_passes(
         let tap = tap.into_inner().unwrap_or_else(|e| e.into_inner());
         let fit = last.unwrap_or_else(|| tap.fit(&spec, None, true));
         let (out, fit, mut choice) = finish(out, fit, &tap, 1);
+        choice["fit_seconds"] = json!(fit_seconds.is_finite().then_some(fit_seconds));
         let out = flag_if_disagreeing(&tap, &fit, out, &mut choice)?;
         return Ok(Passes {
             out,
@@ -102,7 +106,9 @@ pub fn filmscope_passes(
             on_rows(rows as u64);
         }
     })?;
+    let began = Instant::now();
     let fit = tap.fit(&spec, None, true);
+    let fit_seconds = began.elapsed().as_secs_f64();
     let index = index_model(&fit);
     let seed = if fringes_across_band(&spec, &fit) < SEEDED_BELOW_FRINGES {
         tap.seed_map(&fit, spec.width, spec.height).map(Arc::new)
@@ -125,13 +131,98 @@ pub fn filmscope_passes(
             }
         }
     }
+    let repaired = repair(source, &spec, &fit, &mut out)?;
+    if repaired.is_some() {
+        passes += 1;
+    }
     let (out, fit, mut choice) = finish(out, fit, &tap, passes);
+    choice["fit_seconds"] = json!(fit_seconds);
+    choice["pixels_searched"] = json!(repaired.map(|r| r.0));
+    choice["pixels_solved_by_search"] = json!(repaired.map(|r| r.1));
     flag_if_disagreeing(&tap, &fit, out, &mut choice).map(|out| Passes {
         out,
         passes,
         fit: Some(fit),
         choice,
     })
+}
+
+/// Flags of an unsolved pixel whose spectra may still give its thickness (not dead,
+/// saturated, out of range or under a failed model).
+const SEARCHABLE: u16 = flags::NO_FRINGE
+    | flags::AMBIGUOUS_ORDER
+    | flags::POOR_FIT
+    | flags::ORDER_REJECTED
+    | flags::IMPRECISE;
+
+/// How much worse, in chi-square noise units, a searched pixel's best thickness in another
+/// order's basin must fit for its own to be reported (as the streaming pass's order check).
+pub const SEARCH_MARGIN_CHI2: f64 = 16.0;
+
+/// Reduced chi-square (over the sample fit's own, when that is above 1) above which a
+/// searched pixel's thickness is not reported.
+pub const SEARCH_CHI2_NU: f64 = 2.0;
+
+/// Pixels the per-pixel pass left unsolved, though their spectra may tell (flags only among
+/// [`SEARCHABLE`]), each solved from its full spectra by the sample fit's thickness search
+/// under the fitted index, on one more stream of the capture: a thick film's pixels whose
+/// extrema overflow or leave the order open, those by a step the sample's map does not
+/// see. A pixel is reported only when its fit is as good as the sample's and no other
+/// order's comes near. Returns the pixels searched and those solved, or `None` when none
+/// was searched.
+fn repair(
+    source: &mut dyn Source,
+    spec: &SweepSpec,
+    fit: &SampleFit,
+    out: &mut SweepOutput,
+) -> Result<Option<(usize, usize)>, PipelineError> {
+    let Some(best) = fit.best.filter(|_| fit.failure.is_none()) else {
+        return Ok(None);
+    };
+    let w = out.spec.width;
+    let pixels: Vec<(u32, u32)> = out
+        .results
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| {
+            r.flags & flags::INVALID != 0 && r.flags & flags::INVALID & !SEARCHABLE == 0
+        })
+        .map(|(i, _)| ((i / w) as u32, (i % w) as u32))
+        .collect();
+    if pixels.is_empty() || !fit.noise_sigma.is_finite() {
+        return Ok(None);
+    }
+    let mut tap = PixelTap::new(spec, &pixels, source.angles_deg().len());
+    for_each_calibrated(source, |event| match event {
+        Calibrated::Angle(deg) => tap.angle(deg),
+        Calibrated::Rows {
+            band,
+            first_row,
+            rows,
+            values,
+            ..
+        } => tap.rows(band, first_row, rows, values),
+    })?;
+    let seats = tap.seat(spec, best.kind, best.params, fit.noise_sigma);
+    let [d_lo, d_hi] = spec.thickness_range_nm;
+    let chi2_limit = SEARCH_CHI2_NU * best.chi2_nu.max(1.0);
+    let mut solved = 0;
+    for (&(r, c), s) in tap.pixels().iter().zip(&seats) {
+        let ok = (d_lo..=d_hi).contains(&s.thickness_nm)
+            && s.chi2_nu <= chi2_limit
+            && s.margin_chi2 >= SEARCH_MARGIN_CHI2
+            && s.sigma_nm <= MAX_THICKNESS_SIGMA_NM;
+        if !ok {
+            continue;
+        }
+        let p = &mut out.results[r as usize * w + c as usize];
+        p.flags = (p.flags & !flags::INVALID) | flags::FROM_SPECTRUM_SEARCH;
+        p.thickness_nm = s.thickness_nm as f32;
+        p.thickness_sigma_nm = s.sigma_nm as f32;
+        p.confidence = (s.margin_chi2 / (s.margin_chi2 + 4.0 * SEARCH_MARGIN_CHI2)) as f32;
+        solved += 1;
+    }
+    Ok(Some((tap.pixels().len(), solved)))
 }
 
 /// Share of the sampled sites, among those the sample fit solves, whose thickness in the

@@ -4,9 +4,9 @@
 
 use filmscope_core::optics::Dispersion;
 use filmscope_core::solve::sample::{
-    fit_index, run_pixel, runs_along_columns, site_grid, workspace_len, Failure, Geometry,
-    ModelKind, SampleFit, Spectra, Start, CENTRE, CONSTANT_PREFERENCE, GATE_CHI2_NU, MODEL_PENALTY,
-    RUN,
+    fit_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len, Failure,
+    Geometry, ModelKind, SampleFit, Seat, Spectra, Start, CENTRE, CONSTANT_PREFERENCE,
+    GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY, RUN,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
 use serde_json::json;
@@ -18,6 +18,124 @@ pub const DEFAULT_SITES: usize = 64;
 /// Fringes across the band under which the per-pixel pass starts every pixel from the
 /// sample's thickness map rather than from its own extrema (a film with no fringe pair).
 pub const SEEDED_BELOW_FRINGES: f64 = 2.0;
+
+/// The sample fit's view of sweep `spec` at `angles_deg`.
+fn geometry<'a>(spec: &'a SweepSpec, angles_deg: &'a [f64]) -> Geometry<'a> {
+    Geometry {
+        bands_nm: &spec.bands_nm,
+        fwhm_nm: &spec.fwhm_nm,
+        angles_deg,
+        ambient_index: spec.ambient_index,
+        substrate_index: spec.substrate_index,
+        polarization: spec.polarization,
+        index_range: spec.index_range,
+        thickness_range_nm: spec.thickness_range_nm,
+    }
+}
+
+/// Bytes of spectra a [`PixelTap`] holds at most: the pixels it takes are thinned to fit.
+pub const MAX_PIXEL_TAP_BYTES: usize = 32 << 20;
+
+/// The calibrated spectra of chosen pixels (those the per-pixel pass left unsolved), held
+/// as the sweep streams again, for [`filmscope_core::solve::sample::seat_pixels`].
+#[derive(Clone, Debug)]
+pub struct PixelTap {
+    width: usize,
+    bands: usize,
+    /// `(row, column)`, sorted.
+    pixels: Vec<(u32, u32)>,
+    angle_stride: usize,
+    angles_deg: Vec<f64>,
+    values: Vec<f32>,
+}
+
+impl PixelTap {
+    /// A tap for `pixels` (`(row, column)`, sorted) of sweep `spec` with `angles` angles,
+    /// every so many of them when all would take more than [`MAX_PIXEL_TAP_BYTES`].
+    pub fn new(spec: &SweepSpec, pixels: &[(u32, u32)], angles: usize) -> Self {
+        let bands = spec.bands_nm.len();
+        let angle_stride = angles.max(1);
+        let per_pixel = (angle_stride * bands * 4).max(1);
+        let keep = (MAX_PIXEL_TAP_BYTES / per_pixel).max(1);
+        let step = pixels.len().div_ceil(keep).max(1);
+        let pixels: Vec<(u32, u32)> = pixels.iter().copied().step_by(step).collect();
+        Self {
+            width: spec.width,
+            bands,
+            values: vec![f32::NAN; pixels.len() * angle_stride * bands],
+            pixels,
+            angle_stride,
+            angles_deg: Vec::new(),
+        }
+    }
+
+    /// The pixels held, `(row, column)`.
+    pub fn pixels(&self) -> &[(u32, u32)] {
+        &self.pixels
+    }
+
+    /// An angle starts (angles beyond those announced are not held).
+    pub fn angle(&mut self, incidence_deg: f64) {
+        self.angles_deg.push(incidence_deg);
+    }
+
+    /// Calibrated rows `first_row..first_row + rows` of `band` at the current angle.
+    pub fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]) {
+        let Some(a) = self.angles_deg.len().checked_sub(1) else {
+            return;
+        };
+        if band >= self.bands || a >= self.angle_stride {
+            return;
+        }
+        let from = self
+            .pixels
+            .partition_point(|&(r, _)| (r as usize) < first_row);
+        let to = self
+            .pixels
+            .partition_point(|&(r, _)| (r as usize) < first_row + rows);
+        for k in from..to {
+            let (r, c) = self.pixels[k];
+            let i = (r as usize - first_row) * self.width + c as usize;
+            if let Some(&v) = values.get(i) {
+                self.values[(k * self.angle_stride + a) * self.bands + band] = v;
+            }
+        }
+    }
+
+    /// Each held pixel's thickness under the index `(kind, params)` and the image's noise.
+    pub fn seat(
+        &self,
+        spec: &SweepSpec,
+        kind: ModelKind,
+        params: [f64; 3],
+        noise_sigma: f64,
+    ) -> Vec<Seat> {
+        let angles = self.angles_deg.len().min(self.angle_stride);
+        let geo = geometry(spec, &self.angles_deg[..angles]);
+        let per_pixel = self.angle_stride * self.bands;
+        let mut scratch = vec![0.0f32; workspace_len(MAX_SITES, angles, self.bands)];
+        let mut out = vec![Seat::default(); self.pixels.len()];
+        for (chunk, seats) in out.chunks_mut(MAX_SITES).enumerate() {
+            let first = chunk * MAX_SITES;
+            let spectra = Spectra {
+                values: &self.values[first * per_pixel..(first + seats.len()) * per_pixel],
+                sites: seats.len(),
+                angle_stride: self.angle_stride,
+                run: 1,
+            };
+            seat_pixels(
+                &geo,
+                &spectra,
+                kind,
+                params,
+                noise_sigma,
+                &mut scratch,
+                seats,
+            );
+        }
+        out
+    }
+}
 
 /// The sampled sites' calibrated spectra, held as the sweep streams.
 #[derive(Clone, Debug)]
@@ -126,20 +244,12 @@ impl SampleTap {
     /// refitted and chosen again from it (else only its model refined, kept if it passes
     /// the gate).
     pub fn fit(&self, spec: &SweepSpec, start: Option<&SampleFit>, reselect: bool) -> SampleFit {
-        let geo = Geometry {
-            bands_nm: &spec.bands_nm,
-            fwhm_nm: &spec.fwhm_nm,
-            angles_deg: &self.angles_deg,
-            ambient_index: spec.ambient_index,
-            substrate_index: spec.substrate_index,
-            polarization: spec.polarization,
-            index_range: spec.index_range,
-            thickness_range_nm: spec.thickness_range_nm,
-        };
+        let geo = geometry(spec, &self.angles_deg);
         let spectra = Spectra {
             values: &self.values,
             sites: self.sites.len(),
             angle_stride: self.angle_stride,
+            run: RUN,
         };
         let mut scratch =
             vec![0.0f32; workspace_len(self.sites.len(), self.angles_deg.len(), self.bands)];

@@ -225,12 +225,21 @@ pub struct Spectra<'a> {
     pub sites: usize,
     /// Angles the buffer has room for (the fit reads the first `angles_deg.len()`).
     pub angle_stride: usize,
+    /// Pixels per site: [`RUN`] for the index fit (its noise comes from the run), 1 for
+    /// [`seat_pixels`].
+    pub run: usize,
 }
 
 impl Spectra<'_> {
     #[inline]
     fn at(&self, bands: usize, k: usize, j: usize, a: usize, b: usize) -> f32 {
-        self.values[((k * RUN + j) * self.angle_stride + a) * bands + b]
+        self.values[((k * self.run + j) * self.angle_stride + a) * bands + b]
+    }
+
+    /// Site `k`'s own pixel (its run's centre).
+    #[inline]
+    fn centre_at(&self, bands: usize, k: usize, a: usize, b: usize) -> f32 {
+        self.at(bands, k, self.run / 2, a, b)
     }
 }
 
@@ -423,7 +432,7 @@ pub fn fit_index(
     for (k, u) in usable.iter_mut().enumerate().take(sites) {
         let bad = (0..na)
             .flat_map(|a| (0..nb).map(move |b| (a, b)))
-            .filter(|&(a, b)| !spectra.at(nb, k, CENTRE, a, b).is_finite())
+            .filter(|&(a, b)| !spectra.centre_at(nb, k, a, b).is_finite())
             .count();
         *u = bad * 10 <= na * nb;
     }
@@ -546,6 +555,114 @@ pub fn fit_index(
     }
 }
 
+/// One pixel's thickness under a given index ([`seat_pixels`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Seat {
+    /// Thickness, nm (NaN: too few samples).
+    pub thickness_nm: f64,
+    /// Its 1-sigma uncertainty, nm (scaled by the reduced chi-square when above 1).
+    pub sigma_nm: f64,
+    /// Reduced chi-square of the pixel's full spectra at that thickness, in units of the
+    /// given noise.
+    pub chi2_nu: f64,
+    /// How much worse (chi-square, noise units) the best thickness in another order's
+    /// basin fits, on the search's bands.
+    pub margin_chi2: f64,
+}
+
+/// Each pixel's thickness from its full spectra under the index `(kind, params)` by the
+/// sample fit's own search (a dictionary over the thickness range, then Gauss-Newton with
+/// the passband quadrature): for pixels whose order the streaming pass could not settle.
+/// `spectra` holds one pixel per site (`run` 1); `noise_sigma` is the image's (the sample
+/// fit's). `scratch` holds at least [`workspace_len`] values; `out` one entry per site.
+pub fn seat_pixels(
+    geo: &Geometry<'_>,
+    spectra: &Spectra<'_>,
+    kind: ModelKind,
+    params: [f64; 3],
+    noise_sigma: f64,
+    scratch: &mut [f32],
+    out: &mut [Seat],
+) {
+    let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
+    let sites = spectra.sites.min(MAX_SITES).min(out.len());
+    let nan = Seat {
+        thickness_nm: f64::NAN,
+        sigma_nm: f64::NAN,
+        chi2_nu: f64::NAN,
+        margin_chi2: f64::NAN,
+    };
+    out.iter_mut().for_each(|o| *o = nan);
+    if na < 1
+        || !(8..=MAX_BANDS).contains(&nb)
+        || sites == 0
+        || !(noise_sigma > 0.0)
+        || scratch.len() < workspace_len(sites, na, nb)
+    {
+        return;
+    }
+    let mut usable = [false; MAX_SITES];
+    for (k, u) in usable.iter_mut().enumerate().take(sites) {
+        let bad = (0..na)
+            .flat_map(|a| (0..nb).map(move |b| (a, b)))
+            .filter(|&(a, b)| !spectra.centre_at(nb, k, a, b).is_finite())
+            .count();
+        *u = bad * 10 <= na * nb;
+    }
+    let problem = Problem {
+        geo,
+        spectra,
+        usable: &usable[..sites],
+        weight: [1.0 / (noise_sigma * noise_sigma); MAX_SITES],
+    };
+    let all: [usize; MAX_SITES] = core::array::from_fn(|k| k);
+    let mut t = [f64::NAN; MAX_SITES];
+    let mut margin = [f64::NAN; MAX_SITES];
+    if problem
+        .score_point(
+            kind,
+            &params,
+            &all[..sites],
+            nb,
+            0,
+            scratch,
+            Some(&mut t),
+            Some(&mut margin),
+        )
+        .is_none()
+    {
+        return;
+    }
+    // Gauss-Newton on each thickness with the index held, the passband's quadrature in full.
+    let mut sums = [SiteSums::default(); MAX_SITES];
+    for _ in 0..4 {
+        if problem.normal(kind, &params, &t, &mut sums).is_none() {
+            return;
+        }
+        for (k, s) in sums.iter().enumerate().take(sites) {
+            if usable[k] && s.jdd > 0.0 {
+                t[k] += (s.gd / s.jdd).clamp(-5.0, 5.0);
+            }
+        }
+    }
+    if problem.normal(kind, &params, &t, &mut sums).is_none() {
+        return;
+    }
+    for (k, o) in out.iter_mut().enumerate().take(sites) {
+        let s = &sums[k];
+        if !usable[k] || s.jdd <= 0.0 || s.n < 2 {
+            continue;
+        }
+        let chi2_nu = s.sse / (s.n - 1) as f64;
+        *o = Seat {
+            thickness_nm: t[k],
+            sigma_nm: libm::sqrt(chi2_nu.max(1.0) / s.jdd),
+            chi2_nu,
+            margin_chi2: margin[k],
+        };
+    }
+}
+
 /// Each site's noise, `site_sigma`, from its run's fourth differences across the row: the
 /// RMS of those within 4 robust sigmas of zero (a step or a hot pixel left out), over
 /// `sqrt(70)` (the fourth difference of white noise has 70 times its variance). Sites see
@@ -559,6 +676,9 @@ fn noise_sigma(
 ) -> f64 {
     let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
     let sites = spectra.sites.min(MAX_SITES);
+    if spectra.run != RUN {
+        return f64::NAN;
+    }
     for (k, out) in site_sigma.iter_mut().enumerate().take(sites) {
         let mut n = 0;
         for a in 0..na {
@@ -714,7 +834,7 @@ impl Problem<'_> {
                     if !self.usable[k] {
                         continue;
                     }
-                    let y = self.spectra.at(nb, k, CENTRE, a, b);
+                    let y = self.spectra.centre_at(nb, k, a, b);
                     if !y.is_finite() {
                         continue;
                     }
@@ -1026,7 +1146,16 @@ impl Problem<'_> {
         let all: [usize; MAX_SITES] = core::array::from_fn(|k| k);
         let n = self.usable.len();
         let sites = &all[..n];
-        self.score_point(kind, p, sites, self.geo.bands_nm.len(), 0, scratch, Some(t))
+        self.score_point(
+            kind,
+            p,
+            sites,
+            self.geo.bands_nm.len(),
+            0,
+            scratch,
+            Some(t),
+            None,
+        )
     }
 
     /// The global search over `(n550, b)` on bands `from..bands` (every so many): the best
@@ -1059,9 +1188,16 @@ impl Problem<'_> {
                 if ModelKind::Cauchy2.eval(&p, l_lo * 1e-3).0 > hi + 0.3 {
                     continue;
                 }
-                if let Some(s) =
-                    self.score_point(ModelKind::Cauchy2, &p, &chosen, bands, from, scratch, None)
-                {
+                if let Some(s) = self.score_point(
+                    ModelKind::Cauchy2,
+                    &p,
+                    &chosen,
+                    bands,
+                    from,
+                    scratch,
+                    None,
+                    None,
+                ) {
                     *cell = s;
                 }
             }
@@ -1118,6 +1254,7 @@ impl Problem<'_> {
                         from,
                         scratch,
                         None,
+                        None,
                     ) {
                         if best.is_none_or(|(bs, _)| s < bs) {
                             best = Some((s, p));
@@ -1141,6 +1278,7 @@ impl Problem<'_> {
             from,
             scratch,
             Some(&mut t),
+            None,
         )?;
         let mut ts: heapless::Vec<f64, MAX_SITES> = chosen
             .iter()
@@ -1170,6 +1308,7 @@ impl Problem<'_> {
         from: usize,
         scratch: &mut [f32],
         mut t: Option<&mut [f64; MAX_SITES]>,
+        mut margin: Option<&mut [f64; MAX_SITES]>,
     ) -> Option<f64> {
         let geo = self.geo;
         let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
@@ -1211,6 +1350,9 @@ impl Problem<'_> {
         if scratch.len() < count * nv {
             return None;
         }
+        // Half the shortest order step (where another order's basin begins).
+        let l_min = geo.bands_nm.iter().copied().fold(f64::INFINITY, f64::min);
+        let excluded_nm = l_min / (4.0 * kind.eval(p, l_min * 1e-3).0);
         let model = |f: &(FilmAtAngle, f64, f64), d: f64| -> f64 {
             let ph = f.1 * d;
             let damp = libm::exp(-0.5 * (ph * f.2) * (ph * f.2));
@@ -1265,7 +1407,7 @@ impl Problem<'_> {
             let mut missing = false;
             for a in 0..na.min(SEARCH_ANGLES) {
                 for (jb, &b) in picked.iter().enumerate() {
-                    let v = self.spectra.at(nb, k, CENTRE, a, b);
+                    let v = self.spectra.centre_at(nb, k, a, b);
                     y[a * nbs + jb] = v;
                     if !v.is_finite() {
                         missing = true;
@@ -1303,6 +1445,19 @@ impl Problem<'_> {
                 if sse < best.0 {
                     best = (sse, i);
                 }
+            }
+            if let Some(m) = margin.as_deref_mut() {
+                // The best thickness outside the chosen one's basin (half the shortest
+                // order step either side): how much worse it fits, in noise units.
+                let far = libm::ceil(excluded_nm / h) as usize;
+                let alt = sses
+                    .iter()
+                    .enumerate()
+                    .take(count)
+                    .filter(|&(i, _)| i.abs_diff(best.1) > far)
+                    .map(|(_, &v)| v)
+                    .fold(f64::INFINITY, f64::min);
+                m[k] = (alt - best.0) * self.weight[k];
             }
             if t.is_none() {
                 // Scoring a grid point: the minimum between dictionary rows from the
@@ -1541,6 +1696,7 @@ mod tests {
             values: &values,
             sites,
             angle_stride: na,
+            run: RUN,
         };
         let mut scratch = vec![0.0f32; workspace_len(sites, na, nb)];
         (fit_index(&geo, &spectra, None, &mut scratch), truth)

@@ -471,6 +471,8 @@ pub struct SweepSolver {
     /// An index from outside the sweep's own evidence (the full spectra of a pixel sample)
     /// that the next angle end takes ([`SweepSolver::set_external_index`]).
     external: Option<IndexModel>,
+    /// Whether an external index was ever given (then it, not the extremum shifts, is judged).
+    external_index: bool,
     next_index: Option<IndexModel>,
     refined_steps: usize,
     last_refined: bool,
@@ -510,6 +512,7 @@ impl SweepSolver {
             noise_median: None,
             pending_dp: [0.0; 3],
             external: None,
+            external_index: false,
             next_index: None,
             refined_steps: 0,
             last_refined: false,
@@ -559,6 +562,7 @@ impl SweepSolver {
     /// extremum-shift estimate, and pixels follow it as they follow any index step.
     pub fn set_external_index(&mut self, index: IndexModel) {
         self.external = Some(index);
+        self.external_index = true;
     }
 
     /// Holds the prior index for the whole sweep (the extremum-shift fit is still made and
@@ -1081,8 +1085,8 @@ impl SweepSolver {
     /// model (index, dispersion) then does not explain the spectra: every pixel is flagged
     /// [`super::flags::MODEL_MISMATCH`] and its confidence scaled down.
     pub fn model_mismatch(&self) -> bool {
-        if self.held_index {
-            // A held index was judged where it was fitted (the full spectra of a pixel
+        if self.held_index || self.external_index {
+            // A held or external index was judged where it was fitted (the full spectra of a pixel
             // sample, against their own noise, [`super::sample`]); the pixels' typical
             // residual here also carries the per-pixel model's quadrature error, which a
             // thick, high-index film under a wide passband makes larger than the noise.
