@@ -596,7 +596,8 @@ pub fn seat_pixels(
     if na < 1
         || !(8..=MAX_BANDS).contains(&nb)
         || sites == 0
-        || !(noise_sigma > 0.0)
+        || noise_sigma.is_nan()
+        || noise_sigma <= 0.0
         || scratch.len() < workspace_len(sites, na, nb)
     {
         return;
