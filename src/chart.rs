@@ -15,6 +15,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{anyhow, Result};
+use filmscope_core::optics::materials;
 use filmscope_core::solve::sweep::SolverOptions;
 use firmware_sim::Scene;
 use serde::Serialize;
@@ -152,8 +153,11 @@ pub fn measure(scene: &Scene, settings: &[Setting]) -> Result<Vec<Point>> {
 /// `thickness_nm` with a 4 % gradient left to right, bands from 420 to 720 nm.
 #[derive(Clone, Debug, Serialize)]
 pub struct GridScene {
-    /// Film index.
+    /// Film index (at 550 nm when the film is a library material).
     pub index: f64,
+    /// A library material ([`materials::NAMES`]) whose published dispersion the film has,
+    /// instead of the constant `index`.
+    pub material: Option<&'static str>,
     /// Mean thickness, nm.
     pub thickness_nm: f64,
     /// LCTF FWHM, nm.
@@ -182,6 +186,7 @@ impl Default for GridScene {
     fn default() -> Self {
         Self {
             index: 1.38,
+            material: None,
             thickness_nm: 500.0,
             fwhm_nm: 4.0,
             angles_deg: vec![10.0, 20.0, 30.0, 40.0, 50.0],
@@ -207,7 +212,10 @@ impl GridScene {
     pub fn describe(&self, swept: &[Axis]) -> String {
         let has = |a: Axis| swept.contains(&a);
         let mut parts = Vec::new();
-        match (has(Axis::Index), has(Axis::Thickness)) {
+        match (
+            has(Axis::Index) || has(Axis::Material),
+            has(Axis::Thickness),
+        ) {
             (false, false) => parts.push(format!("n {} at {} nm", self.index, self.thickness_nm)),
             (false, true) => parts.push(format!("n {}", self.index)),
             (true, false) => parts.push(format!("{} nm", self.thickness_nm)),
@@ -270,12 +278,16 @@ impl GridScene {
             ),
         };
         let angles: Vec<String> = self.angles_deg.iter().map(|a| format!("{a:?}")).collect();
+        let film = match self.material {
+            Some(m) => format!("[film.dispersion]\nmodel = \"material\"\nname = \"{m}\""),
+            None => format!("index = {}", self.index),
+        };
         format!(
             r#"name = "n{n:.2}-d{d:.0}"
 seed = {seed}
 polarization = "s"
 [film]
-index = {n}
+{film}
 [film.thickness]
 base_nm = {d}
 gradient_nm = [{g}, 0.0]
@@ -325,6 +337,9 @@ pub enum Axis {
     AngleSpan,
     /// LCTF band step, nm.
     BandStep,
+    /// Film material: the position in [`materials::NAMES`] (rising index), with its
+    /// published dispersion.
+    Material,
 }
 
 impl Axis {
@@ -338,6 +353,7 @@ impl Axis {
             Self::AngleCount => "number of angles",
             Self::AngleSpan => "angle span, deg",
             Self::BandStep => "band step, nm",
+            Self::Material => "film material",
         }
     }
 
@@ -352,6 +368,7 @@ impl Axis {
             Self::AngleCount => format!("{v} angles"),
             Self::AngleSpan => format!("span {v} deg"),
             Self::BandStep => format!("step {v} nm"),
+            Self::Material => v,
         }
     }
 
@@ -360,6 +377,9 @@ impl Axis {
         match self {
             Self::Index => format!("{value:.2}"),
             Self::Noise => format!("{value}"),
+            Self::Material => materials::NAMES
+                .get(value as usize)
+                .map_or_else(|| format!("{value}"), |m| (*m).to_owned()),
             _ => format!("{value:.0}"),
         }
     }
@@ -382,6 +402,14 @@ impl Axis {
             Self::AngleCount => scene.angles_deg = spaced(value as usize, last - first),
             Self::AngleSpan => scene.angles_deg = spaced(scene.angles_deg.len(), value),
             Self::BandStep => scene.band_step_nm = value,
+            Self::Material => {
+                if let Some(&m) = materials::NAMES.get(value as usize) {
+                    scene.material = Some(m);
+                    if let Some(d) = materials::by_name(m) {
+                        scene.index = d.index_at(550.0);
+                    }
+                }
+            }
         }
     }
 }
@@ -462,6 +490,11 @@ pub fn cell_scene(maps: &[MapSpec], cell: &str, seed: Option<u64>) -> Result<Gri
     Ok(scene)
 }
 
+/// Every library material, as the material axis's values.
+const MATERIAL_AXIS: [f64; 15] = [
+    0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0,
+];
+
 /// The maps `filmscope stability` draws (coarser with `quick`).
 pub fn stability_maps(quick: bool) -> Vec<MapSpec> {
     let zns = GridScene {
@@ -497,9 +530,15 @@ pub fn stability_maps(quick: bool) -> Vec<MapSpec> {
             ),
             MapSpec::new(
                 "band-step-thickness",
-                base,
+                base.clone(),
                 (Axis::Thickness, &[150.0, 1500.0]),
                 (Axis::BandStep, &[1.0, 4.0, 10.0]),
+            ),
+            MapSpec::new(
+                "material-thickness",
+                base,
+                (Axis::Thickness, &[150.0, 1500.0]),
+                (Axis::Material, &[0.0, 10.0, 14.0]),
             ),
         ];
     }
@@ -533,9 +572,17 @@ pub fn stability_maps(quick: bool) -> Vec<MapSpec> {
         ),
         MapSpec::new(
             "band-step-thickness",
-            base,
+            base.clone(),
             (Axis::Thickness, &thicknesses),
             (Axis::BandStep, &[1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 10.0]),
+        ),
+        // Every library material with its published dispersion, on glass (1.52: PMMA and
+        // polycarbonate are within 0.06 of it, their fringes faint).
+        MapSpec::new(
+            "material-thickness",
+            base,
+            (Axis::Thickness, &thicknesses),
+            (Axis::Material, &MATERIAL_AXIS),
         ),
     ]
 }

@@ -2,8 +2,8 @@
 //! real pipeline from the software camera: raw 12-bit counts with white and dark references,
 //! shot and read noise, a smoothly varying thickness map. Tolerances are the targets; the
 //! figures measured when this was written are in the README (`filmscope eval`); those quoted
-//! in comments here predate the software camera's noise fix of session 6 unless they say
-//! otherwise.
+//! in comments here predate the software camera's independent noise (rows, bands and angles)
+//! unless they say otherwise.
 
 mod common;
 
@@ -352,7 +352,7 @@ fn the_index_from_one_pixel_in_16_keeps_the_accuracy() {
 /// 0.5 % of valid pixels of every pixel keeping whole lists, and nothing silently wrong.
 /// Measured by this test: index +0.00001, MAE 0.044 nm, 99.80 % valid, none silently
 /// wrong; `filmscope eval config/scenes/paper-sample3.toml --index-pixels 192` printed
-/// 99.8 % valid against 99.9 % (session 13).
+/// 99.8 % valid against 99.9 %.
 #[test]
 fn orders_from_the_last_extrema_keep_the_accuracy_on_a_high_index_film() {
     let [(all, _), (some, _)] = every_pixel_and_one_in_16("paper-sample3");
@@ -422,8 +422,8 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// variable's 0.674. Measured (independent noise): median sigma 0.385 and 1.545 nm with the
 /// index's covariance carried in (0.383 and 1.536 from the fit alone), median |error| /
 /// sigma 0.61 and 0.61. (On the paper's camera, shot and read noise, paper-sample1 at
-/// 192 x 128 gives 0.72, p90 1.77, against a normal variable's 0.674 and 1.645, by a throwaway
-/// comparison of `estimate`'s maps with the capture's truth map.)
+/// 192 x 128 gives 0.72, p90 1.77, against a normal variable's 0.674 and 1.645, comparing
+/// `estimate`'s maps with the capture's truth map.)
 #[test]
 fn the_thickness_sigma_follows_the_noise() {
     let mut medians = Vec::new();

@@ -712,7 +712,15 @@ pub fn chart(scene: &Path, out: &Path, quick: bool) -> Result<()> {
 }
 
 /// `filmscope stability`.
-pub fn stability(out: &Path, quick: bool) -> Result<()> {
+pub fn stability(out: &Path, quick: bool, only: &[String]) -> Result<()> {
+    let maps = crate::chart::stability_maps(quick);
+    if let Some(unknown) = only.iter().find(|n| !maps.iter().any(|m| &m.name == *n)) {
+        let names: Vec<&str> = maps.iter().map(|m| m.name.as_str()).collect();
+        bail!(
+            "--map {unknown:?}: no such map (maps: {})",
+            names.join(", ")
+        );
+    }
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
     let settings: Vec<_> = crate::chart::settings(true)
         .into_iter()
@@ -720,7 +728,10 @@ pub fn stability(out: &Path, quick: bool) -> Result<()> {
         .collect();
     let t0 = std::time::Instant::now();
     let mut runs = Vec::new();
-    for spec in crate::chart::stability_maps(quick) {
+    for spec in maps
+        .into_iter()
+        .filter(|m| only.is_empty() || only.contains(&m.name))
+    {
         let run = crate::chart::run_map(&spec, &settings, &|_| {})?;
         print!("{}", crate::chart::summary(&run));
         for p in crate::chart::write_stability_maps(out, &run)? {
@@ -728,8 +739,13 @@ pub fn stability(out: &Path, quick: bool) -> Result<()> {
         }
         runs.push(run);
     }
+    let json = if only.is_empty() {
+        "stability.json".to_owned()
+    } else {
+        format!("stability-{}.json", only.join("-"))
+    };
     crate::io::write_atomic(
-        &out.join("stability.json"),
+        &out.join(json),
         serde_json::to_string_pretty(&runs)?.as_bytes(),
     )?;
     let cells: usize = runs.iter().map(|r| r.cells.len() / settings.len()).sum();

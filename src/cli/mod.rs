@@ -243,6 +243,10 @@ enum Command {
         /// With --cell: the scene's noise seed (default: the maps' own).
         #[arg(long, requires = "cell")]
         seed: Option<u64>,
+        /// Only the maps named (comma-separated, e.g. material-thickness); their figures
+        /// go to stability-NAME.json instead of stability.json.
+        #[arg(long, value_delimiter = ',', conflicts_with = "cell")]
+        map: Vec<String>,
     },
     /// Renders the estimated film as a camera sees it (spectral -> XYZ -> sRGB) at one
     /// angle, with an angle strip from 0 to 70 degrees.
@@ -433,8 +437,11 @@ pub fn main() -> std::process::ExitCode {
             quick,
             cell: Some(cell),
             seed,
+            ..
         } => commands::stability_cell(&out, quick, &cell, seed),
-        Command::Stability { out, quick, .. } => commands::stability(&out, quick),
+        Command::Stability {
+            out, quick, map, ..
+        } => commands::stability(&out, quick, &map),
         Command::Render {
             maps,
             out,

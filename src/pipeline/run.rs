@@ -703,7 +703,7 @@ pub fn block_bands(band: usize, bands: usize, band_block: usize) -> usize {
 /// block is fed as its last band's rows arrive, so what is left when the angle's last row
 /// arrives is the part of that pass the band's arrival did not cover. One band a block (one
 /// pass a band) left the workers a band behind; four let the block before it be fed while
-/// its first three arrive (session 14).
+/// its first three arrive.
 pub const FINAL_BLOCK_BANDS: usize = 4;
 
 /// Whether the block of `limit` bands that starts at `first` is the angle's last (of

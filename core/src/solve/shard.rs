@@ -28,8 +28,8 @@ const ORDER_CHI2: f64 = 16.0;
 /// chosen from two close angles' extrema can be wrong, and the full spectra tell.
 const ORDER_HOP_CHI2: f64 = 25.0;
 /// Largest 1-sigma thickness uncertainty (nm) of a reported pixel, from its full-spectrum
-/// fit: a quarter of the 20 nm at which a reported thickness counts as wrong. Seen with a
-/// temporary print of the sigma (no command reports it) on a film next to the substrate's
+/// fit: a quarter of the 20 nm at which a reported thickness counts as wrong. Measured (the
+/// `thickness_sigma_nm` map) on a film next to the substrate's
 /// index (n 1.5 on 1.52, 500 nm) under Gaussian reflectance noise: 4.4-5.0 nm at 1 % (no
 /// pixel off by 20 nm), 8.8-9.8 nm at 2 % (8 of 61 valid pixels off by more), 9-14 nm at
 /// 3 %; 0.3-0.9 nm on the paper's MgF2 sample; the errors ran to 2-4 sigma at the 90th
