@@ -17,6 +17,8 @@
 //!   under a wide field of view) and how it is chosen;
 //! - [`appearance`]: the film's colour from the estimate: renders at any angle, measured
 //!   against reproduced; [`export::gltf`] hands it to renderers, [`report`] to people;
+//! - [`material`]: index models by name, as JSON or as refractiveindex.info YAML, and
+//!   the estimate written back as CSV and YAML;
 //! - [`cli`]: the `filmscope` command line.
 #![cfg_attr(not(feature = "std"), no_std)]
 
@@ -48,6 +50,8 @@ pub mod io;
 pub mod limits;
 #[cfg(feature = "std")]
 pub mod line;
+#[cfg(feature = "std")]
+pub mod material;
 #[cfg(feature = "std")]
 pub mod pipeline;
 #[cfg(feature = "std")]
