@@ -282,13 +282,16 @@ pub fn from_rii_yaml(text: &str) -> Result<Dispersion, String> {
             }
             let (mut b, mut cc) = (0.0, 0.0);
             for p in c[1..].chunks(2) {
-                match p[1] {
-                    e if e == -2.0 => b += p[0],
-                    e if e == -4.0 => cc += p[0],
-                    e => {
+                if p[1] == -2.0 {
+                    b += p[0];
+                } else if p[1] == -4.0 {
+                    cc += p[0];
+                } else {
+                    let e = p[1];
+                    {
                         return Err(format!(
                             "formula 5: exponent {e} (filmscope holds Cauchy terms with exponents -2 and -4 only)"
-                        ))
+                        ));
                     }
                 }
             }
@@ -303,7 +306,10 @@ pub fn from_rii_yaml(text: &str) -> Result<Dispersion, String> {
             for line in &entry.data {
                 let v = numbers(line)?;
                 if v.len() < 2 {
-                    return Err(format!("{}: row {line:?} needs wavelength and n", entry.kind));
+                    return Err(format!(
+                        "{}: row {line:?} needs wavelength and n",
+                        entry.kind
+                    ));
                 }
                 rows.push((v[0], v[1]));
             }
@@ -358,14 +364,15 @@ fn cauchy_fit(rows: &[(f64, f64)]) -> Result<Dispersion, String> {
         if p.abs() < 1e-300 {
             return Err("tabulated n: the rows do not determine a Cauchy fit".into());
         }
-        for k in 0..4 {
-            m[col][k] /= p;
+        for v in &mut m[col] {
+            *v /= p;
         }
-        for r in 0..terms {
+        let pivot_row = m[col];
+        for (r, row) in m.iter_mut().enumerate().take(terms) {
             if r != col {
-                let f = m[r][col];
-                for k in 0..4 {
-                    m[r][k] -= f * m[col][k];
+                let f = row[col];
+                for (v, pv) in row.iter_mut().zip(pivot_row) {
+                    *v -= f * pv;
                 }
             }
         }
@@ -426,7 +433,11 @@ mod tests {
     fn reads_database_style_entries() {
         let bk7 = "REFERENCES: \"SCHOTT\"\nDATA:\n  - type: formula 2\n    wavelength_range: 0.3 2.5\n    coefficients: 0 1.03961212 0.00600069867 0.231792344 0.0200179144 1.01046945 103.560653\n  - type: tabulated k\n    data: |\n        0.3 1e-6\nSPECS:\n  n_absolute: true\n";
         let d = from_rii_yaml(bk7).expect("bk7");
-        assert!((d.index_at(587.6) - 1.5168).abs() < 1e-4, "{}", d.index_at(587.6));
+        assert!(
+            (d.index_at(587.6) - 1.5168).abs() < 1e-4,
+            "{}",
+            d.index_at(587.6)
+        );
         let table = "DATA:\n  - type: tabulated n\n    data: |\n        0.4 1.470\n        0.5 1.462\n        0.6 1.458\n        0.7 1.455\n";
         let d = from_rii_yaml(table).expect("table");
         assert!((d.index_at(500.0) - 1.462).abs() < 1e-3);
@@ -440,7 +451,10 @@ mod tests {
         let n = |v: serde_json::Value| dispersion_from_json(&v).map(|d| d.index_at(550.0));
         assert_eq!(n(json!(1.5)), Ok(1.5));
         assert!((n(json!("sio2")).expect("sio2") - 1.459911).abs() < 1e-6);
-        assert_eq!(n(json!({"model": "cauchy", "a": 1.4, "b_um2": 0.0})), Ok(1.4));
+        assert_eq!(
+            n(json!({"model": "cauchy", "a": 1.4, "b_um2": 0.0})),
+            Ok(1.4)
+        );
         let e = n(json!({"model": "cauchy", "a": 1.4})).expect_err("no b");
         assert!(e.contains("b_um2"), "{e}");
         assert!(n(json!("unobtainium")).is_err());

@@ -13,8 +13,8 @@ use filmscope::estimate::{run_method_in_field, write_outputs, Run, RunConfig};
 use filmscope::field::{FieldChoice, FieldConfig};
 use filmscope::io::{ByteOrder, Capture, Interleave};
 use filmscope::pipeline::{
-    stream_band_sequential, sweep_spec, CaptureSource, PipelineConfig, Samples, Source,
-    StreamMsg, DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,
+    stream_band_sequential, sweep_spec, CaptureSource, PipelineConfig, Samples, Source, StreamMsg,
+    DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,
 };
 use filmscope::simulate::{write_capture, SimulateOptions};
 use filmscope::sweep::Method;
@@ -52,17 +52,16 @@ struct Options<'a> {
 impl Options<'_> {
     /// The run configuration, checked as the command line checks it.
     fn config(&self) -> Result<RunConfig, String> {
-        let method = Method::from_name(self.method).ok_or_else(|| {
-            format!(
-                "method {:?}: use filmscope, paper or brute",
-                self.method
-            )
-        })?;
+        let method = Method::from_name(self.method)
+            .ok_or_else(|| format!("method {:?}: use filmscope, paper or brute", self.method))?;
         let choice = FieldChoice::from_name(self.field)
             .ok_or_else(|| format!("field {:?}: use auto, narrow or wide", self.field))?;
         let max = filmscope_core::solve::sample::MAX_SITES;
         if !(4..=max).contains(&self.sample_sites) {
-            return Err(format!("sample_sites {}: must be 4 to {max}", self.sample_sites));
+            return Err(format!(
+                "sample_sites {}: must be 4 to {max}",
+                self.sample_sites
+            ));
         }
         let brute = filmscope::baseline::BruteGrid::default();
         filmscope::limits::check_cli(
@@ -144,7 +143,10 @@ fn result_dict<'py>(
     let d = PyDict::new(py);
     d.set_item("width", run.spec.width)?;
     d.set_item("height", run.spec.height)?;
-    d.set_item("thickness_nm", PyBytes::new(py, &f32_bytes(&r.thickness_nm)))?;
+    d.set_item(
+        "thickness_nm",
+        PyBytes::new(py, &f32_bytes(&r.thickness_nm)),
+    )?;
     d.set_item("confidence", PyBytes::new(py, &f32_bytes(&r.confidence)))?;
     d.set_item(
         "sigma_nm",
@@ -281,9 +283,8 @@ impl Source for ArraySource {
 
 /// The sample around the film, as `filmscope.estimate` and `filmscope.reflectance` take it.
 fn polarization(name: &str) -> Result<Polarization, String> {
-    Polarization::from_name(&name.trim().to_lowercase()).ok_or_else(|| {
-        format!("polarization {name:?}: expected \"s\", \"p\" or \"unpolarized\"")
-    })
+    Polarization::from_name(&name.trim().to_lowercase())
+        .ok_or_else(|| format!("polarization {name:?}: expected \"s\", \"p\" or \"unpolarized\""))
 }
 
 /// Runs the estimator on a reflectance array: `data` the native-endian `float32` bytes of
@@ -490,7 +491,8 @@ fn reflectance<'py>(
 fn scene(path: Option<PathBuf>, text: Option<String>, seed: Option<u64>) -> Result<Scene, String> {
     let (text, name) = match (path, text) {
         (Some(p), None) => {
-            let t = std::fs::read_to_string(&p).map_err(|e| format!("{}: cannot read: {e}", p.display()))?;
+            let t = std::fs::read_to_string(&p)
+                .map_err(|e| format!("{}: cannot read: {e}", p.display()))?;
             let stem = p
                 .file_stem()
                 .map_or_else(|| "scene".into(), |s| s.to_string_lossy().into_owned());
@@ -501,8 +503,9 @@ fn scene(path: Option<PathBuf>, text: Option<String>, seed: Option<u64>) -> Resu
     };
     let text = match seed {
         None => text,
-        Some(s) => filmscope::simulate::with_seed(&text, s)
-            .map_err(|e| format!("{}: {e}", name.1))?,
+        Some(s) => {
+            filmscope::simulate::with_seed(&text, s).map_err(|e| format!("{}: {e}", name.1))?
+        }
     };
     let mut scene = Scene::from_toml(&text, &name.1).map_err(|e| e.to_string())?;
     if scene.name == name.1 {
@@ -534,9 +537,8 @@ fn simulate<'py>(
     if let Some(out) = out {
         let opts = SimulateOptions {
             noise_free,
-            interleave: Interleave::from_name(interleave).ok_or_else(|| {
-                fail(format!("interleave {interleave:?}: use bil, bsq or bip"))
-            })?,
+            interleave: Interleave::from_name(interleave)
+                .ok_or_else(|| fail(format!("interleave {interleave:?}: use bil, bsq or bip")))?,
             byte_order: match byte_order {
                 "little" => ByteOrder::Little,
                 "big" => ByteOrder::Big,
@@ -567,8 +569,7 @@ fn simulate<'py>(
                         camera.raw_row(a, b, r, &mut raw);
                         camera.white_row(a, b, r, &mut white);
                         camera.dark_row(a, b, r, &mut dark);
-                        for (((o, &c), &wh), &dk) in
-                            row.iter_mut().zip(&raw).zip(&white).zip(&dark)
+                        for (((o, &c), &wh), &dk) in row.iter_mut().zip(&raw).zip(&white).zip(&dark)
                         {
                             let span = wh - dk;
                             *o = if span > 0.0 {
@@ -591,7 +592,10 @@ fn simulate<'py>(
     d.set_item("wavelengths_nm", scene.bands_nm.clone())?;
     d.set_item("angles_deg", scene.angles_deg.clone())?;
     d.set_item("fwhm_nm", scene.fwhm_nm)?;
-    d.set_item("thickness_nm", PyBytes::new(py, &f32_bytes(&scene.thickness_nm)))?;
+    d.set_item(
+        "thickness_nm",
+        PyBytes::new(py, &f32_bytes(&scene.thickness_nm)),
+    )?;
     d.set_item("ambient_index", scene.stack.ambient_index)?;
     d.set_item(
         "substrate",
