@@ -130,7 +130,7 @@ impl SampleTap {
             fwhm_nm: &spec.fwhm_nm,
             angles_deg: &self.angles_deg,
             ambient_index: spec.ambient_index,
-            substrate_index: spec.substrate_index,
+            substrate: spec.substrate,
             polarization: spec.polarization,
             index_range: spec.index_range,
             thickness_range_nm: spec.thickness_range_nm,

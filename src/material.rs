@@ -385,6 +385,36 @@ fn cauchy_fit(rows: &[(f64, f64)]) -> Result<Dispersion, String> {
     })
 }
 
+/// The file names [`write_index_files`] writes beside `summary.json`.
+pub const INDEX_FILES: [&str; 2] = ["index.csv", "index.yml"];
+
+/// Writes the estimated index `d` into `dir` as `index.csv` (n at every band of
+/// `bands_nm`) and `index.yml` (a refractiveindex.info entry valid over the bands' span),
+/// unless it has no finite index at 550 nm (no index found). Returns whether it wrote.
+pub fn write_index_files(
+    dir: &Path,
+    d: &Dispersion,
+    bands_nm: &[f64],
+    comment: &str,
+) -> Result<bool, String> {
+    if !d.index_at(550.0).is_finite() || bands_nm.is_empty() {
+        return Ok(false);
+    }
+    let lo = bands_nm.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = bands_nm.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let mut sorted = bands_nm.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    for (name, text) in [
+        (INDEX_FILES[0], to_csv(d, &sorted)),
+        (INDEX_FILES[1], to_rii_yaml(d, [lo, hi], comment)),
+    ] {
+        let path = dir.join(name);
+        crate::io::write_atomic(&path, text.as_bytes())
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    Ok(true)
+}
+
 /// The `dispersion` object of `summary.json` for `d` without its table (what
 /// [`dispersion_from_json`] reads back).
 pub fn dispersion_to_json(d: &Dispersion) -> serde_json::Value {

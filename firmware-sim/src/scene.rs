@@ -111,7 +111,9 @@ struct Step {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct SubstrateFile {
-    index: f64,
+    index: Option<f64>,
+    /// A dispersive substrate, in the film's forms (`cauchy`, `sellmeier`, `material`).
+    dispersion: Option<DispersionFile>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -251,7 +253,7 @@ impl Scene {
     fn from_file(f: SceneFile, stem: String) -> Result<Self, String> {
         let film = match (f.film.index, f.film.dispersion) {
             (Some(n), None) => Dispersion::constant(n),
-            (None, Some(d)) => dispersion(d)?,
+            (None, Some(d)) => dispersion(d, "[film.dispersion]")?,
             (Some(_), Some(_)) => return Err("[film] gives both `index` and `dispersion`".into()),
             (None, None) => return Err("[film] needs `index` or `dispersion`".into()),
         };
@@ -261,15 +263,23 @@ impl Scene {
                 format!("polarization must be \"s\", \"p\" or \"unpolarized\", not {p:?}")
             })?,
         };
+        let substrate = match (f.substrate.index, f.substrate.dispersion) {
+            (Some(n), None) => Dispersion::constant(n),
+            (None, Some(d)) => dispersion(d, "[substrate.dispersion]")?,
+            (Some(_), Some(_)) => {
+                return Err("[substrate] gives both `index` and `dispersion`".into())
+            }
+            (None, None) => return Err("[substrate] needs `index` or `dispersion`".into()),
+        };
         let stack = FilmStack {
             ambient_index: f.ambient_index.unwrap_or(1.0),
             film,
-            substrate: Dispersion::constant(f.substrate.index),
+            substrate,
             polarization,
         };
         for (what, n) in [
             ("ambient_index", stack.ambient_index),
-            ("substrate index", f.substrate.index),
+            ("substrate index at 550 nm", substrate.index_at(550.0)),
             ("film index at 550 nm", film.index_at(550.0)),
         ] {
             if !(n.is_finite() && (1.0..=5.0).contains(&n)) {
@@ -410,14 +420,14 @@ impl Scene {
     }
 }
 
-fn dispersion(d: DispersionFile) -> Result<Dispersion, String> {
+fn dispersion(d: DispersionFile, what: &str) -> Result<Dispersion, String> {
     Ok(match d {
         DispersionFile::Cauchy { a, b_um2, c_um4 } => Dispersion::Cauchy { a, b_um2, c_um4 },
         DispersionFile::Sellmeier { a, b, c_um } => {
             if b.len() != c_um.len() || b.is_empty() || b.len() > 3 {
-                return Err(
-                    "[film.dispersion] sellmeier needs 1 to 3 `b` and as many `c_um`".into(),
-                );
+                return Err(format!(
+                    "{what} sellmeier needs 1 to 3 `b` and as many `c_um`"
+                ));
             }
             let mut bb = [0.0; 3];
             let mut cc = [0.0; 3];
@@ -427,7 +437,7 @@ fn dispersion(d: DispersionFile) -> Result<Dispersion, String> {
         }
         DispersionFile::Material { name } => materials::by_name(&name).ok_or_else(|| {
             format!(
-                "[film.dispersion] unknown material {name:?} (known: {}, and zns-debenham, mgf2-dodge)",
+                "{what} unknown material {name:?} (known: {}, and zns-debenham, mgf2-dodge, bk7)",
                 materials::names().join(", ")
             )
         })?,

@@ -378,7 +378,8 @@ fn estimate_array<'py>(
         index_range.unwrap_or(DEFAULT_INDEX_RANGE),
         thickness_range_nm.unwrap_or(DEFAULT_THICKNESS_RANGE_NM),
     )
-    .map_err(fail)?;
+    .map_err(fail)?
+    .with_substrate(substrate_d);
     let values: Vec<f32> = data
         .chunks_exact(4)
         .map(|c| f32::from_ne_bytes([c[0], c[1], c[2], c[3]]))
