@@ -33,6 +33,7 @@ __all__ = [
     "material_names",
     "reflectance",
     "simulate",
+    "write_material",
 ]
 
 __version__ = _native.__version__
@@ -216,6 +217,15 @@ def index(n_model: Material, wavelengths_nm: Any) -> np.ndarray:
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     vals = _native.index_at(_material_json(n_model, "n_model"), [float(x) for x in wl.ravel()])
     return np.asarray(vals, dtype=np.float64).reshape(wl.shape)
+
+
+def write_material(n_model: Material, path: PathLike, range_nm: Sequence[float] = (380.0, 780.0)) -> None:
+    """Writes ``n_model`` (any form :func:`index` takes) as a refractiveindex.info YAML
+    entry (a ``.yml``/``.yaml`` path: formula 1 for Sellmeier, formula 5 for Cauchy,
+    ``tabulated n`` for a constant) valid over ``range_nm``, or as a ``wavelength_nm,n``
+    CSV table at 1 nm steps over it (a ``.csv`` path)."""
+    lo, hi = (float(x) for x in range_nm)
+    _native.write_material(_material_json(n_model, "n_model"), os.fspath(path), lo, hi)
 
 
 def reflectance(

@@ -610,6 +610,38 @@ fn simulate<'py>(
     Ok(d)
 }
 
+/// Writes a material as a refractiveindex.info YAML entry valid over `[lo_nm, hi_nm]`
+/// (`.yml`, `.yaml`) or as a `wavelength_nm,n` CSV table at 1 nm steps over it (`.csv`).
+#[pyfunction]
+fn write_material(material: &str, path: PathBuf, lo_nm: f64, hi_nm: f64) -> PyResult<()> {
+    let d = dispersion(material, "n_model").map_err(fail)?;
+    if !(lo_nm.is_finite() && hi_nm.is_finite() && 0.0 < lo_nm && lo_nm < hi_nm) {
+        return Err(fail(format!(
+            "range_nm [{lo_nm}, {hi_nm}]: expected 0 < low < high"
+        )));
+    }
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    let text = match ext.as_str() {
+        "yml" | "yaml" => filmscope::material::to_rii_yaml(&d, [lo_nm, hi_nm], "filmscope"),
+        "csv" => {
+            let n = (hi_nm - lo_nm).floor() as usize;
+            let wl: Vec<f64> = (0..=n).map(|i| lo_nm + i as f64).collect();
+            filmscope::material::to_csv(&d, &wl)
+        }
+        _ => {
+            return Err(fail(format!(
+                "{}: expected a .yml, .yaml or .csv file name",
+                path.display()
+            )))
+        }
+    };
+    filmscope::io::write_atomic(&path, text.as_bytes())
+        .map_err(|e| fail(format!("{}: {e}", path.display())))
+}
+
 /// The names of the built-in material library.
 #[pyfunction]
 fn material_names() -> Vec<&'static str> {
@@ -633,5 +665,6 @@ fn native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(index_at, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(material_names, m)?)?;
+    m.add_function(wrap_pyfunction!(write_material, m)?)?;
     Ok(())
 }
