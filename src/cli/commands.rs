@@ -868,6 +868,48 @@ pub fn export_gltf(maps: &Path, out: &Path, width_m: f64, capture: Option<&Path>
     Ok(())
 }
 
+/// `filmscope report RUN --pixel X,Y`: the fit at one pixel, printed, plotted and tabled.
+pub fn report_pixel(
+    run: &Path,
+    out: Option<&Path>,
+    capture: Option<&Path>,
+    xy: &str,
+) -> Result<()> {
+    let parse = |s: Option<&str>| s.and_then(|v| v.trim().parse::<usize>().ok());
+    let mut parts = xy.split(',');
+    let (Some(x), Some(y), None) = (parse(parts.next()), parse(parts.next()), parts.next()) else {
+        bail!("--pixel {xy:?}: expected X,Y (column and row, from 0)");
+    };
+    let film = SampleFilm::load(run, capture)?;
+    let cap = film.capture.clone().ok_or_else(|| {
+        anyhow!(
+            "{}: the capture is unknown (pass --capture)",
+            run.join("summary.json").display()
+        )
+    })?;
+    let mut source = open_capture(&cap)?;
+    let fit = crate::appearance::pixel::pixel_fit(&film, &mut source, x, y)?;
+    print!("{}", fit.table());
+    let dir = match out {
+        Some(o) => o
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .to_path_buf(),
+        None => run.to_path_buf(),
+    };
+    let stem = out.and_then(|o| o.file_stem()).map_or_else(
+        || format!("pixel-{x}-{y}"),
+        |s| s.to_string_lossy().into_owned(),
+    );
+    let png = dir.join(format!("{stem}.png"));
+    write_atomic(&png, &fit.to_png()?).with_context(|| format!("{}", png.display()))?;
+    let csv = dir.join(format!("{stem}.csv"));
+    write_atomic(&csv, fit.to_csv().as_bytes()).with_context(|| format!("{}", csv.display()))?;
+    println!("wrote {} and {}", png.display(), csv.display());
+    Ok(())
+}
+
 /// `filmscope report`.
 pub fn report(run: &Path, out: Option<&Path>, capture: Option<&Path>) -> Result<()> {
     let path = out.map_or_else(|| run.join("report.html"), Path::to_path_buf);

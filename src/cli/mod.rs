@@ -309,6 +309,12 @@ enum Command {
         /// The capture (capture.toml or its directory), if the summary does not lead to it.
         #[arg(long)]
         capture: Option<PathBuf>,
+        /// Instead of the page, the fit at pixel X,Y (column, row): prints the residual per
+        /// angle and the order candidates, and writes RUN/pixel-X-Y.png (measured and model
+        /// at every angle, the residual, the candidates) and RUN/pixel-X-Y.csv (or beside
+        /// --out).
+        #[arg(long, value_name = "X,Y")]
+        pixel: Option<String>,
     },
     /// (reliability) Consecutive sweeps of a small scene through the pipeline, printing the
     /// resident memory every tenth sweep: memory must stay flat over a long run.
@@ -464,9 +470,18 @@ pub fn main() -> std::process::ExitCode {
             width_m,
             capture,
         } => commands::export_gltf(&maps, &out, width_m, capture.as_deref()),
-        Command::Report { run, out, capture } => {
-            commands::report(&run, out.as_deref(), capture.as_deref())
-        }
+        Command::Report {
+            run,
+            out,
+            capture,
+            pixel: None,
+        } => commands::report(&run, out.as_deref(), capture.as_deref()),
+        Command::Report {
+            run,
+            out,
+            capture,
+            pixel: Some(xy),
+        } => commands::report_pixel(&run, out.as_deref(), capture.as_deref(), &xy),
         Command::BenchRssChild {
             scene,
             width,
