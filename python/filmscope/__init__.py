@@ -28,6 +28,7 @@ from ._native import FilmscopeError, material_names
 __all__ = [
     "EstimateResult",
     "FilmscopeError",
+    "PixelFit",
     "estimate",
     "index",
     "material_names",
@@ -58,6 +59,36 @@ def _material_json(m: Any, what: str) -> str:
     )
 
 
+class PixelFit:
+    """The fit at one pixel (:meth:`EstimateResult.pixel_fit`).
+
+    Attributes:
+        x, y: the pixel (column, row).
+        wavelengths_nm: band centres, ``(bands,)``.
+        angles_deg: incidence angles, increasing, ``(angles,)``.
+        measured: measured band reflectance, ``(angles, bands)`` (NaN where unusable).
+        model: the model at the estimated thickness, same shape (NaN without one).
+        residual: ``measured - model``.
+        thickness_nm: the pixel's estimated thickness (NaN: none).
+        candidates: local best fits over 2.5 interference orders either side, best first:
+            dicts of ``thickness_nm``, ``rms`` and ``model`` ``(angles, bands)``.
+    """
+
+    def __init__(self, x, y, wavelengths_nm, angles_deg, measured, model, thickness_nm, candidates):
+        self.x, self.y = x, y
+        self.wavelengths_nm = wavelengths_nm
+        self.angles_deg = angles_deg
+        self.measured = measured
+        self.model = model
+        self.residual = measured - model
+        self.thickness_nm = thickness_nm
+        self.candidates = candidates
+
+    def __repr__(self) -> str:
+        c = ", ".join(f"{k['thickness_nm']:.1f} nm (rms {k['rms']:.4f})" for k in self.candidates)
+        return f"PixelFit(({self.x}, {self.y}), d={self.thickness_nm:.2f} nm, candidates: {c})"
+
+
 class EstimateResult:
     """What :func:`estimate` returns.
 
@@ -84,6 +115,48 @@ class EstimateResult:
         self.refractive_index: Optional[Dict[str, Any]] = self.summary.get("dispersion")
         self.source = source
         self._pixel_input = pixel_input
+
+    def pixel_fit(self, x: int, y: int) -> "PixelFit":
+        """The fit at pixel ``(x, y)`` (column, row): the measured band reflectance at every
+        angle, the model (the estimated index at the pixel's estimated thickness, on the
+        sample's substrate, through each band's passband), the residual, and the
+        neighbouring interference orders' fits, as ``filmscope report RUN --pixel X,Y``
+        shows them."""
+        h, w = self.thickness_nm.shape
+        if not (0 <= int(x) < w and 0 <= int(y) < h):
+            raise FilmscopeError(f"pixel ({x}, {y}) is outside the {w}x{h} maps")
+        x, y = int(x), int(y)
+        kind = self._pixel_input[0] if self._pixel_input else None
+        if kind == "capture":
+            sp = _native.capture_spectra(self._pixel_input[1], x, y)
+            angles = list(sp["angles_deg"])
+            wl, fw = list(sp["wavelengths_nm"]), list(sp["fwhm_nm"])
+            measured = np.frombuffer(sp["measured"], dtype=np.float64).reshape(len(angles), len(wl))
+            substrate, ambient, pol = sp["substrate"], sp["ambient_index"], sp["polarization"]
+        elif kind == "array":
+            _, cube, wl, angles, fw, substrate, ambient, pol = self._pixel_input
+            order = np.argsort(angles, kind="stable")
+            angles = [angles[i] for i in order]
+            measured = cube[order, y, x, :].astype(np.float64)
+        else:
+            raise FilmscopeError("pixel_fit: this result keeps no input to fit")
+        if self.refractive_index is None:
+            raise FilmscopeError("pixel_fit: the estimate found no index")
+        d = float(self.thickness_nm[y, x])
+        med = self.summary.get("thickness_nm", {}).get("median")
+        raw = _native.pixel_fit(
+            json.dumps(self.refractive_index), substrate, float(ambient), pol,
+            [float(v) for v in wl], [float(v) for v in fw], [float(a) for a in angles],
+            np.ascontiguousarray(measured, dtype=np.float64).tobytes(),
+            d, float("nan") if med is None else float(med), x, y,
+        )
+        shape = measured.shape
+        return PixelFit(x, y, np.asarray(wl, dtype=np.float64), np.asarray(angles, dtype=np.float64),
+                        np.asarray(measured, dtype=np.float64),
+                        np.frombuffer(raw["model"], dtype=np.float64).reshape(shape).copy(), d,
+                        [{"thickness_nm": c["thickness_nm"], "rms": c["rms"],
+                          "model": np.frombuffer(c["model"], dtype=np.float64).reshape(shape).copy()}
+                         for c in raw["candidates"]])
 
     @property
     def n_550(self) -> float:
@@ -182,6 +255,7 @@ def estimate(
     if fwhm_nm is not None:
         f = np.asarray(fwhm_nm, dtype=np.float64)
         fw = [float(x) for x in (np.full(len(wl), float(f)) if f.ndim == 0 else f.ravel())]
+    sub_json = _material_json(substrate, "substrate")
     ir = None if index_range is None else [float(x) for x in index_range]
     tr = None if thickness_range_nm is None else [float(x) for x in thickness_range_nm]
     raw = n.estimate_array(
@@ -191,7 +265,7 @@ def estimate(
         ang,
         fw,
         float(ambient_index),
-        _material_json(substrate, "substrate"),
+        sub_json,
         polarization,
         ir,
         tr,
@@ -203,7 +277,17 @@ def estimate(
         ss,
         bool(one_pass),
     )
-    return EstimateResult(raw, None)
+    fw_list = fw if fw is not None else _band_spacing(wl)
+    return EstimateResult(raw, None, ("array", cube, wl, ang, fw_list, sub_json, float(ambient_index), polarization))
+
+
+def _band_spacing(wl: Sequence[float]) -> list:
+    """Each band's width when none is given: the spacing to its neighbour (as the estimator takes it)."""
+    out = []
+    for i in range(len(wl)):
+        j = i + 1 if i + 1 < len(wl) else i - 1
+        out.append(abs(wl[j] - wl[i]) if len(wl) > 1 else 0.0)
+    return out
 
 
 def index(n_model: Material, wavelengths_nm: Any) -> np.ndarray:

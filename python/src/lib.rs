@@ -642,6 +642,118 @@ fn write_material(material: &str, path: PathBuf, lo_nm: f64, hi_nm: f64) -> PyRe
         .map_err(|e| fail(format!("{}: {e}", path.display())))
 }
 
+/// The calibrated spectra of pixel `(x, y)` of a capture and its sample: a dict of
+/// `angles_deg`, `wavelengths_nm`, `fwhm_nm`, `measured` (`float64` bytes, `[angle][band]`),
+/// `substrate` (JSON), `ambient_index`, `polarization`.
+#[pyfunction]
+fn capture_spectra<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    x: usize,
+    y: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let (spec, angles, measured) = py
+        .detach(|| -> Result<_, String> {
+            let cap = Capture::load(&path).map_err(|e| e.to_string())?;
+            let mut source = CaptureSource::new(cap)?;
+            let spec = source.spec().clone();
+            let (angles, measured) =
+                filmscope::appearance::pixel::measured_spectra(&mut source, x, y)
+                    .map_err(|e| e.to_string())?;
+            Ok((spec, angles, measured))
+        })
+        .map_err(fail)?;
+    let d = PyDict::new(py);
+    d.set_item("angles_deg", angles)?;
+    d.set_item("wavelengths_nm", spec.bands_nm.to_vec())?;
+    d.set_item("fwhm_nm", spec.fwhm_nm.to_vec())?;
+    let flat: Vec<u8> = measured
+        .iter()
+        .flatten()
+        .flat_map(|v| v.to_ne_bytes())
+        .collect();
+    d.set_item("measured", PyBytes::new(py, &flat))?;
+    d.set_item(
+        "substrate",
+        filmscope::material::dispersion_to_json(&spec.substrate).to_string(),
+    )?;
+    d.set_item("ambient_index", spec.ambient_index)?;
+    d.set_item("polarization", spec.polarization.name())?;
+    Ok(d)
+}
+
+/// The fit of a film (JSON) at `thickness_nm` (NaN: none; the candidates' scan centres on
+/// `fallback_nm`) to one pixel's `measured` spectra (`float64` bytes, `[angle][band]`): a
+/// dict of `model` (bytes as `measured`) and `candidates` (`thickness_nm`, `rms`, `model`).
+#[pyfunction]
+#[pyo3(signature = (film, substrate, ambient_index, polarization_name, wavelengths_nm, fwhm_nm, angles_deg, measured, thickness_nm, fallback_nm, x, y))]
+#[allow(clippy::too_many_arguments)]
+fn pixel_fit<'py>(
+    py: Python<'py>,
+    film: &str,
+    substrate: &str,
+    ambient_index: f64,
+    polarization_name: &str,
+    wavelengths_nm: Vec<f64>,
+    fwhm_nm: Vec<f64>,
+    angles_deg: Vec<f64>,
+    measured: &[u8],
+    thickness_nm: f64,
+    fallback_nm: f64,
+    x: usize,
+    y: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let stack = FilmStack {
+        ambient_index,
+        film: dispersion(film, "n_model").map_err(fail)?,
+        substrate: dispersion(substrate, "substrate").map_err(fail)?,
+        polarization: polarization(polarization_name).map_err(fail)?,
+    };
+    let (na, nb) = (angles_deg.len(), wavelengths_nm.len());
+    if measured.len() != na * nb * 8 || fwhm_nm.len() != nb {
+        return Err(fail(format!(
+            "pixel_fit: {} bytes of spectra and {} widths for {na} angles x {nb} bands",
+            measured.len(),
+            fwhm_nm.len()
+        )));
+    }
+    let values: Vec<f64> = measured
+        .chunks_exact(8)
+        .map(|c| f64::from_ne_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+        .collect();
+    let rows: Vec<Vec<f64>> = values.chunks(nb.max(1)).map(<[f64]>::to_vec).collect();
+    let bands: Vec<Passband> = wavelengths_nm
+        .iter()
+        .zip(&fwhm_nm)
+        .map(|(&l, &w)| Passband::gaussian(l, w))
+        .collect();
+    let fit = py.detach(|| {
+        filmscope::appearance::pixel::fit_pixel(
+            (x, y),
+            &stack,
+            &bands,
+            &angles_deg,
+            rows,
+            thickness_nm,
+            fallback_nm,
+        )
+    });
+    let bytes =
+        |m: &[Vec<f64>]| -> Vec<u8> { m.iter().flatten().flat_map(|v| v.to_ne_bytes()).collect() };
+    let d = PyDict::new(py);
+    d.set_item("model", PyBytes::new(py, &bytes(&fit.model)))?;
+    let cands = pyo3::types::PyList::empty(py);
+    for c in &fit.candidates {
+        let cd = PyDict::new(py);
+        cd.set_item("thickness_nm", c.thickness_nm)?;
+        cd.set_item("rms", c.rms)?;
+        cd.set_item("model", PyBytes::new(py, &bytes(&c.model)))?;
+        cands.append(cd)?;
+    }
+    d.set_item("candidates", cands)?;
+    Ok(d)
+}
+
 /// The names of the built-in material library.
 #[pyfunction]
 fn material_names() -> Vec<&'static str> {
@@ -666,5 +778,7 @@ fn native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(material_names, m)?)?;
     m.add_function(wrap_pyfunction!(write_material, m)?)?;
+    m.add_function(wrap_pyfunction!(capture_spectra, m)?)?;
+    m.add_function(wrap_pyfunction!(pixel_fit, m)?)?;
     Ok(())
 }
