@@ -69,17 +69,6 @@ pub fn dispersion_json(d: &Dispersion) -> serde_json::Value {
     }
 }
 
-/// Scene text with its `seed` replaced by `seed` (the thickness map's bumps and the noise
-/// are drawn from it), for `simulate --seed` and `eval --seed` on scene files.
-pub fn with_seed(scene_toml: &str, seed: u64) -> Result<String, String> {
-    let mut table: toml::Table = scene_toml
-        .parse()
-        .map_err(|e: toml::de::Error| e.message().replace('\n', " "))?;
-    let seed = i64::try_from(seed).map_err(|_| format!("seed {seed}: at most {}", i64::MAX))?;
-    table.insert("seed".into(), toml::Value::Integer(seed));
-    toml::to_string(&table).map_err(|e| e.to_string())
-}
-
 fn header(
     scene: &Scene,
     data_type: DataType,

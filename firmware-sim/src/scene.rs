@@ -225,13 +225,22 @@ pub struct Scene {
 impl Scene {
     /// Loads and validates a scene file.
     pub fn load(path: &Path) -> Result<Self, SceneError> {
+        Self::load_seeded(path, None)
+    }
+
+    /// Loads and validates a scene file, its `seed` (thickness bumps and noise) replaced by
+    /// `seed` when given (`simulate --seed`, `eval --seed`).
+    pub fn load_seeded(path: &Path, seed: Option<u64>) -> Result<Self, SceneError> {
         let err = |problem: String| SceneError {
             path: path.to_owned(),
             problem,
         };
         let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
-        let file: SceneFile = toml::from_str(&text)
+        let mut file: SceneFile = toml::from_str(&text)
             .map_err(|e| err(e.message().replace('\n', " ").trim().to_owned()))?;
+        if seed.is_some() {
+            file.seed = seed;
+        }
         let stem = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -241,12 +250,20 @@ impl Scene {
 
     /// Parses a scene from TOML text (for tests); `name` stands in for the file stem.
     pub fn from_toml(text: &str, name: &str) -> Result<Self, SceneError> {
+        Self::from_toml_seeded(text, name, None)
+    }
+
+    /// [`Scene::from_toml`] with the scene's `seed` replaced by `seed` when given.
+    pub fn from_toml_seeded(text: &str, name: &str, seed: Option<u64>) -> Result<Self, SceneError> {
         let err = |problem: String| SceneError {
             path: PathBuf::from(name),
             problem,
         };
-        let file: SceneFile =
+        let mut file: SceneFile =
             toml::from_str(text).map_err(|e| err(e.message().replace('\n', " ")))?;
+        if seed.is_some() {
+            file.seed = seed;
+        }
         Self::from_file(file, name.to_owned()).map_err(err)
     }
 

@@ -490,29 +490,11 @@ fn reflectance<'py>(
 
 /// The scene from a TOML file or TOML text, its seed replaced when `seed` is given.
 fn scene(path: Option<PathBuf>, text: Option<String>, seed: Option<u64>) -> Result<Scene, String> {
-    let (text, name) = match (path, text) {
-        (Some(p), None) => {
-            let t = std::fs::read_to_string(&p)
-                .map_err(|e| format!("{}: cannot read: {e}", p.display()))?;
-            let stem = p
-                .file_stem()
-                .map_or_else(|| "scene".into(), |s| s.to_string_lossy().into_owned());
-            (t, (stem, p.display().to_string()))
-        }
-        (None, Some(t)) => (t, ("scene".to_owned(), "scene".to_owned())),
-        _ => return Err("simulate: give a scene file or a scene".into()),
-    };
-    let text = match seed {
-        None => text,
-        Some(s) => {
-            filmscope::simulate::with_seed(&text, s).map_err(|e| format!("{}: {e}", name.1))?
-        }
-    };
-    let mut scene = Scene::from_toml(&text, &name.1).map_err(|e| e.to_string())?;
-    if scene.name == name.1 {
-        scene.name = name.0;
+    match (path, text) {
+        (Some(p), None) => Scene::load_seeded(&p, seed).map_err(|e| e.to_string()),
+        (None, Some(t)) => Scene::from_toml_seeded(&t, "scene", seed).map_err(|e| e.to_string()),
+        _ => Err("simulate: give a scene file or a scene".into()),
     }
-    Ok(scene)
 }
 
 /// Simulates a scene (a TOML file or TOML text): written as a capture into `out`, or, with

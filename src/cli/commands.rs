@@ -84,8 +84,9 @@ pub fn simulate(
     out: &Path,
     noise_free: bool,
     (interleave, byte_order): (&str, &str),
+    seed: Option<u64>,
 ) -> Result<()> {
-    let scene = Scene::load(scene_path)?;
+    let scene = Scene::load_seeded(scene_path, seed)?;
     let interleave = Interleave::from_name(interleave)
         .ok_or_else(|| anyhow!("--interleave {interleave:?}: use bil, bsq or bip"))?;
     let byte_order = match byte_order {
@@ -270,13 +271,25 @@ enum Input {
     Capture(PathBuf),
 }
 
-fn input(path: &Path) -> Result<Input> {
+/// Whether `path` names a scene file (`Some(true)`), a capture (`Some(false)`) or neither.
+fn input_kind(path: &Path) -> Option<bool> {
+    if path.is_dir() || path.file_name().is_some_and(|n| n == "capture.toml") {
+        Some(false)
+    } else if path.extension().is_some_and(|e| e == "toml") {
+        Some(true)
+    } else {
+        None
+    }
+}
+
+/// A scene file (its seed replaced by `seed` when given) or a capture directory.
+fn input(path: &Path, seed: Option<u64>) -> Result<Input> {
     if path.is_dir() {
         Ok(Input::Capture(path.to_owned()))
     } else if path.extension().is_some_and(|e| e == "toml")
         && path.file_name().is_some_and(|n| n != "capture.toml")
     {
-        Ok(Input::Scene(Box::new(Scene::load(path)?)))
+        Ok(Input::Scene(Box::new(Scene::load_seeded(path, seed)?)))
     } else if path.file_name().is_some_and(|n| n == "capture.toml") {
         Ok(Input::Capture(
             path.parent().unwrap_or(Path::new(".")).to_owned(),
@@ -289,8 +302,8 @@ fn input(path: &Path) -> Result<Input> {
     }
 }
 
-fn eval_one(path: &Path, config: &RunConfig) -> Result<(EvalReport, Run)> {
-    match input(path)? {
+fn eval_one(path: &Path, config: &RunConfig, seed: Option<u64>) -> Result<(EvalReport, Run)> {
+    match input(path, seed)? {
         Input::Scene(scene) => {
             let truth = Truth::of_scene(&scene);
             let name = scene.name.clone();
@@ -340,6 +353,7 @@ fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig)> {
 pub fn eval(
     inputs: &[PathBuf],
     random: Option<(usize, u64, Option<PathBuf>)>,
+    seed: Option<u64>,
     method_name: &str,
     json: bool,
     brute: (usize, f64),
@@ -354,6 +368,14 @@ pub fn eval(
         }
         (false, Some(_)) => bail!("eval --random draws its own scenes: give no inputs"),
         _ => {}
+    }
+    if let (Some(s), None) = (seed, &random) {
+        if let Some(cap) = inputs.iter().find(|p| !matches!(input_kind(p), Some(true))) {
+            bail!(
+                "--seed {s}: {} is not a scene file (a capture's noise is recorded; --seed applies to scene files)",
+                cap.display()
+            );
+        }
     }
     let defaults = PipelineConfig::default();
     crate::limits::check_cli(
@@ -416,7 +438,7 @@ pub fn eval(
         }
     };
     for path in inputs {
-        let (r, run) = eval_one(path, &config).with_context(|| path.display().to_string())?;
+        let (r, run) = eval_one(path, &config, seed).with_context(|| path.display().to_string())?;
         if json {
             println!("{}", serde_json::to_string(&r)?);
         } else {

@@ -60,6 +60,9 @@ enum Command {
         /// Byte order of the cubes' values: little (default) or big.
         #[arg(long, default_value = "little")]
         byte_order: String,
+        /// Replaces the scene's `seed` (its thickness bumps and noise).
+        #[arg(long)]
+        seed: Option<u64>,
     },
     /// Estimates index and thickness maps from a capture.
     Estimate {
@@ -160,9 +163,10 @@ enum Command {
         /// judged PASS or FAIL; one row per scene and a closing count.
         #[arg(long, value_name = "N")]
         random: Option<usize>,
-        /// With --random: the set's seed (the same seed draws the same scenes).
-        #[arg(long, default_value_t = 1, requires = "random")]
-        seed: u64,
+        /// With --random: the set's seed (the same seed draws the same scenes; default 1).
+        /// With scene files: replaces each scene's `seed` (thickness bumps and noise).
+        #[arg(long)]
+        seed: Option<u64>,
         /// With --random: also write each drawn scene's file into DIR
         /// (`random-SEED-I.toml`), so a row can be run again with `eval FILE`.
         #[arg(long, value_name = "DIR", requires = "random")]
@@ -349,7 +353,8 @@ pub fn main() -> std::process::ExitCode {
             noise_free,
             interleave,
             byte_order,
-        } => commands::simulate(&scene, &out, noise_free, (&interleave, &byte_order)),
+            seed,
+        } => commands::simulate(&scene, &out, noise_free, (&interleave, &byte_order), seed),
         Command::Estimate {
             capture,
             out,
@@ -423,7 +428,8 @@ pub fn main() -> std::process::ExitCode {
             index,
         } => commands::eval(
             &inputs,
-            random.map(|n| (n, seed, save_scenes)),
+            random.map(|n| (n, seed.unwrap_or(1), save_scenes)),
+            seed,
             &method,
             json,
             (brute_index_steps, brute_thickness_step),
