@@ -187,8 +187,8 @@ fn simulate_and_eval_take_a_seed() {
         let mut args = vec!["simulate", s(&scene), "--out", s(&out)];
         args.extend_from_slice(seed);
         run_ok(&args);
-        let cube = read_cube(&out.join("a10.hdr")).expect("cube").data;
-        let truth = read_cube(&out.join("truth/thickness_nm.hdr"))
+        let cube = read_cube(out.join("a10.hdr")).expect("cube").data;
+        let truth = read_cube(out.join("truth/thickness_nm.hdr"))
             .expect("truth")
             .data;
         (cube, truth)
