@@ -100,6 +100,7 @@ fn band_coefs() -> Vec<BandCoef> {
                 ANGLE_DEG,
                 wavelength(b),
                 4.0,
+                2000.0,
             )
             .expect("a 1.38 film at 30 degrees propagates")
         })
@@ -286,6 +287,7 @@ fn bench_refine(c: &mut Criterion) {
                     ANGLE_DEG,
                     wavelength(b),
                     4.0,
+                    2000.0,
                 ));
             }
         });

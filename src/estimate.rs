@@ -114,9 +114,10 @@ pub fn filmscope_passes(
     let mut out = run_sweep(source, config.pipeline, prior, &|_| {})?;
     let mut passes = 2;
     // The per-pixel pass must agree with the sample's own thicknesses; where it does not
-    // (orders from extrema gone wrong), every pixel starts from the sample's map instead.
+    // (orders from extrema gone wrong, or left unsolved), every pixel starts from the
+    // sample's map instead.
     if let (Some(i), false) = (index, seeded) {
-        if sites_disagree(&tap, &fit, &out) > MAX_DISAGREEING_SITES {
+        if sites_disagree(&tap, &fit, &out, true) > MAX_DISAGREEING_SITES {
             if let Some(map) = tap.seed_map(&fit, spec.width, spec.height) {
                 let prior = Prior::new(i, PriorUpdate::Hold, Some(Arc::new(map)));
                 out = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
@@ -133,9 +134,10 @@ pub fn filmscope_passes(
     })
 }
 
-/// Share of the sampled sites, among those the per-pixel pass reports, whose thickness
-/// there is more than [`SITE_AGREEMENT_NM`] from the sample fit's own.
-fn sites_disagree(tap: &SampleTap, fit: &SampleFit, out: &SweepOutput) -> f64 {
+/// Share of the sampled sites, among those the sample fit solves, whose thickness in the
+/// per-pixel pass is more than [`SITE_AGREEMENT_NM`] from the sample fit's own (or, with
+/// `unsolved`, missing there).
+fn sites_disagree(tap: &SampleTap, fit: &SampleFit, out: &SweepOutput, unsolved: bool) -> f64 {
     let w = out.spec.width;
     let (mut compared, mut off) = (0usize, 0usize);
     for (k, (r, c)) in tap.centres().enumerate() {
@@ -143,9 +145,9 @@ fn sites_disagree(tap: &SampleTap, fit: &SampleFit, out: &SweepOutput) -> f64 {
         let (Some(p), Some(&t)) = (out.results.get(i), fit.thickness_nm.get(k)) else {
             continue;
         };
-        if p.thickness_nm.is_finite() && t.is_finite() {
+        if t.is_finite() && (unsolved || p.thickness_nm.is_finite()) {
             compared += 1;
-            if (p.thickness_nm - t).abs() > SITE_AGREEMENT_NM {
+            if !(p.thickness_nm - t).abs().le(&SITE_AGREEMENT_NM) {
                 off += 1;
             }
         }
@@ -165,7 +167,7 @@ fn flag_if_disagreeing(
     mut out: SweepOutput,
     choice: &mut serde_json::Value,
 ) -> Result<SweepOutput, PipelineError> {
-    let share = sites_disagree(tap, fit, &out);
+    let share = sites_disagree(tap, fit, &out, false);
     choice["sites_disagreeing"] = json!(share);
     if share > MAX_DISAGREEING_SITES {
         for r in &mut out.results {

@@ -121,9 +121,10 @@ impl SampleTap {
         }
     }
 
-    /// Fits the index on the angles held so far, warm-started from `start`; `reselect`:
-    /// every model refitted and chosen again from it (else only its model refined, kept if
-    /// it passes the gate).
+    /// Fits the index on the angles held so far, warm-started from `start` (this sample's
+    /// fit on fewer angles: its sites' thicknesses carried too); `reselect`: every model
+    /// refitted and chosen again from it (else only its model refined, kept if it passes
+    /// the gate).
     pub fn fit(&self, spec: &SweepSpec, start: Option<&SampleFit>, reselect: bool) -> SampleFit {
         let geo = Geometry {
             bands_nm: &spec.bands_nm,
@@ -142,10 +143,13 @@ impl SampleTap {
         };
         let mut scratch =
             vec![0.0f32; workspace_len(self.sites.len(), self.angles_deg.len(), self.bands)];
-        let start = start.and_then(|f| f.best).map(|c| Start {
-            kind: c.kind,
-            params: c.params,
-            reselect,
+        let start = start.and_then(|f| {
+            f.best.map(|c| Start {
+                kind: c.kind,
+                params: c.params,
+                reselect,
+                thickness_nm: Some(f.thickness_nm),
+            })
         });
         fit_index(&geo, &spectra, start, &mut scratch)
     }

@@ -892,6 +892,7 @@ mod tests {
                 35.0,
                 l,
                 4.0,
+                900.0,
             )
             .expect("propagating");
             if b < 2 {

@@ -25,8 +25,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::refine::{GH_W, GH_X, TRUNCATED_SIGMA};
-use crate::optics::{Dispersion, FilmAtAngle, Indices, Passband, Polarization};
+use super::refine::{passband_phase_span, passband_rule, MAX_BAND_NODES};
+use crate::optics::{Dispersion, FilmAtAngle, Indices, Polarization};
 
 /// Pixels a site keeps: its centre and two neighbours each side along the row.
 pub const RUN: usize = 5;
@@ -66,17 +66,9 @@ pub const MAX_STARTS: usize = 3;
 /// Fringes across the band above which the search is repeated on the band's red half.
 pub const THICK_FRINGES: f64 = 3.0;
 
-/// Most quadrature nodes of a band's passband in the fit. Where the film's phase turns by
-/// little across the passband, five Gauss-Hermite nodes; beyond, Simpson over the truncated
-/// Gaussian of [`Passband`] (the definition the capture format gives) with as many nodes as
-/// keep the phase step between nodes under [`NODE_PHASE`] for the thickest site, at least
-/// [`MIN_SIMPSON`].
-const NODES: usize = 33;
-/// Fewest Simpson nodes: fewer do not hold the truncated Gaussian's moments.
-const MIN_SIMPSON: usize = 17;
-/// Largest phase step between quadrature nodes, rad (a thick high-index film turns its phase
-/// by 8 rad across an 8 nm passband: five nodes left model errors of the noise's size).
-const NODE_PHASE: f64 = 0.3;
+/// Most quadrature nodes of a band's passband in the fit: the per-pixel model's rule
+/// ([`passband_rule`]), for the thickest site.
+const NODES: usize = MAX_BAND_NODES;
 /// Index step of the numerical `dR/dn`.
 const INDEX_STEP: f64 = 1e-5;
 /// Wavelength (um) at which the models' index is quoted and searched.
@@ -293,6 +285,9 @@ pub struct Start {
     /// Whether every model is refitted and chosen again (else only this one is refined,
     /// and kept if it passes the gate: the fast refit a live sweep's last angle takes).
     pub reselect: bool,
+    /// The same sites' thicknesses, nm, when the start is the same sample's fit on fewer
+    /// angles (a site without one, NaN, sends every site through the thickness search).
+    pub thickness_nm: Option<[f32; MAX_SITES]>,
 }
 
 /// What the sample fit found.
@@ -455,11 +450,23 @@ pub fn fit_index(
         kind,
         params: p,
         reselect,
+        thickness_nm,
     }) = start
     {
-        if problem
-            .start_thicknesses(kind, &p, &mut thick, scratch)
-            .is_some()
+        let carried = thickness_nm.is_some_and(|t| {
+            (0..sites)
+                .filter(|&k| usable[k])
+                .all(|k| t[k].is_finite() && t[k] > 0.0)
+        });
+        if let (true, Some(t)) = (carried, thickness_nm) {
+            for (d, &c) in thick.iter_mut().zip(&t) {
+                *d = f64::from(c);
+            }
+        }
+        if carried
+            || problem
+                .start_thicknesses(kind, &p, &mut thick, scratch)
+                .is_some()
         {
             let mut refined = thick;
             if let Some(cand) = problem.refine(kind, p, &mut refined) {
@@ -602,8 +609,9 @@ type Starts = heapless::Vec<(f64, [f64; 3]), 3>;
 #[derive(Clone, Copy)]
 struct Node {
     weight: f64,
-    l_um: f64,
     phase_per_nm: f64,
+    /// The phase per nm one index step up.
+    phase_up_per_nm: f64,
     film: FilmAtAngle,
     /// `dR/dn` at the node needs the film one index step up.
     film_up: FilmAtAngle,
@@ -639,8 +647,8 @@ impl Problem<'_> {
         }
     }
 
-    /// The 5 Gauss-Hermite nodes of band `b` at angle `a` under model `(kind, p)` (fewer for
-    /// a zero FWHM); `None` where a wave does not propagate.
+    /// The passband quadrature nodes of band `b` at angle `a` under model `(kind, p)` for
+    /// films up to `d_max` ([`passband_rule`]); `None` where a wave does not propagate.
     fn nodes(
         &self,
         kind: ModelKind,
@@ -650,12 +658,15 @@ impl Problem<'_> {
         d_max: f64,
     ) -> Option<([Node; NODES], usize)> {
         let (l0, fwhm) = (self.geo.bands_nm[b], self.geo.fwhm_nm[b]);
-        // The phase turns by about 4 pi n d / l^2 per nm of wavelength.
-        let n0 = kind.eval(p, l0 * 1e-3).0;
-        let span = 4.0 * core::f64::consts::PI * n0 * d_max / (l0 * l0) * 3.0 * fwhm;
-        let simpson = libm::ceil(span / NODE_PHASE) as usize + 1;
         let deg = self.geo.angles_deg[a];
         let pol = self.geo.polarization;
+        let phase_per_nm = |l: f64| {
+            let n = kind.eval(p, l * 1e-3).0;
+            let f = FilmAtAngle::new(self.indices(n), deg, pol)?;
+            Some(4.0 * core::f64::consts::PI * f.kz_film / l)
+        };
+        let span = passband_phase_span(l0, fwhm, d_max, phase_per_nm);
+        let (rule, count) = passband_rule(l0, fwhm, span);
         let node = |(l, w): (f64, f64)| -> Option<Node> {
             let (n, dn_dp) = kind.eval(p, l * 1e-3);
             if !n.is_finite() {
@@ -665,44 +676,17 @@ impl Problem<'_> {
             let film_up = FilmAtAngle::new(self.indices(n + INDEX_STEP, l), deg, pol)?;
             Some(Node {
                 weight: w,
-                l_um: l * 1e-3,
                 phase_per_nm: 4.0 * core::f64::consts::PI * film.kz_film / l,
+                phase_up_per_nm: 4.0 * core::f64::consts::PI * film_up.kz_film / l,
                 film,
                 film_up,
                 dn_dp,
             })
         };
-        let sigma = fwhm / 2.354_82 * TRUNCATED_SIGMA;
-        if simpson <= GH_X.len() || sigma.is_nan() || sigma <= 0.0 {
-            // Fringes wider than the passband: five Gauss-Hermite nodes hold the Gaussian's
-            // moments (five Simpson nodes do not: paper sample 3's index came out 0.0005
-            // high with them, 0.0002 with these).
-            let count = if sigma > 0.0 { GH_X.len() } else { 1 };
-            let at = |i: usize| {
-                if count == 1 {
-                    (l0, 1.0)
-                } else {
-                    (
-                        l0 + core::f64::consts::SQRT_2 * sigma * GH_X[i],
-                        GH_W[i] / libm::sqrt(core::f64::consts::PI),
-                    )
-                }
-            };
-            let first = node(at(0))?;
-            let mut nodes = [first; NODES];
-            for (i, slot) in nodes.iter_mut().enumerate().take(count).skip(1) {
-                *slot = node(at(i))?;
-            }
-            return Some((nodes, count));
-        }
-        let band = Passband::gaussian_with_nodes(l0, fwhm, simpson.clamp(MIN_SIMPSON, NODES));
-        let mut it = band.nodes();
-        let first = node(it.next()?)?;
+        let first = node(rule[0])?;
         let mut nodes = [first; NODES];
-        let mut count = 1;
-        for (slot, nd) in nodes.iter_mut().skip(1).zip(it) {
-            *slot = node(nd)?;
-            count += 1;
+        for (slot, &r) in nodes.iter_mut().zip(&rule).take(count).skip(1) {
+            *slot = node(r)?;
         }
         Some((nodes, count))
     }
@@ -740,11 +724,13 @@ impl Problem<'_> {
                     let mut jp = Vector3::zeros();
                     for nd in &nodes[..count] {
                         let ph = nd.phase_per_nm * d;
-                        let (sn, cs) = (libm::sin(ph), libm::cos(ph));
+                        let (sn, cs) = libm::sincos(ph);
                         let r = nd.film.reflectance_at_cos(cs);
-                        let ph_up =
-                            4.0 * core::f64::consts::PI * nd.film_up.kz_film * d / (nd.l_um * 1e3);
-                        let r_up = nd.film_up.reflectance_at_phase(ph_up);
+                        // The raised index's phase is a small step `e` away: its cosine
+                        // by the angle sum, `cos e` and `sin e` by their series.
+                        let e = (nd.phase_up_per_nm - nd.phase_per_nm) * d;
+                        let (ce, se) = (1.0 - 0.5 * e * e, e - e * e * e / 6.0);
+                        let r_up = nd.film_up.reflectance_at_cos(cs * ce - sn * se);
                         let dr_dn = (r_up - r) / INDEX_STEP;
                         m += nd.weight * r;
                         jd += nd.weight
@@ -1231,15 +1217,42 @@ impl Problem<'_> {
             let damp = libm::exp(-0.5 * (ph * f.2) * (ph * f.2));
             f.0.reflectance_at_cos(damp * libm::cos(ph))
         };
+        // The dictionary, row by row of thickness: each column's phase advances by a
+        // rotation and its passband damping by a ratio that itself shrinks geometrically,
+        // so no row needs a cosine or an exponential.
         let mut m2 = [0.0f64; MAX_DICTIONARY];
+        let mut rot = [[0.0f64; 5]; SEARCH_ANGLES * SEAT_BANDS];
+        for (r, f) in rot.iter_mut().zip(films.iter()) {
+            let (p0, dp, s2) = (f.1 * t_lo, f.1 * h, f.2 * f.2);
+            *r = [
+                libm::cos(p0),
+                libm::sin(p0),
+                libm::exp(-0.5 * s2 * p0 * p0),
+                libm::exp(-0.5 * s2 * (2.0 * p0 * dp + dp * dp)),
+                libm::exp(-s2 * dp * dp),
+            ];
+        }
+        let steps: heapless::Vec<(f64, f64), { SEARCH_ANGLES * SEAT_BANDS }> = films
+            .iter()
+            .map(|f| (libm::cos(f.1 * h), libm::sin(f.1 * h)))
+            .collect();
         for i in 0..count {
-            let d = t_lo + h * i as f64;
             let row = &mut scratch[i * nv..(i + 1) * nv];
             let mut s = 0.0;
-            for (v, f) in row.iter_mut().zip(films.iter()) {
-                let m = model(f, d);
+            for (((v, f), r), &(cd, sd)) in row
+                .iter_mut()
+                .zip(films.iter())
+                .zip(rot.iter_mut())
+                .zip(&steps)
+            {
+                let m = f.0.reflectance_at_cos(r[2] * r[0]);
                 *v = m as f32;
                 s += m * m;
+                let (c, sn) = (r[0] * cd - r[1] * sd, r[1] * cd + r[0] * sd);
+                r[0] = c;
+                r[1] = sn;
+                r[2] *= r[3];
+                r[3] *= r[4];
             }
             m2[i] = s;
         }
@@ -1280,19 +1293,34 @@ impl Problem<'_> {
                     y2 += f64::from(*v) * f64::from(*v);
                 }
             }
-            let mut best = (f64::INFINITY, 0usize);
-            for i in 0..count {
-                let row = &scratch[i * nv..(i + 1) * nv];
-                let mut dot = 0.0f32;
-                for (m, v) in row.iter().zip(&y[..nv]) {
-                    dot += m * v;
+            let mut sses = [f64::INFINITY; MAX_DICTIONARY];
+            crate::simd::wide(true, || {
+                for (i, sse) in sses.iter_mut().enumerate().take(count) {
+                    *sse = m2[i] - 2.0 * dot(&scratch[i * nv..(i + 1) * nv], &y[..nv]) + y2;
                 }
-                let sse = m2[i] - 2.0 * f64::from(dot) + y2;
+            });
+            let mut best = (f64::INFINITY, 0usize);
+            for (i, &sse) in sses.iter().enumerate().take(count) {
                 if sse < best.0 {
                     best = (sse, i);
                 }
             }
-            // Two Gauss-Newton steps on the thickness.
+            if t.is_none() {
+                // Scoring a grid point: the minimum between dictionary rows from the
+                // parabola through the best row and its neighbours.
+                let i = best.1;
+                let mut sse = best.0;
+                if i > 0 && i + 1 < count {
+                    let (a, c) = (sses[i - 1], sses[i + 1]);
+                    let curv = a - 2.0 * sse + c;
+                    if curv > 0.0 {
+                        sse = (sse - (c - a) * (c - a) / (8.0 * curv)).max(0.0);
+                    }
+                }
+                total += sse * self.weight[k];
+                continue;
+            }
+            // Seating a site: two Gauss-Newton steps on the thickness.
             let mut d = t_lo + h * best.1 as f64;
             let mut sse = best.0;
             for _ in 0..2 {
@@ -1333,6 +1361,23 @@ impl Problem<'_> {
         }
         Some(total)
     }
+}
+
+/// `a . b` with sixteen partial sums, so the compiler keeps them in vector registers (the
+/// same sums in the same order with or without AVX2: [`crate::simd`]).
+#[inline(always)]
+fn dot(a: &[f32], b: &[f32]) -> f64 {
+    const L: usize = 16;
+    let mut acc = [0.0f32; L];
+    let (ca, cb) = (a.chunks_exact(L), b.chunks_exact(L));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for l in 0..L {
+            acc[l] += x[l] * y[l];
+        }
+    }
+    let tail: f32 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
+    acc.iter().map(|&v| f64::from(v)).sum::<f64>() + f64::from(tail)
 }
 
 /// The two-term Cauchy model closest to `c` over `[lo_nm, hi_nm]` (least squares in `n`

@@ -699,6 +699,7 @@ impl SweepSolver {
     /// Fills `out` (one entry per band, caller-owned: about 650 bytes a band) with the band
     /// models of the current angle at the current index; all `None` until an index exists.
     pub fn band_models(&self, out: &mut [Option<BandCoef>]) {
+        let d_max = self.table_range_nm()[1];
         for (i, o) in out.iter_mut().enumerate() {
             *o = match (self.index, self.spec.bands_nm.get(i)) {
                 (Some(index), Some(&l)) => BandCoef::new(
@@ -709,6 +710,7 @@ impl SweepSolver {
                     self.angle_deg,
                     l,
                     self.spec.fwhm_nm[i],
+                    d_max,
                 ),
                 _ => None,
             };
