@@ -662,7 +662,7 @@ impl Problem<'_> {
         let pol = self.geo.polarization;
         let phase_per_nm = |l: f64| {
             let n = kind.eval(p, l * 1e-3).0;
-            let f = FilmAtAngle::new(self.indices(n), deg, pol)?;
+            let f = FilmAtAngle::new(self.indices(n, l), deg, pol)?;
             Some(4.0 * core::f64::consts::PI * f.kz_film / l)
         };
         let span = passband_phase_span(l0, fwhm, d_max, phase_per_nm);
