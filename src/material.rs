@@ -109,6 +109,15 @@ fn check(d: Dispersion) -> Result<Dispersion, String> {
     }
 }
 
+/// A material as a command-line option gives it: a number (a constant index), a library
+/// name or a refractiveindex.info YAML path.
+pub fn from_arg(text: &str) -> Result<Dispersion, String> {
+    match text.trim().parse::<f64>() {
+        Ok(n) => check(Dispersion::constant(n)),
+        Err(_) => resolve(text.trim()),
+    }
+}
+
 /// A material by name from the built-in library, or from a refractiveindex.info YAML file
 /// at `name_or_path` (any name ending in `.yml` or `.yaml`, or naming an existing file).
 pub fn resolve(name_or_path: &str) -> Result<Dispersion, String> {
@@ -323,7 +332,7 @@ pub fn from_rii_yaml(text: &str) -> Result<Dispersion, String> {
 
 /// The least-squares Cauchy `a + b / l^2 + c / l^4` (l in um) through `(l_um, n)` rows:
 /// as many terms as the rows allow (one row: a constant).
-fn cauchy_fit(rows: &[(f64, f64)]) -> Result<Dispersion, String> {
+pub fn cauchy_fit(rows: &[(f64, f64)]) -> Result<Dispersion, String> {
     if rows.is_empty() {
         return Err("tabulated n: no rows".into());
     }

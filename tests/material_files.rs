@@ -214,3 +214,80 @@ fn simulate_and_eval_take_a_seed() {
     assert!(!err.status.success());
     assert!(String::from_utf8_lossy(&err.stderr).contains("not a scene file"));
 }
+
+/// `estimate --film-index`: the film's index given (a library name, a YAML file written by
+/// filmscope) is held, the maps come in one pass and agree with the fitted run; a wrong
+/// index gives wrong thicknesses, so the option is used.
+#[test]
+fn a_given_film_index_is_held() {
+    let dir = tempdir();
+    let scene = dir.path().join("bk7.toml");
+    std::fs::write(&scene, BK7_SCENE).expect("scene");
+    let cap = dir.path().join("cap");
+    run_ok(&["simulate", s(&scene), "--out", s(&cap)]);
+    let truth = read_cube(cap.join("truth/thickness_nm.hdr"))
+        .expect("truth")
+        .data;
+    let mae = |est: &Path| {
+        let d = read_cube(est.join("thickness_nm.hdr")).expect("map").data;
+        let (sum, n) = d
+            .iter()
+            .zip(&truth)
+            .filter(|(a, _)| a.is_finite())
+            .fold((0.0, 0usize), |(s, n), (a, t)| {
+                (s + f64::from((a - t).abs()), n + 1)
+            });
+        (sum / n.max(1) as f64, n)
+    };
+    let yml = dir.path().join("film.yml");
+    std::fs::write(
+        &yml,
+        material::to_rii_yaml(
+            &filmscope::optics::Dispersion::constant(1.38),
+            [420.0, 720.0],
+            "t",
+        ),
+    )
+    .expect("yml");
+    for (given, good) in [
+        ("1.38", true),
+        (s(&yml), true),
+        ("mgf2", true),
+        ("1.6", false),
+    ] {
+        let est = dir.path().join(format!("e{}", given.len()));
+        run_ok(&["estimate", s(&cap), "--out", s(&est), "--film-index", given]);
+        let summary: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(est.join("summary.json")).expect("summary"),
+        )
+        .expect("json");
+        let (m, n) = mae(&est);
+        println!(
+            "--film-index {given}: n(550) {}, thickness MAE {m:.3} nm over {n} px",
+            summary["refractive_index"]
+        );
+        assert_eq!(summary["index_model_choice"]["given"], given);
+        if given == "mgf2" {
+            // The library's MgF2 (Dodge, bulk crystal, 1.3785) is near enough the film's 1.38.
+            assert!(m < 3.0, "{m}");
+        } else if good {
+            assert!((summary["refractive_index"].as_f64().expect("n") - 1.38).abs() < 1e-12);
+            assert!(m < 1.0 && n > 1400, "{m} {n}");
+        } else {
+            assert!(m > 20.0 || n < 1000, "{m} {n}");
+        }
+    }
+    let out = filmscope()
+        .args([
+            "estimate",
+            s(&cap),
+            "--out",
+            s(&dir.path().join("x")),
+            "--film-index",
+            "unobtainium",
+        ])
+        .output()
+        .expect("run");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--film-index \"unobtainium\""));
+}

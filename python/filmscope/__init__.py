@@ -199,6 +199,7 @@ def estimate(
     sample_sites: Optional[int] = None,
     one_pass: bool = False,
     field: str = "auto",
+    film_index: Optional[Material] = None,
 ) -> EstimateResult:
     """Estimates the film's refractive index and a per-pixel thickness map.
 
@@ -221,6 +222,10 @@ def estimate(
         method: ``"filmscope"`` (default), ``"paper"`` or ``"brute"``.
         workers, channel_capacity, index_pixels, sample_sites, one_pass, field: as the
             CLI's options of the same names.
+        film_index: the film's index known beforehand (any form :func:`index` takes), held
+            instead of fitted, as ``filmscope estimate --film-index`` (a model the estimator
+            cannot hold, such as a two- or three-term Sellmeier, as its least-squares
+            three-term Cauchy over the bands).
 
     Returns:
         An :class:`EstimateResult`.
@@ -233,10 +238,11 @@ def estimate(
     ip = n.DEFAULT_INDEX_PIXELS if index_pixels is None else int(index_pixels)
     ss = n.DEFAULT_SAMPLE_SITES if sample_sites is None else int(sample_sites)
     out_s = None if out is None else os.fspath(out)
+    fi = None if film_index is None else _material_json(film_index, "film_index")
     if isinstance(path_or_array, (str, os.PathLike)):
         path = os.fspath(path_or_array)
         raw = n.estimate_capture(
-            path, out_s, method, int(workers), int(channel_capacity), ip, ss, bool(one_pass), field
+            path, out_s, method, int(workers), int(channel_capacity), ip, ss, bool(one_pass), field, fi
         )
         return EstimateResult(raw, path, ("capture", path))
     arr = np.asarray(path_or_array)
@@ -276,6 +282,7 @@ def estimate(
         ip,
         ss,
         bool(one_pass),
+        fi,
     )
     fw_list = fw if fw is not None else _band_spacing(wl)
     return EstimateResult(raw, None, ("array", cube, wl, ang, fw_list, sub_json, float(ambient_index), polarization))

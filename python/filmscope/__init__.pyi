@@ -81,6 +81,7 @@ def estimate(
     sample_sites: Optional[int] = None,
     one_pass: bool = False,
     field: str = "auto",
+    film_index: Optional[Material] = None,
 ) -> EstimateResult:
     """Estimates the film's index and thickness map from a capture folder or a
     ``(angles, lines, samples, bands)`` reflectance array (GIL released while it runs)."""

@@ -161,7 +161,7 @@ fn result_dict<'py>(
 /// Runs the estimator on the capture at `path` (a folder or its capture.toml), as
 /// `filmscope estimate` does; writes the outputs into `out` when given.
 #[pyfunction]
-#[pyo3(signature = (path, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, field))]
+#[pyo3(signature = (path, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, field, film_index))]
 #[allow(clippy::too_many_arguments)]
 fn estimate_capture<'py>(
     py: Python<'py>,
@@ -174,6 +174,7 @@ fn estimate_capture<'py>(
     sample_sites: usize,
     one_pass: bool,
     field: &str,
+    film_index: Option<&str>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let opts = Options {
         method,
@@ -185,6 +186,7 @@ fn estimate_capture<'py>(
         field,
     };
     let config = opts.config().map_err(fail)?;
+    let film = given_index(film_index, &config)?;
     let (run, summary) = py
         .detach(|| -> Result<(Run, serde_json::Value), String> {
             let cap = Capture::load(&path).map_err(|e| e.to_string())?;
@@ -195,13 +197,44 @@ fn estimate_capture<'py>(
             let label = cap.path.display().to_string();
             let fov = cap.lens.field_of_view();
             let mut source = CaptureSource::new(cap)?;
-            let run = run_method_in_field(&mut source, &config, fov, &|_| {})
+            let run = run(&mut source, &config, fov, film.as_ref())
                 .map_err(|e| format!("{label}: {e}"))?;
             let summary = outputs(&run, out.as_deref(), &label)?;
             Ok((run, summary))
         })
         .map_err(fail)?;
     result_dict(py, &run, &summary)
+}
+
+/// The film's given index (`film_index`, JSON text as [`dispersion`] reads it), refused
+/// with a method other than filmscope.
+fn given_index(
+    film_index: Option<&str>,
+    config: &RunConfig,
+) -> PyResult<Option<(String, Dispersion)>> {
+    let Some(text) = film_index else {
+        return Ok(None);
+    };
+    if config.method != Method::Filmscope {
+        return Err(fail(
+            "film_index: only the filmscope method takes a given index",
+        ));
+    }
+    let d = dispersion(text, "film_index").map_err(fail)?;
+    Ok(Some((text.trim_matches('"').to_owned(), d)))
+}
+
+/// The estimator on `source`: its index fitted, or held at `film` when given.
+fn run(
+    source: &mut dyn Source,
+    config: &RunConfig,
+    fov: Option<filmscope_core::optics::FieldOfView>,
+    film: Option<&(String, Dispersion)>,
+) -> Result<Run, filmscope::pipeline::PipelineError> {
+    match film {
+        None => run_method_in_field(source, config, fov, &|_| {}),
+        Some((name, d)) => filmscope::known_index::run_with_index(source, config, d, name, &|_| {}),
+    }
 }
 
 /// Refuses a capture whose run would need more memory than the machine has available.
@@ -290,7 +323,7 @@ fn polarization(name: &str) -> Result<Polarization, String> {
 /// Runs the estimator on a reflectance array: `data` the native-endian `float32` bytes of
 /// a C-ordered `(angles, lines, samples, bands)` array.
 #[pyfunction]
-#[pyo3(signature = (data, shape, wavelengths_nm, angles_deg, fwhm_nm, ambient_index, substrate, polarization_name, index_range, thickness_range_nm, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass))]
+#[pyo3(signature = (data, shape, wavelengths_nm, angles_deg, fwhm_nm, ambient_index, substrate, polarization_name, index_range, thickness_range_nm, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, film_index))]
 #[allow(clippy::too_many_arguments)]
 fn estimate_array<'py>(
     py: Python<'py>,
@@ -311,6 +344,7 @@ fn estimate_array<'py>(
     index_pixels: usize,
     sample_sites: usize,
     one_pass: bool,
+    film_index: Option<&str>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let opts = Options {
         method,
@@ -322,6 +356,7 @@ fn estimate_array<'py>(
         field: "narrow",
     };
     let config = opts.config().map_err(fail)?;
+    let film = given_index(film_index, &config)?;
     let [na, lines, samples, bands] = shape;
     if data.len() != na * lines * samples * bands * 4 {
         return Err(fail(format!(
@@ -403,7 +438,7 @@ fn estimate_array<'py>(
     };
     let (run, summary) = py
         .detach(|| -> Result<(Run, serde_json::Value), String> {
-            let run = run_method_in_field(&mut source, &config, None, &|_| {})
+            let run = run(&mut source, &config, None, film.as_ref())
                 .map_err(|e| format!("array: {e}"))?;
             let summary = outputs(&run, out.as_deref(), "array")?;
             Ok((run, summary))

@@ -166,3 +166,21 @@ def test_dispersive_substrate_array_estimate():
     mae = lambda r: float(np.nanmean(np.abs(r.thickness_nm - sim["thickness_nm"])))
     assert abs(good.n_550 - 1.38) < 0.002 and mae(good) < 1.0
     assert mae(const) > mae(good)
+
+
+def test_given_film_index_is_held(tmp_path):
+    sim = filmscope.simulate(small_scene(), seed=5)
+    args = (sim["reflectance"], sim["wavelengths_nm"], sim["angles_deg"])
+    fitted = filmscope.estimate(*args, fwhm_nm=4.0, substrate=1.65)
+    held = filmscope.estimate(*args, fwhm_nm=4.0, substrate=1.65, film_index=1.38)
+    assert held.summary["index_model_choice"]["given"] == "1.38"
+    assert held.n_550 == 1.38
+    mae = lambda r: float(np.nanmean(np.abs(r.thickness_nm - sim["thickness_nm"])))
+    assert mae(held) < 1.0 and abs(mae(held) - mae(fitted)) < 0.5
+    filmscope.write_material(1.38, tmp_path / "film.yml", (400.0, 760.0))
+    from_yaml = filmscope.estimate(*args, fwhm_nm=4.0, substrate=1.65, film_index=tmp_path / "film.yml")
+    assert np.array_equal(from_yaml.thickness_nm, held.thickness_nm, equal_nan=True)
+    wrong = filmscope.estimate(*args, fwhm_nm=4.0, substrate=1.65, film_index=1.6)
+    assert mae(wrong) > 20.0 or np.isnan(wrong.thickness_nm).mean() > 0.5
+    with pytest.raises(filmscope.FilmscopeError, match="film_index"):
+        filmscope.estimate(*args, fwhm_nm=4.0, film_index="unobtainium")

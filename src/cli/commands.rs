@@ -175,8 +175,16 @@ pub fn estimate(
     brute: (usize, f64),
     (field_name, field_strips): (&str, Option<usize>),
     index: super::IndexArgs,
+    film_index: Option<&str>,
 ) -> Result<()> {
     check_index_args(index)?;
+    let film = film_index
+        .map(|m| {
+            crate::material::from_arg(m)
+                .map(|d| (m, d))
+                .map_err(|e| anyhow!("--film-index {m:?}: {e}"))
+        })
+        .transpose()?;
     crate::limits::check_cli(workers, channel_capacity, index_pixels, brute.0, brute.1)
         .map_err(|e| anyhow!(e))?;
     let budget = memory_budget(max_memory)?;
@@ -209,7 +217,20 @@ pub fn estimate(
     let label = cap.path.display().to_string();
     let fov = cap.lens.field_of_view();
     let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
-    let run = run_in_field_with_bar(&mut source, &config, fov, &label)?;
+    let run = match film {
+        None => run_in_field_with_bar(&mut source, &config, fov, &label)?,
+        Some((name, d)) => {
+            if config.method != Method::Filmscope {
+                bail!("--film-index: only the filmscope method takes a given index");
+            }
+            let bar = rows_bar(rows_of(source.spec(), source.angles_deg().len()), &label);
+            let run =
+                crate::known_index::run_with_index(&mut source, &config, &d, name, &|n| bar.inc(n))
+                    .map_err(|e| anyhow!("{label}: {e}"))?;
+            bar.finish_and_clear();
+            run
+        }
+    };
     let summary = crate::estimate::write_outputs_into(out_dir.path(), &run, &label)?;
     out_dir.commit()?;
     for note in &run.result.notes {

@@ -106,6 +106,11 @@ enum Command {
         /// has available. A capture needing more is refused before any work.
         #[arg(long)]
         max_memory: Option<String>,
+        /// The film's index, known beforehand and held instead of fitted: a number, a
+        /// library material name or a refractiveindex.info YAML file (filmscope method;
+        /// one field model per frame).
+        #[arg(long, value_name = "MATERIAL")]
+        film_index: Option<String>,
     },
     /// Sweeps a rig (stage x filter x camera), streams every frame into the estimator,
     /// records the raw sweep as a capture in OUT/capture and writes the maps into OUT.
@@ -368,6 +373,7 @@ pub fn main() -> std::process::ExitCode {
             field_strips,
             index,
             max_memory,
+            film_index,
         } => commands::estimate(
             &capture,
             &out,
@@ -386,6 +392,7 @@ pub fn main() -> std::process::ExitCode {
             (brute_index_steps, brute_thickness_step),
             (&field, field_strips),
             index,
+            film_index.as_deref(),
         ),
         Command::Acquire {
             rig,
