@@ -126,8 +126,7 @@ pub fn resolve(name_or_path: &str) -> Result<Dispersion, String> {
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("yml") || e.eq_ignore_ascii_case("yaml"));
     if is_yaml || path.is_file() {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+        let text = read_small(path).map_err(|e| format!("{}: {e}", path.display()))?;
         return from_rii_yaml(&text)
             .and_then(check)
             .map_err(|e| format!("{}: {e}", path.display()));
@@ -138,6 +137,25 @@ pub fn resolve(name_or_path: &str) -> Result<Dispersion, String> {
             materials::NAMES.join(", ")
         )
     })
+}
+
+/// Material files larger than this are refused (the database's largest are a few hundred
+/// kilobytes).
+const MAX_MATERIAL_BYTES: u64 = 4 << 20;
+
+/// The text of the regular file `path`, refused above [`MAX_MATERIAL_BYTES`].
+fn read_small(path: &Path) -> Result<String, String> {
+    let meta = std::fs::metadata(path).map_err(|e| format!("cannot read: {e}"))?;
+    if !meta.is_file() {
+        return Err("not a regular file".into());
+    }
+    if meta.len() > MAX_MATERIAL_BYTES {
+        return Err(format!(
+            "{} bytes: a material file is at most {MAX_MATERIAL_BYTES}",
+            meta.len()
+        ));
+    }
+    std::fs::read_to_string(path).map_err(|e| format!("cannot read: {e}"))
 }
 
 /// The model's index at each wavelength as CSV: a `wavelength_nm,n` header, one row a

@@ -493,7 +493,7 @@ impl Capture {
                 };
                 let dispersion = crate::material::resolve(&target).map_err(|e| {
                     err(CaptureErrorKind::BadValue {
-                        message: format!("sample.substrate = {name:?}: {e}"),
+                        message: format!("sample.substrate = {name:?}: {}", one_line(&e)),
                     })
                 })?;
                 Some(SubstrateMaterial {
