@@ -666,6 +666,17 @@ pub fn write_outputs_into(
             "preview": "thickness_nm.png",
         },
     });
+    let mut summary = summary;
+    if !run.spec.substrate.is_constant() {
+        summary["sample"]["substrate"] = crate::material::dispersion_to_json(&run.spec.substrate);
+    }
+    let comment = format!("{} estimate of {source_label}", r.method.name());
+    if crate::material::write_index_files(dir, &r.index.dispersion(), &run.spec.bands_nm, &comment)
+        .map_err(OutputError)?
+    {
+        summary["files"]["index_csv"] = json!(crate::material::INDEX_FILES[0]);
+        summary["files"]["index_yml"] = json!(crate::material::INDEX_FILES[1]);
+    }
     let path = dir.join("summary.json");
     let text = serde_json::to_string_pretty(&summary).map_err(|e| err(&path, &e))?;
     write_atomic(&path, text.as_bytes()).map_err(|e| err(&path, &e))?;

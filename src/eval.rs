@@ -26,8 +26,8 @@ pub const SILENT_FAILURE_NM: f64 = 20.0;
 pub struct Truth {
     /// The film's index (with dispersion).
     pub film: Dispersion,
-    /// Substrate index.
-    pub substrate_index: f64,
+    /// The substrate's index (with dispersion).
+    pub substrate: Dispersion,
     /// Ambient index.
     pub ambient_index: f64,
     /// Polarisation.
@@ -41,7 +41,7 @@ impl Truth {
     pub fn of_scene(scene: &firmware_sim::Scene) -> Self {
         Self {
             film: scene.stack.film,
-            substrate_index: scene.stack.substrate.index_at(550.0),
+            substrate: scene.stack.substrate,
             ambient_index: scene.stack.ambient_index,
             polarization: scene.stack.polarization,
             thickness_nm: scene.thickness_nm.clone(),
@@ -70,9 +70,19 @@ impl Truth {
             .unwrap_or(Polarization::S);
         let map = dir.join("truth").join("thickness_nm.hdr");
         let cube = read_cube(&map).map_err(|e| e.to_string())?;
+        // A dispersive substrate is `substrate_dispersion`; a constant one (null there, or
+        // a truth written before the key) `substrate_index`.
+        let substrate = match v.get("substrate_dispersion") {
+            None | Some(serde_json::Value::Null) => Dispersion::constant(
+                num("substrate_index").ok_or_else(|| bad("no substrate_index"))?,
+            ),
+            Some(d) => parse_dispersion(d).ok_or_else(|| {
+                bad("substrate_dispersion is neither null, constant, cauchy nor sellmeier")
+            })?,
+        };
         Ok(Self {
             film,
-            substrate_index: num("substrate_index").ok_or_else(|| bad("no substrate_index"))?,
+            substrate,
             ambient_index: num("ambient_index").unwrap_or(1.0),
             polarization: pol,
             thickness_nm: cube.data,
@@ -203,7 +213,7 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
     let true_stack = FilmStack {
         ambient_index: truth.ambient_index,
         film: truth.film,
-        substrate: Dispersion::constant(truth.substrate_index),
+        substrate: truth.substrate,
         polarization: truth.polarization,
     };
     let est_stack = FilmStack {

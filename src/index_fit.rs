@@ -26,7 +26,7 @@ fn geometry<'a>(spec: &'a SweepSpec, angles_deg: &'a [f64]) -> Geometry<'a> {
         fwhm_nm: &spec.fwhm_nm,
         angles_deg,
         ambient_index: spec.ambient_index,
-        substrate_index: spec.substrate_index,
+        substrate: spec.substrate,
         polarization: spec.polarization,
         index_range: spec.index_range,
         thickness_range_nm: spec.thickness_range_nm,

@@ -17,6 +17,9 @@
 //!   under a wide field of view) and how it is chosen;
 //! - [`appearance`]: the film's colour from the estimate: renders at any angle, measured
 //!   against reproduced; [`export::gltf`] hands it to renderers, [`report`] to people;
+//! - [`known_index`]: the estimator with the film's index given, not fitted;
+//! - [`material`]: index models by name, as JSON or as refractiveindex.info YAML, and
+//!   the estimate written back as CSV and YAML;
 //! - [`cli`]: the `filmscope` command line.
 #![cfg_attr(not(feature = "std"), no_std)]
 
@@ -45,9 +48,13 @@ pub mod index_fit;
 #[cfg(feature = "std")]
 pub mod io;
 #[cfg(feature = "std")]
+pub mod known_index;
+#[cfg(feature = "std")]
 pub mod limits;
 #[cfg(feature = "std")]
 pub mod line;
+#[cfg(feature = "std")]
+pub mod material;
 #[cfg(feature = "std")]
 pub mod pipeline;
 #[cfg(feature = "std")]

@@ -223,11 +223,32 @@ pub fn write_capture(
     )
     .map_err(|e| err(&truth_map, &e))?;
     let toml_path = out_dir.join("capture.toml");
+    // A dispersive substrate travels with the capture as a refractiveindex.info entry.
+    let substrate = if scene.stack.substrate.is_constant() {
+        None
+    } else {
+        let name = "substrate.yml";
+        let path = out_dir.join(name);
+        let text = crate::material::to_rii_yaml(
+            &scene.stack.substrate,
+            [
+                scene.bands_nm.first().copied().unwrap_or(380.0),
+                scene.bands_nm.last().copied().unwrap_or(780.0),
+            ],
+            &format!("substrate of scene {}", scene.name),
+        );
+        write_atomic(&path, text.as_bytes()).map_err(|e| err(&path, &e))?;
+        Some(crate::io::SubstrateMaterial {
+            name: name.into(),
+            dispersion: scene.stack.substrate,
+        })
+    };
     let capture = Capture {
         path: toml_path.clone(),
         sample: Sample {
             ambient_index: scene.stack.ambient_index,
             substrate_index: scene.stack.substrate.index_at(550.0),
+            substrate,
             polarization: scene.stack.polarization,
         },
         search: Search {
@@ -249,6 +270,7 @@ pub fn write_capture(
         "refractive_index": scene.stack.film.index_at(550.0),
         "dispersion": dispersion_json(&scene.stack.film),
         "substrate_index": scene.stack.substrate.index_at(550.0),
+        "substrate_dispersion": dispersion_json(&scene.stack.substrate),
         "ambient_index": scene.stack.ambient_index,
         "polarization": scene.stack.polarization.name(),
         "angles_deg": scene.angles_deg,

@@ -130,7 +130,7 @@ fn evaluate_scores_a_perfect_result_as_passing() {
     let n = 1.9;
     let truth = Truth {
         film: Dispersion::constant(n),
-        substrate_index: drawn.scene.stack.substrate.index_at(550.0),
+        substrate: drawn.scene.stack.substrate,
         ambient_index: 1.0,
         polarization: drawn.scene.stack.polarization,
         thickness_nm: drawn.scene.thickness_nm.clone(),

@@ -111,7 +111,9 @@ struct Step {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct SubstrateFile {
-    index: f64,
+    index: Option<f64>,
+    /// A dispersive substrate, in the film's forms (`cauchy`, `sellmeier`, `material`).
+    dispersion: Option<DispersionFile>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -223,13 +225,22 @@ pub struct Scene {
 impl Scene {
     /// Loads and validates a scene file.
     pub fn load(path: &Path) -> Result<Self, SceneError> {
+        Self::load_seeded(path, None)
+    }
+
+    /// Loads and validates a scene file, its `seed` (thickness bumps and noise) replaced by
+    /// `seed` when given (`simulate --seed`, `eval --seed`).
+    pub fn load_seeded(path: &Path, seed: Option<u64>) -> Result<Self, SceneError> {
         let err = |problem: String| SceneError {
             path: path.to_owned(),
             problem,
         };
         let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
-        let file: SceneFile = toml::from_str(&text)
+        let mut file: SceneFile = toml::from_str(&text)
             .map_err(|e| err(e.message().replace('\n', " ").trim().to_owned()))?;
+        if seed.is_some() {
+            file.seed = seed;
+        }
         let stem = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -239,19 +250,27 @@ impl Scene {
 
     /// Parses a scene from TOML text (for tests); `name` stands in for the file stem.
     pub fn from_toml(text: &str, name: &str) -> Result<Self, SceneError> {
+        Self::from_toml_seeded(text, name, None)
+    }
+
+    /// [`Scene::from_toml`] with the scene's `seed` replaced by `seed` when given.
+    pub fn from_toml_seeded(text: &str, name: &str, seed: Option<u64>) -> Result<Self, SceneError> {
         let err = |problem: String| SceneError {
             path: PathBuf::from(name),
             problem,
         };
-        let file: SceneFile =
+        let mut file: SceneFile =
             toml::from_str(text).map_err(|e| err(e.message().replace('\n', " ")))?;
+        if seed.is_some() {
+            file.seed = seed;
+        }
         Self::from_file(file, name.to_owned()).map_err(err)
     }
 
     fn from_file(f: SceneFile, stem: String) -> Result<Self, String> {
         let film = match (f.film.index, f.film.dispersion) {
             (Some(n), None) => Dispersion::constant(n),
-            (None, Some(d)) => dispersion(d)?,
+            (None, Some(d)) => dispersion(d, "[film.dispersion]")?,
             (Some(_), Some(_)) => return Err("[film] gives both `index` and `dispersion`".into()),
             (None, None) => return Err("[film] needs `index` or `dispersion`".into()),
         };
@@ -261,15 +280,23 @@ impl Scene {
                 format!("polarization must be \"s\", \"p\" or \"unpolarized\", not {p:?}")
             })?,
         };
+        let substrate = match (f.substrate.index, f.substrate.dispersion) {
+            (Some(n), None) => Dispersion::constant(n),
+            (None, Some(d)) => dispersion(d, "[substrate.dispersion]")?,
+            (Some(_), Some(_)) => {
+                return Err("[substrate] gives both `index` and `dispersion`".into())
+            }
+            (None, None) => return Err("[substrate] needs `index` or `dispersion`".into()),
+        };
         let stack = FilmStack {
             ambient_index: f.ambient_index.unwrap_or(1.0),
             film,
-            substrate: Dispersion::constant(f.substrate.index),
+            substrate,
             polarization,
         };
         for (what, n) in [
             ("ambient_index", stack.ambient_index),
-            ("substrate index", f.substrate.index),
+            ("substrate index at 550 nm", substrate.index_at(550.0)),
             ("film index at 550 nm", film.index_at(550.0)),
         ] {
             if !(n.is_finite() && (1.0..=5.0).contains(&n)) {
@@ -410,14 +437,14 @@ impl Scene {
     }
 }
 
-fn dispersion(d: DispersionFile) -> Result<Dispersion, String> {
+fn dispersion(d: DispersionFile, what: &str) -> Result<Dispersion, String> {
     Ok(match d {
         DispersionFile::Cauchy { a, b_um2, c_um4 } => Dispersion::Cauchy { a, b_um2, c_um4 },
         DispersionFile::Sellmeier { a, b, c_um } => {
             if b.len() != c_um.len() || b.is_empty() || b.len() > 3 {
-                return Err(
-                    "[film.dispersion] sellmeier needs 1 to 3 `b` and as many `c_um`".into(),
-                );
+                return Err(format!(
+                    "{what} sellmeier needs 1 to 3 `b` and as many `c_um`"
+                ));
             }
             let mut bb = [0.0; 3];
             let mut cc = [0.0; 3];
@@ -427,7 +454,7 @@ fn dispersion(d: DispersionFile) -> Result<Dispersion, String> {
         }
         DispersionFile::Material { name } => materials::by_name(&name).ok_or_else(|| {
             format!(
-                "[film.dispersion] unknown material {name:?} (known: {}, and zns-debenham, mgf2-dodge)",
+                "{what} unknown material {name:?} (known: {}, and zns-debenham, mgf2-dodge, bk7)",
                 materials::names().join(", ")
             )
         })?,

@@ -102,6 +102,7 @@ pub const TARGETS: &[Target] = &[
             "[search]\n",
             "[[angle]]\n",
             "substrate_index = ",
+            "substrate = \"",
             "ambient_index = ",
             "polarization = ",
             "\"unpolarized\"",

@@ -94,9 +94,17 @@ impl SampleFilm {
         let sample = &summary["sample"];
         let (ambient_index, substrate, polarization) = match (capture, sample) {
             (None, serde_json::Value::Object(_)) => {
-                let substrate = sample["substrate_index"]
-                    .as_f64()
-                    .ok_or_else(|| bad("sample.substrate_index is missing".into()))?;
+                // A dispersive substrate is `sample.substrate`; a constant one only
+                // `sample.substrate_index`.
+                let substrate = match sample.get("substrate") {
+                    Some(d) => crate::material::dispersion_from_json(d)
+                        .map_err(|e| bad(format!("sample.substrate: {e}")))?,
+                    None => Dispersion::constant(
+                        sample["substrate_index"]
+                            .as_f64()
+                            .ok_or_else(|| bad("sample.substrate_index is missing".into()))?,
+                    ),
+                };
                 let pol = sample["polarization"]
                     .as_str()
                     .and_then(Polarization::from_name)
@@ -114,7 +122,7 @@ impl SampleFilm {
                 let cap = Capture::load(path).map_err(|e| AppearanceError(e.to_string()))?;
                 (
                     cap.sample.ambient_index,
-                    cap.sample.substrate_index,
+                    cap.sample.substrate_dispersion(),
                     cap.sample.polarization,
                 )
             }
@@ -128,7 +136,7 @@ impl SampleFilm {
             stack: FilmStack {
                 ambient_index,
                 film,
-                substrate: Dispersion::constant(substrate),
+                substrate,
                 polarization,
             },
             capture: capture_path,

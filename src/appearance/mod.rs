@@ -8,11 +8,14 @@
 //! - [`render`]: the sample at one angle, its angle strip, as sRGB (`filmscope render`).
 //! - [`compare`]: each captured angle measured against reproduced, with a CIEDE2000 map
 //!   (`filmscope compare`).
+//! - [`pixel`]: one pixel's spectra at every angle against the model, the residual and the
+//!   neighbouring orders' fits (`filmscope report RUN --pixel X,Y`).
 //!
 //! The glTF export is [`crate::export::gltf`], the HTML report [`crate::report`].
 
 pub mod compare;
 pub mod film;
+pub mod pixel;
 pub mod render;
 pub mod spectral;
 

@@ -84,8 +84,9 @@ pub fn simulate(
     out: &Path,
     noise_free: bool,
     (interleave, byte_order): (&str, &str),
+    seed: Option<u64>,
 ) -> Result<()> {
-    let scene = Scene::load(scene_path)?;
+    let scene = Scene::load_seeded(scene_path, seed)?;
     let interleave = Interleave::from_name(interleave)
         .ok_or_else(|| anyhow!("--interleave {interleave:?}: use bil, bsq or bip"))?;
     let byte_order = match byte_order {
@@ -174,8 +175,16 @@ pub fn estimate(
     brute: (usize, f64),
     (field_name, field_strips): (&str, Option<usize>),
     index: super::IndexArgs,
+    film_index: Option<&str>,
 ) -> Result<()> {
     check_index_args(index)?;
+    let film = film_index
+        .map(|m| {
+            crate::material::from_arg(m)
+                .map(|d| (m, d))
+                .map_err(|e| anyhow!("--film-index {m:?}: {e}"))
+        })
+        .transpose()?;
     crate::limits::check_cli(workers, channel_capacity, index_pixels, brute.0, brute.1)
         .map_err(|e| anyhow!(e))?;
     let budget = memory_budget(max_memory)?;
@@ -208,7 +217,20 @@ pub fn estimate(
     let label = cap.path.display().to_string();
     let fov = cap.lens.field_of_view();
     let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
-    let run = run_in_field_with_bar(&mut source, &config, fov, &label)?;
+    let run = match film {
+        None => run_in_field_with_bar(&mut source, &config, fov, &label)?,
+        Some((name, d)) => {
+            if config.method != Method::Filmscope {
+                bail!("--film-index: only the filmscope method takes a given index");
+            }
+            let bar = rows_bar(rows_of(source.spec(), source.angles_deg().len()), &label);
+            let run =
+                crate::known_index::run_with_index(&mut source, &config, &d, name, &|n| bar.inc(n))
+                    .map_err(|e| anyhow!("{label}: {e}"))?;
+            bar.finish_and_clear();
+            run
+        }
+    };
     let summary = crate::estimate::write_outputs_into(out_dir.path(), &run, &label)?;
     out_dir.commit()?;
     for note in &run.result.notes {
@@ -270,13 +292,25 @@ enum Input {
     Capture(PathBuf),
 }
 
-fn input(path: &Path) -> Result<Input> {
+/// Whether `path` names a scene file (`Some(true)`), a capture (`Some(false)`) or neither.
+fn input_kind(path: &Path) -> Option<bool> {
+    if path.is_dir() || path.file_name().is_some_and(|n| n == "capture.toml") {
+        Some(false)
+    } else if path.extension().is_some_and(|e| e == "toml") {
+        Some(true)
+    } else {
+        None
+    }
+}
+
+/// A scene file (its seed replaced by `seed` when given) or a capture directory.
+fn input(path: &Path, seed: Option<u64>) -> Result<Input> {
     if path.is_dir() {
         Ok(Input::Capture(path.to_owned()))
     } else if path.extension().is_some_and(|e| e == "toml")
         && path.file_name().is_some_and(|n| n != "capture.toml")
     {
-        Ok(Input::Scene(Box::new(Scene::load(path)?)))
+        Ok(Input::Scene(Box::new(Scene::load_seeded(path, seed)?)))
     } else if path.file_name().is_some_and(|n| n == "capture.toml") {
         Ok(Input::Capture(
             path.parent().unwrap_or(Path::new(".")).to_owned(),
@@ -289,8 +323,8 @@ fn input(path: &Path) -> Result<Input> {
     }
 }
 
-fn eval_one(path: &Path, config: &RunConfig) -> Result<(EvalReport, Run)> {
-    match input(path)? {
+fn eval_one(path: &Path, config: &RunConfig, seed: Option<u64>) -> Result<(EvalReport, Run)> {
+    match input(path, seed)? {
         Input::Scene(scene) => {
             let truth = Truth::of_scene(&scene);
             let name = scene.name.clone();
@@ -340,6 +374,7 @@ fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig)> {
 pub fn eval(
     inputs: &[PathBuf],
     random: Option<(usize, u64, Option<PathBuf>)>,
+    seed: Option<u64>,
     method_name: &str,
     json: bool,
     brute: (usize, f64),
@@ -354,6 +389,14 @@ pub fn eval(
         }
         (false, Some(_)) => bail!("eval --random draws its own scenes: give no inputs"),
         _ => {}
+    }
+    if let (Some(s), None) = (seed, &random) {
+        if let Some(cap) = inputs.iter().find(|p| !matches!(input_kind(p), Some(true))) {
+            bail!(
+                "--seed {s}: {} is not a scene file (a capture's noise is recorded; --seed applies to scene files)",
+                cap.display()
+            );
+        }
     }
     let defaults = PipelineConfig::default();
     crate::limits::check_cli(
@@ -416,7 +459,7 @@ pub fn eval(
         }
     };
     for path in inputs {
-        let (r, run) = eval_one(path, &config).with_context(|| path.display().to_string())?;
+        let (r, run) = eval_one(path, &config, seed).with_context(|| path.display().to_string())?;
         if json {
             println!("{}", serde_json::to_string(&r)?);
         } else {
@@ -881,6 +924,48 @@ pub fn export_gltf(maps: &Path, out: &Path, width_m: f64, capture: Option<&Path>
         glb.bytes.len(),
         out.display()
     );
+    Ok(())
+}
+
+/// `filmscope report RUN --pixel X,Y`: the fit at one pixel, printed, plotted and tabled.
+pub fn report_pixel(
+    run: &Path,
+    out: Option<&Path>,
+    capture: Option<&Path>,
+    xy: &str,
+) -> Result<()> {
+    let parse = |s: Option<&str>| s.and_then(|v| v.trim().parse::<usize>().ok());
+    let mut parts = xy.split(',');
+    let (Some(x), Some(y), None) = (parse(parts.next()), parse(parts.next()), parts.next()) else {
+        bail!("--pixel {xy:?}: expected X,Y (column and row, from 0)");
+    };
+    let film = SampleFilm::load(run, capture)?;
+    let cap = film.capture.clone().ok_or_else(|| {
+        anyhow!(
+            "{}: the capture is unknown (pass --capture)",
+            run.join("summary.json").display()
+        )
+    })?;
+    let mut source = open_capture(&cap)?;
+    let fit = crate::appearance::pixel::pixel_fit(&film, &mut source, x, y)?;
+    print!("{}", fit.table());
+    let dir = match out {
+        Some(o) => o
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .to_path_buf(),
+        None => run.to_path_buf(),
+    };
+    let stem = out.and_then(|o| o.file_stem()).map_or_else(
+        || format!("pixel-{x}-{y}"),
+        |s| s.to_string_lossy().into_owned(),
+    );
+    let png = dir.join(format!("{stem}.png"));
+    write_atomic(&png, &fit.to_png()?).with_context(|| format!("{}", png.display()))?;
+    let csv = dir.join(format!("{stem}.csv"));
+    write_atomic(&csv, fit.to_csv().as_bytes()).with_context(|| format!("{}", csv.display()))?;
+    println!("wrote {} and {}", png.display(), csv.display());
     Ok(())
 }
 

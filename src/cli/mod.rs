@@ -60,6 +60,9 @@ enum Command {
         /// Byte order of the cubes' values: little (default) or big.
         #[arg(long, default_value = "little")]
         byte_order: String,
+        /// Replaces the scene's `seed` (its thickness bumps and noise).
+        #[arg(long)]
+        seed: Option<u64>,
     },
     /// Estimates index and thickness maps from a capture.
     Estimate {
@@ -103,6 +106,11 @@ enum Command {
         /// has available. A capture needing more is refused before any work.
         #[arg(long)]
         max_memory: Option<String>,
+        /// The film's index, known beforehand and held instead of fitted: a number, a
+        /// library material name or a refractiveindex.info YAML file (filmscope method;
+        /// one field model per frame).
+        #[arg(long, value_name = "MATERIAL")]
+        film_index: Option<String>,
     },
     /// Sweeps a rig (stage x filter x camera), streams every frame into the estimator,
     /// records the raw sweep as a capture in OUT/capture and writes the maps into OUT.
@@ -160,9 +168,10 @@ enum Command {
         /// judged PASS or FAIL; one row per scene and a closing count.
         #[arg(long, value_name = "N")]
         random: Option<usize>,
-        /// With --random: the set's seed (the same seed draws the same scenes).
-        #[arg(long, default_value_t = 1, requires = "random")]
-        seed: u64,
+        /// With --random: the set's seed (the same seed draws the same scenes; default 1).
+        /// With scene files: replaces each scene's `seed` (thickness bumps and noise).
+        #[arg(long)]
+        seed: Option<u64>,
         /// With --random: also write each drawn scene's file into DIR
         /// (`random-SEED-I.toml`), so a row can be run again with `eval FILE`.
         #[arg(long, value_name = "DIR", requires = "random")]
@@ -313,6 +322,12 @@ enum Command {
         /// The capture (capture.toml or its directory), if the summary does not lead to it.
         #[arg(long)]
         capture: Option<PathBuf>,
+        /// Instead of the page, the fit at pixel X,Y (column, row): prints the residual per
+        /// angle and the order candidates, and writes RUN/pixel-X-Y.png (measured and model
+        /// at every angle, the residual, the candidates) and RUN/pixel-X-Y.csv (or beside
+        /// --out).
+        #[arg(long, value_name = "X,Y")]
+        pixel: Option<String>,
     },
     /// (reliability) Consecutive sweeps of a small scene through the pipeline, printing the
     /// resident memory every tenth sweep: memory must stay flat over a long run.
@@ -347,7 +362,8 @@ pub fn main() -> std::process::ExitCode {
             noise_free,
             interleave,
             byte_order,
-        } => commands::simulate(&scene, &out, noise_free, (&interleave, &byte_order)),
+            seed,
+        } => commands::simulate(&scene, &out, noise_free, (&interleave, &byte_order), seed),
         Command::Estimate {
             capture,
             out,
@@ -361,6 +377,7 @@ pub fn main() -> std::process::ExitCode {
             field_strips,
             index,
             max_memory,
+            film_index,
         } => commands::estimate(
             &capture,
             &out,
@@ -379,6 +396,7 @@ pub fn main() -> std::process::ExitCode {
             (brute_index_steps, brute_thickness_step),
             (&field, field_strips),
             index,
+            film_index.as_deref(),
         ),
         Command::Acquire {
             rig,
@@ -421,7 +439,8 @@ pub fn main() -> std::process::ExitCode {
             index,
         } => commands::eval(
             &inputs,
-            random.map(|n| (n, seed, save_scenes)),
+            random.map(|n| (n, seed.unwrap_or(1), save_scenes)),
+            seed,
             &method,
             json,
             (brute_index_steps, brute_thickness_step),
@@ -471,9 +490,18 @@ pub fn main() -> std::process::ExitCode {
             width_m,
             capture,
         } => commands::export_gltf(&maps, &out, width_m, capture.as_deref()),
-        Command::Report { run, out, capture } => {
-            commands::report(&run, out.as_deref(), capture.as_deref())
-        }
+        Command::Report {
+            run,
+            out,
+            capture,
+            pixel: None,
+        } => commands::report(&run, out.as_deref(), capture.as_deref()),
+        Command::Report {
+            run,
+            out,
+            capture,
+            pixel: Some(xy),
+        } => commands::report_pixel(&run, out.as_deref(), capture.as_deref(), &xy),
         Command::BenchRssChild {
             scene,
             width,

@@ -190,6 +190,7 @@ pub fn film_glb(film: &SampleFilm, width_m: f64) -> Result<Glb, AppearanceError>
                 "film_index_550nm": ior,
                 "film_dispersion": dispersion_json(&film.stack.film),
                 "substrate_index": substrate,
+                "substrate_dispersion": dispersion_json(&film.stack.substrate),
                 "thickness_texture": "G = (d - min) / (max - min); R = 255 where no reliable thickness (G = median there)",
             },
         }],

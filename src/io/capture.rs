@@ -3,7 +3,11 @@
 //! ```toml
 //! [sample]
 //! ambient_index = 1.0        # optional, default 1.0
-//! substrate_index = 1.65     # required
+//! substrate_index = 1.65     # required, unless `substrate` is given
+//! substrate = "bk7"          # optional, a filmscope extension: a dispersive substrate, by
+//!                            # library name or refractiveindex.info YAML file (relative to
+//!                            # capture.toml); the model uses it, substrate_index is then
+//!                            # its n at 550 nm for readers that do not know the key
 //! polarization = "s"         # optional: "s" (default), "p" or "unpolarized"
 //!
 //! [search]                   # optional
@@ -42,7 +46,7 @@ use serde::{Deserialize, Serialize};
 
 use super::atomic::write_atomic;
 use super::envi::{file_name, DataType, EnviError, EnviErrorKind, EnviHeader, EnviReader};
-use crate::optics::Polarization;
+use crate::optics::{Dispersion, Polarization};
 
 /// The file name looked for when [`Capture::load`] is given a directory.
 pub const CAPTURE_FILE_NAME: &str = "capture.toml";
@@ -64,10 +68,33 @@ const MAX_CAPTURE_BYTES: u64 = 4 << 20;
 pub struct Sample {
     /// Index of the medium the light comes from (default 1.0, air).
     pub ambient_index: f64,
-    /// Real index of the substrate under the film.
+    /// Real index of the substrate under the film (at 550 nm when `substrate` is given).
     pub substrate_index: f64,
+    /// A dispersive substrate (`sample.substrate`), which the model uses in place of
+    /// `substrate_index`; `None`: the constant `substrate_index`.
+    pub substrate: Option<SubstrateMaterial>,
     /// Polarisation reaching the camera (default S).
     pub polarization: Polarization,
+}
+
+/// `sample.substrate`: the substrate's material as the capture names it, and its index
+/// against wavelength.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SubstrateMaterial {
+    /// A library name, or a YAML file's path as written (relative to capture.toml).
+    pub name: String,
+    /// The index against wavelength.
+    pub dispersion: Dispersion,
+}
+
+impl Sample {
+    /// The substrate's index against wavelength: `substrate` when given, else the constant
+    /// `substrate_index`.
+    pub fn substrate_dispersion(&self) -> Dispersion {
+        self.substrate
+            .as_ref()
+            .map_or(Dispersion::constant(self.substrate_index), |s| s.dispersion)
+    }
 }
 
 /// The optional `[search]` table: bounds the solver may assume.
@@ -364,7 +391,10 @@ struct RawLens {
 struct RawSample {
     #[serde(default = "one")]
     ambient_index: f64,
-    substrate_index: f64,
+    #[serde(default)]
+    substrate_index: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    substrate: Option<String>,
     #[serde(default = "default_polarization")]
     polarization: String,
 }
@@ -397,7 +427,12 @@ fn default_polarization() -> String {
     Polarization::S.name().to_string()
 }
 
-const SAMPLE_KEYS: &[&str] = &["ambient_index", "substrate_index", "polarization"];
+const SAMPLE_KEYS: &[&str] = &[
+    "ambient_index",
+    "substrate_index",
+    "substrate",
+    "polarization",
+];
 const SEARCH_KEYS: &[&str] = &["index_range", "thickness_range_nm"];
 const LENS_KEYS: &[&str] = &["horizontal_fov_deg"];
 const ANGLE_KEYS: &[&str] = &[
@@ -447,6 +482,36 @@ impl Capture {
                 })
             })?;
         let dir = toml_path.parent().unwrap_or(Path::new(""));
+        let substrate = match &raw.sample.substrate {
+            None => None,
+            Some(name) => {
+                let local = dir.join(name);
+                let target = if local.is_file() {
+                    local.to_string_lossy().into_owned()
+                } else {
+                    name.clone()
+                };
+                let dispersion = crate::material::resolve(&target).map_err(|e| {
+                    err(CaptureErrorKind::BadValue {
+                        message: format!("sample.substrate = {name:?}: {}", one_line(&e)),
+                    })
+                })?;
+                Some(SubstrateMaterial {
+                    name: name.clone(),
+                    dispersion,
+                })
+            }
+        };
+        let substrate_index = match (raw.sample.substrate_index, &substrate) {
+            (Some(n), _) => n,
+            (None, Some(s)) => s.dispersion.index_at(550.0),
+            (None, None) => {
+                return Err(err(CaptureErrorKind::Toml {
+                    line: None,
+                    message: "missing field `substrate_index`".into(),
+                }))
+            }
+        };
         let angles = raw
             .angle
             .into_iter()
@@ -462,7 +527,8 @@ impl Capture {
             path: toml_path.to_path_buf(),
             sample: Sample {
                 ambient_index: raw.sample.ambient_index,
-                substrate_index: raw.sample.substrate_index,
+                substrate_index,
+                substrate,
                 polarization,
             },
             search: raw
@@ -695,7 +761,8 @@ impl Capture {
         let raw = RawCapture {
             sample: RawSample {
                 ambient_index: self.sample.ambient_index,
-                substrate_index: self.sample.substrate_index,
+                substrate_index: Some(self.sample.substrate_index),
+                substrate: self.sample.substrate.as_ref().map(|s| s.name.clone()),
                 polarization: self.sample.polarization.name().to_string(),
             },
             search,

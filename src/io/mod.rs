@@ -26,7 +26,10 @@ pub mod envi;
 pub mod output;
 
 pub use atomic::{write_atomic, TempFile};
-pub use capture::{Angle, Capture, CaptureError, CaptureErrorKind, CubeInfo, Lens, Sample, Search};
+pub use capture::{
+    Angle, Capture, CaptureError, CaptureErrorKind, CubeInfo, Lens, Sample, Search,
+    SubstrateMaterial,
+};
 pub use envi::{
     read_cube, write_f32_map, BandRow, ByteOrder, Cube, DataType, EnviError, EnviErrorKind,
     EnviHeader, EnviReader, EnviWriter, Interleave,

@@ -75,6 +75,7 @@ pub fn sweep_spec(
         fwhm_nm: fwhm,
         ambient_index,
         substrate_index,
+        substrate: filmscope_core::optics::Dispersion::constant(substrate_index),
         polarization,
         index_range,
         thickness_range_nm,
@@ -115,7 +116,8 @@ impl SimSource {
             scene
                 .thickness_range_nm
                 .unwrap_or(DEFAULT_THICKNESS_RANGE_NM),
-        )?;
+        )?
+        .with_substrate(scene.stack.substrate);
         Ok(Self {
             camera,
             spec,
@@ -266,7 +268,8 @@ impl CaptureSource {
             range_i,
             range_d,
         )
-        .map_err(|e| format!("{}: {e}", capture.path.display()))?;
+        .map_err(|e| format!("{}: {e}", capture.path.display()))?
+        .with_substrate(capture.sample.substrate_dispersion());
         // Raw counts saturate at the ADC's full scale: the header's `saturation counts` (a
         // filmscope extension of ENVI) when given, else the u16 maximum.
         let first = EnviReader::open(&capture.angles[0].cube).map_err(|e| e.to_string())?;

@@ -194,6 +194,7 @@ impl Acquisition {
             sample: Sample {
                 ambient_index: s.ambient_index,
                 substrate_index: s.substrate_index,
+                substrate: None,
                 polarization: self.spec.polarization,
             },
             search: Search {

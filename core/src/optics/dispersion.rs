@@ -246,6 +246,22 @@ pub mod materials {
         }
     }
 
+    /// N-BK7 borosilicate crown glass, SCHOTT datasheet, 0.3-2.5 um (refractiveindex.info
+    /// formula 2): `n^2 - 1 = 1.03961212 l^2/(l^2-0.00600069867) + 0.231792344
+    /// l^2/(l^2-0.0200179144) + 1.01046945 l^2/(l^2-103.560653)`. n = 1.5185 at 550 nm. A
+    /// substrate (by [`by_name`] as `bk7` or `n-bk7`), not among the films of [`NAMES`].
+    pub fn bk7_schott() -> Dispersion {
+        Dispersion::Sellmeier {
+            a: 1.0,
+            b: [1.03961212, 0.231792344, 1.01046945],
+            c_um: [
+                libm::sqrt(0.00600069867),
+                libm::sqrt(0.0200179144),
+                libm::sqrt(103.560653),
+            ],
+        }
+    }
+
     /// The library's names, lowercase, in order of rising n at 550 nm ([`by_name`] takes
     /// each, and the older `zns-debenham` and `mgf2-dodge`).
     pub const NAMES: [&str; 15] = [
@@ -272,7 +288,7 @@ pub mod materials {
     }
 
     /// The material called `name` (case ignored): one of [`NAMES`], or `zns-debenham`,
-    /// `mgf2-dodge`, `pc` (polycarbonate).
+    /// `mgf2-dodge`, `pc` (polycarbonate), or the substrate glass `bk7` (`n-bk7`).
     pub fn by_name(name: &str) -> Option<Dispersion> {
         let is = |s: &str| name.eq_ignore_ascii_case(s);
         Some(if is("mgf2") || is("mgf2-dodge") {
@@ -305,6 +321,8 @@ pub mod materials {
             zns_debenham()
         } else if is("tio2") {
             tio2_devore_o()
+        } else if is("bk7") || is("n-bk7") {
+            bk7_schott()
         } else {
             return None;
         })
@@ -360,6 +378,9 @@ pub mod materials {
             assert_eq!(by_name("mgf2-dodge"), Some(MGF2_DODGE_O));
             assert_eq!(by_name("pc"), Some(polycarbonate_sultanova()));
             assert_eq!(by_name("unobtainium"), None);
+            let bk7 = by_name("N-BK7").expect("bk7");
+            // SCHOTT's datasheet: n_d = 1.5168 at 587.6 nm.
+            assert!((bk7.index_at(587.56) - 1.5168).abs() < 1e-4);
         }
 
         /// The Gao 2012 Ta2O5 and Lemarchand 2013 Nb2O5 fits against their tables' values.

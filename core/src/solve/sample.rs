@@ -205,8 +205,8 @@ pub struct Geometry<'a> {
     pub angles_deg: &'a [f64],
     /// Ambient index.
     pub ambient_index: f64,
-    /// Substrate index.
-    pub substrate_index: f64,
+    /// The substrate's index against wavelength.
+    pub substrate: Dispersion,
     /// Polarisation of the measured light.
     pub polarization: Polarization,
     /// Film index search range.
@@ -759,11 +759,12 @@ struct SiteSums {
 }
 
 impl Problem<'_> {
-    fn indices(&self, film: f64) -> Indices {
+    /// The indices at vacuum wavelength `l_nm`, the film's being `film`.
+    fn indices(&self, film: f64, l_nm: f64) -> Indices {
         Indices {
             ambient: self.geo.ambient_index,
             film,
-            substrate: self.geo.substrate_index,
+            substrate: self.geo.substrate.index_at(l_nm),
         }
     }
 
@@ -782,7 +783,7 @@ impl Problem<'_> {
         let pol = self.geo.polarization;
         let phase_per_nm = |l: f64| {
             let n = kind.eval(p, l * 1e-3).0;
-            let f = FilmAtAngle::new(self.indices(n), deg, pol)?;
+            let f = FilmAtAngle::new(self.indices(n, l), deg, pol)?;
             Some(4.0 * core::f64::consts::PI * f.kz_film / l)
         };
         let span = passband_phase_span(l0, fwhm, d_max, phase_per_nm);
@@ -792,8 +793,8 @@ impl Problem<'_> {
             if !n.is_finite() {
                 return None;
             }
-            let film = FilmAtAngle::new(self.indices(n), deg, pol)?;
-            let film_up = FilmAtAngle::new(self.indices(n + INDEX_STEP), deg, pol)?;
+            let film = FilmAtAngle::new(self.indices(n, l), deg, pol)?;
+            let film_up = FilmAtAngle::new(self.indices(n + INDEX_STEP, l), deg, pol)?;
             Some(Node {
                 weight: w,
                 phase_per_nm: 4.0 * core::f64::consts::PI * film.kz_film / l,
@@ -1333,7 +1334,7 @@ impl Problem<'_> {
                 if !n.is_finite() {
                     return None;
                 }
-                let f = FilmAtAngle::new(self.indices(n), geo.angles_deg[a], geo.polarization)?;
+                let f = FilmAtAngle::new(self.indices(n, l), geo.angles_deg[a], geo.polarization)?;
                 let k = 4.0 * core::f64::consts::PI * f.kz_film / l;
                 let s_l = geo.fwhm_nm[b] / 2.354_82;
                 let _ = films.push((f, k, s_l / l));
@@ -1688,7 +1689,7 @@ mod tests {
             fwhm_nm: &fwhm,
             angles_deg: case.angles,
             ambient_index: 1.0,
-            substrate_index: case.substrate,
+            substrate: Dispersion::constant(case.substrate),
             polarization: case.pol,
             index_range: [1.2, 3.0],
             thickness_range_nm: [10.0, 3000.0],
@@ -1742,7 +1743,7 @@ mod tests {
             fwhm_nm: &fwhm,
             angles_deg: &angles,
             ambient_index: 1.0,
-            substrate_index: 1.6,
+            substrate: Dispersion::constant(1.6),
             polarization: Polarization::S,
             index_range: [1.2, 3.0],
             thickness_range_nm: [50.0, 2000.0],

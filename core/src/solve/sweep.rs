@@ -11,7 +11,7 @@
 
 use heapless::Vec as HVec;
 
-use crate::optics::{FilmAtAngle, Indices, Polarization};
+use crate::optics::{Dispersion, FilmAtAngle, Indices, Polarization};
 
 use super::index::{
     combine, fit_index, fit_slope_at, pair_estimate, IndexFit, PairBins, PairEstimate,
@@ -62,8 +62,11 @@ pub struct SweepSpec {
     pub fwhm_nm: HVec<f64, MAX_BANDS>,
     /// Ambient index.
     pub ambient_index: f64,
-    /// Substrate index.
+    /// Substrate index at 550 nm, as reports give it.
     pub substrate_index: f64,
+    /// The substrate's index against wavelength, which the model uses (a constant
+    /// `substrate_index` for most samples; a glass's Sellmeier formula for a dispersive one).
+    pub substrate: Dispersion,
     /// Polarisation of the measured light.
     pub polarization: Polarization,
     /// Film index search range.
@@ -112,6 +115,14 @@ impl Default for SolverOptions {
 }
 
 impl SweepSpec {
+    /// The same sweep on the substrate `substrate` (`substrate_index` becomes its index at
+    /// 550 nm).
+    pub fn with_substrate(mut self, substrate: Dispersion) -> Self {
+        self.substrate_index = substrate.index_at(550.0);
+        self.substrate = substrate;
+        self
+    }
+
     /// Wavelength of a fractional band position (linear between band centres).
     #[inline]
     pub fn wavelength_at(&self, band: f32) -> f64 {
@@ -698,7 +709,7 @@ impl SweepSolver {
                 (Some(index), Some(&l)) => BandCoef::new(
                     index,
                     self.spec.ambient_index,
-                    self.spec.substrate_index,
+                    self.spec.substrate.index_at(l),
                     self.spec.polarization,
                     self.angle_deg,
                     l,
@@ -803,7 +814,7 @@ impl SweepSolver {
             Indices {
                 ambient: self.spec.ambient_index,
                 film: index.at(mid),
-                substrate: self.spec.substrate_index,
+                substrate: self.spec.substrate.index_at(mid),
             },
             incidence_deg,
             self.spec.polarization,
@@ -1219,6 +1230,7 @@ pub(crate) fn paper_rig_spec(width: usize, height: usize) -> SweepSpec {
         fwhm_nm: HVec::new(),
         ambient_index: 1.0,
         substrate_index: 1.52,
+        substrate: Dispersion::constant(1.52),
         polarization: crate::optics::Polarization::S,
         index_range: [1.2, 2.8],
         thickness_range_nm: [30.0, 2000.0],

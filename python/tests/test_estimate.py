@@ -1,0 +1,119 @@
+"""filmscope.estimate: on a capture (the CLI's maps bit for bit) and on arrays."""
+
+import json
+import re
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import filmscope
+from conftest import small_scene
+
+
+def read_envi_map(hdr: Path) -> np.ndarray:
+    """A one-band ENVI map (float32 or uint16) as written by filmscope."""
+    text = hdr.read_text()
+    key = lambda k: re.search(rf"^{k}\s*=\s*(\S+)", text, re.M | re.I).group(1)
+    samples, lines, dtype = int(key("samples")), int(key("lines")), int(key("data type"))
+    order = ">" if int(key("byte order")) == 1 else "<"
+    dt = {4: np.dtype(order + "f4"), 12: np.dtype(order + "u2")}[dtype]
+    data = np.fromfile(hdr.with_suffix(".img"), dtype=dt)
+    return data.reshape(lines, samples)
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cap")
+    # Raw counts with white and dark references, as the rig writes them.
+    scene = small_scene(sensor={"width": 40, "height": 24})
+    made = filmscope.simulate(scene, d / "cap", seed=3)
+    assert Path(made["capture"]).name == "capture.toml"
+    return d / "cap"
+
+
+def test_capture_estimate_equals_cli_bit_for_bit(capture, tmp_path, cli):
+    out = tmp_path / "cli"
+    subprocess.run(cli + ["estimate", str(capture), "--out", str(out)], check=True, capture_output=True)
+    r = filmscope.estimate(capture)
+    for name, arr in [
+        ("thickness_nm", r.thickness_nm),
+        ("confidence", r.confidence),
+        ("thickness_sigma_nm", r.sigma_nm),
+    ]:
+        want = read_envi_map(out / f"{name}.hdr")
+        assert arr.dtype == np.float32 and arr.shape == want.shape
+        assert np.array_equal(arr, want, equal_nan=True), name
+    flags = read_envi_map(out / "flags.hdr")
+    assert np.array_equal(r.flags, flags.astype(np.uint16))
+    summary = json.loads((out / "summary.json").read_text())
+    assert r.summary["refractive_index"] == summary["refractive_index"]
+    assert r.summary["dispersion"] == summary["dispersion"]
+    assert r.refractive_index["n_table"]["n"] == summary["dispersion"]["n_table"]["n"]
+    # And it is a real estimate: the truth is 1.38 and 390-450 nm.
+    truth = read_envi_map(capture / "truth" / "thickness_nm.hdr")
+    assert abs(r.n_550 - 1.38) < 0.01
+    valid = np.isfinite(r.thickness_nm)
+    assert valid.mean() > 0.9
+    assert np.nanmean(np.abs(r.thickness_nm - truth)[valid]) < 5.0
+
+
+def test_capture_estimate_writes_out_like_the_cli(capture, tmp_path):
+    r = filmscope.estimate(capture, out=tmp_path / "py")
+    assert (tmp_path / "py" / "summary.json").exists()
+    assert np.array_equal(read_envi_map(tmp_path / "py" / "thickness_nm.hdr"), r.thickness_nm, equal_nan=True)
+
+
+def test_array_estimate_recovers_thickness():
+    sim = filmscope.simulate(small_scene(), seed=5)
+    cube = sim["reflectance"]
+    assert cube.shape == (4, 24, 40, 151) and cube.dtype == np.float32
+    r = filmscope.estimate(
+        cube.astype(np.float64),
+        sim["wavelengths_nm"],
+        sim["angles_deg"],
+        fwhm_nm=sim["fwhm_nm"],
+        substrate=sim["substrate"],
+        polarization=sim["polarization"],
+    )
+    assert r.thickness_nm.shape == (24, 40)
+    assert abs(r.n_550 - 1.38) < 0.005, r
+    valid = np.isfinite(r.thickness_nm)
+    assert valid.mean() > 0.95
+    err = np.abs(r.thickness_nm - sim["thickness_nm"])[valid]
+    assert err.mean() < 2.0, err.mean()
+    # Angles given in another order, and the cube permuted alike, give the same maps.
+    perm = [2, 0, 3, 1]
+    r2 = filmscope.estimate(
+        cube[perm], sim["wavelengths_nm"], sim["angles_deg"][perm],
+        fwhm_nm=sim["fwhm_nm"], substrate=sim["substrate"], polarization=sim["polarization"],
+    )
+    assert np.array_equal(r.thickness_nm, r2.thickness_nm, equal_nan=True)
+
+
+def test_array_estimate_with_a_wrong_substrate_is_worse():
+    sim = filmscope.simulate(small_scene(), seed=5)
+    args = (sim["reflectance"], sim["wavelengths_nm"], sim["angles_deg"])
+    good = filmscope.estimate(*args, fwhm_nm=4.0, substrate=1.65)
+    bad = filmscope.estimate(*args, fwhm_nm=4.0, substrate=1.45)
+    # Flagged (no index, every pixel NaN) or farther from the truth, never as good.
+    assert not abs(bad.n_550 - 1.38) <= abs(good.n_550 - 1.38)
+    assert bad.summary["valid_fraction"] < good.summary["valid_fraction"] or bad.n_550 != bad.n_550
+
+
+def test_bad_inputs_raise_one_line(tmp_path):
+    with pytest.raises(filmscope.FilmscopeError, match="capture.toml"):
+        filmscope.estimate(tmp_path)
+    cube = np.zeros((3, 4, 5, 20), dtype=np.float32)
+    wl = np.linspace(400, 700, 20)
+    with pytest.raises(filmscope.FilmscopeError, match="wavelengths_nm"):
+        filmscope.estimate(cube, wl[:10], [10, 20, 30])
+    with pytest.raises(filmscope.FilmscopeError, match="angles_deg"):
+        filmscope.estimate(cube, wl, [10, 20])
+    with pytest.raises(filmscope.FilmscopeError, match="4 dimensions"):
+        filmscope.estimate(cube[0], wl, [10, 20, 30])
+    with pytest.raises(filmscope.FilmscopeError, match="method"):
+        filmscope.estimate(cube, wl, [10, 20, 30], method="magic")
+    with pytest.raises(filmscope.FilmscopeError, match="substrate"):
+        filmscope.estimate(cube, wl, [10, 20, 30], substrate="unobtainium")

@@ -1,0 +1,65 @@
+"""filmscope.reflectance against the tmm package (transfer matrices, independent code)."""
+
+import math
+
+import numpy as np
+import pytest
+
+import filmscope
+
+tmm = pytest.importorskip("tmm")
+
+WL = np.array([400.0, 455.5, 532.0, 633.0, 780.0])
+ANGLES = np.array([0.0, 15.0, 35.0, 55.0, 70.0])
+THICK = np.array([0.0, 85.0, 410.0, 1333.0])
+
+
+def tmm_r(pol, n_film, n_sub, d, angle, wl):
+    if pol == "unpolarized":
+        return 0.5 * (tmm_r("s", n_film, n_sub, d, angle, wl) + tmm_r("p", n_film, n_sub, d, angle, wl))
+    return tmm.coh_tmm(pol, [1.0, n_film, n_sub], [np.inf, d, np.inf], math.radians(angle), wl)["R"]
+
+
+@pytest.mark.parametrize("pol", ["s", "p", "unpolarized"])
+@pytest.mark.parametrize("n_film,n_sub", [(1.38, 1.52), (2.35, 1.65), (1.46, 1.46)])
+def test_matches_tmm_constant_indices(pol, n_film, n_sub):
+    got = filmscope.reflectance(n_film, THICK[:, None], ANGLES[None, :], WL, substrate=n_sub, polarization=pol)
+    assert got.shape == (len(THICK), len(ANGLES), len(WL))
+    want = np.array(
+        [[[tmm_r(pol, n_film, n_sub, d, a, l) for l in WL] for a in ANGLES] for d in THICK]
+    )
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("pol", ["s", "p", "unpolarized"])
+def test_matches_tmm_dispersive_film_and_substrate(pol):
+    # ZnS (library Sellmeier form of Debenham's formula) on BK7 (SCHOTT, formula 2).
+    bk7 = {"model": "sellmeier", "b": [1.03961212, 0.231792344, 1.01046945],
+           "c_um": [math.sqrt(0.00600069867), math.sqrt(0.0200179144), math.sqrt(103.560653)]}
+    got = filmscope.reflectance("zns", 250.0, ANGLES, WL, substrate=bk7, polarization=pol)
+    n_film = filmscope.index("zns", WL)
+    n_sub = filmscope.index(bk7, WL)
+    want = np.array([[tmm_r(pol, n_film[i], n_sub[i], 250.0, a, l) for i, l in enumerate(WL)] for a in ANGLES])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+
+
+def test_broadcast_and_passband():
+    r0 = filmscope.reflectance(1.38, [300.0, 310.0], 30.0, WL)
+    assert r0.shape == (2, len(WL))
+    # A passband averages the fringes: the average of the monochromatic model over the
+    # band's nodes lies between its extremes and differs from the centre value.
+    wide = filmscope.reflectance(1.38, 1500.0, 30.0, [550.0], fwhm_nm=10.0)[0]
+    fine = filmscope.reflectance(1.38, 1500.0, 30.0, np.linspace(535.0, 565.0, 301))
+    assert fine.min() <= wide <= fine.max()
+    assert abs(wide - filmscope.reflectance(1.38, 1500.0, 30.0, [550.0])[0]) > 1e-4
+
+
+def test_bad_inputs_raise_one_line():
+    with pytest.raises(filmscope.FilmscopeError, match="unobtainium"):
+        filmscope.reflectance("unobtainium", 100.0, 10.0, WL)
+    with pytest.raises(filmscope.FilmscopeError, match="polarization"):
+        filmscope.reflectance(1.4, 100.0, 10.0, WL, polarization="circular")
+    with pytest.raises(filmscope.FilmscopeError, match="angles_deg"):
+        filmscope.reflectance(1.4, 100.0, 95.0, WL)
+    with pytest.raises(ValueError, match="b_um2"):
+        filmscope.reflectance({"model": "cauchy", "a": 1.4}, 100.0, 10.0, WL)
