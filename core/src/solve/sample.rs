@@ -69,6 +69,11 @@ pub const THICK_FRINGES: f64 = 3.0;
 /// Most quadrature nodes of a band's passband in the fit: the per-pixel model's rule
 /// ([`passband_rule`]), for the thickest site.
 const NODES: usize = MAX_BAND_NODES;
+/// Least noise a site is given, in reflectance: the model's own error (passband quadrature,
+/// float rounding) stands in for the noise of a noise-free capture, which would otherwise
+/// fail the gate on that error alone. A 16-bit sensor's rounding is 4e-6, real captures'
+/// noise 1e-3 and more.
+pub const NOISE_FLOOR: f64 = 1e-4;
 /// Index step of the numerical `dR/dn`.
 const INDEX_STEP: f64 = 1e-5;
 /// Wavelength (um) at which the models' index is quoted and searched.
@@ -706,7 +711,7 @@ fn noise_sigma(
             }
         }
         if count > 0 {
-            *out = libm::sqrt(sum / count as f64 / 70.0);
+            *out = libm::sqrt(sum / count as f64 / 70.0).max(NOISE_FLOOR);
         }
     }
     let mut n = 0;
