@@ -1,6 +1,8 @@
 //! A small deterministic random number generator (xoshiro256++, seeded by SplitMix64), so a
 //! scene renders the same bytes on every machine and in any row order.
 
+use std::sync::OnceLock;
+
 /// xoshiro256++ state.
 #[derive(Clone, Debug)]
 pub struct Rng {
@@ -64,6 +66,42 @@ impl Rng {
         (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
     }
 
+    /// Standard normal by the ziggurat method (Doornik's ZIGNOR, 128 layers, layer and
+    /// abscissa from disjoint bits of one 64-bit draw): the same distribution as
+    /// [`Rng::normal`], a different sequence, and about one draw and a few flops per value
+    /// instead of a logarithm, a square root and a cosine. The software camera's noise.
+    #[inline]
+    pub fn fast_normal(&mut self) -> f64 {
+        let z = zignor();
+        loop {
+            let bits = self.next_u64();
+            let i = (bits & 0x7F) as usize;
+            let u = 2.0 * ((bits >> 11) as f64 * (1.0 / (1u64 << 53) as f64)) - 1.0;
+            if u.abs() < z.ratio[i] {
+                return u * z.x[i];
+            }
+            if i == 0 {
+                return normal_tail(self, ZIG_R, u < 0.0);
+            }
+            let x = u * z.x[i];
+            let f0 = (-0.5 * (z.x[i] * z.x[i] - x * x)).exp();
+            let f1 = (-0.5 * (z.x[i + 1] * z.x[i + 1] - x * x)).exp();
+            if f1 + self.uniform() * (f0 - f1) < 1.0 {
+                return x;
+            }
+        }
+    }
+
+    /// Poisson-distributed count of mean `mean` as [`Rng::poisson`] (exact for small means,
+    /// normal beyond 64), its normal part drawn by [`Rng::fast_normal`].
+    #[inline]
+    pub fn fast_poisson(&mut self, mean: f64) -> f64 {
+        if mean > 64.0 {
+            return (mean + mean.sqrt() * self.fast_normal()).max(0.0).round();
+        }
+        self.poisson(mean)
+    }
+
     /// Poisson-distributed count of mean `mean` (exact for small means, normal beyond 64).
     pub fn poisson(&mut self, mean: f64) -> f64 {
         if mean <= 0.0 {
@@ -81,6 +119,50 @@ impl Rng {
                 return k;
             }
             k += 1.0;
+        }
+    }
+}
+
+/// Layers of the ziggurat.
+const ZIG_LAYERS: usize = 128;
+/// Where the base layer's tail starts.
+const ZIG_R: f64 = 3.442_619_855_899;
+/// Area of each layer.
+const ZIG_V: f64 = 9.912_563_035_262_17e-3;
+
+/// The ziggurat's layer edges `x[i]` (`x[0]` the base's pseudo-width, `x[128] = 0`) and
+/// `ratio[i] = x[i + 1] / x[i]`, below which a draw is accepted at once.
+struct Zignor {
+    x: [f64; ZIG_LAYERS + 1],
+    ratio: [f64; ZIG_LAYERS],
+}
+
+fn zignor() -> &'static Zignor {
+    static TABLES: OnceLock<Zignor> = OnceLock::new();
+    TABLES.get_or_init(|| {
+        let mut x = [0.0; ZIG_LAYERS + 1];
+        let mut f = (-0.5 * ZIG_R * ZIG_R).exp();
+        x[0] = ZIG_V / f;
+        x[1] = ZIG_R;
+        for i in 2..ZIG_LAYERS {
+            x[i] = (-2.0 * (ZIG_V / x[i - 1] + f).ln()).sqrt();
+            f = (-0.5 * x[i] * x[i]).exp();
+        }
+        let mut ratio = [0.0; ZIG_LAYERS];
+        for i in 0..ZIG_LAYERS {
+            ratio[i] = x[i + 1] / x[i];
+        }
+        Zignor { x, ratio }
+    })
+}
+
+/// A normal draw beyond `min` (Marsaglia's tail method), negative if `negative`.
+fn normal_tail(rng: &mut Rng, min: f64, negative: bool) -> f64 {
+    loop {
+        let x = (1.0 - rng.uniform()).ln() / min;
+        let y = (1.0 - rng.uniform()).ln();
+        if -2.0 * y >= x * x {
+            return if negative { x - min } else { min - x };
         }
     }
 }
@@ -132,5 +214,47 @@ mod tests {
                 assert!(r.abs() < 4.0 / (n as f64).sqrt(), "rows {a} {b}: {r}");
             }
         }
+    }
+
+    /// The ziggurat's draws are standard normal: moments, tail fractions and the largest
+    /// gap between their empirical CDF and the normal's (Kolmogorov-Smirnov) on 10^6 draws.
+    #[test]
+    fn fast_normal_is_standard_normal() {
+        let n = 1_000_000;
+        let mut rng = Rng::from_words(&[3, 1, 4]);
+        let mut v: Vec<f64> = (0..n).map(|_| rng.fast_normal()).collect();
+        let nf = n as f64;
+        let mean = v.iter().sum::<f64>() / nf;
+        let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / nf;
+        let kurt = v.iter().map(|x| (x - mean).powi(4)).sum::<f64>() / nf / (var * var);
+        assert!(mean.abs() < 5.0 / nf.sqrt(), "mean {mean}");
+        assert!(
+            (var - 1.0).abs() < 5.0 * (2.0 / nf).sqrt(),
+            "variance {var}"
+        );
+        assert!((kurt - 3.0).abs() < 0.03, "kurtosis {kurt}");
+        // Beyond the ziggurat's base (3.44) and within it.
+        for (z, p) in [(1.0, 0.317_310_5), (2.0, 0.045_500_26), (3.442_62, 5.76e-4)] {
+            let frac = v.iter().filter(|x| x.abs() > z).count() as f64 / nf;
+            let sigma = (p * (1.0 - p) / nf).sqrt();
+            assert!(
+                (frac - p).abs() < 5.0 * sigma,
+                "P(|z| > {z}) = {frac}, expected {p}"
+            );
+        }
+        v.sort_by(f64::total_cmp);
+        let cdf = |x: f64| 0.5 * libm::erfc(-x / std::f64::consts::SQRT_2);
+        let ks = v
+            .iter()
+            .enumerate()
+            .map(|(i, &x)| {
+                let f = cdf(x);
+                (f - i as f64 / nf)
+                    .abs()
+                    .max((f - (i + 1) as f64 / nf).abs())
+            })
+            .fold(0.0, f64::max);
+        // The 0.1 % critical value is 1.95 / sqrt(n).
+        assert!(ks < 1.95 / nf.sqrt(), "KS distance {ks}");
     }
 }
