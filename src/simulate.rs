@@ -106,9 +106,9 @@ fn render_threads() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
-/// Rows rendered per batch: about four million samples, at least one row per thread.
+/// Rows rendered per batch: about a million samples, at least one row per thread.
 fn batch_rows(width: usize, threads: usize) -> usize {
-    ((1 << 22) / width.max(1)).max(threads)
+    ((1 << 20) / width.max(1)).max(threads)
 }
 
 /// The `(band, row)`s of one angle in the order the cube's file holds them, so that the
@@ -325,20 +325,35 @@ pub fn write_capture(
             None
         };
         let order = row_order(scene, opts.interleave);
-        let mut batch = RowBatch::new(kind, w, batch_rows(w, threads));
-        for rows in order.chunks(batch.capacity()) {
-            batch.render(&camera, a, rows, threads);
-            for (k, &(b, r)) in rows.iter().enumerate() {
-                cube.write_band_row(b, r, batch.cube_row(k))
-                    .map_err(|e| err(&cube_path, &e))?;
-                if let Some((white, dark)) = refs.as_mut() {
-                    white
-                        .write_band_row(b, r, batch.white_row(k))
-                        .map_err(|e| err(&white_path, &e))?;
-                    dark.write_band_row(b, r, batch.dark_row(k))
-                        .map_err(|e| err(&dark_path, &e))?;
+        let capacity = batch_rows(w, threads);
+        let parts: Vec<&[(usize, usize)]> = order.chunks(capacity).collect();
+        // Two batches: while one is written, the next is rendered.
+        let mut ready = RowBatch::new(kind, w, capacity);
+        let mut next = RowBatch::new(kind, w, capacity);
+        if let Some(first) = parts.first() {
+            ready.render(&camera, a, first, threads);
+        }
+        for (i, rows) in parts.iter().enumerate() {
+            let written = std::thread::scope(|s| {
+                if let Some(following) = parts.get(i + 1) {
+                    let (camera, next) = (&camera, &mut next);
+                    s.spawn(move || next.render(camera, a, following, threads));
                 }
-            }
+                for (k, &(b, r)) in rows.iter().enumerate() {
+                    cube.write_band_row(b, r, ready.cube_row(k))
+                        .map_err(|e| err(&cube_path, &e))?;
+                    if let Some((white, dark)) = refs.as_mut() {
+                        white
+                            .write_band_row(b, r, ready.white_row(k))
+                            .map_err(|e| err(&white_path, &e))?;
+                        dark.write_band_row(b, r, ready.dark_row(k))
+                            .map_err(|e| err(&dark_path, &e))?;
+                    }
+                }
+                Ok::<(), SimulateError>(())
+            });
+            written?;
+            std::mem::swap(&mut ready, &mut next);
             on_rows(rows.len() as u64);
         }
         cube.finish().map_err(|e| err(&cube_path, &e))?;

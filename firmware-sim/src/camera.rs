@@ -27,7 +27,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use filmscope_core::optics::BandModel;
 
-use crate::rng::Rng;
+use crate::rng::{round_non_negative, Rng};
 use crate::scene::Scene;
 use crate::table::ReflectanceTable;
 
@@ -251,7 +251,7 @@ impl SoftwareCamera {
                 let sigma = 0.01 * percent;
                 for col in 0..w {
                     let noisy = r(col) + sigma * rng.fast_normal();
-                    emit(col, (dark + lit(col) * noisy).round().clamp(0.0, sat));
+                    emit(col, round_clamp(dark + lit(col) * noisy, sat));
                 }
             }
             (None, Exposure::Sample) => {
@@ -262,7 +262,7 @@ impl SoftwareCamera {
                     let signal = (lit(col) * r(col)).max(0.0);
                     let electrons = rng.fast_poisson(signal * gain);
                     let counts = dark + electrons * per_e + read * rng.fast_normal();
-                    emit(col, counts.round().clamp(0.0, sat));
+                    emit(col, round_clamp(counts, sat));
                 }
             }
             (None, Exposure::Reference { frames }) => {
@@ -354,6 +354,12 @@ impl SoftwareCamera {
             row as u64,
         ])
     }
+}
+
+/// `x.round().clamp(0.0, max)` for a whole `max`, without a library call.
+#[inline]
+fn round_clamp(x: f64, max: f64) -> f64 {
+    round_non_negative(x).min(max)
 }
 
 /// The tables of every `(angle, band)` (angle-major), built on every core: none under a lens
