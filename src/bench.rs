@@ -435,6 +435,12 @@ pub struct BenchReport {
     pub pipeline_samples_per_s: f64,
     /// The whole pipeline fed by the software camera (the camera's Airy sums included).
     pub pipeline_from_camera_samples_per_s: f64,
+    /// The software camera alone, on every core: raw samples (each with its white and dark
+    /// reference samples) rendered per second, as `filmscope simulate` renders them
+    /// ([`crate::simulate::camera_samples_per_s`]), without writing.
+    pub simulate_samples_per_s: f64,
+    /// Sensor of `simulate_samples_per_s` (every angle and band of the scene).
+    pub simulate_sensor: [usize; 2],
     /// Pixels per second of a sweep's angle-end passes and final maps, on one core.
     pub solve_pixels_per_s_per_core: f64,
     /// Time from the last row to the maps, per megapixel, ms.
@@ -522,6 +528,10 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     let cam = run_sweep(&mut sim, PipelineConfig::default(), None, &|_| {})
         .map_err(|e| anyhow!("{e}"))?;
     let from_camera = cam.samples as f64 / cam.stream_time.as_secs_f64();
+    progress("software camera alone");
+    let (sim_w, sim_h) = if quick { (512, 32) } else { (1024, 64) };
+    let simulate =
+        crate::simulate::camera_samples_per_s(&scene_with(scene_path, sim_w, sim_h, None)?, sim_h);
 
     progress("methods");
     // Large enough that per-megapixel times are the methods' own, not their fixed costs (the
@@ -587,6 +597,8 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         stream_portable_samples_per_s_per_core: stream_portable,
         pipeline_samples_per_s: pipeline,
         pipeline_from_camera_samples_per_s: from_camera,
+        simulate_samples_per_s: simulate,
+        simulate_sensor: [sim_w, sim_h],
         solve_pixels_per_s_per_core: solve,
         latency_ms_per_mpix: latency,
         latency_parts_ms_per_mpix: latency_parts,
@@ -651,6 +663,14 @@ pub fn format_table(r: &BenchReport) -> String {
         "pipeline from the software camera, samples/s",
         m(r.pipeline_from_camera_samples_per_s),
         "(camera-bound)",
+    );
+    row(
+        &format!(
+            "software camera alone, samples/s ({}x{})",
+            r.simulate_sensor[0], r.simulate_sensor[1]
+        ),
+        m(r.simulate_samples_per_s),
+        ">= 50 M",
     );
     row(
         "solve, pixels/s per core (whole sweep)",
