@@ -468,6 +468,13 @@ pub struct BenchReport {
     pub speedup_vs_brute: f64,
     /// Time of `paper` over time of `filmscope`.
     pub speedup_vs_paper: f64,
+    /// Seconds per megapixel of the NumPy look-up table (`benches/peers/`, index given) over
+    /// filmscope's, on the methods' capture; `None` when the peer did not run (`peers.note`).
+    pub speedup_vs_numpy_lut: Option<f64>,
+    /// The same for the per-pixel SciPy `least_squares` fit.
+    pub speedup_vs_scipy: Option<f64>,
+    /// The Python peers' figures ([`crate::peers`]).
+    pub peers: crate::peers::Peers,
     /// `filmscope inspect` on firmware-sim (config/rig.toml, demo recipe): last row to
     /// verdict published, ms, per sample.
     pub inspect_latency_ms: Option<Vec<f64>>,
@@ -565,6 +572,12 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
             .map_or(f64::NAN, |f| f.seconds_per_mpix)
     };
 
+    progress("peers: NumPy look-up table and SciPy least_squares (Python)");
+    let peers = crate::peers::run(&m_scene, if quick { 100 } else { 1000 });
+    let filmscope_s = time("filmscope");
+    let speedup_vs_numpy_lut = crate::peers::speedup(peers.numpy_lut.as_ref(), filmscope_s);
+    let speedup_vs_scipy = crate::peers::speedup(peers.scipy.as_ref(), filmscope_s);
+
     progress("peak memory (child process)");
     let (rw, rh, ra) = if quick {
         (1024, 1024, 2)
@@ -614,6 +627,9 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         methods_sensor: [mw, mh],
         speedup_vs_brute,
         speedup_vs_paper,
+        speedup_vs_numpy_lut,
+        speedup_vs_scipy,
+        peers,
         inspect_latency_ms,
         inspect_latency_error,
     })
@@ -719,6 +735,16 @@ pub fn format_table(r: &BenchReport) -> String {
         format!("{:.1}x", r.speedup_vs_paper),
         "",
     );
+    let times = |x: Option<f64>| x.map_or_else(|| "-".into(), |x| format!("{x:.0}x"));
+    row(
+        "speedup vs NumPy LUT / SciPy (Python peers)",
+        format!(
+            "{} / {}",
+            times(r.speedup_vs_numpy_lut),
+            times(r.speedup_vs_scipy)
+        ),
+        ">= 20x / 200x",
+    );
     match (&r.inspect_latency_ms, &r.inspect_latency_error) {
         (Some(l), _) if !l.is_empty() => {
             let mut v = l.clone();
@@ -755,5 +781,6 @@ pub fn format_table(r: &BenchReport) -> String {
             100.0 * f.valid_fraction
         ));
     }
+    s.push_str(&crate::peers::table_rows(&r.peers));
     s
 }

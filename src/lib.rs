@@ -49,6 +49,8 @@ pub mod limits;
 #[cfg(feature = "std")]
 pub mod line;
 #[cfg(feature = "std")]
+pub mod peers;
+#[cfg(feature = "std")]
 pub mod pipeline;
 #[cfg(feature = "std")]
 pub mod report;
