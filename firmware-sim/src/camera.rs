@@ -463,6 +463,54 @@ mod tests {
         out
     }
 
+    fn scene(name: &str) -> Scene {
+        let path = format!(
+            "{}/../config/scenes/{name}.toml",
+            env!("CARGO_MANIFEST_DIR")
+        );
+        Scene::load(std::path::Path::new(&path)).expect("scene")
+    }
+
+    /// The paper's sample renders every noisy row from a table, and the table's
+    /// reflectance under the noise is the exact model's (the mean of many raw rows,
+    /// calibrated, is the true reflectance within its standard error); a scene with a
+    /// lens field of view has no table.
+    #[test]
+    fn noisy_rows_come_from_tables_that_keep_the_model() {
+        let cam = SoftwareCamera::new(scene("paper-sample1"));
+        let (angles, bands) = (cam.scene().angles_deg.len(), cam.scene().bands_nm.len());
+        assert_eq!(cam.tabulated().0, angles * bands);
+        let wide = SoftwareCamera::new(scene("paper-sample1-wide-fov"));
+        assert_eq!(wide.tabulated(), (0, 0));
+        let w = cam.width();
+        let (mut raw, mut white, mut dark, mut truth) =
+            (vec![0u16; w], vec![0f32; w], vec![0f32; w], vec![0f32; w]);
+        let (mut sum, mut sum2, mut n) = (0.0, 0.0, 0.0);
+        for b in (0..bands).step_by(10) {
+            for row in 0..cam.height() {
+                cam.raw_row(2, b, row, &mut raw);
+                cam.white_row(2, b, row, &mut white);
+                cam.dark_row(2, b, row, &mut dark);
+                cam.reflectance_row(2, b, row, &mut truth);
+                let defects: Vec<usize> = cam.defects_in_row(row).map(|(c, _)| c).collect();
+                for c in (0..w).filter(|c| !defects.contains(c)) {
+                    let r =
+                        (f64::from(raw[c]) - f64::from(dark[c])) / f64::from(white[c] - dark[c]);
+                    let e = r - f64::from(truth[c]);
+                    sum += e;
+                    sum2 += e * e;
+                    n += 1.0;
+                }
+            }
+        }
+        let mean = sum / n;
+        let sd = (sum2 / n - mean * mean).sqrt();
+        assert!(
+            mean.abs() < 4.0 * sd / n.sqrt(),
+            "bias {mean} (sd {sd}, n {n})"
+        );
+    }
+
     #[test]
     fn reflectance_noise_has_the_set_sigma_and_exact_references() {
         let e = errors(&camera(Some(1.5)));
