@@ -45,10 +45,17 @@ pub enum Defect {
     Hot,
 }
 
-/// Band models of every column of one `(angle, band)` under a lens field of view: rows are
-/// asked for band by band, so the last one's models serve the next row.
+/// Band models of every column of the last few `(angle, band)`s under a lens field of view
+/// (most recent last): rows are asked for band by band, so the last one's models serve the
+/// next row, and threads rendering different bands at once each keep theirs.
 #[derive(Debug, Default)]
-struct ColumnModels(Mutex<Option<(usize, usize, Vec<BandModel>)>>);
+struct ColumnModels(Mutex<Vec<ColumnEntry>>);
+
+/// One `(angle, band)`'s per-column models.
+type ColumnEntry = (usize, usize, Arc<Vec<BandModel>>);
+
+/// `(angle, band)`s whose column models are kept.
+const COLUMN_ENTRIES: usize = 8;
 
 impl Clone for ColumnModels {
     fn clone(&self) -> Self {
@@ -174,26 +181,9 @@ impl SoftwareCamera {
         let w = self.width();
         let thickness = &self.scene.thickness_nm[row * w..(row + 1) * w];
         if self.scene.field_of_view.is_some() {
-            let mut cache = self
-                .columns
-                .0
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner);
-            if !matches!(&*cache, Some((a, b, _)) if *a == angle && *b == band) {
-                let stage_deg = self.scene.angles_deg[angle];
-                let passband = self.scene.passband(band);
-                let models = (0..w)
-                    .map(|col| {
-                        let deg = self.scene.incidence_deg(stage_deg, col);
-                        BandModel::new(self.scene.stack, deg, passband)
-                    })
-                    .collect();
-                *cache = Some((angle, band, models));
-            }
-            if let Some((_, _, models)) = &*cache {
-                for ((o, &d), model) in out.iter_mut().zip(thickness).zip(models) {
-                    *o = model.reflectance(f64::from(d)) as f32;
-                }
+            let models = self.column_models(angle, band);
+            for ((o, &d), model) in out.iter_mut().zip(thickness).zip(models.iter()) {
+                *o = model.reflectance(f64::from(d)) as f32;
             }
             return;
         }
@@ -201,6 +191,42 @@ impl SoftwareCamera {
         for (o, &d) in out.iter_mut().zip(thickness) {
             *o = model.reflectance(f64::from(d)) as f32;
         }
+    }
+
+    /// Under a lens field of view: the band model of every column of `(angle, band)`, kept
+    /// for the rows that follow (built outside the lock, so other threads go on meanwhile).
+    fn column_models(&self, angle: usize, band: usize) -> Arc<Vec<BandModel>> {
+        let lock = || {
+            self.columns
+                .0
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+        };
+        {
+            let mut kept = lock();
+            if let Some(i) = kept.iter().position(|e| e.0 == angle && e.1 == band) {
+                let entry = kept.remove(i);
+                let models = entry.2.clone();
+                kept.push(entry);
+                return models;
+            }
+        }
+        let stage_deg = self.scene.angles_deg[angle];
+        let passband = self.scene.passband(band);
+        let models: Arc<Vec<BandModel>> = Arc::new(
+            (0..self.width())
+                .map(|col| {
+                    let deg = self.scene.incidence_deg(stage_deg, col);
+                    BandModel::new(self.scene.stack, deg, passband)
+                })
+                .collect(),
+        );
+        let mut kept = lock();
+        if kept.len() >= COLUMN_ENTRIES {
+            kept.remove(0);
+        }
+        kept.push((angle, band, models.clone()));
+        models
     }
 
     /// The defective pixels of row `row`, as `(column, kind)`.
