@@ -12,13 +12,17 @@
 //! reflectance made from one) takes its band reflectance from a [`ReflectanceTable`] of its
 //! `(angle, band)`, built once per camera over the scene's thickness range (cubic Hermite,
 //! within 1e-8 of the exact model, a few flops a pixel instead of 33 cosines), and its noise
-//! from [`Rng::fast_normal`] (ziggurat). What that changes against drawing every pixel from
-//! the exact model with Box-Muller normals: the noise sequence (the same distributions:
-//! Poisson electrons, normal beyond 64 of them, Gaussian read noise, references' noise
-//! shrunk by `sqrt(white_frames)`; defective pixels now take their draws too, so placing one
-//! does not move its neighbours' noise) and the reflectance under the noise, by at most
-//! 1e-8. Unchanged and exact: the thickness map, the indices, the noise-free rows
-//! ([`SoftwareCamera::reflectance_row`] evaluates the model itself), every reference's mean.
+//! from [`Rng::fast_normal`] (ziggurat) and [`Rng::fast_poisson`]. What that changes
+//! against drawing every pixel from the exact model with Box-Muller normals: the shot and
+//! read noise sequence of the sample and reference rows (the same distributions: Poisson
+//! electrons, normal beyond 64 of them, Gaussian read noise, references' noise shrunk by
+//! `sqrt(white_frames)`; defective pixels now take their draws too, so placing one does not
+//! move its neighbours' noise) and the reflectance under the noise, by at most 1e-8.
+//! Unchanged: the thickness map, the indices, the noise-free rows
+//! ([`SoftwareCamera::reflectance_row`] evaluates the model itself), every reference's mean,
+//! and the Gaussian reflectance noise of a `reflectance_noise_percent` sensor (the same
+//! Box-Muller draws; its counts move by a count where the table's 1e-8 crosses a rounding
+//! boundary).
 //! A scene with a lens field of view, whose columns each see their own angle, and a scene
 //! too small for a table to pay (more nodes than a quarter of a frame's pixels), evaluate
 //! the exact model per pixel.
@@ -274,9 +278,16 @@ impl SoftwareCamera {
                 }
             }
             (Some(percent), Exposure::Sample) => {
+                // The ideal sensor of the noise sweeps keeps its Box-Muller sequence, one
+                // draw per working pixel (the stability maps and their tests were measured
+                // on it).
                 let sigma = 0.01 * percent;
+                let defective: Vec<usize> = self.defects_in_row(row).map(|(c, _)| c).collect();
                 for col in 0..w {
-                    let noisy = r(col) + sigma * rng.fast_normal();
+                    if !defective.is_empty() && defective.contains(&col) {
+                        continue;
+                    }
+                    let noisy = r(col) + sigma * rng.normal();
                     emit(col, round_clamp(dark + lit(col) * noisy, sat));
                 }
             }
