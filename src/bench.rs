@@ -435,6 +435,12 @@ pub struct BenchReport {
     pub pipeline_samples_per_s: f64,
     /// The whole pipeline fed by the software camera (the camera's Airy sums included).
     pub pipeline_from_camera_samples_per_s: f64,
+    /// The software camera alone, on every core: raw samples (each with its white and dark
+    /// reference samples) rendered per second, as `filmscope simulate` renders them
+    /// ([`crate::simulate::camera_samples_per_s`]), without writing.
+    pub simulate_samples_per_s: f64,
+    /// Sensor of `simulate_samples_per_s` (every angle and band of the scene).
+    pub simulate_sensor: [usize; 2],
     /// Pixels per second of a sweep's angle-end passes and final maps, on one core.
     pub solve_pixels_per_s_per_core: f64,
     /// Time from the last row to the maps, per megapixel, ms.
@@ -464,6 +470,13 @@ pub struct BenchReport {
     pub speedup_vs_brute: f64,
     /// Time of `paper` over time of `filmscope`.
     pub speedup_vs_paper: f64,
+    /// Seconds per megapixel of the NumPy look-up table (`benches/peers/`, index given) over
+    /// filmscope's, on the methods' capture; `None` when the peer did not run (`peers.note`).
+    pub speedup_vs_numpy_lut: Option<f64>,
+    /// The same for the per-pixel SciPy `least_squares` fit.
+    pub speedup_vs_scipy: Option<f64>,
+    /// The Python peers' figures ([`crate::peers`]).
+    pub peers: crate::peers::Peers,
     /// `filmscope inspect` on firmware-sim (config/rig.toml, demo recipe): last row to
     /// verdict published, ms, per sample.
     pub inspect_latency_ms: Option<Vec<f64>>,
@@ -524,6 +537,10 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     let cam = run_sweep(&mut sim, PipelineConfig::default(), None, &|_| {})
         .map_err(|e| anyhow!("{e}"))?;
     let from_camera = cam.samples as f64 / cam.stream_time.as_secs_f64();
+    progress("software camera alone");
+    let (sim_w, sim_h) = if quick { (512, 32) } else { (1024, 64) };
+    let simulate =
+        crate::simulate::camera_samples_per_s(&scene_with(scene_path, sim_w, sim_h, None)?, sim_h);
 
     progress("methods");
     // Large enough that per-megapixel times are the methods' own, not their fixed costs (the
@@ -550,8 +567,9 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         };
         Setting::new(method.name(), config)
     };
+    let m_scene = methods_scene(mw, mh)?;
     let mut methods = measure(
-        &methods_scene(mw, mh)?,
+        &m_scene,
         &[setting(Method::Filmscope), setting(Method::Paper)],
     )?;
     methods.extend(measure(&methods_scene(bw, bh)?, &[setting(Method::Brute)])?);
@@ -561,6 +579,12 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
             .find(|f| f.label == m)
             .map_or(f64::NAN, |f| f.seconds_per_mpix)
     };
+
+    progress("peers: NumPy look-up table and SciPy least_squares (Python)");
+    let peers = crate::peers::run(&m_scene, if quick { 100 } else { 1000 });
+    let filmscope_s = time("filmscope");
+    let speedup_vs_numpy_lut = crate::peers::speedup(peers.numpy_lut.as_ref(), filmscope_s);
+    let speedup_vs_scipy = crate::peers::speedup(peers.scipy.as_ref(), filmscope_s);
 
     progress("peak memory (child process)");
     let (rw, rh, ra) = if quick {
@@ -594,6 +618,8 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         stream_portable_samples_per_s_per_core: stream_portable,
         pipeline_samples_per_s: pipeline,
         pipeline_from_camera_samples_per_s: from_camera,
+        simulate_samples_per_s: simulate,
+        simulate_sensor: [sim_w, sim_h],
         solve_pixels_per_s_per_core: solve,
         latency_ms_per_mpix: latency,
         latency_parts_ms_per_mpix: latency_parts,
@@ -610,6 +636,9 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         brute_sensor: [bw, bh],
         speedup_vs_brute,
         speedup_vs_paper,
+        speedup_vs_numpy_lut,
+        speedup_vs_scipy,
+        peers,
         inspect_latency_ms,
         inspect_latency_error,
     })
@@ -661,6 +690,14 @@ pub fn format_table(r: &BenchReport) -> String {
         "(camera-bound)",
     );
     row(
+        &format!(
+            "software camera alone, samples/s ({}x{})",
+            r.simulate_sensor[0], r.simulate_sensor[1]
+        ),
+        m(r.simulate_samples_per_s),
+        ">= 50 M",
+    );
+    row(
         "solve, pixels/s per core (whole sweep)",
         k(r.solve_pixels_per_s_per_core),
         ">= 200 k",
@@ -704,6 +741,16 @@ pub fn format_table(r: &BenchReport) -> String {
         format!("{:.1}x", r.speedup_vs_paper),
         "",
     );
+    let times = |x: Option<f64>| x.map_or_else(|| "-".into(), |x| format!("{x:.0}x"));
+    row(
+        "speedup vs NumPy LUT / SciPy (Python peers)",
+        format!(
+            "{} / {}",
+            times(r.speedup_vs_numpy_lut),
+            times(r.speedup_vs_scipy)
+        ),
+        ">= 20x / 200x",
+    );
     match (&r.inspect_latency_ms, &r.inspect_latency_error) {
         (Some(l), _) if !l.is_empty() => {
             let mut v = l.clone();
@@ -746,5 +793,6 @@ pub fn format_table(r: &BenchReport) -> String {
             format!("{w}x{h}")
         ));
     }
+    s.push_str(&crate::peers::table_rows(&r.peers));
     s
 }

@@ -56,6 +56,8 @@ pub mod line;
 #[cfg(feature = "std")]
 pub mod material;
 #[cfg(feature = "std")]
+pub mod peers;
+#[cfg(feature = "std")]
 pub mod pipeline;
 #[cfg(feature = "std")]
 pub mod report;

@@ -9,6 +9,7 @@
 //! - [`random`]: random coating scenes drawn from the material library, for
 //!   `filmscope eval --random`.
 //! - [`rng`]: the deterministic generator behind thickness maps and noise.
+//! - [`table`]: band reflectance tabulated over thickness, for rendering at camera rates.
 //! - [`clock`]: the virtual clock (motion and settle times cost no wall time in tests).
 //! - [`world`]: where the simulated stage points and what the filter passes.
 //! - [`serial`]: line assembly, transcripts, serial faults and the in-memory port.
@@ -25,6 +26,7 @@ pub mod rng;
 pub mod scene;
 pub mod serial;
 pub mod serve;
+pub mod table;
 pub mod wheel;
 pub mod world;
 pub mod zaber;

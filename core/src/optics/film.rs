@@ -103,4 +103,37 @@ impl BandModel {
         }
         sum
     }
+
+    /// Band-averaged reflectance of a film of `thickness_nm` and its derivative with respect
+    /// to the thickness, per nm: what a cubic Hermite table of the band over thickness needs
+    /// at its nodes. Analytic at the quadrature nodes where the film and substrate waves
+    /// propagate; a central difference of the general Airy sum (step 1e-3 nm, error far
+    /// below 1e-9 per nm for fringes of period above 10 nm) where one is evanescent.
+    pub fn reflectance_and_slope(&self, thickness_nm: f64) -> (f64, f64) {
+        const STEP_NM: f64 = 1e-3;
+        let (mut sum, mut slope) = (0.0, 0.0);
+        for (i, (l, w)) in self.band.nodes().enumerate() {
+            let (r, dr) = match &self.fast[i] {
+                Some(f) => {
+                    // Delta = 4 pi d kz / l; R = g(cos Delta); dR/dd = g'(c) (-sin Delta) 4 pi kz / l.
+                    let k = 4.0 * core::f64::consts::PI * f.kz_film / l;
+                    let delta = k * thickness_nm;
+                    let (s, c) = (libm::sin(delta), libm::cos(delta));
+                    (
+                        f.reflectance_at_cos(c),
+                        -f.reflectance_slope_at_cos(c) * s * k,
+                    )
+                }
+                None => {
+                    let at = |d: f64| self.stack.reflectance(d, self.incidence_deg, l);
+                    let up = at(thickness_nm + STEP_NM);
+                    let down = at(thickness_nm - STEP_NM);
+                    (at(thickness_nm), (up - down) / (2.0 * STEP_NM))
+                }
+            };
+            sum += w * r;
+            slope += w * dr;
+        }
+        (sum, slope)
+    }
 }

@@ -165,3 +165,43 @@ fn dispersion_formulas_match_published_values() {
     let c = Dispersion::cauchy(1.5, 0.01);
     assert!((c.index_at(500.0) - 1.54).abs() < 1e-12);
 }
+
+/// The band model's slope over thickness is the derivative of its reflectance, analytic or
+/// by central difference (evanescent film: an ambient denser than the film at a steep
+/// angle), for every polarisation and a dispersive film.
+#[test]
+fn band_slope_is_the_derivative_of_the_band_reflectance() {
+    let cauchy = Dispersion::Cauchy {
+        a: 2.2,
+        b_um2: 0.03,
+        c_um4: 0.0,
+    };
+    for (ambient, film, angle) in [
+        (1.0, Dispersion::constant(1.38), 30.0),
+        (1.0, cauchy, 65.0),
+        (1.7, Dispersion::constant(1.38), 55.0),
+    ] {
+        for pol in [Polarization::S, Polarization::P, Polarization::Unpolarized] {
+            let stack = FilmStack {
+                ambient_index: ambient,
+                film,
+                substrate: Dispersion::constant(1.52),
+                polarization: pol,
+            };
+            let model = BandModel::new(stack, angle, Passband::gaussian(480.0, 6.0));
+            for d in [5.0, 137.0, 612.5, 1800.0] {
+                let (r, slope) = model.reflectance_and_slope(d);
+                assert!(
+                    (r - model.reflectance(d)).abs() < 1e-15,
+                    "{pol:?} {angle} {d}"
+                );
+                let h = 1e-3;
+                let numeric = (model.reflectance(d + h) - model.reflectance(d - h)) / (2.0 * h);
+                assert!(
+                    (slope - numeric).abs() < 1e-8,
+                    "{pol:?} {angle} {d}: {slope} vs {numeric}"
+                );
+            }
+        }
+    }
+}

@@ -91,11 +91,44 @@ pub(crate) fn encode(
     scale: Option<f64>,
     raw: &mut [u8],
 ) {
+    let big = order == ByteOrder::Big;
+    if layout.first == 0 && layout.stride <= 1 && scale.is_none() {
+        // Consecutive values without a scale (what the writers' BSQ and BIL rows are):
+        // one loop per type and byte order.
+        match (data_type, big) {
+            (DataType::F32, false) => {
+                for (slot, &v) in raw.chunks_exact_mut(4).zip(values) {
+                    slot.copy_from_slice(&v.to_le_bytes());
+                }
+                return;
+            }
+            (DataType::F32, true) => {
+                for (slot, &v) in raw.chunks_exact_mut(4).zip(values) {
+                    slot.copy_from_slice(&v.to_be_bytes());
+                }
+                return;
+            }
+            (DataType::U16, _) => {
+                for (slot, &v) in raw.chunks_exact_mut(2).zip(values) {
+                    // `v.round() as u16` without a library call: `v + 0.5` is exact in
+                    // f64 for any f32 `v`, its truncation is the rounding of a
+                    // non-negative `v`, and `as` saturates (negatives and NaN to 0).
+                    let x = (f64::from(v) + 0.5).max(0.0) as u16;
+                    slot.copy_from_slice(&if big {
+                        x.to_be_bytes()
+                    } else {
+                        x.to_le_bytes()
+                    });
+                }
+                return;
+            }
+            _ => {}
+        }
+    }
     let slots = raw
         .chunks_exact_mut(data_type.bytes())
         .skip(layout.first)
         .step_by(layout.stride.max(1));
-    let big = order == ByteOrder::Big;
     let int = |v: f32| {
         let v = f64::from(v);
         match scale {

@@ -23,9 +23,11 @@ use crate::io::atomic::TempFile;
 /// `reflectance scale factor` when the header has one, rounded to nearest and clamped to
 /// 0..=65535 (NaN becomes 0).
 ///
-/// Memory: one encoded row, plus one line for `bip` (whose rows are not contiguous: the
-/// line is read, patched and written back when another line is addressed, so writing all
-/// bands of a line before the next costs one read and one write per line).
+/// Memory: up to [`PENDING_BYTES`] of encoded rows that continue one another, gathered
+/// into one write (rows written in the file's own order reach the file in large writes,
+/// not one call a row), plus one line for `bip` (whose rows are not contiguous: the line
+/// is read, patched and written back when another line is addressed, so writing all bands
+/// of a line before the next costs one read and one write per line).
 #[derive(Debug)]
 pub struct EnviWriter {
     hdr_path: PathBuf,
@@ -35,13 +37,17 @@ pub struct EnviWriter {
     /// Position of the temporary file, or `None` when unknown.
     pos: Option<u64>,
     row_bytes: usize,
-    row: Vec<u8>,
     /// `bip` only: the cached line, its index and whether it differs from the file.
     line: Vec<u8>,
     cached_line: Option<usize>,
     dirty: bool,
     scale: Option<f64>,
+    /// Bytes that continue the file from `pos - pending.len()`, not yet written.
+    pending: Vec<u8>,
 }
+
+/// Most bytes an [`EnviWriter`] gathers before writing them.
+pub const PENDING_BYTES: usize = 1 << 20;
 
 impl EnviWriter {
     /// Starts writing the cube described by `header` to `hdr_path` (`NAME.hdr`, data in
@@ -70,7 +76,6 @@ impl EnviWriter {
             Interleave::Bsq | Interleave::Bil => 0,
         };
         let line = zeroed(line_bytes).map_err(|kind| kind.at(&data_path))?;
-        let row = zeroed(row_bytes).map_err(|kind| kind.at(&data_path))?;
         let scale = header
             .reflectance_scale_factor
             .filter(|_| header.data_type.is_integer());
@@ -81,11 +86,11 @@ impl EnviWriter {
             data,
             pos: Some(0),
             row_bytes,
-            row,
             line,
             cached_line: None,
             dirty: false,
             scale,
+            pending: Vec::new(),
         })
     }
 
@@ -148,17 +153,31 @@ impl EnviWriter {
                 return Ok(());
             }
         };
-        encode(values, dt, order, contiguous, self.scale, &mut self.row);
-        let offset = row_index as u64 * self.row_bytes as u64;
-        let row = std::mem::take(&mut self.row);
-        let written = self.write_at(offset, &row);
-        self.row = row;
-        written
+        // Encoded straight into the gathered bytes (flushed first unless the row continues
+        // them and fits).
+        let pos = self.header.header_offset + row_index as u64 * self.row_bytes as u64;
+        self.seek_to(pos)?;
+        if self.pending.len() + self.row_bytes > PENDING_BYTES {
+            self.flush_pending()?;
+        }
+        let start = self.pending.len();
+        self.pending.resize(start + self.row_bytes, 0);
+        encode(
+            values,
+            dt,
+            order,
+            contiguous,
+            self.scale,
+            &mut self.pending[start..],
+        );
+        self.pos = Some(pos + self.row_bytes as u64);
+        Ok(())
     }
 
     /// Writes the header and renames header and data into place.
     pub fn finish(mut self) -> Result<(), EnviError> {
         self.flush_line()?;
+        self.flush_pending()?;
         let mut hdr = TempFile::create(&self.hdr_path)
             .map_err(|e| EnviErrorKind::io("cannot create header", e).at(&self.hdr_path))?;
         hdr.write_all(self.header.to_text().as_bytes())
@@ -177,6 +196,7 @@ impl EnviWriter {
             return Ok(());
         }
         self.flush_line()?;
+        self.flush_pending()?;
         self.cached_line = None;
         let offset = line as u64 * self.line.len() as u64;
         let pos = self.header.header_offset + offset;
@@ -206,6 +226,7 @@ impl EnviWriter {
 
     fn seek_to(&mut self, pos: u64) -> Result<(), EnviError> {
         if self.pos != Some(pos) {
+            self.flush_pending()?;
             self.pos = None;
             self.data
                 .seek(SeekFrom::Start(pos))
@@ -214,15 +235,40 @@ impl EnviWriter {
         Ok(())
     }
 
-    /// Writes `bytes` at data offset `offset` (after the header offset).
+    /// Writes `bytes` at data offset `offset` (after the header offset): gathered with the
+    /// bytes before them when they continue them and fit in [`PENDING_BYTES`].
     fn write_at(&mut self, offset: u64, bytes: &[u8]) -> Result<(), EnviError> {
         let pos = self.header.header_offset + offset;
         self.seek_to(pos)?;
-        self.pos = None;
-        self.data
-            .write_all(bytes)
-            .map_err(|e| EnviErrorKind::io("cannot write data", e).at(&self.data_path))?;
+        if self.pending.len() + bytes.len() > PENDING_BYTES {
+            self.flush_pending()?;
+        }
+        if bytes.len() >= PENDING_BYTES {
+            self.pos = None;
+            self.data
+                .write_all(bytes)
+                .map_err(|e| EnviErrorKind::io("cannot write data", e).at(&self.data_path))?;
+        } else {
+            self.pending.extend_from_slice(bytes);
+        }
         self.pos = Some(pos + bytes.len() as u64);
+        Ok(())
+    }
+
+    /// Writes the gathered bytes where they belong (the file's position is where they
+    /// start).
+    fn flush_pending(&mut self) -> Result<(), EnviError> {
+        if self.pending.is_empty() {
+            return Ok(());
+        }
+        let pending = std::mem::take(&mut self.pending);
+        let end = self.pos;
+        self.pos = None;
+        let written = self.data.write_all(&pending);
+        self.pending = pending;
+        self.pending.clear();
+        written.map_err(|e| EnviErrorKind::io("cannot write data", e).at(&self.data_path))?;
+        self.pos = end;
         Ok(())
     }
 }
