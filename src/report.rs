@@ -386,7 +386,13 @@ pub fn write_report(
         None => Err("the capture is unknown (pass --capture)".to_owned()),
         Some(cap) => open_capture(cap)
             .and_then(|mut source| {
-                compare_stream(&film, &mut source, Illuminant::D65, median_pixel(&film))
+                compare_stream(
+                    &film,
+                    &mut source,
+                    Illuminant::D65,
+                    median_pixel(&film),
+                    None,
+                )
             })
             .map_err(|e| e.to_string()),
     };

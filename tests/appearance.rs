@@ -154,6 +154,67 @@ fn noisy_capture_within_a_unit_and_a_wrong_index_is_seen() {
     );
 }
 
+/// `compare --envi`: per angle, measured and reproduced CIELAB and the CIEDE2000 as ENVI
+/// rasters whose CIEDE2000 band averages to the angle's printed mean (L* within 0-100), and
+/// the model and residual reflectance cubes.
+#[test]
+fn compare_writes_lab_and_ciede2000_rasters() {
+    let dir = tempdir();
+    let (_, est) = estimated_tiny(dir.path(), false);
+    run_ok(&["compare", s(&est), "--envi"]);
+    let v: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(est.join("compare.json")).expect("compare.json"),
+    )
+    .expect("json");
+    for a in v["per_angle"].as_array().expect("angles") {
+        let deg = a["incidence_deg"].as_f64().expect("angle");
+        let cube =
+            filmscope::io::read_cube(est.join(format!("lab-{deg:02.0}.hdr"))).expect("raster");
+        assert_eq!(cube.bands, 7);
+        let plane = |b: usize| {
+            &cube.data[b * cube.lines * cube.samples..(b + 1) * cube.lines * cube.samples]
+        };
+        let de: Vec<f64> = plane(6)
+            .iter()
+            .filter(|x| x.is_finite())
+            .map(|&x| f64::from(x))
+            .collect();
+        let mean = de.iter().sum::<f64>() / de.len() as f64;
+        let printed = a["mean"].as_f64().expect("mean");
+        assert!((mean - printed).abs() < 1e-4, "{deg}: {mean} vs {printed}");
+        for b in [0, 3] {
+            assert!(plane(b)
+                .iter()
+                .filter(|x| x.is_finite())
+                .all(|&l| (0.0..=100.5).contains(&l)));
+        }
+        // The model and residual cubes: every band of the capture; the residual is the
+        // sensor noise (RMS under 1 % where the model is defined), and model + residual
+        // is the measured reflectance.
+        let model =
+            filmscope::io::read_cube(est.join(format!("model-{deg:02.0}.hdr"))).expect("model");
+        let residual = filmscope::io::read_cube(est.join(format!("residual-{deg:02.0}.hdr")))
+            .expect("residual");
+        assert_eq!((model.samples, model.lines), (cube.samples, cube.lines));
+        assert_eq!(residual.bands, model.bands);
+        assert!(model.bands > 100);
+        let r: Vec<f64> = residual
+            .data
+            .iter()
+            .filter(|x| x.is_finite())
+            .map(|&x| f64::from(x))
+            .collect();
+        assert!(r.len() > residual.data.len() / 2, "{} finite", r.len());
+        let rms = (r.iter().map(|x| x * x).sum::<f64>() / r.len() as f64).sqrt();
+        assert!(rms > 1e-4 && rms < 0.01, "{deg}: residual RMS {rms}");
+        for (m, e) in model.data.iter().zip(&residual.data) {
+            if m.is_finite() {
+                assert!((-0.05..1.2).contains(&(m + e)), "{m} + {e}");
+            }
+        }
+    }
+}
+
 #[test]
 fn render_writes_a_png_with_flagged_pixels_grey() {
     let dir = tempdir();
@@ -246,6 +307,7 @@ fn streamed_comparison_equals_the_whole_cube_one() {
         &mut open_capture(&cap).expect("capture"),
         Illuminant::A,
         Some(trace),
+        None,
     )
     .expect("compare");
     let cube = collect_sweep(&mut open_capture(&cap).expect("capture")).expect("sweep");

@@ -22,7 +22,7 @@
 //! as the rows arrive ([`compare_stream`]), so memory is a few numbers per pixel and angle
 //! whatever the number of bands.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use crossbeam_channel::bounded;
 use filmscope_core::colour::{delta_e2000, Colorimetry, Illuminant, Xyz};
@@ -35,7 +35,7 @@ use super::spectral::{capture_passbands, BandSpectrum};
 use super::AppearanceError;
 use crate::export::canvas::{text_width, Canvas, BACKGROUND, CAP_ROWS, INK};
 use crate::export::colormap::{viridis, NO_DATA};
-use crate::io::Capture;
+use crate::io::{Capture, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::pipeline::{calibrate_block, CaptureSource, Source, StreamMsg};
 
 /// One captured angle, measured against reproduced.
@@ -151,11 +151,16 @@ struct AngleAccumulator {
 /// weighted sum) is linear in the samples, so it is accumulated band by band with each
 /// band's weights, the XYZ of the unit spectrum at that band: exactly
 /// [`Colorimetry::xyz_sampled`] of the whole spectrum, to rounding.
+///
+/// With `cubes`, each angle's model and residual (measured minus model) reflectance are also
+/// written there as ENVI cubes, `model-AA.hdr` and `residual-AA.hdr` (float32, band
+/// sequential, NaN where a pixel has no thickness), as the rows stream.
 pub fn compare_stream(
     film: &SampleFilm,
     source: &mut dyn Source,
     illuminant: Illuminant,
     trace: Option<usize>,
+    cubes: Option<&Path>,
 ) -> Result<(Comparison, Vec<PixelSpectra>), AppearanceError> {
     let at = |what: String| AppearanceError::new(&film.maps_dir, what);
     let spec = source.spec().clone();
@@ -192,12 +197,38 @@ pub fn compare_stream(
     let mut angles = Vec::new();
     let mut spectra = Vec::new();
     let mut current: Option<AngleAccumulator> = None;
+    // The model and residual cubes of the current angle, with the angle's band models.
+    let mut writers: Option<(BandSpectrum, EnviWriter, EnviWriter)> = None;
+    let envi = |e: crate::io::EnviError| AppearanceError(e.to_string());
+    let cube_header = |what: &str, deg: f64| {
+        let mut h = EnviHeader::new(w, h, nb, DataType::F32, Interleave::Bsq);
+        h.description = Some(format!(
+            "filmscope compare: {what} reflectance at {deg} deg"
+        ));
+        h.wavelength_nm = Some(bands_nm.clone());
+        h.fwhm_nm = Some(spec.fwhm_nm.to_vec());
+        h
+    };
     let (tx, rx) = bounded::<StreamMsg>(64);
     std::thread::scope(|scope| -> Result<(), AppearanceError> {
         scope.spawn(move || source.stream(&tx));
         for msg in rx.iter() {
             match msg {
                 StreamMsg::Angle { incidence_deg } => {
+                    if let Some(dir) = cubes {
+                        let name =
+                            |what: &str| dir.join(format!("{what}-{incidence_deg:02.0}.hdr"));
+                        writers = Some((
+                            BandSpectrum::new(stack, incidence_deg, &bands),
+                            EnviWriter::create(name("model"), &cube_header("model", incidence_deg))
+                                .map_err(envi)?,
+                            EnviWriter::create(
+                                name("residual"),
+                                &cube_header("measured minus model", incidence_deg),
+                            )
+                            .map_err(envi)?,
+                        ));
+                    }
                     current = Some(AngleAccumulator {
                         incidence_deg,
                         xyz: vec![[0.0; 3]; w * h],
@@ -237,8 +268,29 @@ pub fn compare_stream(
                     if let Some(p) = trace.filter(|p| (start..start + rows * w).contains(p)) {
                         acc.traced[band] = f64::from(values[p - start]);
                     }
+                    if let Some((model, m_out, r_out)) = writers.as_mut() {
+                        let (mut m_row, mut r_row) = (vec![f32::NAN; w], vec![f32::NAN; w]);
+                        for (j, row) in values.chunks_exact(w).enumerate() {
+                            for (c, &v) in row.iter().enumerate() {
+                                let d = film.thickness_at(start + j * w + c);
+                                let m = d.map_or(f64::NAN, |d| model.band(band, d));
+                                m_row[c] = m as f32;
+                                r_row[c] = (f64::from(v) - m) as f32;
+                            }
+                            m_out
+                                .write_band_row(band, first_row + j, &m_row)
+                                .map_err(envi)?;
+                            r_out
+                                .write_band_row(band, first_row + j, &r_row)
+                                .map_err(envi)?;
+                        }
+                    }
                 }
                 StreamMsg::AngleEnd => {
+                    if let Some((_, m_out, r_out)) = writers.take() {
+                        m_out.finish().map_err(envi)?;
+                        r_out.finish().map_err(envi)?;
+                    }
                     let acc = current
                         .take()
                         .ok_or_else(|| at("the capture ended an angle it never began".into()))?;
@@ -361,6 +413,49 @@ fn finish_angle(
 }
 
 impl Comparison {
+    /// Per angle, one ENVI raster `lab-AA.hdr/.img` (float32, band sequential): measured
+    /// L\*, a\*, b\*, reproduced L\*, a\*, b\* and their CIEDE2000, NaN where a pixel takes
+    /// no part; returns the headers written.
+    pub fn write_envi(&self, dir: &Path) -> Result<Vec<PathBuf>, AppearanceError> {
+        let white = self.colorimetry.white();
+        let (w, h) = (self.width, self.height);
+        let mut written = Vec::new();
+        for a in &self.angles {
+            let path = dir.join(format!("lab-{:02.0}.hdr", a.incidence_deg));
+            let mut header = EnviHeader::new(w, h, 7, DataType::F32, Interleave::Bsq);
+            header.description = Some(format!(
+                "filmscope compare: measured and reproduced CIELAB and CIEDE2000 at {} deg",
+                a.incidence_deg
+            ));
+            header.extra = vec![(
+                "band names".to_owned(),
+                "{L measured, a measured, b measured, L reproduced, a reproduced, b reproduced, CIEDE2000}"
+                    .to_owned(),
+            )];
+            let err = |e: crate::io::EnviError| AppearanceError(e.to_string());
+            let mut writer = EnviWriter::create(&path, &header).map_err(err)?;
+            let lab = |v: &Xyz| {
+                let l = v.to_lab(white);
+                [l.l as f32, l.a as f32, l.b as f32]
+            };
+            for band in 0..7 {
+                for line in 0..h {
+                    let row: Vec<f32> = (line * w..(line + 1) * w)
+                        .map(|i| match band {
+                            0..=2 => lab(&a.measured[i])[band],
+                            3..=5 => lab(&a.reproduced[i])[band - 3],
+                            _ => a.delta_e2000[i],
+                        })
+                        .collect();
+                    writer.write_band_row(band, line, &row).map_err(err)?;
+                }
+            }
+            writer.finish().map_err(err)?;
+            written.push(path);
+        }
+        Ok(written)
+    }
+
     /// The figures as JSON (`compare.json`): the approach, then per angle and overall
     /// mean / median / p95 CIEDE2000.
     pub fn to_json(&self) -> serde_json::Value {

@@ -45,6 +45,14 @@ impl BandSpectrum {
         }
     }
 
+    /// The band-averaged reflectance of band `band` for a film of `thickness_nm` (NaN
+    /// beyond the bands).
+    pub fn band(&self, band: usize, thickness_nm: f64) -> f64 {
+        self.models
+            .get(band)
+            .map_or(f64::NAN, |m| m.reflectance(thickness_nm))
+    }
+
     /// Number of bands.
     pub fn len(&self) -> usize {
         self.models.len()

@@ -866,6 +866,7 @@ pub fn compare(
     out: Option<&Path>,
     illuminant_name: &str,
     capture: Option<&Path>,
+    envi: bool,
 ) -> Result<()> {
     let ill = illuminant(illuminant_name)?;
     let film = SampleFilm::load(maps, capture)?;
@@ -876,12 +877,17 @@ pub fn compare(
         )
     })?;
     let mut source = open_capture(&cap)?;
-    let (cmp, _) = compare_stream(&film, &mut source, ill, None)?;
     let dir = out.unwrap_or(maps);
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    let (cmp, _) = compare_stream(&film, &mut source, ill, None, envi.then_some(dir))?;
     let png_path = dir.join("compare.png");
     write_atomic(&png_path, &cmp.to_png()?)
         .with_context(|| format!("{}: cannot write", png_path.display()))?;
+    if envi {
+        for p in cmp.write_envi(dir)? {
+            println!("wrote {}", p.display());
+        }
+    }
     let json_path = dir.join("compare.json");
     let text = serde_json::to_string_pretty(&cmp.to_json())?;
     write_atomic(&json_path, text.as_bytes())

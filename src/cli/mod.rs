@@ -295,6 +295,11 @@ enum Command {
         /// The capture (capture.toml or its directory), if the summary does not lead to it.
         #[arg(long)]
         capture: Option<PathBuf>,
+        /// Also write, per angle, ENVI files: the measured and reproduced CIELAB and the
+        /// CIEDE2000 (lab-AA.hdr, 7 float32 bands), and the model and residual reflectance
+        /// cubes at the capture's bands (model-AA.hdr, residual-AA.hdr).
+        #[arg(long)]
+        envi: bool,
     },
     /// Writes the film as a glTF 2.0 binary (.glb): a flat quad with
     /// KHR_materials_iridescence (thickness texture) and KHR_materials_ior.
@@ -483,7 +488,8 @@ pub fn main() -> std::process::ExitCode {
             out,
             illuminant,
             capture,
-        } => commands::compare(&maps, out.as_deref(), &illuminant, capture.as_deref()),
+            envi,
+        } => commands::compare(&maps, out.as_deref(), &illuminant, capture.as_deref(), envi),
         Command::ExportGltf {
             maps,
             out,
