@@ -5,7 +5,7 @@
 use filmscope_core::optics::Dispersion;
 use filmscope_core::solve::sample::{
     fit_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len, Failure,
-    Geometry, ModelKind, SampleFit, Seat, Spectra, Start, CENTRE, CONSTANT_PREFERENCE,
+    Geometry, ModelKind, Parallel, SampleFit, Seat, Spectra, Start, CENTRE, CONSTANT_PREFERENCE,
     GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY, RUN,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
@@ -18,6 +18,19 @@ pub const DEFAULT_SITES: usize = 64;
 /// Fringes across the band under which the per-pixel pass starts every pixel from the
 /// sample's thickness map rather than from its own extrema (a film with no fringe pair).
 pub const SEEDED_BELOW_FRINGES: f64 = 2.0;
+
+/// The sample fit's jobs on scoped threads, one a job.
+struct Threads;
+
+impl Parallel for Threads {
+    fn run(&self, jobs: &mut [&mut (dyn FnMut() + Send)]) {
+        std::thread::scope(|scope| {
+            for job in jobs.iter_mut() {
+                scope.spawn(move || job());
+            }
+        });
+    }
+}
 
 /// The sample fit's view of sweep `spec` at `angles_deg`.
 fn geometry<'a>(spec: &'a SweepSpec, angles_deg: &'a [f64]) -> Geometry<'a> {
@@ -131,6 +144,7 @@ impl PixelTap {
                 noise_sigma,
                 &mut scratch,
                 seats,
+                &Threads,
             );
         }
         out
@@ -261,7 +275,7 @@ impl SampleTap {
                 thickness_nm: Some(f.thickness_nm),
             })
         });
-        fit_index(&geo, &spectra, start, &mut scratch)
+        fit_index(&geo, &spectra, start, &mut scratch, &Threads)
     }
 
     /// Every pixel's starting thickness from the sites' (bilinear over the site grid, the

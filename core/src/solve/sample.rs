@@ -61,6 +61,8 @@ pub const RESEAT_CHI2_NU: f64 = 1.2;
 pub const CONSTANT_PREFERENCE: f64 = 4.0;
 /// Most bands the fit takes.
 pub const MAX_BANDS: usize = 1024;
+/// Most Levenberg-Marquardt steps of a refinement.
+const MAX_STEPS: usize = 40;
 /// Most starts the refinement tries before it reports a failed fit.
 pub const MAX_STARTS: usize = 3;
 /// Fringes across the band above which the search is repeated on the band's red half.
@@ -339,7 +341,8 @@ impl SampleFit {
 /// `bands` bands.
 pub fn workspace_len(sites: usize, angles: usize, bands: usize) -> usize {
     let noise = sites.min(MAX_SITES) * angles * bands;
-    let dictionary = MAX_DICTIONARY * angles.min(SEARCH_ANGLES) * SEAT_BANDS.min(bands);
+    // Two dictionaries: the search scores its grid in two halves.
+    let dictionary = 2 * MAX_DICTIONARY * angles.min(SEARCH_ANGLES) * SEAT_BANDS.min(bands);
     noise.max(dictionary)
 }
 
@@ -404,12 +407,14 @@ fn along_rows(width: usize, height: usize, sites: usize) -> heapless::Vec<(u32, 
 
 /// Fits the shared index model to the sampled spectra. `start` warm-starts the refinement
 /// (the last fit, or the last sweep's on a line); the global search runs when there is none
-/// or it fails the gate. `scratch` holds at least [`workspace_len`] values.
+/// or it fails the gate. `scratch` holds at least [`workspace_len`] values; `par` runs the
+/// halves of the refinement's sums.
 pub fn fit_index(
     geo: &Geometry<'_>,
     spectra: &Spectra<'_>,
     start: Option<Start>,
     scratch: &mut [f32],
+    par: &dyn Parallel,
 ) -> SampleFit {
     let mut fit = SampleFit {
         best: None,
@@ -457,6 +462,7 @@ pub fn fit_index(
         spectra,
         usable: &usable[..sites],
         weight,
+        par,
     };
     // Warm start first: refine and keep if it passes the gate.
     let mut thick = [f64::NAN; MAX_SITES];
@@ -483,7 +489,9 @@ pub fn fit_index(
                 .is_some()
         {
             let mut refined = thick;
-            if let Some(cand) = problem.refine(kind, p, &mut refined) {
+            // Carried over from fewer angles, the fit is a step from its optimum.
+            let steps = if carried && !reselect { 1 } else { MAX_STEPS };
+            if let Some(cand) = problem.refine(kind, p, &mut refined, steps) {
                 if cand.chi2_nu <= GATE_CHI2_NU {
                     fit.starts = 1;
                     if !reselect {
@@ -526,7 +534,7 @@ pub fn fit_index(
         {
             continue;
         }
-        if let Some(c) = problem.refine(ModelKind::Cauchy2, *p, &mut t) {
+        if let Some(c) = problem.refine(ModelKind::Cauchy2, *p, &mut t, MAX_STEPS) {
             let _ = bases.push((c, t));
         }
     }
@@ -588,6 +596,7 @@ pub fn seat_pixels(
     noise_sigma: f64,
     scratch: &mut [f32],
     out: &mut [Seat],
+    par: &dyn Parallel,
 ) {
     let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
     let sites = spectra.sites.min(MAX_SITES).min(out.len());
@@ -620,6 +629,7 @@ pub fn seat_pixels(
         spectra,
         usable: &usable[..sites],
         weight: [1.0 / (noise_sigma * noise_sigma); MAX_SITES],
+        par,
     };
     let all: [usize; MAX_SITES] = core::array::from_fn(|k| k);
     let mut t = [f64::NAN; MAX_SITES];
@@ -744,6 +754,25 @@ struct Node {
     dn_dp: [f64; 3],
 }
 
+/// Runs jobs, on several threads where the caller has them (`std`: a scoped thread each);
+/// the sample fit hands it the halves of its sites' sums, so the result does not depend on
+/// how the jobs are run.
+pub trait Parallel: Sync {
+    /// Runs every job once.
+    fn run(&self, jobs: &mut [&mut (dyn FnMut() + Send)]);
+}
+
+/// Runs the jobs one after the other (no threads: `no_std`, or one core).
+pub struct Serial;
+
+impl Parallel for Serial {
+    fn run(&self, jobs: &mut [&mut (dyn FnMut() + Send)]) {
+        for j in jobs.iter_mut() {
+            j();
+        }
+    }
+}
+
 /// A fitting problem: the geometry, the spectra, the usable sites and the noise.
 struct Problem<'a> {
     geo: &'a Geometry<'a>,
@@ -751,6 +780,8 @@ struct Problem<'a> {
     usable: &'a [bool],
     /// Each site's weight, one over its noise variance.
     weight: [f64; MAX_SITES],
+    /// Where the two halves of the sites' sums run.
+    par: &'a dyn Parallel,
 }
 
 /// Per-site normal-equation sums of one iteration.
@@ -817,27 +848,29 @@ impl Problem<'_> {
         Some((nodes, count))
     }
 
-    /// One pass computing the full normal equations: per-site sums and the pooled index
-    /// blocks `(H_pp, g_p)`, chi-square (in noise units) and residual count.
-    fn normal(
+    /// [`Problem::normal`]'s sums over sites `first..first + sites.len()`: theirs into
+    /// `sites`, the index blocks returned.
+    #[allow(clippy::too_many_arguments)]
+    fn normal_part(
         &self,
         kind: ModelKind,
         p: &[f64; 3],
         t: &[f64; MAX_SITES],
-        sites: &mut [SiteSums; MAX_SITES],
-    ) -> Option<(Matrix3<f64>, Vector3<f64>, f64, usize)> {
+        d_max: f64,
+        first: usize,
+        sites: &mut [SiteSums],
+    ) -> Option<(Matrix3<f64>, Vector3<f64>)> {
         let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
-        *sites = [SiteSums::default(); MAX_SITES];
         let mut hpp = Matrix3::zeros();
         let mut gp = Vector3::zeros();
-        let d_max = (0..self.usable.len())
-            .filter(|&k| self.usable[k])
-            .map(|k| t[k])
-            .fold(0.0, f64::max);
+        if sites.is_empty() {
+            return Some((hpp, gp));
+        }
         for a in 0..na {
             for b in 0..nb {
                 let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
-                for (k, s) in sites.iter_mut().enumerate().take(self.usable.len()) {
+                for (j, s) in sites.iter_mut().enumerate() {
+                    let k = first + j;
                     if !self.usable[k] {
                         continue;
                     }
@@ -881,6 +914,35 @@ impl Problem<'_> {
                 }
             }
         }
+        Some((hpp, gp))
+    }
+
+    /// One pass computing the full normal equations: per-site sums and the pooled index
+    /// blocks `(H_pp, g_p)`, chi-square (in noise units) and residual count.
+    fn normal(
+        &self,
+        kind: ModelKind,
+        p: &[f64; 3],
+        t: &[f64; MAX_SITES],
+        sites: &mut [SiteSums; MAX_SITES],
+    ) -> Option<(Matrix3<f64>, Vector3<f64>, f64, usize)> {
+        *sites = [SiteSums::default(); MAX_SITES];
+        let d_max = (0..self.usable.len())
+            .filter(|&k| self.usable[k])
+            .map(|k| t[k])
+            .fold(0.0, f64::max);
+        // The sites in two halves, each with its own index blocks, added in a fixed order.
+        let n = self.usable.len();
+        let half = n.div_ceil(2);
+        let (lo, hi) = sites.split_at_mut(half);
+        let (mut first, mut second) = (None, None);
+        {
+            let mut a = || first = self.normal_part(kind, p, t, d_max, 0, &mut lo[..half]);
+            let mut b = || second = self.normal_part(kind, p, t, d_max, half, &mut hi[..n - half]);
+            self.par.run(&mut [&mut a, &mut b]);
+        }
+        let ((h1, g1), (h2, g2)) = (first?, second?);
+        let (hpp, gp) = (h1 + h2, g1 + g2);
         let (mut sse, mut n) = (0.0, 0);
         for s in sites.iter() {
             sse += s.sse;
@@ -896,13 +958,14 @@ impl Problem<'_> {
         kind: ModelKind,
         mut p: [f64; 3],
         t: &mut [f64; MAX_SITES],
+        steps: usize,
     ) -> Option<Candidate> {
         let np = kind.params();
         let mut sites = [SiteSums::default(); MAX_SITES];
         let (mut hpp, mut gp, mut chi2, mut n) = self.normal(kind, &p, t, &mut sites)?;
         let mut lambda = 1e-3;
         let mut cov = Matrix3::zeros();
-        for _ in 0..40 {
+        for _ in 0..steps {
             // Reduce to the index parameters (Schur complement of the thickness block).
             let mut h = hpp;
             let mut g = gp;
@@ -1054,7 +1117,12 @@ impl Problem<'_> {
         } else {
             // A warm start of another kind: its Cauchy fit over the band.
             let mut tt = *t;
-            match self.refine(ModelKind::Cauchy2, cauchy_through(&base, lo, hi), &mut tt) {
+            match self.refine(
+                ModelKind::Cauchy2,
+                cauchy_through(&base, lo, hi),
+                &mut tt,
+                MAX_STEPS,
+            ) {
                 Some(c) => c,
                 None => base,
             }
@@ -1087,7 +1155,7 @@ impl Problem<'_> {
             let cand = if kind == ModelKind::Cauchy2 {
                 Some(base)
             } else {
-                self.refine(kind, start, &mut tt)
+                self.refine(kind, start, &mut tt, MAX_STEPS)
             };
             let Some(mut c) = cand else { continue };
             // Sites left in another fringe order by a simpler model's fit: each seated
@@ -1098,7 +1166,7 @@ impl Problem<'_> {
                     .start_thicknesses(kind, &c.params, &mut again, scratch)
                     .is_some()
                 {
-                    if let Some(c2) = self.refine(kind, c.params, &mut again) {
+                    if let Some(c2) = self.refine(kind, c.params, &mut again, MAX_STEPS) {
                         if c2.chi2 < c.chi2 {
                             c = c2;
                             tt = again;
@@ -1188,26 +1256,43 @@ impl Problem<'_> {
             let b = 0.02 * j as f64;
             [n550 - b / (L0_UM * L0_UM), b, 0.0]
         };
-        for (i, row) in grid.iter_mut().enumerate().take(n_steps + 1) {
-            for (j, cell) in row.iter_mut().enumerate() {
-                let p = point(i, j);
-                let l_lo = self.geo.bands_nm[from];
-                if ModelKind::Cauchy2.eval(&p, l_lo * 1e-3).0 > hi + 0.3 {
-                    continue;
+        {
+            // Rows of the grid in two halves, each with half the workspace.
+            let half = (n_steps + 1).div_ceil(2);
+            let (top, bottom) = grid.split_at_mut(half);
+            let split = scratch.len() / 2;
+            let (s1, s2) = scratch.split_at_mut(split);
+            let chosen = &chosen;
+            let score_rows = |rows: &mut [[f64; B_STEPS]], first: usize, scratch: &mut [f32]| {
+                for (r, row) in rows.iter_mut().enumerate() {
+                    let i = first + r;
+                    if i > n_steps {
+                        break;
+                    }
+                    for (j, cell) in row.iter_mut().enumerate() {
+                        let p = point(i, j);
+                        let l_lo = self.geo.bands_nm[from];
+                        if ModelKind::Cauchy2.eval(&p, l_lo * 1e-3).0 > hi + 0.3 {
+                            continue;
+                        }
+                        if let Some(s) = self.score_point(
+                            ModelKind::Cauchy2,
+                            &p,
+                            chosen,
+                            bands,
+                            from,
+                            scratch,
+                            None,
+                            None,
+                        ) {
+                            *cell = s;
+                        }
+                    }
                 }
-                if let Some(s) = self.score_point(
-                    ModelKind::Cauchy2,
-                    &p,
-                    &chosen,
-                    bands,
-                    from,
-                    scratch,
-                    None,
-                    None,
-                ) {
-                    *cell = s;
-                }
-            }
+            };
+            let mut a = || score_rows(top, 0, s1);
+            let mut b = || score_rows(bottom, half, s2);
+            self.par.run(&mut [&mut a, &mut b]);
         }
         // The three deepest local minima, each refined on a finer grid.
         let mut minima: heapless::Vec<(f64, usize, usize), 64> = heapless::Vec::new();
@@ -1706,7 +1791,10 @@ mod tests {
             run: RUN,
         };
         let mut scratch = vec![0.0f32; workspace_len(sites, na, nb)];
-        (fit_index(&geo, &spectra, None, &mut scratch), truth)
+        (
+            fit_index(&geo, &spectra, None, &mut scratch, &Serial),
+            truth,
+        )
     }
 
     /// Pixels of a thick dispersive high-index film (20 extrema a spectrum, 3 angles) seated
@@ -1784,6 +1872,7 @@ mod tests {
             noise,
             &mut scratch,
             &mut out,
+            &Serial,
         );
         assert!(out.iter().all(|s| s.chi2_nu > 2.0), "{out:?}");
     }
