@@ -26,7 +26,7 @@ impl Parallel for Threads {
     fn run(&self, jobs: &mut [&mut (dyn FnMut() + Send)]) {
         std::thread::scope(|scope| {
             for job in jobs.iter_mut() {
-                scope.spawn(move || job());
+                scope.spawn(job);
             }
         });
     }

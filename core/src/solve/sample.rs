@@ -588,6 +588,7 @@ pub struct Seat {
 /// the passband quadrature): for pixels whose order the streaming pass could not settle.
 /// `spectra` holds one pixel per site (`run` 1); `noise_sigma` is the image's (the sample
 /// fit's). `scratch` holds at least [`workspace_len`] values; `out` one entry per site.
+#[allow(clippy::too_many_arguments)]
 pub fn seat_pixels(
     geo: &Geometry<'_>,
     spectra: &Spectra<'_>,
@@ -1857,6 +1858,7 @@ mod tests {
             noise,
             &mut scratch,
             &mut out,
+            &Serial,
         );
         for (s, &d) in out.iter().zip(&truth) {
             assert!((s.thickness_nm - d).abs() < 0.5, "{s:?} vs {d}");
