@@ -13,7 +13,7 @@ use crate::baseline::{brute, paper, BruteGrid};
 use crate::export::png::{write_map_png, MapPreview};
 use crate::field::{FieldConfig, FieldModel};
 use crate::index_fit::{
-    choice_json, fringes_across_band, index_model, PixelTap, SampleTap, SEEDED_BELOW_FRINGES,
+    choice_json, fringes_across_band, index_model, PixelTap, SampleTap, Tap, SEEDED_BELOW_FRINGES,
 };
 use crate::io::{write_atomic, write_f32_map, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::pipeline::{
@@ -93,19 +93,7 @@ pub fn filmscope_passes(
             choice,
         });
     }
-    for_each_calibrated(source, |event| match event {
-        Calibrated::Angle(deg) => tap.angle(deg),
-        Calibrated::Rows {
-            band,
-            first_row,
-            rows,
-            values,
-            ..
-        } => {
-            tap.rows(band, first_row, rows, values);
-            on_rows(rows as u64);
-        }
-    })?;
+    fill(source, &mut tap, on_rows)?;
     let began = Instant::now();
     let fit = tap.fit(&spec, None, true);
     let fit_seconds = began.elapsed().as_secs_f64();
@@ -144,6 +132,54 @@ pub fn filmscope_passes(
         passes,
         fit: Some(fit),
         choice,
+    })
+}
+
+/// Refuses a capture whose run with `method` would need more memory than `budget` (or, with
+/// none, than the machine has available), before any work: one line naming the capture.
+pub fn check_capture_memory(
+    cap: &crate::io::Capture,
+    method: Method,
+    budget: Option<u64>,
+) -> Result<(), String> {
+    let info = cap.check().map_err(|e| e.to_string())?;
+    crate::limits::check_memory(
+        &format!(
+            "{}: {} x {} px, {} bands, {} angles",
+            cap.path.display(),
+            info.samples,
+            info.lines,
+            info.bands,
+            cap.angles.len()
+        ),
+        crate::limits::run_bytes(
+            (info.samples as u64).saturating_mul(info.lines as u64),
+            info.bands as u64,
+            cap.angles.len() as u64,
+            method != Method::Filmscope,
+        ),
+        budget,
+    )
+}
+
+/// Streams `source` once into `tap`; `on_rows` is told of every block of rows.
+fn fill(
+    source: &mut dyn Source,
+    tap: &mut dyn Tap,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<(), PipelineError> {
+    for_each_calibrated(source, |event| match event {
+        Calibrated::Angle(deg) => tap.angle(deg),
+        Calibrated::Rows {
+            band,
+            first_row,
+            rows,
+            values,
+            ..
+        } => {
+            tap.rows(band, first_row, rows, values);
+            on_rows(rows as u64);
+        }
     })
 }
 
@@ -193,16 +229,7 @@ fn repair(
         return Ok(None);
     }
     let mut tap = PixelTap::new(spec, &pixels, source.angles_deg().len());
-    for_each_calibrated(source, |event| match event {
-        Calibrated::Angle(deg) => tap.angle(deg),
-        Calibrated::Rows {
-            band,
-            first_row,
-            rows,
-            values,
-            ..
-        } => tap.rows(band, first_row, rows, values),
-    })?;
+    fill(source, &mut tap, &|_| {})?;
     let seats = tap.seat(spec, best.kind, best.params, fit.noise_sigma);
     let [d_lo, d_hi] = spec.thickness_range_nm;
     let chi2_limit = SEARCH_CHI2_NU * best.chi2_nu.max(1.0);

@@ -46,6 +46,32 @@ fn geometry<'a>(spec: &'a SweepSpec, angles_deg: &'a [f64]) -> Geometry<'a> {
     }
 }
 
+/// What holds chosen pixels' calibrated spectra as a sweep streams past.
+pub trait Tap {
+    /// An angle starts.
+    fn angle(&mut self, incidence_deg: f64);
+    /// Calibrated rows `first_row..first_row + rows` of `band` at the current angle.
+    fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]);
+}
+
+impl Tap for SampleTap {
+    fn angle(&mut self, incidence_deg: f64) {
+        SampleTap::angle(self, incidence_deg);
+    }
+    fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]) {
+        SampleTap::rows(self, band, first_row, rows, values);
+    }
+}
+
+impl Tap for PixelTap {
+    fn angle(&mut self, incidence_deg: f64) {
+        PixelTap::angle(self, incidence_deg);
+    }
+    fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]) {
+        PixelTap::rows(self, band, first_row, rows, values);
+    }
+}
+
 /// Bytes of spectra a [`PixelTap`] holds at most: the pixels it takes are thinned to fit.
 pub const MAX_PIXEL_TAP_BYTES: usize = 32 << 20;
 

@@ -190,7 +190,7 @@ fn estimate_capture<'py>(
     let (run, summary) = py
         .detach(|| -> Result<(Run, serde_json::Value), String> {
             let cap = Capture::load(&path).map_err(|e| e.to_string())?;
-            check_memory(&cap, config.method)?;
+            filmscope::estimate::check_capture_memory(&cap, config.method, None)?;
             if let Some(out) = &out {
                 check_capture_outside(&cap, out)?;
             }
@@ -235,28 +235,6 @@ fn run(
         None => run_method_in_field(source, config, fov, &|_| {}),
         Some((name, d)) => filmscope::known_index::run_with_index(source, config, d, name, &|_| {}),
     }
-}
-
-/// Refuses a capture whose run would need more memory than the machine has available.
-fn check_memory(cap: &Capture, method: Method) -> Result<(), String> {
-    let info = cap.check().map_err(|e| e.to_string())?;
-    filmscope::limits::check_memory(
-        &format!(
-            "{}: {} x {} px, {} bands, {} angles",
-            cap.path.display(),
-            info.samples,
-            info.lines,
-            info.bands,
-            cap.angles.len()
-        ),
-        filmscope::limits::run_bytes(
-            (info.samples as u64).saturating_mul(info.lines as u64),
-            info.bands as u64,
-            cap.angles.len() as u64,
-            method != Method::Filmscope,
-        ),
-        None,
-    )
 }
 
 /// Refuses an output folder that is the capture's or holds a file it uses (the result

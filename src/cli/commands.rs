@@ -128,28 +128,9 @@ fn check_index_args(index: super::IndexArgs) -> Result<()> {
     Ok(())
 }
 
-/// Refuses a capture whose run with `method` would need more memory than `budget` (or, with
-/// none, than the machine has available), before any work.
+/// [`crate::estimate::check_capture_memory`], as an error of this binary.
 fn check_capture_memory(cap: &Capture, method: Method, budget: Option<u64>) -> Result<()> {
-    let info = cap.check()?;
-    crate::limits::check_memory(
-        &format!(
-            "{}: {} x {} px, {} bands, {} angles",
-            cap.path.display(),
-            info.samples,
-            info.lines,
-            info.bands,
-            cap.angles.len()
-        ),
-        crate::limits::run_bytes(
-            (info.samples as u64).saturating_mul(info.lines as u64),
-            info.bands as u64,
-            cap.angles.len() as u64,
-            method != Method::Filmscope,
-        ),
-        budget,
-    )
-    .map_err(|e| anyhow!(e))
+    crate::estimate::check_capture_memory(cap, method, budget).map_err(|e| anyhow!(e))
 }
 
 /// `filmscope estimate`.

@@ -437,15 +437,7 @@ pub fn fit_index(
     }
     let mut site_sigma = [f64::NAN; MAX_SITES];
     fit.noise_sigma = noise_sigma(geo, spectra, scratch, &mut site_sigma);
-    // Usable sites: at most a tenth of the centre's samples missing.
-    let mut usable = [false; MAX_SITES];
-    for (k, u) in usable.iter_mut().enumerate().take(sites) {
-        let bad = (0..na)
-            .flat_map(|a| (0..nb).map(move |b| (a, b)))
-            .filter(|&(a, b)| !spectra.centre_at(nb, k, a, b).is_finite())
-            .count();
-        *u = bad * 10 <= na * nb;
-    }
+    let mut usable = complete_sites(spectra, sites, na, nb);
     for (k, u) in usable.iter_mut().enumerate().take(sites) {
         *u &= site_sigma[k] > 0.0 && site_sigma[k].is_finite();
     }
@@ -617,14 +609,7 @@ pub fn seat_pixels(
     {
         return;
     }
-    let mut usable = [false; MAX_SITES];
-    for (k, u) in usable.iter_mut().enumerate().take(sites) {
-        let bad = (0..na)
-            .flat_map(|a| (0..nb).map(move |b| (a, b)))
-            .filter(|&(a, b)| !spectra.centre_at(nb, k, a, b).is_finite())
-            .count();
-        *u = bad * 10 <= na * nb;
-    }
+    let usable = complete_sites(spectra, sites, na, nb);
     let problem = Problem {
         geo,
         spectra,
@@ -678,6 +663,25 @@ pub fn seat_pixels(
             margin_chi2: margin[k],
         };
     }
+}
+
+/// The first `sites` sites with at most a tenth of their own pixel's `angles x bands` samples
+/// missing.
+fn complete_sites(
+    spectra: &Spectra<'_>,
+    sites: usize,
+    angles: usize,
+    bands: usize,
+) -> [bool; MAX_SITES] {
+    let mut usable = [false; MAX_SITES];
+    for (k, u) in usable.iter_mut().enumerate().take(sites) {
+        let bad = (0..angles)
+            .flat_map(|a| (0..bands).map(move |b| (a, b)))
+            .filter(|&(a, b)| !spectra.centre_at(bands, k, a, b).is_finite())
+            .count();
+        *u = bad * 10 <= angles * bands;
+    }
+    usable
 }
 
 /// Each site's noise, `site_sigma`, from its run's fourth differences across the row: the
