@@ -19,15 +19,20 @@ pub const DEFAULT_SITES: usize = 64;
 /// sample's thickness map rather than from its own extrema (a film with no fringe pair).
 pub const SEEDED_BELOW_FRINGES: f64 = 2.0;
 
-/// The sample fit's jobs on scoped threads, one a job.
+/// The sample fit's jobs on scoped threads: the last on the calling thread, each other on
+/// one of its own.
 struct Threads;
 
 impl Parallel for Threads {
     fn run(&self, jobs: &mut [&mut (dyn FnMut() + Send)]) {
+        let Some((last, others)) = jobs.split_last_mut() else {
+            return;
+        };
         std::thread::scope(|scope| {
-            for job in jobs.iter_mut() {
+            for job in others.iter_mut() {
                 scope.spawn(job);
             }
+            last();
         });
     }
 }
@@ -54,21 +59,73 @@ pub trait Tap {
     fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]);
 }
 
+/// Angles beyond those announced re-lay the buffer with twice the room.
 impl Tap for SampleTap {
     fn angle(&mut self, incidence_deg: f64) {
-        SampleTap::angle(self, incidence_deg);
+        self.angles_deg.push(incidence_deg);
+        if self.angles_deg.len() > self.angle_stride {
+            // More angles than announced: re-lay the buffer with twice the room.
+            let stride = self.angle_stride * 2;
+            let mut v = vec![f32::NAN; self.sites.len() * RUN * stride * self.bands];
+            for kj in 0..self.sites.len() * RUN {
+                for a in 0..self.angle_stride {
+                    let from = (kj * self.angle_stride + a) * self.bands;
+                    let to = (kj * stride + a) * self.bands;
+                    v[to..to + self.bands].copy_from_slice(&self.values[from..from + self.bands]);
+                }
+            }
+            self.values = v;
+            self.angle_stride = stride;
+        }
     }
+
     fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]) {
-        SampleTap::rows(self, band, first_row, rows, values);
+        let Some(a) = self.angles_deg.len().checked_sub(1) else {
+            return;
+        };
+        if band >= self.bands {
+            return;
+        }
+        for (k, &(r, c)) in self.sites.iter().enumerate() {
+            for j in 0..RUN {
+                let (y, x) = run_pixel(r as usize, c as usize, j, self.along_columns);
+                if !(first_row..first_row + rows).contains(&y) || x >= self.width {
+                    continue;
+                }
+                if let Some(&v) = values.get((y - first_row) * self.width + x) {
+                    self.values[((k * RUN + j) * self.angle_stride + a) * self.bands + band] = v;
+                }
+            }
+        }
     }
 }
 
+/// Angles beyond those announced are not held.
 impl Tap for PixelTap {
     fn angle(&mut self, incidence_deg: f64) {
-        PixelTap::angle(self, incidence_deg);
+        self.angles_deg.push(incidence_deg);
     }
+
     fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]) {
-        PixelTap::rows(self, band, first_row, rows, values);
+        let Some(a) = self.angles_deg.len().checked_sub(1) else {
+            return;
+        };
+        if band >= self.bands || a >= self.angle_stride {
+            return;
+        }
+        let from = self
+            .pixels
+            .partition_point(|&(r, _)| (r as usize) < first_row);
+        let to = self
+            .pixels
+            .partition_point(|&(r, _)| (r as usize) < first_row + rows);
+        for k in from..to {
+            let (r, c) = self.pixels[k];
+            let i = (r as usize - first_row) * self.width + c as usize;
+            if let Some(&v) = values.get(i) {
+                self.values[(k * self.angle_stride + a) * self.bands + band] = v;
+            }
+        }
     }
 }
 
@@ -111,34 +168,6 @@ impl PixelTap {
     /// The pixels held, `(row, column)`.
     pub fn pixels(&self) -> &[(u32, u32)] {
         &self.pixels
-    }
-
-    /// An angle starts (angles beyond those announced are not held).
-    pub fn angle(&mut self, incidence_deg: f64) {
-        self.angles_deg.push(incidence_deg);
-    }
-
-    /// Calibrated rows `first_row..first_row + rows` of `band` at the current angle.
-    pub fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]) {
-        let Some(a) = self.angles_deg.len().checked_sub(1) else {
-            return;
-        };
-        if band >= self.bands || a >= self.angle_stride {
-            return;
-        }
-        let from = self
-            .pixels
-            .partition_point(|&(r, _)| (r as usize) < first_row);
-        let to = self
-            .pixels
-            .partition_point(|&(r, _)| (r as usize) < first_row + rows);
-        for k in from..to {
-            let (r, c) = self.pixels[k];
-            let i = (r as usize - first_row) * self.width + c as usize;
-            if let Some(&v) = values.get(i) {
-                self.values[(k * self.angle_stride + a) * self.bands + band] = v;
-            }
-        }
     }
 
     /// Each held pixel's thickness under the index `(kind, params)` and the image's noise.
@@ -231,52 +260,12 @@ impl SampleTap {
         self.angles_deg.len()
     }
 
-    /// An angle starts.
-    pub fn angle(&mut self, incidence_deg: f64) {
-        self.angles_deg.push(incidence_deg);
-        if self.angles_deg.len() > self.angle_stride {
-            // More angles than announced: re-lay the buffer with twice the room.
-            let stride = self.angle_stride * 2;
-            let mut v = vec![f32::NAN; self.sites.len() * RUN * stride * self.bands];
-            for kj in 0..self.sites.len() * RUN {
-                for a in 0..self.angle_stride {
-                    let from = (kj * self.angle_stride + a) * self.bands;
-                    let to = (kj * stride + a) * self.bands;
-                    v[to..to + self.bands].copy_from_slice(&self.values[from..from + self.bands]);
-                }
-            }
-            self.values = v;
-            self.angle_stride = stride;
-        }
-    }
-
     /// A copy holding only the first `angles` angles (those complete while the stream goes
     /// on into the next), so it can be fitted without holding up the stream.
     pub fn complete(&self, angles: usize) -> Self {
         let mut copy = self.clone();
         copy.angles_deg.truncate(angles);
         copy
-    }
-
-    /// Calibrated rows `first_row..first_row + rows` of `band` at the current angle.
-    pub fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]) {
-        let Some(a) = self.angles_deg.len().checked_sub(1) else {
-            return;
-        };
-        if band >= self.bands {
-            return;
-        }
-        for (k, &(r, c)) in self.sites.iter().enumerate() {
-            for j in 0..RUN {
-                let (y, x) = run_pixel(r as usize, c as usize, j, self.along_columns);
-                if !(first_row..first_row + rows).contains(&y) || x >= self.width {
-                    continue;
-                }
-                if let Some(&v) = values.get((y - first_row) * self.width + x) {
-                    self.values[((k * RUN + j) * self.angle_stride + a) * self.bands + band] = v;
-                }
-            }
-        }
     }
 
     /// Fits the index on the angles held so far, warm-started from `start` (this sample's

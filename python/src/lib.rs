@@ -192,7 +192,8 @@ fn estimate_capture<'py>(
             let cap = Capture::load(&path).map_err(|e| e.to_string())?;
             filmscope::estimate::check_capture_memory(&cap, config.method, None)?;
             if let Some(out) = &out {
-                check_capture_outside(&cap, out)?;
+                cap.check_output_outside("out", out)
+                    .map_err(|e| e.to_string())?;
             }
             let label = cap.path.display().to_string();
             let fov = cap.lens.field_of_view();
@@ -235,24 +236,6 @@ fn run(
         None => run_method_in_field(source, config, fov, &|_| {}),
         Some((name, d)) => filmscope::known_index::run_with_index(source, config, d, name, &|_| {}),
     }
-}
-
-/// Refuses an output folder that is the capture's or holds a file it uses (the result
-/// replaces the folder whole).
-fn check_capture_outside(cap: &Capture, out: &Path) -> Result<(), String> {
-    let mut files = vec![cap.path.clone()];
-    for a in &cap.angles {
-        files.push(a.cube.clone());
-        files.extend(a.white.iter().cloned());
-        files.extend(a.dark.iter().cloned());
-    }
-    let folder = cap
-        .path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."))
-        .to_path_buf();
-    filmscope::io::check_outside_inputs("out", out, &files, &[folder]).map_err(|e| e.to_string())
 }
 
 /// A sweep of calibrated reflectance held in memory, `(angles, lines, samples, bands)` in

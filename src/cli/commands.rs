@@ -192,7 +192,7 @@ pub fn estimate(
             crate::limits::printable(key)
         );
     }
-    check_capture_outside(&cap, out)?;
+    cap.check_output_outside("--out", out)?;
     check_capture_memory(&cap, config.method, budget)?;
     let out_dir = crate::io::OutputDir::begin(out)?;
     let label = cap.path.display().to_string();
@@ -231,25 +231,6 @@ pub fn estimate(
         run.seconds,
         out.display()
     );
-    Ok(())
-}
-
-/// Refuses an `--out` that is the capture's folder, lies inside it, or holds any file the
-/// capture uses (the result replaces the folder whole).
-fn check_capture_outside(cap: &Capture, out: &Path) -> Result<()> {
-    let mut files = vec![cap.path.clone()];
-    for a in &cap.angles {
-        files.push(a.cube.clone());
-        files.extend(a.white.iter().cloned());
-        files.extend(a.dark.iter().cloned());
-    }
-    let folder = cap
-        .path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."))
-        .to_path_buf();
-    crate::io::check_outside_inputs("--out", out, &files, &[folder])?;
     Ok(())
 }
 

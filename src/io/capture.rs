@@ -444,6 +444,29 @@ const ANGLE_KEYS: &[&str] = &[
 ];
 
 impl Capture {
+    /// Refuses an output folder `out` (named `what` in the error) that is the capture's
+    /// folder, lies inside it, or holds any file the capture uses: the result replaces the
+    /// folder whole.
+    pub fn check_output_outside(
+        &self,
+        what: &str,
+        out: &Path,
+    ) -> Result<(), super::output::OutputDirError> {
+        let mut files = vec![self.path.clone()];
+        for a in &self.angles {
+            files.push(a.cube.clone());
+            files.extend(a.white.iter().cloned());
+            files.extend(a.dark.iter().cloned());
+        }
+        let folder = self
+            .path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .to_path_buf();
+        super::output::check_outside_inputs(what, out, &files, &[folder])
+    }
+
     /// Loads and checks a capture: `path` is a `capture.toml` or a directory holding one.
     ///
     /// Runs [`Capture::from_toml_str`] and then [`Capture::check`].

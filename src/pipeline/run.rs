@@ -35,7 +35,7 @@ use super::held::HeldBlock;
 use super::msg::{Samples, StreamMsg};
 use super::source::Source;
 use super::ties::TieSet;
-use crate::index_fit::SampleTap;
+use crate::index_fit::{SampleTap, Tap};
 
 /// How to run the pipeline.
 #[derive(Clone, Copy, Debug, PartialEq)]

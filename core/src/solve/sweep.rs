@@ -700,7 +700,8 @@ impl SweepSolver {
         self.residual_sigma
     }
 
-    /// Fills `out` (one entry per band, caller-owned: about 650 bytes a band) with the band
+    /// Fills `out` (one entry per band, caller-owned: about 2.3 KB a band, room for the
+    /// passband's Simpson nodes) with the band
     /// models of the current angle at the current index; all `None` until an index exists.
     pub fn band_models(&self, out: &mut [Option<BandCoef>]) {
         let d_max = self.table_range_nm()[1];
