@@ -1,5 +1,6 @@
 //! Running a method on a source and writing its outputs per capture-format.md.
 
+use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
@@ -22,6 +23,10 @@ use crate::pipeline::{
 };
 use filmscope_core::optics::FieldOfView;
 
+use crate::summary::{
+    AngleReport, FieldModelChoice, Files, IndexRecord, SampleRecord, SigmaStats, Stats, Summary,
+    Timing,
+};
 use crate::sweep::{Method, MethodResult};
 
 /// A sampled site whose per-pixel thickness is this far from the sample fit's disagrees
@@ -324,26 +329,23 @@ fn finish(
     (out, fit, choice)
 }
 
-/// The per-angle progress of a pass, as JSON (`summary.json` `angle_reports`).
-pub fn angle_reports(out: &SweepOutput) -> serde_json::Value {
-    let reports: Vec<_> = out
-        .angles
+/// The per-angle progress of a pass (`summary.json` `angle_reports`).
+pub fn angle_reports(out: &SweepOutput) -> Vec<AngleReport> {
+    let finite = |x: f64| x.is_finite().then_some(x);
+    out.angles
         .iter()
-        .map(|a| {
-            json!({
-                "incidence_deg": a.incidence_deg,
-                "index": a.index,
-                "index_sigma": if a.index_sigma.is_finite() { Some(a.index_sigma) } else { None },
-                "pair_index": a.pair.map(|p| p.index),
-                "refined": a.refined,
-                "spectral_index_step": a.spectral_index_step,
-                "dispersive": a.index_terms > 1,
-                "index_terms": a.index_terms,
-                "index_from_full_spectra": a.spectral_index,
-            })
+        .map(|a| AngleReport {
+            incidence_deg: a.incidence_deg,
+            index: a.index,
+            index_sigma: finite(a.index_sigma),
+            pair_index: a.pair.map(|p| p.index),
+            refined: a.refined,
+            spectral_index_step: finite(a.spectral_index_step),
+            dispersive: a.index_terms > 1,
+            index_terms: a.index_terms,
+            index_from_full_spectra: a.spectral_index,
         })
-        .collect();
-    serde_json::Value::Array(reports)
+        .collect()
 }
 
 /// The name of an index model, as `summary.json` `index_model` gives it.
@@ -406,14 +408,14 @@ pub struct Run {
     pub state_bytes_per_pixel: Option<usize>,
     /// Band samples processed.
     pub samples: u64,
-    /// Per-angle progress of the streaming solver, as JSON.
-    pub angle_reports: serde_json::Value,
+    /// Per-angle progress of the streaming solver.
+    pub angle_reports: Vec<AngleReport>,
     /// How the index model was chosen (streaming method), as JSON.
     pub model_choice: serde_json::Value,
     /// The field model used (streaming method).
     pub field_model: Option<FieldModel>,
-    /// How the field model was chosen and its evidence (streaming method), as JSON.
-    pub field_model_choice: serde_json::Value,
+    /// How the field model was chosen and its evidence (streaming method).
+    pub field_model_choice: Option<FieldModelChoice>,
 }
 
 /// The streaming estimator's output as a [`MethodResult`].
@@ -495,40 +497,18 @@ pub fn run_method_in_field(
                 solve_latency_ms: None,
                 state_bytes_per_pixel: None,
                 samples,
-                angle_reports: serde_json::Value::Null,
+                angle_reports: Vec::new(),
                 model_choice: serde_json::Value::Null,
                 field_model: None,
-                field_model_choice: serde_json::Value::Null,
+                field_model_choice: None,
             })
         }
     }
 }
 
-/// Statistics of the finite values.
-pub fn stats(values: &[f32]) -> serde_json::Value {
-    let mut v: Vec<f64> = values
-        .iter()
-        .filter(|x| x.is_finite())
-        .map(|&x| f64::from(x))
-        .collect();
-    if v.is_empty() {
-        return json!({"mean": null, "median": null, "std": null, "min": null, "max": null});
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len() as f64;
-    let mean = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
-    let median = if v.len() % 2 == 1 {
-        v[v.len() / 2]
-    } else {
-        0.5 * (v[v.len() / 2 - 1] + v[v.len() / 2])
-    };
-    json!({"mean": mean, "median": median, "std": var.sqrt(), "min": v[0], "max": v[v.len() - 1]})
-}
-
 /// The thickness uncertainty of the reported (valid) pixels: statistics, the 90th
 /// percentile and the limit above which a pixel is flagged `imprecise`.
-fn sigma_summary(r: &MethodResult) -> serde_json::Value {
+fn sigma_summary(r: &MethodResult) -> SigmaStats {
     let mut valid: Vec<f32> = r
         .thickness_sigma_nm
         .iter()
@@ -536,24 +516,27 @@ fn sigma_summary(r: &MethodResult) -> serde_json::Value {
         .filter(|(s, d)| s.is_finite() && d.is_finite())
         .map(|(&s, _)| s)
         .collect();
-    let mut out = stats(&valid);
+    let stats = Stats::of(&valid);
     valid.sort_by(f32::total_cmp);
     let p90 = valid
         .get((valid.len() * 9).div_ceil(10).saturating_sub(1))
-        .copied();
-    out["p90"] = json!(p90);
-    out["imprecise_above"] = json!(MAX_THICKNESS_SIGMA_NM);
-    out
+        .map(|&x| f64::from(x));
+    SigmaStats {
+        stats,
+        p90,
+        imprecise_above: MAX_THICKNESS_SIGMA_NM,
+    }
 }
 
 /// Counts of each flag over the map.
-pub fn flag_counts(map: &[u16]) -> serde_json::Value {
-    let mut o = serde_json::Map::new();
-    for (bit, name) in flags::NAMES {
-        let n = map.iter().filter(|&&f| f & bit != 0).count();
-        o.insert(name.to_owned(), json!(n));
-    }
-    serde_json::Value::Object(o)
+pub fn flag_counts(map: &[u16]) -> BTreeMap<String, u64> {
+    flags::NAMES
+        .iter()
+        .map(|&(bit, name)| {
+            let n = map.iter().filter(|&&f| f & bit != 0).count();
+            (name.to_owned(), n as u64)
+        })
+        .collect()
 }
 
 /// An output that could not be written, naming the file.
@@ -564,11 +547,7 @@ pub struct OutputError(pub String);
 /// Writes the maps, the preview and `summary.json` as one unit into the folder `dir`
 /// ([`crate::io::OutputDir`]: written beside it, then swapped in whole, one writer at a
 /// time). Returns the summary.
-pub fn write_outputs(
-    dir: &Path,
-    run: &Run,
-    source_label: &str,
-) -> Result<serde_json::Value, OutputError> {
+pub fn write_outputs(dir: &Path, run: &Run, source_label: &str) -> Result<Summary, OutputError> {
     let out = crate::io::OutputDir::begin(dir).map_err(|e| OutputError(e.to_string()))?;
     let summary = write_outputs_into(out.path(), run, source_label)?;
     out.commit().map_err(|e| OutputError(e.to_string()))?;
@@ -581,7 +560,7 @@ pub fn write_outputs_into(
     dir: &Path,
     run: &Run,
     source_label: &str,
-) -> Result<serde_json::Value, OutputError> {
+) -> Result<Summary, OutputError> {
     let err = |p: &Path, e: &dyn std::fmt::Display| OutputError(format!("{}: {e}", p.display()));
     let (w, h) = (run.spec.width, run.spec.height);
     let r = &run.result;
@@ -653,59 +632,65 @@ pub fn write_outputs_into(
     )
     .map_err(|e| err(&png, &e))?;
     let valid = r.thickness_nm.iter().filter(|x| x.is_finite()).count();
-    let summary = json!({
-        "refractive_index": r.index.at(550.0),
-        "refractive_index_sigma": r.index_sigma,
-        "dispersion": crate::index_fit::dispersion_json(r.index.dispersion(), &run.spec.bands_nm),
-        "index_model": index_model_name(&r.index),
-        "index_model_choice": run.model_choice,
-        "field_model": run.field_model.map(FieldModel::name),
-        "field_model_choice": run.field_model_choice,
-        "thickness_nm": stats(&r.thickness_nm),
-        "thickness_sigma_nm": sigma_summary(r),
-        "valid_fraction": valid as f64 / (w * h).max(1) as f64,
-        "width": w,
-        "height": h,
-        "sample": {
-            "ambient_index": run.spec.ambient_index,
-            "substrate_index": run.spec.substrate_index,
-            "polarization": run.spec.polarization.name(),
-        },
-        "method": r.method.name(),
-        "source": source_label,
-        "angles_deg": run.angles_deg,
-        "bands": run.spec.bands_nm.len(),
-        "flags": flag_counts(&r.flags),
-        "angle_reports": run.angle_reports,
-        "timing": {
-            "seconds": run.seconds,
-            "solve_latency_ms": run.solve_latency_ms,
-            "samples": run.samples,
-            "samples_per_s": run.samples as f64 / run.seconds.max(1e-9),
-        },
-        "state_bytes_per_pixel": run.state_bytes_per_pixel,
-        "notes": r.notes,
-        "files": {
-            "thickness": "thickness_nm.hdr",
-            "confidence": "confidence.hdr",
-            "thickness_sigma": "thickness_sigma_nm.hdr",
-            "flags": "flags.hdr",
-            "preview": "thickness_nm.png",
-        },
-    });
-    let mut summary = summary;
-    if !run.spec.substrate.is_constant() {
-        summary["sample"]["substrate"] = crate::material::dispersion_to_json(&run.spec.substrate);
-    }
     let comment = format!("{} estimate of {source_label}", r.method.name());
-    if crate::material::write_index_files(dir, &r.index.dispersion(), &run.spec.bands_nm, &comment)
-        .map_err(OutputError)?
-    {
-        summary["files"]["index_csv"] = json!(crate::material::INDEX_FILES[0]);
-        summary["files"]["index_yml"] = json!(crate::material::INDEX_FILES[1]);
+    let index_files =
+        crate::material::index_files(&r.index.dispersion(), &run.spec.bands_nm, &comment);
+    for (name, text) in index_files.iter().flatten() {
+        let path = dir.join(name);
+        write_atomic(&path, text.as_bytes()).map_err(|e| err(&path, &e))?;
     }
-    let path = dir.join("summary.json");
-    let text = serde_json::to_string_pretty(&summary).map_err(|e| err(&path, &e))?;
-    write_atomic(&path, text.as_bytes()).map_err(|e| err(&path, &e))?;
+    let index_files = index_files.is_some();
+    let n_550 = r.index.at(550.0);
+    let finite = |x: f64| x.is_finite().then_some(x);
+    let summary = Summary {
+        refractive_index: finite(n_550),
+        refractive_index_sigma: r.index_sigma.and_then(finite),
+        dispersion: n_550
+            .is_finite()
+            .then(|| IndexRecord::new(r.index.dispersion(), &run.spec.bands_nm)),
+        index_model: index_model_name(&r.index).to_owned(),
+        index_model_choice: run.model_choice.clone(),
+        field_model: run.field_model.map(|m| m.name().to_owned()),
+        field_model_choice: run.field_model_choice.clone(),
+        thickness_nm: Stats::of(&r.thickness_nm),
+        thickness_sigma_nm: sigma_summary(r),
+        valid_fraction: valid as f64 / (w * h).max(1) as f64,
+        width: w,
+        height: h,
+        sample: Some(SampleRecord {
+            ambient_index: run.spec.ambient_index,
+            substrate_index: run.spec.substrate_index,
+            polarization: run.spec.polarization.name().to_owned(),
+            substrate: (!run.spec.substrate.is_constant()).then(|| run.spec.substrate.into()),
+        }),
+        method: r.method.name().to_owned(),
+        source: source_label.to_owned(),
+        angles_deg: run.angles_deg.clone(),
+        bands: run.spec.bands_nm.len(),
+        flags: flag_counts(&r.flags),
+        angle_reports: run.angle_reports.clone(),
+        timing: Timing {
+            seconds: run.seconds,
+            solve_latency_ms: run.solve_latency_ms,
+            samples: run.samples,
+            samples_per_s: run.samples as f64 / run.seconds.max(1e-9),
+        },
+        state_bytes_per_pixel: run.state_bytes_per_pixel,
+        notes: r.notes.clone(),
+        files: Files {
+            thickness: "thickness_nm.hdr".into(),
+            confidence: "confidence.hdr".into(),
+            thickness_sigma: "thickness_sigma_nm.hdr".into(),
+            flags: "flags.hdr".into(),
+            preview: "thickness_nm.png".into(),
+            index_csv: index_files.then(|| crate::material::INDEX_FILES[0].to_owned()),
+            index_yml: index_files.then(|| crate::material::INDEX_FILES[1].to_owned()),
+        },
+        acquisition: None,
+        timestamp: None,
+        version: None,
+        line: None,
+    };
+    summary.write(dir).map_err(OutputError)?;
     Ok(summary)
 }

@@ -17,6 +17,7 @@ use serde::Serialize;
 use crate::appearance::spectral::{capture_passbands, BandSpectrum, FilmColour};
 use crate::estimate::{Run, RunConfig};
 use crate::io::read_cube;
+use crate::material::DispersionRecord;
 
 /// Thickness errors above this are failures (nm).
 pub const SILENT_FAILURE_NM: f64 = 20.0;
@@ -90,32 +91,12 @@ impl Truth {
     }
 }
 
-/// Parses a `dispersion` object of a summary or truth file (`constant`, `cauchy` or
-/// `sellmeier`).
-pub(crate) fn parse_dispersion(d: &serde_json::Value) -> Option<Dispersion> {
-    let f = |k: &str| d.get(k).and_then(serde_json::Value::as_f64);
-    let arr = |k: &str| -> Option<[f64; 3]> {
-        let a = d.get(k)?.as_array()?;
-        let mut out = [0.0; 3];
-        for (o, x) in out.iter_mut().zip(a) {
-            *o = x.as_f64()?;
-        }
-        Some(out)
-    };
-    match d.get("model")?.as_str()? {
-        "constant" => Some(Dispersion::constant(f("n")?)),
-        "cauchy" => Some(Dispersion::Cauchy {
-            a: f("a")?,
-            b_um2: f("b_um2")?,
-            c_um4: f("c_um4").unwrap_or(0.0),
-        }),
-        "sellmeier" => Some(Dispersion::Sellmeier {
-            a: f("a")?,
-            b: arr("b")?,
-            c_um: arr("c_um")?,
-        }),
-        _ => None,
-    }
+/// Parses a `dispersion` object of a truth file.
+fn parse_dispersion(d: &serde_json::Value) -> Option<Dispersion> {
+    serde_json::from_value::<DispersionRecord>(d.clone())
+        .ok()?
+        .dispersion()
+        .ok()
 }
 
 /// One scene's accuracy (the `eval --json` object).
@@ -159,7 +140,7 @@ pub struct EvalReport {
     pub field_model: Option<String>,
     /// How the field model was chosen, with each model's figures (`summary.json`
     /// `field_model_choice`).
-    pub field_model_choice: serde_json::Value,
+    pub field_model_choice: Option<crate::summary::FieldModelChoice>,
 }
 
 /// Thickness errors of an estimate against the truth, pixel by pixel.

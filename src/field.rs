@@ -36,10 +36,13 @@ use crate::pipeline::{
     run_sweep, PipelineConfig, PipelineError, Prior, PriorUpdate, RowBlock, Samples, Source,
     StreamMsg, SweepOutput,
 };
+use crate::summary::{
+    FieldGeometry, FieldModelChoice, NarrowEvidence, StripEvidence, WideEvidence,
+};
 use crate::sweep::{Method, MethodResult};
 
 /// How the field model is chosen (`--field`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum FieldChoice {
     /// The simplest model the data do not contradict (default).
     Auto,
@@ -864,14 +867,16 @@ pub fn run_filmscope(
             .unwrap_or_else(|| strips_for(fov, width));
         (fov, plan_strips(fov, width, k))
     });
-    let geometry = json!({
-        "horizontal_fov_deg": field_of_view.map(|f| f.horizontal_deg()),
-        "angle_spread_deg": field_of_view.map(|f| angle_spread_deg(f, width)),
-        "strips": plan.as_ref().map(|(_, s)| s.len()),
-        "strip_spread_deg": plan.as_ref().map(|(_, s)| s.iter().map(|x| x.spread_deg).fold(0.0, f64::max)),
-        "strip_spread_tolerance_deg": STRIP_SPREAD_DEG,
-        "column_map": config.field.column_map,
-    });
+    let geometry = FieldGeometry {
+        horizontal_fov_deg: field_of_view.map(|f| f.horizontal_deg()),
+        angle_spread_deg: field_of_view.map(|f| angle_spread_deg(f, width)),
+        strips: plan.as_ref().map(|(_, s)| s.len()),
+        strip_spread_deg: plan
+            .as_ref()
+            .map(|(_, s)| s.iter().map(|x| x.spread_deg).fold(0.0, f64::max)),
+        strip_spread_tolerance_deg: STRIP_SPREAD_DEG,
+        column_map: config.field.column_map,
+    };
     let choice = config.field.choice;
     let Some((fov, strips)) = plan else {
         if choice == FieldChoice::Wide {
@@ -888,7 +893,7 @@ pub fn run_filmscope(
             "the capture gives no field of view ([lens] horizontal_fov_deg): one incidence angle per frame"
         };
         let evidence = Evidence::new(source, None, Some((&passes, run.seconds)), None);
-        run.field_model_choice = evidence.json(config, FieldModel::Narrow, reason, &geometry);
+        run.field_model_choice = evidence.record(config, FieldModel::Narrow, reason, &geometry);
         return Ok(run);
     };
     if choice == FieldChoice::Wide {
@@ -896,7 +901,7 @@ pub fn run_filmscope(
         let mut run = wide_run(source, &wide, t0);
         let evidence = Evidence::new(source, Some(fov), None, Some((&wide, run.seconds)));
         run.field_model_choice =
-            evidence.json(config, FieldModel::Wide, "forced (--field wide)", &geometry);
+            evidence.record(config, FieldModel::Wide, "forced (--field wide)", &geometry);
         return Ok(run);
     }
     let passes = filmscope_passes(source, config, on_rows)?;
@@ -916,19 +921,19 @@ pub fn run_filmscope(
             format!("the narrow fit explains the spectra: {narrow_fig}")
         };
         let evidence = Evidence::new(source, Some(fov), Some((&passes, narrow_s)), None);
-        run.field_model_choice = evidence.json(config, FieldModel::Narrow, &reason, &geometry);
+        run.field_model_choice = evidence.record(config, FieldModel::Narrow, &reason, &geometry);
         return Ok(run);
     }
     if !source.replayable() {
         let reason = format!("the narrow fit does not explain the spectra ({narrow_fig}), but a live source streams once: no second model can be fitted (force --field wide to fit the wide one alone)");
         let evidence = Evidence::new(source, Some(fov), Some((&passes, narrow_s)), None);
-        run.field_model_choice = evidence.json(config, FieldModel::Narrow, &reason, &geometry);
+        run.field_model_choice = evidence.record(config, FieldModel::Narrow, &reason, &geometry);
         return Ok(run);
     }
     if strips.len() < 2 {
         let reason = format!("the narrow fit does not explain the spectra ({narrow_fig}), but the field's angle spread is within one strip's {STRIP_SPREAD_DEG} deg: the wide model would fit this same sweep");
         let evidence = Evidence::new(source, Some(fov), Some((&passes, narrow_s)), None);
-        run.field_model_choice = evidence.json(config, FieldModel::Narrow, &reason, &geometry);
+        run.field_model_choice = evidence.record(config, FieldModel::Narrow, &reason, &geometry);
         return Ok(run);
     }
     let t1 = Instant::now();
@@ -970,7 +975,7 @@ pub fn run_filmscope(
         Some((&passes, narrow_s)),
         Some((&wide, wide_s)),
     );
-    run.field_model_choice = evidence.json(config, model, &reason, &geometry);
+    run.field_model_choice = evidence.record(config, model, &reason, &geometry);
     Ok(run)
 }
 
@@ -995,7 +1000,7 @@ fn narrow_run(source: &dyn Source, p: &Passes, t0: Instant) -> Run {
         angle_reports: angle_reports(&p.out),
         model_choice: p.choice.clone(),
         field_model: Some(FieldModel::Narrow),
-        field_model_choice: serde_json::Value::Null,
+        field_model_choice: None,
     }
 }
 
@@ -1058,7 +1063,7 @@ fn wide_run(source: &dyn Source, wide: &WideRun, t0: Instant) -> Run {
             "strips": strips,
         }),
         field_model: Some(FieldModel::Wide),
-        field_model_choice: serde_json::Value::Null,
+        field_model_choice: None,
     }
 }
 
@@ -1103,55 +1108,67 @@ impl<'a> Evidence<'a> {
         }
     }
 
-    fn json(
+    fn record(
         &self,
         config: &RunConfig,
         chosen: FieldModel,
         reason: &str,
-        geometry: &serde_json::Value,
-    ) -> serde_json::Value {
-        json!({
-            "chosen": chosen.name(),
-            "requested": config.field.choice.name(),
-            "reason": reason,
-            "criterion": AUTO_CRITERION,
-            "geometry": geometry,
-            "narrow_edge_error_nm": self.narrow_edge_error_nm,
-            "narrow": self.narrow.map(|(p, s)| json!({
-                "index": p.out.index.map(|m| m.at(550.0)),
-                "index_sigma": p.out.index.map(|_| p.out.index_sigma),
-                "residual_sigma": p.out.residual_sigma,
-                "noise_sigma": p.out.noise_sigma,
-                "model_mismatch": p.out.model_mismatch,
-                "valid_fraction": valid_fraction(&p.out.results),
-                "passes": p.passes,
-                "seconds": s,
-            })),
-            "wide": self.wide.map(|(w, s)| json!({
-                "index": w.combined.as_ref().map(|c| c.index.at(550.0)),
-                "index_sigma": w.combined.as_ref().map(|c| c.sigma),
-                "strip_index_chi2": w.combined.as_ref().map(|c| c.chi2),
-                "strips_combined": w.combined.as_ref().map(|c| c.used.iter().filter(|&&u| u).count()),
-                "residual_sigma": w.residual_sigma,
-                "noise_sigma": w.noise_sigma,
-                "model_mismatch": w.model_mismatch(),
-                "valid_fraction": valid_fraction(&w.results),
-                "seconds": s,
-                "strips": w.strips.iter().enumerate().map(|(k, st)| json!({
-                    "columns": [st.first_col, st.first_col + st.cols],
-                    "offset_deg": st.offset_deg,
-                    "spread_deg": st.spread_deg,
-                    "index": w.own[k].out.index.map(|m| m.at(550.0)),
-                    "index_sigma": w.own[k].out.index.map(|_| w.own[k].out.index_sigma),
-                    "index_combined": w.combined.as_ref().map(|c| c.used[k]),
-                    "passes": w.own[k].passes,
-                    "own_residual_sigma": w.own[k].out.residual_sigma,
-                    "own_model_mismatch": w.own[k].out.model_mismatch,
-                    "shared_rounds_kept": w.held[k].is_some(),
-                    "residual_sigma": w.last(k).residual_sigma,
-                    "model_mismatch": w.last(k).model_mismatch,
-                })).collect::<Vec<_>>(),
-            })),
+        geometry: &FieldGeometry,
+    ) -> Option<FieldModelChoice> {
+        let finite = |x: f64| x.is_finite().then_some(x);
+        Some(FieldModelChoice {
+            chosen: chosen.name().to_owned(),
+            requested: config.field.choice.name().to_owned(),
+            reason: reason.to_owned(),
+            criterion: AUTO_CRITERION.to_owned(),
+            geometry: *geometry,
+            narrow_edge_error_nm: self.narrow_edge_error_nm,
+            narrow: self.narrow.map(|(p, s)| NarrowEvidence {
+                index: p.out.index.map(|m| m.at(550.0)),
+                index_sigma: p.out.index.and_then(|_| finite(p.out.index_sigma)),
+                residual_sigma: p.out.residual_sigma,
+                noise_sigma: p.out.noise_sigma.map(f64::from),
+                model_mismatch: p.out.model_mismatch,
+                valid_fraction: valid_fraction(&p.out.results),
+                passes: p.passes,
+                seconds: s,
+            }),
+            wide: self.wide.map(|(w, s)| WideEvidence {
+                index: w.combined.as_ref().map(|c| c.index.at(550.0)),
+                index_sigma: w.combined.as_ref().and_then(|c| finite(c.sigma)),
+                strip_index_chi2: w.combined.as_ref().and_then(|c| finite(c.chi2)),
+                strips_combined: w
+                    .combined
+                    .as_ref()
+                    .map(|c| c.used.iter().filter(|&&u| u).count()),
+                residual_sigma: w.residual_sigma,
+                noise_sigma: w.noise_sigma.map(f64::from),
+                model_mismatch: w.model_mismatch(),
+                valid_fraction: valid_fraction(&w.results),
+                seconds: s,
+                strips: w
+                    .strips
+                    .iter()
+                    .enumerate()
+                    .map(|(k, st)| StripEvidence {
+                        columns: [st.first_col, st.first_col + st.cols],
+                        offset_deg: st.offset_deg,
+                        spread_deg: st.spread_deg,
+                        index: w.own[k].out.index.map(|m| m.at(550.0)),
+                        index_sigma: w.own[k]
+                            .out
+                            .index
+                            .and_then(|_| finite(w.own[k].out.index_sigma)),
+                        index_combined: w.combined.as_ref().map(|c| c.used[k]),
+                        passes: w.own[k].passes,
+                        own_residual_sigma: w.own[k].out.residual_sigma,
+                        own_model_mismatch: w.own[k].out.model_mismatch,
+                        shared_rounds_kept: w.held[k].is_some(),
+                        residual_sigma: w.last(k).residual_sigma,
+                        model_mismatch: w.last(k).model_mismatch,
+                    })
+                    .collect(),
+            }),
         })
     }
 }

@@ -2,7 +2,6 @@
 //! held as the rows stream past, fitted when an angle or the sweep completes, and turned
 //! into the solver's index model, a thickness seed map and `summary.json`'s evidence.
 
-use filmscope_core::optics::Dispersion;
 use filmscope_core::solve::sample::{
     fit_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len, Failure,
     Geometry, ModelKind, Parallel, SampleFit, Seat, Spectra, Start, CENTRE, CONSTANT_PREFERENCE,
@@ -379,37 +378,6 @@ pub fn fringes_across_band(spec: &SweepSpec, fit: &SampleFit) -> f64 {
 pub fn index_model(fit: &SampleFit) -> Option<IndexModel> {
     let c = fit.best?;
     IndexModel::from_dispersion(c.kind.dispersion(&c.params))
-}
-
-/// `summary.json`'s `dispersion`: the model's name, coefficients and `n_table` over the
-/// captured band at its step (at most 1 nm).
-pub fn dispersion_json(d: Dispersion, bands_nm: &[f64]) -> serde_json::Value {
-    let lo = bands_nm.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = bands_nm.iter().copied().fold(0.0, f64::max);
-    let step = if bands_nm.len() > 1 {
-        ((hi - lo) / (bands_nm.len() - 1) as f64).clamp(1.0, 10.0)
-    } else {
-        1.0
-    };
-    let n = ((hi - lo) / step).floor() as usize + 1;
-    let wl: Vec<f64> = (0..n).map(|i| lo + step * i as f64).collect();
-    let table: Vec<f64> = wl.iter().map(|&l| d.index_at(l)).collect();
-    let mut v = match d {
-        Dispersion::Constant { n } => json!({"model": "constant", "n": n}),
-        Dispersion::Cauchy { a, b_um2, c_um4 } => {
-            json!({"model": "cauchy", "a": a, "b_um2": b_um2, "c_um4": c_um4})
-        }
-        Dispersion::Sellmeier { a, b, c_um } => json!({
-            "model": "sellmeier",
-            "formula": "n^2 = a + sum b_i l^2 / (l^2 - c_i^2), l in um",
-            "a": a,
-            "b": b.iter().copied().filter(|&x| x != 0.0).collect::<Vec<_>>(),
-            "c_um": b.iter().zip(c_um).filter(|(x, _)| **x != 0.0).map(|(_, c)| c).collect::<Vec<_>>(),
-        }),
-    };
-    v["n_550"] = json!(d.index_at(550.0));
-    v["n_table"] = json!({"wavelength_nm": wl, "n": table});
-    v
 }
 
 /// How the index model was chosen, for `summary.json` `index_model_choice`.

@@ -73,6 +73,6 @@ pub fn run_with_index(
             "largest_difference_from_given": max_err,
         }),
         field_model: None,
-        field_model_choice: serde_json::Value::Null,
+        field_model_choice: None,
     })
 }

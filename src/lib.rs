@@ -16,7 +16,7 @@
 //! - [`field`]: the field model (one incidence angle per frame, or one per strip of columns
 //!   under a wide field of view) and how it is chosen;
 //! - [`appearance`]: the film's colour from the estimate: renders at any angle, measured
-//!   against reproduced; [`export::gltf`] hands it to renderers, [`report`] to people;
+//!   against reproduced; [`appearance::gltf`] hands it to renderers, [`report`] to people;
 //! - [`known_index`]: the estimator with the film's index given, not fitted;
 //! - [`material`]: index models by name, as JSON or as refractiveindex.info YAML, and
 //!   the estimate written back as CSV and YAML;
@@ -65,5 +65,7 @@ pub mod report;
 pub mod rig;
 #[cfg(feature = "std")]
 pub mod simulate;
+#[cfg(feature = "std")]
+pub mod summary;
 #[cfg(feature = "std")]
 pub mod sweep;

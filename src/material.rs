@@ -13,7 +13,7 @@
 use std::path::Path;
 
 use filmscope_core::optics::{materials, Dispersion};
-use serde_json::json;
+use serde::{Deserialize, Serialize};
 
 /// The dispersion described by `value`: a number (a constant index), a library name or a
 /// path to a refractiveindex.info YAML file (a string), or an object with `model` =
@@ -412,46 +412,92 @@ pub fn cauchy_fit(rows: &[(f64, f64)]) -> Result<Dispersion, String> {
     })
 }
 
-/// The file names [`write_index_files`] writes beside `summary.json`.
+/// The file names of [`index_files`], written beside `summary.json`.
 pub const INDEX_FILES: [&str; 2] = ["index.csv", "index.yml"];
 
-/// Writes the estimated index `d` into `dir` as `index.csv` (n at every band of
-/// `bands_nm`) and `index.yml` (a refractiveindex.info entry valid over the bands' span),
-/// unless it has no finite index at 550 nm (no index found). Returns whether it wrote.
-pub fn write_index_files(
-    dir: &Path,
+/// The estimated index `d` as [`INDEX_FILES`]: `index.csv` (n at every band of
+/// `bands_nm`) and `index.yml` (a refractiveindex.info entry valid over the bands' span);
+/// `None` when it has no finite index at 550 nm (no index found).
+pub fn index_files(
     d: &Dispersion,
     bands_nm: &[f64],
     comment: &str,
-) -> Result<bool, String> {
+) -> Option<[(&'static str, String); 2]> {
     if !d.index_at(550.0).is_finite() || bands_nm.is_empty() {
-        return Ok(false);
+        return None;
     }
     let lo = bands_nm.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = bands_nm.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let mut sorted = bands_nm.to_vec();
     sorted.sort_by(f64::total_cmp);
-    for (name, text) in [
+    Some([
         (INDEX_FILES[0], to_csv(d, &sorted)),
         (INDEX_FILES[1], to_rii_yaml(d, [lo, hi], comment)),
-    ] {
-        let path = dir.join(name);
-        crate::io::write_atomic(&path, text.as_bytes())
-            .map_err(|e| format!("{}: {e}", path.display()))?;
-    }
-    Ok(true)
+    ])
 }
 
-/// The `dispersion` object of `summary.json` for `d` without its table (what
-/// [`dispersion_from_json`] reads back).
-pub fn dispersion_to_json(d: &Dispersion) -> serde_json::Value {
-    match *d {
-        Dispersion::Constant { n } => json!({"model": "constant", "n": n}),
-        Dispersion::Cauchy { a, b_um2, c_um4 } => {
-            json!({"model": "cauchy", "a": a, "b_um2": b_um2, "c_um4": c_um4})
+/// A dispersion model as the files give it, tagged by `model`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "model", rename_all = "lowercase")]
+pub enum DispersionRecord {
+    /// n.
+    Constant {
+        /// The index.
+        n: f64,
+    },
+    /// n = a + b / l^2 + c / l^4, l in um.
+    #[serde(alias = "cauchy3")]
+    Cauchy {
+        /// a.
+        a: f64,
+        /// b, um^2.
+        b_um2: f64,
+        /// c, um^4 (0 when absent).
+        #[serde(default)]
+        c_um4: f64,
+    },
+    /// n^2 = a + sum b_i l^2 / (l^2 - c_i^2), l in um; up to three terms.
+    Sellmeier {
+        /// a.
+        a: f64,
+        /// The terms' strengths.
+        b: Vec<f64>,
+        /// The terms' resonances, um.
+        c_um: Vec<f64>,
+    },
+}
+
+impl From<Dispersion> for DispersionRecord {
+    fn from(d: Dispersion) -> Self {
+        match d {
+            Dispersion::Constant { n } => Self::Constant { n },
+            Dispersion::Cauchy { a, b_um2, c_um4 } => Self::Cauchy { a, b_um2, c_um4 },
+            Dispersion::Sellmeier { a, b, c_um } => {
+                let terms = b.iter().zip(c_um).filter(|(b, _)| **b != 0.0);
+                let (b, c_um) = terms.map(|(b, c)| (*b, c)).unzip();
+                Self::Sellmeier { a, b, c_um }
+            }
         }
-        Dispersion::Sellmeier { a, b, c_um } => {
-            json!({"model": "sellmeier", "a": a, "b": b, "c_um": c_um})
+    }
+}
+
+impl DispersionRecord {
+    /// The record of `d` when it is dispersive, `None` for a constant index (which
+    /// `truth.json` and the glTF extras give as a number beside it).
+    pub fn dispersive(d: &Dispersion) -> Option<Self> {
+        (!d.is_constant()).then(|| Self::from(*d))
+    }
+
+    /// The model; an error names the member at fault.
+    pub fn dispersion(&self) -> Result<Dispersion, String> {
+        match self {
+            Self::Constant { n } => Ok(Dispersion::constant(*n)),
+            Self::Cauchy { a, b_um2, c_um4 } => Ok(Dispersion::Cauchy {
+                a: *a,
+                b_um2: *b_um2,
+                c_um4: *c_um4,
+            }),
+            Self::Sellmeier { a, b, c_um } => sellmeier(*a, b, c_um),
         }
     }
 }
@@ -505,6 +551,7 @@ mod tests {
     /// JSON forms: numbers, names, summary objects; bad ones name the key.
     #[test]
     fn json_forms() {
+        use serde_json::json;
         let n = |v: serde_json::Value| dispersion_from_json(&v).map(|d| d.index_at(550.0));
         assert_eq!(n(json!(1.5)), Ok(1.5));
         assert!((n(json!("sio2")).expect("sio2") - 1.459911).abs() < 1e-6);

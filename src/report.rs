@@ -23,6 +23,7 @@ use crate::appearance::{AppearanceError, SampleFilm};
 use crate::export::plot::{render_scatter_panels_png, Scatter, Series};
 use crate::export::png::{render_map_png, MapPreview};
 use crate::io::{read_cube, write_atomic};
+use crate::summary::DispersionRecord;
 
 /// The angle of the report's render, degrees.
 pub const REPORT_ANGLE_DEG: f64 = 30.0;
@@ -143,35 +144,53 @@ pub const IMAGE_CHECK_SCRIPT: &str = "<script>\nwindow.addEventListener('load', 
 
 const STYLE: &str = "<style>body{font-family:sans-serif;max-width:1200px;margin:1em auto;color:#222}table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:2px 8px;text-align:left}figure{margin:1em 0}img{max-width:100%;image-rendering:pixelated}#image-check{color:#888;font-size:small}</style>\n";
 
-/// A number for a table cell: 4 significant decimals, "-" when absent.
-fn cell(v: &serde_json::Value) -> String {
-    match v {
-        serde_json::Value::Number(n) => match n.as_f64() {
-            Some(x) if x.fract() != 0.0 => format!("{x:.4}"),
-            _ => n.to_string(),
-        },
-        serde_json::Value::Null => "-".to_owned(),
-        serde_json::Value::String(s) => s.clone(),
-        other => other.to_string(),
+/// `x ± sigma` with as many decimals as the sigma's second significant digit needs (at
+/// least four), or `x` alone without a sigma.
+fn with_sigma(x: Option<f64>, sigma: Option<f64>) -> String {
+    let Some(x) = x else { return "-".into() };
+    match sigma.filter(|s| s.is_finite() && *s > 0.0) {
+        Some(s) => {
+            let decimals = (1.0 - s.log10().floor()).clamp(4.0, 12.0) as usize;
+            format!("{x:.decimals$} ± {s:.decimals$}")
+        }
+        None => format!("{x:.4}"),
+    }
+}
+
+/// The index model in words, with its coefficients.
+fn dispersion_words(d: Option<&DispersionRecord>) -> String {
+    match d {
+        None => "-".into(),
+        Some(DispersionRecord::Constant { n }) => format!("constant, n = {n:.4}"),
+        Some(DispersionRecord::Cauchy { a, b_um2, c_um4 }) => format!(
+            "Cauchy, n = A + B/λ² + C/λ⁴: A = {a:.4}, B = {b_um2:.5} µm², C = {c_um4:.6} µm⁴"
+        ),
+        Some(DispersionRecord::Sellmeier { a, b, c_um }) => {
+            let terms: Vec<String> = b
+                .iter()
+                .zip(c_um)
+                .map(|(b, c)| format!("{b:.4} λ²/(λ² − {c:.4}²)"))
+                .collect();
+            format!("Sellmeier, n² = {a:.4} + {} (λ in µm)", terms.join(" + "))
+        }
     }
 }
 
 fn summary_rows(film: &SampleFilm) -> Vec<Vec<String>> {
     let s = &film.summary;
-    let t = &s["thickness_nm"];
+    let num = |x: Option<f64>| x.map_or("-".into(), |x| format!("{x:.2}"));
     let mut rows = vec![
-        vec!["method".into(), cell(&s["method"])],
-        vec!["source".into(), cell(&s["source"])],
+        vec!["method".into(), s.method.clone()],
+        vec!["source".into(), s.source.clone()],
         vec![
             "refractive index at 550 nm".into(),
-            format!(
-                "{} ± {}",
-                cell(&s["refractive_index"]),
-                cell(&s["refractive_index_sigma"])
-            ),
+            with_sigma(s.refractive_index, s.refractive_index_sigma),
         ],
-        vec!["index model".into(), cell(&s["index_model"])],
-        vec!["dispersion".into(), cell(&s["dispersion"])],
+        vec!["index model".into(), s.index_model.clone()],
+        vec![
+            "dispersion".into(),
+            dispersion_words(s.dispersion.as_ref().map(|d| &d.model)),
+        ],
         vec![
             "substrate / ambient index".into(),
             format!(
@@ -185,27 +204,44 @@ fn summary_rows(film: &SampleFilm) -> Vec<Vec<String>> {
             film.stack.polarization.name().to_owned(),
         ],
     ];
-    for k in ["mean", "median", "std", "min", "max"] {
-        rows.push(vec![format!("thickness {k}, nm"), cell(&t[k])]);
+    let t = &s.thickness_nm;
+    for (k, v) in [
+        ("mean", t.mean),
+        ("median", t.median),
+        ("std", t.std),
+        ("min", t.min),
+        ("max", t.max),
+    ] {
+        rows.push(vec![format!("thickness {k}, nm"), num(v)]);
     }
-    let sigma = &s["thickness_sigma_nm"];
-    if sigma.is_object() {
-        for k in ["median", "p90", "max"] {
-            rows.push(vec![format!("thickness 1-sigma {k}, nm"), cell(&sigma[k])]);
-        }
+    let sigma = &s.thickness_sigma_nm;
+    for (k, v) in [
+        ("median", sigma.stats.median),
+        ("p90", sigma.p90),
+        ("max", sigma.stats.max),
+    ] {
+        rows.push(vec![
+            format!("thickness 1-sigma {k}, nm"),
+            v.map_or("-".into(), |x| format!("{x:.3}")),
+        ]);
     }
-    rows.push(vec!["valid fraction".into(), cell(&s["valid_fraction"])]);
+    rows.push(vec![
+        "valid fraction".into(),
+        format!("{:.2} %", 100.0 * s.valid_fraction),
+    ]);
     rows.push(vec![
         "size, px".into(),
         format!("{} x {}", film.width, film.height),
     ]);
-    rows.push(vec!["angles, deg".into(), cell(&s["angles_deg"])]);
-    rows.push(vec!["bands".into(), cell(&s["bands"])]);
-    rows.push(vec!["run time, s".into(), cell(&s["timing"]["seconds"])]);
-    if let Some(flags) = s["flags"].as_object() {
-        for (name, n) in flags.iter().filter(|(_, n)| n.as_u64().unwrap_or(0) > 0) {
-            rows.push(vec![format!("flag {name}, px"), cell(n)]);
-        }
+    let angles: Vec<String> = s.angles_deg.iter().map(|a| format!("{a}")).collect();
+    rows.push(vec!["angles, deg".into(), angles.join(", ")]);
+    rows.push(vec!["bands".into(), s.bands.to_string()]);
+    rows.push(vec![
+        "run time, s".into(),
+        format!("{:.2}", s.timing.seconds),
+    ]);
+    for (name, n) in s.flags.iter().filter(|(_, n)| **n > 0) {
+        rows.push(vec![format!("flag {name}, px"), n.to_string()]);
     }
     rows
 }
@@ -351,9 +387,7 @@ pub fn write_report(
         Some((0.0, 1.0)),
         "confidence map (0..1)",
     )?;
-    let limit = film.summary["thickness_sigma_nm"]["imprecise_above"]
-        .as_f64()
-        .unwrap_or(filmscope_core::solve::shard::MAX_THICKNESS_SIGMA_NM);
+    let limit = film.summary.thickness_sigma_nm.imprecise_above;
     page.map_if_present(
         &run.join("thickness_sigma_nm.hdr"),
         "thickness 1-sigma from each pixel's fit",

@@ -10,7 +10,6 @@
 
 use std::path::{Path, PathBuf};
 
-use filmscope_core::optics::Dispersion;
 use firmware_sim::{Scene, SoftwareCamera};
 use serde_json::json;
 
@@ -18,6 +17,7 @@ use crate::io::{
     write_atomic, write_f32_map, Angle, ByteOrder, Capture, DataType, EnviHeader, EnviWriter,
     Interleave, Lens, Sample, Search,
 };
+use crate::material::DispersionRecord;
 
 /// A capture that could not be written, with the file at fault.
 #[derive(Debug, thiserror::Error)]
@@ -48,23 +48,6 @@ impl Default for SimulateOptions {
             interleave: Interleave::Bil,
             byte_order: ByteOrder::Little,
             float_reflectance: false,
-        }
-    }
-}
-
-/// The dispersion of a film as written in `truth.json` and `summary.json`.
-pub fn dispersion_json(d: &Dispersion) -> serde_json::Value {
-    match *d {
-        Dispersion::Constant { .. } => serde_json::Value::Null,
-        Dispersion::Cauchy { a, b_um2, c_um4 } => {
-            if c_um4 == 0.0 {
-                json!({"model": "cauchy", "a": a, "b_um2": b_um2})
-            } else {
-                json!({"model": "cauchy", "a": a, "b_um2": b_um2, "c_um4": c_um4})
-            }
-        }
-        Dispersion::Sellmeier { a, b, c_um } => {
-            json!({"model": "sellmeier", "a": a, "b": b, "c_um": c_um})
         }
     }
 }
@@ -430,9 +413,9 @@ pub fn write_capture(
         "scene": scene.name,
         "description": scene.description,
         "refractive_index": scene.stack.film.index_at(550.0),
-        "dispersion": dispersion_json(&scene.stack.film),
+        "dispersion": DispersionRecord::dispersive(&scene.stack.film),
         "substrate_index": scene.stack.substrate.index_at(550.0),
-        "substrate_dispersion": dispersion_json(&scene.stack.substrate),
+        "substrate_dispersion": DispersionRecord::dispersive(&scene.stack.substrate),
         "ambient_index": scene.stack.ambient_index,
         "polarization": scene.stack.polarization.name(),
         "angles_deg": scene.angles_deg,

@@ -46,7 +46,7 @@ impl SweepCube {
 }
 
 /// Which estimator to run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Method {
     /// The streaming estimator (default).
     Filmscope,

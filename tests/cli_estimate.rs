@@ -170,7 +170,7 @@ fn unreadable_captures_fail_with_one_line_naming_the_file() {
 }
 
 /// A reader that stops listening (`filmscope eval ... | head -1`) ends the program quietly
-/// with exit status 141 (128 + SIGPIPE), not with a panic (it panicked on the broken pipe).
+/// with exit status 141 (128 + SIGPIPE), not with a panic.
 #[test]
 fn a_closed_stdout_ends_quietly_not_with_a_panic() {
     let dir = tempdir();

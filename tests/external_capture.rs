@@ -32,7 +32,7 @@ fn eval(name: &str) -> EvalReport {
     eprintln!("{}", serde_json::to_string(&r).expect("json"));
     // What the solver decided, to read a failure without rerunning anything.
     eprintln!(
-        "{name}: model {} | flags {} | notes {:?}\n{name}: angles {}",
+        "{name}: model {} | flags {:?} | notes {:?}\n{name}: angles {:?}",
         run.model_choice,
         flag_counts(&run.result.flags),
         run.result.notes,
@@ -118,8 +118,7 @@ fn thick_mgf2_float_bsq_big_endian_micrometres_is_accurate_where_solved() {
 
 #[test]
 #[ignore = "known failure: 7 of 120 pixels (5.8 %, the thickest) flagged poor_fit + \
-            order_rejected; measured valid 0.942 (n err +0.0010, MAE 1.45 nm; was 0.850 with \
-            8 extrema a list); filmscope's own 12 x 10 simulation of this film solves 97.5-100 %"]
+            order_rejected; measured valid 0.942 (n err +0.0010, MAE 1.45 nm); filmscope's own 12 x 10 simulation of this film solves 97.5-100 %"]
 fn thick_mgf2_float_bsq_big_endian_micrometres_solves_nearly_every_pixel() {
     let r = eval("mgf2-thick-float-bsq");
     assert!(r.valid_fraction >= 0.95, "valid {}", r.valid_fraction);

@@ -240,7 +240,7 @@ fn auto(fov_deg: f64, model: FieldModel, strips: u64) -> (EvalReport, serde_json
     let fov = scene.field_of_view;
     let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
     let run = run_method_in_field(&mut source, &RunConfig::default(), fov, &|_| {}).expect("run");
-    let choice = run.field_model_choice.clone();
+    let choice = serde_json::to_value(&run.field_model_choice).expect("the choice as JSON");
     assert_eq!(run.field_model, Some(model), "{choice}");
     assert_eq!(choice["geometry"]["strips"], strips, "{choice}");
     (evaluate("tiny-fov", &truth, &run), choice)

@@ -275,7 +275,10 @@ fn acquire_with(
     firmware_sim::serve::SimRig,
 ) {
     let (sim, rig) = open_sim_with(&mut c, opts).expect("sim rig");
-    (run_rig(rig, c, out, &RunConfig::default(), &|_| {}), sim)
+    // The summary as its JSON, as a line system reads `summary.json`.
+    let summary = run_rig(rig, c, out, &RunConfig::default(), &|_| {})
+        .map(|s| serde_json::to_value(s).expect("summary as JSON"));
+    (summary, sim)
 }
 
 fn same_maps(out: &Path) -> filmscope::sweep::MethodResult {
@@ -478,7 +481,7 @@ fn hardware_sweep() {
     let summary =
         filmscope::rig::acquire::run(&c, dir.path(), false, &RunConfig::default(), &|_| {})
             .expect("hardware sweep");
-    println!("{summary:#}");
+    println!("{summary:#?}");
     same_maps(dir.path());
 }
 

@@ -17,6 +17,7 @@ use filmscope::pipeline::{
     DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,
 };
 use filmscope::simulate::{write_capture, SimulateOptions};
+use filmscope::summary::Summary;
 use filmscope::sweep::Method;
 use filmscope_core::optics::{Dispersion, FilmStack, Passband, Polarization};
 use filmscope_core::solve::SweepSpec;
@@ -119,7 +120,7 @@ impl Drop for Scratch {
 }
 
 /// Writes the run's outputs into `out` (or a scratch folder) and returns the summary.
-fn outputs(run: &Run, out: Option<&Path>, label: &str) -> Result<serde_json::Value, String> {
+fn outputs(run: &Run, out: Option<&Path>, label: &str) -> Result<Summary, String> {
     match out {
         Some(dir) => write_outputs(dir, run, label).map_err(|e| e.to_string()),
         None => {
@@ -134,11 +135,7 @@ fn f32_bytes(v: &[f32]) -> Vec<u8> {
 }
 
 /// The run's maps and summary as the dict `filmscope.estimate` unpacks.
-fn result_dict<'py>(
-    py: Python<'py>,
-    run: &Run,
-    summary: &serde_json::Value,
-) -> PyResult<Bound<'py, PyDict>> {
+fn result_dict<'py>(py: Python<'py>, run: &Run, summary: &Summary) -> PyResult<Bound<'py, PyDict>> {
     let r = &run.result;
     let d = PyDict::new(py);
     d.set_item("width", run.spec.width)?;
@@ -154,7 +151,9 @@ fn result_dict<'py>(
     )?;
     let flags: Vec<u8> = r.flags.iter().flat_map(|f| f.to_ne_bytes()).collect();
     d.set_item("flags", PyBytes::new(py, &flags))?;
-    d.set_item("summary", summary.to_string())?;
+    let summary = serde_json::to_string(summary)
+        .map_err(|e| FilmscopeError::new_err(format!("summary: {e}")))?;
+    d.set_item("summary", summary)?;
     Ok(d)
 }
 
@@ -578,11 +577,17 @@ fn simulate<'py>(
     d.set_item("ambient_index", scene.stack.ambient_index)?;
     d.set_item(
         "substrate",
-        filmscope::material::dispersion_to_json(&scene.stack.substrate).to_string(),
+        serde_json::to_string(&filmscope::material::DispersionRecord::from(
+            *&scene.stack.substrate,
+        ))
+        .unwrap_or_default(),
     )?;
     d.set_item(
         "film",
-        filmscope::material::dispersion_to_json(&scene.stack.film).to_string(),
+        serde_json::to_string(&filmscope::material::DispersionRecord::from(
+            *&scene.stack.film,
+        ))
+        .unwrap_or_default(),
     )?;
     d.set_item("polarization", scene.stack.polarization.name())?;
     Ok(d)
@@ -653,7 +658,10 @@ fn capture_spectra<'py>(
     d.set_item("measured", PyBytes::new(py, &flat))?;
     d.set_item(
         "substrate",
-        filmscope::material::dispersion_to_json(&spec.substrate).to_string(),
+        serde_json::to_string(&filmscope::material::DispersionRecord::from(
+            *&spec.substrate,
+        ))
+        .unwrap_or_default(),
     )?;
     d.set_item("ambient_index", spec.ambient_index)?;
     d.set_item("polarization", spec.polarization.name())?;

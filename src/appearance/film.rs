@@ -7,8 +7,8 @@ use filmscope_core::optics::{Dispersion, FilmStack, Polarization};
 use filmscope_core::solve::flags;
 
 use super::AppearanceError;
-use crate::eval::parse_dispersion;
 use crate::io::{read_cube, Capture};
+use crate::summary::Summary;
 
 /// An estimated film, as `filmscope estimate` wrote it into a maps directory.
 #[derive(Clone, Debug)]
@@ -29,7 +29,7 @@ pub struct SampleFilm {
     /// The capture the maps were estimated from, when it can still be found.
     pub capture: Option<PathBuf>,
     /// `summary.json` as written.
-    pub summary: serde_json::Value,
+    pub summary: Summary,
 }
 
 impl SampleFilm {
@@ -39,21 +39,19 @@ impl SampleFilm {
     /// `capture.toml` or its directory), else from the summary's `sample` entry, else from
     /// the capture the summary names as its `source`. Errors name the file at fault.
     pub fn load(maps_dir: &Path, capture: Option<&Path>) -> Result<Self, AppearanceError> {
-        let summary_path = maps_dir.join("summary.json");
+        let summary_path = maps_dir.join(crate::summary::FILE);
         let bad = |what: String| AppearanceError::new(&summary_path, what);
-        let text = std::fs::read_to_string(&summary_path)
-            .map_err(|e| AppearanceError::new(&summary_path, e))?;
-        let summary: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))?;
-        let n = summary["refractive_index"]
-            .as_f64()
+        let summary = Summary::read(maps_dir).map_err(AppearanceError)?;
+        let n = summary
+            .refractive_index
             .filter(|n| n.is_finite() && *n > 0.0)
             .ok_or_else(|| bad("no finite refractive_index: the estimate found no index".into()))?;
-        let film = match &summary["dispersion"] {
-            serde_json::Value::Null => Dispersion::constant(n),
-            d => parse_dispersion(d).ok_or_else(|| {
-                bad("dispersion is neither null, constant, cauchy nor sellmeier".into())
-            })?,
+        let film = match &summary.dispersion {
+            None => Dispersion::constant(n),
+            Some(d) => d
+                .model
+                .dispersion()
+                .map_err(|e| bad(format!("dispersion: {e}")))?,
         };
 
         let thick_path = maps_dir.join("thickness_nm.hdr");
@@ -86,34 +84,25 @@ impl SampleFilm {
             vec![0; width * height]
         };
 
-        let source = summary["source"]
-            .as_str()
-            .map(PathBuf::from)
-            .filter(|p| p.exists());
+        let source = Some(PathBuf::from(&summary.source)).filter(|p| p.exists());
         let capture_path = capture.map(Path::to_path_buf).or(source);
-        let sample = &summary["sample"];
-        let (ambient_index, substrate, polarization) = match (capture, sample) {
-            (None, serde_json::Value::Object(_)) => {
+        let (ambient_index, substrate, polarization) = match (capture, &summary.sample) {
+            (None, Some(sample)) => {
                 // A dispersive substrate is `sample.substrate`; a constant one only
                 // `sample.substrate_index`.
-                let substrate = match sample.get("substrate") {
-                    Some(d) => crate::material::dispersion_from_json(d)
+                let substrate = match &sample.substrate {
+                    Some(d) => d
+                        .dispersion()
                         .map_err(|e| bad(format!("sample.substrate: {e}")))?,
-                    None => Dispersion::constant(
-                        sample["substrate_index"]
-                            .as_f64()
-                            .ok_or_else(|| bad("sample.substrate_index is missing".into()))?,
-                    ),
+                    None => Dispersion::constant(sample.substrate_index),
                 };
-                let pol = sample["polarization"]
-                    .as_str()
-                    .and_then(Polarization::from_name)
-                    .unwrap_or(Polarization::S);
-                (
-                    sample["ambient_index"].as_f64().unwrap_or(1.0),
-                    substrate,
-                    pol,
-                )
+                let pol = Polarization::from_name(&sample.polarization).ok_or_else(|| {
+                    bad(format!(
+                        "sample.polarization: `{}` is not s, p or unpolarized",
+                        sample.polarization
+                    ))
+                })?;
+                (sample.ambient_index, substrate, pol)
             }
             _ => {
                 let path = capture_path.as_deref().ok_or_else(|| {

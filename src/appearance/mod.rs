@@ -10,11 +10,11 @@
 //!   (`filmscope compare`).
 //! - [`pixel`]: one pixel's spectra at every angle against the model, the residual and the
 //!   neighbouring orders' fits (`filmscope report RUN --pixel X,Y`).
-//!
-//! The glTF export is [`crate::export::gltf`], the HTML report [`crate::report`].
+//! - [`gltf`]: the film as a glTF 2.0 binary for renderers (`filmscope export-gltf`).
 
 pub mod compare;
 pub mod film;
+pub mod gltf;
 pub mod pixel;
 pub mod render;
 pub mod spectral;

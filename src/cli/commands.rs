@@ -3,9 +3,11 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
+use clap::ValueEnum as _;
 use firmware_sim::{Scene, SoftwareCamera};
 
 use super::progress::rows_bar;
+use crate::appearance::gltf;
 use crate::appearance::{
     compare::{compare_stream, open_capture},
     render::{render_png, RenderOptions},
@@ -14,8 +16,7 @@ use crate::appearance::{
 use crate::baseline::BruteGrid;
 use crate::estimate::{run_method_in_field, write_outputs, Run, RunConfig};
 use crate::eval::{evaluate, EvalReport, Truth};
-use crate::export::gltf;
-use crate::field::{FieldChoice, FieldConfig};
+use crate::field::FieldConfig;
 use crate::io::{write_atomic, ByteOrder, Capture, Interleave};
 use crate::pipeline::{CaptureSource, PipelineConfig, SimSource, Source};
 use crate::simulate::{write_capture, SimulateOptions};
@@ -47,14 +48,41 @@ const PAPER_TABLE: [(f64, f64, f64, f64); 3] = [
     (2.674, 41.0, 5.63, 0.18),
 ];
 
-fn method(name: &str) -> Result<Method> {
-    Method::from_name(name)
-        .ok_or_else(|| anyhow!("unknown method {name:?}: use filmscope, paper or brute"))
-}
-
-fn field(name: &str) -> Result<FieldChoice> {
-    FieldChoice::from_name(name)
-        .ok_or_else(|| anyhow!("--field {name:?}: use auto, narrow or wide"))
+impl super::MethodArgs {
+    /// The run configuration these arguments give, with `pipeline` and the wide field
+    /// model's settings `wide`; every value checked.
+    fn run_config(&self, pipeline: PipelineConfig, wide: FieldConfig) -> Result<RunConfig> {
+        check_index_args(self.index)?;
+        crate::limits::check_cli(
+            pipeline.workers,
+            pipeline.channel_capacity,
+            self.index_pixels,
+            self.brute_index_steps,
+            self.brute_thickness_step,
+        )
+        .map_err(|e| anyhow!(e))?;
+        Ok(RunConfig {
+            method: self.method,
+            pipeline: PipelineConfig {
+                solver: SolverOptions {
+                    index_pixels: self.index_pixels,
+                    ..pipeline.solver
+                },
+                ..pipeline
+            },
+            brute_grid: BruteGrid {
+                index_steps: self.brute_index_steps,
+                thickness_step_nm: self.brute_thickness_step,
+            },
+            field: FieldConfig {
+                choice: self.field,
+                strips: self.field_strips,
+                ..wide
+            },
+            sample_sites: self.index.sample_sites,
+            one_pass: self.index.one_pass,
+        })
+    }
 }
 
 fn rows_of(spec: &filmscope_core::solve::SweepSpec, angles: usize) -> u64 {
@@ -83,17 +111,10 @@ pub fn simulate(
     scene_path: &Path,
     out: &Path,
     noise_free: bool,
-    (interleave, byte_order): (&str, &str),
+    (interleave, byte_order): (Interleave, ByteOrder),
     seed: Option<u64>,
 ) -> Result<()> {
     let scene = Scene::load_seeded(scene_path, seed)?;
-    let interleave = Interleave::from_name(interleave)
-        .ok_or_else(|| anyhow!("--interleave {interleave:?}: use bil, bsq or bip"))?;
-    let byte_order = match byte_order {
-        "little" => ByteOrder::Little,
-        "big" => ByteOrder::Big,
-        other => bail!("--byte-order {other:?}: use little or big"),
-    };
     let total = (scene.angles_deg.len() * scene.bands_nm.len() * scene.sensor.height) as u64;
     let bar = rows_bar(total, &scene.name);
     let toml = write_capture(
@@ -145,20 +166,20 @@ fn memory_budget(max_memory: Option<&str>) -> Result<Option<u64>> {
 /// `filmscope estimate`: every value checked, the output folder checked against the inputs
 /// and locked, and the memory needed compared with the budget, before any computation; the
 /// result swapped in whole.
-#[allow(clippy::too_many_arguments)]
 pub fn estimate(
     capture: &Path,
     out: &Path,
-    method_name: &str,
-    (workers, channel_capacity, index_pixels): (usize, usize, usize),
+    method: &super::MethodArgs,
+    (workers, channel_capacity): (usize, usize),
     max_memory: Option<&str>,
-    pipeline: PipelineConfig,
-    brute: (usize, f64),
-    (field_name, field_strips): (&str, Option<usize>),
-    index: super::IndexArgs,
     film_index: Option<&str>,
 ) -> Result<()> {
-    check_index_args(index)?;
+    let pipeline = PipelineConfig {
+        workers,
+        channel_capacity,
+        ..PipelineConfig::default()
+    };
+    let config = method.run_config(pipeline, FieldConfig::default())?;
     let film = film_index
         .map(|m| {
             crate::material::from_arg(m)
@@ -166,24 +187,7 @@ pub fn estimate(
                 .map_err(|e| anyhow!("--film-index {m:?}: {e}"))
         })
         .transpose()?;
-    crate::limits::check_cli(workers, channel_capacity, index_pixels, brute.0, brute.1)
-        .map_err(|e| anyhow!(e))?;
     let budget = memory_budget(max_memory)?;
-    let config = RunConfig {
-        method: method(method_name)?,
-        pipeline,
-        brute_grid: BruteGrid {
-            index_steps: brute.0,
-            thickness_step_nm: brute.1,
-        },
-        field: FieldConfig {
-            choice: field(field_name)?,
-            strips: field_strips,
-            ..FieldConfig::default()
-        },
-        sample_sites: index.sample_sites,
-        one_pass: index.one_pass,
-    };
     let cap = Capture::load(capture)?;
     for key in &cap.unknown_keys {
         eprintln!(
@@ -224,28 +228,29 @@ pub fn estimate(
         "{}: n = {:.4}, thickness median {} nm, valid {:.1} %, {:.2} s; maps in {}",
         config.method.name(),
         run.result.index.at(550.0),
-        summary["thickness_nm"]["median"]
-            .as_f64()
+        summary
+            .thickness_nm
+            .median
             .map_or("-".into(), |m| format!("{m:.1}")),
-        100.0 * summary["valid_fraction"].as_f64().unwrap_or(0.0),
+        100.0 * summary.valid_fraction,
         run.seconds,
         out.display()
     );
     Ok(())
 }
 
-/// The field model chosen and why, in one line (streaming method).
+/// The field model chosen and why, in one line, when the lens's field of view made it a
+/// choice (streaming method); a capture without one has a single model to speak of.
 fn field_line(run: &Run) -> Option<String> {
-    let c = &run.field_model_choice;
-    let model = c["chosen"].as_str()?;
-    let strips = match (model, c["geometry"]["strips"].as_u64()) {
+    let c = run.field_model_choice.as_ref()?;
+    c.geometry.horizontal_fov_deg?;
+    let strips = match (c.chosen.as_str(), c.geometry.strips) {
         ("wide", Some(k)) => format!(", {k} strips"),
         _ => String::new(),
     };
     Some(format!(
-        "field model: {model}{strips} ({}): {}",
-        c["requested"].as_str().unwrap_or("?"),
-        c["reason"].as_str().unwrap_or("")
+        "field model: {}{strips} ({}): {}",
+        c.chosen, c.requested, c.reason
     ))
 }
 
@@ -311,40 +316,33 @@ fn eval_one(path: &Path, config: &RunConfig, seed: Option<u64>) -> Result<(EvalR
 
 /// Solver options and the wide field model's settings with the named improvements switched
 /// off.
-fn ablated(list: &[String]) -> Result<(SolverOptions, FieldConfig)> {
+fn ablated(list: &[super::Ablation]) -> (SolverOptions, FieldConfig) {
+    use super::Ablation as A;
     let mut o = SolverOptions::default();
     let mut f = FieldConfig::default();
-    for name in list {
-        match name.as_str() {
-            "refine" => o.refine = false,
-            "half-order" => o.half_order = false,
-            "neighbours" => o.neighbours = false,
-            "subband" => o.subband = false,
-            "wide-simd" => o.wide_simd = false,
-            "column-map" => f.column_map = false,
-            "shared-index" => f.shared_rounds = false,
-            other => bail!(
-                "--ablate {other:?}: use refine, half-order, neighbours, subband, wide-simd, column-map or shared-index"
-            ),
+    for a in list {
+        match a {
+            A::Refine => o.refine = false,
+            A::HalfOrder => o.half_order = false,
+            A::Neighbours => o.neighbours = false,
+            A::Subband => o.subband = false,
+            A::WideSimd => o.wide_simd = false,
+            A::ColumnMap => f.column_map = false,
+            A::SharedIndex => f.shared_rounds = false,
         }
     }
-    Ok((o, f))
+    (o, f)
 }
 
 /// `filmscope eval`.
-#[allow(clippy::too_many_arguments)]
 pub fn eval(
     inputs: &[PathBuf],
     random: Option<(usize, u64, Option<PathBuf>)>,
     seed: Option<u64>,
-    method_name: &str,
+    method: &super::MethodArgs,
     json: bool,
-    brute: (usize, f64),
-    (ablate, index_pixels): (&[String], usize),
-    (field_name, field_strips): (&str, Option<usize>),
-    index: super::IndexArgs,
+    ablate: &[super::Ablation],
 ) -> Result<()> {
-    check_index_args(index)?;
     match (inputs.is_empty(), &random) {
         (true, None) => {
             bail!("eval needs at least one scene file or capture directory, or --random N")
@@ -360,38 +358,12 @@ pub fn eval(
             );
         }
     }
-    let defaults = PipelineConfig::default();
-    crate::limits::check_cli(
-        defaults.workers,
-        defaults.channel_capacity,
-        index_pixels,
-        brute.0,
-        brute.1,
-    )
-    .map_err(|e| anyhow!(e))?;
-    let (solver, wide) = ablated(ablate)?;
-    let solver = SolverOptions {
-        index_pixels,
-        ..solver
+    let (solver, wide) = ablated(ablate);
+    let pipeline = PipelineConfig {
+        solver,
+        ..PipelineConfig::default()
     };
-    let config = RunConfig {
-        method: method(method_name)?,
-        brute_grid: BruteGrid {
-            index_steps: brute.0,
-            thickness_step_nm: brute.1,
-        },
-        pipeline: PipelineConfig {
-            solver,
-            ..PipelineConfig::default()
-        },
-        field: FieldConfig {
-            choice: field(field_name)?,
-            strips: field_strips,
-            ..wide
-        },
-        sample_sites: index.sample_sites,
-        one_pass: index.one_pass,
-    };
+    let config = method.run_config(pipeline, wide)?;
     if let Some((count, seed, save)) = random {
         return eval_random(count, seed, &config, json, save.as_deref());
     }
@@ -417,7 +389,12 @@ pub fn eval(
         if ablate.is_empty() {
             method.to_owned()
         } else {
-            format!("-{}", ablate.join(",-"))
+            let names: Vec<String> = ablate
+                .iter()
+                .filter_map(|a| a.to_possible_value())
+                .map(|v| v.get_name().to_owned())
+                .collect();
+            format!("-{}", names.join(",-"))
         }
     };
     for path in inputs {
@@ -426,19 +403,15 @@ pub fn eval(
             println!("{}", serde_json::to_string(&r)?);
         } else {
             // Runs whose lens has a field of view also say which field model was used.
-            let c = &run.field_model_choice;
-            let field = match (
-                c["geometry"]["horizontal_fov_deg"].as_f64(),
-                c["chosen"].as_str(),
-            ) {
-                (Some(_), Some("wide")) => format!(
-                    "  wide/{} ({})",
-                    c["geometry"]["strips"].as_u64().unwrap_or(0),
-                    c["requested"].as_str().unwrap_or("?")
-                ),
-                (Some(_), Some(model)) => {
-                    format!("  {model} ({})", c["requested"].as_str().unwrap_or("?"))
-                }
+            let field = match &run.field_model_choice {
+                Some(c) if c.geometry.horizontal_fov_deg.is_some() => match c.chosen.as_str() {
+                    "wide" => format!(
+                        "  wide/{} ({})",
+                        c.geometry.strips.unwrap_or(0),
+                        c.requested
+                    ),
+                    model => format!("  {model} ({})", c.requested),
+                },
                 _ => String::new(),
             };
             println!(
@@ -506,9 +479,10 @@ fn eval_random(
 /// `filmscope acquire`: the rig file checked in full, the output checked against the
 /// inputs and the memory needed against the budget, before any device moves. Ctrl-C stops
 /// the sweep at the next band and keeps the angles taken.
-pub fn acquire(rig: &Path, out: &Path, sim: bool, max_memory: Option<&str>) -> Result<()> {
+pub fn acquire(rig: Option<&Path>, out: &Path, sim: bool, max_memory: Option<&str>) -> Result<()> {
     let budget = memory_budget(max_memory)?;
-    let config = crate::rig::RigConfig::load(rig)?;
+    let config = crate::rig::RigConfig::load_or_builtin(rig)?;
+    let rig = rig.unwrap_or(Path::new("config/rig.toml"));
     let s = &config.sweep;
     let mut inputs = vec![rig.to_path_buf()];
     inputs.extend(config.sim.as_ref().map(|s| s.scene.clone()));
@@ -539,17 +513,19 @@ pub fn acquire(rig: &Path, out: &Path, sim: bool, max_memory: Option<&str>) -> R
         crate::rig::acquire::run(&config, out, sim, &RunConfig::default(), &|n| bar.inc(n))
             .map_err(|e| anyhow!(e))?;
     bar.finish_and_clear();
-    let lost = summary["acquisition"]["link"]["rows_lost"]
-        .as_u64()
+    let lost = summary
+        .acquisition
+        .as_ref()
+        .and_then(|a| a["link"]["rows_lost"].as_u64())
         .unwrap_or(0);
     println!(
         "acquired {} angles x {} bands into {}: n = {:.4}, thickness median {:.1} nm, valid {:.1}%, {} row(s) lost on the link",
         s.angles_deg.len(),
         s.bands().len(),
         out.join("capture").display(),
-        summary["refractive_index"].as_f64().unwrap_or(f64::NAN),
-        summary["thickness_nm"]["median"].as_f64().unwrap_or(f64::NAN),
-        100.0 * summary["valid_fraction"].as_f64().unwrap_or(0.0),
+        summary.refractive_index.unwrap_or(f64::NAN),
+        summary.thickness_nm.median.unwrap_or(f64::NAN),
+        100.0 * summary.valid_fraction,
         lost
     );
     Ok(())
@@ -775,11 +751,18 @@ pub fn stability_cell(out: &Path, quick: bool, cell: &str, seed: Option<u64>) ->
     Ok(())
 }
 
-fn illuminant(name: &str) -> Result<Illuminant> {
+/// `--illuminant`: a name of [`Illuminant::ALL`].
+pub(super) fn illuminant(name: &str) -> Result<Illuminant, String> {
     Illuminant::from_name(name).ok_or_else(|| {
         let names: Vec<&str> = Illuminant::ALL.iter().map(|i| i.name()).collect();
-        anyhow!("unknown illuminant {name:?}: use {}", names.join(", "))
+        format!("unknown illuminant {name:?}: use {}", names.join(", "))
     })
+}
+
+/// `--polarization`: s, p or unpolarized.
+pub(super) fn polarization(name: &str) -> Result<Polarization, String> {
+    Polarization::from_name(name)
+        .ok_or_else(|| format!("unknown polarization {name:?}: use s, p or unpolarized"))
 }
 
 /// `filmscope render`.
@@ -787,9 +770,9 @@ pub fn render(
     maps: &Path,
     out: &Path,
     angle_deg: f64,
-    illuminant_name: &str,
+    illuminant: Illuminant,
     exposure: Option<f64>,
-    polarization: Option<&str>,
+    polarization: Option<Polarization>,
     capture: Option<&Path>,
 ) -> Result<()> {
     if !(0.0..90.0).contains(&angle_deg) {
@@ -799,13 +782,12 @@ pub fn render(
         bail!("--exposure must be a positive number");
     }
     let mut film = SampleFilm::load(maps, capture)?;
-    if let Some(name) = polarization {
-        film.stack.polarization = Polarization::from_name(name)
-            .ok_or_else(|| anyhow!("unknown polarization {name:?}: use s, p or unpolarized"))?;
+    if let Some(p) = polarization {
+        film.stack.polarization = p;
     }
     let opts = RenderOptions {
         incidence_deg: angle_deg,
-        illuminant: illuminant(illuminant_name)?,
+        illuminant,
         exposure,
     };
     let (png, info) = render_png(&film, &opts)?;
@@ -826,11 +808,10 @@ pub fn render(
 pub fn compare(
     maps: &Path,
     out: Option<&Path>,
-    illuminant_name: &str,
+    ill: Illuminant,
     capture: Option<&Path>,
     envi: bool,
 ) -> Result<()> {
-    let ill = illuminant(illuminant_name)?;
     let film = SampleFilm::load(maps, capture)?;
     let cap = film.capture.clone().ok_or_else(|| {
         anyhow!(

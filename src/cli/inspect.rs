@@ -13,7 +13,7 @@ use crate::line::recipe::Recipe;
 /// What `inspect` is told on the command line.
 pub struct Args<'a> {
     /// Rig file.
-    pub rig: &'a Path,
+    pub rig: Option<&'a Path>,
     /// Recipe file.
     pub recipe: &'a Path,
     /// Output folder.
@@ -37,7 +37,7 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, stop.clone()).context("signal handler")?;
     }
-    let rig = crate::rig::RigConfig::load(a.rig)?;
+    let rig = crate::rig::RigConfig::load_or_builtin(a.rig)?;
     let recipe = Recipe::load(a.recipe)?;
     let mut line = Line::open(InspectOptions {
         rig,

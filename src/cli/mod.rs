@@ -7,9 +7,12 @@ mod progress;
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
-use filmscope_core::solve::sweep::SolverOptions;
+use filmscope_core::colour::Illuminant;
+use filmscope_core::optics::Polarization;
 
-use crate::pipeline::PipelineConfig;
+use crate::field::FieldChoice;
+use crate::io::{ByteOrder, Interleave};
+use crate::sweep::Method;
 
 /// How the streaming method gets the shared index.
 #[derive(Clone, Copy, Debug, Args)]
@@ -22,6 +25,56 @@ pub struct IndexArgs {
     /// each angle completes (default: the sample's stream, then every pixel's).
     #[arg(long)]
     pub one_pass: bool,
+}
+
+/// The method and its settings, as `estimate` and `eval` take them.
+#[derive(Clone, Debug, Args)]
+pub struct MethodArgs {
+    /// The estimator.
+    #[arg(long, value_enum, default_value = "filmscope")]
+    pub method: Method,
+    /// About how many pixels keep whole extremum lists and the pooled sums (32 bytes
+    /// each), the others their last extrema only; every pixel of a sensor with fewer
+    /// than twice as many. The index itself comes from the pixel sample
+    /// (`--sample-sites`).
+    #[arg(long, default_value_t = filmscope_core::solve::fit_row::INDEX_PIXELS)]
+    pub index_pixels: usize,
+    /// Brute force: number of index values over the search range (0: a 0.01 step).
+    #[arg(long, default_value_t = 0)]
+    pub brute_index_steps: usize,
+    /// Brute force: thickness grid step, nm.
+    #[arg(long, default_value_t = 2.0)]
+    pub brute_thickness_step: f64,
+    /// Field model: auto (narrow unless the data ask for wide), narrow (one incidence angle
+    /// per frame) or wide (the angle varies with the column; needs the lens's field of
+    /// view).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub field: FieldChoice,
+    /// Wide field model: number of strips of columns (default: from the angle spread).
+    #[arg(long)]
+    pub field_strips: Option<usize>,
+    /// How the streaming method gets the shared index.
+    #[command(flatten)]
+    pub index: IndexArgs,
+}
+
+/// An improvement `eval --ablate` switches off.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Ablation {
+    /// The full-spectrum refinement.
+    Refine,
+    /// The half-order reflection phase.
+    HalfOrder,
+    /// Orders from resolved neighbours.
+    Neighbours,
+    /// Sub-band extremum location.
+    Subband,
+    /// AVX2 kernels (speed only).
+    WideSimd,
+    /// The wide field model's per-column thickness map.
+    ColumnMap,
+    /// The wide field model's shared index across strips.
+    SharedIndex,
 }
 
 /// filmscope: thin-film index and thickness maps from hyperspectral angle sweeps.
@@ -54,12 +107,12 @@ enum Command {
         /// Float32 reflectance without noise, defects, vignetting or references.
         #[arg(long)]
         noise_free: bool,
-        /// Cube interleave: bil (default, the camera link's order), bsq or bip.
-        #[arg(long, default_value = "bil")]
-        interleave: String,
-        /// Byte order of the cubes' values: little (default) or big.
-        #[arg(long, default_value = "little")]
-        byte_order: String,
+        /// Cube interleave: bil (the camera link's order), bsq or bip.
+        #[arg(long, value_enum, default_value = "bil")]
+        interleave: Interleave,
+        /// Byte order of the cubes' values.
+        #[arg(long, value_enum, default_value = "little")]
+        byte_order: ByteOrder,
         /// Replaces the scene's `seed` (its thickness bumps and noise).
         #[arg(long)]
         seed: Option<u64>,
@@ -71,37 +124,14 @@ enum Command {
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
-        /// filmscope (default), paper or brute.
-        #[arg(long, default_value = "filmscope")]
-        method: String,
+        #[command(flatten)]
+        method: MethodArgs,
         /// Worker threads of the streaming method.
         #[arg(long, default_value_t = 2)]
         workers: usize,
         /// Capacity of each pipeline channel, in messages.
         #[arg(long, default_value_t = 64)]
         channel_capacity: usize,
-        /// About how many pixels keep whole extremum lists and the pooled sums (32 bytes
-        /// each), the others their last extrema only; every pixel of a sensor with fewer
-        /// than twice as many. The index itself comes from the pixel sample
-        /// (`--sample-sites`).
-        #[arg(long, default_value_t = filmscope_core::solve::fit_row::INDEX_PIXELS)]
-        index_pixels: usize,
-        /// Brute force: number of index values over the search range (0: a 0.01 step).
-        #[arg(long, default_value_t = 0)]
-        brute_index_steps: usize,
-        /// Brute force: thickness grid step, nm.
-        #[arg(long, default_value_t = 2.0)]
-        brute_thickness_step: f64,
-        /// Field model: auto (default: narrow unless the data ask for wide), narrow (one
-        /// incidence angle per frame) or wide (the angle varies with the column; needs the
-        /// lens's field of view).
-        #[arg(long, default_value = "auto")]
-        field: String,
-        /// Wide field model: number of strips of columns (default: from the angle spread).
-        #[arg(long)]
-        field_strips: Option<usize>,
-        #[command(flatten)]
-        index: IndexArgs,
         /// Memory the run may use (bytes, or with K, M, G, T); default: what the machine
         /// has available. A capture needing more is refused before any work.
         #[arg(long)]
@@ -115,9 +145,10 @@ enum Command {
     /// Sweeps a rig (stage x filter x camera), streams every frame into the estimator,
     /// records the raw sweep as a capture in OUT/capture and writes the maps into OUT.
     Acquire {
-        /// The rig file (see config/rig.toml).
-        #[arg(long, default_value = "config/rig.toml")]
-        rig: PathBuf,
+        /// The rig file (see config/rig.toml); default: config/rig.toml where it exists,
+        /// else the same rig built in.
+        #[arg(long)]
+        rig: Option<PathBuf>,
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
@@ -133,9 +164,10 @@ enum Command {
     /// results.jsonl, MQTT, status page, trends and alarms) until --samples are done or
     /// SIGINT/SIGTERM (the sample under way is finished first).
     Inspect {
-        /// The rig file (see config/rig.toml).
-        #[arg(long, default_value = "config/rig.toml")]
-        rig: PathBuf,
+        /// The rig file (see config/rig.toml); default: config/rig.toml where it exists,
+        /// else the same rig built in.
+        #[arg(long)]
+        rig: Option<PathBuf>,
         /// The recipe (see config/recipes/demo.toml).
         #[arg(long)]
         recipe: PathBuf,
@@ -176,38 +208,15 @@ enum Command {
         /// (`random-SEED-I.toml`), so a row can be run again with `eval FILE`.
         #[arg(long, value_name = "DIR", requires = "random")]
         save_scenes: Option<PathBuf>,
-        /// filmscope (default), paper or brute.
-        #[arg(long, default_value = "filmscope")]
-        method: String,
+        #[command(flatten)]
+        method: MethodArgs,
         /// One JSON object per input on stdout instead of a table (with --random: one
         /// object, every scene's row in `rows`).
         #[arg(long)]
         json: bool,
-        /// Switch off filmscope improvements to measure their worth: refine, half-order,
-        /// neighbours, subband, wide-simd (AVX2: speed only), and the wide field model's
-        /// column-map and shared-index (comma-separated).
-        #[arg(long, value_delimiter = ',')]
-        ablate: Vec<String>,
-        /// About how many pixels keep whole extremum lists and the pooled sums (see
-        /// `estimate`).
-        #[arg(long, default_value_t = filmscope_core::solve::fit_row::INDEX_PIXELS)]
-        index_pixels: usize,
-        /// Brute force: number of index values over the search range (0: a 0.01 step).
-        #[arg(long, default_value_t = 0)]
-        brute_index_steps: usize,
-        /// Brute force: thickness grid step, nm.
-        #[arg(long, default_value_t = 2.0)]
-        brute_thickness_step: f64,
-        /// Field model: auto (default: narrow unless the data ask for wide), narrow (one
-        /// incidence angle per frame) or wide (the angle varies with the column; needs the
-        /// lens's field of view).
-        #[arg(long, default_value = "auto")]
-        field: String,
-        /// Wide field model: number of strips of columns (default: from the angle spread).
-        #[arg(long)]
-        field_strips: Option<usize>,
-        #[command(flatten)]
-        index: IndexArgs,
+        /// Switch off filmscope improvements to measure their worth (comma-separated).
+        #[arg(long, value_enum, value_delimiter = ',')]
+        ablate: Vec<Ablation>,
     },
     /// Measures speed and memory (tracker, pipeline, solve, latency, state, peak RSS) and the
     /// baselines' cost on the same data, and prints one table.
@@ -268,15 +277,15 @@ enum Command {
         /// Incidence (= viewing, specular) angle of the main image, degrees.
         #[arg(long, default_value_t = 30.0)]
         angle: f64,
-        /// The light: D65, A or D50 (white-balanced to sRGB).
-        #[arg(long, default_value = "D65")]
-        illuminant: String,
+        /// The light (white-balanced to sRGB).
+        #[arg(long, default_value = "D65", value_parser = commands::illuminant)]
+        illuminant: Illuminant,
         /// Exposure factor on the reflectance (default: auto, printed in the image).
         #[arg(long)]
         exposure: Option<f64>,
         /// Polarisation of the light: s, p or unpolarized (default: the capture's).
-        #[arg(long)]
-        polarization: Option<String>,
+        #[arg(long, value_parser = commands::polarization)]
+        polarization: Option<Polarization>,
         /// The capture (capture.toml or its directory), if the summary does not lead to it.
         #[arg(long)]
         capture: Option<PathBuf>,
@@ -289,9 +298,9 @@ enum Command {
         /// Output directory (default: the maps directory).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// The light: D65, A or D50.
-        #[arg(long, default_value = "D65")]
-        illuminant: String,
+        /// The light.
+        #[arg(long, default_value = "D65", value_parser = commands::illuminant)]
+        illuminant: Illuminant,
         /// The capture (capture.toml or its directory), if the summary does not lead to it.
         #[arg(long)]
         capture: Option<PathBuf>,
@@ -358,7 +367,14 @@ enum Command {
 /// Runs the command line; returns the process exit code.
 pub fn main() -> std::process::ExitCode {
     quiet_on_broken_pipe();
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if !e.use_stderr() => e.exit(),
+        Err(e) => {
+            eprintln!("filmscope: {}", usage_error(&e));
+            return std::process::ExitCode::from(2);
+        }
+    };
     let result = match cli.command {
         Command::Demo { out, with_paper } => commands::demo(&out, with_paper),
         Command::Simulate {
@@ -368,39 +384,21 @@ pub fn main() -> std::process::ExitCode {
             interleave,
             byte_order,
             seed,
-        } => commands::simulate(&scene, &out, noise_free, (&interleave, &byte_order), seed),
+        } => commands::simulate(&scene, &out, noise_free, (interleave, byte_order), seed),
         Command::Estimate {
             capture,
             out,
             method,
             workers,
             channel_capacity,
-            index_pixels,
-            brute_index_steps,
-            brute_thickness_step,
-            field,
-            field_strips,
-            index,
             max_memory,
             film_index,
         } => commands::estimate(
             &capture,
             &out,
             &method,
-            (workers, channel_capacity, index_pixels),
+            (workers, channel_capacity),
             max_memory.as_deref(),
-            PipelineConfig {
-                channel_capacity,
-                workers,
-                solver: SolverOptions {
-                    index_pixels,
-                    ..SolverOptions::default()
-                },
-                ..PipelineConfig::default()
-            },
-            (brute_index_steps, brute_thickness_step),
-            (&field, field_strips),
-            index,
             film_index.as_deref(),
         ),
         Command::Acquire {
@@ -408,7 +406,7 @@ pub fn main() -> std::process::ExitCode {
             out,
             sim,
             max_memory,
-        } => commands::acquire(&rig, &out, sim, max_memory.as_deref()),
+        } => commands::acquire(rig.as_deref(), &out, sim, max_memory.as_deref()),
         Command::Inspect {
             rig,
             recipe,
@@ -419,7 +417,7 @@ pub fn main() -> std::process::ExitCode {
             mqtt_port,
             json,
         } => inspect::inspect(&inspect::Args {
-            rig: &rig,
+            rig: rig.as_deref(),
             recipe: &recipe,
             out: &out,
             sim,
@@ -436,22 +434,13 @@ pub fn main() -> std::process::ExitCode {
             method,
             json,
             ablate,
-            index_pixels,
-            brute_index_steps,
-            brute_thickness_step,
-            field,
-            field_strips,
-            index,
         } => commands::eval(
             &inputs,
             random.map(|n| (n, seed.unwrap_or(1), save_scenes)),
             seed,
             &method,
             json,
-            (brute_index_steps, brute_thickness_step),
-            (&ablate, index_pixels),
-            (&field, field_strips),
-            index,
+            &ablate,
         ),
         Command::Bench { quick, json, scene } => commands::bench(&scene, quick, json),
         Command::Soak { sweeps, scene } => commands::soak(&scene, sweeps),
@@ -478,9 +467,9 @@ pub fn main() -> std::process::ExitCode {
             &maps,
             &out,
             angle,
-            &illuminant,
+            illuminant,
             exposure,
-            polarization.as_deref(),
+            polarization,
             capture.as_deref(),
         ),
         Command::Compare {
@@ -489,7 +478,7 @@ pub fn main() -> std::process::ExitCode {
             illuminant,
             capture,
             envi,
-        } => commands::compare(&maps, out.as_deref(), &illuminant, capture.as_deref(), envi),
+        } => commands::compare(&maps, out.as_deref(), illuminant, capture.as_deref(), envi),
         Command::ExportGltf {
             maps,
             out,
@@ -520,6 +509,51 @@ pub fn main() -> std::process::ExitCode {
         Err(e) => {
             eprintln!("filmscope: {}", one_line(&format!("{e:#}")));
             std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// A usage error in one line: `--field "sideways": use auto, narrow or wide` for a value
+/// not among the choices, else clap's first line and where to find help.
+fn usage_error(e: &clap::Error) -> String {
+    use clap::error::{ContextKind, ContextValue, ErrorKind};
+    let arg = e.get(ContextKind::InvalidArg).map(|a| {
+        let a = a.to_string();
+        a.split_whitespace().next().unwrap_or_default().to_owned()
+    });
+    match (
+        e.kind(),
+        arg,
+        e.get(ContextKind::InvalidValue),
+        e.get(ContextKind::ValidValue),
+    ) {
+        (
+            ErrorKind::InvalidValue,
+            Some(arg),
+            Some(ContextValue::String(value)),
+            Some(ContextValue::Strings(valid)),
+        ) => {
+            let (last, rest) = valid
+                .split_last()
+                .map_or(("", &[][..]), |(l, r)| (l.as_str(), r));
+            let choices = if rest.is_empty() {
+                last.to_owned()
+            } else {
+                format!("{} or {last}", rest.join(", "))
+            };
+            one_line(&format!("{arg} {value:?}: use {choices}"))
+        }
+        _ => {
+            let text = e.render().to_string();
+            let lines: Vec<&str> = text
+                .lines()
+                .map(str::trim)
+                .filter(|l| !l.is_empty() && !l.starts_with("Usage:") && !l.starts_with("For more"))
+                .collect();
+            one_line(&format!(
+                "{} (see --help)",
+                lines.join(" ").trim_start_matches("error: ")
+            ))
         }
     }
 }

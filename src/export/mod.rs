@@ -1,6 +1,5 @@
-//! Outputs: map previews, charts and exports.
+//! Pictures: map previews (PNG), colour maps and charts.
 pub(crate) mod canvas;
 pub mod colormap;
-pub mod gltf;
 pub mod plot;
 pub mod png;

@@ -24,6 +24,7 @@ pub mod atomic;
 pub mod capture;
 pub mod envi;
 pub mod output;
+pub mod time;
 
 pub use atomic::{write_atomic, TempFile};
 pub use capture::{
@@ -35,3 +36,4 @@ pub use envi::{
     EnviHeader, EnviReader, EnviWriter, Interleave,
 };
 pub use output::{check_outside_inputs, OutputDir, OutputDirError};
+pub use time::{counter_of, sample_id, utc_iso};

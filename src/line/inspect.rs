@@ -22,13 +22,14 @@ use super::spc::{self, History, Point, Variable};
 use super::status::StatusServer;
 use super::stream::{MqttPublisher, ResultsLog};
 use super::verdict::{self, Verdict};
-use super::{counter_of, sample_id, utc_iso};
 use crate::estimate::{run_method, write_outputs_into, Run, RunConfig};
+use crate::io::{counter_of, sample_id, utc_iso};
 use crate::io::{write_atomic, Capture};
 use crate::pipeline::{CaptureSource, DEFAULT_INDEX_RANGE};
 use crate::rig::acquire::{open_sim_with, sim_options, Acquisition};
 use crate::rig::config::SearchConfig;
 use crate::rig::RigConfig;
+use crate::summary::LineRecord;
 use firmware_sim::line::SampleSequence;
 
 /// An inspection that cannot go on: one line.
@@ -434,26 +435,18 @@ impl Line {
         if let Some(k) = sim_kind {
             record["sim_sample"] = json!(k);
         }
-        if let Some(o) = summary.as_object_mut() {
-            o.insert("sample_id".into(), json!(id));
-            o.insert("timestamp".into(), json!(timestamp));
-            o.insert("version".into(), json!(env!("CARGO_PKG_VERSION")));
-            o.insert(
-                "recipe".into(),
-                json!({"file": self.opts.recipe_path.display().to_string(), "film": recipe.film, "settings": recipe}),
-            );
-            o.insert(
-                "verdict".into(),
-                json!({"verdict": v.word(), "reasons": v.reasons, "thickness_nm": v.thickness,
-                       "valid_fraction": v.valid_fraction, "judged_px": v.judged_px,
-                       "out_of_tolerance_px": v.out_of_tolerance_px, "regions": v.regions,
-                       "mask": "oot_mask.hdr", "overlay": "overlay.png"}),
-            );
-            o.insert("acquisition".into(), acq_log);
-        }
-        let sp = tmp.join("summary.json");
-        let text = serde_json::to_string_pretty(&summary).map_err(|e| ie("summary")(&e))?;
-        write_atomic(&sp, text.as_bytes()).map_err(|e| ie(&sp.display().to_string())(&e))?;
+        summary.timestamp = Some(timestamp.clone());
+        summary.version = Some(env!("CARGO_PKG_VERSION").to_owned());
+        summary.line = Some(LineRecord {
+            sample_id: id.clone(),
+            recipe: json!({"file": self.opts.recipe_path.display().to_string(), "film": recipe.film, "settings": recipe}),
+            verdict: json!({"verdict": v.word(), "reasons": v.reasons, "thickness_nm": v.thickness,
+                   "valid_fraction": v.valid_fraction, "judged_px": v.judged_px,
+                   "out_of_tolerance_px": v.out_of_tolerance_px, "regions": v.regions,
+                   "mask": "oot_mask.hdr", "overlay": "overlay.png"}),
+        });
+        summary.acquisition = Some(acq_log);
+        summary.write(&tmp).map_err(InspectError)?;
         let capture = tmp.join("capture");
         if keep {
             retention::references_to_u16(&capture).map_err(InspectError)?;

@@ -508,7 +508,7 @@ pub fn run(
     sim: bool,
     run_config: &crate::estimate::RunConfig,
     on_rows: &(dyn Fn(u64) + Sync),
-) -> Result<serde_json::Value, String> {
+) -> Result<crate::summary::Summary, String> {
     let mut config = config.clone();
     let mut _sim_rig = None;
     let rig = if sim {
@@ -538,7 +538,7 @@ pub fn run_rig(
     out: &Path,
     run_config: &crate::estimate::RunConfig,
     on_rows: &(dyn Fn(u64) + Sync),
-) -> Result<serde_json::Value, String> {
+) -> Result<crate::summary::Summary, String> {
     let out_dir = crate::io::OutputDir::begin(out).map_err(|e| e.to_string())?;
     let capture_dir = out_dir.path().join("capture");
     let final_capture = out_dir.target().join("capture");
@@ -564,20 +564,10 @@ pub fn run_rig(
         &final_capture.display().to_string(),
     )
     .map_err(|e| e.to_string())?;
-    if let Some(o) = summary.as_object_mut() {
-        o.insert(
-            "acquisition".into(),
-            serde_json::to_value(&acq.log).unwrap_or_default(),
-        );
-        o.insert(
-            "timestamp".into(),
-            json!(crate::line::utc_iso(std::time::SystemTime::now())),
-        );
-        o.insert("version".into(), json!(env!("CARGO_PKG_VERSION")));
-    }
-    let path = out_dir.path().join("summary.json");
-    let text = serde_json::to_string_pretty(&summary).map_err(|e| io_err(&path, &e))?;
-    write_atomic(&path, text.as_bytes()).map_err(|e| io_err(&path, &e))?;
+    summary.acquisition = serde_json::to_value(&acq.log).ok();
+    summary.timestamp = Some(crate::io::utc_iso(std::time::SystemTime::now()));
+    summary.version = Some(env!("CARGO_PKG_VERSION").to_owned());
+    summary.write(out_dir.path())?;
     drop(acq);
     out_dir.commit().map_err(|e| e.to_string())?;
     Ok(summary)
@@ -616,7 +606,12 @@ pub fn sim_options(
     scene_path: &Path,
     speed: f64,
 ) -> Result<firmware_sim::serve::RigOptions, String> {
-    let mut scene = firmware_sim::Scene::load(scene_path).map_err(|e| e.to_string())?;
+    let mut scene = if config.builtin && !scene_path.exists() {
+        firmware_sim::Scene::from_toml(super::config::BUILTIN_SIM_SCENE, "rig-tiny")
+    } else {
+        firmware_sim::Scene::load(scene_path)
+    }
+    .map_err(|e| e.to_string())?;
     let s = &config.sweep;
     scene.angles_deg = s
         .angles_deg

@@ -28,7 +28,18 @@ pub struct RigConfig {
     /// What `--sim` runs.
     #[serde(default)]
     pub sim: Option<SimConfig>,
+    /// Whether this is the built-in rig ([`RigConfig::builtin`]), whose `--sim` scene is
+    /// built in too.
+    #[serde(skip)]
+    pub builtin: bool,
 }
+
+/// The rig `acquire` and `inspect` use without `--rig` outside the repository: the
+/// repository's `config/rig.toml`, built into the binary.
+pub const BUILTIN_RIG: &str = include_str!("../../config/rig.toml");
+
+/// The `--sim` scene of [`BUILTIN_RIG`], built in.
+pub const BUILTIN_SIM_SCENE: &str = include_str!("../../config/scenes/rig-tiny.toml");
 
 /// `[sample]`.
 #[derive(Clone, Debug, Deserialize)]
@@ -248,6 +259,29 @@ pub struct ConfigError {
 }
 
 impl RigConfig {
+    /// `path`, or without one `config/rig.toml` where it exists (a checkout), else the
+    /// built-in rig.
+    pub fn load_or_builtin(path: Option<&Path>) -> Result<Self, ConfigError> {
+        let default = Path::new("config/rig.toml");
+        match path {
+            Some(p) => Self::load(p),
+            None if default.exists() => Self::load(default),
+            None => Self::builtin(),
+        }
+    }
+
+    /// The built-in rig ([`BUILTIN_RIG`]).
+    pub fn builtin() -> Result<Self, ConfigError> {
+        let err = |problem: String| ConfigError {
+            path: PathBuf::from("built-in config/rig.toml"),
+            problem,
+        };
+        let mut c: Self = toml::from_str(BUILTIN_RIG).map_err(|e| err(e.message().to_owned()))?;
+        c.builtin = true;
+        c.check().map_err(err)?;
+        Ok(c)
+    }
+
     /// Loads and checks `path`; a relative `[sim] scene` is resolved against its folder.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let err = |problem: String| ConfigError {

@@ -13,7 +13,7 @@ const MAX_HEADER_BYTES: u64 = 16 << 20;
 const STANDARD_FILE_TYPE: &str = "ENVI Standard";
 
 /// Order of values in an ENVI data file.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum)]
 pub enum Interleave {
     /// Band sequential: band, line, sample.
     Bsq,
@@ -123,7 +123,7 @@ impl DataType {
 }
 
 /// Byte order of multi-byte values (`byte order` key).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default, clap::ValueEnum)]
 pub enum ByteOrder {
     /// `0`: least significant byte first.
     #[default]

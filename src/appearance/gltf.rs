@@ -26,9 +26,9 @@
 
 use serde_json::json;
 
-use super::canvas::{Canvas, BACKGROUND};
 use crate::appearance::{AppearanceError, SampleFilm};
-use crate::simulate::dispersion_json;
+use crate::export::canvas::{Canvas, BACKGROUND};
+use crate::material::DispersionRecord;
 
 /// Roughness of the base: a nearly mirror-like film.
 pub const ROUGHNESS: f64 = 0.05;
@@ -188,9 +188,9 @@ pub fn film_glb(film: &SampleFilm, width_m: f64) -> Result<Glb, AppearanceError>
             },
             "extras": {
                 "film_index_550nm": ior,
-                "film_dispersion": dispersion_json(&film.stack.film),
+                "film_dispersion": DispersionRecord::dispersive(&film.stack.film),
                 "substrate_index": substrate,
-                "substrate_dispersion": dispersion_json(&film.stack.substrate),
+                "substrate_dispersion": DispersionRecord::dispersive(&film.stack.substrate),
                 "thickness_texture": "G = (d - min) / (max - min); R = 255 where no reliable thickness (G = median there)",
             },
         }],
