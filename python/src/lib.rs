@@ -187,7 +187,7 @@ fn estimate_capture<'py>(
     let config = opts.config().map_err(fail)?;
     let film = given_index(film_index, &config)?;
     let (run, summary) = py
-        .detach(|| -> Result<(Run, serde_json::Value), String> {
+        .detach(|| -> Result<(Run, Summary), String> {
             let cap = Capture::load(&path).map_err(|e| e.to_string())?;
             filmscope::estimate::check_capture_memory(&cap, config.method, None)?;
             if let Some(out) = &out {
@@ -397,7 +397,7 @@ fn estimate_array<'py>(
         spec,
     };
     let (run, summary) = py
-        .detach(|| -> Result<(Run, serde_json::Value), String> {
+        .detach(|| -> Result<(Run, Summary), String> {
             let run = run(&mut source, &config, None, film.as_ref())
                 .map_err(|e| format!("array: {e}"))?;
             let summary = outputs(&run, out.as_deref(), "array")?;
@@ -578,14 +578,14 @@ fn simulate<'py>(
     d.set_item(
         "substrate",
         serde_json::to_string(&filmscope::material::DispersionRecord::from(
-            *&scene.stack.substrate,
+            scene.stack.substrate,
         ))
         .unwrap_or_default(),
     )?;
     d.set_item(
         "film",
         serde_json::to_string(&filmscope::material::DispersionRecord::from(
-            *&scene.stack.film,
+            scene.stack.film,
         ))
         .unwrap_or_default(),
     )?;
@@ -658,10 +658,8 @@ fn capture_spectra<'py>(
     d.set_item("measured", PyBytes::new(py, &flat))?;
     d.set_item(
         "substrate",
-        serde_json::to_string(&filmscope::material::DispersionRecord::from(
-            *&spec.substrate,
-        ))
-        .unwrap_or_default(),
+        serde_json::to_string(&filmscope::material::DispersionRecord::from(spec.substrate))
+            .unwrap_or_default(),
     )?;
     d.set_item("ambient_index", spec.ambient_index)?;
     d.set_item("polarization", spec.polarization.name())?;
