@@ -3,24 +3,26 @@
 //!
 //! The no_std core ([`filmscope_core`], re-exported here: [`optics`], [`colour`],
 //! [`calibrate`], [`track`], [`solve`]) does the computing; this crate adds, behind the `std`
-//! feature, what touches the world:
+//! feature, what touches the world. Its modules, each importing only those above it:
 //!
-//! - [`io`]: ENVI cubes (all interleaves, types, byte orders; streamed row by row) and
-//!   `capture.toml`, with atomic writes;
-//! - [`pipeline`]: bounded stages on crossbeam channels (source, calibrate, tracker/solver
-//!   workers), sources for the software camera and for ENVI captures;
-//! - [`sweep`] and [`baseline`]: the whole-sweep types and the paper's and brute-force
-//!   methods;
-//! - [`estimate`], [`eval`], [`export`], [`simulate`]: outputs per the capture contract,
-//!   accuracy against the truth, PNG previews, writing simulated captures;
-//! - [`field`]: the field model (one incidence angle per frame, or one per strip of columns
-//!   under a wide field of view) and how it is chosen;
-//! - [`appearance`]: the film's colour from the estimate: renders at any angle, measured
-//!   against reproduced; [`appearance::gltf`] hands it to renderers, [`report`] to people;
-//! - [`known_index`]: the estimator with the film's index given, not fitted;
-//! - [`material`]: index models by name, as JSON or as refractiveindex.info YAML, and
-//!   the estimate written back as CSV and YAML;
-//! - [`cli`]: the `filmscope` command line.
+//! - [`limits`], [`io`] (ENVI cubes streamed row by row in any interleave, `capture.toml`,
+//!   atomic writes, output folders, wall-clock stamps), [`material`] (index models by name,
+//!   JSON, refractiveindex.info YAML) and [`summary`] (`summary.json`, one type);
+//! - [`source`]: where band frames come from (the software camera, a capture on disk, a
+//!   replayed set of frames), the messages they stream and a whole sweep in memory;
+//! - [`simulate`]: a scene written as a capture with its truth;
+//! - [`pipeline`]: bounded stages on crossbeam channels (calibrate, tracker and solver
+//!   workers) driving the core's state machines;
+//! - [`estimate`]: the methods over a source: filmscope's passes, the pixel sample's index
+//!   fit, the field model, the known-index run and the paper's and brute-force baselines,
+//!   and the maps and `summary.json` they write;
+//! - [`export`]: map previews, colour maps and charts as PNG;
+//! - [`appearance`]: the film's colour from the estimate (renders, measured against
+//!   reproduced, glTF), and [`report`], one HTML page of it all;
+//! - [`rig`]: the devices of a real rig and the acquisition; [`line`]: inspection on a
+//!   production line;
+//! - [`cli`]: the `filmscope` command line with the measurement commands (`eval`, `bench`,
+//!   `chart`, `stability`).
 #![cfg_attr(not(feature = "std"), no_std)]
 
 pub use filmscope_core::*;
@@ -28,35 +30,19 @@ pub use filmscope_core::*;
 #[cfg(feature = "std")]
 pub mod appearance;
 #[cfg(feature = "std")]
-pub mod baseline;
-#[cfg(feature = "std")]
-pub mod bench;
-#[cfg(feature = "std")]
-pub mod chart;
-#[cfg(feature = "std")]
 pub mod cli;
 #[cfg(feature = "std")]
 pub mod estimate;
 #[cfg(feature = "std")]
-pub mod eval;
-#[cfg(feature = "std")]
 pub mod export;
 #[cfg(feature = "std")]
-pub mod field;
-#[cfg(feature = "std")]
-pub mod index_fit;
-#[cfg(feature = "std")]
 pub mod io;
-#[cfg(feature = "std")]
-pub mod known_index;
 #[cfg(feature = "std")]
 pub mod limits;
 #[cfg(feature = "std")]
 pub mod line;
 #[cfg(feature = "std")]
 pub mod material;
-#[cfg(feature = "std")]
-pub mod peers;
 #[cfg(feature = "std")]
 pub mod pipeline;
 #[cfg(feature = "std")]
@@ -66,6 +52,6 @@ pub mod rig;
 #[cfg(feature = "std")]
 pub mod simulate;
 #[cfg(feature = "std")]
-pub mod summary;
+pub mod source;
 #[cfg(feature = "std")]
-pub mod sweep;
+pub mod summary;

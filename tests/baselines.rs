@@ -5,10 +5,11 @@
 use std::path::Path;
 use std::time::Instant;
 
-use filmscope::baseline::{brute, paper, BruteGrid};
 use filmscope::calibrate::calibrate_row;
+use filmscope::estimate::baseline::{brute, paper, BruteGrid};
+use filmscope::estimate::method::MethodResult;
 use filmscope::solve::flags;
-use filmscope::sweep::{MethodResult, SweepCube};
+use filmscope::source::SweepCube;
 use firmware_sim::{Scene, SoftwareCamera};
 
 /// A sweep of the scene's first `height` rows and `width` columns, with the truth thickness

@@ -4,11 +4,12 @@
 
 mod common;
 
+use filmscope::estimate::method::MethodResult;
 use filmscope::estimate::{run_method, RunConfig};
 use filmscope::io::{Capture, Interleave};
-use filmscope::pipeline::{CaptureSource, PipelineConfig, SimSource, Source};
+use filmscope::pipeline::PipelineConfig;
 use filmscope::simulate::{write_capture, SimulateOptions};
-use filmscope::sweep::MethodResult;
+use filmscope::source::{CaptureSource, SimSource, Source};
 use filmscope_core::solve::fit_row::INDEX_PIXELS;
 use firmware_sim::SoftwareCamera;
 

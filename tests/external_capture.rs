@@ -11,10 +11,10 @@
 
 use std::path::PathBuf;
 
+use filmscope::cli::eval::{evaluate, EvalReport, Truth};
 use filmscope::estimate::{flag_counts, run_method, RunConfig};
-use filmscope::eval::{evaluate, EvalReport, Truth};
 use filmscope::io::Capture;
-use filmscope::pipeline::CaptureSource;
+use filmscope::source::CaptureSource;
 
 fn dir(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -6,13 +6,13 @@
 mod common;
 
 use common::{filmscope, run_ok, s, tempdir};
+use filmscope::cli::eval::{evaluate, EvalReport, Truth};
+use filmscope::estimate::FieldModel;
 use filmscope::estimate::{run_method_in_field, RunConfig};
-use filmscope::eval::{evaluate, EvalReport, Truth};
-use filmscope::field::FieldModel;
 use filmscope::io::Capture;
 use filmscope::optics::{BandModel, FieldOfView};
-use filmscope::pipeline::SimSource;
 use filmscope::simulate::{write_capture, SimulateOptions};
+use filmscope::source::SimSource;
 use firmware_sim::{Scene, SoftwareCamera};
 
 /// The tests' small film ([`common::TINY_SCENE`]: n = 2.1, 620 nm on glass, 4 angles x 101

@@ -8,10 +8,10 @@ mod common;
 use std::path::Path;
 
 use common::{filmscope, s, tempdir};
-use filmscope::eval::{evaluate, Truth};
+use filmscope::cli::eval::{evaluate, Truth};
 use filmscope::io::{read_cube, Capture};
 use filmscope::material;
-use filmscope::pipeline::CaptureSource;
+use filmscope::source::CaptureSource;
 
 /// MgF2-like film on N-BK7 (the library's SCHOTT formula), 48 x 32 px, raw counts.
 const BK7_SCENE: &str = r#"

@@ -6,8 +6,8 @@
 
 use std::path::Path;
 
-use filmscope::bench::scene_with;
-use filmscope::peers::{run_script, unavailable};
+use filmscope::cli::bench::scene_with;
+use filmscope::cli::peers::{run_script, unavailable};
 use filmscope::simulate::{write_capture, SimulateOptions};
 
 #[test]

@@ -5,13 +5,13 @@
 
 mod common;
 
-use filmscope::estimate::{run_method, RunConfig};
-use filmscope::eval::{
+use filmscope::cli::eval::{
     evaluate, random_eval, thickness_errors, Score, Truth, RANDOM_CRITERIA, SILENT_FAILURE_NM,
 };
+use filmscope::estimate::{run_method, RunConfig};
 use filmscope::io::Capture;
-use filmscope::pipeline::CaptureSource;
 use filmscope::simulate::{write_capture, SimulateOptions};
+use filmscope::source::CaptureSource;
 use filmscope_core::optics::Dispersion;
 use filmscope_core::solve::IndexModel;
 
@@ -223,7 +223,7 @@ fn every_drawn_scene_simulates_and_estimates() {
 fn thick_high_index_films_with_a_step_have_every_pixel_solved() {
     let dir = common::tempdir();
     for i in [3, 49] {
-        let row = filmscope::eval::random_scene(2, i, &RunConfig::default(), dir.path());
+        let row = filmscope::cli::eval::random_scene(2, i, &RunConfig::default(), dir.path());
         assert!(row.passed, "{}", row.table_row());
         let s = row.score.expect("a score");
         assert!(s.valid_fraction >= 0.99, "{}", row.table_row());

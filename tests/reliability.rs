@@ -12,12 +12,13 @@ use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 
+use filmscope::estimate::method::MethodResult;
 use filmscope::estimate::{run_method, RunConfig};
 use filmscope::io::{Capture, EnviReader, Interleave};
-use filmscope::pipeline::{run_sweep, CaptureSource, PipelineConfig, Source, StreamMsg};
+use filmscope::pipeline::{run_sweep, PipelineConfig};
 use filmscope::simulate::{write_capture, SimulateOptions};
 use filmscope::solve::flags;
-use filmscope::sweep::MethodResult;
+use filmscope::source::{CaptureSource, Source, StreamMsg};
 
 fn estimate(dir: &Path) -> MethodResult {
     let cap = Capture::load(dir).expect("capture loads");
@@ -227,7 +228,7 @@ fn twenty_sweeps_keep_resident_memory_flat() {
 /// A source over the software camera that counts the row blocks it has produced against
 /// those the consumer has finished.
 struct CountingSource {
-    inner: filmscope::pipeline::SimSource,
+    inner: filmscope::source::SimSource,
     produced: Arc<AtomicUsize>,
     consumed: Arc<AtomicUsize>,
     max_in_flight: Arc<AtomicUsize>,
@@ -247,7 +248,7 @@ impl Source for CountingSource {
         let angles = self.inner.angles_deg();
         let inner = &self.inner;
         let (produced, consumed, max) = (&self.produced, &self.consumed, &self.max_in_flight);
-        filmscope::pipeline::stream_band_sequential(
+        filmscope::source::stream_band_sequential(
             tx,
             &angles,
             spec.bands_nm.len(),
@@ -276,7 +277,7 @@ fn a_slow_consumer_blocks_the_source_instead_of_growing_queues() {
             Arc::new(AtomicUsize::new(0)),
         );
         let mut source = CountingSource {
-            inner: filmscope::pipeline::SimSource::new(
+            inner: filmscope::source::SimSource::new(
                 firmware_sim::SoftwareCamera::new(common::tiny_scene()),
                 false,
                 1,
@@ -431,7 +432,7 @@ fn killing_estimate_mid_write_never_leaves_a_torn_output() {
 
 /// A source that sends one malformed block (`rows`, `first_row`) in its first angle.
 struct MalformedSource {
-    inner: filmscope::pipeline::SimSource,
+    inner: filmscope::source::SimSource,
     first_row: u32,
     rows: u32,
 }
@@ -449,11 +450,11 @@ impl Source for MalformedSource {
         let _ = tx.send(StreamMsg::Angle {
             incidence_deg: 10.0,
         });
-        let _ = tx.send(StreamMsg::Rows(filmscope::pipeline::RowBlock {
+        let _ = tx.send(StreamMsg::Rows(filmscope::source::RowBlock {
             band: 0,
             first_row: self.first_row,
             rows: self.rows,
-            samples: filmscope::pipeline::Samples::Reflectance(vec![0.5; 32 * self.rows as usize]),
+            samples: filmscope::source::Samples::Reflectance(vec![0.5; 32 * self.rows as usize]),
         }));
         let _ = tx.send(StreamMsg::AngleEnd);
         let _ = tx.send(StreamMsg::SweepEnd);
@@ -471,7 +472,7 @@ fn malformed_blocks_stop_the_sweep_with_one_line() {
         (u32::MAX - 1, 1, "outside the 24-row frame"),
     ] {
         let mut source = MalformedSource {
-            inner: filmscope::pipeline::SimSource::new(
+            inner: filmscope::source::SimSource::new(
                 firmware_sim::SoftwareCamera::new(common::tiny_scene()),
                 false,
                 1,
@@ -528,7 +529,7 @@ fn rows_sent_twice_overfill_a_held_block_and_the_sweep_still_completes() {
     // disturbance: the maps stay close to the clean sweep's, nothing is silently lost.
     let scene = common::tiny_scene();
     let mut camera =
-        filmscope::pipeline::SimSource::new(firmware_sim::SoftwareCamera::new(scene), false, 4)
+        filmscope::source::SimSource::new(firmware_sim::SoftwareCamera::new(scene), false, 4)
             .expect("source");
     let whole = common::WholeSource::collect(&mut camera, 4);
     let config = RunConfig::default();

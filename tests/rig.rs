@@ -9,11 +9,11 @@ use std::path::Path;
 use filmscope::estimate::{run_method, RunConfig};
 use filmscope::hw::{ErrorKind, FilterWheel, Stage, TunableFilter};
 use filmscope::io::Capture;
-use filmscope::pipeline::CaptureSource;
 use filmscope::rig::acquire::{open_sim_with, run_rig, sim_options};
 use filmscope::rig::wheel::SimWheelTransport;
 use filmscope::rig::{Kurios, KuriosConfig, RigConfig, SxWheel, Zaber, ZaberConfig};
 use filmscope::solve::flags;
+use filmscope::source::CaptureSource;
 use firmware_sim::camlink::CameraFaults;
 use firmware_sim::clock::VirtualClock;
 use firmware_sim::kurios::KuriosFilter;
@@ -232,7 +232,7 @@ fn sx_wheel_counts_selects_refuses_and_notices_unplugging() {
 }
 
 /// The recorded capture estimated as the rig's sweep was: streamed once (`--one-pass`).
-fn estimate(capture: &Path) -> filmscope::sweep::MethodResult {
+fn estimate(capture: &Path) -> filmscope::estimate::method::MethodResult {
     let cap = Capture::load(capture).expect("recorded capture loads");
     let mut src = CaptureSource::new(cap).expect("source");
     let once = RunConfig {
@@ -281,7 +281,7 @@ fn acquire_with(
     (summary, sim)
 }
 
-fn same_maps(out: &Path) -> filmscope::sweep::MethodResult {
+fn same_maps(out: &Path) -> filmscope::estimate::method::MethodResult {
     let offline = estimate(&out.join("capture"));
     let n = offline.thickness_nm.len();
     let live = read_map(&out.join("thickness_nm.hdr"), n);

@@ -9,16 +9,17 @@
 use std::path::{Path, PathBuf};
 
 use crossbeam_channel::Sender;
+use filmscope::estimate::method::Method;
 use filmscope::estimate::{run_method_in_field, write_outputs, Run, RunConfig};
-use filmscope::field::{FieldChoice, FieldConfig};
+use filmscope::estimate::{FieldChoice, FieldConfig};
 use filmscope::io::{ByteOrder, Capture, Interleave};
-use filmscope::pipeline::{
-    stream_band_sequential, sweep_spec, CaptureSource, PipelineConfig, Samples, Source, StreamMsg,
+use filmscope::pipeline::PipelineConfig;
+use filmscope::simulate::{write_capture, SimulateOptions};
+use filmscope::source::{
+    stream_band_sequential, sweep_spec, CaptureSource, Samples, Source, StreamMsg,
     DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,
 };
-use filmscope::simulate::{write_capture, SimulateOptions};
 use filmscope::summary::Summary;
-use filmscope::sweep::Method;
 use filmscope_core::optics::{Dispersion, FilmStack, Passband, Polarization};
 use filmscope_core::solve::SweepSpec;
 use firmware_sim::{Scene, SoftwareCamera};
@@ -64,7 +65,7 @@ impl Options<'_> {
                 self.sample_sites
             ));
         }
-        let brute = filmscope::baseline::BruteGrid::default();
+        let brute = filmscope::estimate::baseline::BruteGrid::default();
         filmscope::limits::check_cli(
             self.workers,
             self.channel_capacity,
@@ -233,7 +234,9 @@ fn run(
 ) -> Result<Run, filmscope::pipeline::PipelineError> {
     match film {
         None => run_method_in_field(source, config, fov, &|_| {}),
-        Some((name, d)) => filmscope::known_index::run_with_index(source, config, d, name, &|_| {}),
+        Some((name, d)) => {
+            filmscope::estimate::known_index::run_with_index(source, config, d, name, &|_| {})
+        }
     }
 }
 
@@ -754,7 +757,10 @@ fn native(m: &Bound<'_, PyModule>) -> PyResult<()> {
         "DEFAULT_INDEX_PIXELS",
         filmscope_core::solve::fit_row::INDEX_PIXELS,
     )?;
-    m.add("DEFAULT_SAMPLE_SITES", filmscope::index_fit::DEFAULT_SITES)?;
+    m.add(
+        "DEFAULT_SAMPLE_SITES",
+        filmscope::estimate::index_fit::DEFAULT_SITES,
+    )?;
     m.add_function(wrap_pyfunction!(estimate_capture, m)?)?;
     m.add_function(wrap_pyfunction!(estimate_array, m)?)?;
     m.add_function(wrap_pyfunction!(reflectance, m)?)?;

@@ -36,7 +36,8 @@ use super::AppearanceError;
 use crate::export::canvas::{text_width, Canvas, BACKGROUND, CAP_ROWS, INK};
 use crate::export::colormap::{viridis, NO_DATA};
 use crate::io::{Capture, DataType, EnviHeader, EnviWriter, Interleave};
-use crate::pipeline::{calibrate_block, CaptureSource, Source, StreamMsg};
+use crate::source::calibrate_block;
+use crate::source::{CaptureSource, Source, StreamMsg};
 
 /// One captured angle, measured against reproduced.
 #[derive(Clone, Debug)]

@@ -15,7 +15,8 @@ use filmscope_core::optics::{BandModel, FilmStack, Passband};
 
 use super::AppearanceError;
 use crate::export::plot::{render_scatter_panels_png, Scatter, Series};
-use crate::pipeline::{for_each_calibrated, Calibrated, Source};
+use crate::pipeline::{for_each_calibrated, Calibrated};
+use crate::source::Source;
 
 /// Most order candidates reported.
 pub const MAX_CANDIDATES: usize = 5;

@@ -13,14 +13,15 @@ use crate::appearance::{
     render::{render_png, RenderOptions},
     SampleFilm,
 };
-use crate::baseline::BruteGrid;
+use crate::cli::eval::{evaluate, EvalReport, Truth};
+use crate::estimate::baseline::BruteGrid;
+use crate::estimate::method::Method;
+use crate::estimate::FieldConfig;
 use crate::estimate::{run_method_in_field, write_outputs, Run, RunConfig};
-use crate::eval::{evaluate, EvalReport, Truth};
-use crate::field::FieldConfig;
 use crate::io::{write_atomic, ByteOrder, Capture, Interleave};
-use crate::pipeline::{CaptureSource, PipelineConfig, SimSource, Source};
+use crate::pipeline::PipelineConfig;
 use crate::simulate::{write_capture, SimulateOptions};
-use crate::sweep::Method;
+use crate::source::{CaptureSource, SimSource, Source};
 use filmscope_core::colour::Illuminant;
 use filmscope_core::optics::{FieldOfView, Polarization};
 use filmscope_core::solve::sweep::SolverOptions;
@@ -209,9 +210,14 @@ pub fn estimate(
                 bail!("--film-index: only the filmscope method takes a given index");
             }
             let bar = rows_bar(rows_of(source.spec(), source.angles_deg().len()), &label);
-            let run =
-                crate::known_index::run_with_index(&mut source, &config, &d, name, &|n| bar.inc(n))
-                    .map_err(|e| anyhow!("{label}: {e}"))?;
+            let run = crate::estimate::known_index::run_with_index(
+                &mut source,
+                &config,
+                &d,
+                name,
+                &|n| bar.inc(n),
+            )
+            .map_err(|e| anyhow!("{label}: {e}"))?;
             bar.finish_and_clear();
             run
         }
@@ -456,9 +462,9 @@ fn eval_random(
     let work = std::env::temp_dir().join(format!("filmscope-random-{}-{seed}", std::process::id()));
     std::fs::create_dir_all(&work).with_context(|| format!("{}: cannot create", work.display()))?;
     if !json {
-        println!("{}", crate::eval::RandomRow::table_header());
+        println!("{}", crate::cli::eval::RandomRow::table_header());
     }
-    let result = crate::eval::random_eval(count, seed, config, &work, &mut |row| {
+    let result = crate::cli::eval::random_eval(count, seed, config, &work, &mut |row| {
         if !json {
             println!("{}", row.table_row());
         }
@@ -615,7 +621,7 @@ pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
 
 /// `filmscope bench`.
 pub fn bench(scene: &Path, quick: bool, json: bool) -> Result<()> {
-    let report = crate::bench::run_bench(scene, quick, &|what| {
+    let report = crate::cli::bench::run_bench(scene, quick, &|what| {
         if !json {
             eprintln!("bench: {what}");
         }
@@ -623,16 +629,16 @@ pub fn bench(scene: &Path, quick: bool, json: bool) -> Result<()> {
     if json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
-        print!("{}", crate::bench::format_table(&report));
+        print!("{}", crate::cli::bench::format_table(&report));
     }
     Ok(())
 }
 
 /// `filmscope soak`: prints one line per tenth sweep and a last line of figures.
 pub fn soak(scene: &Path, sweeps: usize) -> Result<()> {
-    let scene = crate::bench::scene_with(scene, 32, 24, Some([420.0, 720.0, 3.0]))?;
+    let scene = crate::cli::bench::scene_with(scene, 32, 24, Some([420.0, 720.0, 3.0]))?;
     let t0 = std::time::Instant::now();
-    let points = crate::bench::soak(
+    let points = crate::cli::bench::soak(
         &scene,
         sweeps,
         10,
@@ -665,8 +671,8 @@ pub fn chart(scene: &Path, out: &Path, quick: bool) -> Result<()> {
     // The bench's methods sweep: large enough that a setting's time per megapixel is its
     // own, not its fixed costs.
     let size = if quick { [48, 32] } else { [128, 96] };
-    let scene = crate::bench::scene_with(scene, size[0], size[1], None)?;
-    let points = crate::chart::measure(&scene, &crate::chart::settings(quick))?;
+    let scene = crate::cli::bench::scene_with(scene, size[0], size[1], None)?;
+    let points = crate::cli::chart::measure(&scene, &crate::cli::chart::settings(quick))?;
     for p in &points {
         println!(
             "{:<10} {:<12} {:>12.2} s/Mpix  MAE {:>8.2} nm  |n err| {:.4}  valid {:>5.1}%",
@@ -683,7 +689,7 @@ pub fn chart(scene: &Path, out: &Path, quick: bool) -> Result<()> {
         "{} ({}x{} px): speed against accuracy",
         scene.name, size[0], size[1]
     );
-    crate::chart::write_speed_chart(&png, &title, &points)?;
+    crate::cli::chart::write_speed_chart(&png, &title, &points)?;
     crate::io::write_atomic(
         &out.join("speed-accuracy.json"),
         serde_json::to_string_pretty(&points)?.as_bytes(),
@@ -694,7 +700,7 @@ pub fn chart(scene: &Path, out: &Path, quick: bool) -> Result<()> {
 
 /// `filmscope stability`.
 pub fn stability(out: &Path, quick: bool, only: &[String]) -> Result<()> {
-    let maps = crate::chart::stability_maps(quick);
+    let maps = crate::cli::chart::stability_maps(quick);
     if let Some(unknown) = only.iter().find(|n| !maps.iter().any(|m| &m.name == *n)) {
         let names: Vec<&str> = maps.iter().map(|m| m.name.as_str()).collect();
         bail!(
@@ -703,7 +709,7 @@ pub fn stability(out: &Path, quick: bool, only: &[String]) -> Result<()> {
         );
     }
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    let settings: Vec<_> = crate::chart::settings(true)
+    let settings: Vec<_> = crate::cli::chart::settings(true)
         .into_iter()
         .filter(|s| matches!(s.label.as_str(), "filmscope" | "paper" | "19n/8nm"))
         .collect();
@@ -713,9 +719,9 @@ pub fn stability(out: &Path, quick: bool, only: &[String]) -> Result<()> {
         .into_iter()
         .filter(|m| only.is_empty() || only.contains(&m.name))
     {
-        let run = crate::chart::run_map(&spec, &settings, &|_| {})?;
-        print!("{}", crate::chart::summary(&run));
-        for p in crate::chart::write_stability_maps(out, &run)? {
+        let run = crate::cli::chart::run_map(&spec, &settings, &|_| {})?;
+        print!("{}", crate::cli::chart::summary(&run));
+        for p in crate::cli::chart::write_stability_maps(out, &run)? {
             println!("wrote {}", p.display());
         }
         runs.push(run);
@@ -741,8 +747,8 @@ pub fn stability(out: &Path, quick: bool, only: &[String]) -> Result<()> {
 
 /// `filmscope stability --cell MAP:X:Y`: the cell's scene file, written into `out`.
 pub fn stability_cell(out: &Path, quick: bool, cell: &str, seed: Option<u64>) -> Result<()> {
-    let maps = crate::chart::stability_maps(quick);
-    let scene = crate::chart::cell_scene(&maps, cell, seed)?;
+    let maps = crate::cli::chart::stability_maps(quick);
+    let scene = crate::cli::chart::cell_scene(&maps, cell, seed)?;
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
     let name = format!("cell-{}-s{}.toml", cell.replace(':', "-"), scene.seed);
     let path = out.join(name);

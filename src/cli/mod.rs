@@ -1,7 +1,11 @@
 //! The command line: argument parsing and the commands. `main.rs` only calls [`main`].
 
+pub mod bench;
+pub mod chart;
 mod commands;
+pub mod eval;
 mod inspect;
+pub mod peers;
 mod progress;
 
 use std::path::PathBuf;
@@ -10,16 +14,16 @@ use clap::{Args, Parser, Subcommand};
 use filmscope_core::colour::Illuminant;
 use filmscope_core::optics::Polarization;
 
-use crate::field::FieldChoice;
+use crate::estimate::method::Method;
+use crate::estimate::FieldChoice;
 use crate::io::{ByteOrder, Interleave};
-use crate::sweep::Method;
 
 /// How the streaming method gets the shared index.
 #[derive(Clone, Copy, Debug, Args)]
 pub struct IndexArgs {
     /// Sites (runs of five pixels spread over the image) whose full spectra give the shared
     /// index.
-    #[arg(long, default_value_t = crate::index_fit::DEFAULT_SITES)]
+    #[arg(long, default_value_t = crate::estimate::index_fit::DEFAULT_SITES)]
     pub sample_sites: usize,
     /// Stream the capture once, as a live camera does: the index refitted on the sample as
     /// each angle completes (default: the sample's stream, then every pixel's).
@@ -502,7 +506,7 @@ pub fn main() -> std::process::ExitCode {
             width,
             height,
             angles,
-        } => crate::bench::rss_child(&scene, width, height, angles),
+        } => crate::cli::bench::rss_child(&scene, width, height, angles),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

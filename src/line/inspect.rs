@@ -25,10 +25,10 @@ use super::verdict::{self, Verdict};
 use crate::estimate::{run_method, write_outputs_into, Run, RunConfig};
 use crate::io::{counter_of, sample_id, utc_iso};
 use crate::io::{write_atomic, Capture};
-use crate::pipeline::{CaptureSource, DEFAULT_INDEX_RANGE};
 use crate::rig::acquire::{open_sim_with, sim_options, Acquisition};
 use crate::rig::config::SearchConfig;
 use crate::rig::RigConfig;
+use crate::source::{CaptureSource, DEFAULT_INDEX_RANGE};
 use crate::summary::LineRecord;
 use firmware_sim::line::SampleSequence;
 

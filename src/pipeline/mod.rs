@@ -5,18 +5,11 @@
 //! [`filmscope_core::solve`]); this module only wires them to threads and channels.
 
 mod held;
-mod msg;
 mod run;
-mod source;
 mod ties;
 
-pub use msg::{RowBlock, Samples, StreamMsg};
 pub use run::{
-    calibrate_block, collect_sweep, for_each_calibrated, run_sweep, run_sweep_sampled,
-    tally_parallel, update_parallel, BandModels, Calibrated, LatencyParts, PipelineConfig,
-    PipelineError, Prior, PriorUpdate, SampleHook, ShardState, SweepOutput,
-};
-pub use source::{
-    stream_band_sequential, sweep_spec, CaptureSource, SimSource, Source, DEFAULT_INDEX_RANGE,
-    DEFAULT_THICKNESS_RANGE_NM,
+    collect_sweep, for_each_calibrated, run_sweep, run_sweep_sampled, tally_parallel,
+    update_parallel, BandModels, Calibrated, LatencyParts, PipelineConfig, PipelineError, Prior,
+    PriorUpdate, SampleHook, ShardState, SweepOutput, Tap,
 };

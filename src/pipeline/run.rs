@@ -18,7 +18,6 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{bounded, Receiver, Sender};
-use filmscope_core::calibrate::calibrate_row;
 use filmscope_core::solve::extrema::SampleExtrema;
 use filmscope_core::solve::fit_row::{FitLanes, IndexLanes, IndexSampling};
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
@@ -32,10 +31,8 @@ use filmscope_core::track::row::{TrackerLanes, LANES};
 use filmscope_core::track::{pack_sample, unpack_sample};
 
 use super::held::HeldBlock;
-use super::msg::{Samples, StreamMsg};
-use super::source::Source;
 use super::ties::TieSet;
-use crate::index_fit::{SampleTap, Tap};
+use crate::source::{calibrate_block, Source, StreamMsg};
 
 /// How to run the pipeline.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -404,15 +401,24 @@ pub fn run_sweep(
     sweep(source, config, prior, None, on_rows)
 }
 
-/// A pixel sample held as the sweep streams ([`crate::index_fit`]) and what the caller makes
-/// of it as each angle completes.
+/// What the calibrate stage hands calibrated rows to, besides the workers: the estimator's
+/// pixel sample, which keeps the rows it wants.
+pub trait Tap {
+    /// An angle starts.
+    fn angle(&mut self, incidence_deg: f64);
+    /// Calibrated rows `first_row..first_row + rows` of `band` at the current angle.
+    fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]);
+}
+
+/// A pixel sample held as the sweep streams and what the caller makes of it as each angle
+/// completes.
 pub struct SampleHook<'a> {
     /// The sample the calibrate stage feeds with every calibrated block.
-    pub tap: &'a Mutex<SampleTap>,
-    /// Called at each angle's end (before the solver's) with the sample's complete angles
+    pub tap: &'a Mutex<dyn Tap + Send>,
+    /// Called at each angle's end (before the solver's) with the number of angles complete
     /// (the stream goes on meanwhile): the index the solver takes from then on, if any
     /// ([`SweepSolver::set_external_index`]).
-    pub refit: &'a mut dyn FnMut(&SampleTap) -> Option<IndexModel>,
+    pub refit: &'a mut dyn FnMut(usize) -> Option<IndexModel>,
 }
 
 /// [`run_sweep`] for a source that streams once: the index comes from `hook`'s sample,
@@ -576,12 +582,7 @@ fn sweep(
                     }
                     if let Some(hook) = hook.as_mut() {
                         let complete = solver.angles_done() + 1;
-                        let sample = hook
-                            .tap
-                            .lock()
-                            .unwrap_or_else(|e| e.into_inner())
-                            .complete(complete);
-                        if let Some(m) = (hook.refit)(&sample) {
+                        if let Some(m) = (hook.refit)(complete) {
                             solver.set_external_index(m);
                         }
                     }
@@ -961,7 +962,7 @@ fn calibrate_stage(
     workers: Vec<Sender<WorkerMsg>>,
     (width, height): (usize, usize),
     n_workers: usize,
-    tap: Option<&Mutex<SampleTap>>,
+    tap: Option<&Mutex<dyn Tap + Send>>,
     on_rows: &(dyn Fn(u64) + Sync),
 ) {
     let owner = |row: usize| {
@@ -1077,41 +1078,6 @@ fn calibrate_stage(
     ));
 }
 
-/// Calibrated reflectance of a block of `rows` rows (raw counts calibrated, reflectance
-/// passed through).
-pub fn calibrate_block(samples: Samples, rows: usize, width: usize) -> Vec<f32> {
-    match samples {
-        Samples::Reflectance(v) => v,
-        Samples::Raw {
-            counts,
-            dark,
-            white,
-            white_reflectance,
-            saturation_counts,
-        } => {
-            let mut out = vec![f32::NAN; counts.len()];
-            if counts.len() != rows * width
-                || white.len() != counts.len()
-                || dark.as_ref().is_some_and(|d| d.len() != counts.len())
-            {
-                return out;
-            }
-            for k in 0..rows {
-                let s = k * width..(k + 1) * width;
-                calibrate_row(
-                    &counts[s.clone()],
-                    dark.as_ref().map(|d| &d[s.clone()]),
-                    &white[s.clone()],
-                    white_reflectance,
-                    saturation_counts,
-                    &mut out[s],
-                );
-            }
-            out
-        }
-    }
-}
-
 /// What [`for_each_calibrated`] hands on.
 #[derive(Debug)]
 pub enum Calibrated<'a> {
@@ -1191,7 +1157,7 @@ pub fn for_each_calibrated(
 
 /// Streams `source` and keeps every calibrated sample: the whole sweep in memory, for the
 /// whole-cube baselines and for evaluation (not for the streaming estimator).
-pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube, PipelineError> {
+pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::source::SweepCube, PipelineError> {
     let spec = source.spec().clone();
     let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
     let mut angles = Vec::new();
@@ -1212,7 +1178,7 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::sweep::SweepCube,
             data[angle][at..at + rows * w].copy_from_slice(values);
         }
     })?;
-    Ok(crate::sweep::SweepCube {
+    Ok(crate::source::SweepCube {
         width: w,
         height: h,
         bands_nm: spec.bands_nm.to_vec(),

@@ -33,7 +33,7 @@ use crate::io::{
     write_atomic, Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave, Lens, Sample,
     Search,
 };
-use crate::pipeline::{
+use crate::source::{
     sweep_spec, CaptureSource, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
     DEFAULT_THICKNESS_RANGE_NM,
 };

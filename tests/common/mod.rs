@@ -109,11 +109,11 @@ pub fn run_ok(args: &[&str]) -> std::process::Output {
     run
 }
 
-/// A whole sweep held in memory ([`filmscope::sweep::SweepCube`]) replayed through the
+/// A whole sweep held in memory ([`filmscope::source::SweepCube`]) replayed through the
 /// pipeline: every band of an angle as blocks of `rows_per_block` rows (the whole frame
 /// when it equals the height), its angles in the order `order` gives.
 pub struct WholeSource {
-    pub cube: std::sync::Arc<filmscope::sweep::SweepCube>,
+    pub cube: std::sync::Arc<filmscope::source::SweepCube>,
     pub spec: filmscope::solve::SweepSpec,
     pub order: Vec<usize>,
     pub rows_per_block: usize,
@@ -121,7 +121,7 @@ pub struct WholeSource {
 
 impl WholeSource {
     /// Collects `source` whole, to replay in file order in blocks of `rows_per_block` rows.
-    pub fn collect(source: &mut dyn filmscope::pipeline::Source, rows_per_block: usize) -> Self {
+    pub fn collect(source: &mut dyn filmscope::source::Source, rows_per_block: usize) -> Self {
         let spec = source.spec().clone();
         let cube = filmscope::pipeline::collect_sweep(source).expect("sweep collects");
         let order = (0..cube.angles_deg.len()).collect();
@@ -144,7 +144,7 @@ impl WholeSource {
     }
 }
 
-impl filmscope::pipeline::Source for WholeSource {
+impl filmscope::source::Source for WholeSource {
     fn spec(&self) -> &filmscope::solve::SweepSpec {
         &self.spec
     }
@@ -156,11 +156,11 @@ impl filmscope::pipeline::Source for WholeSource {
             .collect()
     }
 
-    fn stream(&mut self, tx: &crossbeam_channel::Sender<filmscope::pipeline::StreamMsg>) {
+    fn stream(&mut self, tx: &crossbeam_channel::Sender<filmscope::source::StreamMsg>) {
         let (w, h) = (self.cube.width, self.cube.height);
         let cube = self.cube.clone();
         let order = self.order.clone();
-        filmscope::pipeline::stream_band_sequential(
+        filmscope::source::stream_band_sequential(
             tx,
             &self.angles_deg(),
             self.cube.bands_nm.len(),
@@ -168,7 +168,7 @@ impl filmscope::pipeline::Source for WholeSource {
             self.rows_per_block,
             |a, b, r0, rows| {
                 let plane = &cube.data[order[a]][b * w * h..(b + 1) * w * h];
-                filmscope::pipeline::Samples::Reflectance(plane[r0 * w..(r0 + rows) * w].to_vec())
+                filmscope::source::Samples::Reflectance(plane[r0 * w..(r0 + rows) * w].to_vec())
             },
         );
     }

@@ -10,6 +10,8 @@ use filmscope_core::solve::sample::{
 use filmscope_core::solve::{IndexModel, SweepSpec};
 use serde_json::json;
 
+use crate::pipeline::Tap;
+
 /// Sites sampled by default: more made no difference to the index's accuracy on 60 random
 /// coatings, fewer leave the paper's scenes' index noisier than their 2e-4 target.
 pub const DEFAULT_SITES: usize = 64;
@@ -48,14 +50,6 @@ fn geometry<'a>(spec: &'a SweepSpec, angles_deg: &'a [f64]) -> Geometry<'a> {
         index_range: spec.index_range,
         thickness_range_nm: spec.thickness_range_nm,
     }
-}
-
-/// What holds chosen pixels' calibrated spectra as a sweep streams past.
-pub trait Tap {
-    /// An angle starts.
-    fn angle(&mut self, incidence_deg: f64);
-    /// Calibrated rows `first_row..first_row + rows` of `band` at the current angle.
-    fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]);
 }
 
 /// Angles beyond those announced re-lay the buffer with twice the room.

@@ -1,7 +1,7 @@
-//! Running a method on a source and writing its outputs per capture-format.md.
+//! filmscope's passes over a source: the pixel sample's index fit, the per-pixel pass
+//! under it, the check of the one against the other and the thickness search for the
+//! pixels left unsolved.
 
-use std::collections::BTreeMap;
-use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -10,24 +10,19 @@ use filmscope_core::solve::shard::MAX_THICKNESS_SIGMA_NM;
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
 use serde_json::json;
 
-use crate::baseline::{brute, paper, BruteGrid};
-use crate::export::png::{write_map_png, MapPreview};
-use crate::field::{FieldConfig, FieldModel};
-use crate::index_fit::{
-    choice_json, fringes_across_band, index_model, PixelTap, SampleTap, Tap, SEEDED_BELOW_FRINGES,
+use crate::estimate::index_fit::{
+    choice_json, fringes_across_band, index_model, PixelTap, SampleTap, SEEDED_BELOW_FRINGES,
 };
-use crate::io::{write_atomic, write_f32_map, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::pipeline::{
-    collect_sweep, for_each_calibrated, run_sweep, run_sweep_sampled, Calibrated, PipelineConfig,
-    PipelineError, Prior, PriorUpdate, SampleHook, Source, SweepOutput,
+    for_each_calibrated, run_sweep, run_sweep_sampled, Calibrated, PipelineError, Prior,
+    PriorUpdate, SampleHook, SweepOutput, Tap,
 };
-use filmscope_core::optics::FieldOfView;
+use crate::source::Source;
 
-use crate::summary::{
-    AngleReport, FieldModelChoice, Files, IndexRecord, SampleRecord, SigmaStats, Stats, Summary,
-    Timing,
-};
-use crate::sweep::{Method, MethodResult};
+use crate::estimate::method::{Method, MethodResult};
+use crate::summary::AngleReport;
+
+use super::run::RunConfig;
 
 /// A sampled site whose per-pixel thickness is this far from the sample fit's disagrees
 /// (the 20 nm at which a thickness counts as wrong).
@@ -50,7 +45,7 @@ pub struct Passes {
 }
 
 /// The streaming estimator over `source` with one incidence angle per frame: the sampled
-/// sites' full spectra give the shared index ([`crate::index_fit`]), and one streaming pass
+/// sites' full spectra give the shared index ([`crate::estimate::index_fit`]), and one streaming pass
 /// holding that index gives every pixel its order and thickness. A replayable source streams
 /// twice (the sample, then every pixel); a live one once, the sample held as it streams and
 /// the index refitted as each angle completes. `on_rows` is told of the first stream's rows.
@@ -68,7 +63,11 @@ pub fn filmscope_passes(
         let mut last: Option<SampleFit> = None;
         let mut fit_seconds = f64::NAN;
         let total = source.angles_deg().len();
-        let mut refit = |t: &SampleTap| -> Option<IndexModel> {
+        let mut refit = |complete: usize| -> Option<IndexModel> {
+            let t = tap
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .complete(complete);
             if t.angles() < 2 {
                 return None;
             }
@@ -359,65 +358,6 @@ pub fn index_model_name(m: &IndexModel) -> &'static str {
     }
 }
 
-/// How to run a method.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RunConfig {
-    /// Which estimator.
-    pub method: Method,
-    /// Pipeline shape (streaming method only).
-    pub pipeline: PipelineConfig,
-    /// Grid of the brute-force baseline.
-    pub brute_grid: BruteGrid,
-    /// The field model of the streaming method: chosen from the data (default), or forced,
-    /// and the wide model's settings.
-    pub field: FieldConfig,
-    /// Sites whose full spectra give the shared index ([`crate::index_fit`]).
-    pub sample_sites: usize,
-    /// Stream once, as from a live camera, even when the source could be replayed (the
-    /// index refitted on the sample as each angle completes).
-    pub one_pass: bool,
-}
-
-impl Default for RunConfig {
-    fn default() -> Self {
-        Self {
-            method: Method::Filmscope,
-            pipeline: PipelineConfig::default(),
-            brute_grid: BruteGrid::default(),
-            field: FieldConfig::default(),
-            sample_sites: crate::index_fit::DEFAULT_SITES,
-            one_pass: false,
-        }
-    }
-}
-
-/// One method's run over one sweep.
-#[derive(Clone, Debug)]
-pub struct Run {
-    /// The maps and the index.
-    pub result: MethodResult,
-    /// The sweep.
-    pub spec: SweepSpec,
-    /// Incidence angles in streaming order, degrees.
-    pub angles_deg: Vec<f64>,
-    /// Wall time of the whole run, seconds.
-    pub seconds: f64,
-    /// Time from the last row to the maps (streaming method), ms.
-    pub solve_latency_ms: Option<f64>,
-    /// Bytes of per-pixel state (streaming method).
-    pub state_bytes_per_pixel: Option<usize>,
-    /// Band samples processed.
-    pub samples: u64,
-    /// Per-angle progress of the streaming solver.
-    pub angle_reports: Vec<AngleReport>,
-    /// How the index model was chosen (streaming method), as JSON.
-    pub model_choice: serde_json::Value,
-    /// The field model used (streaming method).
-    pub field_model: Option<FieldModel>,
-    /// How the field model was chosen and its evidence (streaming method).
-    pub field_model_choice: Option<FieldModelChoice>,
-}
-
 /// The streaming estimator's output as a [`MethodResult`].
 pub fn result_from_sweep(out: &SweepOutput) -> MethodResult {
     let mut notes = Vec::new();
@@ -452,245 +392,4 @@ pub fn result_from_sweep(out: &SweepOutput) -> MethodResult {
         flags: out.results.iter().map(|r| r.flags).collect(),
         notes,
     }
-}
-
-/// Runs `config.method` on `source`, whose lens's field of view is not known (so the
-/// streaming method takes one incidence angle per frame); `on_rows` is told of rows
-/// streamed.
-pub fn run_method(
-    source: &mut dyn Source,
-    config: &RunConfig,
-    on_rows: &(dyn Fn(u64) + Sync),
-) -> Result<Run, PipelineError> {
-    run_method_in_field(source, config, None, on_rows)
-}
-
-/// Runs `config.method` on `source` seen through a lens of horizontal field of view
-/// `field_of_view` (`None`: unknown); the streaming method chooses its field model
-/// ([`crate::field`]) by `config.field`. `on_rows` is told of rows streamed.
-pub fn run_method_in_field(
-    source: &mut dyn Source,
-    config: &RunConfig,
-    field_of_view: Option<FieldOfView>,
-    on_rows: &(dyn Fn(u64) + Sync),
-) -> Result<Run, PipelineError> {
-    let spec = source.spec().clone();
-    let angles_deg = source.angles_deg();
-    let t0 = Instant::now();
-    match config.method {
-        Method::Filmscope => crate::field::run_filmscope(source, config, field_of_view, on_rows),
-        Method::Paper | Method::Brute => {
-            let cube = collect_sweep(source)?;
-            on_rows((cube.height * cube.bands_nm.len() * cube.angles_deg.len()) as u64);
-            let result = if config.method == Method::Paper {
-                paper(&cube)
-            } else {
-                brute(&cube, config.brute_grid)
-            };
-            let samples =
-                (cube.width * cube.height * cube.bands_nm.len() * cube.angles_deg.len()) as u64;
-            Ok(Run {
-                result,
-                spec,
-                angles_deg,
-                seconds: t0.elapsed().as_secs_f64(),
-                solve_latency_ms: None,
-                state_bytes_per_pixel: None,
-                samples,
-                angle_reports: Vec::new(),
-                model_choice: serde_json::Value::Null,
-                field_model: None,
-                field_model_choice: None,
-            })
-        }
-    }
-}
-
-/// The thickness uncertainty of the reported (valid) pixels: statistics, the 90th
-/// percentile and the limit above which a pixel is flagged `imprecise`.
-fn sigma_summary(r: &MethodResult) -> SigmaStats {
-    let mut valid: Vec<f32> = r
-        .thickness_sigma_nm
-        .iter()
-        .zip(&r.thickness_nm)
-        .filter(|(s, d)| s.is_finite() && d.is_finite())
-        .map(|(&s, _)| s)
-        .collect();
-    let stats = Stats::of(&valid);
-    valid.sort_by(f32::total_cmp);
-    let p90 = valid
-        .get((valid.len() * 9).div_ceil(10).saturating_sub(1))
-        .map(|&x| f64::from(x));
-    SigmaStats {
-        stats,
-        p90,
-        imprecise_above: MAX_THICKNESS_SIGMA_NM,
-    }
-}
-
-/// Counts of each flag over the map.
-pub fn flag_counts(map: &[u16]) -> BTreeMap<String, u64> {
-    flags::NAMES
-        .iter()
-        .map(|&(bit, name)| {
-            let n = map.iter().filter(|&&f| f & bit != 0).count();
-            (name.to_owned(), n as u64)
-        })
-        .collect()
-}
-
-/// An output that could not be written, naming the file.
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct OutputError(pub String);
-
-/// Writes the maps, the preview and `summary.json` as one unit into the folder `dir`
-/// ([`crate::io::OutputDir`]: written beside it, then swapped in whole, one writer at a
-/// time). Returns the summary.
-pub fn write_outputs(dir: &Path, run: &Run, source_label: &str) -> Result<Summary, OutputError> {
-    let out = crate::io::OutputDir::begin(dir).map_err(|e| OutputError(e.to_string()))?;
-    let summary = write_outputs_into(out.path(), run, source_label)?;
-    out.commit().map_err(|e| OutputError(e.to_string()))?;
-    Ok(summary)
-}
-
-/// Writes the maps, the preview and `summary.json` into the existing folder `dir` (a
-/// staging folder of [`crate::io::OutputDir`]). Returns the summary.
-pub fn write_outputs_into(
-    dir: &Path,
-    run: &Run,
-    source_label: &str,
-) -> Result<Summary, OutputError> {
-    let err = |p: &Path, e: &dyn std::fmt::Display| OutputError(format!("{}: {e}", p.display()));
-    let (w, h) = (run.spec.width, run.spec.height);
-    let r = &run.result;
-    let thick = dir.join("thickness_nm.hdr");
-    write_f32_map(
-        &thick,
-        w,
-        h,
-        &r.thickness_nm,
-        Some("film thickness, nm (NaN: no reliable estimate)"),
-        &[],
-    )
-    .map_err(|e| err(&thick, &e))?;
-    let conf = dir.join("confidence.hdr");
-    write_f32_map(
-        &conf,
-        w,
-        h,
-        &r.confidence,
-        Some("confidence of the thickness, 0..1"),
-        &[],
-    )
-    .map_err(|e| err(&conf, &e))?;
-    let sigma = dir.join("thickness_sigma_nm.hdr");
-    write_f32_map(
-        &sigma,
-        w,
-        h,
-        &r.thickness_sigma_nm,
-        Some(&format!(
-            "1-sigma thickness uncertainty from the pixel's own full-spectrum fit and the shared index's covariance, nm; given for flagged pixels too (above {MAX_THICKNESS_SIGMA_NM} nm: flag imprecise); NaN: no fit"
-        )),
-        &[],
-    )
-    .map_err(|e| err(&sigma, &e))?;
-    let flags_path = dir.join("flags.hdr");
-    let mut fh = EnviHeader::new(w, h, 1, DataType::U16, Interleave::Bsq);
-    let names: Vec<String> = flags::NAMES
-        .iter()
-        .map(|(b, n)| format!("{b}={n}"))
-        .collect();
-    fh.description = Some(format!("filmscope pixel flags (bits): {}", names.join(" ")));
-    let mut fw = EnviWriter::create(&flags_path, &fh).map_err(|e| err(&flags_path, &e))?;
-    for row in 0..h {
-        let vals: Vec<f32> = r.flags[row * w..(row + 1) * w]
-            .iter()
-            .map(|&f| f32::from(f))
-            .collect();
-        fw.write_band_row(0, row, &vals)
-            .map_err(|e| err(&flags_path, &e))?;
-    }
-    fw.finish().map_err(|e| err(&flags_path, &e))?;
-    let png = dir.join("thickness_nm.png");
-    let title = format!(
-        "thickness, n = {:.4} ({})",
-        r.index.at(550.0),
-        r.method.name()
-    );
-    write_map_png(
-        &png,
-        &MapPreview {
-            width: w,
-            height: h,
-            values: &r.thickness_nm,
-            title: &title,
-            unit: "nm",
-            range: None,
-        },
-    )
-    .map_err(|e| err(&png, &e))?;
-    let valid = r.thickness_nm.iter().filter(|x| x.is_finite()).count();
-    let comment = format!("{} estimate of {source_label}", r.method.name());
-    let index_files =
-        crate::material::index_files(&r.index.dispersion(), &run.spec.bands_nm, &comment);
-    for (name, text) in index_files.iter().flatten() {
-        let path = dir.join(name);
-        write_atomic(&path, text.as_bytes()).map_err(|e| err(&path, &e))?;
-    }
-    let index_files = index_files.is_some();
-    let n_550 = r.index.at(550.0);
-    let finite = |x: f64| x.is_finite().then_some(x);
-    let summary = Summary {
-        refractive_index: finite(n_550),
-        refractive_index_sigma: r.index_sigma.and_then(finite),
-        dispersion: n_550
-            .is_finite()
-            .then(|| IndexRecord::new(r.index.dispersion(), &run.spec.bands_nm)),
-        index_model: index_model_name(&r.index).to_owned(),
-        index_model_choice: run.model_choice.clone(),
-        field_model: run.field_model.map(|m| m.name().to_owned()),
-        field_model_choice: run.field_model_choice.clone(),
-        thickness_nm: Stats::of(&r.thickness_nm),
-        thickness_sigma_nm: sigma_summary(r),
-        valid_fraction: valid as f64 / (w * h).max(1) as f64,
-        width: w,
-        height: h,
-        sample: Some(SampleRecord {
-            ambient_index: run.spec.ambient_index,
-            substrate_index: run.spec.substrate_index,
-            polarization: run.spec.polarization.name().to_owned(),
-            substrate: (!run.spec.substrate.is_constant()).then(|| run.spec.substrate.into()),
-        }),
-        method: r.method.name().to_owned(),
-        source: source_label.to_owned(),
-        angles_deg: run.angles_deg.clone(),
-        bands: run.spec.bands_nm.len(),
-        flags: flag_counts(&r.flags),
-        angle_reports: run.angle_reports.clone(),
-        timing: Timing {
-            seconds: run.seconds,
-            solve_latency_ms: run.solve_latency_ms,
-            samples: run.samples,
-            samples_per_s: run.samples as f64 / run.seconds.max(1e-9),
-        },
-        state_bytes_per_pixel: run.state_bytes_per_pixel,
-        notes: r.notes.clone(),
-        files: Files {
-            thickness: "thickness_nm.hdr".into(),
-            confidence: "confidence.hdr".into(),
-            thickness_sigma: "thickness_sigma_nm.hdr".into(),
-            flags: "flags.hdr".into(),
-            preview: "thickness_nm.png".into(),
-            index_csv: index_files.then(|| crate::material::INDEX_FILES[0].to_owned()),
-            index_yml: index_files.then(|| crate::material::INDEX_FILES[1].to_owned()),
-        },
-        acquisition: None,
-        timestamp: None,
-        version: None,
-        line: None,
-    };
-    summary.write(dir).map_err(OutputError)?;
-    Ok(summary)
 }

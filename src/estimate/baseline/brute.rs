@@ -4,7 +4,8 @@
 use filmscope_core::solve::{flags, IndexModel};
 
 use super::common::{check_cube, defect_flags, model_table, pixel_spectra, unusable};
-use crate::sweep::{Method, MethodResult, SweepCube};
+use crate::estimate::method::{Method, MethodResult};
+use crate::source::SweepCube;
 
 /// Index grid spacing used when [`BruteGrid::index_steps`] is 0.
 pub const DEFAULT_INDEX_STEP: f64 = 0.01;

@@ -3,6 +3,8 @@
 //! A sweep is `Angle`, rows, `AngleEnd`, ... , `SweepEnd`; the end of a stream is always said
 //! explicitly (`SweepEnd` or `Abort`), never inferred from a closed channel.
 
+use filmscope_core::calibrate::calibrate_row;
+
 /// Samples of a block of rows of one band.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Samples {
@@ -58,4 +60,39 @@ pub enum StreamMsg {
     SweepEnd,
     /// The source failed; the reason in one line.
     Abort(String),
+}
+
+/// Calibrated reflectance of a block of `rows` rows (raw counts calibrated, reflectance
+/// passed through).
+pub fn calibrate_block(samples: Samples, rows: usize, width: usize) -> Vec<f32> {
+    match samples {
+        Samples::Reflectance(v) => v,
+        Samples::Raw {
+            counts,
+            dark,
+            white,
+            white_reflectance,
+            saturation_counts,
+        } => {
+            let mut out = vec![f32::NAN; counts.len()];
+            if counts.len() != rows * width
+                || white.len() != counts.len()
+                || dark.as_ref().is_some_and(|d| d.len() != counts.len())
+            {
+                return out;
+            }
+            for k in 0..rows {
+                let s = k * width..(k + 1) * width;
+                calibrate_row(
+                    &counts[s.clone()],
+                    dark.as_ref().map(|d| &d[s.clone()]),
+                    &white[s.clone()],
+                    white_reflectance,
+                    saturation_counts,
+                    &mut out[s],
+                );
+            }
+            out
+        }
+    }
 }

@@ -31,66 +31,14 @@ use filmscope_core::optics::FieldOfView;
 use filmscope_core::solve::{flags, IndexModel, PixelResult, SweepSpec};
 use serde_json::json;
 
-use crate::estimate::{angle_reports, filmscope_passes, result_from_sweep, Passes, Run, RunConfig};
-use crate::pipeline::{
-    run_sweep, PipelineConfig, PipelineError, Prior, PriorUpdate, RowBlock, Samples, Source,
-    StreamMsg, SweepOutput,
-};
+use crate::estimate::method::{Method, MethodResult};
+use crate::estimate::passes::{angle_reports, filmscope_passes, result_from_sweep, Passes};
+use crate::estimate::run::{FieldChoice, FieldModel, Run, RunConfig};
+use crate::pipeline::{run_sweep, PipelineConfig, PipelineError, Prior, PriorUpdate, SweepOutput};
+use crate::source::{RowBlock, Samples, Source, StreamMsg};
 use crate::summary::{
     FieldGeometry, FieldModelChoice, NarrowEvidence, StripEvidence, WideEvidence,
 };
-use crate::sweep::{Method, MethodResult};
-
-/// How the field model is chosen (`--field`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum FieldChoice {
-    /// The simplest model the data do not contradict (default).
-    Auto,
-    /// Forced: one incidence angle per frame.
-    Narrow,
-    /// Forced: the angle varies with the column (needs the lens's field of view).
-    Wide,
-}
-
-impl FieldChoice {
-    /// Parses `auto`, `narrow` or `wide`.
-    pub fn from_name(name: &str) -> Option<Self> {
-        match name {
-            "auto" => Some(Self::Auto),
-            "narrow" => Some(Self::Narrow),
-            "wide" => Some(Self::Wide),
-            _ => None,
-        }
-    }
-
-    /// The choice's name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Auto => "auto",
-            Self::Narrow => "narrow",
-            Self::Wide => "wide",
-        }
-    }
-}
-
-/// The field model a run used.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FieldModel {
-    /// One incidence angle per frame: the stage angle.
-    Narrow,
-    /// The angle varies with the column: strips of columns, each with its own angles.
-    Wide,
-}
-
-impl FieldModel {
-    /// The model's name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Narrow => "narrow",
-            Self::Wide => "wide",
-        }
-    }
-}
 
 /// The widest angle spread (degrees, between a strip's outer column centres) the wide model
 /// leaves inside one strip.
@@ -570,32 +518,6 @@ fn shared_seeds(
                 .collect()
         })
         .collect()
-}
-
-/// How the field model is chosen and what the wide model does (`RunConfig::field`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct FieldConfig {
-    /// Auto, or a forced model (`--field`).
-    pub choice: FieldChoice,
-    /// Strips of the wide model (`--field-strips`; `None`: [`strips_for`]).
-    pub strips: Option<usize>,
-    /// Map each pixel's thickness from its strip's angles to its column's own
-    /// ([`column_factor`]); off only to measure what it is worth (`--ablate column-map`).
-    pub column_map: bool,
-    /// Run the [`SHARED_ROUNDS`] that give the strips one index (`--ablate shared-index` to
-    /// measure their worth; without them each strip keeps its own index).
-    pub shared_rounds: bool,
-}
-
-impl Default for FieldConfig {
-    fn default() -> Self {
-        Self {
-            choice: FieldChoice::Auto,
-            strips: None,
-            column_map: true,
-            shared_rounds: true,
-        }
-    }
 }
 
 /// By how much to scale the thickness a strip's sweep gave a pixel to get the pixel's own:
@@ -1233,7 +1155,7 @@ mod tests {
     }
 
     fn output(index: f64, sigma: f64, mismatch: bool) -> SweepOutput {
-        let spec = crate::pipeline::sweep_spec(
+        let spec = crate::source::sweep_spec(
             4,
             4,
             &(0..16)

@@ -3,7 +3,8 @@
 use filmscope_core::optics::{Dispersion, FilmAtAngle, FilmStack, Passband};
 use filmscope_core::solve::{flags, IndexModel};
 
-use crate::sweep::{Method, MethodResult, SweepCube};
+use crate::estimate::method::{Method, MethodResult};
+use crate::source::SweepCube;
 
 /// Fraction of non-finite samples above which a pixel is not used (flagged SATURATED / DEAD).
 pub(crate) const MAX_BAD_FRACTION: f64 = 0.1;

@@ -1,4 +1,13 @@
-//! Sources of sweep streams: the software camera and ENVI captures replayed row by row.
+//! Where band frames come from: the software camera and ENVI captures replayed row by row,
+//! the messages they stream ([`msg`]) and a sweep held whole ([`SweepCube`]).
+
+mod cube;
+mod msg;
+mod replay;
+
+pub use cube::SweepCube;
+pub use msg::{calibrate_block, RowBlock, Samples, StreamMsg};
+pub use replay::{Frames, ReplaySource};
 
 use std::path::PathBuf;
 
@@ -6,7 +15,6 @@ use crossbeam_channel::Sender;
 use filmscope_core::solve::SweepSpec;
 use firmware_sim::SoftwareCamera;
 
-use super::msg::{RowBlock, Samples, StreamMsg};
 use crate::io::{Capture, EnviReader};
 
 /// A producer of one sweep's stream. `stream` runs on its own thread and must end the stream

@@ -7,7 +7,8 @@ use filmscope_core::solve::{flags, IndexModel};
 use super::common::{
     angles_by_incidence, check_cube, defect_flags, median, model_table, pixel_spectra, unusable,
 };
-use crate::sweep::{Method, MethodResult, SweepCube};
+use crate::estimate::method::{Method, MethodResult};
+use crate::source::SweepCube;
 
 /// Finest spacing of the model-spectrum thickness table, nm.
 const TABLE_STEP_NM: f64 = 1.0;

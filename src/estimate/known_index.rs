@@ -13,8 +13,10 @@ use filmscope_core::optics::Dispersion;
 use filmscope_core::solve::IndexModel;
 use serde_json::json;
 
-use crate::estimate::{angle_reports, result_from_sweep, Run, RunConfig};
-use crate::pipeline::{run_sweep, PipelineError, Prior, PriorUpdate, Source};
+use crate::estimate::passes::{angle_reports, result_from_sweep};
+use crate::estimate::run::{Run, RunConfig};
+use crate::pipeline::{run_sweep, PipelineError, Prior, PriorUpdate};
+use crate::source::Source;
 
 /// The index model that holds `film` over `bands_nm`: itself when the model can hold it,
 /// else its least-squares three-term Cauchy over the bands.

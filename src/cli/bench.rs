@@ -30,141 +30,19 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
-use crossbeam_channel::Sender;
 use filmscope_core::solve::fit_row::{IndexSampling, INDEX_PIXELS};
 use filmscope_core::solve::shard::PixelResult;
-use filmscope_core::solve::{state_bytes_per_pixel, SweepSolver, SweepSpec};
+use filmscope_core::solve::{state_bytes_per_pixel, SweepSolver};
 use filmscope_core::track::row::{blocks_for, push_row, TrackerLanes};
 use filmscope_core::track::ExtremaHead;
 use firmware_sim::{Scene, SoftwareCamera};
 use serde::Serialize;
 
-use crate::chart::{measure, Point, Setting};
+use crate::cli::chart::{measure, Point, Setting};
+use crate::estimate::method::Method;
 use crate::estimate::RunConfig;
-use crate::pipeline::{
-    calibrate_block, run_sweep, stream_band_sequential, BandModels, PipelineConfig, Prior,
-    PriorUpdate, Samples, ShardState, SimSource, Source, StreamMsg,
-};
-use crate::sweep::Method;
-
-/// Calibrated reflectance frames of the first `rows` rows of a scene, every angle and band,
-/// held in memory to be replayed.
-pub struct Frames {
-    /// The sweep as the solver sees it.
-    pub spec: SweepSpec,
-    /// Angles, degrees.
-    pub angles_deg: Vec<f64>,
-    /// Rows held.
-    pub rows: usize,
-    /// `[angle][band][row][col]`.
-    pub data: Vec<f32>,
-}
-
-impl Frames {
-    /// Renders the first `rows` rows of `scene` through the software camera (raw counts with
-    /// noise, white and dark references) and calibrates them.
-    pub fn render(scene: &Scene, rows: usize) -> Result<Self> {
-        let source = SimSource::new(SoftwareCamera::new(scene.clone()), false, 1)
-            .map_err(|e| anyhow!("{}: {e}", scene.name))?;
-        let spec = source.spec().clone();
-        let w = spec.width;
-        let rows = rows.clamp(1, spec.height);
-        let (na, nb) = (scene.angles_deg.len(), scene.bands_nm.len());
-        let mut data = Vec::with_capacity(na * nb * rows * w);
-        for a in 0..na {
-            for b in 0..nb {
-                data.extend(calibrate_block(source.block(a, b, 0, rows), rows, w));
-            }
-        }
-        Ok(Self {
-            spec,
-            angles_deg: scene.angles_deg.clone(),
-            rows,
-            data,
-        })
-    }
-
-    fn width(&self) -> usize {
-        self.spec.width
-    }
-
-    fn bands(&self) -> usize {
-        self.spec.bands_nm.len()
-    }
-
-    /// Row `row` of band `band` at angle `angle`.
-    fn row(&self, angle: usize, band: usize, row: usize) -> &[f32] {
-        let w = self.width();
-        let start = ((angle * self.bands() + band) * self.rows + row % self.rows) * w;
-        &self.data[start..start + w]
-    }
-}
-
-/// A source replaying [`Frames`], their rows repeated to `height` rows (band-sequential, in
-/// blocks of `rows_per_block` rows of calibrated reflectance).
-pub struct ReplaySource {
-    frames: Arc<Frames>,
-    spec: SweepSpec,
-    rows_per_block: usize,
-    pace: Option<f64>,
-}
-
-impl ReplaySource {
-    /// A source of `height` rows.
-    pub fn new(frames: Arc<Frames>, height: usize, rows_per_block: usize) -> Self {
-        let mut spec = frames.spec.clone();
-        spec.height = height;
-        Self {
-            frames,
-            spec,
-            rows_per_block: rows_per_block.max(1),
-            pace: None,
-        }
-    }
-
-    /// Delivers at most `samples_per_s` (a camera's rate), so nothing queues up in the
-    /// pipeline when it is faster: the latency after the last row is then the pipeline's own.
-    pub fn paced(mut self, samples_per_s: f64) -> Self {
-        self.pace = Some(samples_per_s);
-        self
-    }
-}
-
-impl Source for ReplaySource {
-    fn spec(&self) -> &SweepSpec {
-        &self.spec
-    }
-
-    fn angles_deg(&self) -> Vec<f64> {
-        self.frames.angles_deg.clone()
-    }
-
-    fn stream(&mut self, tx: &Sender<StreamMsg>) {
-        let f = &self.frames;
-        let (w, h) = (self.spec.width, self.spec.height);
-        let (start, pace) = (Instant::now(), self.pace);
-        let mut sent = 0usize;
-        stream_band_sequential(
-            tx,
-            &f.angles_deg,
-            f.bands(),
-            h,
-            self.rows_per_block,
-            |a, b, r0, rows| {
-                let mut v = Vec::with_capacity(rows * w);
-                for r in r0..r0 + rows {
-                    v.extend_from_slice(f.row(a, b, r));
-                }
-                sent += v.len();
-                if let Some(rate) = pace {
-                    let due = start + Duration::from_secs_f64(sent as f64 / rate);
-                    std::thread::sleep(due.saturating_duration_since(Instant::now()));
-                }
-                Samples::Reflectance(v)
-            },
-        );
-    }
-}
+use crate::pipeline::{run_sweep, BandModels, PipelineConfig, Prior, PriorUpdate, ShardState};
+use crate::source::{Frames, ReplaySource, SimSource};
 
 /// `scene_path` with its sensor resized (the thickness map is regenerated at the new size)
 /// and, if given, its bands replaced by `[first, last, step]` nm.
@@ -368,7 +246,7 @@ pub fn soak(
 pub fn rss_child(scene_path: &Path, width: usize, height: usize, angles: usize) -> Result<()> {
     let mut scene = scene_with(scene_path, width, 1, Some([400.0, 720.0, 2.0]))?;
     scene.angles_deg.truncate(angles.max(1));
-    let frames = Arc::new(Frames::render(&scene, 1)?);
+    let frames = Arc::new(Frames::render(&scene, 1).map_err(|e| anyhow!(e))?);
     let before = status_mb("VmRSS:").unwrap_or(f64::NAN);
     let mut source = ReplaySource::new(frames.clone(), height, 16);
     let t0 = Instant::now();
@@ -475,8 +353,8 @@ pub struct BenchReport {
     pub speedup_vs_numpy_lut: Option<f64>,
     /// The same for the per-pixel SciPy `least_squares` fit.
     pub speedup_vs_scipy: Option<f64>,
-    /// The Python peers' figures ([`crate::peers`]).
-    pub peers: crate::peers::Peers,
+    /// The Python peers' figures ([`crate::cli::peers`]).
+    pub peers: crate::cli::peers::Peers,
     /// `filmscope inspect` on firmware-sim (config/rig.toml, demo recipe): last row to
     /// verdict published, ms, per sample.
     pub inspect_latency_ms: Option<Vec<f64>>,
@@ -490,7 +368,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     // Kernels: 256 x 32 pixels, every band and angle.
     progress("rendering spectra");
     let kernel_scene = scene_with(scene_path, 256, 32, None)?;
-    let kernel = Frames::render(&kernel_scene, 32)?;
+    let kernel = Frames::render(&kernel_scene, 32).map_err(|e| anyhow!(e))?;
     progress("tracker");
     let tracker = tracker_rate(&kernel, min, true);
     let tracker_portable = tracker_rate(&kernel, min, false);
@@ -507,7 +385,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     let (pw, ph) = if quick { (512, 256) } else { (1024, 1024) };
     progress("pipeline");
     let pipe_scene = scene_with(scene_path, pw, 16, None)?;
-    let frames = Arc::new(Frames::render(&pipe_scene, 16)?);
+    let frames = Arc::new(Frames::render(&pipe_scene, 16).map_err(|e| anyhow!(e))?);
     let mut source = ReplaySource::new(frames.clone(), ph, 16);
     let out = run_sweep(&mut source, PipelineConfig::default(), None, &|_| {})
         .map_err(|e| anyhow!("{e}"))?;
@@ -555,7 +433,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         if m_scene.stack.film.is_constant() {
             let n = m_scene.stack.film.index_at(550.0);
             m_scene.stack.film = filmscope_core::optics::Dispersion::constant(
-                n + 0.5 * crate::baseline::DEFAULT_INDEX_STEP,
+                n + 0.5 * crate::estimate::baseline::DEFAULT_INDEX_STEP,
             );
         }
         Ok(m_scene)
@@ -581,10 +459,10 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     };
 
     progress("peers: NumPy look-up table and SciPy least_squares (Python)");
-    let peers = crate::peers::run(&m_scene, if quick { 100 } else { 1000 });
+    let peers = crate::cli::peers::run(&m_scene, if quick { 100 } else { 1000 });
     let filmscope_s = time("filmscope");
-    let speedup_vs_numpy_lut = crate::peers::speedup(peers.numpy_lut.as_ref(), filmscope_s);
-    let speedup_vs_scipy = crate::peers::speedup(peers.scipy.as_ref(), filmscope_s);
+    let speedup_vs_numpy_lut = crate::cli::peers::speedup(peers.numpy_lut.as_ref(), filmscope_s);
+    let speedup_vs_scipy = crate::cli::peers::speedup(peers.scipy.as_ref(), filmscope_s);
 
     progress("peak memory (child process)");
     let (rw, rh, ra) = if quick {
@@ -793,6 +671,6 @@ pub fn format_table(r: &BenchReport) -> String {
             format!("{w}x{h}")
         ));
     }
-    s.push_str(&crate::peers::table_rows(&r.peers));
+    s.push_str(&crate::cli::peers::table_rows(&r.peers));
     s
 }

@@ -647,7 +647,7 @@ fn simulate_and_estimate(
         .map_err(|e| format!("simulate: {e}"))?;
     let cap = Capture::load(&toml).map_err(|e| format!("read: {e}"))?;
     let fov = cap.lens.field_of_view();
-    let mut source = crate::pipeline::CaptureSource::new(cap).map_err(|e| format!("read: {e}"))?;
+    let mut source = crate::source::CaptureSource::new(cap).map_err(|e| format!("read: {e}"))?;
     let run = crate::estimate::run_method_in_field(&mut source, config, fov, &|_| {})
         .map_err(|e| format!("estimate: {e}"))?;
     Ok(evaluate(&scene.name, &Truth::of_scene(scene), &run))

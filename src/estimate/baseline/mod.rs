@@ -1,7 +1,7 @@
 //! Whole-cube baselines: the paper's method and brute force.
 //!
-//! Both take a whole [`SweepCube`](crate::sweep::SweepCube) in memory and return a
-//! [`MethodResult`](crate::sweep::MethodResult):
+//! Both take a whole [`SweepCube`](crate::source::SweepCube) in memory and return a
+//! [`MethodResult`](crate::estimate::method::MethodResult):
 //!
 //! - [`paper`]: Kobayashi et al.'s method as published (peak wavelengths, eq. 12 from pairs of
 //!   angles, integer orders chosen by least squares), with its weaknesses kept;

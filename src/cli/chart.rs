@@ -20,14 +20,14 @@ use filmscope_core::solve::sweep::SolverOptions;
 use firmware_sim::Scene;
 use serde::Serialize;
 
-use crate::baseline::BruteGrid;
-use crate::bench::{Frames, ReplaySource};
+use crate::cli::eval::{evaluate, Truth};
+use crate::estimate::baseline::BruteGrid;
+use crate::estimate::method::Method;
 use crate::estimate::{run_method, RunConfig};
-use crate::eval::{evaluate, Truth};
 use crate::export::plot::{
     write_heatmap_panels_png, write_scatter_panels_png, HeatMap, Scatter, Series,
 };
-use crate::sweep::Method;
+use crate::source::{Frames, ReplaySource};
 
 /// One method with one setting of its knobs.
 #[derive(Clone, Debug)]
@@ -126,7 +126,7 @@ pub struct Point {
 
 /// Runs every setting on `scene` (rendered once).
 pub fn measure(scene: &Scene, settings: &[Setting]) -> Result<Vec<Point>> {
-    let frames = Arc::new(Frames::render(scene, scene.sensor.height)?);
+    let frames = Arc::new(Frames::render(scene, scene.sensor.height).map_err(|e| anyhow!(e))?);
     let truth = Truth::of_scene(scene);
     let mpix = (scene.sensor.width * scene.sensor.height) as f64 / 1e6;
     let mut out = Vec::new();
