@@ -418,13 +418,6 @@ impl FitLanes {
         (n > 0).then(|| libm::sqrtf(self.sums[SSE_TERM][i] / f32::from(n)))
     }
 
-    /// Whether each of the first `lanes` lanes has a thickness.
-    pub fn all_have_thickness(&self, lanes: usize) -> bool {
-        self.thickness_nm[..lanes.min(LANES)]
-            .iter()
-            .all(|d| d.is_finite())
-    }
-
     /// Stores `p` in lane `i` (all but the shared sample count and the index's sums).
     pub fn set_pixel(&mut self, i: usize, p: &PixelFit) {
         self.thickness_nm[i] = p.thickness_nm;

@@ -256,10 +256,6 @@ pub struct AngleModels<'a> {
     pub coefs: &'a [Option<BandCoef>],
     /// The tabulated bands' knots.
     pub knots: &'a [Knot],
-    /// Whether seeded pixels hold their thickness through the angle
-    /// ([`super::SweepSolver::frozen_seeds`]): a block of them needs no extrema, and its
-    /// tracker is not fed ([`super::Shard::feed_row`]).
-    pub seeds_held: bool,
 }
 
 /// The model of one band at one thickness: reflectance, its thickness and index derivatives,

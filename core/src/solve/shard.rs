@@ -415,15 +415,7 @@ impl<'a> Shard<'a> {
                 let lists = &mut self.lists
                     [local * per_row * row::LANES..(local + 1) * per_row * row::LANES];
                 let lanes = values.chunks(row::LANES).zip(pixels.chunks_mut(row::LANES));
-                for (b, ((t, f), (v, p))) in
-                    trackers.iter_mut().zip(fits.iter()).zip(lanes).enumerate()
-                {
-                    // A block whose every pixel holds its thickness has no order to choose: its
-                    // extrema are not needed (measured: the tracker was a quarter of a polishing
-                    // pass at 128 x 96).
-                    if models.seeds_held && f.all_have_thickness(v.len()) {
-                        continue;
-                    }
+                for (b, (t, (v, p))) in trackers.iter_mut().zip(lanes).enumerate() {
                     let mut sinks = BlockSinks {
                         pixels: p,
                         lists: &mut *lists,
@@ -466,8 +458,6 @@ impl<'a> Shard<'a> {
         let geometry = solver.pair_geometry();
         let (lo, hi) = self.local_rows(rows);
         let w = self.width;
-        // A held noise is not pooled; the held pixels' trackers were not fed.
-        let noise_held = solver.noise_held();
         for r in lo..hi {
             for c in self.sampling.cols(self.first_row + r, w) {
                 let ((block, lane), sample) = self.lanes_at(r, c);
@@ -480,9 +470,7 @@ impl<'a> Shard<'a> {
                 if let Some(rms) = self.fits[block].rms(lane) {
                     fit.rms.add(rms);
                 }
-                if !noise_held {
-                    fit.noise.add(self.trackers[block].noise_sigma(lane));
-                }
+                fit.noise.add(self.trackers[block].noise_sigma(lane));
             }
         }
     }
@@ -574,7 +562,6 @@ impl<'a> Shard<'a> {
         };
         let orders = Self::order_context(solver);
         let finish = out.is_some().then(|| Finish::of(solver));
-        let frozen = solver.frozen_seeds();
         let w = self.width.max(1);
         let rows = self.pixels.len() / w;
         let mut steps = None;
@@ -601,9 +588,7 @@ impl<'a> Shard<'a> {
             // A seeded pixel has no extrema to choose its order again from: it keeps its
             // thickness and steps with the index like the others.
             let seeded = p.flags & flags::FROM_SPECTRUM_SEARCH != 0;
-            if seeded && frozen {
-                // Held where the seed put it: its sums stay linearised there.
-            } else if reorder && f.thickness_nm.is_finite() && !seeded {
+            if reorder && f.thickness_nm.is_finite() && !seeded {
                 f.thickness_nm = f32::NAN;
                 f.gn = GnSums::default();
                 p.flags &= !flags::ORDER_FROM_NEIGHBOUR;
@@ -1094,71 +1079,6 @@ impl OneRow {
 }
 
 #[cfg(test)]
-mod held_seed_tests {
-    use super::*;
-
-    const W: usize = ONE_ROW;
-
-    fn spec() -> SweepSpec {
-        super::super::sweep::paper_rig_spec(W, 1)
-    }
-
-    /// Feeds one angle of fringes (a peak every 20 bands, a little noise-like ripple) to a
-    /// one-row shard whose pixels are all seeded but `unseeded`, and returns the extrema
-    /// each pixel found and the tally's pooled noise.
-    fn one_angle(solver: &SweepSolver, unseeded: usize) -> ([usize; W], Option<f32>) {
-        let spec = solver.spec().clone();
-        let mut storage = OneRow::new();
-        let mut shard = storage.shard();
-        let index = IndexModel::constant(1.38);
-        for i in (0..W).filter(|&i| i != unseeded) {
-            shard.seed(i, 500.0, index, &spec);
-        }
-        shard.begin_angle();
-        let models = AngleModels {
-            coefs: &[],
-            knots: &[],
-            seeds_held: solver.frozen_seeds(),
-        };
-        for b in 0..spec.bands_nm.len() {
-            let x = b as f32 * core::f32::consts::TAU / 20.0;
-            let values: [f32; W] = core::array::from_fn(|i| {
-                0.05 + 0.03 * libm::cosf(x) + 1e-4 * libm::sinf(7.3 * (b * W + i) as f32)
-            });
-            shard.feed_row(spec.options, models, b, 0, &values);
-        }
-        let (_, stats) = shard.tally(solver);
-        (
-            core::array::from_fn(|i| shard.pixels[i].current.len()),
-            stats.noise.median(),
-        )
-    }
-
-    /// A held pass tracks only the blocks with a pixel that has no thickness (all of that
-    /// block's pixels), and pools no noise: it holds the one it was given.
-    #[test]
-    fn held_seeds_skip_the_trackers_of_blocks_that_need_no_extrema() {
-        let unseeded = row::LANES + 8;
-        let held = SweepSolver::new(spec(), Some(IndexModel::constant(1.38)))
-            .with_frozen_seeds()
-            .with_noise_sigma(0.004);
-        let (found, noise) = one_angle(&held, unseeded);
-        assert!(found[..row::LANES].iter().all(|&n| n == 0), "{found:?}");
-        assert!(found[row::LANES..].iter().all(|&n| n >= 6), "{found:?}");
-        assert_eq!(noise, None);
-        assert_eq!(held.noise_sigma(), Some(0.004));
-        let mut after = held.clone();
-        after.set_fit_histogram(&FitStats::default());
-        assert_eq!(after.noise_sigma(), Some(0.004));
-        // Not held: every pixel is tracked and the noise pooled.
-        let free = SweepSolver::new(spec(), Some(IndexModel::constant(1.38)));
-        let (found, noise) = one_angle(&free, unseeded);
-        assert!(found.iter().all(|&n| n >= 6), "{found:?}");
-        assert!(noise.is_some_and(|n| n > 0.0 && n < 0.01), "{noise:?}");
-    }
-}
-
-#[cfg(test)]
 mod release_tests {
     use super::*;
 
@@ -1172,7 +1092,6 @@ mod release_tests {
         let models = AngleModels {
             coefs: &[],
             knots: &[],
-            seeds_held: false,
         };
         for b in 0..spec.bands_nm.len() {
             let values: [f32; W] = core::array::from_fn(|i| {
@@ -1243,7 +1162,6 @@ mod vote_tests {
         let models = AngleModels {
             coefs: &[],
             knots: &[],
-            seeds_held: false,
         };
         let bands = spec.bands_nm.len();
         for (b, &l) in spec.bands_nm.iter().enumerate() {

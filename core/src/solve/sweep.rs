@@ -379,9 +379,6 @@ pub struct AngleReport {
     pub spectral_index: bool,
     /// Terms of the index model after this angle (0: no index yet; above 1: dispersive).
     pub index_terms: usize,
-    /// The Wald chi-square of the index model's last term at this angle's end
-    /// ([`SweepSolver::term_chi2`]; NaN for a one-term index or without sums).
-    pub term_chi2: f64,
 }
 
 #[cfg(test)]
@@ -491,15 +488,8 @@ pub struct SweepSolver {
     spectral_dn: f64,
     spectral_index: bool,
     held_index: bool,
-    frozen_seeds: bool,
-    /// Whether `noise_median` was given ([`SweepSolver::with_noise_sigma`]).
-    noise_held: bool,
-    /// The thicknesses the tables need cover ([`SweepSolver::with_table_thickness`]).
-    table_thickness_nm: Option<[f64; 2]>,
     spectral_gains: [f64; 3],
     spectral_candidate: Option<IndexModel>,
-    max_terms: usize,
-    term_chi2: f64,
 }
 
 impl SweepSolver {
@@ -531,31 +521,9 @@ impl SweepSolver {
             spectral_dn: 0.0,
             spectral_index: false,
             held_index: false,
-            frozen_seeds: false,
-            noise_held: false,
-            table_thickness_nm: None,
             spectral_gains: [f64::NAN; 3],
             spectral_candidate: None,
-            max_terms: 3,
-            term_chi2: f64::NAN,
         }
-    }
-
-    /// Caps the index model at `terms` basis terms (1 to 3): the full spectra may not add
-    /// more. For a pass after [`SweepSolver::term_chi2`] found a term unwarranted.
-    pub fn with_max_terms(mut self, terms: usize) -> Self {
-        self.max_terms = terms.clamp(1, 3);
-        self
-    }
-
-    /// The chi-square of the index model's last basis term at the last angle's end: its
-    /// coefficient at the optimum of the angle's sums (the current model's terms free, every
-    /// pixel's thickness eliminated) squared over its variance, a Wald statistic. It does not
-    /// depend on where the sums were linearised, so a pass whose sums were all linearised
-    /// near its result (a pass held at the index and seeded with the thicknesses of an earlier
-    /// one) tests whether that term is warranted. NaN for a one-term index or without sums.
-    pub fn term_chi2(&self) -> f64 {
-        self.term_chi2
     }
 
     /// Takes the index from the full spectra (Gauss-Newton on the pooled sums, each pixel's
@@ -582,65 +550,6 @@ impl SweepSolver {
     pub fn with_held_index(mut self) -> Self {
         self.held_index = self.index.is_some();
         self
-    }
-
-    /// Holds the prior index and every seeded pixel's thickness ([`Shard::seed`]) for the
-    /// whole sweep: every sum is linearised at the seeds, so the last angle's sums are those
-    /// of the whole spectra at an earlier pass's result ([`SweepSolver::term_chi2`] then tests
-    /// its index model). A thickness that steps as the angles arrive leaves the earlier
-    /// angles' sums linearised where it was: measured on n 1.6 / 50 nm on 1.52 (camera seed
-    /// 10), steps of 0.16 nm on average halved the reduced index gradient and made a Cauchy
-    /// term that the whole spectra put at 1.9 sigma (chi-square 3.5) look like 5.3 sigma.
-    pub fn with_frozen_seeds(mut self) -> Self {
-        self = self.with_held_index();
-        self.frozen_seeds = self.held_index;
-        self
-    }
-
-    /// Holds the image's noise (1 sigma of a sample) at `sigma`, as an earlier pass over
-    /// the same data measured it, instead of pooling the pixels' own estimates: a pass whose
-    /// seeded pixels are held ([`SweepSolver::with_frozen_seeds`]) does not track their
-    /// extrema, where those estimates come from. The same trackers over the same samples
-    /// give the same figure.
-    pub fn with_noise_sigma(mut self, sigma: f32) -> Self {
-        self.noise_median = Some(sigma);
-        self.noise_held = true;
-        self
-    }
-
-    /// Tabulates the band models over thicknesses `[lo, hi]` only (within the search range,
-    /// and an order either side): those of a pass's held seeds
-    /// ([`SweepSolver::with_frozen_seeds`]), which a table over the whole search range
-    /// would cover three times over for a film of one thickness (and whose tabulation, once
-    /// an angle on one core, cost a held pass a third of its time at 128 x 96 pixels).
-    pub fn with_table_thickness(mut self, lo: f64, hi: f64) -> Self {
-        if lo <= hi {
-            self.table_thickness_nm = Some([lo, hi]);
-        }
-        self
-    }
-
-    /// Whether the noise is held ([`SweepSolver::with_noise_sigma`]).
-    pub fn noise_held(&self) -> bool {
-        self.noise_held
-    }
-
-    /// Ends [`SweepSolver::with_frozen_seeds`] before the sweep's last angle ends: that
-    /// angle's sums (the whole spectra, linearised at the seeds) then move the index, its
-    /// terms kept, and every pixel's thickness: one Gauss-Newton iteration on the whole
-    /// spectra from the seeds.
-    pub fn thaw(&mut self) {
-        if self.frozen_seeds {
-            self.frozen_seeds = false;
-            self.held_index = false;
-            self.spectral_index = true;
-            self.max_terms = self.index.map_or(1, |m| m.terms());
-        }
-    }
-
-    /// Whether seeded pixels keep their thickness ([`SweepSolver::with_frozen_seeds`]).
-    pub fn frozen_seeds(&self) -> bool {
-        self.frozen_seeds
     }
 
     /// Whether the index comes from the full spectra.
@@ -722,15 +631,12 @@ impl SweepSolver {
         }
     }
 
-    /// The thicknesses the band models are tabulated over: the search range (or the
-    /// narrower span of [`SweepSolver::with_table_thickness`]) widened by an interference
+    /// The thicknesses the band models are tabulated over: the search range widened by an
+    /// interference
     /// order at the longest band and lowest index either side (the neighbouring orders'
     /// misfits look there). A thickness outside it has its models computed per sample.
     pub fn table_range_nm(&self) -> [f64; 2] {
         let [lo, hi] = self.spec.thickness_range_nm;
-        let [lo, hi] = self
-            .table_thickness_nm
-            .map_or([lo, hi], |[a, b]| [lo.max(a), hi.min(b)]);
         let [_, l_max] = self.band_span_nm();
         let step = 1.2 * l_max / (2.0 * self.spec.index_range[0].max(1.0));
         [lo - step, hi + step]
@@ -876,7 +782,7 @@ impl SweepSolver {
         if let Some(m) = hist.rms.median() {
             self.rms_median = Some(m);
         }
-        if let Some(m) = hist.noise.median().filter(|_| !self.noise_held) {
+        if let Some(m) = hist.noise.median() {
             self.noise_median = Some(m);
         }
     }
@@ -898,7 +804,6 @@ impl SweepSolver {
     /// thickness follows through its cross terms (`update`).
     pub fn set_schur(&mut self, s: &SchurSums) {
         self.last_refined = false;
-        self.term_chi2 = f64::NAN;
         let mut spectral_next = None;
         if s.pixels >= 16.0 && s.h[0] > 0.0 && s.samples > s.pixels * 2.0 {
             let steps = [s.step(1), s.step(2), s.step(3)];
@@ -917,11 +822,7 @@ impl SweepSolver {
             let settled = self.refined_steps > 1
                 && steps[terms - 1]
                     .is_some_and(|(x, _)| self.max_index_change(x) < SETTLED_INDEX_STEP);
-            self.term_chi2 = self.last_term_chi2(s, sigma2);
-            while settled
-                && terms < self.max_terms
-                && gains[terms] - gains[terms - 1] > SPECTRAL_TERM_CHI2
-            {
+            while settled && terms < 3 && gains[terms] - gains[terms - 1] > SPECTRAL_TERM_CHI2 {
                 let worth = match (self.index, steps[terms]) {
                     (Some(index), Some((x, _))) => {
                         let next = index.moved(x);
@@ -1010,22 +911,6 @@ impl SweepSolver {
             }
             _ => [0.0; 3],
         };
-    }
-
-    /// The Wald statistic of the current index model's last term ([`SweepSolver::term_chi2`])
-    /// from the sums `s` and the residual variance `sigma2`.
-    fn last_term_chi2(&self, s: &SchurSums, sigma2: f64) -> f64 {
-        let Some(index) = self.index.filter(|m| m.terms() > 1) else {
-            return f64::NAN;
-        };
-        let k = index.terms().min(3);
-        match (s.step(k), s.inverse(k)) {
-            (Some((x, _)), Some(inv)) if inv[k - 1][k - 1] > 0.0 => {
-                let coef = index.to_basis()[k - 1] + x[k - 1];
-                coef * coef / (sigma2.max(1e-30) * inv[k - 1][k - 1])
-            }
-            _ => f64::NAN,
-        }
     }
 
     /// Where a full-spectrum pass should start after an extremum-shift pass linearised at
@@ -1131,7 +1016,6 @@ impl SweepSolver {
             spectral_index_step: self.spectral_dn,
             spectral_index: self.spectral_index,
             index_terms: self.index.map_or(0, |m| m.terms()),
-            term_chi2: self.term_chi2,
         }
     }
 
@@ -1242,88 +1126,4 @@ pub(crate) fn paper_rig_spec(width: usize, height: usize) -> SweepSpec {
         let _ = s.fwhm_nm.push(4.0);
     }
     s
-}
-
-#[cfg(test)]
-mod term_tests {
-    use super::*;
-
-    fn spec() -> SweepSpec {
-        paper_rig_spec(8, 4)
-    }
-
-    /// Sums whose index block is `h` (level, slope) and gradient `g`, from 32 pixels.
-    fn sums(h: [f64; 3], g: [f64; 2]) -> SchurSums {
-        SchurSums {
-            h: [h[0], h[1], 0.0, h[2], 0.0, 1.0],
-            g: [g[0], g[1], 0.0],
-            pixels: 32.0,
-            sse: 0.05,
-            samples: 32.0 * 755.0,
-        }
-    }
-
-    /// The last term's chi-square is its coefficient at the sums' optimum squared over its
-    /// variance, worked here by hand from the 2 x 2 block (Cramer's rule), not through the
-    /// solver's Cholesky factor.
-    #[test]
-    fn the_last_terms_chi2_is_its_wald_statistic() {
-        let index = IndexModel::from_basis([1.6, 0.0025, 0.0]);
-        let (h, g) = ([230.0, 500.0, 1270.0], [0.1, 0.105]);
-        let mut solver = SweepSolver::new(spec(), Some(index)).with_frozen_seeds();
-        assert!(solver.frozen_seeds());
-        solver.set_schur(&sums(h, g));
-        let det = h[0] * h[2] - h[1] * h[1];
-        let x1 = (h[0] * g[1] - h[1] * g[0]) / det;
-        let c11 = h[0] / det;
-        let coef = 0.0025 + x1;
-        // The residual variance after the full (three-term) step.
-        let s = sums(h, g);
-        let (_, gain) = s.step(3).expect("positive definite");
-        let sigma2 = (s.sse - gain) / (s.samples - s.pixels - 3.0);
-        let want = coef * coef / (sigma2 * c11);
-        let got = solver.term_chi2();
-        assert!((got - want).abs() <= 1e-9 * want, "{got} against {want}");
-        // Held: the index does not move.
-        assert_eq!(solver.next_index(), Some(index));
-        // A one-term index has no such term.
-        let mut constant = SweepSolver::new(spec(), Some(IndexModel::constant(1.6)));
-        constant.set_schur(&sums(h, g));
-        assert!(constant.term_chi2().is_nan());
-    }
-
-    /// A held pass's tables cover its seeds' thicknesses (within the search range) and an
-    /// order either side; without seeds, the whole search range.
-    #[test]
-    fn tables_cover_the_held_seeds_only() {
-        let full = SweepSolver::new(spec(), None).table_range_nm();
-        let order = 30.0 - full[0];
-        assert!(order > 300.0 && 2000.0 + order == full[1], "{full:?}");
-        let narrow = |lo, hi| {
-            SweepSolver::new(spec(), None)
-                .with_table_thickness(lo, hi)
-                .table_range_nm()
-        };
-        assert_eq!(narrow(380.0, 430.0), [380.0 - order, 430.0 + order]);
-        assert_eq!(narrow(10.0, 3000.0), full);
-        assert_eq!(narrow(f64::INFINITY, f64::NEG_INFINITY), full);
-    }
-
-    /// Thawed, the same sums move the index, with no more terms than it had.
-    #[test]
-    fn a_thawed_sweep_steps_the_index_with_its_own_terms() {
-        let index = IndexModel::constant(1.6);
-        let mut solver = SweepSolver::new(spec(), Some(index)).with_frozen_seeds();
-        solver.thaw();
-        assert!(!solver.frozen_seeds());
-        solver.set_schur(&sums([230.0, 500.0, 1270.0], [0.1, 0.105]));
-        let next = solver.next_index().expect("an index");
-        assert_eq!(next.terms(), 1);
-        let want = 1.6 + 0.1 / 230.0;
-        assert!(
-            (next.at(crate::solve::BASIS_NM) - want).abs() < 1e-9,
-            "{}",
-            next.at(crate::solve::BASIS_NM)
-        );
-    }
 }
