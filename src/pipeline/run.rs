@@ -26,7 +26,8 @@ use filmscope_core::solve::refine::{AngleModels, BandCoef, Knot};
 use filmscope_core::solve::sweep::SolverOptions;
 use filmscope_core::solve::sweep::{FitStats, SchurSums};
 use filmscope_core::solve::{
-    tracker_blocks, AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
+    tracker_blocks, AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepContext,
+    SweepSolver, SweepSpec,
 };
 use filmscope_core::track::row::{TrackerLanes, LANES};
 use filmscope_core::track::{pack_sample, unpack_sample};
@@ -142,10 +143,11 @@ enum WorkerMsg {
 
 /// The state of an angle for a worker, on its own channel (from the coordinator): rows are
 /// read only after it, so rows of the next angle can never reach the previous one's state.
-/// The solver as the angle began tallies the rows that have seen the angle's last band.
+/// The solver's context as the angle began tallies the rows that have seen the angle's last
+/// band.
 /// The last element: the angles left in the sweep, this one included (the worker sizes its
 /// held block for the next angle, or gives it back after the last: [`HeldBlock`]).
-type Start = (ShardState, Arc<BandModels>, Arc<SweepSolver>, usize);
+type Start = (ShardState, Arc<BandModels>, Arc<SweepContext>, usize);
 
 /// A shard's angle-end pass 1 ([`Shard::tally`]): votes and fit statistics.
 pub type Tally = (RatioHistogram, FitStats);
@@ -489,7 +491,7 @@ fn sweep(
                 Control::Angle(deg) => {
                     solver.begin_angle(deg);
                     let snapshot = Arc::new(BandModels::of(&solver, workers));
-                    let began = Arc::new((*solver).clone());
+                    let began = Arc::new(solver.context().clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
                     for (i, tx) in start_txs.iter().enumerate() {
                         let mut st = states[i].take().unwrap_or_default();
@@ -774,8 +776,8 @@ const VOTE_AHEAD_BANDS: u32 = 16;
 /// soon as it has seen the angle's last band, its state in cache and later rows still
 /// streaming, so that after the angle's last row little is left to tally.
 struct RowTally {
-    /// The solver as the angle began (the pair geometry).
-    solver: Arc<SweepSolver>,
+    /// The solver's context as the angle began (the pair geometry).
+    solver: Arc<SweepContext>,
     /// Bands per angle.
     bands: u32,
     /// Bands fed to each row of the shard.
@@ -791,7 +793,7 @@ struct RowTally {
 }
 
 impl RowTally {
-    fn new(solver: Arc<SweepSolver>, bands: usize, rows: usize, defer_if_behind: bool) -> Self {
+    fn new(solver: Arc<SweepContext>, bands: usize, rows: usize, defer_if_behind: bool) -> Self {
         Self {
             solver,
             bands: bands as u32,

@@ -7,7 +7,7 @@
 //! `J_n^2 u^k` (k < 5: every entry of the index block), `J_d r`, `J_n r u^k` and `r^2`
 //! (`r = R - M`). Their size does not depend on the number of bands, angles or sweeps. At each
 //! angle's end the per-pixel `d` rows are eliminated (Schur complement) to move the shared
-//! index, then each `d` steps (see [`super::sweep`]).
+//! index, then each `d` steps (the solver's angle end).
 //!
 //! The model per band is the Airy reflectance averaged over the Gaussian passband by 5-point
 //! Gauss-Hermite quadrature, dispersion followed node by node. Two more sums score the
