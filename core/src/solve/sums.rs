@@ -1,6 +1,8 @@
 //! The sums the shards send up at an angle's end, merged over shards in row order: fit
 //! quality and noise ([`FitStats`]) and the shared index's Gauss-Newton sums ([`SchurSums`]).
 
+use nalgebra::{Cholesky, Const, SMatrix, SVector};
+
 /// `log10(x)` for positive normal `x`, within 1e-4 (a 32nd of a decade, the histogram's bin,
 /// is 0.031): the exponent from the bits, the mantissa's `log2` by a quartic. Every pixel
 /// adds two values at every angle's end, where `libm::log10f` took a fifth of the time.
@@ -114,71 +116,59 @@ impl SchurSums {
         self.h[[0, 3, 5][i] + j - i]
     }
 
-    /// Cholesky factor of the leading `k x k` block, or `None` if it is singular.
-    fn cholesky(&self, k: usize) -> Option<[[f64; 3]; 3]> {
-        let mut l = [[0.0f64; 3]; 3];
-        for i in 0..k {
-            for j in 0..=i {
-                let dot: f64 = l[i][..j].iter().zip(&l[j][..j]).map(|(a, b)| a * b).sum();
-                let v = self.entry(i, j) - dot;
-                if i == j {
-                    if v <= self.entry(i, i) * 1e-12 || v <= 0.0 {
-                        return None;
-                    }
-                    l[i][i] = libm::sqrt(v);
-                } else {
-                    l[i][j] = v / l[j][j];
-                }
-            }
-        }
-        Some(l)
+    /// Cholesky factor of the leading `K x K` block, or `None` if it is singular: a pivot
+    /// at or below `1e-12` of its diagonal entry (nalgebra's own test is only `> 0`).
+    fn cholesky<const K: usize>(&self) -> Option<Cholesky<f64, Const<K>>> {
+        let block = SMatrix::<f64, K, K>::from_fn(|i, j| self.entry(i, j));
+        let c = block.cholesky()?;
+        let l = c.l_dirty();
+        (0..K)
+            .all(|i| l[(i, i)] * l[(i, i)] > self.entry(i, i) * 1e-12)
+            .then_some(c)
     }
 
-    /// Solves `L L^T x = rhs` in the first `k` coefficients.
-    fn solve(l: &[[f64; 3]; 3], k: usize, rhs: [f64; 3]) -> [f64; 3] {
-        let mut y = [0.0; 3];
-        for i in 0..k {
-            let mut v = rhs[i];
-            for m in 0..i {
-                v -= l[i][m] * y[m];
+    /// [`SchurSums::step`] in the first `K` coefficients.
+    fn step_k<const K: usize>(&self) -> Option<([f64; 3], f64)> {
+        let g = SVector::<f64, K>::from_fn(|i, _| self.g[i]);
+        let x = self.cholesky::<K>()?.solve(&g);
+        let mut out = [0.0; 3];
+        out[..K].copy_from_slice(x.as_slice());
+        Some((out, x.dot(&g)))
+    }
+
+    /// [`SchurSums::inverse`] of the leading `K x K` block.
+    fn inverse_k<const K: usize>(&self) -> Option<[[f64; 3]; 3]> {
+        let inv = self.cholesky::<K>()?.inverse();
+        let mut out = [[0.0; 3]; 3];
+        for (i, row) in out.iter_mut().enumerate().take(K) {
+            for (j, v) in row.iter_mut().enumerate().take(K) {
+                *v = inv[(i, j)];
             }
-            y[i] = v / l[i][i];
         }
-        let mut x = [0.0; 3];
-        for i in (0..k).rev() {
-            let mut v = y[i];
-            for m in i + 1..k {
-                v -= l[m][i] * x[m];
-            }
-            x[i] = v / l[i][i];
-        }
-        x
+        Some(out)
     }
 
     /// The step in the first `k` basis coefficients (the others held) and the squared-error
-    /// reduction it predicts, or `None` if that block is singular.
+    /// reduction it predicts, or `None` if that block is singular (or `k` is not 1 to 3).
     pub fn step(&self, k: usize) -> Option<([f64; 3], f64)> {
-        let l = self.cholesky(k)?;
-        let x = Self::solve(&l, k, self.g);
-        let gain = (0..k).map(|i| x[i] * self.g[i]).sum();
-        Some((x, gain))
+        match k {
+            1 => self.step_k::<1>(),
+            2 => self.step_k::<2>(),
+            3 => self.step_k::<3>(),
+            _ => None,
+        }
     }
 
     /// The inverse of the leading `k x k` block (zero outside it): times the residual
     /// variance, the covariance of the first `k` coefficients with every pixel's thickness
-    /// free. `None` if the block is singular.
+    /// free. `None` if the block is singular (or `k` is not 1 to 3).
     pub fn inverse(&self, k: usize) -> Option<[[f64; 3]; 3]> {
-        let l = self.cholesky(k)?;
-        let mut inv = [[0.0; 3]; 3];
-        for j in 0..k {
-            let mut unit = [0.0; 3];
-            unit[j] = 1.0;
-            let column = Self::solve(&l, k, unit);
-            for (row, v) in inv.iter_mut().zip(column).take(k) {
-                row[j] = v;
-            }
+        match k {
+            1 => self.inverse_k::<1>(),
+            2 => self.inverse_k::<2>(),
+            3 => self.inverse_k::<3>(),
+            _ => None,
         }
-        Some(inv)
     }
 }
 
