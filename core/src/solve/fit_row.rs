@@ -97,7 +97,7 @@ type Lanes = [f32; LANES];
 pub const BAD_COUNT_MAX: u8 = u8::MAX;
 
 /// Pixels that keep the index's sums in a large image by default
-/// ([`super::spec::SolverOptions::index_pixels`]): about this many (a 1 Mpix sensor's
+/// (the solver options' `index_pixels`): about this many (a 1 Mpix sensor's
 /// index step from one pixel in 16; every pixel of a sensor under 131072).
 pub const INDEX_PIXELS: usize = 65_536;
 

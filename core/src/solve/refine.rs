@@ -500,7 +500,7 @@ pub struct GnSums {
 pub const PIXEL_TERMS: usize = 8;
 
 /// Sums only the shared index's step needs ([`GnSums::to_index_terms`]): `h_pp`, `g_p`. A
-/// sample of the pixels keeps them ([`super::fit_row::IndexSampling`]).
+/// sample of the pixels keeps them (the row blocks' index sampling).
 pub const INDEX_TERMS: usize = 8;
 
 /// Where `g_d` is in [`GnSums::to_pixel_terms`]' array (`h_dd` and `h_dp` before it).
@@ -653,7 +653,7 @@ impl GnSums {
 
     /// Moves the linearisation point by `dd` (thickness) and `dp` (index basis coefficients):
     /// the gradients and the squared error follow the linear model. A pixel that keeps no
-    /// index sums ([`super::fit_row::IndexSampling`]; zeros here) moves its squared error by
+    /// index sums (outside the index's sample of pixels; zeros here) moves its squared error by
     /// the thickness's terms only: measured, leaving the index's out for every pixel changed
     /// no figure `filmscope eval` prints on the config scenes and the thick stability cells.
     pub fn shift(&mut self, dd: f64, dp: [f64; 3]) {

@@ -13,7 +13,7 @@ pub trait ExtremumSink {
     fn push(&mut self, e: Extremum) -> Result<(), Extremum>;
 }
 
-/// The sinks of a block's lanes ([`super::row::TrackerLanes::push`]): lane `i`'s extrema
+/// The sinks of a block's lanes (the row blocks' `TrackerLanes::push`): lane `i`'s extrema
 /// go to sink `i`; a lane without one (a padding lane) drops them.
 pub trait LaneSinks {
     /// [`ExtremumSink::last_extremum`] of lane `i`.
