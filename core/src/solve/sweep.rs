@@ -8,6 +8,10 @@
 //! (the ties, by their neighbours), then [`SweepSolver::end_angle`].
 //! [`SweepSolver::end_angle_all`] runs them for shards on one thread; the pipeline runs each
 //! phase on all cores.
+//!
+//! Shards read only the solver's [`SweepContext`] (the solver derefs to it), so this module
+//! imports [`Shard`] and not the other way round. [`SweepSpec`], [`SolverOptions`] and the
+//! shards' sums live in their own modules and are re-exported here.
 
 use heapless::Vec as HVec;
 
