@@ -13,7 +13,6 @@
 use std::path::Path;
 
 use filmscope_core::optics::{materials, Dispersion};
-use nalgebra::{Matrix3, Vector3};
 use serde_json::json;
 
 /// The dispersion described by `value`: a number (a constant index), a library name or a
@@ -372,9 +371,9 @@ pub fn cauchy_fit(rows: &[(f64, f64)]) -> Result<Dispersion, String> {
     // Normal equations in x = 1 / l^2, scaled by the largest x for conditioning; the terms
     // the rows cannot determine are an identity block (their coefficients come out 0).
     let xmax = rows.iter().map(|r| 1.0 / (r.0 * r.0)).fold(0.0, f64::max);
-    let mut h = Matrix3::<f64>::identity();
+    let mut h = nalgebra::Matrix3::<f64>::identity();
     h.view_mut((0, 0), (terms, terms)).fill(0.0);
-    let mut g = Vector3::<f64>::zeros();
+    let mut g = nalgebra::Vector3::<f64>::zeros();
     for &(l, n) in rows {
         let x = 1.0 / (l * l) / xmax;
         let basis = [1.0, x, x * x];
