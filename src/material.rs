@@ -368,43 +368,28 @@ pub fn cauchy_fit(rows: &[(f64, f64)]) -> Result<Dispersion, String> {
         return Ok(Dispersion::constant(rows[0].1));
     }
     let terms = distinct.min(3);
-    // Normal equations in x = 1 / l^2, scaled by the largest x for conditioning.
+    // Normal equations in x = 1 / l^2, scaled by the largest x for conditioning; the terms
+    // the rows cannot determine are an identity block (their coefficients come out 0).
     let xmax = rows.iter().map(|r| 1.0 / (r.0 * r.0)).fold(0.0, f64::max);
-    let mut m = [[0.0f64; 4]; 3];
+    let mut h = nalgebra::Matrix3::<f64>::identity();
+    h.view_mut((0, 0), (terms, terms)).fill(0.0);
+    let mut g = nalgebra::Vector3::<f64>::zeros();
     for &(l, n) in rows {
         let x = 1.0 / (l * l) / xmax;
         let basis = [1.0, x, x * x];
         for i in 0..terms {
             for j in 0..terms {
-                m[i][j] += basis[i] * basis[j];
+                h[(i, j)] += basis[i] * basis[j];
             }
-            m[i][3] += basis[i] * n;
+            g[i] += basis[i] * n;
         }
     }
-    // Gauss-Jordan on the small system.
-    for col in 0..terms {
-        let piv = (col..terms)
-            .max_by(|&a, &b| m[a][col].abs().total_cmp(&m[b][col].abs()))
-            .unwrap_or(col);
-        m.swap(col, piv);
-        let p = m[col][col];
-        if p.abs() < 1e-300 {
-            return Err("tabulated n: the rows do not determine a Cauchy fit".into());
-        }
-        for v in &mut m[col] {
-            *v /= p;
-        }
-        let pivot_row = m[col];
-        for (r, row) in m.iter_mut().enumerate().take(terms) {
-            if r != col {
-                let f = row[col];
-                for (v, pv) in row.iter_mut().zip(pivot_row) {
-                    *v -= f * pv;
-                }
-            }
-        }
-    }
-    let coef = |i: usize| if i < terms { m[i][3] } else { 0.0 };
+    let coef = h
+        .cholesky()
+        .map(|c| c.solve(&g))
+        .filter(|c| c.iter().all(|v| v.is_finite()))
+        .ok_or("tabulated n: the rows do not determine a Cauchy fit")?;
+    let coef = |i: usize| coef[i];
     Ok(Dispersion::Cauchy {
         a: coef(0),
         b_um2: coef(1) / xmax,

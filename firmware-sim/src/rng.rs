@@ -1,14 +1,16 @@
-//! A small deterministic random number generator (xoshiro256++, seeded by SplitMix64), so a
-//! scene renders the same bytes on every machine and in any row order.
+//! A small deterministic random number generator (xoshiro256++ from `rand_xoshiro`, seeded
+//! by SplitMix64), so a scene renders the same bytes on every machine and in any row order.
 
 use std::sync::OnceLock;
 
-/// xoshiro256++ state.
-#[derive(Clone, Debug)]
-pub struct Rng {
-    s: [u64; 4],
-}
+use rand_xoshiro::rand_core::{Rng as _, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
 
+/// xoshiro256++ and the distributions the simulator draws from it.
+#[derive(Clone, Debug)]
+pub struct Rng(Xoshiro256PlusPlus);
+
+/// SplitMix64's step: advances `x` and returns its output.
 fn splitmix(x: &mut u64) -> u64 {
     *x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
     let mut z = *x;
@@ -17,41 +19,31 @@ fn splitmix(x: &mut u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// The end of [`Rng::from_words`]'s hash chain over `words`: the SplitMix64 seed.
+fn chain(words: &[u64]) -> u64 {
+    let mut x = 0x5EED_F11E_u64;
+    for &w in words {
+        let mut counter = x ^ w;
+        x = splitmix(&mut counter);
+    }
+    x
+}
+
 impl Rng {
     /// A generator seeded from a list of words (scene seed, angle, band, row, stream...):
     /// each word is folded into a hash chain (`x = mix(x ^ word)`, SplitMix64's output), so
-    /// distinct lists give unrelated streams. (Folding the words into SplitMix's counter
-    /// alone, `x = (x ^ word) + golden`, as this once did, is nearly linear: of a 12-row,
-    /// 151-band, 5-angle sweep's 9060 rows only 192 got their own noise, the rest repeated it
-    /// at other bands, rows and angles, and errors came out twice what the noise explains.)
+    /// distinct lists give unrelated streams, and the state is SplitMix64's next four outputs
+    /// from the chain's end. (Folding the words into SplitMix's counter alone,
+    /// `x = (x ^ word) + golden`, is nearly linear: most rows of a sweep would repeat
+    /// another's noise.)
     pub fn from_words(words: &[u64]) -> Self {
-        let mut x = 0x5EED_F11E_u64;
-        for &w in words {
-            let mut counter = x ^ w;
-            x = splitmix(&mut counter);
-        }
-        Self {
-            s: [
-                splitmix(&mut x),
-                splitmix(&mut x),
-                splitmix(&mut x),
-                splitmix(&mut x),
-            ],
-        }
+        Self(Xoshiro256PlusPlus::seed_from_u64(chain(words)))
     }
 
     /// The next 64 random bits.
+    #[inline]
     pub fn next_u64(&mut self) -> u64 {
-        let s = &mut self.s;
-        let r = s[0].wrapping_add(s[3]).rotate_left(23).wrapping_add(s[0]);
-        let t = s[1] << 17;
-        s[2] ^= s[0];
-        s[3] ^= s[1];
-        s[1] ^= s[2];
-        s[0] ^= s[3];
-        s[2] ^= t;
-        s[3] = s[3].rotate_left(45);
-        r
+        self.0.next_u64()
     }
 
     /// Uniform in `[0, 1)`.
@@ -273,6 +265,47 @@ fn normal_tail(rng: &mut Rng, min: f64, negative: bool) -> f64 {
 mod tests {
     use super::*;
 
+    /// xoshiro256++ written out (Blackman and Vigna's reference), its state SplitMix64's
+    /// first four outputs from `seed`.
+    fn reference(seed: u64) -> impl FnMut() -> u64 {
+        let mut x = seed;
+        let mut s = [0u64; 4];
+        for w in &mut s {
+            *w = splitmix(&mut x);
+        }
+        move || {
+            let r = s[0].wrapping_add(s[3]).rotate_left(23).wrapping_add(s[0]);
+            let t = s[1] << 17;
+            s[2] ^= s[0];
+            s[3] ^= s[1];
+            s[1] ^= s[2];
+            s[0] ^= s[3];
+            s[2] ^= t;
+            s[3] = s[3].rotate_left(45);
+            r
+        }
+    }
+
+    /// `rand_xoshiro` seeded from the words' chain gives the reference stream, draw for draw:
+    /// every simulated capture keeps its bytes.
+    #[test]
+    fn the_stream_is_xoshiro256_plus_plus_seeded_by_splitmix() {
+        for words in [
+            &[][..],
+            &[0],
+            &[1],
+            &[7, 1, 0, 0, 0],
+            &[42, 3, 4, 150, 63],
+            &[u64::MAX],
+        ] {
+            let mut rng = Rng::from_words(words);
+            let mut want = reference(chain(words));
+            for k in 0..1000 {
+                assert_eq!(rng.next_u64(), want(), "{words:?}: draw {k}");
+            }
+        }
+    }
+
     /// Every (stream, angle, band, row) of a sweep gets its own noise: no two of 4 x 5 x 201 x
     /// 64 word lists start the same sequence or share a state word.
     #[test]
@@ -283,8 +316,10 @@ mod tests {
             for angle in 0..5u64 {
                 for band in 0..201u64 {
                     for row in 0..64u64 {
-                        let rng = Rng::from_words(&[7, stream, angle, band, row]);
-                        for word in rng.s {
+                        // The state words: SplitMix64's first four from the chain's end.
+                        let mut x = chain(&[7, stream, angle, band, row]);
+                        for _ in 0..4 {
+                            let word = splitmix(&mut x);
                             assert!(seen.insert(word), "{stream} {angle} {band} {row}");
                         }
                         lists += 1;

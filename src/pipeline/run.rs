@@ -25,7 +25,8 @@ use filmscope_core::solve::refine::{AngleModels, BandCoef, Knot};
 use filmscope_core::solve::sweep::SolverOptions;
 use filmscope_core::solve::sweep::{FitStats, SchurSums};
 use filmscope_core::solve::{
-    tracker_blocks, AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepSolver, SweepSpec,
+    tracker_blocks, AngleReport, IndexModel, PixelResult, PixelState, Shard, SweepContext,
+    SweepSolver, SweepSpec,
 };
 use filmscope_core::track::row::{TrackerLanes, LANES};
 use filmscope_core::track::{pack_sample, unpack_sample};
@@ -139,10 +140,11 @@ enum WorkerMsg {
 
 /// The state of an angle for a worker, on its own channel (from the coordinator): rows are
 /// read only after it, so rows of the next angle can never reach the previous one's state.
-/// The solver as the angle began tallies the rows that have seen the angle's last band.
+/// The solver's context as the angle began tallies the rows that have seen the angle's last
+/// band.
 /// The last element: the angles left in the sweep, this one included (the worker sizes its
 /// held block for the next angle, or gives it back after the last: [`HeldBlock`]).
-type Start = (ShardState, Arc<BandModels>, Arc<SweepSolver>, usize);
+type Start = (ShardState, Arc<BandModels>, Arc<SweepContext>, usize);
 
 /// A shard's angle-end pass 1 ([`Shard::tally`]): votes and fit statistics.
 pub type Tally = (RatioHistogram, FitStats);
@@ -246,9 +248,6 @@ pub struct BandModels {
     pub coefs: Vec<Option<BandCoef>>,
     /// The tabulated bands' knots.
     pub knots: Vec<Knot>,
-    /// Whether seeded pixels hold their thickness through the angle
-    /// ([`SweepSolver::frozen_seeds`]).
-    pub seeds_held: bool,
 }
 
 impl BandModels {
@@ -273,11 +272,7 @@ impl BandModels {
         } else {
             Vec::new()
         };
-        Self {
-            coefs,
-            knots,
-            seeds_held: solver.frozen_seeds(),
-        }
+        Self { coefs, knots }
     }
 
     /// A borrowed view for [`Shard::feed_row`].
@@ -285,7 +280,6 @@ impl BandModels {
         AngleModels {
             coefs: &self.coefs,
             knots: &self.knots,
-            seeds_held: self.seeds_held,
         }
     }
 }
@@ -349,25 +343,15 @@ pub struct Prior {
     /// global search on sampled spectra): such pixels need no extrema. The map the sweep's
     /// output replaces, not per-pixel state.
     pub seed: Option<Arc<Vec<f32>>>,
-    /// Most index basis terms the full spectra may use (`None`: as many as the data ask
-    /// for; [`SweepSolver::with_max_terms`]).
-    pub max_terms: Option<usize>,
-    /// The image's noise an earlier pass over the same data measured, held for the sweep
-    /// (`None`: measured by this one; [`SweepSolver::with_noise_sigma`]). A
-    /// [`PriorUpdate::Frozen`] pass needs it: it tracks no held pixel's extrema.
-    pub noise_sigma: Option<f32>,
 }
 
 impl Prior {
-    /// `index`, moved by `update`, from `seed`'s thicknesses where given; as many index
-    /// terms as the data ask for, and the noise measured by the sweep itself.
+    /// `index`, moved by `update`, from `seed`'s thicknesses where given.
     pub fn new(index: IndexModel, update: PriorUpdate, seed: Option<Arc<Vec<f32>>>) -> Self {
         Self {
             index,
             update,
             seed,
-            max_terms: None,
-            noise_sigma: None,
         }
     }
 }
@@ -384,10 +368,6 @@ pub enum PriorUpdate {
     Hold,
     /// The full spectra move it ([`SweepSolver::with_spectral_index`]).
     FullSpectra,
-    /// It and the seeded thicknesses are held ([`SweepSolver::with_frozen_seeds`]) until the
-    /// last angle, whose sums (every one linearised at an earlier pass's result) test the
-    /// index model's last term and take one Gauss-Newton step ([`SweepSolver::thaw`]).
-    Frozen,
 }
 
 /// Runs one sweep from `source` through the pipeline; `on_rows` is told of every block of
@@ -450,29 +430,7 @@ fn sweep(
     match prior.as_ref().map(|p| p.update) {
         Some(PriorUpdate::FullSpectra) => solver = solver.with_spectral_index(),
         Some(PriorUpdate::Hold) => solver = solver.with_held_index(),
-        Some(PriorUpdate::Frozen) => solver = solver.with_frozen_seeds(),
         _ => {}
-    }
-    if let Some(terms) = prior.as_ref().and_then(|p| p.max_terms) {
-        solver = solver.with_max_terms(terms);
-    }
-    if let Some(sigma) = prior.as_ref().and_then(|p| p.noise_sigma) {
-        solver = solver.with_noise_sigma(sigma);
-    }
-    // A held pass's seeds keep their thickness: its tables need cover only theirs (a pixel
-    // without a seed that finds its order elsewhere has its models computed).
-    if let Some(map) = prior
-        .as_ref()
-        .filter(|p| p.update == PriorUpdate::Frozen)
-        .and_then(|p| p.seed.as_ref())
-    {
-        let (lo, hi) = map
-            .iter()
-            .filter(|d| d.is_finite())
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &d| {
-                (a.min(d), b.max(d))
-            });
-        solver = solver.with_table_thickness(f64::from(lo), f64::from(hi));
     }
     let mut solver = Box::new(solver);
     let seed = prior
@@ -539,7 +497,7 @@ fn sweep(
                 Control::Angle(deg) => {
                     solver.begin_angle(deg);
                     let snapshot = Arc::new(BandModels::of(&solver, workers));
-                    let began = Arc::new((*solver).clone());
+                    let began = Arc::new(solver.context().clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
                     for (i, tx) in start_txs.iter().enumerate() {
                         let mut st = states[i].take().unwrap_or_default();
@@ -577,9 +535,6 @@ fn sweep(
                         .map(|(i, st)| st.shard(shard_rows(h, workers, i).0, w))
                         .collect();
                     let last = solver.angles_done() + 1 == angles;
-                    if last {
-                        solver.thaw();
-                    }
                     if let Some(hook) = hook.as_mut() {
                         let complete = solver.angles_done() + 1;
                         if let Some(m) = (hook.refit)(complete) {
@@ -822,8 +777,8 @@ const VOTE_AHEAD_BANDS: u32 = 16;
 /// soon as it has seen the angle's last band, its state in cache and later rows still
 /// streaming, so that after the angle's last row little is left to tally.
 struct RowTally {
-    /// The solver as the angle began (the pair geometry).
-    solver: Arc<SweepSolver>,
+    /// The solver's context as the angle began (the pair geometry).
+    solver: Arc<SweepContext>,
     /// Bands per angle.
     bands: u32,
     /// Bands fed to each row of the shard.
@@ -839,7 +794,7 @@ struct RowTally {
 }
 
 impl RowTally {
-    fn new(solver: Arc<SweepSolver>, bands: usize, rows: usize, defer_if_behind: bool) -> Self {
+    fn new(solver: Arc<SweepContext>, bands: usize, rows: usize, defer_if_behind: bool) -> Self {
         Self {
             solver,
             bands: bands as u32,

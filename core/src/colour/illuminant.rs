@@ -59,21 +59,28 @@ const BRADFORD: [[f64; 3]; 3] = [
     [0.0389, -0.0685, 1.0296],
 ];
 
-/// The inverse of [`BRADFORD`] (computed once by Gauss-Jordan elimination; the
-/// matrix is well conditioned).
-fn bradford_inverse() -> [[f64; 3]; 3] {
-    let m = BRADFORD;
+/// The inverse of [`BRADFORD`], evaluated at compile time (the adjugate over the
+/// determinant; the matrix is well conditioned).
+const BRADFORD_INVERSE: [[f64; 3]; 3] = inverse_3x3(&BRADFORD);
+
+/// The inverse of a 3 x 3 matrix by its adjugate: hand-made because it is a `const fn`
+/// (nalgebra's inverse is not), so [`BRADFORD_INVERSE`] costs nothing at run time.
+const fn inverse_3x3(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
         - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
         + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
     let mut inv = [[0.0; 3]; 3];
-    for (r, row) in inv.iter_mut().enumerate() {
-        for (c, v) in row.iter_mut().enumerate() {
+    let mut r = 0;
+    while r < 3 {
+        let mut c = 0;
+        while c < 3 {
             // Cofactor of element (c, r), i.e. the adjugate's (r, c).
             let (r1, r2) = ((c + 1) % 3, (c + 2) % 3);
             let (c1, c2) = ((r + 1) % 3, (r + 2) % 3);
-            *v = (m[r1][c1] * m[r2][c2] - m[r1][c2] * m[r2][c1]) / det;
+            inv[r][c] = (m[r1][c1] * m[r2][c2] - m[r1][c2] * m[r2][c1]) / det;
+            c += 1;
         }
+        r += 1;
     }
     inv
 }
@@ -103,13 +110,24 @@ pub fn bradford_adapt(xyz: Xyz, from_white: Xyz, to_white: Xyz) -> Xyz {
         cone[1] * dst[1] / src[1],
         cone[2] * dst[2] / src[2],
     ];
-    let [x, y, z] = apply(&bradford_inverse(), scaled);
+    let [x, y, z] = apply(&BRADFORD_INVERSE, scaled);
     Xyz { x, y, z }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_const_inverse_is_nalgebras() {
+        let m = nalgebra::Matrix3::from_fn(|i, j| BRADFORD[i][j]);
+        let inv = m.try_inverse().expect("invertible");
+        for (i, row) in BRADFORD_INVERSE.iter().enumerate() {
+            for (j, v) in row.iter().enumerate() {
+                assert!((v - inv[(i, j)]).abs() < 1e-15, "({i}, {j}): {v}");
+            }
+        }
+    }
 
     #[test]
     fn names_round_trip() {

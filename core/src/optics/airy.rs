@@ -6,9 +6,8 @@
 //! half-order peaks, `(m + 1/2) lambda = phi`, by construction: nothing here assumes where the
 //! peaks sit.
 
-use super::complex::Complex;
 use super::fresnel::{fresnel_r, fresnel_r_real, normal_component, snell_invariant};
-use super::Polarization;
+use super::{Complex, Polarization};
 
 /// The three real indices of an ambient / film / substrate stack at one wavelength.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -38,9 +37,12 @@ fn reflectance_pure(
     let r23 = fresnel_r(pol, idx.film, idx.substrate, kz2, kz3);
     // i * Delta, with Delta = 4 pi d kz2 / lambda (complex when the film wave is evanescent).
     let k = 4.0 * core::f64::consts::PI * thickness_nm / wavelength_nm;
-    let i_delta = Complex::new(-kz2.im * k, kz2.re * k);
-    let phase = i_delta.exp();
-    let one = Complex::real(1.0);
+    // e^{i Delta} through libm (not `Complex::exp`, whose exp, cos and sin are std's or
+    // libm's depending on num-traits' features): the same bits in every build.
+    let (re, im) = (-kz2.im * k, kz2.re * k);
+    let m = libm::exp(re);
+    let phase = Complex::new(m * libm::cos(im), m * libm::sin(im));
+    let one = Complex::new(1.0, 0.0);
     let r = (r12 + r23 * phase) / (one + r12 * r23 * phase);
     r.norm_sqr()
 }

@@ -5,7 +5,7 @@
 //! `kz_j = sqrt(n_j^2 - beta^2)`. Beyond the critical angle `kz_j` is imaginary (an
 //! evanescent wave), which is how total internal reflection falls out without special cases.
 
-use super::complex::Complex;
+use super::Complex;
 use super::Polarization;
 
 /// The Snell invariant `beta = n1 sin(theta1)` of light arriving from a medium of index
@@ -25,9 +25,15 @@ pub fn refraction_deg(n: f64, beta: f64) -> Option<f64> {
     }
 }
 
-/// `n cos(theta)` in a medium of index `n`, complex (upper branch) when evanescent.
+/// `n cos(theta)` in a medium of index `n`, complex when evanescent: the branch with a
+/// non-negative imaginary part, a wave that decays away from the interface.
 pub fn normal_component(n: f64, beta: f64) -> Complex {
-    Complex::sqrt_real_upper(n * n - beta * beta)
+    let x = n * n - beta * beta;
+    if x >= 0.0 {
+        Complex::new(libm::sqrt(x), 0.0)
+    } else {
+        Complex::new(0.0, libm::sqrt(-x))
+    }
 }
 
 /// The Fresnel amplitude reflection coefficient for light going from medium `i` to medium `j`

@@ -7,7 +7,6 @@
 //! (`tests/optics_tmm.rs`) and analytic limits (unit tests below).
 
 mod airy;
-mod complex;
 mod dispersion;
 mod field;
 mod film;
@@ -15,11 +14,12 @@ mod fresnel;
 mod passband;
 
 pub use airy::{film_reflectance, FilmAtAngle, Indices};
-pub use complex::Complex;
 pub use dispersion::{materials, Dispersion};
 pub use field::FieldOfView;
 pub use film::{BandModel, FilmStack};
 pub use fresnel::{fresnel_r, fresnel_r_real, normal_component, refraction_deg, snell_invariant};
+/// The complex numbers of the Airy sum and the Fresnel coefficients.
+pub use num_complex::Complex64 as Complex;
 pub use passband::{Passband, DEFAULT_NODES, HALF_WIDTH_FWHM, MAX_NODES};
 
 #[cfg(test)]

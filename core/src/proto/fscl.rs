@@ -46,34 +46,7 @@ pub const STATUS_PARTIAL: u16 = 1;
 
 /// CRC-32/IEEE (reflected 0xEDB88320, init and final xor 0xFFFFFFFF) of `data`.
 pub fn crc32(data: &[u8]) -> u32 {
-    !crc32_update(!0, data)
-}
-
-const CRC_TABLE: [u32; 256] = {
-    let mut t = [0u32; 256];
-    let mut i = 0;
-    while i < 256 {
-        let mut c = i as u32;
-        let mut k = 0;
-        while k < 8 {
-            c = if c & 1 != 0 {
-                0xEDB8_8320 ^ (c >> 1)
-            } else {
-                c >> 1
-            };
-            k += 1;
-        }
-        t[i] = c;
-        i += 1;
-    }
-    t
-};
-
-fn crc32_update(mut crc: u32, data: &[u8]) -> u32 {
-    for &b in data {
-        crc = CRC_TABLE[((crc ^ u32::from(b)) & 0xFF) as usize] ^ (crc >> 8);
-    }
-    crc
+    crc32fast::hash(data)
 }
 
 /// The fixed fields of a message.

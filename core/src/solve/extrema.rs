@@ -55,7 +55,7 @@ impl AnchorTail {
 }
 
 /// What a pixel of the index's sample keeps besides its [`ExtremaHead`]s: the current
-/// angle's whole list, how many of it have voted ([`super::Shard::vote_rows`]), and the
+/// angle's whole list, how many of it have voted (the shard's `vote_rows`), and the
 /// reference angle's extrema before its head: 78 bytes with padding.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SampleExtrema {

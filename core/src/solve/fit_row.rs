@@ -97,7 +97,7 @@ type Lanes = [f32; LANES];
 pub const BAD_COUNT_MAX: u8 = u8::MAX;
 
 /// Pixels that keep the index's sums in a large image by default
-/// ([`super::sweep::SolverOptions::index_pixels`]): about this many (a 1 Mpix sensor's
+/// (the solver options' `index_pixels`): about this many (a 1 Mpix sensor's
 /// index step from one pixel in 16; every pixel of a sensor under 131072).
 pub const INDEX_PIXELS: usize = 65_536;
 
@@ -416,13 +416,6 @@ impl FitLanes {
     pub fn rms(&self, i: usize) -> Option<f32> {
         let n = self.gn_samples[i];
         (n > 0).then(|| libm::sqrtf(self.sums[SSE_TERM][i] / f32::from(n)))
-    }
-
-    /// Whether each of the first `lanes` lanes has a thickness.
-    pub fn all_have_thickness(&self, lanes: usize) -> bool {
-        self.thickness_nm[..lanes.min(LANES)]
-            .iter()
-            .all(|d| d.is_finite())
     }
 
     /// Stores `p` in lane `i` (all but the shared sample count and the index's sums).

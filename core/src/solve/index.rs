@@ -9,6 +9,8 @@
 //! mean around it) gives `n^2 = (x_cur - rho^2 x_ref) / (1 - rho^2)` (eq. 12, every pixel
 //! pooled).
 
+use nalgebra::{Matrix2, Vector2};
+
 use crate::track::{Extremum, MAX_EXTREMA};
 
 /// Bins of a ratio histogram.
@@ -706,30 +708,27 @@ fn residuals_and_jacobian(
     }
 }
 
+/// One Gauss-Newton step of the Cauchy fit and the inverse of its normal matrix (the
+/// coefficients' covariance up to the reduced chi-square), or `None` unless that matrix is
+/// positive definite.
 fn normal_2d(pairs: &[PairBins], m: super::IndexModel) -> Option<([f64; 2], [[f64; 2]; 2])> {
-    let mut h = [[0.0; 2]; 2];
-    let mut g = [0.0; 2];
+    let mut h = Matrix2::<f64>::zeros();
+    let mut g = Vector2::<f64>::zeros();
     residuals_and_jacobian(pairs, m, |r, j| {
         for i in 0..2 {
             g[i] += j[i] * r;
             for k in 0..2 {
-                h[i][k] += j[i] * j[k];
+                h[(i, k)] += j[i] * j[k];
             }
         }
     });
-    let det = h[0][0] * h[1][1] - h[0][1] * h[1][0];
+    let det = h.determinant();
     if !(det.is_finite() && det > 0.0) {
         return None;
     }
-    let inv = [
-        [h[1][1] / det, -h[0][1] / det],
-        [-h[1][0] / det, h[0][0] / det],
-    ];
-    let step = [
-        inv[0][0] * g[0] + inv[0][1] * g[1],
-        inv[1][0] * g[0] + inv[1][1] * g[1],
-    ];
-    Some((step, inv))
+    let inv = h.try_inverse()?;
+    let step = inv * g;
+    Some((step.into(), inv.transpose().into()))
 }
 
 #[cfg(test)]

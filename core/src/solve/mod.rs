@@ -21,8 +21,11 @@
 //!    one order away: that pixel is flagged, never reported.
 //!
 //! [`shard`] holds the per-pixel state of a band of rows (the pipeline gives each core one)
-//! and [`sweep`] the global state and the reductions between shards.
+//! and [`sweep`] the global state and the reductions between shards. Imports point one way:
+//! [`sweep`] drives shards; a shard reads the solver's read-only [`context`] (the [`spec`]
+//! among it) and sends up [`sums`], and knows nothing of the solver.
 
+pub mod context;
 pub mod extrema;
 pub mod fit_row;
 pub mod index;
@@ -30,10 +33,16 @@ pub mod order;
 pub mod refine;
 pub mod sample;
 pub mod shard;
+pub mod spec;
+pub mod sums;
 pub mod sweep;
+#[cfg(test)]
+mod tests;
 
+pub use context::SweepContext;
 pub use shard::{state_bytes_per_pixel, tracker_blocks, PixelResult, PixelState, Shard};
-pub use sweep::{AngleReport, SweepSolver, SweepSpec};
+pub use spec::{SolverOptions, SweepSpec};
+pub use sweep::{AngleReport, SweepSolver};
 
 /// Why a pixel has no thickness, or what to know about the one it has (bit flags).
 pub mod flags {

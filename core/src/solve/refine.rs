@@ -7,7 +7,7 @@
 //! `J_n^2 u^k` (k < 5: every entry of the index block), `J_d r`, `J_n r u^k` and `r^2`
 //! (`r = R - M`). Their size does not depend on the number of bands, angles or sweeps. At each
 //! angle's end the per-pixel `d` rows are eliminated (Schur complement) to move the shared
-//! index, then each `d` steps (see [`super::sweep`]).
+//! index, then each `d` steps (the solver's angle end).
 //!
 //! The model per band is the Airy reflectance averaged over the Gaussian passband by 5-point
 //! Gauss-Hermite quadrature, dispersion followed node by node. Two more sums score the
@@ -256,10 +256,6 @@ pub struct AngleModels<'a> {
     pub coefs: &'a [Option<BandCoef>],
     /// The tabulated bands' knots.
     pub knots: &'a [Knot],
-    /// Whether seeded pixels hold their thickness through the angle
-    /// ([`super::SweepSolver::frozen_seeds`]): a block of them needs no extrema, and its
-    /// tracker is not fed ([`super::Shard::feed_row`]).
-    pub seeds_held: bool,
 }
 
 /// The model of one band at one thickness: reflectance, its thickness and index derivatives,
@@ -504,7 +500,7 @@ pub struct GnSums {
 pub const PIXEL_TERMS: usize = 8;
 
 /// Sums only the shared index's step needs ([`GnSums::to_index_terms`]): `h_pp`, `g_p`. A
-/// sample of the pixels keeps them ([`super::fit_row::IndexSampling`]).
+/// sample of the pixels keeps them (the row blocks' index sampling).
 pub const INDEX_TERMS: usize = 8;
 
 /// Where `g_d` is in [`GnSums::to_pixel_terms`]' array (`h_dd` and `h_dp` before it).
@@ -657,7 +653,7 @@ impl GnSums {
 
     /// Moves the linearisation point by `dd` (thickness) and `dp` (index basis coefficients):
     /// the gradients and the squared error follow the linear model. A pixel that keeps no
-    /// index sums ([`super::fit_row::IndexSampling`]; zeros here) moves its squared error by
+    /// index sums (outside the index's sample of pixels; zeros here) moves its squared error by
     /// the thickness's terms only: measured, leaving the index's out for every pixel changed
     /// no figure `filmscope eval` prints on the config scenes and the thick stability cells.
     pub fn shift(&mut self, dd: f64, dp: [f64; 3]) {

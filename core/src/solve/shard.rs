@@ -1,15 +1,17 @@
-//! Per-pixel state of a band of rows, and the shard-local passes of the solver.
+//! Per-pixel state of a band of rows, and the shard-local passes of the sweep.
 
 use crate::track::row::{self, TrackerLanes};
 use crate::track::{ExtremaHead, Extremum, ExtremumSink, LaneSinks};
 
+use super::context::SweepContext;
 use super::extrema::{self, AnchorTail, SampleExtrema};
 use super::fit_row::{self, FitLanes, IndexLanes, IndexSampling, PixelFit};
 use super::flags;
 use super::index::{accumulate_window, RatioHistogram, RatioSums};
 use super::order::{Observation, OrderChoice, OrderContext};
 use super::refine::{AngleModels, GnSums, INDEX_TERMS};
-use super::sweep::{FitStats, SchurSums, SolverOptions, SweepSolver, SweepSpec};
+use super::spec::{SolverOptions, SweepSpec};
+use super::sums::{FitStats, SchurSums};
 use super::IndexModel;
 
 /// Cost margin below which two orders are a tie (squared order misfits).
@@ -286,7 +288,7 @@ impl<'a> Shard<'a> {
 
     /// The whole extremum lists of the pixel in the shard's row `r`, column `c`, if it is
     /// one of the index's sample (the others keep their last extrema only).
-    fn lists_at(&self, r: usize, c: usize) -> Option<&SampleExtrema> {
+    pub(super) fn lists_at(&self, r: usize, c: usize) -> Option<&SampleExtrema> {
         self.lanes_at(r, c)
             .1
             .map(|lane| &self.lists[Self::list_slot(lane)])
@@ -351,14 +353,14 @@ impl<'a> Shard<'a> {
     /// angle's end.
     pub fn vote_rows(
         &mut self,
-        solver: &SweepSolver,
+        sweep: &SweepContext,
         rows: core::ops::Range<usize>,
         votes: &mut RatioHistogram,
     ) {
-        let Some(g) = solver.pair_geometry() else {
+        let Some(g) = sweep.pair_geometry() else {
             return;
         };
-        let spec = solver.spec();
+        let spec = sweep.spec();
         let (lo, hi) = self.local_rows(rows);
         let w = self.width;
         for r in lo..hi {
@@ -382,7 +384,7 @@ impl<'a> Shard<'a> {
 
     /// Feeds one row of calibrated reflectance of band `band` (`values.len() == width`;
     /// `+inf` marks a saturated sample, NaN one without a usable reference). `models` are the
-    /// angle's band models ([`SweepSolver::band_models`]).
+    /// angle's band models (the solver's `band_models`).
     pub fn feed_row(
         &mut self,
         options: SolverOptions,
@@ -415,15 +417,7 @@ impl<'a> Shard<'a> {
                 let lists = &mut self.lists
                     [local * per_row * row::LANES..(local + 1) * per_row * row::LANES];
                 let lanes = values.chunks(row::LANES).zip(pixels.chunks_mut(row::LANES));
-                for (b, ((t, f), (v, p))) in
-                    trackers.iter_mut().zip(fits.iter()).zip(lanes).enumerate()
-                {
-                    // A block whose every pixel holds its thickness has no order to choose: its
-                    // extrema are not needed (measured: the tracker was a quarter of a polishing
-                    // pass at 128 x 96).
-                    if models.seeds_held && f.all_have_thickness(v.len()) {
-                        continue;
-                    }
+                for (b, (t, (v, p))) in trackers.iter_mut().zip(lanes).enumerate() {
                     let mut sinks = BlockSinks {
                         pixels: p,
                         lists: &mut *lists,
@@ -444,11 +438,11 @@ impl<'a> Shard<'a> {
     /// votes), the RMS residuals of the refined ones and their noise. Image-wide statistics
     /// (the ratio window, the RMS median, the pooled noise) need no more pixels than the
     /// index's step does, and the other pixels' state is not walked.
-    pub fn tally(&self, solver: &SweepSolver) -> (RatioHistogram, FitStats) {
+    pub fn tally(&self, sweep: &SweepContext) -> (RatioHistogram, FitStats) {
         let mut votes = RatioHistogram::default();
         let mut fit = FitStats::default();
         let rows = self.first_row..self.first_row + self.rows();
-        self.tally_rows(solver, rows, &mut votes, &mut fit);
+        self.tally_rows(sweep, rows, &mut votes, &mut fit);
         (votes, fit)
     }
 
@@ -457,17 +451,15 @@ impl<'a> Shard<'a> {
     /// still stream (the counts add up to the same whatever the rows' grouping).
     pub fn tally_rows(
         &self,
-        solver: &SweepSolver,
+        sweep: &SweepContext,
         rows: core::ops::Range<usize>,
         votes: &mut RatioHistogram,
         fit: &mut FitStats,
     ) {
-        let spec = solver.spec();
-        let geometry = solver.pair_geometry();
+        let spec = sweep.spec();
+        let geometry = sweep.pair_geometry();
         let (lo, hi) = self.local_rows(rows);
         let w = self.width;
-        // A held noise is not pooled; the held pixels' trackers were not fed.
-        let noise_held = solver.noise_held();
         for r in lo..hi {
             for c in self.sampling.cols(self.first_row + r, w) {
                 let ((block, lane), sample) = self.lanes_at(r, c);
@@ -480,9 +472,7 @@ impl<'a> Shard<'a> {
                 if let Some(rms) = self.fits[block].rms(lane) {
                     fit.rms.add(rms);
                 }
-                if !noise_held {
-                    fit.noise.add(self.trackers[block].noise_sigma(lane));
-                }
+                fit.noise.add(self.trackers[block].noise_sigma(lane));
             }
         }
     }
@@ -496,15 +486,15 @@ impl<'a> Shard<'a> {
     /// is sharded), over the pixels that keep the index's sums ([`IndexSampling`]): the sums
     /// of their ratios inside the accepted window, and their contributions to the shared
     /// index step (their own thickness eliminated), outliers left out.
-    pub fn sums(&self, solver: &SweepSolver, mut f: impl FnMut(usize, RatioSums, SchurSums)) {
-        let spec = solver.spec();
-        let window = solver.pair_geometry().zip(solver.ratio_window());
-        let limit = solver
+    pub fn sums(&self, sweep: &SweepContext, mut f: impl FnMut(usize, RatioSums, SchurSums)) {
+        let spec = sweep.spec();
+        let window = sweep.pair_geometry().zip(sweep.ratio_window());
+        let limit = sweep
             .rms_median()
             .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR);
         // A pixel about to move to a neighbouring order ([`Shard::update`]) would pull the
         // index toward its wrong order: left out.
-        let (hop, d_lo) = Self::hop_margin(solver);
+        let (hop, d_lo) = Self::hop_margin(sweep);
         let settled =
             |f: &PixelFit| hop.is_none_or(|margin| Self::better_order(f, margin, d_lo).is_none());
         let width = self.width.max(1);
@@ -547,34 +537,33 @@ impl<'a> Shard<'a> {
     /// Angle-end pass 3: steps every refined pixel's thickness (with the index step), keeps
     /// the first angle's extrema, and gives every pixel without an order the one its extrema
     /// choose clearly; `tie(i)` is told of each pixel (index in the shard, in increasing
-    /// order) whose two best orders are too close to call, for [`super::sweep::resolve_orders`] (a
+    /// order) whose two best orders are too close to call, for the solver's `resolve_orders` (a
     /// resolved neighbour decides those, in image order). At the sweep's last angle, `out`
     /// (the shard's results, row-major) gets every pixel's final result as [`Shard::finish`]
     /// gives it (the ties' to be given again once resolved: [`Shard::finish_pixels`]).
     pub fn update(
         &mut self,
-        solver: &SweepSolver,
+        sweep: &SweepContext,
         mut out: Option<&mut [PixelResult]>,
         mut tie: impl FnMut(usize),
     ) {
-        let dp = solver.pending_index_step();
-        let first_angle = solver.anchor_deg().is_none();
+        let dp = sweep.pending_index_step();
+        let first_angle = sweep.anchor_deg().is_none();
         // An index that moved this much makes the orders chosen with the old one suspect:
         // every pixel chooses again (with this angle's extrema) and its sums restart.
-        let reorder = solver.reorders();
-        let (hop, d_lo) = Self::hop_margin(solver);
-        let spec = solver.spec();
+        let reorder = sweep.reorders();
+        let (hop, d_lo) = Self::hop_margin(sweep);
+        let spec = sweep.spec();
         // A pixel not refined yet follows the index change at constant optical path.
-        let path_ratio = match (solver.index(), solver.next_index()) {
+        let path_ratio = match (sweep.index(), sweep.next_index()) {
             (Some(old), Some(new)) => {
                 let mid = spec.bands_nm[spec.bands_nm.len() / 2];
                 Some(old.at(mid) / new.at(mid))
             }
             _ => None,
         };
-        let orders = Self::order_context(solver);
-        let finish = out.is_some().then(|| Finish::of(solver));
-        let frozen = solver.frozen_seeds();
+        let orders = Self::order_context(sweep);
+        let finish = out.is_some().then(|| Finish::of(sweep));
         let w = self.width.max(1);
         let rows = self.pixels.len() / w;
         let mut steps = None;
@@ -601,9 +590,7 @@ impl<'a> Shard<'a> {
             // A seeded pixel has no extrema to choose its order again from: it keeps its
             // thickness and steps with the index like the others.
             let seeded = p.flags & flags::FROM_SPECTRUM_SEARCH != 0;
-            if seeded && frozen {
-                // Held where the seed put it: its sums stay linearised there.
-            } else if reorder && f.thickness_nm.is_finite() && !seeded {
+            if reorder && f.thickness_nm.is_finite() && !seeded {
                 f.thickness_nm = f32::NAN;
                 f.gn = GnSums::default();
                 p.flags &= !flags::ORDER_FROM_NEIGHBOUR;
@@ -661,11 +648,11 @@ impl<'a> Shard<'a> {
     /// How much better (sum of squares) a neighbouring order must fit for a pixel to move to
     /// it ([`ORDER_HOP_CHI2`] noise variances), once the image's noise is known, and the
     /// lower end of the thickness search range.
-    fn hop_margin(solver: &SweepSolver) -> (Option<f64>, f64) {
-        let margin = solver
+    fn hop_margin(sweep: &SweepContext) -> (Option<f64>, f64) {
+        let margin = sweep
             .noise_sigma()
             .map(|n| ORDER_HOP_CHI2 * f64::from(n) * f64::from(n));
-        (margin, solver.spec().thickness_range_nm[0])
+        (margin, sweep.spec().thickness_range_nm[0])
     }
 
     /// The neighbouring order (`-1.0` thinner, `1.0` thicker) whose full-spectrum misfit is
@@ -706,18 +693,18 @@ impl<'a> Shard<'a> {
         }
     }
 
-    fn order_context(solver: &SweepSolver) -> Option<OrderContext> {
-        let index = solver.next_index()?;
-        let spec = solver.spec();
-        let anchor = solver.anchor_deg()?;
-        let cur = solver.angle_deg();
+    fn order_context(sweep: &SweepContext) -> Option<OrderContext> {
+        let index = sweep.next_index()?;
+        let spec = sweep.spec();
+        let anchor = sweep.anchor_deg()?;
+        let cur = sweep.angle_deg();
         Some(OrderContext {
             index,
             x: [spec.x_of(anchor), spec.x_of(cur)],
             angles: 2,
             peak_offset: [
-                solver.peak_offset(index, anchor),
-                solver.peak_offset(index, cur),
+                sweep.peak_offset(index, anchor),
+                sweep.peak_offset(index, cur),
             ],
             thickness_range_nm: spec.thickness_range_nm,
             reliable_nm: spec.reliable_range_nm(),
@@ -768,11 +755,11 @@ impl<'a> Shard<'a> {
     /// of its two best. Returns whether ties remain.
     pub fn resolve_forward(
         &mut self,
-        solver: &SweepSolver,
+        sweep: &SweepContext,
         above: Option<&[f32]>,
         ties: impl Iterator<Item = usize>,
     ) -> bool {
-        let Some(ctx) = Self::order_context(solver) else {
+        let Some(ctx) = Self::order_context(sweep) else {
             return false;
         };
         let w = self.width;
@@ -781,7 +768,7 @@ impl<'a> Shard<'a> {
             if self.fit(i).thickness_nm.is_finite() {
                 continue;
             }
-            let Some(c) = self.choose_at(i, solver.spec(), &ctx) else {
+            let Some(c) = self.choose_at(i, sweep.spec(), &ctx) else {
                 continue;
             };
             let left = (i % w > 0).then(|| self.fit(i - 1).thickness_nm);
@@ -790,7 +777,7 @@ impl<'a> Shard<'a> {
             } else {
                 above.and_then(|a| a.get(i).copied())
             };
-            if !self.adopt_neighbour(solver, i, &c, [left, up]) {
+            if !self.adopt_neighbour(sweep, i, &c, [left, up]) {
                 pending = true;
             }
         }
@@ -802,11 +789,11 @@ impl<'a> Shard<'a> {
     /// the next shard's first row).
     pub fn resolve_backward(
         &mut self,
-        solver: &SweepSolver,
+        sweep: &SweepContext,
         below: Option<&[f32]>,
         ties: impl Iterator<Item = usize>,
     ) {
-        let Some(ctx) = Self::order_context(solver) else {
+        let Some(ctx) = Self::order_context(sweep) else {
             return;
         };
         let w = self.width;
@@ -815,26 +802,26 @@ impl<'a> Shard<'a> {
             if self.fit(i).thickness_nm.is_finite() {
                 continue;
             }
-            if let Some(c) = self.choose_at(i, solver.spec(), &ctx) {
+            if let Some(c) = self.choose_at(i, sweep.spec(), &ctx) {
                 let right = (i % w + 1 < w).then(|| self.fit(i + 1).thickness_nm);
                 let down = if i + w < n {
                     Some(self.fit(i + w).thickness_nm)
                 } else {
                     below.and_then(|b| b.get(i % w).copied())
                 };
-                self.adopt_neighbour(solver, i, &c, [right, down]);
+                self.adopt_neighbour(sweep, i, &c, [right, down]);
             }
         }
     }
 
     fn adopt_neighbour(
         &mut self,
-        solver: &SweepSolver,
+        sweep: &SweepContext,
         i: usize,
         c: &OrderChoice,
         neighbours: [Option<f32>; 2],
     ) -> bool {
-        if !solver.spec().options.neighbours {
+        if !sweep.spec().options.neighbours {
             return false;
         }
         for d_n in neighbours.into_iter().flatten() {
@@ -863,19 +850,19 @@ impl<'a> Shard<'a> {
     }
 
     /// The final result of every pixel, row-major, after the last angle.
-    pub fn finish(&self, solver: &SweepSolver, out: &mut [PixelResult]) {
-        self.finish_pixels(solver, out, 0..self.pixels.len());
+    pub fn finish(&self, sweep: &SweepContext, out: &mut [PixelResult]) {
+        self.finish_pixels(sweep, out, 0..self.pixels.len());
     }
 
     /// The final results of the pixels `pixels` (indices in the shard) into `out` (the
     /// shard's results, row-major), after the last angle.
     pub fn finish_pixels(
         &self,
-        solver: &SweepSolver,
+        sweep: &SweepContext,
         out: &mut [PixelResult],
         pixels: impl Iterator<Item = usize>,
     ) {
-        let finish = Finish::of(solver);
+        let finish = Finish::of(sweep);
         for i in pixels {
             if let (Some(p), Some(o)) = (self.pixels.get(i), out.get_mut(i)) {
                 *o = finish.result(p, &self.fit(i));
@@ -897,22 +884,22 @@ struct Finish {
 }
 
 impl Finish {
-    fn of(solver: &SweepSolver) -> Self {
-        let [d_lo, d_hi] = solver.spec().thickness_range_nm;
+    fn of(sweep: &SweepContext) -> Self {
+        let [d_lo, d_hi] = sweep.spec().thickness_range_nm;
         let (r, n) = (
-            solver.residual_sigma().unwrap_or(1.0),
-            solver.noise_sigma().unwrap_or(0.0),
+            sweep.residual_sigma().unwrap_or(1.0),
+            sweep.noise_sigma().unwrap_or(0.0),
         );
         Self {
-            sigma2: solver.residual_sigma().map_or(f64::NAN, |s| s * s),
-            index_cov: solver.index_covariance(),
-            rms_limit: solver
+            sigma2: sweep.residual_sigma().map_or(f64::NAN, |s| s * s),
+            index_cov: sweep.index_covariance(),
+            rms_limit: sweep
                 .rms_median()
                 .map_or(f32::INFINITY, |m| OUTLIER_RMS * m + OUTLIER_FLOOR),
             d_lo,
             d_hi,
-            refine: solver.spec().options.refine,
-            mismatch: solver.model_mismatch(),
+            refine: sweep.spec().options.refine,
+            mismatch: sweep.model_mismatch(),
             mismatch_scale: (f64::from(n) / r).clamp(0.0, 1.0) as f32,
         }
     }
@@ -1043,302 +1030,5 @@ mod size_tests {
         ];
         assert_eq!(sizes, [52, 38, 42, 10, 78, 68, 22, 45, 32, 214, 131, 105]);
         assert_eq!([small, vga, large].map(|s| s.stride()), [1, 4, 64]);
-    }
-}
-
-/// Storage of a one-row shard of two lane blocks, for unit tests.
-#[cfg(test)]
-struct OneRow {
-    pixels: [PixelState; ONE_ROW],
-    trackers: [TrackerLanes; 2],
-    fits: [FitLanes; 2],
-    index: [IndexLanes; 2],
-    lists: [SampleExtrema; 2 * row::LANES],
-}
-
-/// Pixels of a [`OneRow`].
-#[cfg(test)]
-const ONE_ROW: usize = 2 * row::LANES;
-
-#[cfg(test)]
-impl OneRow {
-    fn new() -> Self {
-        Self {
-            pixels: [(); ONE_ROW].map(|_| PixelState::default()),
-            trackers: [TrackerLanes::EMPTY; 2],
-            fits: [FitLanes::EMPTY; 2],
-            index: [IndexLanes::EMPTY; 2],
-            lists: [SampleExtrema::EMPTY; 2 * row::LANES],
-        }
-    }
-
-    fn shard(&mut self) -> Shard<'_> {
-        self.sampled(IndexSampling::ALL)
-    }
-
-    /// The row as a shard whose pixels of `sampling` keep the index's sums.
-    fn sampled(&mut self, sampling: IndexSampling) -> Shard<'_> {
-        Shard::new(
-            0,
-            ONE_ROW,
-            &mut self.pixels,
-            &mut self.trackers,
-            &mut self.fits,
-            (
-                sampling,
-                &mut self.index[..sampling.blocks_per_row(ONE_ROW)],
-                &mut self.lists[..sampling.blocks_per_row(ONE_ROW) * row::LANES],
-            ),
-        )
-    }
-}
-
-#[cfg(test)]
-mod held_seed_tests {
-    use super::*;
-
-    const W: usize = ONE_ROW;
-
-    fn spec() -> SweepSpec {
-        super::super::sweep::paper_rig_spec(W, 1)
-    }
-
-    /// Feeds one angle of fringes (a peak every 20 bands, a little noise-like ripple) to a
-    /// one-row shard whose pixels are all seeded but `unseeded`, and returns the extrema
-    /// each pixel found and the tally's pooled noise.
-    fn one_angle(solver: &SweepSolver, unseeded: usize) -> ([usize; W], Option<f32>) {
-        let spec = solver.spec().clone();
-        let mut storage = OneRow::new();
-        let mut shard = storage.shard();
-        let index = IndexModel::constant(1.38);
-        for i in (0..W).filter(|&i| i != unseeded) {
-            shard.seed(i, 500.0, index, &spec);
-        }
-        shard.begin_angle();
-        let models = AngleModels {
-            coefs: &[],
-            knots: &[],
-            seeds_held: solver.frozen_seeds(),
-        };
-        for b in 0..spec.bands_nm.len() {
-            let x = b as f32 * core::f32::consts::TAU / 20.0;
-            let values: [f32; W] = core::array::from_fn(|i| {
-                0.05 + 0.03 * libm::cosf(x) + 1e-4 * libm::sinf(7.3 * (b * W + i) as f32)
-            });
-            shard.feed_row(spec.options, models, b, 0, &values);
-        }
-        let (_, stats) = shard.tally(solver);
-        (
-            core::array::from_fn(|i| shard.pixels[i].current.len()),
-            stats.noise.median(),
-        )
-    }
-
-    /// A held pass tracks only the blocks with a pixel that has no thickness (all of that
-    /// block's pixels), and pools no noise: it holds the one it was given.
-    #[test]
-    fn held_seeds_skip_the_trackers_of_blocks_that_need_no_extrema() {
-        let unseeded = row::LANES + 8;
-        let held = SweepSolver::new(spec(), Some(IndexModel::constant(1.38)))
-            .with_frozen_seeds()
-            .with_noise_sigma(0.004);
-        let (found, noise) = one_angle(&held, unseeded);
-        assert!(found[..row::LANES].iter().all(|&n| n == 0), "{found:?}");
-        assert!(found[row::LANES..].iter().all(|&n| n >= 6), "{found:?}");
-        assert_eq!(noise, None);
-        assert_eq!(held.noise_sigma(), Some(0.004));
-        let mut after = held.clone();
-        after.set_fit_histogram(&FitStats::default());
-        assert_eq!(after.noise_sigma(), Some(0.004));
-        // Not held: every pixel is tracked and the noise pooled.
-        let free = SweepSolver::new(spec(), Some(IndexModel::constant(1.38)));
-        let (found, noise) = one_angle(&free, unseeded);
-        assert!(found.iter().all(|&n| n >= 6), "{found:?}");
-        assert!(noise.is_some_and(|n| n > 0.0 && n < 0.01), "{noise:?}");
-    }
-}
-
-#[cfg(test)]
-mod release_tests {
-    use super::*;
-
-    const W: usize = ONE_ROW;
-
-    /// Feeds one angle to a one-row shard: fringes every 40 bands, but pixel 3 every 12
-    /// (more extrema than a list holds: its tracker overflows).
-    fn feed(shard: &mut Shard<'_>, solver: &SweepSolver) {
-        let spec = solver.spec().clone();
-        shard.begin_angle();
-        let models = AngleModels {
-            coefs: &[],
-            knots: &[],
-            seeds_held: false,
-        };
-        for b in 0..spec.bands_nm.len() {
-            let values: [f32; W] = core::array::from_fn(|i| {
-                let period = if i == 3 { 12.0 } else { 40.0 };
-                let x = b as f32 * core::f32::consts::TAU / period;
-                0.05 + 0.03 * libm::cosf(x) + 1e-4 * libm::sinf(7.3 * (b * W + i) as f32)
-            });
-            shard.feed_row(spec.options, models, b, 0, &values);
-        }
-    }
-
-    /// An overflow found at the sweep's last angle reaches the results whether the update
-    /// reads it from the trackers or, once they are released, from the pixels' flags
-    /// (`keep_tracker_flags`, then a shard without trackers).
-    #[test]
-    fn a_released_tracker_leaves_its_overflow_in_the_results() {
-        let mut solver = SweepSolver::new(
-            super::super::sweep::paper_rig_spec(W, 1),
-            Some(IndexModel::constant(1.38)),
-        );
-        solver.begin_angle(10.0);
-        let run = |release: bool| {
-            let mut storage = OneRow::new();
-            let mut out = [PixelResult::UNSOLVED; W];
-            feed(&mut storage.shard(), &solver);
-            if release {
-                storage.shard().keep_tracker_flags();
-                let mut shard = Shard::new(
-                    0,
-                    W,
-                    &mut storage.pixels,
-                    &mut [],
-                    &mut storage.fits,
-                    (IndexSampling::ALL, &mut storage.index, &mut storage.lists),
-                );
-                shard.update(&solver, Some(&mut out), |_| {});
-            } else {
-                storage.shard().update(&solver, Some(&mut out), |_| {});
-            }
-            out.map(|r| r.flags)
-        };
-        let (kept, released) = (run(false), run(true));
-        assert_eq!(kept, released);
-        let overflow = |f: u16| f & flags::TRACKER_OVERFLOW != 0;
-        assert!(overflow(released[3]), "{:#x}", released[3]);
-        assert_eq!(released.iter().filter(|&&f| overflow(f)).count(), 1);
-    }
-}
-
-#[cfg(test)]
-mod vote_tests {
-    use super::*;
-
-    const W: usize = ONE_ROW;
-
-    /// One angle of a 800 nm film of 1.38 (two-beam fringes, a ripple that differs pixel by
-    /// pixel) fed to `shard`, its extrema so far voted into `early` `ahead` bands before the
-    /// last (none if `early` is `None`).
-    fn feed(
-        shard: &mut Shard<'_>,
-        solver: &SweepSolver,
-        deg: f64,
-        ahead: usize,
-        mut early: Option<&mut RatioHistogram>,
-    ) {
-        let spec = solver.spec().clone();
-        let cos_t = libm::sqrt(1.0 - spec.x_of(deg) / (1.38 * 1.38));
-        let models = AngleModels {
-            coefs: &[],
-            knots: &[],
-            seeds_held: false,
-        };
-        let bands = spec.bands_nm.len();
-        for (b, &l) in spec.bands_nm.iter().enumerate() {
-            let phase = 4.0 * core::f64::consts::PI * 1.38 * 800.0 * cos_t / l;
-            let values: [f32; W] = core::array::from_fn(|i| {
-                (0.05 + 0.03 * libm::cos(phase)) as f32
-                    + 2e-4 * libm::sinf(7.3 * (b * W + i) as f32)
-            });
-            shard.feed_row(spec.options, models, b, 0, &values);
-            if b + 1 + ahead == bands {
-                if let Some(votes) = early.as_deref_mut() {
-                    shard.vote_rows(solver, 0..1, votes);
-                }
-            }
-        }
-    }
-
-    /// Only the index's sample of pixels votes and pools its noise: the votes are those of
-    /// its pixels' extrema, count for count, and fewer than every pixel's.
-    #[test]
-    fn the_tally_counts_the_index_sample_only() {
-        let spec = super::super::sweep::paper_rig_spec(W, 1);
-        let mut every = None;
-        for stride in [1, 4] {
-            let mut solver = SweepSolver::new(spec.clone(), None);
-            let mut storage = OneRow::new();
-            let mut shard = storage.sampled(IndexSampling::one_in(stride));
-            solver.begin_angle(10.0);
-            shard.begin_angle();
-            feed(&mut shard, &solver, 10.0, 0, None);
-            solver.end_angle_all(core::slice::from_mut(&mut shard));
-            solver.begin_angle(40.0);
-            shard.begin_angle();
-            feed(&mut shard, &solver, 40.0, 0, None);
-            let (votes, fit) = shard.tally(&solver);
-            let g = solver.pair_geometry().expect("a pair");
-            let mut own = RatioHistogram::default();
-            for c in (0..W).step_by(stride) {
-                let lists = shard.lists_at(0, c).expect("a sampled pixel");
-                let reference = extrema::reference(&shard.pixels[c].anchor, Some(lists));
-                own.vote(g, reference, lists.unvoted(), |b| spec.wavelength_at(b));
-            }
-            assert!(votes == own, "stride {stride}: not the sample's votes");
-            let pooled: u32 = fit.noise.counts.iter().sum();
-            assert_eq!(pooled as usize, W / stride, "stride {stride}");
-            let total: u32 = votes.counts.iter().sum();
-            match every {
-                None => every = Some(total),
-                Some(all) => assert!(4 * total <= all + W as u32, "{total} of {all}"),
-            }
-        }
-    }
-
-    /// Votes taken while the angle streams and the tally's of the extrema found since add up
-    /// to the tally's of all of them, whenever the early vote is taken: the histogram is the
-    /// same count for count.
-    #[test]
-    fn early_votes_and_the_tally_count_every_extremum_once() {
-        let spec = super::super::sweep::paper_rig_spec(W, 1);
-        for ahead in [0, 5, 16, 60, 150] {
-            let mut whole = None;
-            for early in [false, true] {
-                let mut solver = SweepSolver::new(spec.clone(), None);
-                let mut storage = OneRow::new();
-                let mut shard = storage.shard();
-                solver.begin_angle(10.0);
-                shard.begin_angle();
-                feed(&mut shard, &solver, 10.0, ahead, None);
-                solver.end_angle_all(core::slice::from_mut(&mut shard));
-                solver.begin_angle(40.0);
-                shard.begin_angle();
-                let mut votes = RatioHistogram::default();
-                feed(
-                    &mut shard,
-                    &solver,
-                    40.0,
-                    ahead,
-                    early.then_some(&mut votes),
-                );
-                let (tallied, _) = shard.tally(&solver);
-                let early_total: u32 = votes.counts.iter().sum();
-                votes.merge(&tallied);
-                let total: u32 = votes.counts.iter().sum();
-                assert!(total >= 2 * W as u32, "ahead {ahead}: {total} votes");
-                if early && (16..=60).contains(&ahead) {
-                    assert!(
-                        2 * early_total > total,
-                        "ahead {ahead}: {early_total} of {total}"
-                    );
-                }
-                match &whole {
-                    None => whole = Some(votes),
-                    Some(w) => assert!(*w == votes, "ahead {ahead}: the counts differ"),
-                }
-            }
-        }
     }
 }

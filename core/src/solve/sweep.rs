@@ -8,30 +8,27 @@
 //! (the ties, by their neighbours), then [`SweepSolver::end_angle`].
 //! [`SweepSolver::end_angle_all`] runs them for shards on one thread; the pipeline runs each
 //! phase on all cores.
+//!
+//! Shards read only the solver's [`SweepContext`] (the solver derefs to it), so this module
+//! imports [`Shard`] and not the other way round. [`SweepSpec`], [`SolverOptions`] and the
+//! shards' sums live in their own modules and are re-exported here.
 
 use heapless::Vec as HVec;
 
-use crate::optics::{Dispersion, FilmAtAngle, Indices, Polarization};
-
+use super::context::SweepContext;
+pub use super::context::{MISMATCH_FLOOR, MISMATCH_RATIO, REORDER_INDEX_STEP};
 use super::index::{
     combine, fit_index, fit_slope_at, pair_estimate, IndexFit, PairBins, PairEstimate,
-    PairGeometry, RatioHistogram, RatioSums, RatioWindows,
+    PairGeometry, RatioHistogram, RatioSums,
 };
 use super::refine::{BandCoef, Knot};
 use super::shard::Shard;
+pub use super::spec::{SolverOptions, SweepSpec, MAX_BANDS};
+pub use super::sums::{FitStats, RmsHistogram, SchurSums};
 use super::IndexModel;
 
-/// Most bands per angle.
-pub const MAX_BANDS: usize = 1024;
 /// Most angles per sweep whose pair estimates are kept for the report.
 pub const MAX_PAIRS: usize = 64;
-/// A fit residual above this many times the pixels' noise (plus the floor) means the film
-/// model does not explain the spectra.
-pub const MISMATCH_RATIO: f64 = 1.5;
-/// Absolute allowance of the mismatch test (reflectance).
-pub const MISMATCH_FLOOR: f64 = 0.001;
-/// An index step above this at an angle's end makes every pixel choose its order again.
-pub const REORDER_INDEX_STEP: f64 = 0.01;
 /// Largest index fall across the band a film model may have (rutile TiO2, among the most
 /// dispersive transparent films, falls by about 0.3 over 420-720 nm; ZnS by 0.19).
 pub const MAX_DISPERSION: f64 = 0.4;
@@ -48,306 +45,6 @@ pub const MAX_DISPERSION_PER_EXCESS: f64 = 0.25;
 const SETTLED_INDEX_STEP: f64 = 0.02;
 /// Largest index change (anywhere in the band) one full-spectrum Gauss-Newton step may make.
 const MAX_INDEX_STEP: f64 = 0.15;
-
-/// What the solver must know about a sweep before it starts.
-#[derive(Clone, Debug, PartialEq)]
-pub struct SweepSpec {
-    /// Pixels per row.
-    pub width: usize,
-    /// Rows.
-    pub height: usize,
-    /// Band centres in streaming order, nm.
-    pub bands_nm: HVec<f64, MAX_BANDS>,
-    /// Band FWHM, nm (one per band).
-    pub fwhm_nm: HVec<f64, MAX_BANDS>,
-    /// Ambient index.
-    pub ambient_index: f64,
-    /// Substrate index at 550 nm, as reports give it.
-    pub substrate_index: f64,
-    /// The substrate's index against wavelength, which the model uses (a constant
-    /// `substrate_index` for most samples; a glass's Sellmeier formula for a dispersive one).
-    pub substrate: Dispersion,
-    /// Polarisation of the measured light.
-    pub polarization: Polarization,
-    /// Film index search range.
-    pub index_range: [f64; 2],
-    /// Thickness search range, nm.
-    pub thickness_range_nm: [f64; 2],
-    /// What the solver may use (all on by default; off only to measure what each is worth).
-    pub options: SolverOptions,
-}
-
-/// The solver's improvements over the published method, each switchable so its worth can be
-/// measured (`filmscope eval --ablate ...`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct SolverOptions {
-    /// Full-spectrum Gauss-Newton refinement of the thickness (off: extrema only).
-    pub refine: bool,
-    /// The half-order reflection phase of films above the substrate's index (off: integer
-    /// orders, as the paper's eq. 9).
-    pub half_order: bool,
-    /// Neighbours decide orders a pixel alone cannot (off: such pixels stay unresolved).
-    pub neighbours: bool,
-    /// Extrema placed to a fraction of a band (off: at the band centre).
-    pub subband: bool,
-    /// About how many pixels keep the shared index's sums, the rest only their own
-    /// ([`super::fit_row::IndexSampling`]; 32 bytes a pixel that keeps them): the index's
-    /// step is theirs, and so are the ratio votes, the RMS median and the pooled noise.
-    /// Every pixel of a sensor with fewer than twice as many.
-    pub index_pixels: usize,
-    /// The per-sample work compiled for the widest vector instructions the CPU has (AVX2
-    /// and FMA on x86-64, [`crate::simd::wide`]); off: the portable build's. The same
-    /// results bit for bit either way.
-    pub wide_simd: bool,
-}
-
-impl Default for SolverOptions {
-    fn default() -> Self {
-        Self {
-            refine: true,
-            half_order: true,
-            neighbours: true,
-            subband: true,
-            index_pixels: super::fit_row::INDEX_PIXELS,
-            wide_simd: true,
-        }
-    }
-}
-
-impl SweepSpec {
-    /// The same sweep on the substrate `substrate` (`substrate_index` becomes its index at
-    /// 550 nm).
-    pub fn with_substrate(mut self, substrate: Dispersion) -> Self {
-        self.substrate_index = substrate.index_at(550.0);
-        self.substrate = substrate;
-        self
-    }
-
-    /// Wavelength of a fractional band position (linear between band centres).
-    #[inline]
-    pub fn wavelength_at(&self, band: f32) -> f64 {
-        let b = self.bands_nm.as_slice();
-        if b.len() < 2 {
-            return b.first().copied().unwrap_or(f64::NAN);
-        }
-        let x = f64::from(band).clamp(0.0, (b.len() - 1) as f64);
-        let i = (x as usize).min(b.len() - 2);
-        b[i] + (b[i + 1] - b[i]) * (x - i as f64)
-    }
-
-    /// `(n_ambient sin theta)^2`.
-    pub fn x_of(&self, incidence_deg: f64) -> f64 {
-        let s = self.ambient_index * libm::sin(incidence_deg.to_radians());
-        s * s
-    }
-
-    /// Which pixels keep the shared index's sums ([`super::fit_row::IndexSampling`]).
-    pub fn index_sampling(&self) -> super::fit_row::IndexSampling {
-        super::fit_row::IndexSampling::for_sensor(
-            self.width,
-            self.height,
-            self.options.index_pixels,
-        )
-    }
-
-    /// The wavelength range in which the tracker reliably finds extrema (clear of the
-    /// smoothing window at either end).
-    pub fn reliable_range_nm(&self) -> [f64; 2] {
-        let a = self.wavelength_at(crate::track::WINDOW as f32);
-        let b = self.wavelength_at(self.last_reliable_band());
-        [a.min(b), a.max(b)]
-    }
-
-    /// The last band of [`SweepSpec::reliable_range_nm`]: the smoothing window's length
-    /// before the last band, never before its first, [`crate::track::WINDOW`] (a sweep of
-    /// fewer than `2 WINDOW + 1` bands has that one band: [`crate::track::ExtremaHead`]
-    /// counts the range so).
-    pub fn last_reliable_band(&self) -> f32 {
-        let w = crate::track::WINDOW as f32;
-        (self.bands_nm.len() as f32 - 1.0 - w).max(w)
-    }
-}
-
-/// `log10(x)` for positive normal `x`, within 1e-4 (a 32nd of a decade, the histogram's bin,
-/// is 0.031): the exponent from the bits, the mantissa's `log2` by a quartic. Every pixel
-/// adds two values at every angle's end, where `libm::log10f` took a fifth of the time.
-#[inline]
-fn fast_log10(x: f32) -> f32 {
-    let bits = x.to_bits();
-    let exponent = ((bits >> 23) & 0xff) as i32 - 127;
-    let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000);
-    // Least-squares quartic for log2 on [1, 2) (max error 2.0e-4).
-    let log2_m =
-        -2.496_773_8 + m * (4.028_373 + m * (-2.081_06 + m * (0.628_815_7 - 0.079_150_37 * m)));
-    (exponent as f32 + log2_m) * core::f32::consts::LOG10_2
-}
-
-/// Histogram of per-pixel RMS residuals (log bins), merged over shards.
-#[derive(Clone, Debug, PartialEq)]
-pub struct RmsHistogram {
-    /// Pixels per bin; bin `i` covers `10^(-6 + i / 32)`.
-    pub counts: [u32; 192],
-}
-
-impl Default for RmsHistogram {
-    fn default() -> Self {
-        Self { counts: [0; 192] }
-    }
-}
-
-impl RmsHistogram {
-    /// Adds one pixel's RMS residual.
-    pub fn add(&mut self, rms: f32) {
-        if rms.is_finite() && rms > 0.0 {
-            let b = ((fast_log10(rms) + 6.0) * 32.0).clamp(0.0, 191.0) as usize;
-            self.counts[b] += 1;
-        }
-    }
-
-    /// Adds another shard's histogram.
-    pub fn merge(&mut self, o: &Self) {
-        for (a, b) in self.counts.iter_mut().zip(o.counts.iter()) {
-            *a += *b;
-        }
-    }
-
-    /// The median RMS, or `None` if empty.
-    pub fn median(&self) -> Option<f32> {
-        let total: u64 = self.counts.iter().map(|&c| u64::from(c)).sum();
-        if total == 0 {
-            return None;
-        }
-        let mut acc = 0;
-        for (i, &c) in self.counts.iter().enumerate() {
-            acc += u64::from(c);
-            if 2 * acc >= total {
-                return Some(libm::powf(10.0, (i as f32 + 0.5) / 32.0 - 6.0));
-            }
-        }
-        None
-    }
-}
-
-/// Fit quality and noise over pixels, merged over shards.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct FitStats {
-    /// RMS residuals of the refined pixels' full-spectrum fits.
-    pub rms: RmsHistogram,
-    /// Every pixel's own noise estimate (from its spectrum's second differences).
-    pub noise: RmsHistogram,
-}
-
-impl FitStats {
-    /// Adds another shard's histograms.
-    pub fn merge(&mut self, o: &Self) {
-        self.rms.merge(&o.rms);
-        self.noise.merge(&o.noise);
-    }
-}
-
-/// Sums for the shared index's Gauss-Newton step (each pixel's thickness eliminated), merged
-/// over shards.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct SchurSums {
-    /// The reduced index block, upper triangle row by row: `(0,0) (0,1) (0,2) (1,1) (1,2)
-    /// (2,2)` of the basis coefficients ([`IndexModel::to_basis`]).
-    pub h: [f64; 6],
-    /// The reduced index gradient.
-    pub g: [f64; 3],
-    /// Pixels included.
-    pub pixels: f64,
-    /// Sum of squared residuals of the pixels included (each at its best thickness).
-    pub sse: f64,
-    /// Samples of the pixels included.
-    pub samples: f64,
-}
-
-impl SchurSums {
-    /// Adds another shard's sums.
-    pub fn merge(&mut self, o: &Self) {
-        for (a, b) in self.h.iter_mut().zip(o.h) {
-            *a += b;
-        }
-        for (a, b) in self.g.iter_mut().zip(o.g) {
-            *a += b;
-        }
-        self.pixels += o.pixels;
-        self.sse += o.sse;
-        self.samples += o.samples;
-    }
-
-    fn entry(&self, i: usize, j: usize) -> f64 {
-        let (i, j) = (i.min(j), i.max(j));
-        self.h[[0, 3, 5][i] + j - i]
-    }
-
-    /// Cholesky factor of the leading `k x k` block, or `None` if it is singular.
-    fn cholesky(&self, k: usize) -> Option<[[f64; 3]; 3]> {
-        let mut l = [[0.0f64; 3]; 3];
-        for i in 0..k {
-            for j in 0..=i {
-                let dot: f64 = l[i][..j].iter().zip(&l[j][..j]).map(|(a, b)| a * b).sum();
-                let v = self.entry(i, j) - dot;
-                if i == j {
-                    if v <= self.entry(i, i) * 1e-12 || v <= 0.0 {
-                        return None;
-                    }
-                    l[i][i] = libm::sqrt(v);
-                } else {
-                    l[i][j] = v / l[j][j];
-                }
-            }
-        }
-        Some(l)
-    }
-
-    /// Solves `L L^T x = rhs` in the first `k` coefficients.
-    fn solve(l: &[[f64; 3]; 3], k: usize, rhs: [f64; 3]) -> [f64; 3] {
-        let mut y = [0.0; 3];
-        for i in 0..k {
-            let mut v = rhs[i];
-            for m in 0..i {
-                v -= l[i][m] * y[m];
-            }
-            y[i] = v / l[i][i];
-        }
-        let mut x = [0.0; 3];
-        for i in (0..k).rev() {
-            let mut v = y[i];
-            for m in i + 1..k {
-                v -= l[m][i] * x[m];
-            }
-            x[i] = v / l[i][i];
-        }
-        x
-    }
-
-    /// The step in the first `k` basis coefficients (the others held) and the squared-error
-    /// reduction it predicts, or `None` if that block is singular.
-    pub fn step(&self, k: usize) -> Option<([f64; 3], f64)> {
-        let l = self.cholesky(k)?;
-        let x = Self::solve(&l, k, self.g);
-        let gain = (0..k).map(|i| x[i] * self.g[i]).sum();
-        Some((x, gain))
-    }
-
-    /// The inverse of the leading `k x k` block (zero outside it): times the residual
-    /// variance, the covariance of the first `k` coefficients with every pixel's thickness
-    /// free. `None` if the block is singular.
-    pub fn inverse(&self, k: usize) -> Option<[[f64; 3]; 3]> {
-        let l = self.cholesky(k)?;
-        let mut inv = [[0.0; 3]; 3];
-        for j in 0..k {
-            let mut unit = [0.0; 3];
-            unit[j] = 1.0;
-            let column = Self::solve(&l, k, unit);
-            for (row, v) in inv.iter_mut().zip(column).take(k) {
-                row[j] = v;
-            }
-        }
-        Some(inv)
-    }
-}
 
 /// Least change an extra index term must make to the index somewhere in the band (against
 /// the simpler model at its best): the index accuracy filmscope claims (issue targets
@@ -379,127 +76,35 @@ pub struct AngleReport {
     pub spectral_index: bool,
     /// Terms of the index model after this angle (0: no index yet; above 1: dispersive).
     pub index_terms: usize,
-    /// The Wald chi-square of the index model's last term at this angle's end
-    /// ([`SweepSolver::term_chi2`]; NaN for a one-term index or without sums).
-    pub term_chi2: f64,
 }
 
-#[cfg(test)]
-mod schur_tests {
-    use super::SchurSums;
-
-    /// A symmetric positive-definite block with strongly correlated coefficients (a thin
-    /// film's index level and slope).
-    fn sums() -> SchurSums {
-        SchurSums {
-            h: [4.0, 3.8, 0.5, 3.7, 0.2, 2.0],
-            g: [1.0, -0.5, 0.25],
-            ..SchurSums::default()
-        }
-    }
-
-    #[test]
-    fn the_inverse_inverts_the_leading_block() {
-        let s = sums();
-        for k in 1..=3 {
-            let inv = s.inverse(k).expect("positive definite");
-            for (i, row) in inv.iter().enumerate() {
-                for (j, &v) in row.iter().enumerate() {
-                    let inside = i < k && j < k;
-                    let want = if inside {
-                        f64::from(u8::from(i == j))
-                    } else {
-                        0.0
-                    };
-                    let got: f64 = if inside {
-                        (0..k).map(|m| s.entry(i, m) * inv[m][j]).sum()
-                    } else {
-                        v
-                    };
-                    assert!((got - want).abs() < 1e-12, "k {k} ({i}, {j}): {got}");
-                }
-            }
-            // The step is the inverse applied to the gradient.
-            let (x, _) = s.step(k).expect("a step");
-            for (i, xi) in x.iter().enumerate().take(k) {
-                let want: f64 = (0..k).map(|m| inv[i][m] * s.g[m]).sum();
-                assert!((xi - want).abs() < 1e-12, "k {k}: x{i} {xi} against {want}");
-            }
-        }
-        // One term: the plain reciprocal; with the correlated slope free the level's variance
-        // grows (here about 40-fold), which the diagonal alone does not show.
-        assert_eq!(s.inverse(1).expect("one term")[0][0], 0.25);
-        let two = s.inverse(2).expect("two terms")[0][0];
-        assert!(two > 10.0 * 0.25, "{two}");
-    }
-
-    #[test]
-    fn a_singular_block_has_no_inverse() {
-        let s = SchurSums {
-            h: [1.0, 1.0, 0.0, 1.0, 0.0, 1.0],
-            ..SchurSums::default()
-        };
-        assert!(s.inverse(1).is_some());
-        assert!(s.inverse(2).is_none());
-    }
-}
-
-#[cfg(test)]
-mod log_tests {
-    #[test]
-    fn fast_log10_is_within_a_small_part_of_a_bin() {
-        let mut worst = 0.0f32;
-        let mut x = 1e-7f32;
-        while x < 1e3 {
-            worst = worst.max((super::fast_log10(x) - libm::log10f(x)).abs());
-            x *= 1.0137;
-        }
-        assert!(worst < 1e-4, "{worst}");
-    }
-}
-
-/// The global state of one sweep.
+/// The global state of one sweep: the context the shards read ([`SweepContext`], which the
+/// solver derefs to) and the evidence the angle ends pool.
 #[derive(Clone, Debug)]
 pub struct SweepSolver {
-    spec: SweepSpec,
-    index: Option<IndexModel>,
-    /// Covariance of the index's basis coefficients ([`IndexModel::to_basis`]; zero beyond
-    /// the model's terms), when an estimate gave one: its `(0, 0)` is the index sigma's
-    /// square.
-    index_cov: Option<[[f64; 3]; 3]>,
-    anchor_deg: Option<f64>,
-    angle_deg: f64,
+    ctx: SweepContext,
     angles_done: usize,
-    pair_geom: Option<PairGeometry>,
-    window: Option<RatioWindows>,
     pairs: HVec<PairEstimate, MAX_PAIRS>,
     pair_bins: HVec<PairBins, MAX_PAIRS>,
     fit: Option<IndexFit>,
     last_pair: Option<PairEstimate>,
-    rms_median: Option<f32>,
-    noise_median: Option<f32>,
-    pending_dp: [f64; 3],
     /// An index from outside the sweep's own evidence (the full spectra of a pixel sample)
     /// that the next angle end takes ([`SweepSolver::set_external_index`]).
     external: Option<IndexModel>,
-    /// Whether an external index was ever given (then it, not the extremum shifts, is judged).
-    external_index: bool,
-    next_index: Option<IndexModel>,
     refined_steps: usize,
     last_refined: bool,
-    residual_sigma: Option<f64>,
     spectral_dn: f64,
     spectral_index: bool,
-    held_index: bool,
-    frozen_seeds: bool,
-    /// Whether `noise_median` was given ([`SweepSolver::with_noise_sigma`]).
-    noise_held: bool,
-    /// The thicknesses the tables need cover ([`SweepSolver::with_table_thickness`]).
-    table_thickness_nm: Option<[f64; 2]>,
     spectral_gains: [f64; 3],
     spectral_candidate: Option<IndexModel>,
-    max_terms: usize,
-    term_chi2: f64,
+}
+
+impl core::ops::Deref for SweepSolver {
+    type Target = SweepContext;
+
+    fn deref(&self) -> &SweepContext {
+        &self.ctx
+    }
 }
 
 impl SweepSolver {
@@ -507,64 +112,35 @@ impl SweepSolver {
     /// full-spectrum refinement can start at the first angle.
     pub fn new(spec: SweepSpec, prior: Option<IndexModel>) -> Self {
         Self {
-            spec,
-            index: prior,
-            index_cov: None,
-            anchor_deg: None,
-            angle_deg: f64::NAN,
+            ctx: SweepContext::new(spec, prior),
             angles_done: 0,
-            pair_geom: None,
-            window: None,
             pairs: HVec::new(),
             pair_bins: HVec::new(),
             fit: None,
             last_pair: None,
-            rms_median: None,
-            noise_median: None,
-            pending_dp: [0.0; 3],
             external: None,
-            external_index: false,
-            next_index: None,
             refined_steps: 0,
             last_refined: false,
-            residual_sigma: None,
             spectral_dn: 0.0,
             spectral_index: false,
-            held_index: false,
-            frozen_seeds: false,
-            noise_held: false,
-            table_thickness_nm: None,
             spectral_gains: [f64::NAN; 3],
             spectral_candidate: None,
-            max_terms: 3,
-            term_chi2: f64::NAN,
         }
     }
 
-    /// Caps the index model at `terms` basis terms (1 to 3): the full spectra may not add
-    /// more. For a pass after [`SweepSolver::term_chi2`] found a term unwarranted.
-    pub fn with_max_terms(mut self, terms: usize) -> Self {
-        self.max_terms = terms.clamp(1, 3);
-        self
-    }
-
-    /// The chi-square of the index model's last basis term at the last angle's end: its
-    /// coefficient at the optimum of the angle's sums (the current model's terms free, every
-    /// pixel's thickness eliminated) squared over its variance, a Wald statistic. It does not
-    /// depend on where the sums were linearised, so a pass whose sums were all linearised
-    /// near its result (a pass held at the index and seeded with the thicknesses of an earlier
-    /// one) tests whether that term is warranted. NaN for a one-term index or without sums.
-    pub fn term_chi2(&self) -> f64 {
-        self.term_chi2
+    /// The state the shards read ([`SweepContext`]; also what the solver derefs to): a
+    /// snapshot of it is all a shard's worker needs of the solver.
+    pub fn context(&self) -> &SweepContext {
+        &self.ctx
     }
 
     /// Takes the index from the full spectra (Gauss-Newton on the pooled sums, each pixel's
     /// thickness eliminated) instead of the extremum shifts. Needs a prior index (the
     /// linearisation point); the pipeline turns it on for a second pass over a capture whose
-    /// first pass the extremum-shift model did not explain ([`SweepSolver::model_mismatch`]),
+    /// first pass the extremum-shift model did not explain ([`SweepContext::model_mismatch`]),
     /// and a production line for the sweeps after one that needed it.
     pub fn with_spectral_index(mut self) -> Self {
-        self.spectral_index = self.index.is_some();
+        self.spectral_index = self.ctx.index.is_some();
         self
     }
 
@@ -573,74 +149,15 @@ impl SweepSolver {
     /// extremum-shift estimate, and pixels follow it as they follow any index step.
     pub fn set_external_index(&mut self, index: IndexModel) {
         self.external = Some(index);
-        self.external_index = true;
+        self.ctx.external_index = true;
     }
 
     /// Holds the prior index for the whole sweep (the extremum-shift fit is still made and
     /// reported): for a second pass over data whose first pass estimated the index from every
     /// angle.
     pub fn with_held_index(mut self) -> Self {
-        self.held_index = self.index.is_some();
+        self.ctx.held_index = self.ctx.index.is_some();
         self
-    }
-
-    /// Holds the prior index and every seeded pixel's thickness ([`Shard::seed`]) for the
-    /// whole sweep: every sum is linearised at the seeds, so the last angle's sums are those
-    /// of the whole spectra at an earlier pass's result ([`SweepSolver::term_chi2`] then tests
-    /// its index model). A thickness that steps as the angles arrive leaves the earlier
-    /// angles' sums linearised where it was: measured on n 1.6 / 50 nm on 1.52 (camera seed
-    /// 10), steps of 0.16 nm on average halved the reduced index gradient and made a Cauchy
-    /// term that the whole spectra put at 1.9 sigma (chi-square 3.5) look like 5.3 sigma.
-    pub fn with_frozen_seeds(mut self) -> Self {
-        self = self.with_held_index();
-        self.frozen_seeds = self.held_index;
-        self
-    }
-
-    /// Holds the image's noise (1 sigma of a sample) at `sigma`, as an earlier pass over
-    /// the same data measured it, instead of pooling the pixels' own estimates: a pass whose
-    /// seeded pixels are held ([`SweepSolver::with_frozen_seeds`]) does not track their
-    /// extrema, where those estimates come from. The same trackers over the same samples
-    /// give the same figure.
-    pub fn with_noise_sigma(mut self, sigma: f32) -> Self {
-        self.noise_median = Some(sigma);
-        self.noise_held = true;
-        self
-    }
-
-    /// Tabulates the band models over thicknesses `[lo, hi]` only (within the search range,
-    /// and an order either side): those of a pass's held seeds
-    /// ([`SweepSolver::with_frozen_seeds`]), which a table over the whole search range
-    /// would cover three times over for a film of one thickness (and whose tabulation, once
-    /// an angle on one core, cost a held pass a third of its time at 128 x 96 pixels).
-    pub fn with_table_thickness(mut self, lo: f64, hi: f64) -> Self {
-        if lo <= hi {
-            self.table_thickness_nm = Some([lo, hi]);
-        }
-        self
-    }
-
-    /// Whether the noise is held ([`SweepSolver::with_noise_sigma`]).
-    pub fn noise_held(&self) -> bool {
-        self.noise_held
-    }
-
-    /// Ends [`SweepSolver::with_frozen_seeds`] before the sweep's last angle ends: that
-    /// angle's sums (the whole spectra, linearised at the seeds) then move the index, its
-    /// terms kept, and every pixel's thickness: one Gauss-Newton iteration on the whole
-    /// spectra from the seeds.
-    pub fn thaw(&mut self) {
-        if self.frozen_seeds {
-            self.frozen_seeds = false;
-            self.held_index = false;
-            self.spectral_index = true;
-            self.max_terms = self.index.map_or(1, |m| m.terms());
-        }
-    }
-
-    /// Whether seeded pixels keep their thickness ([`SweepSolver::with_frozen_seeds`]).
-    pub fn frozen_seeds(&self) -> bool {
-        self.frozen_seeds
     }
 
     /// Whether the index comes from the full spectra.
@@ -660,31 +177,6 @@ impl SweepSolver {
         self.spectral_gains
     }
 
-    /// The sweep's description.
-    pub fn spec(&self) -> &SweepSpec {
-        &self.spec
-    }
-
-    /// The current index model, if one has been estimated.
-    pub fn index(&self) -> Option<IndexModel> {
-        self.index
-    }
-
-    /// Standard error of the index.
-    pub fn index_sigma(&self) -> f64 {
-        self.index_cov
-            .map_or(f64::INFINITY, |c| libm::sqrt(c[0][0]))
-    }
-
-    /// Covariance of the index's basis coefficients (`p0` the index at 550 nm, then the
-    /// dispersion terms; zero beyond the model's terms), when an estimate gave one: what the
-    /// index's own uncertainty adds to each pixel's thickness ([`super::refine::GnSums::thickness_sigma_nm`]).
-    /// `None` when unknown or not finite.
-    pub fn index_covariance(&self) -> Option<[[f64; 3]; 3]> {
-        self.index_cov
-            .filter(|c| c.iter().flatten().all(|v| v.is_finite()))
-    }
-
     /// Full-spectrum index steps taken.
     pub fn refined_steps(&self) -> usize {
         self.refined_steps
@@ -695,26 +187,21 @@ impl SweepSolver {
         self.angles_done
     }
 
-    /// The typical per-pixel RMS residual of the full-spectrum fit (the noise level).
-    pub fn residual_sigma(&self) -> Option<f64> {
-        self.residual_sigma
-    }
-
     /// Fills `out` (one entry per band, caller-owned: about 2.3 KB a band, room for the
     /// passband's Simpson nodes) with the band
     /// models of the current angle at the current index; all `None` until an index exists.
     pub fn band_models(&self, out: &mut [Option<BandCoef>]) {
         let d_max = self.table_range_nm()[1];
         for (i, o) in out.iter_mut().enumerate() {
-            *o = match (self.index, self.spec.bands_nm.get(i)) {
+            *o = match (self.ctx.index, self.ctx.spec.bands_nm.get(i)) {
                 (Some(index), Some(&l)) => BandCoef::new(
                     index,
-                    self.spec.ambient_index,
-                    self.spec.substrate.index_at(l),
-                    self.spec.polarization,
-                    self.angle_deg,
+                    self.ctx.spec.ambient_index,
+                    self.ctx.spec.substrate.index_at(l),
+                    self.ctx.spec.polarization,
+                    self.ctx.angle_deg,
                     l,
-                    self.spec.fwhm_nm[i],
+                    self.ctx.spec.fwhm_nm[i],
                     d_max,
                 ),
                 _ => None,
@@ -722,17 +209,14 @@ impl SweepSolver {
         }
     }
 
-    /// The thicknesses the band models are tabulated over: the search range (or the
-    /// narrower span of [`SweepSolver::with_table_thickness`]) widened by an interference
+    /// The thicknesses the band models are tabulated over: the search range widened by an
+    /// interference
     /// order at the longest band and lowest index either side (the neighbouring orders'
     /// misfits look there). A thickness outside it has its models computed per sample.
     pub fn table_range_nm(&self) -> [f64; 2] {
-        let [lo, hi] = self.spec.thickness_range_nm;
-        let [lo, hi] = self
-            .table_thickness_nm
-            .map_or([lo, hi], |[a, b]| [lo.max(a), hi.min(b)]);
+        let [lo, hi] = self.ctx.spec.thickness_range_nm;
         let [_, l_max] = self.band_span_nm();
-        let step = 1.2 * l_max / (2.0 * self.spec.index_range[0].max(1.0));
+        let step = 1.2 * l_max / (2.0 * self.ctx.spec.index_range[0].max(1.0));
         [lo - step, hi + step]
     }
 
@@ -769,86 +253,22 @@ impl SweepSolver {
         }
     }
 
-    /// The reference (first) angle, degrees.
-    pub fn anchor_deg(&self) -> Option<f64> {
-        self.anchor_deg
-    }
-
-    /// The current angle, degrees.
-    pub fn angle_deg(&self) -> f64 {
-        self.angle_deg
-    }
-
-    /// The pair geometry of the current angle against the reference, if votes are taken.
-    pub fn pair_geometry(&self) -> Option<&PairGeometry> {
-        self.pair_geom.as_ref()
-    }
-
-    /// The accepted ratio windows of the current pair.
-    pub fn ratio_window(&self) -> Option<&RatioWindows> {
-        self.window.as_ref()
-    }
-
-    /// The median RMS residual of the last angle (for outlier rejection).
-    pub fn rms_median(&self) -> Option<f32> {
-        self.rms_median
-    }
-
-    /// The index step decided at this angle's end, in basis coefficients
-    /// ([`IndexModel::to_basis`]).
-    pub fn pending_index_step(&self) -> [f64; 3] {
-        self.pending_dp
-    }
-
-    /// The index model shards must use in `update` (the one after this angle).
-    pub fn next_index(&self) -> Option<IndexModel> {
-        self.next_index
-    }
-
-    /// Order offset of the peaks (0 or 1/2) at `incidence_deg` with index `index`.
-    pub fn peak_offset(&self, index: IndexModel, incidence_deg: f64) -> f64 {
-        if !self.spec.options.half_order {
-            return 0.0;
-        }
-        let mid = self.spec.bands_nm[self.spec.bands_nm.len() / 2];
-        FilmAtAngle::new(
-            Indices {
-                ambient: self.spec.ambient_index,
-                film: index.at(mid),
-                substrate: self.spec.substrate.index_at(mid),
-            },
-            incidence_deg,
-            self.spec.polarization,
-        )
-        .map_or(0.0, |f| f.peak_phase_offset())
-    }
-
     /// Starts an angle (then fill the band models with [`SweepSolver::band_models`]).
     pub fn begin_angle(&mut self, incidence_deg: f64) {
-        self.angle_deg = incidence_deg;
-        self.pair_geom = self.anchor_deg.and_then(|a| {
+        self.ctx.angle_deg = incidence_deg;
+        self.ctx.pair_geom = self.ctx.anchor_deg.and_then(|a| {
             PairGeometry::new(
-                self.spec.ambient_index,
+                self.ctx.spec.ambient_index,
                 a,
                 incidence_deg,
-                self.spec.index_range,
+                self.ctx.spec.index_range,
                 self.band_span_nm(),
             )
         });
-        self.window = None;
+        self.ctx.window = None;
         self.last_pair = None;
-        self.next_index = None;
-        self.pending_dp = [0.0; 3];
-    }
-
-    fn band_span_nm(&self) -> [f64; 2] {
-        let b = &self.spec.bands_nm;
-        let (lo, hi) = b
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &l| {
-                (lo.min(l), hi.max(l))
-            });
-        [lo, hi]
+        self.ctx.next_index = None;
+        self.ctx.pending_dp = [0.0; 3];
     }
 
     /// The index fit over all pairs so far (model choice, chi-squares).
@@ -858,13 +278,17 @@ impl SweepSolver {
 
     /// Merged votes of the current pair: fixes the window around their mode.
     pub fn set_votes(&mut self, hist: &RatioHistogram) {
-        self.window = self.pair_geom.as_ref().and_then(|g| hist.windows(g));
+        self.ctx.window = self.ctx.pair_geom.as_ref().and_then(|g| hist.windows(g));
     }
 
     /// Merged window sums: the pair's extrema-only index estimate.
     pub fn set_window_sums(&mut self, sums: &RatioSums) {
-        let est = self.pair_geom.as_ref().and_then(|g| pair_estimate(g, sums));
-        if let (Some(e), Some(g)) = (est, self.pair_geom.as_ref()) {
+        let est = self
+            .ctx
+            .pair_geom
+            .as_ref()
+            .and_then(|g| pair_estimate(g, sums));
+        if let (Some(e), Some(g)) = (est, self.ctx.pair_geom.as_ref()) {
             let _ = self.pairs.push(e);
             let _ = self.pair_bins.push(PairBins::from_sums(g, sums));
         }
@@ -874,16 +298,11 @@ impl SweepSolver {
     /// Merged fit-quality histogram.
     pub fn set_fit_histogram(&mut self, hist: &FitStats) {
         if let Some(m) = hist.rms.median() {
-            self.rms_median = Some(m);
+            self.ctx.rms_median = Some(m);
         }
-        if let Some(m) = hist.noise.median().filter(|_| !self.noise_held) {
-            self.noise_median = Some(m);
+        if let Some(m) = hist.noise.median() {
+            self.ctx.noise_median = Some(m);
         }
-    }
-
-    /// The image's typical noise (median of the pixels' own estimates at the last angle).
-    pub fn noise_sigma(&self) -> Option<f32> {
-        self.noise_median
     }
 
     /// Merged Schur sums: decides the index step and the index shards use in `update`.
@@ -898,7 +317,6 @@ impl SweepSolver {
     /// thickness follows through its cross terms (`update`).
     pub fn set_schur(&mut self, s: &SchurSums) {
         self.last_refined = false;
-        self.term_chi2 = f64::NAN;
         let mut spectral_next = None;
         if s.pixels >= 16.0 && s.h[0] > 0.0 && s.samples > s.pixels * 2.0 {
             let steps = [s.step(1), s.step(2), s.step(3)];
@@ -910,19 +328,15 @@ impl SweepSolver {
             // small), so that a richer model is compared with the simpler one at its best
             // rather than used to absorb a linearisation far from it, and only if the index
             // it gives is physical (normal dispersion across the band).
-            let mut terms = self.index.map_or(1, |m| m.terms()).clamp(1, 3);
+            let mut terms = self.ctx.index.map_or(1, |m| m.terms()).clamp(1, 3);
             // The pixels' thicknesses must have stepped twice too (three angles in): a
             // richer index would otherwise absorb their starting error, and two angles
             // barely tell a thin film's index from its thickness.
             let settled = self.refined_steps > 1
                 && steps[terms - 1]
                     .is_some_and(|(x, _)| self.max_index_change(x) < SETTLED_INDEX_STEP);
-            self.term_chi2 = self.last_term_chi2(s, sigma2);
-            while settled
-                && terms < self.max_terms
-                && gains[terms] - gains[terms - 1] > SPECTRAL_TERM_CHI2
-            {
-                let worth = match (self.index, steps[terms]) {
+            while settled && terms < 3 && gains[terms] - gains[terms - 1] > SPECTRAL_TERM_CHI2 {
+                let worth = match (self.ctx.index, steps[terms]) {
                     (Some(index), Some((x, _))) => {
                         let next = index.moved(x);
                         self.physical(next) && self.term_effect(next, terms) >= MIN_TERM_EFFECT
@@ -941,7 +355,7 @@ impl SweepSolver {
                     s.sse
                 };
                 let dof = (s.samples - s.pixels - terms as f64).max(1.0);
-                self.residual_sigma = Some(libm::sqrt(after.max(0.0) / dof));
+                self.ctx.residual_sigma = Some(libm::sqrt(after.max(0.0) / dof));
                 self.spectral_dn = x[0];
                 for (kept, g) in self.spectral_gains.iter_mut().zip(gains) {
                     if kept.is_nan() || g > *kept {
@@ -950,7 +364,7 @@ impl SweepSolver {
                 }
                 self.last_refined = true;
                 self.refined_steps += 1;
-                if let Some(index) = self.index {
+                if let Some(index) = self.ctx.index {
                     let scale = self.max_index_change(x) / MAX_INDEX_STEP;
                     if scale > 1.0 {
                         x = x.map(|v| v / scale);
@@ -976,7 +390,7 @@ impl SweepSolver {
                             c[0][0] = 1.0 / s.h[0].max(1e-30);
                             c
                         });
-                        self.index_cov = Some(cov.map(|row| row.map(|v| v * sigma2)));
+                        self.ctx.index_cov = Some(cov.map(|row| row.map(|v| v * sigma2)));
                     } else {
                         // No usable step from the linearisation: where a fresh pass starts.
                         self.spectral_candidate = self.spectral_start(index, s);
@@ -984,48 +398,32 @@ impl SweepSolver {
                 }
             }
         }
-        let (range, span) = (self.spec.index_range, self.band_span_nm());
+        let (range, span) = (self.ctx.spec.index_range, self.band_span_nm());
         self.fit = combine(&self.pairs).and_then(|c| fit_index(&self.pair_bins, c, range, span));
-        self.next_index = if let Some(m) = self.external.take() {
+        self.ctx.next_index = if let Some(m) = self.external.take() {
             Some(m)
-        } else if self.held_index {
-            self.index
+        } else if self.ctx.held_index {
+            self.ctx.index
         } else if self.spectral_index {
-            spectral_next.or(self.index)
+            spectral_next.or(self.ctx.index)
         } else {
             match self.fit {
                 Some(f) => {
                     let mut cov = [[0.0; 3]; 3];
                     cov[0][0] = f.sigma * f.sigma;
-                    self.index_cov = Some(cov);
+                    self.ctx.index_cov = Some(cov);
                     Some(f.model)
                 }
-                None => self.index,
+                None => self.ctx.index,
             }
         };
-        self.pending_dp = match (self.index, self.next_index) {
+        self.ctx.pending_dp = match (self.ctx.index, self.ctx.next_index) {
             (Some(a), Some(b)) => {
                 let (pa, pb) = (a.to_basis(), b.to_basis());
                 [pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]]
             }
             _ => [0.0; 3],
         };
-    }
-
-    /// The Wald statistic of the current index model's last term ([`SweepSolver::term_chi2`])
-    /// from the sums `s` and the residual variance `sigma2`.
-    fn last_term_chi2(&self, s: &SchurSums, sigma2: f64) -> f64 {
-        let Some(index) = self.index.filter(|m| m.terms() > 1) else {
-            return f64::NAN;
-        };
-        let k = index.terms().min(3);
-        match (s.step(k), s.inverse(k)) {
-            (Some((x, _)), Some(inv)) if inv[k - 1][k - 1] > 0.0 => {
-                let coef = index.to_basis()[k - 1] + x[k - 1];
-                coef * coef / (sigma2.max(1e-30) * inv[k - 1][k - 1])
-            }
-            _ => f64::NAN,
-        }
     }
 
     /// Where a full-spectrum pass should start after an extremum-shift pass linearised at
@@ -1035,7 +433,7 @@ impl SweepSolver {
     fn spectral_start(&self, index: IndexModel, s: &SchurSums) -> Option<IndexModel> {
         let (x, _) = s.step(1)?;
         let p0 = index.at(super::BASIS_NM) + x[0];
-        let [lo, hi] = self.spec.index_range;
+        let [lo, hi] = self.ctx.spec.index_range;
         if !(lo..=hi).contains(&p0) {
             return None;
         }
@@ -1054,7 +452,7 @@ impl SweepSolver {
     /// [`MAX_DISPERSION_PER_EXCESS`] times `n - 1`.
     fn physical(&self, m: IndexModel) -> bool {
         let [lo, hi] = self.band_span_nm();
-        let [n_lo, n_hi] = self.spec.index_range;
+        let [n_lo, n_hi] = self.ctx.spec.index_range;
         let at = |i: i32| m.at(lo + (hi - lo) * f64::from(i) / 16.0);
         (0..=16).all(|i| (n_lo..=n_hi).contains(&at(i)))
             && (0..16).all(|i| at(i + 1) <= at(i) + 1e-4)
@@ -1086,30 +484,6 @@ impl SweepSolver {
         worst
     }
 
-    /// Whether the index moved so much at this angle's end (more than
-    /// [`REORDER_INDEX_STEP`]) that every pixel chooses its order again (its sums restart).
-    pub fn reorders(&self) -> bool {
-        libm::fabs(self.pending_dp[0]) > REORDER_INDEX_STEP
-    }
-
-    /// Whether the full-spectrum fit is much worse than the noise: residual RMS above
-    /// [`MISMATCH_RATIO`] times the pixels' median noise plus [`MISMATCH_FLOOR`]. The film
-    /// model (index, dispersion) then does not explain the spectra: every pixel is flagged
-    /// [`super::flags::MODEL_MISMATCH`] and its confidence scaled down.
-    pub fn model_mismatch(&self) -> bool {
-        if self.held_index || self.external_index {
-            // A held or external index was judged where it was fitted (the full spectra of a pixel
-            // sample, against their own noise, [`super::sample`]); the pixels' typical
-            // residual here also carries the per-pixel model's quadrature error, which a
-            // thick, high-index film under a wide passband makes larger than the noise.
-            return false;
-        }
-        match (self.residual_sigma, self.noise_median) {
-            (Some(r), Some(n)) => r > MISMATCH_RATIO * f64::from(n) + MISMATCH_FLOOR,
-            _ => false,
-        }
-    }
-
     /// The index step the full-spectrum sums alone would take (a consistency check).
     pub fn spectral_index_step(&self) -> f64 {
         self.spectral_dn
@@ -1117,21 +491,20 @@ impl SweepSolver {
 
     /// Ends the angle (after every shard's `update`).
     pub fn end_angle(&mut self) -> AngleReport {
-        if self.anchor_deg.is_none() {
-            self.anchor_deg = Some(self.angle_deg);
+        if self.ctx.anchor_deg.is_none() {
+            self.ctx.anchor_deg = Some(self.ctx.angle_deg);
         }
-        self.index = self.next_index.or(self.index);
+        self.ctx.index = self.ctx.next_index.or(self.ctx.index);
         self.angles_done += 1;
         AngleReport {
-            incidence_deg: self.angle_deg,
-            index: self.index.map(|m| m.at(super::BASIS_NM)),
+            incidence_deg: self.ctx.angle_deg,
+            index: self.ctx.index.map(|m| m.at(super::BASIS_NM)),
             index_sigma: self.index_sigma(),
             pair: self.last_pair,
             refined: self.last_refined,
             spectral_index_step: self.spectral_dn,
             spectral_index: self.spectral_index,
-            index_terms: self.index.map_or(0, |m| m.terms()),
-            term_chi2: self.term_chi2,
+            index_terms: self.ctx.index.map_or(0, |m| m.terms()),
         }
     }
 
@@ -1150,7 +523,7 @@ impl SweepSolver {
         let mut hist = RatioHistogram::default();
         let mut fit = FitStats::default();
         for s in shards {
-            let (h, f) = s.tally(self);
+            let (h, f) = s.tally(&self.ctx);
             hist.merge(&h);
             fit.merge(&f);
         }
@@ -1163,7 +536,7 @@ impl SweepSolver {
         let mut sums = RatioSums::default();
         let mut schur = SchurSums::default();
         for s in shards {
-            s.sums(self, |_, w, r| {
+            s.sums(&self.ctx, |_, w, r| {
                 sums.merge(&w);
                 schur.merge(&r);
             });
@@ -1176,10 +549,10 @@ impl SweepSolver {
     /// resolved, and the angle ended.
     pub fn end_update(&mut self, shards: &mut [Shard<'_>]) -> AngleReport {
         for s in shards.iter_mut() {
-            s.update(self, None, |_| {});
+            s.update(&self.ctx, None, |_| {});
         }
         // Every pixel as a possible tie: those with an order are skipped.
-        resolve_orders(self, shards, |_, pixels| 0..pixels);
+        resolve_orders(&self.ctx, shards, |_, pixels| 0..pixels);
         self.end_angle()
     }
 }
@@ -1190,17 +563,17 @@ impl SweepSolver {
 /// `shard` (of `pixels`) in increasing order; pixels with an order are skipped, so `0..pixels`
 /// will do.
 pub fn resolve_orders<I: DoubleEndedIterator<Item = usize>>(
-    solver: &SweepSolver,
+    ctx: &SweepContext,
     shards: &mut [Shard<'_>],
     ties: impl Fn(usize, usize) -> I,
 ) {
-    let w = solver.spec().width;
+    let w = ctx.spec().width;
     let mut edge = [0f32; 4096];
     let mut have = false;
     let mut pending = false;
     for (k, s) in shards.iter_mut().enumerate() {
         let above = (have && w <= edge.len()).then(|| &edge[..w]);
-        pending |= s.resolve_forward(solver, above, ties(k, s.pixels.len()));
+        pending |= s.resolve_forward(ctx, above, ties(k, s.pixels.len()));
         if w <= edge.len() {
             s.edge_row(true, &mut edge[..w]);
             have = true;
@@ -1212,118 +585,10 @@ pub fn resolve_orders<I: DoubleEndedIterator<Item = usize>>(
     have = false;
     for (k, s) in shards.iter_mut().enumerate().rev() {
         let below = (have && w <= edge.len()).then(|| &edge[..w]);
-        s.resolve_backward(solver, below, ties(k, s.pixels.len()).rev());
+        s.resolve_backward(ctx, below, ties(k, s.pixels.len()).rev());
         if w <= edge.len() {
             s.edge_row(false, &mut edge[..w]);
             have = true;
         }
-    }
-}
-
-/// A sweep of `width` x `height` pixels on the paper's rig (420-720 nm in 2 nm bands, 4 nm
-/// FWHM, s-polarised, a film on 1.52 glass), for unit tests.
-#[cfg(test)]
-pub(crate) fn paper_rig_spec(width: usize, height: usize) -> SweepSpec {
-    let mut s = SweepSpec {
-        width,
-        height,
-        bands_nm: HVec::new(),
-        fwhm_nm: HVec::new(),
-        ambient_index: 1.0,
-        substrate_index: 1.52,
-        substrate: Dispersion::constant(1.52),
-        polarization: crate::optics::Polarization::S,
-        index_range: [1.2, 2.8],
-        thickness_range_nm: [30.0, 2000.0],
-        options: SolverOptions::default(),
-    };
-    for b in 0..151 {
-        let _ = s.bands_nm.push(420.0 + 2.0 * f64::from(b));
-        let _ = s.fwhm_nm.push(4.0);
-    }
-    s
-}
-
-#[cfg(test)]
-mod term_tests {
-    use super::*;
-
-    fn spec() -> SweepSpec {
-        paper_rig_spec(8, 4)
-    }
-
-    /// Sums whose index block is `h` (level, slope) and gradient `g`, from 32 pixels.
-    fn sums(h: [f64; 3], g: [f64; 2]) -> SchurSums {
-        SchurSums {
-            h: [h[0], h[1], 0.0, h[2], 0.0, 1.0],
-            g: [g[0], g[1], 0.0],
-            pixels: 32.0,
-            sse: 0.05,
-            samples: 32.0 * 755.0,
-        }
-    }
-
-    /// The last term's chi-square is its coefficient at the sums' optimum squared over its
-    /// variance, worked here by hand from the 2 x 2 block (Cramer's rule), not through the
-    /// solver's Cholesky factor.
-    #[test]
-    fn the_last_terms_chi2_is_its_wald_statistic() {
-        let index = IndexModel::from_basis([1.6, 0.0025, 0.0]);
-        let (h, g) = ([230.0, 500.0, 1270.0], [0.1, 0.105]);
-        let mut solver = SweepSolver::new(spec(), Some(index)).with_frozen_seeds();
-        assert!(solver.frozen_seeds());
-        solver.set_schur(&sums(h, g));
-        let det = h[0] * h[2] - h[1] * h[1];
-        let x1 = (h[0] * g[1] - h[1] * g[0]) / det;
-        let c11 = h[0] / det;
-        let coef = 0.0025 + x1;
-        // The residual variance after the full (three-term) step.
-        let s = sums(h, g);
-        let (_, gain) = s.step(3).expect("positive definite");
-        let sigma2 = (s.sse - gain) / (s.samples - s.pixels - 3.0);
-        let want = coef * coef / (sigma2 * c11);
-        let got = solver.term_chi2();
-        assert!((got - want).abs() <= 1e-9 * want, "{got} against {want}");
-        // Held: the index does not move.
-        assert_eq!(solver.next_index(), Some(index));
-        // A one-term index has no such term.
-        let mut constant = SweepSolver::new(spec(), Some(IndexModel::constant(1.6)));
-        constant.set_schur(&sums(h, g));
-        assert!(constant.term_chi2().is_nan());
-    }
-
-    /// A held pass's tables cover its seeds' thicknesses (within the search range) and an
-    /// order either side; without seeds, the whole search range.
-    #[test]
-    fn tables_cover_the_held_seeds_only() {
-        let full = SweepSolver::new(spec(), None).table_range_nm();
-        let order = 30.0 - full[0];
-        assert!(order > 300.0 && 2000.0 + order == full[1], "{full:?}");
-        let narrow = |lo, hi| {
-            SweepSolver::new(spec(), None)
-                .with_table_thickness(lo, hi)
-                .table_range_nm()
-        };
-        assert_eq!(narrow(380.0, 430.0), [380.0 - order, 430.0 + order]);
-        assert_eq!(narrow(10.0, 3000.0), full);
-        assert_eq!(narrow(f64::INFINITY, f64::NEG_INFINITY), full);
-    }
-
-    /// Thawed, the same sums move the index, with no more terms than it had.
-    #[test]
-    fn a_thawed_sweep_steps_the_index_with_its_own_terms() {
-        let index = IndexModel::constant(1.6);
-        let mut solver = SweepSolver::new(spec(), Some(index)).with_frozen_seeds();
-        solver.thaw();
-        assert!(!solver.frozen_seeds());
-        solver.set_schur(&sums([230.0, 500.0, 1270.0], [0.1, 0.105]));
-        let next = solver.next_index().expect("an index");
-        assert_eq!(next.terms(), 1);
-        let want = 1.6 + 0.1 / 230.0;
-        assert!(
-            (next.at(crate::solve::BASIS_NM) - want).abs() < 1e-9,
-            "{}",
-            next.at(crate::solve::BASIS_NM)
-        );
     }
 }

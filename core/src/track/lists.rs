@@ -13,7 +13,7 @@ pub trait ExtremumSink {
     fn push(&mut self, e: Extremum) -> Result<(), Extremum>;
 }
 
-/// The sinks of a block's lanes ([`super::row::TrackerLanes::push`]): lane `i`'s extrema
+/// The sinks of a block's lanes (the row blocks' `TrackerLanes::push`): lane `i`'s extrema
 /// go to sink `i`; a lane without one (a padding lane) drops them.
 pub trait LaneSinks {
     /// [`ExtremumSink::last_extremum`] of lane `i`.
@@ -181,8 +181,8 @@ impl ExtremaHead {
     }
 
     /// How many of the whole list lie in bands `WINDOW..=last` (`last >= WINDOW`: the range
-    /// clear of the smoothing window at either end,
-    /// [`crate::solve::SweepSpec::last_reliable_band`]): all but those before band
+    /// clear of the smoothing window at either end, `WINDOW` bands before the sweep's last
+    /// and never before band `WINDOW`): all but those before band
     /// `WINDOW` and those kept here past `last` (a list with more than [`HEAD`] extrema
     /// past `last`, never a clean fringe's, counts the earlier ones in).
     pub fn reliable(&self, last: f32) -> usize {
@@ -243,7 +243,7 @@ mod tests {
 
     /// The reliable count is the whole list's count of extrema in bands `WINDOW..=last`,
     /// whichever end of the band the list covers, on 100 bands and on 16 (whose range is
-    /// band `WINDOW` alone, [`crate::solve::SweepSpec::last_reliable_band`]).
+    /// band `WINDOW` alone).
     #[test]
     fn the_reliable_count_is_the_whole_lists() {
         let cases = [

@@ -236,8 +236,7 @@ impl Mode {
 const TAU_PER_D2: f32 = PROMINENCE_SIGMA * 0.5 / 1.954;
 
 /// Tracker state of one pixel for one angle: 52 bytes, independent of bands and angles
-/// (bad samples are bridged here and counted by the full-spectrum sums,
-/// [`crate::solve::fit_row::FitLanes`]).
+/// (bad samples are bridged here and counted by the solver's full-spectrum sums).
 ///
 /// The smoothing window's three moments (`sum q`, `sum k q`, `sum k^2 q` of the ring steps
 /// `q`, with `k = -4..4` from the window centre) are carried from sample to sample in a few
