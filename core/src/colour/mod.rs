@@ -18,6 +18,7 @@
 //!
 //! Everything is `no_std` (maths through `libm`).
 
+mod adapt;
 mod difference;
 mod illuminant;
 mod lab;
@@ -25,8 +26,9 @@ mod srgb;
 pub mod tables;
 mod xyz;
 
+pub use adapt::bradford_adapt;
 pub use difference::{delta_e2000, delta_e76, spectral_rmse};
-pub use illuminant::{bradford_adapt, Illuminant};
+pub use illuminant::Illuminant;
 pub use lab::Lab;
 pub use srgb::{srgb_to_u8, xyz_to_srgb, xyz_to_srgb_balanced};
 pub use xyz::{

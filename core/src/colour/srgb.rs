@@ -1,6 +1,6 @@
 //! CIE XYZ -> sRGB (IEC 61966-2-1).
 
-use super::illuminant::bradford_adapt;
+use super::adapt::bradford_adapt;
 use super::xyz::{Xyz, D65_WHITE_XYZ};
 
 /// XYZ -> linear sRGB matrix of IEC 61966-2-1:1999 (D65 white, as published, to

@@ -91,6 +91,14 @@ pub struct Colorimetry {
     end: usize,
 }
 
+impl Illuminant {
+    /// XYZ of the perfect reflector under this illuminant over the whole grid
+    /// (`Y = 100`): its white point.
+    pub fn white(self) -> Xyz {
+        Colorimetry::full(self).white()
+    }
+}
+
 impl Colorimetry {
     /// The whole grid 380..=780 nm under `illuminant`.
     pub const fn full(illuminant: Illuminant) -> Self {
@@ -339,5 +347,20 @@ mod tests {
             let x = reflectance_to_xyz(wl, r);
             assert!(x.x.is_nan() && x.y.is_nan() && x.z.is_nan());
         }
+    }
+
+    #[test]
+    fn whites_are_the_known_ones() {
+        // CIE 015 2-degree whites from the 5 nm tables (Y = 100).
+        let a = Illuminant::A.white();
+        assert!(
+            (a.x - 109.85).abs() < 0.02 && (a.z - 35.58).abs() < 0.02,
+            "{a:?}"
+        );
+        let d50 = Illuminant::D50.white();
+        assert!(
+            (d50.x - 96.42).abs() < 0.02 && (d50.z - 82.52).abs() < 0.02,
+            "{d50:?}"
+        );
     }
 }
