@@ -57,6 +57,8 @@ pub trait Tap {
     fn angle(&mut self, incidence_deg: f64);
     /// Calibrated rows `first_row..first_row + rows` of `band` at the current angle.
     fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]);
+    /// The image rows it reads, sorted and distinct (a stream may skip the others).
+    fn image_rows(&self) -> Vec<usize>;
 }
 
 /// Angles beyond those announced re-lay the buffer with twice the room.
@@ -98,6 +100,19 @@ impl Tap for SampleTap {
             }
         }
     }
+
+    fn image_rows(&self) -> Vec<usize> {
+        let mut rows: Vec<usize> = self
+            .sites
+            .iter()
+            .flat_map(|&(r, c)| {
+                (0..RUN).map(move |j| run_pixel(r as usize, c as usize, j, self.along_columns).0)
+            })
+            .collect();
+        rows.sort_unstable();
+        rows.dedup();
+        rows
+    }
 }
 
 /// Angles beyond those announced are not held.
@@ -126,6 +141,12 @@ impl Tap for PixelTap {
                 self.values[(k * self.angle_stride + a) * self.bands + band] = v;
             }
         }
+    }
+
+    fn image_rows(&self) -> Vec<usize> {
+        let mut rows: Vec<usize> = self.pixels.iter().map(|&(r, _)| r as usize).collect();
+        rows.dedup();
+        rows
     }
 }
 

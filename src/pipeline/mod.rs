@@ -12,11 +12,11 @@ mod ties;
 
 pub use msg::{RowBlock, Samples, StreamMsg};
 pub use run::{
-    calibrate_block, collect_sweep, for_each_calibrated, run_sweep, run_sweep_sampled,
-    tally_parallel, update_parallel, BandModels, Calibrated, LatencyParts, PipelineConfig,
-    PipelineError, Prior, PriorUpdate, SampleHook, ShardState, SweepOutput,
+    calibrate_block, collect_sweep, for_each_calibrated, for_each_calibrated_rows, run_sweep,
+    run_sweep_sampled, tally_parallel, update_parallel, BandModels, Calibrated, LatencyParts,
+    PipelineConfig, PipelineError, Prior, PriorUpdate, SampleHook, ShardState, SweepOutput,
 };
 pub use source::{
-    stream_band_sequential, sweep_spec, CaptureSource, SimSource, Source, DEFAULT_INDEX_RANGE,
-    DEFAULT_THICKNESS_RANGE_NM,
+    row_runs, stream_band_sequential, stream_runs, sweep_spec, CaptureSource, SimSource, Source,
+    DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,
 };

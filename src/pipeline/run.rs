@@ -1137,13 +1137,26 @@ pub enum Calibrated<'a> {
 /// thread.
 pub fn for_each_calibrated(
     source: &mut dyn Source,
+    f: impl FnMut(Calibrated<'_>),
+) -> Result<(), PipelineError> {
+    for_each_calibrated_rows(source, None, f)
+}
+
+/// [`for_each_calibrated`] of only the image rows in `rows` (sorted; `None`: every row),
+/// for a consumer of a few pixels ([`Source::stream_rows`]: a source may still send others).
+pub fn for_each_calibrated_rows(
+    source: &mut dyn Source,
+    rows: Option<&[usize]>,
     mut f: impl FnMut(Calibrated<'_>),
 ) -> Result<(), PipelineError> {
     let spec = source.spec().clone();
     let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
     let (tx, rx) = bounded::<StreamMsg>(64);
     std::thread::scope(|scope| -> Result<(), PipelineError> {
-        scope.spawn(move || source.stream(&tx));
+        scope.spawn(move || match rows {
+            Some(rows) => source.stream_rows(&tx, rows),
+            None => source.stream(&tx),
+        });
         let mut angle = None;
         for msg in rx.iter() {
             match msg {
