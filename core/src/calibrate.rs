@@ -15,18 +15,44 @@ pub fn calibrate_row(
     saturation_counts: f32,
     out: &mut [f32],
 ) {
-    for (i, o) in out.iter_mut().enumerate() {
-        let r = raw.get(i).copied().unwrap_or(f32::NAN);
-        let w = white.get(i).copied().unwrap_or(f32::NAN);
-        let d = dark.map_or(0.0, |d| d.get(i).copied().unwrap_or(f32::NAN));
-        let span = w - d;
-        *o = if r >= saturation_counts {
-            f32::INFINITY
-        } else if span > 1e-3 && r.is_finite() && d.is_finite() {
-            white_reflectance * (r - d) / span
-        } else {
-            f32::NAN
-        };
+    let n = out.len();
+    // Full-length rows take the branch-free loop the compiler vectorises; a short input's
+    // missing samples are NaN.
+    match dark {
+        Some(d) if raw.len() >= n && white.len() >= n && d.len() >= n => {
+            for (((o, &r), &w), &d) in out.iter_mut().zip(raw).zip(white).zip(d) {
+                *o = calibrated(r, d, w, white_reflectance, saturation_counts);
+            }
+        }
+        None if raw.len() >= n && white.len() >= n => {
+            for ((o, &r), &w) in out.iter_mut().zip(raw).zip(white) {
+                *o = calibrated(r, 0.0, w, white_reflectance, saturation_counts);
+            }
+        }
+        _ => {
+            for (i, o) in out.iter_mut().enumerate() {
+                let r = raw.get(i).copied().unwrap_or(f32::NAN);
+                let w = white.get(i).copied().unwrap_or(f32::NAN);
+                let d = dark.map_or(0.0, |d| d.get(i).copied().unwrap_or(f32::NAN));
+                *o = calibrated(r, d, w, white_reflectance, saturation_counts);
+            }
+        }
+    }
+}
+
+/// One sample: `+inf` at or above `saturation_counts`, NaN without a usable reference or
+/// count, else the reflectance.
+#[inline(always)]
+fn calibrated(r: f32, d: f32, w: f32, white_reflectance: f32, saturation_counts: f32) -> f32 {
+    let span = w - d;
+    let value = white_reflectance * (r - d) / span;
+    let usable = span > 1e-3 && r.is_finite() && d.is_finite();
+    if r >= saturation_counts {
+        f32::INFINITY
+    } else if usable {
+        value
+    } else {
+        f32::NAN
     }
 }
 

@@ -22,7 +22,10 @@
 //!   kernel sweep's rows repeated to N rows (printed to stderr): whether the state still fits
 //!   the caches shows in the difference.
 //! - `rss`: a child process runs one sweep of a large sensor (2048 x 2048 x 161 bands x 5
-//!   angles unless `--quick`) and reports its peak resident memory (`VmHWM`).
+//!   angles, and 4096 x 3000 x 161 x 5, unless `--quick`) and reports its peak resident
+//!   memory (`VmHWM`).
+//! - `end to end`: `filmscope estimate` run as a child process on a raw ENVI capture written
+//!   to disk ([`end_to_end`]), the streaming method and the paper's, wall seconds.
 
 use std::path::Path;
 use std::process::Command;
@@ -268,6 +271,134 @@ pub fn rss_child(scene_path: &Path, width: usize, height: usize, angles: usize) 
     Ok(())
 }
 
+/// The streaming method with the film's index given (as the Python peers are given it:
+/// `filmscope estimate --film-index`), on `scene`'s calibrated frames replayed from memory
+/// (as the peers' `seconds` start from calibrated spectra): the like-for-like figure for the
+/// peers' ratios.
+pub fn measure_index_given(scene: &Scene) -> Result<Point> {
+    let frames = Arc::new(Frames::render(scene, scene.sensor.height).map_err(|e| anyhow!(e))?);
+    let truth = crate::cli::eval::Truth::of_scene(scene);
+    let mpix = (scene.sensor.width * scene.sensor.height) as f64 / 1e6;
+    let mut source = ReplaySource::new(frames, scene.sensor.height, 8);
+    let t0 = Instant::now();
+    let run = crate::estimate::known_index::run_with_index(
+        &mut source,
+        &RunConfig::default(),
+        &scene.stack.film,
+        "scene",
+        &|_| {},
+    )
+    .map_err(|e| anyhow!("{e}"))?;
+    let secs = t0.elapsed().as_secs_f64();
+    let r = crate::cli::eval::evaluate(&scene.name, &truth, &run);
+    Ok(Point {
+        method: Method::Filmscope.name().to_owned(),
+        label: "filmscope (n given)".to_owned(),
+        seconds_per_mpix: secs / mpix,
+        index_error_abs: r.index_error.abs(),
+        thickness_mae_nm: r.thickness_mae_nm,
+        valid_fraction: r.valid_fraction,
+        silent_failure_rate: r.silent_failure_rate,
+    })
+}
+
+/// `filmscope estimate` from an ENVI capture on disk, as a user runs it.
+#[derive(Clone, Debug, Serialize)]
+pub struct EndToEnd {
+    /// Sensor width.
+    pub width: usize,
+    /// Sensor height.
+    pub height: usize,
+    /// Bands.
+    pub bands: usize,
+    /// Angles.
+    pub angles: usize,
+    /// Bytes of the capture's files (cubes, white and dark references).
+    pub capture_bytes: u64,
+    /// Wall seconds of `filmscope estimate` (the streaming method).
+    pub filmscope_seconds: f64,
+    /// Wall seconds of `filmscope estimate --method paper` on the same capture.
+    pub paper_seconds: Option<f64>,
+    /// The streaming method's index error against the scene's.
+    pub filmscope_index_error: f64,
+    /// The paper method's.
+    pub paper_index_error: Option<f64>,
+    /// Why the paper method's run is missing, if it is.
+    pub paper_error: Option<String>,
+}
+
+/// Writes `scene_path` resized to `width x height` as a raw capture (BIL u16 counts with
+/// white and dark references, as `filmscope simulate` writes it) into a temporary folder,
+/// runs `filmscope estimate` on it in a child process (this executable: the command line's
+/// own code path, reading included) for the streaming method and the paper's, timing each
+/// wall to wall, and removes the folder.
+pub fn end_to_end(scene_path: &Path, width: usize, height: usize) -> Result<EndToEnd> {
+    let scene = scene_with(scene_path, width, height, None)?;
+    let dir = std::env::temp_dir().join(format!("filmscope-bench-capture-{}", std::process::id()));
+    let result = end_to_end_in(&scene, &dir);
+    let _ = std::fs::remove_dir_all(&dir);
+    result
+}
+
+fn end_to_end_in(scene: &Scene, dir: &Path) -> Result<EndToEnd> {
+    use crate::io::{ByteOrder, Interleave};
+    let capture = dir.join("capture");
+    let opts = crate::simulate::SimulateOptions {
+        noise_free: false,
+        interleave: Interleave::Bil,
+        byte_order: ByteOrder::Little,
+        float_reflectance: false,
+    };
+    crate::simulate::write_capture(scene, &capture, opts, &|_| {}).map_err(|e| anyhow!("{e}"))?;
+    let capture_bytes = std::fs::read_dir(&capture)?
+        .filter_map(|e| e.ok()?.metadata().ok())
+        .filter(|m| m.is_file())
+        .map(|m| m.len())
+        .sum();
+    let truth = scene.stack.film.index_at(550.0);
+    let exe = std::env::current_exe().context("cannot find the filmscope executable")?;
+    let run = |method: &str| -> Result<(f64, f64)> {
+        let out = dir.join(format!("out-{method}"));
+        let t0 = Instant::now();
+        let child = Command::new(&exe)
+            .arg("estimate")
+            .arg(&capture)
+            .arg("--out")
+            .arg(&out)
+            .args(["--method", method])
+            .output()
+            .context("cannot start filmscope estimate")?;
+        let seconds = t0.elapsed().as_secs_f64();
+        if !child.status.success() {
+            return Err(anyhow!(
+                "filmscope estimate --method {method}: {}",
+                String::from_utf8_lossy(&child.stderr).trim()
+            ));
+        }
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json"))?)?;
+        let n = summary["refractive_index"].as_f64().unwrap_or(f64::NAN);
+        Ok((seconds, (n - truth).abs()))
+    };
+    let (filmscope_seconds, filmscope_index_error) = run("filmscope")?;
+    let (paper, paper_error) = match run("paper") {
+        Ok(r) => (Some(r), None),
+        Err(e) => (None, Some(e.to_string())),
+    };
+    Ok(EndToEnd {
+        width: scene.sensor.width,
+        height: scene.sensor.height,
+        bands: scene.bands_nm.len(),
+        angles: scene.angles_deg.len(),
+        capture_bytes,
+        filmscope_seconds,
+        paper_seconds: paper.map(|p| p.0),
+        filmscope_index_error,
+        paper_index_error: paper.map(|p| p.1),
+        paper_error,
+    })
+}
+
 fn rss_in_child(
     scene_path: &Path,
     width: usize,
@@ -334,10 +465,31 @@ pub struct BenchReport {
     pub state_bytes_per_pixel: usize,
     /// The sensor of `state_bytes_per_pixel`.
     pub state_sensor: [usize; 2],
-    /// Peak memory of a large sweep.
+    /// `filmscope estimate` from a raw ENVI capture on disk (1024 x 1024, 151 bands, 5
+    /// angles; 256 x 256 with `--quick`), wall seconds per megapixel.
+    pub end_to_end_s_per_mpix: Option<f64>,
+    /// `filmscope estimate --method paper` on the same capture, wall seconds per megapixel.
+    pub end_to_end_paper_s_per_mpix: Option<f64>,
+    /// The end-to-end runs.
+    pub end_to_end: Option<EndToEnd>,
+    /// Why the end-to-end figures are missing, if they are.
+    pub end_to_end_error: Option<String>,
+    /// Peak resident memory of a 2048 x 2048 sweep, 161 bands x 5 angles, MB (`None` with
+    /// `--quick`, which measures a smaller sweep: `rss`).
+    pub peak_rss_mb_4mp: Option<f64>,
+    /// Peak resident memory of a 4096 x 3000 sweep, 161 bands x 5 angles, MB (`None` with
+    /// `--quick`).
+    pub peak_rss_mb_12mp: Option<f64>,
+    /// Peak memory of a large sweep (2048 x 2048 x 5 angles; 1024 x 1024 x 2 with `--quick`).
     pub rss: Option<RssFigures>,
     /// Why the memory figure is missing, if it is.
     pub rss_error: Option<String>,
+    /// Peak memory of a 12 MP sweep (full run only).
+    pub rss_12mp: Option<RssFigures>,
+    /// Why that figure is missing, if it is.
+    pub rss_12mp_error: Option<String>,
+    /// What a `--quick` run measures differently from the full one.
+    pub notes: Vec<String>,
     /// The three methods on the same sweep.
     pub methods: Vec<Point>,
     /// Sensor of filmscope's and the paper method's sweep.
@@ -349,8 +501,12 @@ pub struct BenchReport {
     /// Time of `paper` over time of `filmscope`.
     pub speedup_vs_paper: f64,
     /// Seconds per megapixel of the NumPy look-up table (`benches/peers/`, index given) over
-    /// filmscope's, on the methods' capture; `None` when the peer did not run (`peers.note`).
+    /// filmscope's with the index given too (`filmscope (n given)`: both from calibrated
+    /// spectra in memory, neither fitting the index), on the methods' capture; `None` when
+    /// the peer did not run (`peers.note`).
     pub speedup_vs_numpy_lut: Option<f64>,
+    /// The same against filmscope fitting the index itself (its `filmscope` row).
+    pub speedup_vs_numpy_lut_index_fitted: Option<f64>,
     /// The same for the per-pixel SciPy `least_squares` fit.
     pub speedup_vs_scipy: Option<f64>,
     /// The Python peers' figures ([`crate::cli::peers`]).
@@ -460,9 +616,15 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
 
     progress("peers: NumPy look-up table and SciPy least_squares (Python)");
     let peers = crate::cli::peers::run(&m_scene, if quick { 100 } else { 1000 });
+    // The peers are given the index: so is filmscope for their ratios.
+    progress("filmscope with the index given, on the peers' sweep");
+    let given = measure_index_given(&m_scene)?;
+    let given_s = given.seconds_per_mpix;
     let filmscope_s = time("filmscope");
-    let speedup_vs_numpy_lut = crate::cli::peers::speedup(peers.numpy_lut.as_ref(), filmscope_s);
-    let speedup_vs_scipy = crate::cli::peers::speedup(peers.scipy.as_ref(), filmscope_s);
+    let speedup_vs_numpy_lut = crate::cli::peers::speedup(peers.numpy_lut.as_ref(), given_s);
+    let speedup_vs_scipy = crate::cli::peers::speedup(peers.scipy.as_ref(), given_s);
+    let speedup_vs_numpy_lut_index_fitted =
+        crate::cli::peers::speedup(peers.numpy_lut.as_ref(), filmscope_s);
 
     progress("peak memory (child process)");
     let (rw, rh, ra) = if quick {
@@ -474,10 +636,33 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         Ok(r) => (Some(r), None),
         Err(e) => (None, Some(e.to_string())),
     };
+    let (rss_12mp, rss_12mp_error) = if quick {
+        (None, None)
+    } else {
+        progress("peak memory of a 12 MP sweep (child process)");
+        match rss_in_child(scene_path, 4096, 3000, 5) {
+            Ok(r) => (Some(r), None),
+            Err(e) => (None, Some(e.to_string())),
+        }
+    };
+    let (ew, eh) = if quick { (256, 256) } else { (1024, 1024) };
+    progress("end to end: filmscope estimate on a raw capture on disk (child processes)");
+    let (end_to_end, end_to_end_error) = match end_to_end(scene_path, ew, eh) {
+        Ok(e) => (Some(e), None),
+        Err(e) => (None, Some(e.to_string())),
+    };
+    let mpix = (ew * eh) as f64 / 1e6;
+    let mut notes = Vec::new();
+    if quick {
+        notes.push(format!(
+            "--quick: end to end on a {ew}x{eh} capture (not 1024x1024); peak RSS of a 1024x1024 x 2-angle sweep (peak_rss_mb_4mp and peak_rss_mb_12mp not measured); pipeline {pw}x{ph}; methods {mw}x{mh}"
+        ));
+    }
     let (speedup_vs_brute, speedup_vs_paper) = (
         time("brute") / time("filmscope"),
         time("paper") / time("filmscope"),
     );
+    methods.push(given);
     progress("inspect: last row to verdict published (firmware-sim, demo recipe)");
     let (inspect_latency_ms, inspect_latency_error) = match crate::line::inspect::bench_latency(
         Path::new("config/rig.toml"),
@@ -507,14 +692,27 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
             rw,
         ),
         state_sensor: [rw, rh],
+        end_to_end_s_per_mpix: end_to_end.as_ref().map(|e| e.filmscope_seconds / mpix),
+        end_to_end_paper_s_per_mpix: end_to_end
+            .as_ref()
+            .and_then(|e| e.paper_seconds)
+            .map(|s| s / mpix),
+        end_to_end,
+        end_to_end_error,
+        peak_rss_mb_4mp: rss.as_ref().filter(|_| !quick).map(|r| r.peak_rss_mb),
+        peak_rss_mb_12mp: rss_12mp.as_ref().map(|r| r.peak_rss_mb),
         rss,
         rss_error,
+        rss_12mp,
+        rss_12mp_error,
+        notes,
         methods,
         methods_sensor: [mw, mh],
         brute_sensor: [bw, bh],
         speedup_vs_brute,
         speedup_vs_paper,
         speedup_vs_numpy_lut,
+        speedup_vs_numpy_lut_index_fitted,
         speedup_vs_scipy,
         peers,
         inspect_latency_ms,
@@ -604,9 +802,53 @@ pub fn format_table(r: &BenchReport) -> String {
                 x.width, x.height, x.bands, x.angles
             ),
             format!("{:.0}", x.peak_rss_mb),
-            "<= 400 (4 MP, 161 x 5)",
+            if r.quick {
+                "<= 450 (4 MP, 161 x 5; --quick: smaller)"
+            } else {
+                "<= 450 (4 MP, 161 x 5)"
+            },
         ),
         (None, Some(e)) => row("peak RSS", "failed".into(), e),
+        _ => {}
+    }
+    match (&r.rss_12mp, &r.rss_12mp_error) {
+        (Some(x), _) => row(
+            &format!(
+                "peak RSS, {}x{} x {} bands x {} angles, MB",
+                x.width, x.height, x.bands, x.angles
+            ),
+            format!("{:.0}", x.peak_rss_mb),
+            "<= 1536 (12 MP, 161 x 5)",
+        ),
+        (None, Some(e)) => row("peak RSS, 12 MP", "failed".into(), e),
+        _ => row("peak RSS, 12 MP", "-".into(), "(not measured with --quick)"),
+    }
+    match (&r.end_to_end, &r.end_to_end_error) {
+        (Some(e), _) => {
+            let mpix = (e.width * e.height) as f64 / 1e6;
+            let target = format!(
+                "<= 10 ({}x{} x {} x {} raw BIL{})",
+                e.width,
+                e.height,
+                e.bands,
+                e.angles,
+                if r.quick { "; --quick: not 1 MP" } else { "" }
+            );
+            row(
+                "end to end from disk, s per Mpix",
+                format!("{:.2}", e.filmscope_seconds / mpix),
+                &target,
+            );
+            row(
+                "  paper method, same capture, s per Mpix",
+                e.paper_seconds
+                    .map_or_else(|| "failed".into(), |s| format!("{:.2}", s / mpix)),
+                e.paper_error
+                    .as_deref()
+                    .unwrap_or("(slower than filmscope's)"),
+            );
+        }
+        (None, Some(e)) => row("end to end from disk", "failed".into(), e),
         _ => {}
     }
     row(
@@ -621,13 +863,18 @@ pub fn format_table(r: &BenchReport) -> String {
     );
     let times = |x: Option<f64>| x.map_or_else(|| "-".into(), |x| format!("{x:.0}x"));
     row(
-        "speedup vs NumPy LUT / SciPy (Python peers)",
+        "speedup vs NumPy LUT / SciPy (n given to all)",
         format!(
             "{} / {}",
             times(r.speedup_vs_numpy_lut),
             times(r.speedup_vs_scipy)
         ),
         ">= 20x / 200x",
+    );
+    row(
+        "  vs NumPy LUT, filmscope fitting n itself",
+        times(r.speedup_vs_numpy_lut_index_fitted),
+        "",
     );
     match (&r.inspect_latency_ms, &r.inspect_latency_error) {
         (Some(l), _) if !l.is_empty() => {
@@ -672,5 +919,46 @@ pub fn format_table(r: &BenchReport) -> String {
         ));
     }
     s.push_str(&crate::cli::peers::table_rows(&r.peers));
+    for n in &r.notes {
+        s.push_str(&format!("note: {n}\n"));
+    }
     s
+}
+
+/// `YYYY-MM-DD` of `t` in UTC (the proleptic Gregorian calendar; days from the civil-from-days
+/// algorithm).
+pub fn utc_date(t: std::time::SystemTime) -> String {
+    let secs = t
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let z = (secs / 86_400) as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!("{year:04}-{month:02}-{day:02}")
+}
+
+#[cfg(test)]
+mod date_tests {
+    use super::utc_date;
+    use std::time::{Duration, UNIX_EPOCH};
+
+    #[test]
+    fn utc_dates() {
+        assert_eq!(utc_date(UNIX_EPOCH), "1970-01-01");
+        // 2000-02-29 12:00 UTC and 2026-11-26 04:18 UTC.
+        assert_eq!(
+            utc_date(UNIX_EPOCH + Duration::from_secs(951_825_600)),
+            "2000-02-29"
+        );
+        assert_eq!(
+            utc_date(UNIX_EPOCH + Duration::from_secs(1_795_666_680)),
+            "2026-11-26"
+        );
+    }
 }

@@ -620,16 +620,36 @@ pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
 }
 
 /// `filmscope bench`.
-pub fn bench(scene: &Path, quick: bool, json: bool) -> Result<()> {
+pub fn bench(scene: &Path, quick: bool, json: bool, out: Option<&Path>) -> Result<()> {
     let report = crate::cli::bench::run_bench(scene, quick, &|what| {
         if !json {
             eprintln!("bench: {what}");
         }
     })?;
+    let table = crate::cli::bench::format_table(&report);
+    let text = serde_json::to_string(&report)?;
     if json {
-        println!("{}", serde_json::to_string(&report)?);
+        println!("{text}");
     } else {
-        print!("{}", crate::cli::bench::format_table(&report));
+        print!("{table}");
+    }
+    if let Some(dir) = out {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create", dir.display()))?;
+        let date = crate::cli::bench::utc_date(std::time::SystemTime::now());
+        let md = dir.join(format!("{date}.md"));
+        let what = if quick {
+            "filmscope bench --quick"
+        } else {
+            "filmscope bench"
+        };
+        let body = format!("# {what}, {date}\n\n```text\n{table}```\n");
+        crate::io::write_atomic(&md, body.as_bytes())
+            .with_context(|| format!("{}: cannot write", md.display()))?;
+        let js = dir.join(format!("{date}.json"));
+        crate::io::write_atomic(&js, format!("{text}\n").as_bytes())
+            .with_context(|| format!("{}: cannot write", js.display()))?;
+        eprintln!("bench: wrote {} and {}", md.display(), js.display());
     }
     Ok(())
 }

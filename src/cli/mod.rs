@@ -234,6 +234,10 @@ enum Command {
         /// The scene whose spectra are measured.
         #[arg(long, default_value = "config/scenes/paper-sample1.toml")]
         scene: PathBuf,
+        /// Also write the table and the JSON as OUT/YYYY-MM-DD.md and .json (today's UTC
+        /// date), e.g. `--out docs/bench`.
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// Speed against accuracy: every method and knob setting on one scene, charted (time per
     /// megapixel against thickness and index error, Pareto front marked).
@@ -446,7 +450,12 @@ pub fn main() -> std::process::ExitCode {
             json,
             &ablate,
         ),
-        Command::Bench { quick, json, scene } => commands::bench(&scene, quick, json),
+        Command::Bench {
+            quick,
+            json,
+            scene,
+            out,
+        } => commands::bench(&scene, quick, json, out.as_deref()),
         Command::Soak { sweeps, scene } => commands::soak(&scene, sweeps),
         Command::Chart { scene, out, quick } => commands::chart(&scene, &out, quick),
         Command::Stability {

@@ -91,6 +91,19 @@ impl Tap for SampleTap {
             }
         }
     }
+
+    fn image_rows(&self) -> Vec<usize> {
+        let mut rows: Vec<usize> = self
+            .sites
+            .iter()
+            .flat_map(|&(r, c)| {
+                (0..RUN).map(move |j| run_pixel(r as usize, c as usize, j, self.along_columns).0)
+            })
+            .collect();
+        rows.sort_unstable();
+        rows.dedup();
+        rows
+    }
 }
 
 /// Angles beyond those announced are not held.
@@ -119,6 +132,12 @@ impl Tap for PixelTap {
                 self.values[(k * self.angle_stride + a) * self.bands + band] = v;
             }
         }
+    }
+
+    fn image_rows(&self) -> Vec<usize> {
+        let mut rows: Vec<usize> = self.pixels.iter().map(|&(r, _)| r as usize).collect();
+        rows.dedup();
+        rows
     }
 }
 

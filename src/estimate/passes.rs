@@ -14,7 +14,7 @@ use crate::estimate::index_fit::{
     choice_json, fringes_across_band, index_model, PixelTap, SampleTap, SEEDED_BELOW_FRINGES,
 };
 use crate::pipeline::{
-    for_each_calibrated, run_sweep, run_sweep_sampled, Calibrated, PipelineError, Prior,
+    for_each_calibrated_rows, run_sweep, run_sweep_sampled, Calibrated, PipelineError, Prior,
     PriorUpdate, SampleHook, SweepOutput, Tap,
 };
 use crate::source::Source;
@@ -47,8 +47,9 @@ pub struct Passes {
 /// The streaming estimator over `source` with one incidence angle per frame: the sampled
 /// sites' full spectra give the shared index ([`crate::estimate::index_fit`]), and one streaming pass
 /// holding that index gives every pixel its order and thickness. A replayable source streams
-/// twice (the sample, then every pixel); a live one once, the sample held as it streams and
-/// the index refitted as each angle completes. `on_rows` is told of the first stream's rows.
+/// twice (the sample's rows, then every pixel); a live one once, the sample held as it
+/// streams and the index refitted as each angle completes. `on_rows` is told of the rows of
+/// the stream of every pixel.
 pub fn filmscope_passes(
     source: &mut dyn Source,
     config: &RunConfig,
@@ -97,7 +98,7 @@ pub fn filmscope_passes(
             choice,
         });
     }
-    fill(source, &mut tap, on_rows)?;
+    fill(source, &mut tap)?;
     let began = Instant::now();
     let fit = tap.fit(&spec, None, true);
     let fit_seconds = began.elapsed().as_secs_f64();
@@ -109,7 +110,7 @@ pub fn filmscope_passes(
     };
     let seeded = seed.is_some();
     let prior = index.map(|i| Prior::new(i, PriorUpdate::Hold, seed));
-    let mut out = run_sweep(source, config.pipeline, prior, &|_| {})?;
+    let mut out = run_sweep(source, config.pipeline, prior, on_rows)?;
     let mut passes = 2;
     // The per-pixel pass must agree with the sample's own thicknesses; where it does not
     // (orders from extrema gone wrong, or left unsolved), every pixel starts from the
@@ -166,13 +167,10 @@ pub fn check_capture_memory(
     )
 }
 
-/// Streams `source` once into `tap`; `on_rows` is told of every block of rows.
-fn fill(
-    source: &mut dyn Source,
-    tap: &mut dyn Tap,
-    on_rows: &(dyn Fn(u64) + Sync),
-) -> Result<(), PipelineError> {
-    for_each_calibrated(source, |event| match event {
+/// Streams the image rows `tap` reads from `source` once into it.
+fn fill(source: &mut dyn Source, tap: &mut dyn Tap) -> Result<(), PipelineError> {
+    let rows = tap.image_rows();
+    for_each_calibrated_rows(source, Some(&rows), |event| match event {
         Calibrated::Angle(deg) => tap.angle(deg),
         Calibrated::Rows {
             band,
@@ -182,7 +180,6 @@ fn fill(
             ..
         } => {
             tap.rows(band, first_row, rows, values);
-            on_rows(rows as u64);
         }
     })
 }
@@ -233,7 +230,7 @@ fn repair(
         return Ok(None);
     }
     let mut tap = PixelTap::new(spec, &pixels, source.angles_deg().len());
-    fill(source, &mut tap, &|_| {})?;
+    fill(source, &mut tap)?;
     let seats = tap.seat(spec, best.kind, best.params, fit.noise_sigma);
     let [d_lo, d_hi] = spec.thickness_range_nm;
     let chi2_limit = SEARCH_CHI2_NU * best.chi2_nu.max(1.0);

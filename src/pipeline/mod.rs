@@ -9,7 +9,7 @@ mod run;
 mod ties;
 
 pub use run::{
-    collect_sweep, for_each_calibrated, run_sweep, run_sweep_sampled, tally_parallel,
-    update_parallel, BandModels, Calibrated, LatencyParts, PipelineConfig, PipelineError, Prior,
-    PriorUpdate, SampleHook, ShardState, SweepOutput, Tap,
+    collect_sweep, for_each_calibrated, for_each_calibrated_rows, run_sweep, run_sweep_sampled,
+    tally_parallel, update_parallel, BandModels, Calibrated, LatencyParts, PipelineConfig,
+    PipelineError, Prior, PriorUpdate, SampleHook, ShardState, SweepOutput, Tap,
 };

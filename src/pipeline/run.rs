@@ -388,6 +388,8 @@ pub trait Tap {
     fn angle(&mut self, incidence_deg: f64);
     /// Calibrated rows `first_row..first_row + rows` of `band` at the current angle.
     fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]);
+    /// The image rows it reads, sorted and distinct (a stream may skip the others).
+    fn image_rows(&self) -> Vec<usize>;
 }
 
 /// A pixel sample held as the sweep streams and what the caller makes of it as each angle
@@ -1058,13 +1060,26 @@ pub enum Calibrated<'a> {
 /// thread.
 pub fn for_each_calibrated(
     source: &mut dyn Source,
+    f: impl FnMut(Calibrated<'_>),
+) -> Result<(), PipelineError> {
+    for_each_calibrated_rows(source, None, f)
+}
+
+/// [`for_each_calibrated`] of only the image rows in `rows` (sorted; `None`: every row),
+/// for a consumer of a few pixels ([`Source::stream_rows`]: a source may still send others).
+pub fn for_each_calibrated_rows(
+    source: &mut dyn Source,
+    rows: Option<&[usize]>,
     mut f: impl FnMut(Calibrated<'_>),
 ) -> Result<(), PipelineError> {
     let spec = source.spec().clone();
     let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
     let (tx, rx) = bounded::<StreamMsg>(64);
     std::thread::scope(|scope| -> Result<(), PipelineError> {
-        scope.spawn(move || source.stream(&tx));
+        scope.spawn(move || match rows {
+            Some(rows) => source.stream_rows(&tx, rows),
+            None => source.stream(&tx),
+        });
         let mut angle = None;
         for msg in rx.iter() {
             match msg {

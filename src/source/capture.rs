@@ -6,12 +6,23 @@ use crossbeam_channel::Sender;
 use filmscope_core::solve::SweepSpec;
 
 use super::{
-    sweep_spec, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
+    row_runs, sweep_spec, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
     DEFAULT_THICKNESS_RANGE_NM,
 };
 use crate::io::{Capture, EnviReader};
 
-/// An ENVI capture replayed row by row in each cube's own interleave.
+/// Bytes of a capture's run of lines (`bil`, `bip`) read before its rows are handed on:
+/// each message then carries several rows of a band (fewer messages, and the workers feed
+/// blocks of rows as from a band-sequential source).
+const LINE_RUN_BYTES: usize = 16 << 20;
+
+/// Most lines in such a run.
+const MAX_RUN_LINES: usize = 16;
+
+/// Rows of a band of a `bsq` capture in one message.
+const BSQ_RUN_ROWS: usize = 16;
+
+/// An ENVI capture replayed in each cube's own interleave.
 pub struct CaptureSource {
     capture: Capture,
     spec: SweepSpec,
@@ -73,72 +84,148 @@ impl CaptureSource {
         })
     }
 
-    fn stream_angle(&self, a: usize, tx: &Sender<StreamMsg>) -> Result<bool, String> {
+    /// Streams angle `a`'s rows (those in `only`, sorted, or every one) as blocks of
+    /// consecutive rows of one band: `bil` and `bip` a run of lines at a time (each line
+    /// read whole, once, its bands handed on band by band), `bsq` band by band in the
+    /// file's order (a run of rows of a band at a time, then the band's end).
+    fn stream_angle(
+        &self,
+        a: usize,
+        tx: &Sender<StreamMsg>,
+        only: Option<&[usize]>,
+    ) -> Result<bool, String> {
         let angle = &self.capture.angles[a];
-        let w = self.spec.width;
-        let mut cube = EnviReader::open(&angle.cube).map_err(|e| e.to_string())?;
-        let mut white = match &angle.white {
-            Some(p) => Some(EnviReader::open(p).map_err(|e| e.to_string())?),
-            None => None,
+        let (w, h) = (self.spec.width, self.spec.height);
+        let bands = self.spec.bands_nm.len();
+        let open = |p: &PathBuf| EnviReader::open(p).map_err(|e| e.to_string());
+        let mut cube = open(&angle.cube)?;
+        let mut white = angle.white.as_ref().map(open).transpose()?;
+        let mut dark = angle.dark.as_ref().map(open).transpose()?;
+        if cube.header().bands != bands || cube.header().samples != w {
+            return Err(format!(
+                "{}: not {w} samples x {bands} bands",
+                angle.cube.display()
+            ));
+        }
+        // A reference of one line serves every line.
+        let ref_line = |r: &EnviReader, line: usize| if r.header().lines == 1 { 0 } else { line };
+        let block = |counts: Vec<f32>, white: Option<Vec<f32>>, dark: Option<Vec<f32>>| match white
+        {
+            None => Samples::Reflectance(counts),
+            Some(white) => Samples::Raw {
+                counts,
+                dark,
+                white,
+                white_reflectance: angle.white_reflectance as f32,
+                saturation_counts: self.saturation_counts,
+            },
         };
-        let mut dark = match &angle.dark {
-            Some(p) => Some(EnviReader::open(p).map_err(|e| e.to_string())?),
-            None => None,
-        };
-        let mut buf = vec![0f32; w];
-        let band_sequential = cube.header().interleave == crate::io::Interleave::Bsq;
-        let mut last_band = None;
-        while let Some(at) = cube.next_band_row(&mut buf).map_err(|e| e.to_string())? {
-            if band_sequential && last_band.is_some_and(|b| b != at.band) {
-                if let Some(b) = last_band {
-                    if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
+        let err = |e: crate::io::EnviError| e.to_string();
+        if cube.header().interleave == crate::io::Interleave::Bsq {
+            let runs = row_runs(h, only, BSQ_RUN_ROWS);
+            for b in 0..bands {
+                for &(r0, n) in &runs {
+                    let mut counts = vec![0f32; n * w];
+                    let mut wv = white.as_ref().map(|_| vec![0f32; n * w]);
+                    let mut dv = dark.as_ref().map(|_| vec![0f32; n * w]);
+                    for k in 0..n {
+                        let s = k * w..(k + 1) * w;
+                        cube.read_band_row(b, r0 + k, &mut counts[s.clone()])
+                            .map_err(err)?;
+                        if let (Some(r), Some(v)) = (white.as_mut(), wv.as_mut()) {
+                            let line = ref_line(r, r0 + k);
+                            r.read_band_row(b, line, &mut v[s.clone()]).map_err(err)?;
+                        }
+                        if let (Some(r), Some(v)) = (dark.as_mut(), dv.as_mut()) {
+                            let line = ref_line(r, r0 + k);
+                            r.read_band_row(b, line, &mut v[s]).map_err(err)?;
+                        }
+                    }
+                    let msg = StreamMsg::Rows(RowBlock {
+                        band: b as u16,
+                        first_row: r0 as u32,
+                        rows: n as u32,
+                        samples: block(counts, wv, dv),
+                    });
+                    if tx.send(msg).is_err() {
                         return Ok(false);
                     }
                 }
+                if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
+                    return Ok(false);
+                }
             }
-            last_band = Some(at.band);
-            let samples = match white.as_mut() {
-                None => Samples::Reflectance(buf.clone()),
-                Some(wr) => {
-                    let mut wv = vec![0f32; w];
-                    let line = if wr.header().lines == 1 { 0 } else { at.line };
-                    wr.read_band_row(at.band, line, &mut wv)
-                        .map_err(|e| e.to_string())?;
-                    let dv = match dark.as_mut() {
-                        Some(dr) => {
-                            let mut dv = vec![0f32; w];
-                            let line = if dr.header().lines == 1 { 0 } else { at.line };
-                            dr.read_band_row(at.band, line, &mut dv)
-                                .map_err(|e| e.to_string())?;
-                            Some(dv)
+            return Ok(true);
+        }
+        // A run of lines' samples, references included, about `LINE_RUN_BYTES`.
+        let arrays = 1 + usize::from(white.is_some()) + usize::from(dark.is_some());
+        let per_line = (arrays * bands * w * 4).max(1);
+        let run_lines = (LINE_RUN_BYTES / per_line).clamp(1, MAX_RUN_LINES);
+        for (r0, n) in row_runs(h, only, run_lines) {
+            let mut counts: Vec<Vec<f32>> = (0..bands).map(|_| vec![0f32; n * w]).collect();
+            let mut wv: Option<Vec<Vec<f32>>> = white
+                .as_ref()
+                .map(|_| (0..bands).map(|_| vec![0f32; n * w]).collect());
+            let mut dv: Option<Vec<Vec<f32>>> = dark
+                .as_ref()
+                .map(|_| (0..bands).map(|_| vec![0f32; n * w]).collect());
+            for k in 0..n {
+                let line = r0 + k;
+                let s = k * w..(k + 1) * w;
+                cube.load_line(line).map_err(err)?;
+                for (b, c) in counts.iter_mut().enumerate() {
+                    cube.read_band_row(b, line, &mut c[s.clone()])
+                        .map_err(err)?;
+                }
+                for (r, v) in [(white.as_mut(), wv.as_mut()), (dark.as_mut(), dv.as_mut())] {
+                    if let (Some(r), Some(v)) = (r, v) {
+                        let line = ref_line(r, line);
+                        r.load_line(line).map_err(err)?;
+                        for (b, v) in v.iter_mut().enumerate() {
+                            r.read_band_row(b, line, &mut v[s.clone()]).map_err(err)?;
                         }
-                        None => None,
-                    };
-                    Samples::Raw {
-                        counts: buf.clone(),
-                        dark: dv,
-                        white: wv,
-                        white_reflectance: angle.white_reflectance as f32,
-                        saturation_counts: self.saturation_counts,
                     }
                 }
-            };
-            let block = RowBlock {
-                band: at.band as u16,
-                first_row: at.line as u32,
-                rows: 1,
-                samples,
-            };
-            if tx.send(StreamMsg::Rows(block)).is_err() {
-                return Ok(false);
             }
-        }
-        if let (true, Some(b)) = (band_sequential, last_band) {
-            if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
-                return Ok(false);
+            let mut wv = wv.map(Vec::into_iter);
+            let mut dv = dv.map(Vec::into_iter);
+            for (b, c) in counts.into_iter().enumerate() {
+                let wb = wv.as_mut().and_then(Iterator::next);
+                let db = dv.as_mut().and_then(Iterator::next);
+                let msg = StreamMsg::Rows(RowBlock {
+                    band: b as u16,
+                    first_row: r0 as u32,
+                    rows: n as u32,
+                    samples: block(c, wb, db),
+                });
+                if tx.send(msg).is_err() {
+                    return Ok(false);
+                }
             }
         }
         Ok(true)
+    }
+
+    /// Streams every angle, each with only the rows in `only` (sorted), or every row.
+    fn stream_only(&mut self, tx: &Sender<StreamMsg>, only: Option<&[usize]>) {
+        for a in 0..self.capture.angles.len() {
+            let deg = self.capture.angles[a].incidence_deg;
+            if tx.send(StreamMsg::Angle { incidence_deg: deg }).is_err() {
+                return;
+            }
+            match self.stream_angle(a, tx, only) {
+                Ok(true) => {}
+                Ok(false) => return,
+                Err(e) => {
+                    let _ = tx.send(StreamMsg::Abort(e));
+                    return;
+                }
+            }
+            if tx.send(StreamMsg::AngleEnd).is_err() {
+                return;
+            }
+        }
+        let _ = tx.send(StreamMsg::SweepEnd);
     }
 
     /// The capture file.
@@ -161,23 +248,10 @@ impl Source for CaptureSource {
     }
 
     fn stream(&mut self, tx: &Sender<StreamMsg>) {
-        for a in 0..self.capture.angles.len() {
-            let deg = self.capture.angles[a].incidence_deg;
-            if tx.send(StreamMsg::Angle { incidence_deg: deg }).is_err() {
-                return;
-            }
-            match self.stream_angle(a, tx) {
-                Ok(true) => {}
-                Ok(false) => return,
-                Err(e) => {
-                    let _ = tx.send(StreamMsg::Abort(e));
-                    return;
-                }
-            }
-            if tx.send(StreamMsg::AngleEnd).is_err() {
-                return;
-            }
-        }
-        let _ = tx.send(StreamMsg::SweepEnd);
+        self.stream_only(tx, None);
+    }
+
+    fn stream_rows(&mut self, tx: &Sender<StreamMsg>, rows: &[usize]) {
+        self.stream_only(tx, Some(rows));
     }
 }

@@ -25,6 +25,13 @@ pub trait Source: Send {
     fn angles_deg(&self) -> Vec<f64>;
     /// Streams the sweep into `tx`.
     fn stream(&mut self, tx: &Sender<StreamMsg>);
+    /// Streams the sweep into `tx` as [`Source::stream`] does, but only the image rows in
+    /// `rows` (sorted) need be sent: for a consumer that reads a few pixels' spectra. A
+    /// source that cannot skip rows streams them all (the consumer ignores the rest).
+    fn stream_rows(&mut self, tx: &Sender<StreamMsg>, rows: &[usize]) {
+        let _ = rows;
+        self.stream(tx);
+    }
     /// Whether [`Source::stream`] may be called again for the same data (a capture on disk,
     /// the software camera; not a live camera).
     fn replayable(&self) -> bool {
@@ -95,27 +102,44 @@ pub const DEFAULT_INDEX_RANGE: [f64; 2] = [1.2, 3.0];
 /// Default thickness search range, nm.
 pub const DEFAULT_THICKNESS_RANGE_NM: [f64; 2] = [50.0, 2000.0];
 
-/// Streams a band-sequential sweep into `tx`: per angle, every band's `height` rows in blocks
-/// of `rows_per_block`, the samples of a block made by `block(angle, band, first_row, rows)`,
-/// then the band's and the angle's end, and the sweep's end. Stops quietly when the receiver
-/// is gone.
-pub fn stream_band_sequential(
+/// Runs of consecutive image rows `(first, rows)` of a `height`-row frame, each at most
+/// `per_run` long: every row, or only those in `only` (sorted).
+pub fn row_runs(height: usize, only: Option<&[usize]>, per_run: usize) -> Vec<(usize, usize)> {
+    let per_run = per_run.max(1);
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    let mut push = |r: usize| match runs.last_mut() {
+        Some((first, n)) if *first + *n == r && *n < per_run => *n += 1,
+        _ => runs.push((r, 1)),
+    };
+    match only {
+        None => (0..height).for_each(&mut push),
+        Some(rows) => {
+            let mut last = None;
+            for &r in rows.iter().filter(|&&r| r < height) {
+                if last.is_none_or(|l| r > l) {
+                    push(r);
+                    last = Some(r);
+                }
+            }
+        }
+    }
+    runs
+}
+
+/// [`stream_band_sequential`] over the row runs `runs` only (from [`row_runs`]).
+pub fn stream_runs(
     tx: &Sender<StreamMsg>,
     angles_deg: &[f64],
     bands: usize,
-    height: usize,
-    rows_per_block: usize,
+    runs: &[(usize, usize)],
     mut block: impl FnMut(usize, usize, usize, usize) -> Samples,
 ) {
-    let per_block = rows_per_block.max(1);
     for (a, &deg) in angles_deg.iter().enumerate() {
         if tx.send(StreamMsg::Angle { incidence_deg: deg }).is_err() {
             return;
         }
         for b in 0..bands {
-            let mut r0 = 0;
-            while r0 < height {
-                let rows = per_block.min(height - r0);
+            for &(r0, rows) in runs {
                 let msg = StreamMsg::Rows(RowBlock {
                     band: b as u16,
                     first_row: r0 as u32,
@@ -125,7 +149,6 @@ pub fn stream_band_sequential(
                 if tx.send(msg).is_err() {
                     return;
                 }
-                r0 += rows;
             }
             if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
                 return;
@@ -136,4 +159,20 @@ pub fn stream_band_sequential(
         }
     }
     let _ = tx.send(StreamMsg::SweepEnd);
+}
+
+/// Streams a band-sequential sweep into `tx`: per angle, every band's `height` rows in blocks
+/// of `rows_per_block`, the samples of a block made by `block(angle, band, first_row, rows)`,
+/// then the band's and the angle's end, and the sweep's end. Stops quietly when the receiver
+/// is gone.
+pub fn stream_band_sequential(
+    tx: &Sender<StreamMsg>,
+    angles_deg: &[f64],
+    bands: usize,
+    height: usize,
+    rows_per_block: usize,
+    block: impl FnMut(usize, usize, usize, usize) -> Samples,
+) {
+    let runs = row_runs(height, None, rows_per_block);
+    stream_runs(tx, angles_deg, bands, &runs, block);
 }

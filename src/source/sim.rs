@@ -5,8 +5,8 @@ use filmscope_core::solve::SweepSpec;
 use firmware_sim::SoftwareCamera;
 
 use super::{
-    stream_band_sequential, sweep_spec, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
-    DEFAULT_THICKNESS_RANGE_NM,
+    row_runs, stream_band_sequential, stream_runs, sweep_spec, Samples, Source, StreamMsg,
+    DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,
 };
 
 /// The software camera as a source: raw counts with references, or noise-free reflectance.
@@ -102,6 +102,18 @@ impl Source for SimSource {
             scene.bands_nm.len(),
             self.camera.height(),
             self.rows_per_block,
+            |a, b, r0, rows| self.block(a, b, r0, rows),
+        );
+    }
+
+    fn stream_rows(&mut self, tx: &Sender<StreamMsg>, rows: &[usize]) {
+        let scene = self.camera.scene();
+        let runs = row_runs(self.camera.height(), Some(rows), self.rows_per_block);
+        stream_runs(
+            tx,
+            &scene.angles_deg,
+            scene.bands_nm.len(),
+            &runs,
             |a, b, r0, rows| self.block(a, b, r0, rows),
         );
     }

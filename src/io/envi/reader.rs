@@ -248,6 +248,26 @@ impl EnviReader {
         Ok(())
     }
 
+    /// Reads all of `line` at once for `bil` and `bip` (one read of its every band), so that
+    /// [`read_band_row`](EnviReader::read_band_row) of its bands decodes from memory; `bsq`
+    /// lines are not contiguous, and are read row by row.
+    pub fn load_line(&mut self, line: usize) -> Result<(), EnviError> {
+        let (lines, bands) = (self.header.lines, self.header.bands);
+        if line >= lines {
+            return Err(EnviErrorKind::OutOfRange {
+                band: 0,
+                line,
+                bands,
+                lines,
+            }
+            .at(&self.data_path));
+        }
+        match self.header.interleave {
+            Interleave::Bsq => Ok(()),
+            Interleave::Bil | Interleave::Bip => self.load_unit(line),
+        }
+    }
+
     fn check_out(&self, out: &[f32]) -> Result<(), EnviError> {
         if out.len() == self.header.samples {
             Ok(())
