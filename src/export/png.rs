@@ -130,6 +130,9 @@ pub enum PreviewError {
         /// The number of labels given.
         actual: usize,
     },
+    /// A chart could not be drawn.
+    #[error("cannot draw chart: {0}")]
+    Draw(String),
     /// The PNG encoder failed.
     #[error("cannot encode PNG: {err}")]
     Encode {
