@@ -86,22 +86,22 @@ impl Canvas {
             return;
         }
         self.fill(x, y, w, 1, colour);
-        self.fill(x, y + h - 1, w, 1, colour);
+        self.fill(x, y.saturating_add(h - 1), w, 1, colour);
         self.fill(x, y, 1, h, colour);
-        self.fill(x + w - 1, y, 1, h, colour);
+        self.fill(x.saturating_add(w - 1), y, 1, h, colour);
     }
 
     /// Draws `text` with its top-left corner (the top of a capital) at `(x, y)`, each
     /// font pixel a `scale x scale` block.
     pub(crate) fn text(&mut self, x: usize, y: usize, text: &str, scale: usize, colour: [u8; 3]) {
         for (n, ch) in text.chars().enumerate() {
-            let gx = x.saturating_add(n.saturating_mul(ADVANCE * scale));
+            let gx = x.saturating_add(n.saturating_mul(ADVANCE.saturating_mul(scale)));
             for (r, bits) in glyph(ch).iter().enumerate() {
                 for col in 0..GLYPH_COLS {
                     if bits & (1 << (GLYPH_COLS - 1 - col)) != 0 {
                         self.fill(
-                            gx.saturating_add(col * scale),
-                            y.saturating_add(r * scale),
+                            gx.saturating_add(col.saturating_mul(scale)),
+                            y.saturating_add(r.saturating_mul(scale)),
                             scale,
                             scale,
                             colour,
