@@ -275,7 +275,7 @@ const NOTE_ROW: usize = 20;
 const AXIS_MARGIN: f64 = 0.05;
 /// Least gap in pixels between two tick labels.
 const LABEL_SPACING: f64 = 12.0;
-/// Space between a heat map and its colour bar, and the bar's width.
+/// Space between a heat map and its colour bar.
 const BAR_GAP: usize = 20;
 /// Width of a heat map's colour bar.
 const BAR_WIDTH: usize = 18;
@@ -781,7 +781,8 @@ struct ScatterLayout<'a> {
     spec: &'a Scatter<'a>,
     /// The axes; `None` when there is no drawable point.
     axes: Option<(Axis, Axis)>,
-    /// Legend entries: the series' indices, then `None` for the Pareto front.
+    /// Legend entries `(x offset, row, key)`: a series' index, or `None` for the Pareto
+    /// front.
     legend: Vec<(usize, usize, Option<usize>)>,
     /// Number of legend rows.
     legend_rows: usize,
