@@ -11,14 +11,96 @@
 //! arguments. The font covers printable ASCII plus `µ`, `°` and `±`; anything else is
 //! drawn as `?`.
 
-use std::path::Path;
+use std::io;
+use std::path::{Path, PathBuf};
 
 use image::codecs::png::PngEncoder;
 use image::{ExtendedColorType, ImageEncoder};
 
 use super::colormap::{viridis, NO_DATA};
-use super::png::{PreviewError, MAX_PIXELS};
 use crate::io::write_atomic;
+
+/// The largest image, in pixels (width x height), that the renderers produce.
+pub const MAX_PIXELS: usize = 1 << 26;
+
+/// Why a preview could not be rendered or written. Displays as one line.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PreviewError {
+    /// The image has no pixels.
+    #[error("image has no pixels ({width}x{height})")]
+    Empty {
+        /// Width in pixels.
+        width: usize,
+        /// Height in pixels.
+        height: usize,
+    },
+    /// The pixel slice does not hold `width * height` entries.
+    #[error("a {width}x{height} image needs {expected} pixels but {actual} were given")]
+    SizeMismatch {
+        /// Width in pixels.
+        width: usize,
+        /// Height in pixels.
+        height: usize,
+        /// `width * height`.
+        expected: usize,
+        /// The length of the slice given.
+        actual: usize,
+    },
+    /// An upscale factor of 0 was given.
+    #[error("the upscale factor must be at least 1, got 0")]
+    ZeroScale,
+    /// The given colour range is not two finite values with `low <= high`.
+    #[error("colour range {low}..{high} is invalid (need finite values with low <= high)")]
+    InvalidRange {
+        /// The given low end.
+        low: f64,
+        /// The given high end.
+        high: f64,
+    },
+    /// The output image would exceed [`MAX_PIXELS`].
+    #[error("a {width}x{height} image upscaled {scale}x exceeds the limit of {limit} pixels")]
+    TooLarge {
+        /// Source width in pixels.
+        width: usize,
+        /// Source height in pixels.
+        height: usize,
+        /// The upscale factor.
+        scale: usize,
+        /// [`MAX_PIXELS`].
+        limit: usize,
+    },
+    /// A multi-panel figure was asked for with no panels.
+    #[error("a figure needs at least one panel, got none")]
+    NoPanels,
+    /// A heat map's tick labels are neither absent nor one per column (or row).
+    #[error("{axis} axis: {expected} tick labels needed (one per cell) but {actual} were given")]
+    TickCount {
+        /// `"x"` or `"y"`.
+        axis: &'static str,
+        /// The number of columns (x) or rows (y).
+        expected: usize,
+        /// The number of labels given.
+        actual: usize,
+    },
+    /// A chart could not be drawn.
+    #[error("cannot draw chart: {0}")]
+    Draw(String),
+    /// The PNG encoder failed.
+    #[error("cannot encode PNG: {err}")]
+    Encode {
+        /// The encoder's error (not a `source`: its text is already in this message).
+        err: image::ImageError,
+    },
+    /// The PNG could not be written to `path`.
+    #[error("{}: cannot write PNG: {err}", .path.display())]
+    Write {
+        /// The file that was being written.
+        path: PathBuf,
+        /// The underlying error (not a `source`: its text is already in this message).
+        err: io::Error,
+    },
+}
 
 /// Image background.
 pub(crate) const BACKGROUND: [u8; 3] = [255, 255, 255];
