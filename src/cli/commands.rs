@@ -459,17 +459,19 @@ fn eval_random(
                 .with_context(|| format!("{}: cannot write", path.display()))?;
         }
     }
-    let work = std::env::temp_dir().join(format!("filmscope-random-{}-{seed}", std::process::id()));
-    std::fs::create_dir_all(&work).with_context(|| format!("{}: cannot create", work.display()))?;
+    let work = tempfile::Builder::new()
+        .prefix(&format!("filmscope-random-{seed}-"))
+        .tempdir()
+        .context("cannot create a temporary folder")?;
     if !json {
         println!("{}", crate::cli::eval::RandomRow::table_header());
     }
-    let result = crate::cli::eval::random_eval(count, seed, config, &work, &mut |row| {
+    let result = crate::cli::eval::random_eval(count, seed, config, work.path(), &mut |row| {
         if !json {
             println!("{}", row.table_row());
         }
     });
-    let _ = std::fs::remove_dir_all(&work);
+    drop(work);
     if json {
         println!("{}", serde_json::to_string(&result)?);
     } else {

@@ -241,12 +241,15 @@ enum Command {
     },
     /// Speed against accuracy: every method and knob setting on one scene, charted (time per
     /// megapixel against thickness and index error, Pareto front marked).
+    ///
+    /// The committed figure is regenerated with `filmscope chart --out docs`.
     Chart {
         /// The scene.
         #[arg(long, default_value = "config/scenes/paper-sample1.toml")]
         scene: PathBuf,
-        /// Output folder (speed-accuracy.png and .json).
-        #[arg(long, default_value = "docs")]
+        /// Output folder (speed-accuracy.png and .json); `docs` replaces the committed
+        /// figure.
+        #[arg(long, default_value = "out")]
         out: PathBuf,
         /// Fewer settings and a smaller sensor.
         #[arg(long)]
@@ -254,9 +257,13 @@ enum Command {
     },
     /// Where each method works: error, flagged and silent fractions over film index,
     /// thickness, FWHM, noise, angles and band step, one heat map per method and map.
+    ///
+    /// The committed figures are regenerated with `filmscope stability --out docs` (all
+    /// maps) or `--out docs --map NAME` (one map).
     Stability {
-        /// Output folder (stability-*.png and stability.json).
-        #[arg(long, default_value = "docs")]
+        /// Output folder (stability-*.png and stability.json); `docs` replaces the
+        /// committed figures.
+        #[arg(long, default_value = "out")]
         out: PathBuf,
         /// Grids of 2-3 x 2-3 cells instead of up to 10 x 8.
         #[arg(long)]

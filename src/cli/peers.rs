@@ -121,12 +121,11 @@ pub fn run(scene: &Scene, scipy_max_pixels: usize) -> Peers {
         peers.note = Some(why);
         return peers;
     }
-    let dir = std::env::temp_dir().join(format!(
-        "filmscope-peers-{}-{}",
-        std::process::id(),
-        scene.seed
-    ));
     let result = (|| -> Result<()> {
+        let tmp = tempfile::Builder::new()
+            .prefix(&format!("filmscope-peers-{}-", scene.seed))
+            .tempdir()?;
+        let dir = tmp.path().join("capture");
         write_capture(scene, &dir, SimulateOptions::default(), &|_| {})?;
         let mut notes = Vec::new();
         match run_script("numpy_lut.py", &dir, &[]) {
@@ -143,7 +142,6 @@ pub fn run(scene: &Scene, scipy_max_pixels: usize) -> Peers {
         }
         Ok(())
     })();
-    let _ = std::fs::remove_dir_all(&dir);
     if let Err(e) = result {
         peers.note = Some(format!("peers not run: {e}"));
     }

@@ -1,83 +1,59 @@
 //! Charts as PNG: scatter plots (with an optional Pareto front) and heat maps, several
-//! panels side by side in one image, drawn with the built-in 5x7 pixel font shared with
-//! [`png`](super::png) (no font files, no plotting crates).
+//! panels side by side under a figure title, drawn with `plotters` on an RGB buffer and
+//! encoded with `image`. Text is set in the embedded DejaVu Sans (`fonts/`, through
+//! `ab_glyph`), so no system font or library is involved.
 //!
-//! A figure is the figure title across the top, then the panels left to right, top-aligned,
-//! [`PANEL_GAP`] pixels apart. A scatter panel ([`render_scatter_panels_png`]):
+//! A scatter panel ([`render_scatter_panels_png`]) has its title above a
+//! [`PLOT_WIDTH`] x [`PLOT_HEIGHT`] plot area with light grid lines, the axis labels
+//! beside the axes and the legend (and a note on points not drawn) below:
 //!
-//! ```text
-//!                 Panel title
-//!  y label
-//!        +------------------------------+
-//!   1e3 -|  .  o      o                 |    plot area PLOT_WIDTH x PLOT_HEIGHT,
-//!        |     o  label                 |    light grid lines at the major ticks;
-//!    10 -|   o  \_____                  |    the Pareto front (if asked for) as a
-//!        |            \____o            |    black staircase, its points ringed
-//!   0.1 -|                              |
-//!        +------------------------------+
-//!          |        |        |        |
-//!         0.0      0.5      1.0      1.5
-//!                    x label
-//!  o series 1   [] series 2   -O- Pareto front
-//!  2 points not drawn: not finite, or <= 0 on a log axis
-//! ```
-//!
-//! - The y label is written horizontally above the y axis (the font has no vertical text).
 //! - Axis ranges cover the drawable points plus a 5% margin on each side (on a log axis,
 //!   5% of the decades spanned); a single value is widened to a visible range.
 //! - Linear axes get "nice" ticks, 1, 2 or 5 times a power of ten apart. Log axes get
 //!   ticks at powers of ten, labelled `0.01`, `0.1`, `1`, `10`, `100`, then `1e3`,
 //!   `1e-3`, ... (every n-th power when they span more than eight decades, else each
-//!   power, with unlabelled minor ticks at 2..9 times it); over less than three decades 2 and 5
-//!   times the powers are labelled too (`2`, `5`, `20`, `2e3`), and over less than one
-//!   decade the ticks are linear ones placed logarithmically. Tick labels that would touch
-//!   are thinned to every second, third, ... tick.
+//!   power, with grid lines at 2..9 times it); over less than three decades 2 and 5 times
+//!   the powers are labelled too (`2`, `5`, `20`, `2e3`), and over less than one decade
+//!   the ticks are linear ones placed logarithmically. Tick labels that would touch are
+//!   thinned to every second, third, ... tick.
 //! - Series are told apart by colour (the Tableau 10 palette, in order) and marker shape
-//!   (circle, square, diamond, triangles); the legend runs below the x label and wraps.
-//! - Points that cannot be drawn (a non-finite coordinate, or a value <= 0 on a log
-//!   axis) are left out and counted in a note under the legend. A panel without a single
-//!   drawable point still renders: an empty frame with "no data" in it.
+//!   (circle, square, diamond, triangles).
+//! - Points that cannot be drawn (a non-finite coordinate, or a value <= 0 on a log axis)
+//!   are left out and counted in the note. A panel without a drawable point still
+//!   renders: an empty frame with "no data" in it.
 //! - Point labels are drawn small beside their point, on whichever side keeps them inside
 //!   the plot area and clear of the labels already placed; a label that fits nowhere is
 //!   left out rather than drawn over another.
-//! - The Pareto front is taken over the drawn points of all series together.
+//! - The Pareto front, taken over the drawn points of all series together, is a black
+//!   staircase with its points ringed.
 //!
-//! A heat-map panel ([`render_heatmap_panels_png`]):
+//! A heat-map panel ([`render_heatmap_panels_png`]) is a grid of cells coloured with
+//! [`viridis`], row 0 at the top (like a printed table), column 0 at the left, with its
+//! colour bar to the right (labelled at its ends and middle: the range's midpoint, or with
+//! `log` the geometric mean of the ends):
 //!
-//! ```text
-//!                 Panel title
-//!  y label                                   unit
-//!        +---------------------------+       +--+- 3.2
-//!   row0 | cell | cell | cell | cell |       |  |
-//!   row1 | cell | cell | cell | cell |       |  |- 2.1      viridis colour bar:
-//!   row2 | cell | cell | cell | cell |       |  |           max, mid and min
-//!        +---------------------------+       +--+- 1.0
-//!          col0   col1   col2   col3
-//!                   x label
-//!  [ ] grey = no data
-//! ```
-//!
-//! - Values are row-major, row 0 drawn at the TOP (like an image or a printed table),
-//!   column 0 at the left. `x_ticks` label column centres, `y_ticks` row centres; each is
-//!   either empty (no labels) or one label per column (row), thinned if they would touch.
+//! - `x_ticks` label column centres, `y_ticks` row centres; each is either empty (no
+//!   labels) or one label per column (row), thinned if they would touch.
 //! - Cells are sized to fill about [`PLOT_WIDTH`] x [`PLOT_HEIGHT`] (at least one pixel,
 //!   and big enough for the cell's text when `cell_text` is set).
-//! - Non-finite values (NaN, +-inf) are drawn in the "no data" grey [`NO_DATA`], with a
-//!   note under the panel. A heat map without a finite value still renders (all grey,
-//!   "no data" written across it).
-//! - The colour bar is labelled at its ends and middle: the range's low end, high end and
-//!   midpoint, or with `log` the geometric mean of the ends (3 significant digits).
+//! - Non-finite values are drawn in the "no data" grey [`NO_DATA`], with a note under the
+//!   panel; a heat map without a finite value still renders ("no data" across it).
 //!
 //! No function here panics on any input: a figure without panels, heat-map values that do
 //! not fill `rows x cols`, tick-label counts that match neither, invalid colour ranges
 //! and images beyond [`MAX_PIXELS`] are reported as [`PreviewError`]s; empty series and
 //! all-NaN data render as "no data" panels.
 
+use std::ops::Range;
 use std::path::Path;
+use std::sync::OnceLock;
 
-use super::canvas::{
-    fit_text, text_width, write_png, Canvas, Marker, BACKGROUND, CAP_ROWS, FRAME_INK, INK,
-};
+use plotters::coord::types::RangedCoordf64;
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+use plotters::style::FontStyle;
+
+use super::canvas::{encode_rgb, write_png};
 use super::colormap::{viridis, NO_DATA};
 use super::png::{check_size, format_value, tick_decimals, PreviewError, MAX_PIXELS};
 
@@ -112,7 +88,7 @@ pub struct Scatter<'a> {
     pub title: &'a str,
     /// Drawn centred below the x tick labels.
     pub x_label: &'a str,
-    /// Drawn horizontally above the y axis.
+    /// Drawn along the y axis.
     pub y_label: &'a str,
     /// Logarithmic x axis (points with x <= 0 are not drawn).
     pub x_log: bool,
@@ -134,29 +110,26 @@ pub struct HeatMap<'a> {
     pub title: &'a str,
     /// Drawn centred below the column labels.
     pub x_label: &'a str,
-    /// Drawn horizontally above the row labels.
+    /// Drawn along the row labels.
     pub y_label: &'a str,
     /// One label per column (drawn under the column's centre), or empty for none.
     pub x_ticks: &'a [String],
-    /// One label per row (drawn left of the row's centre, row 0 at the top), or empty
-    /// for none.
+    /// One label per row (drawn left of the row's centre), or empty for none.
     pub y_ticks: &'a [String],
     /// Number of columns.
     pub cols: usize,
     /// Number of rows.
     pub rows: usize,
-    /// `rows * cols` values, row-major: `values[r * cols + c]` is row `r` (counted from
-    /// the top), column `c` (from the left). Non-finite values are drawn grey.
+    /// `rows * cols` values, row-major, row 0 drawn at the top; non-finite = no data.
     pub values: &'a [f64],
-    /// The values' unit, written above the colour bar; may be empty.
+    /// Drawn above the colour bar, e.g. "nm"; may be empty.
     pub unit: &'a str,
-    /// The values mapped to the two ends of the colour bar, `(low, high)`; `None` uses
-    /// the smallest and largest finite value (positive value when `log`).
+    /// The values mapped to the two ends of the colour bar, `(low, high)`; `None` uses the
+    /// finite (with `log`, positive) values' extent.
     pub range: Option<(f64, f64)>,
-    /// Colour by `log10` of the value; values <= 0 get the colour of the range's low end.
+    /// Colour by `log10` of the value (values <= 0 get the low end's colour).
     pub log: bool,
-    /// Write each cell's value (3 significant digits) in it, black or white, whichever
-    /// reads better on the cell's colour.
+    /// Write each cell's value (3 significant digits) in it.
     pub cell_text: bool,
 }
 
@@ -198,17 +171,19 @@ pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
 }
 
 /// Renders scatter-plot panels side by side as one RGB8 PNG in memory, `title` across
-/// the top (see the [module docs](self) for the layout).
+/// the top (see the [module docs](self)).
 ///
 /// Errors: [`PreviewError::NoPanels`] for an empty `panels`, [`PreviewError::TooLarge`]
-/// if the image would exceed [`MAX_PIXELS`], [`PreviewError::Encode`].
+/// if the image would exceed [`MAX_PIXELS`], [`PreviewError::Draw`],
+/// [`PreviewError::Encode`].
 pub fn render_scatter_panels_png(title: &str, panels: &[Scatter]) -> Result<Vec<u8>, PreviewError> {
+    font_registered()?;
     let layouts: Vec<ScatterLayout> = panels.iter().map(ScatterLayout::new).collect();
     compose(title, &layouts)
 }
 
 /// Renders like [`render_scatter_panels_png`] and writes the PNG to `path` atomically
-/// (temporary file + rename, see [`write_atomic`](crate::io::write_atomic)).
+/// (see [`write_atomic`](crate::io::write_atomic)).
 ///
 /// Errors: those of [`render_scatter_panels_png`], and [`PreviewError::Write`] (naming
 /// `path`) if the file cannot be written.
@@ -222,15 +197,17 @@ pub fn write_scatter_panels_png(
 }
 
 /// Renders heat-map panels side by side, each with its own colour bar, as one RGB8 PNG
-/// in memory, `title` across the top (see the [module docs](self) for the layout).
+/// in memory, `title` across the top (see the [module docs](self)).
 ///
 /// Errors: [`PreviewError::NoPanels`] for an empty `panels`; for any panel,
 /// [`PreviewError::Empty`] if it has no cells, [`PreviewError::SizeMismatch`] if
 /// `values` does not hold `rows * cols` entries, [`PreviewError::TickCount`] if a tick
 /// list is neither empty nor one per column (row), [`PreviewError::InvalidRange`] for a
 /// `range` that is not finite with `low <= high` (and `low > 0` when `log`);
-/// [`PreviewError::TooLarge`] beyond [`MAX_PIXELS`], [`PreviewError::Encode`].
+/// [`PreviewError::TooLarge`] beyond [`MAX_PIXELS`], [`PreviewError::Draw`],
+/// [`PreviewError::Encode`].
 pub fn render_heatmap_panels_png(title: &str, panels: &[HeatMap]) -> Result<Vec<u8>, PreviewError> {
+    font_registered()?;
     let layouts = panels
         .iter()
         .map(HeatLayout::new)
@@ -239,7 +216,7 @@ pub fn render_heatmap_panels_png(title: &str, panels: &[HeatMap]) -> Result<Vec<
 }
 
 /// Renders like [`render_heatmap_panels_png`] and writes the PNG to `path` atomically
-/// (temporary file + rename, see [`write_atomic`](crate::io::write_atomic)).
+/// (see [`write_atomic`](crate::io::write_atomic)).
 ///
 /// Errors: those of [`render_heatmap_panels_png`], and [`PreviewError::Write`] (naming
 /// `path`) if the file cannot be written.
@@ -253,68 +230,98 @@ pub fn write_heatmap_panels_png(
 }
 
 // ---------------------------------------------------------------------------------------
-// Layout constants and colours.
+// Fonts, sizes and colours.
+
+/// The font family every text style names; registered with plotters' `ab_glyph` backend.
+const FAMILY: &str = "sans-serif";
+/// DejaVu Sans 2.37 (Bitstream Vera licence, `fonts/DejaVuSans-LICENSE.txt`).
+const FONT: &[u8] = include_bytes!("fonts/DejaVuSans.ttf");
+
+/// Registers [`FONT`] under [`FAMILY`] once; every renderer calls this first.
+fn font_registered() -> Result<(), PreviewError> {
+    static DONE: OnceLock<bool> = OnceLock::new();
+    let ok = *DONE
+        .get_or_init(|| plotters::style::register_font(FAMILY, FontStyle::Normal, FONT).is_ok());
+    ok.then_some(())
+        .ok_or_else(|| PreviewError::Draw("the embedded font cannot be read".into()))
+}
+
+/// Font sizes in pixels, all even: plotters' `ab_glyph` text sits each glyph at half the
+/// size above its baseline, truncated, so an odd size lifts small glyphs like `.` by a
+/// pixel.
+const FIGURE_TITLE_SIZE: f64 = 26.0;
+/// Panel titles.
+const PANEL_TITLE_SIZE: f64 = 20.0;
+/// Axis labels.
+const AXIS_SIZE: f64 = 16.0;
+/// Tick labels, legend entries and colour-bar labels.
+const TICK_SIZE: f64 = 14.0;
+/// Point labels and notes.
+const SMALL_SIZE: f64 = 12.0;
 
 /// Space around the whole image.
 const MARGIN: usize = 16;
-/// Vertical space between rows of text and the things they label.
-const GAP: usize = 10;
-/// Length of major tick marks.
-const TICK_LEN: usize = 5;
-/// Length of minor tick marks.
-const MINOR_TICK_LEN: usize = 3;
-/// Space between a tick mark and its label.
-const TICK_GAP: usize = 6;
-/// Least space between two neighbouring tick labels.
-const LABEL_SPACING: f64 = 12.0;
-/// Space between a heat map and its colour bar.
-const BAR_GAP: usize = 24;
-/// Width of a heat map's colour bar.
-const BAR_WIDTH: usize = 20;
-/// Font scale of the figure title (reduced if it does not fit).
-const FIGURE_TITLE_SCALE: usize = 3;
-/// Font scale of panel titles.
-const PANEL_TITLE_SCALE: usize = 2;
-/// Font scale of axis labels.
-const AXIS_SCALE: usize = 2;
-/// Font scale of tick labels.
-const TICK_SCALE: usize = 2;
-/// Font scale of legend entries.
-const LEGEND_SCALE: usize = 2;
-/// Font scale of point labels and notes.
-const SMALL_SCALE: usize = 1;
-/// Marker "radius": markers are `2 * MARKER_RADIUS + 1` pixels across.
-const MARKER_RADIUS: usize = 3;
-/// Outer radius of the rings around Pareto-front points.
-const RING_RADIUS: usize = 7;
-/// Width of the box a legend key is drawn in.
-const KEY_WIDTH: usize = 24;
-/// Space between a legend key and its text, and after an entry.
-const KEY_GAP: usize = 6;
-/// Space between legend entries on one row.
-const ENTRY_GAP: usize = 20;
-/// Height of one legend row.
-const LEGEND_ROW: usize = CAP_ROWS * LEGEND_SCALE + 8;
-/// Height above a panel's plot area (or map): the panel title, the y label, and room for
-/// half a tick label at the top of the axis.
-const HEADER: usize =
-    CAP_ROWS * PANEL_TITLE_SCALE + GAP + CAP_ROWS * AXIS_SCALE + GAP + CAP_ROWS * TICK_SCALE / 2;
+/// Height of a panel's title row.
+const CAPTION: usize = 32;
+/// Height below a plot area for the x tick labels and the x label.
+const X_AREA: usize = 52;
+/// Space right of a plot area (so the last x tick label fits).
+const RIGHT: usize = 20;
+/// Height of a legend row.
+const LEGEND_ROW: usize = 24;
+/// Height of the note row under a panel.
+const NOTE_ROW: usize = 20;
 /// Fraction of the data range added on each side of a scatter axis.
 const AXIS_MARGIN: f64 = 0.05;
+/// Least gap in pixels between two tick labels.
+const LABEL_SPACING: f64 = 12.0;
+/// Space between a heat map and its colour bar.
+const BAR_GAP: usize = 20;
+/// Width of a heat map's colour bar.
+const BAR_WIDTH: usize = 18;
+/// Radius of a data-point marker.
+const MARKER_RADIUS: i32 = 4;
+/// Radius of the rings round the Pareto front's points.
+const RING_RADIUS: i32 = 8;
+
+/// Text colour.
+const INK: RGBColor = RGBColor(20, 20, 20);
+/// Notes (points not drawn, missing cells).
+const NOTE_INK: RGBColor = RGBColor(96, 96, 96);
+/// Grid lines at the labelled ticks.
+const GRID: RGBColor = RGBColor(225, 225, 225);
+/// Grid lines at the other ticks.
+const LIGHT_GRID: RGBColor = RGBColor(242, 242, 242);
 
 /// Series colours: Tableau 10 (Tableau's default qualitative palette since 2016).
-const PALETTE: [[u8; 3]; 10] = [
-    [0x4e, 0x79, 0xa7], // blue
-    [0xf2, 0x8e, 0x2b], // orange
-    [0xe1, 0x57, 0x59], // red
-    [0x76, 0xb7, 0xb2], // teal
-    [0x59, 0xa1, 0x4f], // green
-    [0xed, 0xc9, 0x48], // yellow
-    [0xb0, 0x7a, 0xa1], // purple
-    [0xff, 0x9d, 0xa7], // pink
-    [0x9c, 0x75, 0x5f], // brown
-    [0xba, 0xb0, 0xac], // grey
+const PALETTE: [RGBColor; 10] = [
+    RGBColor(0x4e, 0x79, 0xa7), // blue
+    RGBColor(0xf2, 0x8e, 0x2b), // orange
+    RGBColor(0xe1, 0x57, 0x59), // red
+    RGBColor(0x76, 0xb7, 0xb2), // teal
+    RGBColor(0x59, 0xa1, 0x4f), // green
+    RGBColor(0xed, 0xc9, 0x48), // yellow
+    RGBColor(0xb0, 0x7a, 0xa1), // purple
+    RGBColor(0xff, 0x9d, 0xa7), // pink
+    RGBColor(0x9c, 0x75, 0x5f), // brown
+    RGBColor(0xba, 0xb0, 0xac), // grey
 ];
+
+/// A data-point marker's shape.
+#[derive(Clone, Copy, Debug)]
+enum Marker {
+    /// A disc.
+    Circle,
+    /// An axis-aligned square.
+    Square,
+    /// A square standing on a corner.
+    Diamond,
+    /// A triangle pointing up.
+    TriangleUp,
+    /// A triangle pointing down.
+    TriangleDown,
+}
+
 /// Marker shapes, cycled through alongside the palette.
 const SHAPES: [Marker; 5] = [
     Marker::Circle,
@@ -323,28 +330,51 @@ const SHAPES: [Marker; 5] = [
     Marker::TriangleUp,
     Marker::TriangleDown,
 ];
-/// The Pareto front's staircase and rings.
-const PARETO_INK: [u8; 3] = [0, 0, 0];
-/// Grid lines at the major ticks.
-const GRID: [u8; 3] = [228, 228, 228];
-/// Notes (points not drawn).
-const NOTE_INK: [u8; 3] = [96, 96, 96];
-/// Text on dark heat-map cells.
-const LIGHT_TEXT: [u8; 3] = [255, 255, 255];
 
-/// The colour and marker shape of series `i`.
-fn series_style(i: usize) -> ([u8; 3], Marker) {
-    // The shape advances once more per trip round the palette, so that series 0 and 10
-    // differ in shape.
+/// The colour and marker shape of series `i`; the shape advances once more per trip round
+/// the palette, so that series 0 and 10 differ in shape.
+fn series_style(i: usize) -> (RGBColor, Marker) {
     (
         PALETTE[i % PALETTE.len()],
         SHAPES[(i + i / PALETTE.len()) % SHAPES.len()],
     )
 }
 
-/// `colour` darkened, for marker outlines.
-fn darker(colour: [u8; 3]) -> [u8; 3] {
-    colour.map(|c| (u16::from(c) * 3 / 5) as u8)
+/// The drawing area of a whole figure.
+type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
+
+/// A text style of `size` pixels in `colour`.
+fn font(size: f64, colour: &RGBColor) -> TextStyle<'static> {
+    (FAMILY, size).into_font().color(colour)
+}
+
+/// The width and height of `text` in `size`, `(0, 0)` if it cannot be measured.
+fn text_size(text: &str, size: f64) -> (usize, usize) {
+    (FAMILY, size)
+        .into_font()
+        .box_size(text)
+        .map_or((0, 0), |(w, h)| (w as usize, h as usize))
+}
+
+/// `text` cut short with "..." to at most `max_w` pixels in `size`.
+fn fit(text: &str, size: f64, max_w: usize) -> String {
+    if text_size(text, size).0 <= max_w {
+        return text.to_string();
+    }
+    let mut chars: Vec<char> = text.chars().collect();
+    while !chars.is_empty() {
+        chars.pop();
+        let s: String = chars.iter().collect::<String>() + "...";
+        if text_size(&s, size).0 <= max_w {
+            return s;
+        }
+    }
+    String::new()
+}
+
+/// A drawing error as a [`PreviewError`].
+fn draw_err(e: impl std::fmt::Display) -> PreviewError {
+    PreviewError::Draw(e.to_string())
 }
 
 // ---------------------------------------------------------------------------------------
@@ -354,8 +384,8 @@ fn darker(colour: [u8; 3]) -> [u8; 3] {
 trait Panel {
     /// `(width, height)` in pixels.
     fn size(&self) -> (usize, usize);
-    /// Draws the panel with its top-left corner at `(x, y)`.
-    fn draw(&self, c: &mut Canvas, x: usize, y: usize);
+    /// Draws the panel with its top-left corner at `(x, y)` of `root`.
+    fn draw(&self, root: &Area, x: usize, y: usize) -> Result<(), PreviewError>;
 }
 
 /// Lays `panels` out left to right under `title` and encodes the figure.
@@ -370,56 +400,46 @@ fn compose<P: Panel>(title: &str, panels: &[P]) -> Result<Vec<u8>, PreviewError>
         content_w = content_w.saturating_add(w);
         content_h = content_h.max(h);
     }
-    let title_h = if title.is_empty() {
-        0
-    } else {
-        CAP_ROWS * FIGURE_TITLE_SCALE + 2 * GAP
-    };
+    let title_h = if title.is_empty() { 0 } else { 40 };
     let img_w = content_w.saturating_add(2 * MARGIN);
     let img_h = content_h.saturating_add(2 * MARGIN + title_h);
+    let too_large = PreviewError::TooLarge {
+        width: img_w,
+        height: img_h,
+        scale: 1,
+        limit: MAX_PIXELS,
+    };
+    let (Ok(w32), Ok(h32)) = (u32::try_from(img_w), u32::try_from(img_h)) else {
+        return Err(too_large);
+    };
     if img_w.checked_mul(img_h).is_none_or(|n| n > MAX_PIXELS) {
-        return Err(PreviewError::TooLarge {
-            width: img_w,
-            height: img_h,
-            scale: 1,
-            limit: MAX_PIXELS,
-        });
+        return Err(too_large);
     }
-    let mut c = Canvas::new(img_w, img_h, BACKGROUND);
-    if !title.is_empty() {
-        let avail = img_w - 2 * MARGIN;
-        let scale = (1..=FIGURE_TITLE_SCALE)
-            .rev()
-            .find(|&s| text_width(title, s) <= avail)
-            .unwrap_or(1);
-        let text = fit_text(title, avail, scale);
-        let y = MARGIN + (CAP_ROWS * FIGURE_TITLE_SCALE - CAP_ROWS * scale) / 2;
-        c.text(MARGIN, y, &text, scale, INK);
+    let mut buf = vec![255u8; img_w * img_h * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w32, h32)).into_drawing_area();
+        if !title.is_empty() {
+            let text = fit(title, FIGURE_TITLE_SIZE, img_w - 2 * MARGIN);
+            root.draw_text(
+                &text,
+                &font(FIGURE_TITLE_SIZE, &INK),
+                (px(MARGIN), px(MARGIN)),
+            )
+            .map_err(draw_err)?;
+        }
+        let mut x = MARGIN;
+        for (panel, (w, _)) in panels.iter().zip(&sizes) {
+            panel.draw(&root, x, MARGIN + title_h)?;
+            x = x.saturating_add(w + PANEL_GAP);
+        }
+        root.present().map_err(draw_err)?;
     }
-    let mut x = MARGIN;
-    for (panel, (w, _)) in panels.iter().zip(&sizes) {
-        panel.draw(&mut c, x, MARGIN + title_h);
-        x = x.saturating_add(w + PANEL_GAP);
-    }
-    c.encode()
+    encode_rgb(img_w, img_h, &buf)
 }
 
-/// Draws `text` at `scale` centred on `cx`, but within `x..x + w` (cut short to fit).
-fn text_centred(
-    c: &mut Canvas,
-    cx: usize,
-    y: usize,
-    text: &str,
-    scale: usize,
-    (x, w): (usize, usize),
-) {
-    let text = fit_text(text, w, scale);
-    let tw = text_width(&text, scale);
-    let left = cx
-        .saturating_sub(tw / 2)
-        .min((x + w).saturating_sub(tw))
-        .max(x);
-    c.text(left, y, &text, scale, INK);
+/// A pixel offset as plotters' `i32` (offsets are bounded by [`MAX_PIXELS`]).
+fn px(v: usize) -> i32 {
+    i32::try_from(v).unwrap_or(i32::MAX)
 }
 
 /// The smallest stride `s` such that labels `0, s, 2s, ...`, centred at `pos` (pixels,
@@ -434,6 +454,58 @@ fn label_stride(pos: &[f64], size: &[usize]) -> usize {
             })
         })
         .unwrap_or(1)
+}
+
+/// A linear axis (in axis units) whose ticks are given: plotters draws labels and grid
+/// lines at `bold`, light grid lines at `light`.
+struct Ticked {
+    /// The visible range.
+    range: Range<f64>,
+    /// Labelled ticks.
+    bold: Vec<f64>,
+    /// All ticks.
+    light: Vec<f64>,
+}
+
+impl Ticked {
+    /// An axis over `range` with plotters' key points at the ticks.
+    fn new(range: Range<f64>, ticks: &[Tick]) -> Self {
+        Self {
+            range,
+            bold: ticks.iter().filter(|t| !t.minor).map(|t| t.at).collect(),
+            light: ticks.iter().map(|t| t.at).collect(),
+        }
+    }
+}
+
+impl Ranged for Ticked {
+    type FormatOption = plotters::coord::ranged1d::DefaultFormatting;
+    type ValueType = f64;
+
+    fn map(&self, value: &f64, limit: (i32, i32)) -> i32 {
+        RangedCoordf64::from(self.range.clone()).map(value, limit)
+    }
+
+    fn key_points<Hint: plotters::coord::ranged1d::KeyPointHint>(&self, hint: Hint) -> Vec<f64> {
+        if hint.weight().allow_light_points() {
+            self.light.clone()
+        } else {
+            self.bold.clone()
+        }
+    }
+
+    fn range(&self) -> Range<f64> {
+        self.range.clone()
+    }
+}
+
+/// The label of the tick at `v` among `ticks` ("" for none).
+fn tick_label(ticks: &[Tick], v: f64) -> String {
+    ticks
+        .iter()
+        .find(|t| t.at == v)
+        .and_then(|t| t.label.clone())
+        .unwrap_or_default()
 }
 
 // ---------------------------------------------------------------------------------------
@@ -510,7 +582,8 @@ fn log_tick_label(m: u32, k: i32) -> String {
 }
 
 // ---------------------------------------------------------------------------------------
-// Scatter axes.
+// Scatter axes: plotters draws them, the ticks are chosen here (plotters' own log ticks
+// label only the powers of ten, too few over two or three decades).
 
 /// One axis of a scatter panel: the visible range in axis units (`log10` of the value on a
 /// log axis).
@@ -531,9 +604,12 @@ struct Tick {
     at: f64,
     /// The label, if drawn.
     label: Option<String>,
-    /// A minor tick (shorter, no grid line).
+    /// A minor tick (light grid line only).
     minor: bool,
 }
+
+/// The largest magnitude an axis end may have, so that spans and pixel maps stay finite.
+const AXIS_LIMIT: f64 = 1e300;
 
 impl Axis {
     /// `v` in axis units, if it can be drawn on this kind of axis.
@@ -546,7 +622,7 @@ impl Axis {
     }
 
     /// The axis covering `values` (already in axis units, finite) with a margin; `None`
-    /// for no values.
+    /// for no values. Ends are kept within +-[`AXIS_LIMIT`].
     fn covering(values: impl Iterator<Item = f64>, log: bool) -> Option<Self> {
         let (lo, hi) = values.fold(None, |acc: Option<(f64, f64)>, v| match acc {
             None => Some((v, v)),
@@ -563,19 +639,14 @@ impl Axis {
         } else {
             lo.abs() * 0.1
         };
-        let lo = (lo - pad).max(-f64::MAX);
-        let hi = (hi + pad).min(f64::MAX);
+        let lo = (lo - pad).clamp(-AXIS_LIMIT, AXIS_LIMIT / 2.0);
+        let hi = (hi + pad).clamp(lo + lo.abs().max(1.0) * 1e-9, AXIS_LIMIT);
         Some(Self { lo, hi, log })
     }
 
-    /// Where `t` (axis units) falls along the axis, 0 at `lo` and 1 at `hi`.
-    fn frac(&self, t: f64) -> f64 {
-        let span = self.hi * 0.5 - self.lo * 0.5;
-        if span > 0.0 {
-            (t * 0.5 - self.lo * 0.5) / span
-        } else {
-            0.5
-        }
+    /// Whether `t` (axis units) lies on the axis.
+    fn contains(&self, t: f64) -> bool {
+        (self.lo..=self.hi).contains(&t)
     }
 
     /// Major and minor ticks inside the range, labelled (not yet thinned).
@@ -634,6 +705,31 @@ impl Axis {
         }
         ticks
     }
+
+    /// The ticks, their labels thinned to keep clear of each other along `pixels` pixels
+    /// (`extent` is a label's size along the axis).
+    fn thinned_ticks(&self, pixels: usize, extent: impl Fn(&str) -> usize) -> Vec<Tick> {
+        let mut ticks = self.ticks();
+        let span = self.hi - self.lo;
+        let labelled: Vec<usize> = (0..ticks.len())
+            .filter(|&i| ticks[i].label.is_some())
+            .collect();
+        let pos: Vec<f64> = labelled
+            .iter()
+            .map(|&i| (ticks[i].at - self.lo) / span * pixels as f64)
+            .collect();
+        let size: Vec<usize> = labelled
+            .iter()
+            .map(|&i| ticks[i].label.as_deref().map_or(0, &extent))
+            .collect();
+        let stride = label_stride(&pos, &size);
+        for (n, &i) in labelled.iter().enumerate() {
+            if n % stride != 0 {
+                ticks[i].label = None;
+            }
+        }
+        ticks
+    }
 }
 
 /// "Nice" ticks (1, 2 or 5 times a power of ten apart, about six) between `lo` and `hi`,
@@ -676,49 +772,8 @@ fn linear_ticks(lo: f64, hi: f64, place: impl Fn(f64) -> Option<f64>) -> Vec<Tic
         .collect()
 }
 
-/// Drops the labels of major ticks so that those left keep [`LABEL_SPACING`] apart, given
-/// each tick's pixel position and each label's extent along the axis.
-fn thin_labels(ticks: &mut [Tick], pixel: impl Fn(f64) -> f64, extent: impl Fn(&str) -> usize) {
-    let labelled: Vec<usize> = (0..ticks.len())
-        .filter(|&i| ticks[i].label.is_some())
-        .collect();
-    let pos: Vec<f64> = labelled.iter().map(|&i| pixel(ticks[i].at)).collect();
-    let size: Vec<usize> = labelled
-        .iter()
-        .map(|&i| ticks[i].label.as_deref().map_or(0, &extent))
-        .collect();
-    let stride = label_stride(&pos, &size);
-    for (n, &i) in labelled.iter().enumerate() {
-        if n % stride != 0 {
-            ticks[i].label = None;
-        }
-    }
-}
-
 // ---------------------------------------------------------------------------------------
 // Scatter panels.
-
-/// A legend entry's key.
-#[derive(Clone, Copy, Debug)]
-enum Key {
-    /// A series' marker.
-    Marker([u8; 3], Marker),
-    /// The Pareto front: a line with a ring.
-    Front,
-}
-
-/// A legend entry placed on its row.
-#[derive(Clone, Debug)]
-struct Entry {
-    /// Offset from the panel's left edge.
-    x: usize,
-    /// Row, from 0.
-    row: usize,
-    /// What to draw before the text.
-    key: Key,
-    /// The text.
-    text: String,
-}
 
 /// A scatter panel, measured.
 struct ScatterLayout<'a> {
@@ -726,109 +781,52 @@ struct ScatterLayout<'a> {
     spec: &'a Scatter<'a>,
     /// The axes; `None` when there is no drawable point.
     axes: Option<(Axis, Axis)>,
-    /// Ticks, labels thinned.
-    x_ticks: Vec<Tick>,
-    /// Ticks, labels thinned.
-    y_ticks: Vec<Tick>,
-    /// Left edge of the plot area, from the panel's left edge.
-    plot_left: usize,
-    /// Top edge of the plot area, from the panel's top.
-    plot_top: usize,
-    /// Legend entries.
-    legend: Vec<Entry>,
+    /// Legend entries `(x offset, row, key)`: a series' index, or `None` for the Pareto
+    /// front.
+    legend: Vec<(usize, usize, Option<usize>)>,
     /// Number of legend rows.
     legend_rows: usize,
     /// The note on points not drawn, if any.
     note: Option<String>,
-    /// Panel size.
-    width: usize,
-    /// Panel size.
-    height: usize,
 }
+
+/// Width of the area left of a scatter plot area (y tick labels and the y label).
+const Y_AREA: usize = 78;
 
 impl<'a> ScatterLayout<'a> {
     /// Measures `spec`.
     fn new(spec: &'a Scatter<'a>) -> Self {
-        let drawable = |&(x, y): &(f64, f64)| {
-            Some((Axis::to_axis(x, spec.x_log)?, Axis::to_axis(y, spec.y_log)?))
-        };
         let all = || spec.series.iter().flat_map(|s| s.points.iter());
-        let total = all().count();
-        let shown: Vec<(f64, f64)> = all().filter_map(drawable).collect();
+        let shown: Vec<(f64, f64)> = all().filter_map(|&p| drawable(spec, p)).collect();
         let axes = Axis::covering(shown.iter().map(|p| p.0), spec.x_log)
             .zip(Axis::covering(shown.iter().map(|p| p.1), spec.y_log));
 
-        let (mut x_ticks, mut y_ticks) = match axes {
-            Some((ax, ay)) => (ax.ticks(), ay.ticks()),
-            None => (Vec::new(), Vec::new()),
-        };
-        if let Some((ax, ay)) = axes {
-            let span_x = (PLOT_WIDTH - 1) as f64;
-            let span_y = (PLOT_HEIGHT - 1) as f64;
-            thin_labels(
-                &mut x_ticks,
-                |t| ax.frac(t) * span_x,
-                |s| text_width(s, TICK_SCALE),
-            );
-            thin_labels(
-                &mut y_ticks,
-                |t| ay.frac(t) * span_y,
-                |_| CAP_ROWS * TICK_SCALE,
-            );
-        }
-        let label_w = |ticks: &[Tick], i: usize| {
-            ticks
-                .get(i)
-                .and_then(|t| t.label.as_deref())
-                .map_or(0, |s| text_width(s, TICK_SCALE))
-        };
-        let y_label_w = (0..y_ticks.len())
-            .map(|i| label_w(&y_ticks, i))
-            .max()
-            .unwrap_or(0);
-        let first_x = x_ticks.iter().position(|t| t.label.is_some());
-        let last_x = x_ticks.iter().rposition(|t| t.label.is_some());
-        // Half of the first x label may stick out left of the plot area, half of the last
-        // one right of it.
-        let overhang = |i: Option<usize>| i.map_or(0, |i| label_w(&x_ticks, i) / 2);
-        let plot_left = (y_label_w + TICK_LEN + TICK_GAP)
-            .max(overhang(first_x))
-            .max(TICK_LEN + TICK_GAP + 2);
-        let width = plot_left + PLOT_WIDTH + 1 + overhang(last_x).max(8);
-        let plot_top = HEADER;
-
-        // Legend, wrapped to the panel width.
-        let mut items: Vec<(Key, &str)> = spec
+        // Legend entries left to right, wrapping at the panel's width.
+        let width = Y_AREA + PLOT_WIDTH + RIGHT;
+        let mut items: Vec<(Option<usize>, &str)> = spec
             .series
             .iter()
             .enumerate()
-            .map(|(i, s)| {
-                let (colour, shape) = series_style(i);
-                (Key::Marker(colour, shape), s.name)
-            })
+            .filter(|(_, s)| !s.name.is_empty())
+            .map(|(i, s)| (Some(i), s.name))
             .collect();
-        if spec.pareto && axes.is_some() {
-            items.push((Key::Front, "Pareto front"));
+        if spec.pareto && !shown.is_empty() {
+            items.push((None, "Pareto front"));
         }
         let mut legend = Vec::new();
         let (mut x, mut row) = (0usize, 0usize);
         for (key, name) in items {
-            let text = fit_text(
-                name,
-                width.saturating_sub(KEY_WIDTH + KEY_GAP),
-                LEGEND_SCALE,
-            );
-            let w = KEY_WIDTH + KEY_GAP + text_width(&text, LEGEND_SCALE);
+            let w = 28 + text_size(name, TICK_SIZE).0;
             if x > 0 && x + w > width {
                 x = 0;
                 row += 1;
             }
-            legend.push(Entry { x, row, key, text });
-            x += w + ENTRY_GAP;
+            legend.push((x, row, key));
+            x += w + 20;
         }
         let legend_rows = if legend.is_empty() { 0 } else { row + 1 };
 
-        let skipped = total - shown.len();
+        let skipped = all().count() - shown.len();
         let note = (skipped > 0).then(|| {
             let what = if spec.x_log || spec.y_log {
                 "not finite, or <= 0 on a log axis"
@@ -836,294 +834,319 @@ impl<'a> ScatterLayout<'a> {
                 "not finite"
             };
             let points = if skipped == 1 { "point" } else { "points" };
-            fit_text(
+            fit(
                 &format!("{skipped} {points} not drawn: {what}"),
+                SMALL_SIZE,
                 width,
-                SMALL_SCALE,
             )
         });
-
-        let below = TICK_LEN
-            + TICK_GAP
-            + CAP_ROWS * TICK_SCALE
-            + GAP
-            + CAP_ROWS * AXIS_SCALE
-            + GAP
-            + legend_rows * LEGEND_ROW
-            + note.as_ref().map_or(0, |_| CAP_ROWS * SMALL_SCALE + GAP);
-        let height = plot_top + PLOT_HEIGHT + 1 + below;
         Self {
             spec,
             axes,
-            x_ticks,
-            y_ticks,
-            plot_left,
-            plot_top,
             legend,
             legend_rows,
             note,
-            width,
-            height,
         }
     }
+}
+
+/// `p` in axis units, if it can be drawn on `spec`'s axes.
+fn drawable(spec: &Scatter, (x, y): (f64, f64)) -> Option<(f64, f64)> {
+    Some((Axis::to_axis(x, spec.x_log)?, Axis::to_axis(y, spec.y_log)?))
 }
 
 impl Panel for ScatterLayout<'_> {
     fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+        let below = self.legend_rows * LEGEND_ROW + self.note.as_ref().map_or(0, |_| NOTE_ROW);
+        (
+            Y_AREA + PLOT_WIDTH + RIGHT,
+            CAPTION + PLOT_HEIGHT + X_AREA + below,
+        )
     }
 
-    fn draw(&self, c: &mut Canvas, ox: usize, oy: usize) {
+    fn draw(&self, root: &Area, ox: usize, oy: usize) -> Result<(), PreviewError> {
         let spec = self.spec;
-        let (left, top) = (ox + self.plot_left, oy + self.plot_top);
-        let (right, bottom) = (left + PLOT_WIDTH - 1, top + PLOT_HEIGHT - 1);
-        let centre_x = left + PLOT_WIDTH / 2;
-
-        text_centred(
-            c,
-            centre_x,
-            oy,
-            spec.title,
-            PANEL_TITLE_SCALE,
-            (ox, self.width),
+        let area = root.clone().shrink(
+            (px(ox), px(oy)),
+            (
+                px(Y_AREA + PLOT_WIDTH + RIGHT),
+                px(CAPTION + PLOT_HEIGHT + X_AREA),
+            ),
         );
-        let y_label_y = oy + CAP_ROWS * PANEL_TITLE_SCALE + GAP;
-        let y_label = fit_text(spec.y_label, self.width, AXIS_SCALE);
-        c.text(ox, y_label_y, &y_label, AXIS_SCALE, INK);
-
-        let x_tick_y = bottom + 2 + TICK_LEN + TICK_GAP;
-        let x_label_y = x_tick_y + CAP_ROWS * TICK_SCALE + GAP;
-        text_centred(
-            c,
-            centre_x,
-            x_label_y,
-            spec.x_label,
-            AXIS_SCALE,
-            (ox, self.width),
-        );
-
-        if let Some((ax, ay)) = self.axes {
-            let px = |t: f64| left as f64 + ax.frac(t) * (PLOT_WIDTH - 1) as f64;
-            let py = |t: f64| bottom as f64 - ay.frac(t) * (PLOT_HEIGHT - 1) as f64;
-            // Grid and ticks.
-            for t in &self.x_ticks {
-                let x = px(t.at).round() as usize;
-                if !t.minor {
-                    c.fill(x, top, 1, PLOT_HEIGHT, GRID);
-                }
-                let len = if t.minor { MINOR_TICK_LEN } else { TICK_LEN };
-                let (xf, yf) = (x as f64, (bottom + 2) as f64);
-                c.line(xf, yf, xf, yf + (len - 1) as f64, FRAME_INK);
-                if let Some(label) = &t.label {
-                    let w = text_width(label, TICK_SCALE);
-                    c.text(x.saturating_sub(w / 2), x_tick_y, label, TICK_SCALE, INK);
-                }
-            }
-            for t in &self.y_ticks {
-                let y = py(t.at).round() as usize;
-                if !t.minor {
-                    c.fill(left, y, PLOT_WIDTH, 1, GRID);
-                }
-                let len = if t.minor { MINOR_TICK_LEN } else { TICK_LEN };
-                let (xf, yf) = ((left - 2) as f64, y as f64);
-                c.line(xf, yf, xf - (len - 1) as f64, yf, FRAME_INK);
-                if let Some(label) = &t.label {
-                    let w = text_width(label, TICK_SCALE);
-                    let x = left.saturating_sub(1 + TICK_LEN + TICK_GAP + w);
-                    let ty = y.saturating_sub(CAP_ROWS * TICK_SCALE / 2);
-                    c.text(x, ty, label, TICK_SCALE, INK);
-                }
-            }
-            let to_px = |p: &(f64, f64)| {
-                let x = Axis::to_axis(p.0, ax.log)?;
-                let y = Axis::to_axis(p.1, ay.log)?;
-                Some((px(x), py(y)))
-            };
-
-            // The Pareto front under the points, its rings over them.
-            let mut rings = Vec::new();
-            if spec.pareto {
-                // Over the drawn points: a point off a log axis cannot be shown, so it
-                // should not hide the points it dominates either.
-                let shown: Vec<(f64, f64)> = spec
-                    .series
-                    .iter()
-                    .flat_map(|s| s.points.iter())
-                    .filter(|p| to_px(p).is_some())
-                    .copied()
-                    .collect();
-                let front: Vec<(f64, f64)> = pareto_front(&shown)
-                    .iter()
-                    .filter_map(|&i| shown.get(i).and_then(to_px))
-                    .collect();
-                for pair in front.windows(2) {
-                    let ((x0, y0), (x1, y1)) = (pair[0], pair[1]);
-                    c.thick_line(x0, y0, x1, y0, 2, PARETO_INK);
-                    c.thick_line(x1, y0, x1, y1, 2, PARETO_INK);
-                }
-                rings = front;
-            }
-            for (i, s) in spec.series.iter().enumerate() {
-                let (colour, shape) = series_style(i);
-                for (x, y) in s.points.iter().filter_map(to_px) {
-                    c.marker(x, y, shape, MARKER_RADIUS, Some(colour), darker(colour));
-                }
-            }
-            for &(x, y) in &rings {
-                c.ring(x, y, RING_RADIUS, 2, PARETO_INK);
-            }
-
-            // Point labels, kept inside the plot area and clear of each other.
-            let bounds = (left + 1, top + 1, right, bottom);
-            let mut placed: Vec<Rect> = Vec::new();
-            for s in spec.series {
-                let Some(labels) = s.labels else { continue };
-                for (p, label) in s.points.iter().zip(labels) {
-                    if label.is_empty() {
-                        continue;
-                    }
-                    let Some((x, y)) = to_px(p) else { continue };
-                    if let Some(r) = place_label(x, y, label, bounds, &placed) {
-                        c.text(r.x, r.y, label, SMALL_SCALE, INK);
-                        placed.push(r);
-                    }
-                }
-            }
+        let title = fit(spec.title, PANEL_TITLE_SIZE, PLOT_WIDTH);
+        let (x_axis, y_axis) = self.axes.unwrap_or((
+            Axis {
+                lo: 0.0,
+                hi: 1.0,
+                log: false,
+            },
+            Axis {
+                lo: 0.0,
+                hi: 1.0,
+                log: false,
+            },
+        ));
+        let (x_ticks, y_ticks) = if self.axes.is_some() {
+            (
+                x_axis.thinned_ticks(PLOT_WIDTH, |s| text_size(s, TICK_SIZE).0),
+                y_axis.thinned_ticks(PLOT_HEIGHT, |s| text_size(s, TICK_SIZE).1),
+            )
         } else {
-            c.message_box(left, top, PLOT_WIDTH, PLOT_HEIGHT, "no data");
-        }
-        c.frame(
-            left - 1,
-            top - 1,
-            PLOT_WIDTH + 2,
-            PLOT_HEIGHT + 2,
-            FRAME_INK,
-        );
+            (Vec::new(), Vec::new())
+        };
+        let mut chart = ChartBuilder::on(&area)
+            .caption(title, font(PANEL_TITLE_SIZE, &INK))
+            .margin_right(px(RIGHT))
+            .x_label_area_size(px(X_AREA))
+            .y_label_area_size(px(Y_AREA))
+            .build_cartesian_2d(
+                Ticked::new(x_axis.lo..x_axis.hi, &x_ticks),
+                Ticked::new(y_axis.lo..y_axis.hi, &y_ticks),
+            )
+            .map_err(draw_err)?;
+        chart
+            .configure_mesh()
+            .x_desc(spec.x_label)
+            .y_desc(spec.y_label)
+            .axis_desc_style(font(AXIS_SIZE, &INK))
+            .label_style(font(TICK_SIZE, &INK))
+            .bold_line_style(GRID)
+            .light_line_style(LIGHT_GRID)
+            .x_label_formatter(&|v| tick_label(&x_ticks, *v))
+            .y_label_formatter(&|v| tick_label(&y_ticks, *v))
+            .draw()
+            .map_err(draw_err)?;
+        let (xr, yr) = chart.plotting_area().get_pixel_range();
+        let plot = (xr.start, yr.start, xr.end, yr.end);
+        let Some((x_axis, y_axis)) = self.axes else {
+            let centre = ((xr.start + xr.end) / 2, (yr.start + yr.end) / 2);
+            let style = font(AXIS_SIZE, &NOTE_INK).pos(Pos::new(HPos::Center, VPos::Center));
+            root.draw_text("no data", &style, centre)
+                .map_err(draw_err)?;
+            return self.draw_legend(root, ox, oy);
+        };
+        let to_px = |p: (f64, f64)| {
+            let (x, y) = drawable(spec, p)?;
+            (x_axis.contains(x) && y_axis.contains(y)).then(|| chart.backend_coord(&(x, y)))
+        };
 
-        // Legend and note.
-        let legend_y = x_label_y + CAP_ROWS * AXIS_SCALE + GAP;
-        for e in &self.legend {
-            let x = ox + e.x;
-            let y = legend_y + e.row * LEGEND_ROW;
-            let (kx, ky) = (
-                (x + KEY_WIDTH / 2) as f64,
-                (y + CAP_ROWS * LEGEND_SCALE / 2) as f64,
-            );
-            match e.key {
-                Key::Marker(colour, shape) => {
-                    c.marker(
-                        kx,
-                        ky,
-                        shape,
-                        MARKER_RADIUS + 1,
-                        Some(colour),
-                        darker(colour),
-                    );
-                }
-                Key::Front => {
-                    c.thick_line(x as f64, ky, (x + KEY_WIDTH - 1) as f64, ky, 2, PARETO_INK);
-                    c.ring(kx, ky, RING_RADIUS, 2, PARETO_INK);
+        // The Pareto front under the points, its rings over them.
+        let all: Vec<(f64, f64)> = spec
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().copied())
+            .filter(|&p| to_px(p).is_some())
+            .collect();
+        let front: Vec<(i32, i32)> = if spec.pareto {
+            pareto_front(&all)
+                .into_iter()
+                .filter_map(|i| to_px(all[i]))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let mut stairs = Vec::new();
+        for (k, &p) in front.iter().enumerate() {
+            if k > 0 {
+                stairs.push((p.0, stairs.last().map_or(p.1, |q: &(i32, i32)| q.1)));
+            }
+            stairs.push(p);
+        }
+        root.draw(&PathElement::new(stairs, BLACK.stroke_width(2)))
+            .map_err(draw_err)?;
+        for (i, series) in spec.series.iter().enumerate() {
+            let (colour, shape) = series_style(i);
+            for &p in series.points {
+                if let Some(c) = to_px(p) {
+                    draw_marker(root, c, shape, colour)?;
                 }
             }
-            c.text(x + KEY_WIDTH + KEY_GAP, y, &e.text, LEGEND_SCALE, INK);
         }
-        if let Some(note) = &self.note {
-            let y = legend_y + self.legend_rows * LEGEND_ROW + GAP / 2;
-            c.text(ox, y, note, SMALL_SCALE, NOTE_INK);
+        for &c in &front {
+            root.draw(&Circle::new(c, RING_RADIUS, BLACK.stroke_width(2)))
+                .map_err(draw_err)?;
         }
+
+        // Point labels, each beside its point where it fits.
+        let mut taken: Vec<Rect> = Vec::new();
+        for series in spec.series {
+            let Some(labels) = series.labels else {
+                continue;
+            };
+            for (&p, label) in series.points.iter().zip(labels) {
+                if label.is_empty() {
+                    continue;
+                }
+                let Some(c) = to_px(p) else {
+                    continue;
+                };
+                if let Some(at) = place_label(c, text_size(label, SMALL_SIZE), plot, &taken) {
+                    // Glyphs rise a quarter of the size above the layout box.
+                    let y = at.y0 + (SMALL_SIZE / 4.0) as i32;
+                    root.draw_text(label, &font(SMALL_SIZE, &INK), (at.x0, y))
+                        .map_err(draw_err)?;
+                    taken.push(at);
+                }
+            }
+        }
+        self.draw_legend(root, ox, oy)
     }
 }
 
-/// A rectangle of pixels.
+impl ScatterLayout<'_> {
+    /// Draws the legend and the note under the panel at `(ox, oy)`.
+    fn draw_legend(&self, root: &Area, ox: usize, oy: usize) -> Result<(), PreviewError> {
+        let top = px(oy + CAPTION + PLOT_HEIGHT + X_AREA);
+        let row_y = |row: usize| top + px(row * LEGEND_ROW) + px(LEGEND_ROW / 2);
+        for &(x, row, key) in &self.legend {
+            let (kx, ky) = (px(ox + x) + 10, row_y(row));
+            let name = match key {
+                Some(i) => {
+                    let (colour, shape) = series_style(i);
+                    draw_marker(root, (kx, ky), shape, colour)?;
+                    self.spec.series[i].name
+                }
+                None => {
+                    root.draw(&PathElement::new(
+                        vec![(kx - 10, ky), (kx + 10, ky)],
+                        BLACK.stroke_width(2),
+                    ))
+                    .map_err(draw_err)?;
+                    root.draw(&Circle::new(
+                        (kx, ky),
+                        RING_RADIUS - 2,
+                        BLACK.stroke_width(2),
+                    ))
+                    .map_err(draw_err)?;
+                    "Pareto front"
+                }
+            };
+            let style = font(TICK_SIZE, &INK).pos(Pos::new(HPos::Left, VPos::Center));
+            root.draw_text(name, &style, (kx + 18, ky))
+                .map_err(draw_err)?;
+        }
+        if let Some(note) = &self.note {
+            let y = top + px(self.legend_rows * LEGEND_ROW) + 4;
+            root.draw_text(note, &font(SMALL_SIZE, &NOTE_INK), (px(ox), y))
+                .map_err(draw_err)?;
+        }
+        Ok(())
+    }
+}
+
+/// Draws a marker of `shape` centred on pixel `c`: filled with `colour`, outlined darker.
+fn draw_marker(
+    root: &Area,
+    c: (i32, i32),
+    shape: Marker,
+    colour: RGBColor,
+) -> Result<(), PreviewError> {
+    let RGBColor(r, g, b) = colour;
+    let dark = |v: u8| (u16::from(v) * 3 / 5) as u8;
+    let outline = RGBColor(dark(r), dark(g), dark(b));
+    let m = MARKER_RADIUS;
+    let corners: Vec<(i32, i32)> = match shape {
+        Marker::Circle => {
+            root.draw(&Circle::new(c, m, colour.filled()))
+                .map_err(draw_err)?;
+            return root
+                .draw(&Circle::new(c, m, outline.stroke_width(1)))
+                .map_err(draw_err);
+        }
+        Marker::Square => vec![(-m, -m), (m, -m), (m, m), (-m, m)],
+        Marker::Diamond => vec![(0, -m - 1), (m + 1, 0), (0, m + 1), (-m - 1, 0)],
+        Marker::TriangleUp => vec![(0, -m - 1), (m + 1, m), (-m - 1, m)],
+        Marker::TriangleDown => vec![(0, m + 1), (m + 1, -m), (-m - 1, -m)],
+    };
+    let at: Vec<(i32, i32)> = corners.iter().map(|&(x, y)| (c.0 + x, c.1 + y)).collect();
+    root.draw(&Polygon::new(at.clone(), colour.filled()))
+        .map_err(draw_err)?;
+    let mut ring = at;
+    ring.push(ring[0]);
+    root.draw(&PathElement::new(ring, outline.stroke_width(1)))
+        .map_err(draw_err)
+}
+
+/// A rectangle in pixels, `x0..x1` by `y0..y1`.
 #[derive(Clone, Copy, Debug)]
 struct Rect {
     /// Left edge.
-    x: usize,
+    x0: i32,
     /// Top edge.
-    y: usize,
-    /// Width.
-    w: usize,
-    /// Height.
-    h: usize,
+    y0: i32,
+    /// Right edge (exclusive).
+    x1: i32,
+    /// Bottom edge (exclusive).
+    y1: i32,
 }
 
 impl Rect {
     /// Whether the two rectangles share a pixel.
     fn overlaps(&self, o: &Rect) -> bool {
-        self.x < o.x + o.w && o.x < self.x + self.w && self.y < o.y + o.h && o.y < self.y + self.h
+        self.x0 < o.x1 && o.x0 < self.x1 && self.y0 < o.y1 && o.y0 < self.y1
     }
 }
 
-/// Where to write `label` beside the point at `(x, y)`: the first of right-above,
-/// right-below, left-above, left-below that lies inside `(left, top, right, bottom)` and
-/// clear of `placed`; `None` if none does.
+/// Where a `(w, h)` label of the point at pixel `c` goes: right of it, else left, above,
+/// below, inside the plot area `(x0, y0, x1, y1)` and clear of the rectangles `taken` and
+/// of the point's Pareto ring; `None` if nowhere.
 fn place_label(
-    x: f64,
-    y: f64,
-    label: &str,
-    (left, top, right, bottom): (usize, usize, usize, usize),
-    placed: &[Rect],
+    c: (i32, i32),
+    (w, h): (usize, usize),
+    (x0, y0, x1, y1): (i32, i32, i32, i32),
+    taken: &[Rect],
 ) -> Option<Rect> {
-    let w = text_width(label, SMALL_SCALE);
-    let h = CAP_ROWS * SMALL_SCALE;
-    // Clear of a Pareto ring, not only of the marker.
-    let off = (RING_RADIUS - 1) as f64;
-    let (w_f, h_f) = (w as f64, h as f64);
-    [
-        (x + off, y - off - h_f),
-        (x + off, y + off),
-        (x - off - w_f, y - off - h_f),
-        (x - off - w_f, y + off),
-    ]
-    .into_iter()
-    .filter(|&(lx, ly)| {
-        lx >= left as f64
-            && ly >= top as f64
-            && lx + w_f <= right as f64
-            && ly + h_f <= bottom as f64
-    })
-    .map(|(lx, ly)| Rect {
-        x: lx.round() as usize,
-        y: ly.round() as usize,
-        // One pixel of air around each label.
-        w: w + 1,
-        h: h + 1,
-    })
-    .find(|r| !placed.iter().any(|p| p.overlaps(r)))
+    let (w, h) = (px(w), px(h));
+    let off = RING_RADIUS + 2;
+    let candidates = [
+        (c.0 + off, c.1 - off - h / 2),
+        (c.0 - off - w, c.1 - off - h / 2),
+        (c.0 - w / 2, c.1 - off - h),
+        (c.0 - w / 2, c.1 + off),
+        (c.0 + off, c.1 + off / 2),
+        (c.0 - off - w, c.1 + off / 2),
+    ];
+    candidates
+        .iter()
+        .map(|&(x, y)| Rect {
+            x0: x,
+            y0: y,
+            x1: x + w,
+            y1: y + h,
+        })
+        .find(|r| {
+            r.x0 >= x0
+                && r.y0 >= y0
+                && r.x1 <= x1
+                && r.y1 <= y1
+                && !taken.iter().any(|t| t.overlaps(r))
+        })
 }
 
 // ---------------------------------------------------------------------------------------
 // Heat-map panels.
 
-/// A heat-map panel, measured and validated.
+/// A heat-map panel, validated and measured.
 struct HeatLayout<'a> {
     /// What to draw.
     spec: &'a HeatMap<'a>,
     /// The colour range in colour units (`log10` of the value when `log`); `None` when no
     /// value can be coloured.
     range: Option<(f64, f64)>,
-    /// Cell size.
-    cell_w: usize,
-    /// Cell size.
-    cell_h: usize,
-    /// Font scale of the cells' text (0 for none).
-    cell_scale: usize,
-    /// Column labels to draw (thinned).
-    x_labels: Vec<(usize, &'a str)>,
-    /// Row labels to draw (thinned).
-    y_labels: Vec<(usize, &'a str)>,
+    /// Cell size in pixels.
+    cell: (usize, usize),
+    /// Font size of the cells' text (0 for none).
+    cell_font: f64,
+    /// Every how many columns (rows) a tick label is drawn.
+    stride: (usize, usize),
     /// Colour-bar labels, top (max) to bottom (min).
     bar_labels: Vec<String>,
-    /// Left edge of the map, from the panel's left edge.
-    map_left: usize,
-    /// Top edge of the map, from the panel's top.
-    map_top: usize,
+    /// Width of the area left of the map (row labels and the y label).
+    left: usize,
+    /// Width of the area right of the map (colour bar and its labels).
+    right: usize,
     /// Whether some value is not finite (then a note explains the grey).
     any_missing: bool,
-    /// Panel size.
-    width: usize,
-    /// Panel size.
-    height: usize,
 }
 
 impl<'a> HeatLayout<'a> {
@@ -1147,26 +1170,30 @@ impl<'a> HeatLayout<'a> {
             scale: 1,
             limit: MAX_PIXELS,
         };
+        if cols.checked_mul(rows).is_none_or(|n| n > MAX_PIXELS) {
+            return Err(too_large());
+        }
 
         // Cells fill about PLOT_WIDTH x PLOT_HEIGHT, and hold their text.
         let mut cell_w = (PLOT_WIDTH / cols).max(1);
         let mut cell_h = (PLOT_HEIGHT / rows).max(1);
-        let mut cell_scale = 0;
+        let mut cell_font = 0.0;
         if spec.cell_text {
-            let text_w = spec
-                .values
-                .iter()
-                .filter(|v| v.is_finite())
-                .map(|&v| text_width(&format_sig(v, 3), 1))
-                .max()
-                .unwrap_or(0);
-            cell_scale = if cell_w >= 2 * text_w + 16 && cell_h >= 2 * CAP_ROWS + 8 {
-                2
-            } else {
-                1
+            let widest = |size| {
+                spec.values
+                    .iter()
+                    .filter(|v| v.is_finite())
+                    .map(|&v| text_size(&format_sig(v, 3), size).0)
+                    .max()
+                    .unwrap_or(0)
             };
-            cell_w = cell_w.max(text_w + 4);
-            cell_h = cell_h.max(CAP_ROWS + 4);
+            cell_font = if cell_w >= widest(TICK_SIZE) + 8 && cell_h >= 24 {
+                TICK_SIZE
+            } else {
+                SMALL_SIZE
+            };
+            cell_w = cell_w.max(widest(cell_font) + 4);
+            cell_h = cell_h.max(cell_font as usize + 4);
         }
         let map_w = cols.checked_mul(cell_w).ok_or_else(too_large)?;
         let map_h = rows.checked_mul(cell_h).ok_or_else(too_large)?;
@@ -1174,22 +1201,14 @@ impl<'a> HeatLayout<'a> {
             return Err(too_large());
         }
 
-        // Tick labels, thinned so that they do not touch.
-        let thin = |ticks: &'a [String], cell: usize, extent: &dyn Fn(&str) -> usize| {
-            let pos: Vec<f64> = (0..ticks.len())
-                .map(|i| (i * cell) as f64 + cell as f64 / 2.0)
-                .collect();
+        // Tick labels thinned so that they do not touch.
+        let stride = |ticks: &[String], cell: usize, extent: &dyn Fn(&str) -> usize| {
+            let pos: Vec<f64> = (0..ticks.len()).map(|i| (i * cell) as f64).collect();
             let size: Vec<usize> = ticks.iter().map(|s| extent(s)).collect();
-            let stride = label_stride(&pos, &size);
-            ticks
-                .iter()
-                .enumerate()
-                .step_by(stride)
-                .map(|(i, s)| (i, s.as_str()))
-                .collect::<Vec<_>>()
+            label_stride(&pos, &size)
         };
-        let x_labels = thin(spec.x_ticks, cell_w, &|s| text_width(s, TICK_SCALE));
-        let y_labels = thin(spec.y_ticks, cell_h, &|_| CAP_ROWS * TICK_SCALE);
+        let x_stride = stride(spec.x_ticks, cell_w, &|s| text_size(s, TICK_SIZE).0);
+        let y_stride = stride(spec.y_ticks, cell_h, &|s| text_size(s, TICK_SIZE).1);
 
         let bar_labels: Vec<String> = match range {
             Some((lo, hi)) => {
@@ -1209,88 +1228,48 @@ impl<'a> HeatLayout<'a> {
             }
             None => Vec::new(),
         };
-
-        // Horizontal layout.
-        let y_label_w = y_labels
-            .iter()
-            .map(|(_, s)| text_width(s, TICK_SCALE))
-            .max()
-            .unwrap_or(0);
-        let x_label_w = |i: Option<&(usize, &str)>| i.map_or(0, |(_, s)| text_width(s, TICK_SCALE));
-        let first_overhang = (x_label_w(x_labels.first()) / 2).saturating_sub(cell_w / 2);
-        let map_left = if y_labels.is_empty() {
-            0
-        } else {
-            y_label_w + TICK_LEN + TICK_GAP
-        }
-        .max(first_overhang)
-        .max(1);
-        let map_right = map_left + map_w; // one past the map
-        let last_right = x_labels.last().map_or(0, |&(i, s)| {
-            (map_left + i * cell_w + cell_w / 2) + text_width(s, TICK_SCALE).div_ceil(2)
-        });
-        let bar_x = map_right + 1 + BAR_GAP;
-        let bar_label_w = bar_labels
-            .iter()
-            .map(|s| text_width(s, TICK_SCALE))
-            .max()
-            .unwrap_or(0);
-        let unit_w = text_width(spec.unit, AXIS_SCALE);
-        let bar_right =
-            (bar_x + BAR_WIDTH + 1 + TICK_LEN + TICK_GAP + bar_label_w).max(bar_x + unit_w);
-        let width = bar_right.max(last_right).max(map_right + 1);
-
-        // Vertical layout.
-        let map_top = HEADER;
-        let any_missing = spec.values.iter().any(|v| !v.is_finite());
-        let below = TICK_LEN
-            + TICK_GAP
-            + CAP_ROWS * TICK_SCALE
-            + GAP
-            + CAP_ROWS * AXIS_SCALE
-            + if any_missing { GAP + NOTE_SWATCH } else { 0 };
-        let height = map_top + map_h + 1 + CAP_ROWS * TICK_SCALE / 2 + below;
+        let widest = |labels: &mut dyn Iterator<Item = &String>| {
+            labels.map(|s| text_size(s, TICK_SIZE).0).max().unwrap_or(0)
+        };
+        let left = widest(&mut spec.y_ticks.iter()) + 40;
+        let right = (BAR_GAP + BAR_WIDTH + 8 + widest(&mut bar_labels.iter()))
+            .max(BAR_GAP + text_size(spec.unit, TICK_SIZE).0)
+            + 8;
         Ok(Self {
             spec,
             range,
-            cell_w,
-            cell_h,
-            cell_scale,
-            x_labels,
-            y_labels,
+            cell: (cell_w, cell_h),
+            cell_font,
+            stride: (x_stride, y_stride),
             bar_labels,
-            map_left,
-            map_top,
-            any_missing,
-            width,
-            height,
+            left,
+            right,
+            any_missing: spec.values.iter().any(|v| !v.is_finite()),
         })
     }
 
     /// The colour of `v`.
-    fn colour(&self, v: f64) -> [u8; 3] {
-        if !v.is_finite() {
-            return NO_DATA;
-        }
-        let Some((lo, hi)) = self.range else {
-            return viridis(0.0);
-        };
-        let t = if self.spec.log {
-            if v > 0.0 {
-                v.log10()
-            } else {
-                return viridis(0.0);
-            }
+    fn colour(&self, v: f64) -> RGBColor {
+        let [r, g, b] = if !v.is_finite() {
+            NO_DATA
+        } else if let Some((lo, hi)) = self.range {
+            let t = match (self.spec.log, v > 0.0) {
+                (false, _) => v,
+                (true, true) => v.log10(),
+                (true, false) => lo,
+            };
+            viridis((t * 0.5 - lo * 0.5) / (hi * 0.5 - lo * 0.5))
         } else {
-            v
+            viridis(0.0)
         };
-        let span = hi * 0.5 - lo * 0.5;
-        viridis((t * 0.5 - lo * 0.5) / span)
+        RGBColor(r, g, b)
+    }
+
+    /// The map's size in pixels.
+    fn map_size(&self) -> (usize, usize) {
+        (self.spec.cols * self.cell.0, self.spec.rows * self.cell.1)
     }
 }
-
-/// Side of the grey swatch before the "no data" note.
-const NOTE_SWATCH: usize = 12;
 
 /// The colour range of `spec` in colour units (`log10` of the value when `log`): the
 /// given range (validated) or the finite (positive, when `log`) values' extent, widened
@@ -1338,127 +1317,156 @@ fn heat_range(spec: &HeatMap) -> Result<Option<(f64, f64)>, PreviewError> {
 
 impl Panel for HeatLayout<'_> {
     fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+        let (map_w, map_h) = self.map_size();
+        let note = if self.any_missing { NOTE_ROW } else { 0 };
+        (
+            self.left + map_w + self.right,
+            CAPTION + map_h + X_AREA + note,
+        )
     }
 
-    fn draw(&self, c: &mut Canvas, ox: usize, oy: usize) {
+    fn draw(&self, root: &Area, ox: usize, oy: usize) -> Result<(), PreviewError> {
         let spec = self.spec;
-        let (cw, ch) = (self.cell_w, self.cell_h);
-        let (map_w, map_h) = (spec.cols * cw, spec.rows * ch);
-        let (left, top) = (ox + self.map_left, oy + self.map_top);
-        let bottom = top + map_h; // one past the map
-        let centre_x = left + map_w / 2;
-
-        text_centred(
-            c,
-            centre_x,
-            oy,
-            spec.title,
-            PANEL_TITLE_SCALE,
-            (ox, self.width),
+        let (cols, rows) = (spec.cols, spec.rows);
+        let (map_w, map_h) = self.map_size();
+        let area = root.clone().shrink(
+            (px(ox), px(oy)),
+            (
+                px(self.left + map_w + self.right),
+                px(CAPTION + map_h + X_AREA),
+            ),
         );
-        let label_y = oy + CAP_ROWS * PANEL_TITLE_SCALE + GAP;
-        let y_label = fit_text(spec.y_label, left + map_w - ox, AXIS_SCALE);
-        c.text(ox, label_y, &y_label, AXIS_SCALE, INK);
-
-        // Cells, then their text.
-        let mut row = vec![0u8; map_w * 3];
-        for (r, line) in spec.values.chunks_exact(spec.cols).enumerate() {
-            for (px, &v) in row.chunks_exact_mut(cw * 3).zip(line) {
-                let colour = self.colour(v);
-                for p in px.chunks_exact_mut(3) {
-                    p.copy_from_slice(&colour);
-                }
-            }
-            for dy in 0..ch {
-                c.put_row(left, top + r * ch + dy, &row);
-            }
-        }
-        if self.cell_scale > 0 {
-            let s = self.cell_scale;
+        let title = fit(spec.title, PANEL_TITLE_SIZE, self.left + map_w);
+        // Columns span x in 0..cols; row r spans y in rows-r-1..rows-r (row 0 on top).
+        let centres = |n: usize, stride: usize| -> Vec<f64> {
+            (0..n).step_by(stride).map(|i| i as f64 + 0.5).collect()
+        };
+        let x_keys = if spec.x_ticks.is_empty() {
+            Vec::new()
+        } else {
+            centres(cols, self.stride.0)
+        };
+        let y_keys: Vec<f64> = if spec.y_ticks.is_empty() {
+            Vec::new()
+        } else {
+            centres(rows, self.stride.1)
+                .into_iter()
+                .map(|c| rows as f64 - c)
+                .collect()
+        };
+        let label =
+            |ticks: &[String], i: f64| ticks.get(i.max(0.0) as usize).cloned().unwrap_or_default();
+        let mut chart = ChartBuilder::on(&area)
+            .caption(title, font(PANEL_TITLE_SIZE, &INK))
+            .margin_right(px(self.right))
+            .x_label_area_size(px(X_AREA))
+            .y_label_area_size(px(self.left))
+            .build_cartesian_2d(
+                Ticked {
+                    range: 0.0..cols as f64,
+                    bold: x_keys,
+                    light: Vec::new(),
+                },
+                Ticked {
+                    range: 0.0..rows as f64,
+                    bold: y_keys,
+                    light: Vec::new(),
+                },
+            )
+            .map_err(draw_err)?;
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc(spec.x_label)
+            .y_desc(spec.y_label)
+            .axis_desc_style(font(AXIS_SIZE, &INK))
+            .label_style(font(TICK_SIZE, &INK))
+            .x_label_formatter(&|v| label(spec.x_ticks, *v))
+            .y_label_formatter(&|v| label(spec.y_ticks, rows as f64 - *v))
+            .draw()
+            .map_err(draw_err)?;
+        let cells = spec.values.iter().enumerate().map(|(i, &v)| {
+            let (r, c) = ((i / cols) as f64, (i % cols) as f64);
+            let top = rows as f64 - r;
+            Rectangle::new([(c, top), (c + 1.0, top - 1.0)], self.colour(v).filled())
+        });
+        chart.draw_series(cells).map_err(draw_err)?;
+        if self.cell_font > 0.0 {
             for (i, &v) in spec.values.iter().enumerate() {
                 if !v.is_finite() {
                     continue;
                 }
-                let (r, col) = (i / spec.cols, i % spec.cols);
-                let text = format_sig(v, 3);
-                let [red, green, blue] = self.colour(v);
-                let luma =
-                    0.2126 * f64::from(red) + 0.7152 * f64::from(green) + 0.0722 * f64::from(blue);
-                let ink = if luma > 110.0 { INK } else { LIGHT_TEXT };
-                let x = left + col * cw + (cw.saturating_sub(text_width(&text, s))) / 2;
-                let y = top + r * ch + (ch.saturating_sub(CAP_ROWS * s)) / 2;
-                c.text(x, y, &text, s, ink);
+                let (r, c) = ((i / cols) as f64, (i % cols) as f64);
+                let at = chart.backend_coord(&(c + 0.5, rows as f64 - r - 0.5));
+                let RGBColor(cr, cg, cb) = self.colour(v);
+                let luma = 0.299 * f64::from(cr) + 0.587 * f64::from(cg) + 0.114 * f64::from(cb);
+                let ink = if luma < 128.0 { WHITE } else { INK };
+                let style = font(self.cell_font, &ink).pos(Pos::new(HPos::Center, VPos::Center));
+                root.draw_text(&format_sig(v, 3), &style, at)
+                    .map_err(draw_err)?;
             }
         }
+        let (xr, yr) = chart.plotting_area().get_pixel_range();
         if self.range.is_none() {
-            c.message_box(left, top, map_w, map_h, "no data");
-        }
-        c.frame(left - 1, top - 1, map_w + 2, map_h + 2, FRAME_INK);
-
-        // Row and column labels.
-        for &(r, label) in &self.y_labels {
-            let y = top + r * ch + ch / 2;
-            c.fill(left - 1 - TICK_LEN, y, TICK_LEN, 1, FRAME_INK);
-            let w = text_width(label, TICK_SCALE);
-            let x = left.saturating_sub(1 + TICK_LEN + TICK_GAP + w);
-            c.text(
-                x,
-                y.saturating_sub(CAP_ROWS * TICK_SCALE / 2),
-                label,
-                TICK_SCALE,
-                INK,
-            );
-        }
-        let x_tick_y = bottom + 1 + TICK_LEN + TICK_GAP;
-        for &(col, label) in &self.x_labels {
-            let x = left + col * cw + cw / 2;
-            c.fill(x, bottom + 1, 1, TICK_LEN, FRAME_INK);
-            let w = text_width(label, TICK_SCALE);
-            c.text(x.saturating_sub(w / 2), x_tick_y, label, TICK_SCALE, INK);
-        }
-        let x_label_y = x_tick_y + CAP_ROWS * TICK_SCALE + GAP;
-        text_centred(
-            c,
-            centre_x,
-            x_label_y,
-            spec.x_label,
-            AXIS_SCALE,
-            (ox, self.width),
-        );
-
-        // Colour bar, high values at the top, the unit above it.
-        let bar_x = left + map_w + 1 + BAR_GAP;
-        c.text(bar_x, label_y, spec.unit, AXIS_SCALE, INK);
-        c.colour_bar(bar_x, top, BAR_WIDTH, map_h, self.range.is_some());
-        let n = self.bar_labels.len();
-        for (i, label) in self.bar_labels.iter().enumerate() {
-            let y = top + (i * (map_h - 1)) / (n - 1).max(1);
-            c.fill(bar_x + BAR_WIDTH + 1, y, TICK_LEN, 1, FRAME_INK);
-            let x = bar_x + BAR_WIDTH + 1 + TICK_LEN + TICK_GAP;
-            c.text(
-                x,
-                y.saturating_sub(CAP_ROWS * TICK_SCALE / 2),
-                label,
-                TICK_SCALE,
-                INK,
-            );
+            let centre = ((xr.start + xr.end) / 2, (yr.start + yr.end) / 2);
+            let style = font(AXIS_SIZE, &INK).pos(Pos::new(HPos::Center, VPos::Center));
+            root.draw_text("no data", &style, centre)
+                .map_err(draw_err)?;
         }
 
-        // "no data" note with a grey swatch.
+        // The colour bar, high values at the top, labelled at its ends and middle.
+        let bar_x = xr.end + px(BAR_GAP);
+        let (top, bottom) = (yr.start, yr.end - 1);
+        let span = (bottom - top).max(1);
+        for y in top..=bottom {
+            let colour = if self.range.is_some() {
+                let [r, g, b] = viridis(f64::from(bottom - y) / f64::from(span));
+                RGBColor(r, g, b)
+            } else {
+                let [r, g, b] = NO_DATA;
+                RGBColor(r, g, b)
+            };
+            root.draw(&Rectangle::new(
+                [(bar_x, y), (bar_x + px(BAR_WIDTH), y + 1)],
+                colour.filled(),
+            ))
+            .map_err(draw_err)?;
+        }
+        root.draw(&Rectangle::new(
+            [(bar_x - 1, top - 1), (bar_x + px(BAR_WIDTH), bottom + 1)],
+            INK.stroke_width(1),
+        ))
+        .map_err(draw_err)?;
+        let style = font(TICK_SIZE, &INK).pos(Pos::new(HPos::Left, VPos::Center));
+        for (k, text) in self.bar_labels.iter().enumerate() {
+            let y = top + span * px(k) / 2;
+            let x = bar_x + px(BAR_WIDTH);
+            root.draw(&PathElement::new(vec![(x, y), (x + 5, y)], INK))
+                .map_err(draw_err)?;
+            root.draw_text(text, &style, (x + 12, y))
+                .map_err(draw_err)?;
+        }
+        let unit = font(TICK_SIZE, &INK).pos(Pos::new(HPos::Left, VPos::Bottom));
+        root.draw_text(spec.unit, &unit, (bar_x, top - 6))
+            .map_err(draw_err)?;
+
+        // "grey = no data", with a grey swatch.
         if self.any_missing {
-            let y = x_label_y + CAP_ROWS * AXIS_SCALE + GAP;
-            c.fill(ox, y, NOTE_SWATCH, NOTE_SWATCH, NO_DATA);
-            c.frame(ox, y, NOTE_SWATCH, NOTE_SWATCH, FRAME_INK);
-            let ty = y + (NOTE_SWATCH - CAP_ROWS * SMALL_SCALE) / 2;
-            c.text(
-                ox + NOTE_SWATCH + KEY_GAP,
-                ty,
+            let y = px(oy + CAPTION + map_h + X_AREA) + 2;
+            let [r, g, b] = NO_DATA;
+            root.draw(&Rectangle::new(
+                [(px(ox), y), (px(ox) + 12, y + 12)],
+                RGBColor(r, g, b).filled(),
+            ))
+            .map_err(draw_err)?;
+            root.draw_text(
                 "grey = no data",
-                SMALL_SCALE,
-                NOTE_INK,
-            );
+                &font(SMALL_SIZE, &NOTE_INK),
+                (px(ox) + 18, y),
+            )
+            .map_err(draw_err)?;
         }
+        Ok(())
     }
 }
 

@@ -34,8 +34,9 @@
 //! No function here panics on any input: mismatched sizes, absurd dimensions and invalid
 //! ranges are reported as [`PreviewError`]s.
 
-use std::io;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+pub use super::canvas::{PreviewError, MAX_PIXELS};
 
 use super::canvas::{
     fit_text, text_width, write_png, Canvas, BACKGROUND, CAP_ROWS, FRAME_INK, GLYPH_ROWS, INK,
@@ -48,9 +49,6 @@ pub const MIN_MAP_WIDTH: usize = 384;
 /// Upscaling stops before the map part of a preview gets taller than this many pixels
 /// (a map that is already taller is drawn at its own size).
 pub const MAX_MAP_HEIGHT: usize = 4096;
-
-/// The largest image, in pixels (width x height), that the renderers produce.
-pub const MAX_PIXELS: usize = 1 << 26;
 
 /// A scalar map to preview, e.g. a thickness map in nanometres.
 #[derive(Clone, Copy, Debug)]
@@ -68,82 +66,6 @@ pub struct MapPreview<'a> {
     /// The values mapped to the two ends of the colour bar, `(low, high)`; `None` uses
     /// the 1st and 99th percentile of the finite values.
     pub range: Option<(f64, f64)>,
-}
-
-/// Why a preview could not be rendered or written. Displays as one line.
-#[derive(Debug, thiserror::Error)]
-#[non_exhaustive]
-pub enum PreviewError {
-    /// The image has no pixels.
-    #[error("image has no pixels ({width}x{height})")]
-    Empty {
-        /// Width in pixels.
-        width: usize,
-        /// Height in pixels.
-        height: usize,
-    },
-    /// The pixel slice does not hold `width * height` entries.
-    #[error("a {width}x{height} image needs {expected} pixels but {actual} were given")]
-    SizeMismatch {
-        /// Width in pixels.
-        width: usize,
-        /// Height in pixels.
-        height: usize,
-        /// `width * height`.
-        expected: usize,
-        /// The length of the slice given.
-        actual: usize,
-    },
-    /// An upscale factor of 0 was given.
-    #[error("the upscale factor must be at least 1, got 0")]
-    ZeroScale,
-    /// The given colour range is not two finite values with `low <= high`.
-    #[error("colour range {low}..{high} is invalid (need finite values with low <= high)")]
-    InvalidRange {
-        /// The given low end.
-        low: f64,
-        /// The given high end.
-        high: f64,
-    },
-    /// The output image would exceed [`MAX_PIXELS`].
-    #[error("a {width}x{height} image upscaled {scale}x exceeds the limit of {limit} pixels")]
-    TooLarge {
-        /// Source width in pixels.
-        width: usize,
-        /// Source height in pixels.
-        height: usize,
-        /// The upscale factor.
-        scale: usize,
-        /// [`MAX_PIXELS`].
-        limit: usize,
-    },
-    /// A multi-panel figure was asked for with no panels.
-    #[error("a figure needs at least one panel, got none")]
-    NoPanels,
-    /// A heat map's tick labels are neither absent nor one per column (or row).
-    #[error("{axis} axis: {expected} tick labels needed (one per cell) but {actual} were given")]
-    TickCount {
-        /// `"x"` or `"y"`.
-        axis: &'static str,
-        /// The number of columns (x) or rows (y).
-        expected: usize,
-        /// The number of labels given.
-        actual: usize,
-    },
-    /// The PNG encoder failed.
-    #[error("cannot encode PNG: {err}")]
-    Encode {
-        /// The encoder's error (not a `source`: its text is already in this message).
-        err: image::ImageError,
-    },
-    /// The PNG could not be written to `path`.
-    #[error("{}: cannot write PNG: {err}", .path.display())]
-    Write {
-        /// The file that was being written.
-        path: PathBuf,
-        /// The underlying error (not a `source`: its text is already in this message).
-        err: io::Error,
-    },
 }
 
 /// Renders `p` as an RGB8 PNG in memory: the colour-mapped map, the title above it and a

@@ -2,26 +2,21 @@
 //!
 //! A rename within one directory is atomic on the file systems filmscope targets, so a
 //! reader (or a user after a crash or Ctrl-C) sees either the previous file or the complete
-//! new one, never a partly written file. The temporary file lives in the target's directory
-//! (a rename across file systems would not be atomic) under a hidden name
-//! `.NAME.PID-N.tmp`, and is removed again if it is dropped without
-//! [`TempFile::persist`].
+//! new one, never a partly written file. The temporary file (from the `tempfile` crate)
+//! lives in the target's directory (a rename across file systems would not be atomic)
+//! under a hidden name `.NAME.XXXXXX.tmp`, with the permissions a plain `File::create`
+//! would give, and is removed again if it is dropped without [`TempFile::persist`].
 //!
 //! Use [`write_atomic`] when the whole content is in memory (JSON summaries, headers), and
 //! [`TempFile`] when the output is produced piecewise (cube data, PNG encoders: it
 //! implements [`Write`] and [`Seek`]). A temporary file a killed process left behind lies
 //! in a result's staging folder, which [`crate::io::OutputDir`] removes whole.
 
-use std::fs::{self, File, OpenOptions};
+use std::fs::File;
 use std::io::{self, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
-/// Distinguishes temporary files created by one process.
-static COUNTER: AtomicU64 = AtomicU64::new(0);
-
-/// How many temporary names to try before giving up (another process may hold one).
-const NAME_ATTEMPTS: u32 = 16;
+use tempfile::NamedTempFile;
 
 /// Writes `bytes` to `path` atomically: the file at `path` is either left as it was or
 /// replaced by exactly `bytes`.
@@ -37,25 +32,8 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
 /// if dropped before that.
 #[derive(Debug)]
 pub struct TempFile {
-    file: File,
-    guard: RemoveOnDrop,
-}
-
-/// Deletes the temporary path on drop unless disarmed.
-#[derive(Debug)]
-struct RemoveOnDrop {
-    tmp_path: PathBuf,
+    tmp: NamedTempFile,
     target: PathBuf,
-    armed: bool,
-}
-
-impl Drop for RemoveOnDrop {
-    fn drop(&mut self) {
-        if self.armed {
-            // Best effort: the file may already be gone, and a drop cannot report errors.
-            let _ = fs::remove_file(&self.tmp_path);
-        }
-    }
 }
 
 impl TempFile {
@@ -66,85 +44,62 @@ impl TempFile {
         let name = target.file_name().ok_or_else(|| {
             io::Error::new(io::ErrorKind::InvalidInput, "output path has no file name")
         })?;
-        let dir = match target.parent() {
-            Some(parent) if !parent.as_os_str().is_empty() => parent.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let pid = std::process::id();
-        let mut last_err = None;
-        for _ in 0..NAME_ATTEMPTS {
-            let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-            let mut tmp_name = std::ffi::OsString::from(".");
-            tmp_name.push(name);
-            tmp_name.push(format!(".{pid}-{n}.tmp"));
-            let tmp_path = dir.join(tmp_name);
-            match OpenOptions::new()
-                .read(true)
-                .write(true)
-                .create_new(true)
-                .open(&tmp_path)
-            {
-                Ok(file) => {
-                    return Ok(Self {
-                        file,
-                        guard: RemoveOnDrop {
-                            tmp_path,
-                            target: target.to_path_buf(),
-                            armed: true,
-                        },
-                    })
-                }
-                Err(err) if err.kind() == io::ErrorKind::AlreadyExists => last_err = Some(err),
-                Err(err) => return Err(err),
-            }
-        }
-        Err(last_err.unwrap_or_else(|| io::Error::other("no free temporary file name")))
+        let mut prefix = std::ffi::OsString::from(".");
+        prefix.push(name);
+        prefix.push(".");
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(&prefix).suffix(".tmp");
+        // As `File::create` would: 0o666 less the umask (tempfile's default is 0o600).
+        #[cfg(unix)]
+        builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+        let tmp = builder.tempfile_in(parent_dir(target))?;
+        Ok(Self {
+            tmp,
+            target: target.to_path_buf(),
+        })
     }
 
     /// The open temporary file, for reading back, seeking or `set_len`.
     pub fn file_mut(&mut self) -> &mut File {
-        &mut self.file
+        self.tmp.as_file_mut()
     }
 
     /// Where the data is written until [`persist`](TempFile::persist).
     pub fn temp_path(&self) -> &Path {
-        &self.guard.tmp_path
+        self.tmp.path()
     }
 
     /// The path the file takes on [`persist`](TempFile::persist).
     pub fn target(&self) -> &Path {
-        &self.guard.target
+        &self.target
     }
 
     /// Flushes the data to disk and renames the temporary file onto the target, replacing
     /// any file there. On error the temporary file is removed and the target is untouched.
     pub fn persist(self) -> io::Result<()> {
-        let Self {
-            mut file,
-            mut guard,
-        } = self;
-        file.flush()?;
-        file.sync_all()?;
-        // Close before renaming: some platforms refuse to rename an open file.
-        drop(file);
-        fs::rename(&guard.tmp_path, &guard.target)?;
-        guard.armed = false;
-        sync_parent_dir(&guard.target);
+        let Self { mut tmp, target } = self;
+        tmp.flush()?;
+        tmp.as_file().sync_all()?;
+        // On failure the error holds the temporary file, which its drop removes.
+        tmp.persist(&target).map_err(|e| e.error)?;
+        sync_parent_dir(&target);
         Ok(())
+    }
+}
+
+/// The directory `target` is in (`.` for a bare file name).
+fn parent_dir(target: &Path) -> &Path {
+    match target.parent() {
+        Some(parent) if !parent.as_os_str().is_empty() => parent,
+        _ => Path::new("."),
     }
 }
 
 /// Makes the rename itself durable where the platform allows it (best effort).
 fn sync_parent_dir(target: &Path) {
     #[cfg(unix)]
-    {
-        let dir = match target.parent() {
-            Some(parent) if !parent.as_os_str().is_empty() => parent,
-            _ => Path::new("."),
-        };
-        if let Ok(dir) = File::open(dir) {
-            let _ = dir.sync_all();
-        }
+    if let Ok(dir) = File::open(parent_dir(target)) {
+        let _ = dir.sync_all();
     }
     #[cfg(not(unix))]
     let _ = target;
@@ -152,23 +107,25 @@ fn sync_parent_dir(target: &Path) {
 
 impl Write for TempFile {
     fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        self.file.write(buf)
+        self.tmp.write(buf)
     }
 
     fn flush(&mut self) -> io::Result<()> {
-        self.file.flush()
+        self.tmp.flush()
     }
 }
 
 impl Seek for TempFile {
     fn seek(&mut self, pos: SeekFrom) -> io::Result<u64> {
-        self.file.seek(pos)
+        self.tmp.seek(pos)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    use std::fs;
 
     fn temp_files_in(dir: &Path) -> usize {
         fs::read_dir(dir)
@@ -205,6 +162,20 @@ mod tests {
         }
         assert_eq!(fs::read(&path)?, b"old");
         assert_eq!(temp_files_in(dir.path()), 0);
+        Ok(())
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn written_files_get_the_permissions_of_file_create() -> io::Result<()> {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir()?;
+        let plain = dir.path().join("plain");
+        File::create(&plain)?;
+        let atomic = dir.path().join("atomic");
+        write_atomic(&atomic, b"x")?;
+        let mode = |p: &Path| fs::metadata(p).map(|m| m.permissions().mode() & 0o777);
+        assert_eq!(mode(&atomic)?, mode(&plain)?);
         Ok(())
     }
 

@@ -774,11 +774,11 @@ pub fn bench_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectError>
     recipe.mqtt = None;
     recipe.status = None;
     let rig = RigConfig::load(rig).map_err(|e| InspectError(e.to_string()))?;
-    let out = std::env::temp_dir().join(format!(
-        "filmscope-bench-inspect-{}-{}",
-        std::process::id(),
-        utc_iso(SystemTime::now()).replace([':', '.'], "")
-    ));
+    let tmp = tempfile::Builder::new()
+        .prefix("filmscope-bench-inspect-")
+        .tempdir()
+        .map_err(|e| InspectError(format!("cannot create a temporary folder: {e}")))?;
+    let out = tmp.path().join("out");
     let result = (|| {
         let mut line = Line::open(InspectOptions {
             rig,
@@ -795,6 +795,6 @@ pub fn bench_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectError>
         }
         Ok(l)
     })();
-    let _ = std::fs::remove_dir_all(&out);
+    drop(tmp);
     result
 }
