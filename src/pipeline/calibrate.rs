@@ -1,0 +1,263 @@
+//! The calibrate stage: raw counts to reflectance, rows split among the workers, angle
+//! ends told to the coordinator; and the calibrated stream for consumers outside the
+//! pipeline.
+
+use std::sync::Mutex;
+use std::time::Instant;
+
+use crossbeam_channel::{bounded, Receiver, Sender};
+use filmscope_core::track::pack_sample;
+
+use super::msg::{Control, PipelineError, Tap, WorkerMsg, WorkerRows};
+use super::state::shard_rows;
+use crate::source::{calibrate_block, Source, StreamMsg};
+
+pub(super) fn calibrate_stage(
+    rx: Receiver<StreamMsg>,
+    control: Sender<Control>,
+    workers: Vec<Sender<WorkerMsg>>,
+    (width, height): (usize, usize),
+    n_workers: usize,
+    tap: Option<&Mutex<dyn Tap + Send>>,
+    on_rows: &(dyn Fn(u64) + Sync),
+) {
+    let owner = |row: usize| {
+        // The shard whose range holds `row`.
+        let mut i = (row * n_workers / height.max(1)).min(n_workers - 1);
+        while i > 0 && shard_rows(height, n_workers, i).0 > row {
+            i -= 1;
+        }
+        while i + 1 < n_workers && shard_rows(height, n_workers, i + 1).0 <= row {
+            i += 1;
+        }
+        i
+    };
+    let mut in_angle = false;
+    for msg in rx.iter() {
+        match msg {
+            StreamMsg::Angle { incidence_deg } => {
+                in_angle = true;
+                if let Some(t) = tap {
+                    t.lock()
+                        .unwrap_or_else(|e| e.into_inner())
+                        .angle(incidence_deg);
+                }
+                if control.send(Control::Angle(incidence_deg)).is_err() {
+                    return;
+                }
+            }
+            StreamMsg::Rows(block) => {
+                if !in_angle {
+                    let _ = control.send(Control::Abort("rows arrived outside an angle".into()));
+                    return;
+                }
+                let rows = block.rows as usize;
+                let first = block.first_row as usize;
+                if rows == 0 || first + rows > height {
+                    let what = if rows == 0 {
+                        format!("an empty block at row {first}")
+                    } else {
+                        format!("row {} is outside the {height}-row frame", first + rows - 1)
+                    };
+                    let _ = control.send(Control::Abort(what));
+                    return;
+                }
+                let values = calibrate_block(block.samples, rows, width);
+                if values.len() != rows * width {
+                    let _ = control.send(Control::Abort(format!(
+                        "a block of {rows} rows holds {} samples, not {}",
+                        values.len(),
+                        rows * width
+                    )));
+                    return;
+                }
+                if let Some(t) = tap {
+                    t.lock().unwrap_or_else(|e| e.into_inner()).rows(
+                        usize::from(block.band),
+                        first,
+                        rows,
+                        &values,
+                    );
+                }
+                // Split the block at shard boundaries.
+                let mut k = 0;
+                while k < rows {
+                    let i = owner(first + k);
+                    let (s_first, s_rows) = shard_rows(height, n_workers, i);
+                    let n = (s_first + s_rows - (first + k)).min(rows - k);
+                    let part: Vec<u16> = values[k * width..(k + n) * width]
+                        .iter()
+                        .map(|&v| pack_sample(v))
+                        .collect();
+                    if workers[i]
+                        .send(WorkerMsg::Rows(WorkerRows {
+                            band: block.band,
+                            first_row: (first + k) as u32,
+                            rows: n as u32,
+                            samples: part,
+                        }))
+                        .is_err()
+                    {
+                        return;
+                    }
+                    k += n;
+                }
+                on_rows(rows as u64);
+            }
+            // Band ends carry nothing the solver needs: each pixel's tracker sees its bands in
+            // order whatever the interleave.
+            StreamMsg::BandEnd { .. } => {}
+            StreamMsg::AngleEnd => {
+                in_angle = false;
+                let at = Instant::now();
+                for tx in &workers {
+                    if tx.send(WorkerMsg::End).is_err() {
+                        return;
+                    }
+                }
+                if control.send(Control::AngleEnd(at)).is_err() {
+                    return;
+                }
+            }
+            StreamMsg::SweepEnd => {
+                let _ = control.send(Control::SweepEnd);
+                return;
+            }
+            StreamMsg::Abort(e) => {
+                let _ = control.send(Control::Abort(e));
+                return;
+            }
+        }
+    }
+    let _ = control.send(Control::Abort(
+        "the source stopped without ending the sweep".into(),
+    ));
+}
+
+/// What [`for_each_calibrated`] hands on.
+#[derive(Debug)]
+pub enum Calibrated<'a> {
+    /// An angle starts (degrees).
+    Angle(f64),
+    /// Calibrated reflectance of rows `first_row..first_row + rows` of `band` at angle
+    /// number `angle` (row-major).
+    Rows {
+        /// Angle number (0 for the first).
+        angle: usize,
+        /// Band.
+        band: usize,
+        /// First row.
+        first_row: usize,
+        /// Rows.
+        rows: usize,
+        /// `rows * width` values.
+        values: &'a [f32],
+    },
+}
+
+/// Streams `source` and hands every angle start and block of calibrated rows to `f`, on this
+/// thread.
+pub fn for_each_calibrated(
+    source: &mut dyn Source,
+    f: impl FnMut(Calibrated<'_>),
+) -> Result<(), PipelineError> {
+    for_each_calibrated_rows(source, None, f)
+}
+
+/// [`for_each_calibrated`] of only the image rows in `rows` (sorted; `None`: every row),
+/// for a consumer of a few pixels ([`Source::stream_rows`]: a source may still send others).
+pub fn for_each_calibrated_rows(
+    source: &mut dyn Source,
+    rows: Option<&[usize]>,
+    mut f: impl FnMut(Calibrated<'_>),
+) -> Result<(), PipelineError> {
+    let spec = source.spec().clone();
+    let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
+    let (tx, rx) = bounded::<StreamMsg>(64);
+    std::thread::scope(|scope| -> Result<(), PipelineError> {
+        scope.spawn(move || match rows {
+            Some(rows) => source.stream_rows(&tx, rows),
+            None => source.stream(&tx),
+        });
+        let mut angle = None;
+        for msg in rx.iter() {
+            match msg {
+                StreamMsg::Angle { incidence_deg } => {
+                    angle = Some(angle.map_or(0, |a| a + 1));
+                    f(Calibrated::Angle(incidence_deg));
+                }
+                StreamMsg::Rows(b) => {
+                    let (band, first, rows) =
+                        (usize::from(b.band), b.first_row as usize, b.rows as usize);
+                    let a = angle
+                        .ok_or_else(|| PipelineError("rows arrived outside an angle".into()))?;
+                    if band >= nb || first + rows > h {
+                        return Err(PipelineError(format!(
+                            "band {band}, rows {first}..{} are outside the sweep",
+                            first + rows
+                        )));
+                    }
+                    let v = calibrate_block(b.samples, rows, w);
+                    if v.len() != rows * w {
+                        return Err(PipelineError(format!(
+                            "a block of {rows} rows holds {} samples, not {}",
+                            v.len(),
+                            rows * w
+                        )));
+                    }
+                    f(Calibrated::Rows {
+                        angle: a,
+                        band,
+                        first_row: first,
+                        rows,
+                        values: &v,
+                    });
+                }
+                StreamMsg::AngleEnd | StreamMsg::BandEnd { .. } => {}
+                StreamMsg::SweepEnd => return Ok(()),
+                StreamMsg::Abort(e) => return Err(PipelineError(e)),
+            }
+        }
+        Err(PipelineError(
+            "the source stopped without ending the sweep".into(),
+        ))
+    })
+}
+
+/// Streams `source` and keeps every calibrated sample: the whole sweep in memory, for the
+/// whole-cube baselines and for evaluation (not for the streaming estimator).
+pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::source::SweepCube, PipelineError> {
+    let spec = source.spec().clone();
+    let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
+    let mut angles = Vec::new();
+    let mut data: Vec<Vec<f32>> = Vec::new();
+    for_each_calibrated(source, |event| match event {
+        Calibrated::Angle(deg) => {
+            angles.push(deg);
+            data.push(vec![f32::NAN; w * h * nb]);
+        }
+        Calibrated::Rows {
+            angle,
+            band,
+            first_row,
+            rows,
+            values,
+        } => {
+            let at = (band * h + first_row) * w;
+            data[angle][at..at + rows * w].copy_from_slice(values);
+        }
+    })?;
+    Ok(crate::source::SweepCube {
+        width: w,
+        height: h,
+        bands_nm: spec.bands_nm.to_vec(),
+        fwhm_nm: spec.fwhm_nm.to_vec(),
+        angles_deg: angles,
+        ambient_index: spec.ambient_index,
+        substrate_index: spec.substrate_index,
+        polarization: spec.polarization,
+        index_range: spec.index_range,
+        thickness_range_nm: spec.thickness_range_nm,
+        data,
+    })
+}

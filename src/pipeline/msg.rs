@@ -1,0 +1,79 @@
+//! What flows between the pipeline's stages (rows to the workers, a shard's state to and
+//! from the coordinator, angle ends to the coordinator), the hook the calibrate stage feeds,
+//! and the error that ends a sweep.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use filmscope_core::solve::SweepContext;
+
+use super::state::{BandModels, ShardState, ShardTally};
+
+/// A sweep that could not be completed.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct PipelineError(pub String);
+
+/// Rows for a worker, on the data channel (from the calibrate stage).
+pub(super) enum WorkerMsg {
+    /// Rows of one band.
+    Rows(WorkerRows),
+    /// The angle's last row was sent.
+    End,
+}
+
+/// Rows of one band for a worker.
+pub(super) struct WorkerRows {
+    /// The band.
+    pub(super) band: u16,
+    /// The first image row.
+    pub(super) first_row: u32,
+    /// Rows.
+    pub(super) rows: u32,
+    /// Their samples, packed ([`pack_sample`]).
+    pub(super) samples: Vec<u16>,
+}
+
+/// The state of an angle for a worker, on its own channel (from the coordinator): rows are
+/// read only after it, so rows of the next angle can never reach the previous one's state.
+/// The solver's context as the angle began tallies the rows that have seen the angle's last
+/// band.
+pub(super) struct Start {
+    /// The shard's state.
+    pub(super) state: ShardState,
+    /// The band models of the angle.
+    pub(super) models: Arc<BandModels>,
+    /// The solver's context as the angle began.
+    pub(super) began: Arc<SweepContext>,
+    /// The angles left in the sweep, this one included (the worker sizes its held block for
+    /// the next angle, or gives it back after the last: [`HeldBlock`]).
+    pub(super) angles_left: usize,
+}
+
+/// What a worker hands back at an angle's end: its state and what it tallied of it.
+pub(super) struct Done {
+    /// The worker.
+    pub(super) worker: usize,
+    /// Its shard's state.
+    pub(super) state: ShardState,
+    /// What it tallied.
+    pub(super) tally: ShardTally,
+}
+
+pub(super) enum Control {
+    Angle(f64),
+    AngleEnd(Instant),
+    SweepEnd,
+    Abort(String),
+}
+
+/// What the calibrate stage hands calibrated rows to, besides the workers: the estimator's
+/// pixel sample, which keeps the rows it wants.
+pub trait Tap {
+    /// An angle starts.
+    fn angle(&mut self, incidence_deg: f64);
+    /// Calibrated rows `first_row..first_row + rows` of `band` at the current angle.
+    fn rows(&mut self, band: usize, first_row: usize, rows: usize, values: &[f32]);
+    /// The image rows it reads, sorted and distinct (a stream may skip the others).
+    fn image_rows(&self) -> Vec<usize>;
+}

@@ -1,0 +1,339 @@
+//! A worker: the rows of its shard fed band by band into the trackers and the solver's sums,
+//! held in blocks of bands, each row tallied once it has seen the angle's last band.
+
+use std::sync::Arc;
+
+use crossbeam_channel::{Receiver, Sender};
+use filmscope_core::solve::index::RatioHistogram;
+use filmscope_core::solve::sweep::SolverOptions;
+use filmscope_core::solve::{Shard, SweepContext};
+use filmscope_core::track::unpack_sample;
+
+use super::held::HeldBlock;
+use super::msg::{Done, Start, WorkerMsg, WorkerRows};
+use super::state::{BandModels, ShardTally, Tally};
+
+/// Bands of the block that starts at `band` of an angle's `bands`: `band_block`, but at most
+/// half of the bands left (rounded up) and at least [`FINAL_BLOCK_BANDS`] (or what is left).
+/// A block is fed once its last band has arrived, so whatever is still to feed when the
+/// angle's last row arrives is latency: with the blocks halving towards the end, each is fed
+/// while the next (half as many bands) arrives, and the angle's last block is fed row by row
+/// as its last band arrives ([`streams_rows`]).
+pub fn block_bands(band: usize, bands: usize, band_block: usize) -> usize {
+    let left = bands.saturating_sub(band);
+    band_block
+        .min(left.div_ceil(2))
+        .max(FINAL_BLOCK_BANDS.min(band_block))
+        .min(left)
+        .max(1)
+}
+
+/// Bands of an angle's last block. Feeding a block costs one pass over its pixels' state
+/// (memory traffic, the same for any number of bands) and each band's arithmetic; the last
+/// block is fed as its last band's rows arrive, so what is left when the angle's last row
+/// arrives is the part of that pass the band's arrival did not cover. One band a block (one
+/// pass a band) left the workers a band behind; four let the block before it be fed while
+/// its first three arrive.
+pub const FINAL_BLOCK_BANDS: usize = 4;
+
+/// Whether the block of `limit` bands that starts at `first` is the angle's last (of
+/// `bands`): its rows are fed as its last band's rows arrive (in row order), each row of
+/// every band it holds at once.
+pub fn streams_rows(first: usize, limit: usize, bands: usize) -> bool {
+    first + limit >= bands
+}
+
+/// A worker: `block` is `[band_block, bands per angle]`;
+/// `last_shard`: whether its rows are the last of each band (it defers the tally of rows it
+/// cannot keep up with).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn worker(
+    index: usize,
+    first_row: usize,
+    width: usize,
+    options: SolverOptions,
+    block: [usize; 2],
+    last_shard: bool,
+    start: Receiver<Start>,
+    rows: Receiver<WorkerMsg>,
+    done: Sender<Done>,
+) {
+    let [band_block, bands] = block;
+    let mut held = HeldBlock::default();
+    for Start {
+        state: mut st,
+        models,
+        began,
+        angles_left,
+    } in start.iter()
+    {
+        let mut shard = st.shard(first_row, width);
+        shard.begin_angle();
+        let shard_rows = shard.rows();
+        held.size_for(band_block * shard_rows * width);
+        let mut tally = RowTally::new(began, bands, shard_rows, last_shard);
+        let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);
+        // The block's first band, and the image row below which its held rows were fed
+        // (the angle's last block: [`streams_rows`]).
+        let (mut first_band, mut fed_to) = (0, shard.first_row);
+        loop {
+            match rows.recv() {
+                Ok(WorkerMsg::Rows(WorkerRows {
+                    band,
+                    first_row: row,
+                    rows: n,
+                    samples: values,
+                })) => {
+                    // Rows waiting: the worker is behind the stream.
+                    let behind = !rows.is_empty();
+                    if !held.fits(values.len()) {
+                        // Only rows sent twice overfill a block: feed what it holds.
+                        feed_rest(
+                            &mut shard, options, &models, &mut held, fed_to, &mut tally, behind,
+                        );
+                        bands_held = 0;
+                    }
+                    if held.last_band().is_none_or(|b| b != band) {
+                        if bands_held == limit {
+                            feed_rest(
+                                &mut shard, options, &models, &mut held, fed_to, &mut tally, behind,
+                            );
+                            bands_held = 0;
+                        }
+                        if bands_held == 0 {
+                            first_band = usize::from(band);
+                            limit = block_bands(first_band, bands, band_block);
+                            fed_to = shard.first_row;
+                        }
+                        bands_held += 1;
+                        rows_of_band = 0;
+                    }
+                    rows_of_band += n as usize;
+                    let rows_in = row as usize..(row + n) as usize;
+                    held.push(band, row, n, &values);
+                    // The message's memory goes back before the block is fed.
+                    drop(values);
+                    if limit == 1 || (bands_held == limit && rows_of_band >= shard_rows) {
+                        // A full block is fed at once, not when the next band starts (a block
+                        // of one band as its rows arrive): the rows still held when the angle
+                        // ends are latency.
+                        feed_rest(
+                            &mut shard, options, &models, &mut held, fed_to, &mut tally, behind,
+                        );
+                        bands_held = 0;
+                    } else if bands_held == limit
+                        && rows_in.start == fed_to
+                        && streams_rows(first_band, limit, bands)
+                    {
+                        let part = fed_to..rows_in.end;
+                        feed_held(
+                            &mut shard, options, &models, &held, part, &mut tally, behind,
+                        );
+                        fed_to = rows_in.end;
+                    }
+                }
+                Ok(WorkerMsg::End) => break,
+                // The calibrate stage stopped mid-angle: hand back what we have.
+                Err(_) => break,
+            }
+        }
+        feed_rest(
+            &mut shard, options, &models, &mut held, fed_to, &mut tally, true,
+        );
+        // After the last angle, given back before the state is: the coordinator allocates
+        // the results then.
+        if angles_left <= 1 {
+            held.release();
+        }
+        let tally = tally.finish(&shard);
+        let back = Done {
+            worker: index,
+            state: st,
+            tally,
+        };
+        if done.send(back).is_err() {
+            return;
+        }
+    }
+}
+
+/// Bands before a row's last at which its extrema so far are voted ([`Shard::vote_rows`]):
+/// the halving blocks of an angle's end ([`block_bands`]) span about twice the band block,
+/// and an extremum is confirmed a few bands after it, so most of a row's extrema are voted
+/// while the angle streams and few are left to its tally.
+const VOTE_AHEAD_BANDS: u32 = 16;
+
+/// A worker's angle-end pass 1 made row by row: a row is tallied ([`Shard::tally_rows`]) as
+/// soon as it has seen the angle's last band, its state in cache and later rows still
+/// streaming, so that after the angle's last row little is left to tally.
+struct RowTally {
+    /// The solver's context as the angle began (the pair geometry).
+    solver: Arc<SweepContext>,
+    /// Bands per angle.
+    bands: u32,
+    /// Bands fed to each row of the shard.
+    fed: Vec<u32>,
+    tally: Box<Tally>,
+    /// Votes of the extrema found before each row's last [`VOTE_AHEAD_BANDS`] bands
+    /// ([`Shard::vote_rows`]): kept apart, as they count whether or not the rows' tallies do.
+    early_votes: Box<RatioHistogram>,
+    /// Whether a row completed while rows wait in the queue is left to the angle's end.
+    defer_if_behind: bool,
+    /// Rows left to the angle's end.
+    deferred: Vec<usize>,
+}
+
+impl RowTally {
+    fn new(solver: Arc<SweepContext>, bands: usize, rows: usize, defer_if_behind: bool) -> Self {
+        Self {
+            solver,
+            bands: bands as u32,
+            fed: vec![0; rows],
+            tally: Box::default(),
+            early_votes: Box::default(),
+            defer_if_behind,
+            deferred: Vec::new(),
+        }
+    }
+
+    /// Counts a band fed to image row `row` of `shard`, votes the row's extrema so far
+    /// [`VOTE_AHEAD_BANDS`] bands before its last, and tallies the row when that was its
+    /// last (or defers it, if `behind`: rows wait in the worker's queue).
+    fn fed(&mut self, shard: &mut Shard<'_>, row: usize, behind: bool) {
+        let Some(n) = row
+            .checked_sub(shard.first_row)
+            .and_then(|k| self.fed.get_mut(k))
+        else {
+            return;
+        };
+        *n += 1;
+        if *n + VOTE_AHEAD_BANDS == self.bands {
+            shard.vote_rows(&self.solver, row..row + 1, &mut self.early_votes);
+        }
+        if *n == self.bands {
+            if behind && self.defer_if_behind {
+                self.deferred.push(row);
+            } else {
+                let Tally { votes, fit } = &mut *self.tally;
+                shard.tally_rows(&self.solver, row..row + 1, votes, fit);
+            }
+        }
+    }
+
+    /// What was tallied of `shard`: when every row was fed the angle's band count (each was
+    /// tallied or deferred at its last feed), the tally and the deferred rows; if any row was
+    /// fed more or fewer times, no row's tally counts and the whole shard is left (the early
+    /// votes count either way).
+    fn finish(self, shard: &Shard<'_>) -> ShardTally {
+        let (mut tally, untallied) = if self.fed.iter().all(|&n| n == self.bands) {
+            (self.tally, self.deferred)
+        } else {
+            let all = (shard.first_row..shard.first_row + shard.rows()).collect();
+            (Box::default(), all)
+        };
+        // The early votes count either way: a row's tally votes only the extrema after them.
+        tally.votes.merge(&self.early_votes);
+        ShardTally { tally, untallied }
+    }
+}
+
+/// Feeds the held rows from image row `from` on ([`feed_held`]) and empties `held`: a block
+/// done (its rows before `from` were fed as they arrived, [`streams_rows`]).
+fn feed_rest(
+    shard: &mut Shard<'_>,
+    options: SolverOptions,
+    models: &BandModels,
+    held: &mut HeldBlock,
+    from: usize,
+    tally: &mut RowTally,
+    behind: bool,
+) {
+    feed_held(
+        shard,
+        options,
+        models,
+        held,
+        from..usize::MAX,
+        tally,
+        behind,
+    );
+    held.clear();
+}
+
+/// Feeds the held rows of image rows `rows` to the shard a block of rows at a time, each
+/// block's bands in the order they arrived (so every pixel sees its bands in order); each
+/// row's last band of the angle tallies it.
+fn feed_held(
+    shard: &mut Shard<'_>,
+    options: SolverOptions,
+    models: &BandModels,
+    held: &HeldBlock,
+    rows: std::ops::Range<usize>,
+    tally: &mut RowTally,
+    behind: bool,
+) {
+    /// Bytes of pixel state a block of rows should keep in cache while its bands pass.
+    const BLOCK_BYTES: usize = 256 * 1024;
+    let width = shard.width;
+    let bytes = filmscope_core::solve::state_bytes_per_pixel(shard.sampling(), width);
+    let block_rows = (BLOCK_BYTES / (width * bytes).max(1)).max(1);
+    let (Some(lo), Some(hi)) = (
+        held.entries().iter().map(|h| h.image_rows().start).min(),
+        held.entries().iter().map(|h| h.image_rows().end).max(),
+    ) else {
+        return;
+    };
+    let (lo, hi) = (lo.max(rows.start), hi.min(rows.end));
+    let mut unpacked = vec![0.0; width];
+    for block in (lo..hi).step_by(block_rows) {
+        let block_end = (block + block_rows).min(hi);
+        for e in held.entries() {
+            let image_rows = e.image_rows();
+            for r in image_rows.start.max(block)..image_rows.end.min(block_end) {
+                let k = r - image_rows.start;
+                for (x, &q) in unpacked.iter_mut().zip(held.row(e, k, width)) {
+                    *x = unpack_sample(q);
+                }
+                shard.feed_row(options, models.view(), usize::from(e.band), r, &unpacked);
+                tally.fed(shard, r, behind);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{block_bands, streams_rows, FINAL_BLOCK_BANDS};
+
+    /// The blocks an angle of `bands` bands is fed in, as `(first band, bands)`.
+    fn blocks(bands: usize, band_block: usize) -> Vec<(usize, usize)> {
+        let mut out = Vec::new();
+        let mut band = 0;
+        while band < bands {
+            let n = block_bands(band, bands, band_block);
+            out.push((band, n));
+            band += n;
+        }
+        out
+    }
+
+    #[test]
+    fn blocks_shrink_towards_an_angle_end_and_only_the_last_streams() {
+        let b = blocks(161, 8);
+        let mut expected: Vec<_> = (0..19).map(|k| (8 * k, 8)).collect();
+        expected.extend([(152, 5), (157, FINAL_BLOCK_BANDS)]);
+        assert_eq!(b, expected);
+        let streams: Vec<_> = b.iter().map(|&(f, n)| streams_rows(f, n, 161)).collect();
+        assert_eq!(streams.iter().filter(|&&s| s).count(), 1);
+        assert!(streams[streams.len() - 1]);
+        // Short angles and small blocks: every band once, in order, no empty block.
+        for bands in 1..40 {
+            for band_block in [1, 2, 3, 4, 8, 64] {
+                let b = blocks(bands, band_block);
+                assert!(b.iter().all(|&(_, n)| (1..=band_block).contains(&n)));
+                assert_eq!(b.iter().map(|&(_, n)| n).sum::<usize>(), bands);
+            }
+        }
+        assert_eq!(blocks(161, 1).len(), 161);
+    }
+}
