@@ -5,18 +5,18 @@
 //! [`calibrate`], [`track`], [`solve`]) does the computing; this crate adds, behind the `std`
 //! feature, what touches the world. Its modules, each importing only those above it:
 //!
-//! - [`limits`], [`io`] (ENVI cubes streamed row by row in any interleave, `capture.toml`,
-//!   atomic writes, output folders, wall-clock stamps), [`material`] (index models by name,
-//!   JSON, refractiveindex.info YAML) and [`summary`] (`summary.json`, one type);
+//! - [`limits`], [`material`] (index models by name, JSON, refractiveindex.info YAML),
+//!   [`io`] (ENVI cubes streamed row by row in any interleave, `capture.toml`, atomic
+//!   writes, output folders, wall-clock stamps) and [`summary`] (`summary.json`, one type);
 //! - [`source`]: where band frames come from (the software camera, a capture on disk, a
 //!   replayed set of frames), the messages they stream and a whole sweep in memory;
 //! - [`simulate`]: a scene written as a capture with its truth;
 //! - [`pipeline`]: bounded stages on crossbeam channels (calibrate, tracker and solver
 //!   workers) driving the core's state machines;
+//! - [`export`]: map previews, colour maps and charts as PNG;
 //! - [`estimate`]: the methods over a source: filmscope's passes, the pixel sample's index
 //!   fit, the field model, the known-index run and the paper's and brute-force baselines,
 //!   and the maps and `summary.json` they write;
-//! - [`export`]: map previews, colour maps and charts as PNG;
 //! - [`appearance`]: the film's colour from the estimate (renders, measured against
 //!   reproduced, glTF), and [`report`], one HTML page of it all;
 //! - [`rig`]: the devices of a real rig and the acquisition; [`line`]: inspection on a

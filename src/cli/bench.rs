@@ -16,8 +16,9 @@
 //! - `pipeline`: the whole bounded pipeline on two workers from a replayed source; its
 //!   latency from the last row to the maps, with the source paced at half the pipeline's rate
 //!   (a camera slower than the pipeline: nothing queued).
-//! - `methods`: `filmscope`, `paper` and `brute` on the same sweep (128 x 96, 48 x 32 with
-//!   `--quick`), seconds per megapixel and their accuracy.
+//! - `methods`: `filmscope` and `paper` on the same sweep (256 x 192, 64 x 48 with
+//!   `--quick`), `brute` on 128 x 96 (48 x 32), and the Python peers with the index given
+//!   beside filmscope with the index given, seconds per megapixel and their accuracy.
 //! - With `FILMSCOPE_BENCH_STREAM_ROWS=N` set, the `stream` figure is also measured with the
 //!   kernel sweep's rows repeated to N rows (printed to stderr): whether the state still fits
 //!   the caches shows in the difference.
@@ -793,7 +794,7 @@ pub fn format_table(r: &BenchReport) -> String {
     row(
         &format!("state, bytes per pixel ({sw}x{sh})"),
         r.state_bytes_per_pixel.to_string(),
-        "<= 64",
+        "(fixed in bands, angles, sweeps)",
     );
     match (&r.rss, &r.rss_error) {
         (Some(x), _) => row(
