@@ -15,7 +15,7 @@ use filmscope_core::optics::{BandModel, FilmStack, Passband};
 
 use super::AppearanceError;
 use crate::export::plot::{render_scatter_panels_png, Scatter, Series};
-use crate::pipeline::{for_each_calibrated, Calibrated};
+use crate::pipeline::{for_each_calibrated_rows, Calibrated};
 use crate::source::Source;
 
 /// Most order candidates reported.
@@ -266,7 +266,8 @@ pub fn measured_spectra(
         )));
     }
     let mut angles: Vec<(f64, Vec<f64>)> = Vec::new();
-    for_each_calibrated(source, |event| match event {
+    // Only row `y` is needed: a source that can skip rows reads no other.
+    for_each_calibrated_rows(source, Some(&[y]), |event| match event {
         Calibrated::Angle(deg) => angles.push((deg, vec![f64::NAN; nb])),
         Calibrated::Rows {
             band,
