@@ -19,7 +19,7 @@
 //!   and the maps and `summary.json` they write;
 //! - [`appearance`]: the film's colour from the estimate (renders, measured against
 //!   reproduced, glTF), and [`report`], one HTML page of it all;
-//! - [`rig`]: the devices of a real rig and the acquisition; [`line`]: inspection on a
+//! - [`rig`]: the devices of a real rig and the acquisition; [`line`](mod@line): inspection on a
 //!   production line;
 //! - [`cli`]: the `filmscope` command line with the measurement commands (`eval`, `bench`,
 //!   `chart`, `stability`).

@@ -90,7 +90,7 @@ pub fn unavailable() -> Option<String> {
     }
 }
 
-/// Runs `script` (in [`scripts_dir`]) on the capture `capture_dir` with `args`.
+/// Runs `script` (in `benches/peers`) on the capture `capture_dir` with `args`.
 pub fn run_script(script: &str, capture_dir: &Path, args: &[String]) -> Result<PeerRun> {
     let path = scripts_dir().join(script);
     let out = Command::new("python3")

@@ -41,7 +41,7 @@ pub struct PipelineConfig {
     /// past every pixel's state, so on a sensor whose state does not fit the caches a sample
     /// costs its state's memory traffic; holding `band_block` bands divides that traffic by
     /// `band_block` at `2 * band_block` bytes per pixel of row buffers (packed samples,
-    /// [`pack_sample`]; 1: feed each row as it arrives). Over an angle's last bands the
+    /// [`filmscope_core::track::pack_sample`]; 1: feed each row as it arrives). Over an angle's last bands the
     /// blocks shrink (`block_bands`), so that little is left to feed when its last row
     /// arrives. Four: on a 4 MP sweep the same pace as eight (the software camera's 131-134
     /// M samples/s either way; two: 119 M), at 8 bytes a pixel of peak memory fewer

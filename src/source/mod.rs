@@ -1,5 +1,5 @@
 //! Where band frames come from: the software camera and ENVI captures replayed row by row,
-//! the messages they stream ([`msg`]) and a sweep held whole ([`SweepCube`]).
+//! the messages they stream (`msg`) and a sweep held whole ([`SweepCube`]).
 
 mod capture;
 mod cube;

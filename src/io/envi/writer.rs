@@ -23,7 +23,7 @@ use crate::io::atomic::TempFile;
 /// `reflectance scale factor` when the header has one, rounded to nearest and clamped to
 /// 0..=65535 (NaN becomes 0).
 ///
-/// Memory: up to [`PENDING_BYTES`] of encoded rows that continue one another, gathered
+/// Memory: up to `PENDING_BYTES` (1 MiB) of encoded rows that continue one another, gathered
 /// into one write (rows written in the file's own order reach the file in large writes,
 /// not one call a row), plus one line for `bip` (whose rows are not contiguous: the line
 /// is read, patched and written back when another line is addressed, so writing all bands
