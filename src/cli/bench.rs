@@ -292,15 +292,12 @@ pub fn measure_index_given(scene: &Scene) -> Result<Point> {
     .map_err(|e| anyhow!("{e}"))?;
     let secs = t0.elapsed().as_secs_f64();
     let r = crate::cli::eval::evaluate(&scene.name, &truth, &run);
-    Ok(Point {
-        method: Method::Filmscope.name().to_owned(),
-        label: "filmscope (n given)".to_owned(),
-        seconds_per_mpix: secs / mpix,
-        index_error_abs: r.index_error.abs(),
-        thickness_mae_nm: r.thickness_mae_nm,
-        valid_fraction: r.valid_fraction,
-        silent_failure_rate: r.silent_failure_rate,
-    })
+    Ok(Point::of(
+        Method::Filmscope,
+        "filmscope (n given)",
+        secs / mpix,
+        &r,
+    ))
 }
 
 /// `filmscope estimate` from an ENVI capture on disk, as a user runs it.

@@ -20,7 +20,7 @@ use filmscope_core::solve::sweep::SolverOptions;
 use firmware_sim::Scene;
 use serde::Serialize;
 
-use crate::cli::eval::{evaluate, Truth};
+use crate::cli::eval::{evaluate, EvalReport, Truth};
 use crate::estimate::baseline::BruteGrid;
 use crate::estimate::method::Method;
 use crate::estimate::{run_method, RunConfig};
@@ -136,17 +136,24 @@ pub fn measure(scene: &Scene, settings: &[Setting]) -> Result<Vec<Point>> {
         let run = run_method(&mut source, &s.config, &|_| {}).map_err(|e| anyhow!("{e}"))?;
         let secs = t0.elapsed().as_secs_f64();
         let r = evaluate(&scene.name, &truth, &run);
-        out.push(Point {
-            method: s.config.method.name().to_owned(),
-            label: s.label.clone(),
-            seconds_per_mpix: secs / mpix,
+        out.push(Point::of(s.config.method, &s.label, secs / mpix, &r));
+    }
+    Ok(out)
+}
+
+impl Point {
+    /// The point of a run of `method` labelled `label`, from its speed and its evaluation.
+    pub fn of(method: Method, label: &str, seconds_per_mpix: f64, r: &EvalReport) -> Self {
+        Self {
+            method: method.name().to_owned(),
+            label: label.to_owned(),
+            seconds_per_mpix,
             index_error_abs: r.index_error.abs(),
             thickness_mae_nm: r.thickness_mae_nm,
             valid_fraction: r.valid_fraction,
             silent_failure_rate: r.silent_failure_rate,
-        });
+        }
     }
-    Ok(out)
 }
 
 /// A film on a substrate for the stability grids: `size` pixels, mean thickness

@@ -132,13 +132,12 @@ impl CaptureSource {
                         let s = k * w..(k + 1) * w;
                         cube.read_band_row(b, r0 + k, &mut counts[s.clone()])
                             .map_err(err)?;
-                        if let (Some(r), Some(v)) = (white.as_mut(), wv.as_mut()) {
-                            let line = ref_line(r, r0 + k);
-                            r.read_band_row(b, line, &mut v[s.clone()]).map_err(err)?;
-                        }
-                        if let (Some(r), Some(v)) = (dark.as_mut(), dv.as_mut()) {
-                            let line = ref_line(r, r0 + k);
-                            r.read_band_row(b, line, &mut v[s]).map_err(err)?;
+                        for (r, v) in [(white.as_mut(), wv.as_mut()), (dark.as_mut(), dv.as_mut())]
+                        {
+                            if let (Some(r), Some(v)) = (r, v) {
+                                let line = ref_line(r, r0 + k);
+                                r.read_band_row(b, line, &mut v[s.clone()]).map_err(err)?;
+                            }
                         }
                     }
                     let msg = StreamMsg::Rows(RowBlock {
