@@ -9,7 +9,7 @@ use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::track::pack_sample;
 
 use super::msg::{Control, PipelineError, Tap, WorkerMsg, WorkerRows};
-use super::state::shard_rows;
+use super::state::Strips;
 use crate::source::{calibrate_block, Source, StreamMsg};
 
 pub(super) fn calibrate_stage(
@@ -17,21 +17,10 @@ pub(super) fn calibrate_stage(
     control: Sender<Control>,
     workers: Vec<Sender<WorkerMsg>>,
     (width, height): (usize, usize),
-    n_workers: usize,
+    strips: Strips,
     tap: Option<&Mutex<dyn Tap + Send>>,
     on_rows: &(dyn Fn(u64) + Sync),
 ) {
-    let owner = |row: usize| {
-        // The shard whose range holds `row`.
-        let mut i = (row * n_workers / height.max(1)).min(n_workers - 1);
-        while i > 0 && shard_rows(height, n_workers, i).0 > row {
-            i -= 1;
-        }
-        while i + 1 < n_workers && shard_rows(height, n_workers, i + 1).0 <= row {
-            i += 1;
-        }
-        i
-    };
     let mut in_angle = false;
     for msg in rx.iter() {
         match msg {
@@ -79,17 +68,17 @@ pub(super) fn calibrate_stage(
                         &values,
                     );
                 }
-                // Split the block at shard boundaries.
+                // Split the block at strip boundaries, each part to its strip's worker.
                 let mut k = 0;
                 while k < rows {
-                    let i = owner(first + k);
-                    let (s_first, s_rows) = shard_rows(height, n_workers, i);
+                    let strip = strips.of_row(first + k);
+                    let (s_first, s_rows) = strips.span(strip);
                     let n = (s_first + s_rows - (first + k)).min(rows - k);
                     let part: Vec<u16> = values[k * width..(k + n) * width]
                         .iter()
                         .map(|&v| pack_sample(v))
                         .collect();
-                    if workers[i]
+                    if workers[strips.worker(strip)]
                         .send(WorkerMsg::Rows(WorkerRows {
                             band: block.band,
                             first_row: (first + k) as u32,

@@ -39,8 +39,8 @@ pub(super) struct WorkerRows {
 /// The solver's context as the angle began tallies the rows that have seen the angle's last
 /// band.
 pub(super) struct Start {
-    /// The shard's state.
-    pub(super) state: ShardState,
+    /// The states of the worker's strips, top to bottom.
+    pub(super) states: Vec<ShardState>,
     /// The band models of the angle.
     pub(super) models: Arc<BandModels>,
     /// The solver's context as the angle began.
@@ -54,8 +54,8 @@ pub(super) struct Start {
 pub(super) struct Done {
     /// The worker.
     pub(super) worker: usize,
-    /// Its shard's state.
-    pub(super) state: ShardState,
+    /// Its strips' states, top to bottom.
+    pub(super) states: Vec<ShardState>,
     /// What it tallied.
     pub(super) tally: ShardTally,
 }

@@ -1,18 +1,19 @@
 //! Wires the stages to bounded channels and threads.
 //!
 //! ```text
-//! source thread -> [cap] -> calibrate thread -> [cap] -> worker 1 (rows of shard 1)
-//!                                            \-> [cap] -> worker 2 (rows of shard 2)
+//! source thread -> [cap] -> calibrate thread -> [cap] -> worker 1 (strips 1, 3, 5, ...)
+//!                                            \-> [cap] -> worker 2 (strips 2, 4, 6, ...)
 //!                                  control --> coordinator (this thread): angle ends
 //! ```
 //!
 //! Every channel is bounded, so a slow stage slows the source and memory never grows with
-//! the stream. Each worker owns the per-pixel state of its rows while an angle streams, and
-//! tallies each row (the first angle-end pass) once the row has seen the angle's last band
-//! (the last shard, whose rows arrive last, leaves the rows it completes while behind the
-//! stream to the angle's end); at the angle's end it hands the state and its tally to the
-//! coordinator, which runs the rest of the solver's angle-end passes on all cores (one scoped
-//! thread per shard) and hands the state back with the next angle.
+//! the stream. The image's rows are dealt to the workers in strips of a few rows
+//! ([`Strips`]), so that every worker has work whatever order the rows arrive in. Each
+//! worker owns the per-pixel state of its strips while an angle streams, and tallies each row
+//! (the first angle-end pass) once the row has seen the angle's last band (a worker behind
+//! the stream leaves the rows it completes to the angle's end); at the angle's end it hands
+//! the states and its tally to the coordinator, which runs the rest of the solver's angle-end
+//! passes on all cores and hands the states back with the next angle.
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -25,7 +26,7 @@ use filmscope_core::solve::{AngleReport, IndexModel, PixelResult, Shard, SweepSo
 
 use super::calibrate::calibrate_stage;
 use super::msg::{Control, Done, PipelineError, Start, Tap, WorkerMsg};
-use super::state::{shard_rows, BandModels, ShardState, ShardTally, Tally};
+use super::state::{BandModels, ShardState, ShardTally, Strips, Tally};
 use super::ties::TieSet;
 use super::worker::worker;
 use crate::source::{Source, StreamMsg};
@@ -33,10 +34,16 @@ use crate::source::{Source, StreamMsg};
 /// How to run the pipeline.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PipelineConfig {
-    /// Capacity of every channel, in messages.
+    /// Capacity of every channel, in messages (a worker's: [`WORKER_QUEUE_FACTOR`] times
+    /// as many, its messages being a strip's part of a source's block).
     pub channel_capacity: usize,
-    /// Worker threads (shards of rows).
+    /// Worker threads.
     pub workers: usize,
+    /// Rows of a strip ([`Strips`]): rows are dealt to the workers in turn, this many at a
+    /// time. Fewer than a source's blocks of rows (8-16), so that each block feeds every
+    /// worker: a line-scan capture's run of lines carries all its bands, and with strips as
+    /// tall as the run one worker would take a whole run while the other waited.
+    pub strip_rows: usize,
     /// Bands a worker holds before feeding them to its pixels row by row: every band streams
     /// past every pixel's state, so on a sensor whose state does not fit the caches a sample
     /// costs its state's memory traffic; holding `band_block` bands divides that traffic by
@@ -56,11 +63,16 @@ impl Default for PipelineConfig {
         Self {
             channel_capacity: 64,
             workers: 2,
+            strip_rows: 4,
             band_block: 4,
             solver: SolverOptions::default(),
         }
     }
 }
+
+/// A worker's queue holds this many times [`PipelineConfig::channel_capacity`] messages: a
+/// source's block of up to 16 rows reaches a worker as up to this many strips' parts.
+pub const WORKER_QUEUE_FACTOR: usize = 4;
 
 /// What the pipeline produced for one sweep.
 #[derive(Clone, Debug)]
@@ -204,7 +216,9 @@ fn sweep(
     let mut spec = source.spec().clone();
     spec.options = config.solver;
     let (w, h) = (spec.width, spec.height);
-    let workers = config.workers.clamp(1, h.max(1));
+    let strips = Strips::new(h, config.strip_rows, config.workers);
+    let order = source.row_order();
+    let workers = strips.workers();
     let cap = config.channel_capacity.max(1);
     let start = Instant::now();
     let mut solver = SweepSolver::new(spec.clone(), prior.as_ref().map(|p| p.index));
@@ -222,9 +236,9 @@ fn sweep(
             "the thickness seed map does not have {w} x {h} pixels"
         )));
     }
-    let mut states: Vec<Option<ShardState>> = (0..workers)
-        .map(|i| {
-            let (first, rows) = shard_rows(h, workers, i);
+    let mut states: Vec<Option<ShardState>> = (0..strips.count())
+        .map(|k| {
+            let (first, rows) = strips.span(k);
             Some(match &seed {
                 Some((map, index)) => {
                     ShardState::seeded(first, &map[first * w..(first + rows) * w], w, *index, &spec)
@@ -251,25 +265,20 @@ fn sweep(
         let mut worker_txs = Vec::new();
         let mut start_txs = Vec::new();
         for i in 0..workers {
-            let (tx, rx) = bounded::<WorkerMsg>(cap);
+            let (tx, rx) = bounded::<WorkerMsg>(cap * WORKER_QUEUE_FACTOR);
             let (start_tx, start_rx) = bounded::<Start>(1);
             worker_txs.push(tx);
             start_txs.push(start_tx);
             let done = done_tx.clone();
-            let (first, _) = shard_rows(h, workers, i);
             let options = spec.options;
             let band_block = config.band_block.max(1);
             let block = [band_block, spec.bands_nm.len()];
-            // The last shard's rows are the last to arrive: it leaves those it cannot keep up
-            // with to the angle's end, where all cores tally them (the others have time).
-            let last_shard = i + 1 == workers;
-            scope
-                .spawn(move || worker(i, first, w, options, block, last_shard, start_rx, rx, done));
+            scope.spawn(move || worker(i, strips, w, options, block, order, start_rx, rx, done));
         }
         drop(done_tx);
         scope.spawn(move || source.stream(&src_tx));
         scope.spawn(move || {
-            calibrate_stage(src_rx, ctl_tx, worker_txs, (w, h), workers, tap, on_rows)
+            calibrate_stage(src_rx, ctl_tx, worker_txs, (w, h), strips, tap, on_rows)
         });
 
         let mut abort = None;
@@ -281,11 +290,17 @@ fn sweep(
                     let began = Arc::new(solver.context().clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
                     for (i, tx) in start_txs.iter().enumerate() {
-                        let mut st = states[i].take().unwrap_or_default();
-                        st.restore_trackers();
+                        let mine: Vec<ShardState> = strips
+                            .of_worker(i)
+                            .map(|k| {
+                                let mut st = states[k].take().unwrap_or_default();
+                                st.restore_trackers();
+                                st
+                            })
+                            .collect();
                         if tx
                             .send(Start {
-                                state: st,
+                                states: mine,
                                 models: snapshot.clone(),
                                 began: began.clone(),
                                 angles_left: left,
@@ -303,10 +318,12 @@ fn sweep(
                         match done_rx.recv() {
                             Ok(Done {
                                 worker: i,
-                                state,
+                                states: mine,
                                 tally,
                             }) => {
-                                states[i] = Some(state);
+                                for (k, st) in strips.of_worker(i).zip(mine) {
+                                    states[k] = Some(st);
+                                }
                                 tallies[i] = Some(tally);
                             }
                             Err(_) => abort = Some("a worker stopped".to_owned()),
@@ -322,7 +339,7 @@ fn sweep(
                     let mut shards: Vec<Shard<'_>> = owned
                         .iter_mut()
                         .enumerate()
-                        .map(|(i, st)| st.shard(shard_rows(h, workers, i).0, w))
+                        .map(|(k, st)| st.shard(strips.span(k).0, w))
                         .collect();
                     let last = solver.angles_done() + 1 == angles;
                     if let Some(hook) = hook.as_mut() {
@@ -335,24 +352,42 @@ fn sweep(
                         drain: at.elapsed(),
                         ..LatencyParts::default()
                     };
-                    tally_parallel(&mut solver, &mut shards, tallies, &mut parts);
+                    // A worker that handed back no tally leaves all its rows.
+                    let tallies = tallies
+                        .into_iter()
+                        .enumerate()
+                        .map(|(i, t)| {
+                            t.unwrap_or_else(|| ShardTally {
+                                tally: Box::default(),
+                                untallied: strips
+                                    .of_worker(i)
+                                    .flat_map(|k| {
+                                        let (first, n) = strips.span(k);
+                                        first..first + n
+                                    })
+                                    .collect(),
+                            })
+                        })
+                        .collect();
+                    tally_parallel(&mut solver, &mut shards, tallies, workers, &mut parts);
                     let releasing = Instant::now();
                     if last {
                         // The trackers are read no more (their flags kept): the results
                         // take their memory, not memory of their own on top of the state.
-                        each(&mut shards, Shard::keep_tracker_flags);
+                        each(&mut shards, workers, Shard::keep_tracker_flags);
                         drop(shards);
                         owned.iter_mut().for_each(ShardState::release_trackers);
                         results = vec![PixelResult::UNSOLVED; w * h];
                         shards = owned
                             .iter_mut()
                             .enumerate()
-                            .map(|(i, st)| st.shard(shard_rows(h, workers, i).0, w))
+                            .map(|(k, st)| st.shard(strips.span(k).0, w))
                             .collect();
                     }
                     parts.results = releasing.elapsed();
                     let out = last.then_some(results.as_mut_slice());
-                    let report = update_parallel(&mut solver, &mut shards, out, &mut parts);
+                    let report =
+                        update_parallel(&mut solver, &mut shards, out, workers, &mut parts);
                     reports.push(report);
                     latency_parts = parts;
                     if last {
@@ -394,15 +429,13 @@ fn sweep(
         if results.len() != w * h {
             results = vec![PixelResult::UNSOLVED; w * h];
         }
-        std::thread::scope(|scope| {
-            let mut rest = results.as_mut_slice();
-            for (i, st) in owned.iter_mut().enumerate() {
-                let (first, rows) = shard_rows(h, workers, i);
-                let (mine, tail) = rest.split_at_mut(rows * w);
-                rest = tail;
-                let solver = &solver;
-                scope.spawn(move || st.shard(first, w).finish(solver, mine));
-            }
+        let mut jobs: Vec<_> = owned
+            .iter_mut()
+            .zip(results.chunks_mut(strips.span(0).1 * w))
+            .enumerate()
+            .collect();
+        each(&mut jobs, workers, |(k, (st, mine))| {
+            st.shard(strips.span(*k).0, w).finish(&solver, mine)
         });
     }
     let done = Instant::now();
@@ -429,21 +462,33 @@ fn sweep(
     })
 }
 
-/// `f` of every shard, in shard order, the first on this thread.
-fn each<S: Send, T: Send>(shards: &mut [S], f: impl Fn(&mut S) -> T + Sync) -> Vec<T> {
-    let Some((first, rest)) = shards.split_first_mut() else {
+/// `f` of every item, in order, on `threads` threads (each a run of the items, the first run
+/// on this thread).
+fn each<S: Send, T: Send>(
+    items: &mut [S],
+    threads: usize,
+    f: impl Fn(&mut S) -> T + Sync,
+) -> Vec<T> {
+    if items.is_empty() {
         return Vec::new();
-    };
+    }
+    let run = items.len().div_ceil(threads.max(1));
+    let mut runs = items.chunks_mut(run);
+    let first = runs.next().unwrap_or_default();
     std::thread::scope(|s| {
         let f = &f;
-        let handles: Vec<_> = rest.iter_mut().map(|sh| s.spawn(move || f(sh))).collect();
-        let mut out = vec![f(first)];
-        // A worker's panic is the caller's: dropping its result would lose its votes
-        // (or misalign the ties) silently.
-        out.extend(handles.into_iter().map(|h| {
-            h.join()
-                .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
-        }));
+        let handles: Vec<_> = runs
+            .map(|part| s.spawn(move || part.iter_mut().map(f).collect::<Vec<T>>()))
+            .collect();
+        let mut out: Vec<T> = first.iter_mut().map(f).collect();
+        // A thread's panic is the caller's: dropping its results would lose votes (or
+        // misalign the ties) silently.
+        for h in handles {
+            out.extend(
+                h.join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic)),
+            );
+        }
         out
     })
 }
@@ -457,36 +502,37 @@ fn lap(clock: &mut Instant) -> std::time::Duration {
 }
 
 /// The angle end's first pass, run on all shards at once (then [`update_parallel`]), the
-/// last to read the trackers (their noise): `tallies` holds what each shard's worker tallied
-/// as its rows saw their last band (`None`: nothing); the rows left are tallied here, and
+/// last to read the trackers (their noise): `tallies` holds what each worker tallied
+/// as its rows saw their last band; the rows left are tallied here, and
 /// the solver takes the votes and the fit histogram.
 pub fn tally_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],
-    tallies: Vec<Option<ShardTally>>,
+    tallies: Vec<ShardTally>,
+    threads: usize,
     parts: &mut LatencyParts,
 ) {
     let mut clock = Instant::now();
     let mut hist = RatioHistogram::default();
     let mut fit = FitStats::default();
-    // The rows the workers left (all of a shard without its tally) are tallied here, on
-    // all cores (counts: the same sums in any order).
+    // The rows the workers left are tallied here, on all cores (counts: the same sums in
+    // any order), each by the shard that holds it (the shards in image order).
     let mut rows: Vec<(usize, usize)> = Vec::new();
-    for (k, sh) in shards.iter().enumerate() {
-        match tallies.get(k).and_then(Option::as_ref) {
-            Some(t) => {
-                hist.merge(&t.tally.votes);
-                fit.merge(&t.tally.fit);
-                rows.extend(t.untallied.iter().map(|&r| (k, r)));
-            }
-            None => rows.extend((sh.first_row..sh.first_row + sh.rows()).map(|r| (k, r))),
-        }
+    for t in &tallies {
+        hist.merge(&t.tally.votes);
+        fit.merge(&t.tally.fit);
+        rows.extend(t.untallied.iter().filter_map(|&r| {
+            let k = shards
+                .partition_point(|s| s.first_row <= r)
+                .checked_sub(1)?;
+            shards[k].holds(r).then_some((k, r))
+        }));
     }
     if !rows.is_empty() {
         let view: &[Shard<'_>] = shards;
         let mut parts: Vec<&[(usize, usize)]> =
-            rows.chunks(rows.len().div_ceil(view.len())).collect();
-        let tallied = each(&mut parts, |part| {
+            rows.chunks(rows.len().div_ceil(threads.max(1))).collect();
+        let tallied = each(&mut parts, threads, |part| {
             let mut t = Tally::default();
             for &(k, r) in part.iter() {
                 view[k].tally_rows(solver, r..r + 1, &mut t.votes, &mut t.fit);
@@ -503,7 +549,7 @@ pub fn tally_parallel(
     parts.tally = lap(&mut clock);
 }
 
-/// The angle end's passes after [`tally_parallel`], each run on all shards at once: the
+/// The angle end's passes after [`tally_parallel`], each run on `threads` threads: the
 /// index's sums, the update and the ties. At the sweep's last angle, `results` (the image's,
 /// row-major; the shards hold its rows in order) gets every pixel's final result
 /// ([`Shard::finish`]) from the same pass that updates it. `parts` gets each pass's wall
@@ -514,11 +560,12 @@ pub fn update_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],
     results: Option<&mut [PixelResult]>,
+    threads: usize,
     parts: &mut LatencyParts,
 ) -> AngleReport {
     let mut clock = Instant::now();
     // Per-row sums merged in row order: the same floating-point result for any sharding.
-    let mut rows: Vec<(usize, RatioSums, SchurSums)> = each(shards, |sh| {
+    let mut rows: Vec<(usize, RatioSums, SchurSums)> = each(shards, threads, |sh| {
         let mut v = Vec::with_capacity(sh.rows());
         sh.sums(solver, |r, w, s| v.push((r, w, s)));
         v
@@ -555,7 +602,7 @@ pub fn update_parallel(
                     .chain(std::iter::repeat_with(|| None)),
             )
             .collect();
-        each(&mut jobs, |(sh, out)| {
+        each(&mut jobs, threads, |(sh, out)| {
             let mut ties = TieSet::new(sh.pixels.len());
             sh.update(solver, out.as_deref_mut().map(|o| &mut **o), |i| {
                 ties.insert(i)

@@ -1,5 +1,5 @@
 //! The per-pixel state a worker owns while an angle streams, the band models it reads, what
-//! it tallies, and which rows each shard holds.
+//! it tallies, and which rows each worker holds ([`Strips`]).
 
 use filmscope_core::solve::extrema::SampleExtrema;
 use filmscope_core::solve::fit_row::{FitLanes, IndexLanes, IndexSampling};
@@ -20,10 +20,10 @@ pub struct Tally {
     pub fit: FitStats,
 }
 
-/// What a worker tallied of its shard by an angle's end.
+/// What a worker tallied of its strips by an angle's end.
 #[derive(Debug, Default)]
 pub struct ShardTally {
-    /// The tally of the shard's rows but `untallied`.
+    /// The tally of the worker's rows but `untallied`.
     pub tally: Box<Tally>,
     /// Image rows left for the angle's end.
     pub untallied: Vec<usize>,
@@ -185,9 +185,124 @@ fn tabulate_on(
     });
 }
 
-/// Rows `first..first + n` of shard `i` of `workers` over `height` rows.
-pub(super) fn shard_rows(height: usize, workers: usize, i: usize) -> (usize, usize) {
-    let first = height * i / workers;
-    let last = height * (i + 1) / workers;
-    (first, last - first)
+/// How the image's rows are dealt to the workers: strips of `rows` consecutive rows (a
+/// [`ShardState`] each), strip `k` to worker `k % workers`. Any source's row order then keeps
+/// every worker busy: a band's rows top to bottom (a camera's frames, BSQ) as much as a
+/// line-scan camera's lines with all their bands (BIL, BIP), whose first half would
+/// otherwise all go to one worker while the other waits. One worker takes the whole image
+/// as one strip.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Strips {
+    height: usize,
+    rows: usize,
+    workers: usize,
+}
+
+impl Strips {
+    /// Strips of `rows` rows of a `height`-row image for up to `workers` workers (no more
+    /// workers than strips).
+    pub fn new(height: usize, rows: usize, workers: usize) -> Self {
+        let height = height.max(1);
+        let rows = if workers <= 1 {
+            height
+        } else {
+            rows.clamp(1, height)
+        };
+        let workers = workers.clamp(1, height.div_ceil(rows));
+        Self {
+            height,
+            rows,
+            workers,
+        }
+    }
+
+    /// Strips in the image.
+    pub fn count(&self) -> usize {
+        self.height.div_ceil(self.rows)
+    }
+
+    /// Workers.
+    pub fn workers(&self) -> usize {
+        self.workers
+    }
+
+    /// Strip `k`'s first row and row count.
+    pub fn span(&self, k: usize) -> (usize, usize) {
+        let first = (k * self.rows).min(self.height);
+        (first, self.rows.min(self.height - first))
+    }
+
+    /// The strip that holds image row `row`.
+    pub fn of_row(&self, row: usize) -> usize {
+        row / self.rows
+    }
+
+    /// The worker of strip `k`.
+    pub fn worker(&self, k: usize) -> usize {
+        k % self.workers
+    }
+
+    /// Worker `i`'s strips, top to bottom.
+    pub fn of_worker(&self, i: usize) -> impl Iterator<Item = usize> {
+        (i..self.count()).step_by(self.workers)
+    }
+
+    /// Where worker `i` keeps image row `row`, if it is its: the place of its strip among
+    /// the worker's strips.
+    pub fn place(&self, i: usize, row: usize) -> Option<usize> {
+        let k = self.of_row(row);
+        (row < self.height && self.worker(k) == i).then_some(k / self.workers)
+    }
+
+    /// Worker `i`'s first row at or after `row` (the image's height if none).
+    pub fn next_row(&self, i: usize, row: usize) -> usize {
+        if self.place(i, row).is_some() {
+            return row;
+        }
+        let k = self.of_row(row);
+        let next = k + (i + self.workers - self.worker(k)) % self.workers;
+        (next * self.rows).min(self.height)
+    }
+
+    /// Rows worker `i` holds.
+    pub fn rows_of(&self, i: usize) -> usize {
+        self.of_worker(i).map(|k| self.span(k).1).sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Strips;
+
+    /// Every row belongs to exactly one strip and worker, the strips of a worker are found
+    /// again by `place` and `next_row`, and one worker holds the image as one strip.
+    #[test]
+    fn strips_deal_every_row_once() {
+        for (h, rows, workers) in [(1024, 4, 2), (1000, 4, 3), (7, 4, 2), (5, 8, 4), (64, 4, 1)] {
+            let s = Strips::new(h, rows, workers);
+            let mut seen = vec![0; h];
+            for i in 0..s.workers() {
+                for (place, k) in s.of_worker(i).enumerate() {
+                    let (first, n) = s.span(k);
+                    for (r, count) in seen.iter_mut().enumerate().skip(first).take(n) {
+                        *count += 1;
+                        assert_eq!(s.place(i, r), Some(place));
+                        assert_eq!(s.next_row(i, r), r);
+                    }
+                }
+                assert_eq!(
+                    s.rows_of(i),
+                    (0..h).filter(|&r| s.place(i, r).is_some()).count()
+                );
+                for r in 0..h {
+                    let next = s.next_row(i, r);
+                    assert!(next >= r && (next == h || s.place(i, next).is_some()));
+                    assert!((r..next).all(|q| s.place(i, q).is_none()));
+                }
+            }
+            assert!(seen.iter().all(|&n| n == 1), "{h} {rows} {workers}");
+        }
+        assert_eq!(Strips::new(64, 4, 1).count(), 1);
+        assert_eq!(Strips::new(5, 8, 4).workers(), 1);
+    }
 }

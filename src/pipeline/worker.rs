@@ -1,4 +1,4 @@
-//! A worker: the rows of its shard fed band by band into the trackers and the solver's sums,
+//! A worker: the rows of its strips fed band by band into the trackers and the solver's sums,
 //! held in blocks of bands, each row tallied once it has seen the angle's last band.
 
 use std::sync::Arc;
@@ -11,7 +11,8 @@ use filmscope_core::track::unpack_sample;
 
 use super::held::HeldBlock;
 use super::msg::{Done, Start, WorkerMsg, WorkerRows};
-use super::state::{BandModels, ShardTally, Tally};
+use super::state::{BandModels, ShardState, ShardTally, Strips, Tally};
+use crate::source::RowOrder;
 
 /// Bands of the block that starts at `band` of an angle's `bands`: `band_block`, but at most
 /// half of the bands left (rounded up) and at least [`FINAL_BLOCK_BANDS`] (or what is left).
@@ -43,17 +44,60 @@ pub fn streams_rows(first: usize, limit: usize, bands: usize) -> bool {
     first + limit >= bands
 }
 
-/// A worker: `block` is `[band_block, bands per angle]`;
-/// `last_shard`: whether its rows are the last of each band (it defers the tally of rows it
-/// cannot keep up with).
+/// A worker's strips over their states for an angle: rows routed to their strip's shard.
+struct Owned<'a> {
+    shards: Vec<Shard<'a>>,
+    strips: Strips,
+    worker: usize,
+    width: usize,
+}
+
+impl<'a> Owned<'a> {
+    fn new(states: &'a mut [ShardState], strips: Strips, worker: usize, width: usize) -> Self {
+        let shards = states
+            .iter_mut()
+            .zip(strips.of_worker(worker))
+            .map(|(st, k)| st.shard(strips.span(k).0, width))
+            .collect();
+        Self {
+            shards,
+            strips,
+            worker,
+            width,
+        }
+    }
+
+    /// The shard that holds image row `row`, if this worker does.
+    fn at(&mut self, row: usize) -> Option<&mut Shard<'a>> {
+        let place = self.strips.place(self.worker, row)?;
+        self.shards.get_mut(place)
+    }
+
+    /// The worker's first row at or after `row`.
+    fn next_row(&self, row: usize) -> usize {
+        self.strips.next_row(self.worker, row)
+    }
+
+    /// The worker's image rows, top to bottom.
+    fn rows(&self) -> impl Iterator<Item = usize> + '_ {
+        self.shards
+            .iter()
+            .flat_map(|s| s.first_row..s.first_row + s.rows())
+    }
+}
+
+/// A worker: `block` is `[band_block, bands per angle]`; `strips` says which rows are its
+/// (worker `index`'s strips); `order` is the source's. A worker behind the stream (rows
+/// waiting in its queue) leaves the tally of the rows it completes to the angle's end, where
+/// all cores tally them.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn worker(
     index: usize,
-    first_row: usize,
+    strips: Strips,
     width: usize,
     options: SolverOptions,
     block: [usize; 2],
-    last_shard: bool,
+    order: RowOrder,
     start: Receiver<Start>,
     rows: Receiver<WorkerMsg>,
     done: Sender<Done>,
@@ -61,21 +105,22 @@ pub(super) fn worker(
     let [band_block, bands] = block;
     let mut held = HeldBlock::default();
     for Start {
-        state: mut st,
+        mut states,
         models,
         began,
         angles_left,
     } in start.iter()
     {
-        let mut shard = st.shard(first_row, width);
-        shard.begin_angle();
-        let shard_rows = shard.rows();
+        let mut owned = Owned::new(&mut states, strips, index, width);
+        owned.shards.iter_mut().for_each(Shard::begin_angle);
+        let shard_rows = strips.rows_of(index);
         held.size_for(band_block * shard_rows * width);
-        let mut tally = RowTally::new(began, bands, shard_rows, last_shard);
+        let mut tally = RowTally::new(began, bands, &owned);
         let (mut bands_held, mut rows_of_band, mut limit) = (0, 0, band_block);
         // The block's first band, and the image row below which its held rows were fed
         // (the angle's last block: [`streams_rows`]).
-        let (mut first_band, mut fed_to) = (0, shard.first_row);
+        let first_row = owned.next_row(0);
+        let (mut first_band, mut fed_to) = (0, first_row);
         loop {
             match rows.recv() {
                 Ok(WorkerMsg::Rows(WorkerRows {
@@ -86,24 +131,38 @@ pub(super) fn worker(
                 })) => {
                     // Rows waiting: the worker is behind the stream.
                     let behind = !rows.is_empty();
+                    if order == RowOrder::LineMajor {
+                        // Lines arrive with all their bands: held until the block is full,
+                        // then fed a few rows at a time with every band held, so that the
+                        // rows' state stays in cache while all their bands pass (a band
+                        // block would walk it once every few bands).
+                        if !held.fits(values.len()) {
+                            feed_rest(
+                                &mut owned, options, &models, &mut held, first_row, &mut tally,
+                                behind,
+                            );
+                        }
+                        held.push(band, row, n, &values);
+                        continue;
+                    }
                     if !held.fits(values.len()) {
                         // Only rows sent twice overfill a block: feed what it holds.
                         feed_rest(
-                            &mut shard, options, &models, &mut held, fed_to, &mut tally, behind,
+                            &mut owned, options, &models, &mut held, fed_to, &mut tally, behind,
                         );
                         bands_held = 0;
                     }
                     if held.last_band().is_none_or(|b| b != band) {
                         if bands_held == limit {
                             feed_rest(
-                                &mut shard, options, &models, &mut held, fed_to, &mut tally, behind,
+                                &mut owned, options, &models, &mut held, fed_to, &mut tally, behind,
                             );
                             bands_held = 0;
                         }
                         if bands_held == 0 {
                             first_band = usize::from(band);
                             limit = block_bands(first_band, bands, band_block);
-                            fed_to = shard.first_row;
+                            fed_to = first_row;
                         }
                         bands_held += 1;
                         rows_of_band = 0;
@@ -118,16 +177,16 @@ pub(super) fn worker(
                         // of one band as its rows arrive): the rows still held when the angle
                         // ends are latency.
                         feed_rest(
-                            &mut shard, options, &models, &mut held, fed_to, &mut tally, behind,
+                            &mut owned, options, &models, &mut held, fed_to, &mut tally, behind,
                         );
                         bands_held = 0;
                     } else if bands_held == limit
-                        && rows_in.start == fed_to
+                        && rows_in.start == owned.next_row(fed_to)
                         && streams_rows(first_band, limit, bands)
                     {
                         let part = fed_to..rows_in.end;
                         feed_held(
-                            &mut shard, options, &models, &held, part, &mut tally, behind,
+                            &mut owned, options, &models, &held, part, &mut tally, behind,
                         );
                         fed_to = rows_in.end;
                     }
@@ -138,17 +197,18 @@ pub(super) fn worker(
             }
         }
         feed_rest(
-            &mut shard, options, &models, &mut held, fed_to, &mut tally, true,
+            &mut owned, options, &models, &mut held, fed_to, &mut tally, true,
         );
         // After the last angle, given back before the state is: the coordinator allocates
         // the results then.
         if angles_left <= 1 {
             held.release();
         }
-        let tally = tally.finish(&shard);
+        let tally = tally.finish(&owned);
+        drop(owned);
         let back = Done {
             worker: index,
-            state: st,
+            states,
             tally,
         };
         if done.send(back).is_err() {
@@ -171,39 +231,34 @@ struct RowTally {
     solver: Arc<SweepContext>,
     /// Bands per angle.
     bands: u32,
-    /// Bands fed to each row of the shard.
+    /// Bands fed to each image row (the worker's only).
     fed: Vec<u32>,
     tally: Box<Tally>,
     /// Votes of the extrema found before each row's last [`VOTE_AHEAD_BANDS`] bands
     /// ([`Shard::vote_rows`]): kept apart, as they count whether or not the rows' tallies do.
     early_votes: Box<RatioHistogram>,
-    /// Whether a row completed while rows wait in the queue is left to the angle's end.
-    defer_if_behind: bool,
     /// Rows left to the angle's end.
     deferred: Vec<usize>,
 }
 
 impl RowTally {
-    fn new(solver: Arc<SweepContext>, bands: usize, rows: usize, defer_if_behind: bool) -> Self {
+    fn new(solver: Arc<SweepContext>, bands: usize, owned: &Owned<'_>) -> Self {
+        let height = owned.rows().max().map_or(0, |r| r + 1);
         Self {
             solver,
             bands: bands as u32,
-            fed: vec![0; rows],
+            fed: vec![0; height],
             tally: Box::default(),
             early_votes: Box::default(),
-            defer_if_behind,
             deferred: Vec::new(),
         }
     }
 
-    /// Counts a band fed to image row `row` of `shard`, votes the row's extrema so far
+    /// Counts a band fed to image row `row`, votes the row's extrema so far
     /// [`VOTE_AHEAD_BANDS`] bands before its last, and tallies the row when that was its
     /// last (or defers it, if `behind`: rows wait in the worker's queue).
-    fn fed(&mut self, shard: &mut Shard<'_>, row: usize, behind: bool) {
-        let Some(n) = row
-            .checked_sub(shard.first_row)
-            .and_then(|k| self.fed.get_mut(k))
-        else {
+    fn fed(&mut self, owned: &mut Owned<'_>, row: usize, behind: bool) {
+        let (Some(n), Some(shard)) = (self.fed.get_mut(row), owned.at(row)) else {
             return;
         };
         *n += 1;
@@ -211,7 +266,7 @@ impl RowTally {
             shard.vote_rows(&self.solver, row..row + 1, &mut self.early_votes);
         }
         if *n == self.bands {
-            if behind && self.defer_if_behind {
+            if behind {
                 self.deferred.push(row);
             } else {
                 let Tally { votes, fit } = &mut *self.tally;
@@ -220,16 +275,18 @@ impl RowTally {
         }
     }
 
-    /// What was tallied of `shard`: when every row was fed the angle's band count (each was
-    /// tallied or deferred at its last feed), the tally and the deferred rows; if any row was
-    /// fed more or fewer times, no row's tally counts and the whole shard is left (the early
-    /// votes count either way).
-    fn finish(self, shard: &Shard<'_>) -> ShardTally {
-        let (mut tally, untallied) = if self.fed.iter().all(|&n| n == self.bands) {
+    /// What was tallied of the worker's rows: when every row was fed the angle's band count
+    /// (each was tallied or deferred at its last feed), the tally and the deferred rows; if
+    /// any row was fed more or fewer times, no row's tally counts and every row is left (the
+    /// early votes count either way).
+    fn finish(self, owned: &Owned<'_>) -> ShardTally {
+        let complete = owned
+            .rows()
+            .all(|r| self.fed.get(r).is_some_and(|&n| n == self.bands));
+        let (mut tally, untallied) = if complete {
             (self.tally, self.deferred)
         } else {
-            let all = (shard.first_row..shard.first_row + shard.rows()).collect();
-            (Box::default(), all)
+            (Box::default(), owned.rows().collect())
         };
         // The early votes count either way: a row's tally votes only the extrema after them.
         tally.votes.merge(&self.early_votes);
@@ -240,7 +297,7 @@ impl RowTally {
 /// Feeds the held rows from image row `from` on ([`feed_held`]) and empties `held`: a block
 /// done (its rows before `from` were fed as they arrived, [`streams_rows`]).
 fn feed_rest(
-    shard: &mut Shard<'_>,
+    owned: &mut Owned<'_>,
     options: SolverOptions,
     models: &BandModels,
     held: &mut HeldBlock,
@@ -249,7 +306,7 @@ fn feed_rest(
     behind: bool,
 ) {
     feed_held(
-        shard,
+        owned,
         options,
         models,
         held,
@@ -260,11 +317,11 @@ fn feed_rest(
     held.clear();
 }
 
-/// Feeds the held rows of image rows `rows` to the shard a block of rows at a time, each
+/// Feeds the held rows of image rows `rows` to their shards a block of rows at a time, each
 /// block's bands in the order they arrived (so every pixel sees its bands in order); each
 /// row's last band of the angle tallies it.
 fn feed_held(
-    shard: &mut Shard<'_>,
+    owned: &mut Owned<'_>,
     options: SolverOptions,
     models: &BandModels,
     held: &HeldBlock,
@@ -274,8 +331,11 @@ fn feed_held(
 ) {
     /// Bytes of pixel state a block of rows should keep in cache while its bands pass.
     const BLOCK_BYTES: usize = 256 * 1024;
-    let width = shard.width;
-    let bytes = filmscope_core::solve::state_bytes_per_pixel(shard.sampling(), width);
+    let width = owned.width;
+    let Some(sampling) = owned.shards.first().map(Shard::sampling) else {
+        return;
+    };
+    let bytes = filmscope_core::solve::state_bytes_per_pixel(sampling, width);
     let block_rows = (BLOCK_BYTES / (width * bytes).max(1)).max(1);
     let (Some(lo), Some(hi)) = (
         held.entries().iter().map(|h| h.image_rows().start).min(),
@@ -285,19 +345,25 @@ fn feed_held(
     };
     let (lo, hi) = (lo.max(rows.start), hi.min(rows.end));
     let mut unpacked = vec![0.0; width];
-    for block in (lo..hi).step_by(block_rows) {
+    let mut block = lo;
+    while block < hi {
         let block_end = (block + block_rows).min(hi);
         for e in held.entries() {
             let image_rows = e.image_rows();
             for r in image_rows.start.max(block)..image_rows.end.min(block_end) {
+                let Some(shard) = owned.at(r) else {
+                    continue;
+                };
                 let k = r - image_rows.start;
                 for (x, &q) in unpacked.iter_mut().zip(held.row(e, k, width)) {
                     *x = unpack_sample(q);
                 }
                 shard.feed_row(options, models.view(), usize::from(e.band), r, &unpacked);
-                tally.fed(shard, r, behind);
+                tally.fed(owned, r, behind);
             }
         }
+        // The next block starts at the worker's next row (other workers' strips skipped).
+        block = owned.next_row(block_end).max(block_end);
     }
 }
 

@@ -6,7 +6,7 @@ use crossbeam_channel::Sender;
 use filmscope_core::solve::SweepSpec;
 
 use super::{
-    row_runs, sweep_spec, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
+    row_runs, sweep_spec, RowBlock, RowOrder, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
     DEFAULT_THICKNESS_RANGE_NM,
 };
 use crate::io::{Capture, EnviReader};
@@ -27,6 +27,8 @@ pub struct CaptureSource {
     capture: Capture,
     spec: SweepSpec,
     saturation_counts: f32,
+    /// The first cube's: `bil` and `bip` are read a run of lines at a time.
+    row_order: RowOrder,
 }
 
 impl CaptureSource {
@@ -77,10 +79,15 @@ impl CaptureSource {
             (crate::io::DataType::U16, None) => 65535.0,
             _ => f32::INFINITY,
         };
+        let row_order = match first.header().interleave {
+            crate::io::Interleave::Bsq => RowOrder::BandMajor,
+            _ => RowOrder::LineMajor,
+        };
         Ok(Self {
             capture,
             spec,
             saturation_counts,
+            row_order,
         })
     }
 
@@ -252,5 +259,9 @@ impl Source for CaptureSource {
 
     fn stream_rows(&mut self, tx: &Sender<StreamMsg>, rows: &[usize]) {
         self.stream_only(tx, Some(rows));
+    }
+
+    fn row_order(&self) -> RowOrder {
+        self.row_order
     }
 }

@@ -37,6 +37,19 @@ pub trait Source: Send {
     fn replayable(&self) -> bool {
         true
     }
+    /// The order the stream's rows come in: the workers hold them accordingly.
+    fn row_order(&self) -> RowOrder {
+        RowOrder::BandMajor
+    }
+}
+
+/// The order of a stream's blocks of rows within an angle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RowOrder {
+    /// Band by band, each band's rows top to bottom (a camera's frames, BSQ).
+    BandMajor,
+    /// Line by line, each run of lines with all its bands (a line-scan camera, BIL, BIP).
+    LineMajor,
 }
 
 /// Builds a [`SweepSpec`] from band lists and the sample's optics.

@@ -605,6 +605,9 @@ impl FitLanes {
         x: &mut [Lanes; N],
     ) {
         let [c, lo, hi] = at.pairs;
+        // The lanes' models first, then their sums: two short loops vectorise where one
+        // long one was left scalar.
+        let mut model = [[0.0; LANES]; 5];
         for i in 0..LANES {
             let s = SampleModel::from_knots(
                 c.knots(i, [at.j_n[0][i], at.j_n[1][i]]),
@@ -613,6 +616,20 @@ impl FitLanes {
                 (hi.knots(i, [0.0; 2]), at.frac[2][i]),
                 at.inv_h,
             );
+            model[0][i] = s.m;
+            model[1][i] = s.j_d;
+            model[2][i] = s.j_n;
+            model[3][i] = s.m_minus;
+            model[4][i] = s.m_plus;
+        }
+        for i in 0..LANES {
+            let s = SampleModel {
+                m: model[0][i],
+                j_d: model[1][i],
+                j_n: model[2][i],
+                m_minus: model[3][i],
+                m_plus: model[4][i],
+            };
             let add = !MASKED || inside[i] != 0;
             for (k, t) in GnSums::pixel_terms(s, v[i], u).into_iter().enumerate() {
                 let sum = self.sums[k][i];
@@ -624,10 +641,13 @@ impl FitLanes {
                     let sum = x[k][i];
                     x[k][i] = if add { sum + t } else { sum };
                 }
-            } else if let [jn, res] = &mut x[..] {
-                jn[i] = s.j_n;
-                res[i] = r;
+            } else if N == 2 {
+                x[0][i] = s.j_n;
+                x[1][i] = r;
             }
+        }
+        for i in 0..LANES {
+            let add = !MASKED || inside[i] != 0;
             self.gn_samples[i] = self.gn_samples[i].saturating_add(u16::from(add));
         }
     }
