@@ -329,3 +329,28 @@ fn band_tables_do_not_depend_on_the_threads_tabulating_them() {
         assert!(text(&many) == text(&one), "{threads} threads");
     }
 }
+
+/// Rows dealt to the workers in strips of any height (one row, three, more than a source's
+/// block, the whole image) give the same maps as one worker.
+#[test]
+fn strips_of_any_height_give_the_same_maps() {
+    let scene = tiny_45x23();
+    let mut source =
+        || SimSource::new(SoftwareCamera::new(scene.clone()), false, 4).expect("source");
+    let reference = run(&mut source(), 1, 64);
+    for strip_rows in [1, 3, 17, 64] {
+        let mut config = RunConfig {
+            pipeline: PipelineConfig {
+                workers: 2,
+                strip_rows,
+                ..PipelineConfig::default()
+            },
+            ..RunConfig::default()
+        };
+        config.pipeline.solver.index_pixels = INDEX_PIXELS;
+        let got = run_method(&mut source(), &config, &|_| {})
+            .expect("run")
+            .result;
+        same(&reference, &got, &format!("strips of {strip_rows} rows"));
+    }
+}

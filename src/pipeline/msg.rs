@@ -39,8 +39,8 @@ pub(super) struct WorkerRows {
 /// The solver's context as the angle began tallies the rows that have seen the angle's last
 /// band.
 pub(super) struct Start {
-    /// The states of the worker's strips, top to bottom.
-    pub(super) states: Vec<ShardState>,
+    /// The state of the worker's strips ([`ShardState::for_worker`]).
+    pub(super) state: ShardState,
     /// The band models of the angle.
     pub(super) models: Arc<BandModels>,
     /// The solver's context as the angle began.
@@ -54,8 +54,8 @@ pub(super) struct Start {
 pub(super) struct Done {
     /// The worker.
     pub(super) worker: usize,
-    /// Its strips' states, top to bottom.
-    pub(super) states: Vec<ShardState>,
+    /// Its strips' state.
+    pub(super) state: ShardState,
     /// What it tallied.
     pub(super) tally: ShardTally,
 }

@@ -236,15 +236,10 @@ fn sweep(
             "the thickness seed map does not have {w} x {h} pixels"
         )));
     }
-    let mut states: Vec<Option<ShardState>> = (0..strips.count())
-        .map(|k| {
-            let (first, rows) = strips.span(k);
-            Some(match &seed {
-                Some((map, index)) => {
-                    ShardState::seeded(first, &map[first * w..(first + rows) * w], w, *index, &spec)
-                }
-                None => ShardState::empty(rows, w, spec.index_sampling()),
-            })
+    let mut states: Vec<Option<ShardState>> = (0..workers)
+        .map(|i| {
+            let seed = seed.as_ref().map(|(map, index)| (map.as_slice(), *index));
+            Some(ShardState::for_worker(strips, i, &spec, seed))
         })
         .collect();
     let mut reports = Vec::new();
@@ -290,17 +285,11 @@ fn sweep(
                     let began = Arc::new(solver.context().clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
                     for (i, tx) in start_txs.iter().enumerate() {
-                        let mine: Vec<ShardState> = strips
-                            .of_worker(i)
-                            .map(|k| {
-                                let mut st = states[k].take().unwrap_or_default();
-                                st.restore_trackers();
-                                st
-                            })
-                            .collect();
+                        let mut st = states[i].take().unwrap_or_default();
+                        st.restore_trackers();
                         if tx
                             .send(Start {
-                                states: mine,
+                                state: st,
                                 models: snapshot.clone(),
                                 began: began.clone(),
                                 angles_left: left,
@@ -318,12 +307,10 @@ fn sweep(
                         match done_rx.recv() {
                             Ok(Done {
                                 worker: i,
-                                states: mine,
+                                state,
                                 tally,
                             }) => {
-                                for (k, st) in strips.of_worker(i).zip(mine) {
-                                    states[k] = Some(st);
-                                }
+                                states[i] = Some(state);
                                 tallies[i] = Some(tally);
                             }
                             Err(_) => abort = Some("a worker stopped".to_owned()),
@@ -336,11 +323,7 @@ fn sweep(
                         .iter_mut()
                         .map(|s| s.take().unwrap_or_default())
                         .collect();
-                    let mut shards: Vec<Shard<'_>> = owned
-                        .iter_mut()
-                        .enumerate()
-                        .map(|(k, st)| st.shard(strips.span(k).0, w))
-                        .collect();
+                    let mut shards = image_shards(&mut owned, strips, w);
                     let last = solver.angles_done() + 1 == angles;
                     if let Some(hook) = hook.as_mut() {
                         let complete = solver.angles_done() + 1;
@@ -378,11 +361,7 @@ fn sweep(
                         drop(shards);
                         owned.iter_mut().for_each(ShardState::release_trackers);
                         results = vec![PixelResult::UNSOLVED; w * h];
-                        shards = owned
-                            .iter_mut()
-                            .enumerate()
-                            .map(|(k, st)| st.shard(strips.span(k).0, w))
-                            .collect();
+                        shards = image_shards(&mut owned, strips, w);
                     }
                     parts.results = releasing.elapsed();
                     let out = last.then_some(results.as_mut_slice());
@@ -429,14 +408,11 @@ fn sweep(
         if results.len() != w * h {
             results = vec![PixelResult::UNSOLVED; w * h];
         }
-        let mut jobs: Vec<_> = owned
-            .iter_mut()
+        let mut jobs: Vec<_> = image_shards(&mut owned, strips, w)
+            .into_iter()
             .zip(results.chunks_mut(strips.span(0).1 * w))
-            .enumerate()
             .collect();
-        each(&mut jobs, workers, |(k, (st, mine))| {
-            st.shard(strips.span(*k).0, w).finish(&solver, mine)
-        });
+        each(&mut jobs, workers, |(sh, mine)| sh.finish(&solver, mine));
     }
     let done = Instant::now();
     let state_bytes_per_pixel =
@@ -460,6 +436,17 @@ fn sweep(
         samples,
         state_bytes_per_pixel,
     })
+}
+
+/// Every strip's shard over the workers' states (`states[i]` worker `i`'s), in image order.
+fn image_shards(states: &mut [ShardState], strips: Strips, width: usize) -> Vec<Shard<'_>> {
+    let mut shards: Vec<Shard<'_>> = states
+        .iter_mut()
+        .enumerate()
+        .flat_map(|(i, st)| st.shards(strips.spans_of(i), width))
+        .collect();
+    shards.sort_by_key(|s| s.first_row);
+    shards
 }
 
 /// `f` of every item, in order, on `threads` threads (each a run of the items, the first run

@@ -63,20 +63,25 @@ impl ShardState {
         }
     }
 
-    /// Pixels of rows of `width` from image row `first_row` on that start at the
-    /// thicknesses `seed` (NaN: none) with `index` ([`Shard::seed`]).
-    pub fn seeded(
-        first_row: usize,
-        seed: &[f32],
-        width: usize,
-        index: IndexModel,
+    /// Worker `worker`'s state over its strips' rows (one allocation per array however many
+    /// strips: freed at once, the memory goes back to the system for the results), its
+    /// pixels starting at the thicknesses of `seed` (the image's, row-major; NaN: none) with
+    /// its index, where given ([`Shard::seed`]).
+    pub fn for_worker(
+        strips: Strips,
+        worker: usize,
         spec: &SweepSpec,
+        seed: Option<(&[f32], IndexModel)>,
     ) -> Self {
-        let rows = seed.len().checked_div(width).unwrap_or(0);
-        let mut state = Self::empty(rows, width, spec.index_sampling());
-        let mut shard = state.shard(first_row, width);
-        for (i, &d) in seed.iter().enumerate() {
-            shard.seed(i, d, index, spec);
+        let w = spec.width;
+        let mut state = Self::empty(strips.rows_of(worker), w, spec.index_sampling());
+        if let Some((map, index)) = seed {
+            for shard in state.shards(strips.spans_of(worker), w).iter_mut() {
+                let at = shard.first_row * w;
+                for (i, &d) in map[at..at + shard.pixels.len()].iter().enumerate() {
+                    shard.seed(i, d, index, spec);
+                }
+            }
         }
         state
     }
@@ -94,6 +99,48 @@ impl ShardState {
         if self.trackers.is_empty() {
             self.trackers = vec![TrackerLanes::EMPTY; self.fits.len()];
         }
+    }
+
+    /// Shards over consecutive runs of this state's rows, each run's first image row and
+    /// row count given by `spans` (in the state's order; their rows the state's).
+    pub fn shards(
+        &mut self,
+        spans: impl IntoIterator<Item = (usize, usize)>,
+        width: usize,
+    ) -> Vec<Shard<'_>> {
+        let per_row = self.sampling.blocks_per_row(width);
+        let blocks = tracker_blocks(width, width);
+        let released = self.trackers.is_empty();
+        let mut pixels = &mut self.pixels[..];
+        let mut trackers = &mut self.trackers[..];
+        let mut fits = &mut self.fits[..];
+        let mut index = &mut self.index[..];
+        let mut lists = &mut self.lists[..];
+        /// The first `n` of `rest`, `rest` left with the others.
+        fn take<'a, T>(rest: &mut &'a mut [T], n: usize) -> &'a mut [T] {
+            let all = std::mem::take(rest);
+            let (head, tail) = all.split_at_mut(n.min(all.len()));
+            *rest = tail;
+            head
+        }
+        spans
+            .into_iter()
+            .map(|(first, rows)| {
+                let t = if released { 0 } else { rows * blocks };
+                Shard::new(
+                    first,
+                    width,
+                    take(&mut pixels, rows * width),
+                    take(&mut trackers, t),
+                    take(&mut fits, rows * blocks),
+                    (
+                        self.sampling,
+                        take(&mut index, rows * per_row),
+                        take(&mut lists, rows * per_row * LANES),
+                    ),
+                )
+            })
+            .collect()
     }
 
     /// The shard over this state, its first row `first_row`.
@@ -262,6 +309,11 @@ impl Strips {
         let k = self.of_row(row);
         let next = k + (i + self.workers - self.worker(k)) % self.workers;
         (next * self.rows).min(self.height)
+    }
+
+    /// Worker `i`'s strips as first row and row count, top to bottom.
+    pub fn spans_of(&self, i: usize) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.of_worker(i).map(|k| self.span(k))
     }
 
     /// Rows worker `i` holds.

@@ -53,12 +53,8 @@ struct Owned<'a> {
 }
 
 impl<'a> Owned<'a> {
-    fn new(states: &'a mut [ShardState], strips: Strips, worker: usize, width: usize) -> Self {
-        let shards = states
-            .iter_mut()
-            .zip(strips.of_worker(worker))
-            .map(|(st, k)| st.shard(strips.span(k).0, width))
-            .collect();
+    fn new(state: &'a mut ShardState, strips: Strips, worker: usize, width: usize) -> Self {
+        let shards = state.shards(strips.spans_of(worker), width);
         Self {
             shards,
             strips,
@@ -105,13 +101,13 @@ pub(super) fn worker(
     let [band_block, bands] = block;
     let mut held = HeldBlock::default();
     for Start {
-        mut states,
+        state: mut st,
         models,
         began,
         angles_left,
     } in start.iter()
     {
-        let mut owned = Owned::new(&mut states, strips, index, width);
+        let mut owned = Owned::new(&mut st, strips, index, width);
         owned.shards.iter_mut().for_each(Shard::begin_angle);
         let shard_rows = strips.rows_of(index);
         held.size_for(band_block * shard_rows * width);
@@ -208,7 +204,7 @@ pub(super) fn worker(
         drop(owned);
         let back = Done {
             worker: index,
-            states,
+            state: st,
             tally,
         };
         if done.send(back).is_err() {
