@@ -335,8 +335,7 @@ fn band_tables_do_not_depend_on_the_threads_tabulating_them() {
 #[test]
 fn strips_of_any_height_give_the_same_maps() {
     let scene = tiny_45x23();
-    let mut source =
-        || SimSource::new(SoftwareCamera::new(scene.clone()), false, 4).expect("source");
+    let source = || SimSource::new(SoftwareCamera::new(scene.clone()), false, 4).expect("source");
     let reference = run(&mut source(), 1, 64);
     for strip_rows in [1, 3, 17, 64] {
         let mut config = RunConfig {
