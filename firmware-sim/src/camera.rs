@@ -61,6 +61,9 @@ type ColumnEntry = (usize, usize, Arc<Vec<BandModel>>);
 /// `(angle, band)`s whose column models are kept.
 const COLUMN_ENTRIES: usize = 8;
 
+/// Columns [`SoftwareCamera::expose`] prepares at a time before drawing their noise.
+const CHUNK: usize = 256;
+
 impl Clone for ColumnModels {
     fn clone(&self) -> Self {
         Self::default()
@@ -295,27 +298,42 @@ impl SoftwareCamera {
                 let gain = s.gain_e_per_count;
                 let per_e = 1.0 / gain;
                 let read = s.read_noise_counts;
-                for col in 0..w {
-                    let signal = (lit(col) * r(col)).max(0.0);
-                    let electrons = rng.fast_poisson(signal * gain);
-                    let counts = dark + electrons * per_e + read * rng.fast_normal();
-                    emit(col, round_clamp(counts, sat));
+                // Per chunk of columns, the mean electrons first (no draws, no branches),
+                // then the draws: the generator's chain is all the second loop carries.
+                let mut mean = [0f64; CHUNK];
+                for start in (0..w).step_by(CHUNK) {
+                    let mean = &mut mean[..CHUNK.min(w - start)];
+                    for (k, m) in mean.iter_mut().enumerate() {
+                        let col = start + k;
+                        *m = (lit(col) * r(col)).max(0.0) * gain;
+                    }
+                    for (k, &m) in mean.iter().enumerate() {
+                        let electrons = rng.fast_poisson(m);
+                        let counts = dark + electrons * per_e + read * rng.fast_normal();
+                        emit(start + k, round_clamp(counts, sat));
+                    }
                 }
             }
             (None, Exposure::Reference { frames }) => {
                 // The mean of `frames` exposures: shot and read noise shrink by sqrt(frames);
                 // drawn at once (the central limit of the per-frame Poisson and Gaussian
-                // draws) rather than frame by frame.
+                // draws) rather than frame by frame. Per chunk of columns, each pixel's
+                // noise-free level and deviation first, then the draws.
                 let kf = f64::from(frames);
                 let shot_var = 1.0 / (s.gain_e_per_count * kf);
                 let read_var = s.read_noise_counts * s.read_noise_counts / kf;
-                for col in 0..w {
-                    let signal = (lit(col) * r(col)).max(0.0);
-                    let sd = (signal * shot_var + read_var).sqrt();
-                    emit(
-                        col,
-                        (dark + signal + sd * rng.fast_normal()).clamp(0.0, sat),
-                    );
+                let (mut level, mut sd) = ([0f64; CHUNK], [0f64; CHUNK]);
+                for start in (0..w).step_by(CHUNK) {
+                    let n = CHUNK.min(w - start);
+                    let (level, sd) = (&mut level[..n], &mut sd[..n]);
+                    for (k, (l, d)) in level.iter_mut().zip(sd.iter_mut()).enumerate() {
+                        let signal = (lit(start + k) * r(start + k)).max(0.0);
+                        *d = (signal * shot_var + read_var).sqrt();
+                        *l = dark + signal;
+                    }
+                    for (k, (&l, &d)) in level.iter().zip(sd.iter()).enumerate() {
+                        emit(start + k, (l + d * rng.fast_normal()).clamp(0.0, sat));
+                    }
                 }
             }
         }
