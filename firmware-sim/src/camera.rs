@@ -251,6 +251,7 @@ impl SoftwareCamera {
     /// the scene's `reflectance_noise_percent`, the sample gets that Gaussian reflectance
     /// noise and the references none. Every pixel takes its draws in column order, then the
     /// defective ones are overwritten.
+    #[inline(always)]
     fn expose(
         &self,
         band: usize,
@@ -351,53 +352,68 @@ impl SoftwareCamera {
     /// Raw counts of one row of the sample (one exposure), as the camera link delivers them.
     /// Its band reflectance comes from the `(angle, band)`'s table where there is one.
     pub fn raw_row(&self, angle: usize, band: usize, row: usize, out: &mut [u16]) {
-        let w = self.width();
-        let mut rng = self.rng(STREAM_SAMPLE, angle, band, row);
-        let emit = |c: usize, v: f64| out[c] = v as u16;
-        match &self.tables[angle * self.scene.bands_nm.len() + band] {
-            Some(table) => {
-                let thickness = &self.scene.thickness_nm[row * w..(row + 1) * w];
-                let r = |c: usize| table.reflectance(f64::from(thickness[c]));
-                self.expose(band, row, Exposure::Sample, &mut rng, r, emit);
+        filmscope_core::simd::wide(true, {
+            #[inline(always)]
+            || {
+                let w = self.width();
+                let mut rng = self.rng(STREAM_SAMPLE, angle, band, row);
+                let emit = |c: usize, v: f64| out[c] = v as u16;
+                match &self.tables[angle * self.scene.bands_nm.len() + band] {
+                    Some(table) => {
+                        let thickness = &self.scene.thickness_nm[row * w..(row + 1) * w];
+                        let r = |c: usize| table.reflectance(f64::from(thickness[c]));
+                        self.expose(band, row, Exposure::Sample, &mut rng, r, emit);
+                    }
+                    None => {
+                        let mut refl = vec![0f32; w];
+                        self.reflectance_row(angle, band, row, &mut refl);
+                        let r = |c: usize| f64::from(refl[c]);
+                        self.expose(band, row, Exposure::Sample, &mut rng, r, emit);
+                    }
+                }
             }
-            None => {
-                let mut refl = vec![0f32; w];
-                self.reflectance_row(angle, band, row, &mut refl);
-                let r = |c: usize| f64::from(refl[c]);
-                self.expose(band, row, Exposure::Sample, &mut rng, r, emit);
-            }
-        }
+        })
     }
 
     /// The white reference row (a perfect diffuse white, `white_frames` exposures averaged),
     /// in counts, dark included.
     pub fn white_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
-        let mut rng = self.rng(STREAM_WHITE, angle, band, row);
-        let frames = self.scene.sensor.white_frames;
-        let emit = |c: usize, v: f64| out[c] = v as f32;
-        self.expose(
-            band,
-            row,
-            Exposure::Reference { frames },
-            &mut rng,
-            |_| 1.0,
-            emit,
-        );
+        filmscope_core::simd::wide(true, {
+            #[inline(always)]
+            || {
+                let mut rng = self.rng(STREAM_WHITE, angle, band, row);
+                let frames = self.scene.sensor.white_frames;
+                let emit = |c: usize, v: f64| out[c] = v as f32;
+                self.expose(
+                    band,
+                    row,
+                    Exposure::Reference { frames },
+                    &mut rng,
+                    |_| 1.0,
+                    emit,
+                );
+            }
+        })
     }
 
     /// The dark reference row (shutter closed, `white_frames` exposures averaged), in counts.
     pub fn dark_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
-        let mut rng = self.rng(STREAM_DARK, angle, band, row);
-        let frames = self.scene.sensor.white_frames;
-        let emit = |c: usize, v: f64| out[c] = v as f32;
-        self.expose(
-            band,
-            row,
-            Exposure::Reference { frames },
-            &mut rng,
-            |_| 0.0,
-            emit,
-        );
+        filmscope_core::simd::wide(true, {
+            #[inline(always)]
+            || {
+                let mut rng = self.rng(STREAM_DARK, angle, band, row);
+                let frames = self.scene.sensor.white_frames;
+                let emit = |c: usize, v: f64| out[c] = v as f32;
+                self.expose(
+                    band,
+                    row,
+                    Exposure::Reference { frames },
+                    &mut rng,
+                    |_| 0.0,
+                    emit,
+                );
+            }
+        })
     }
 
     fn rng(&self, stream: u64, angle: usize, band: usize, row: usize) -> Rng {
