@@ -195,11 +195,13 @@ fn render_in_order<E>(
         // Cannot fail: the channel holds them all and its receiver is alive.
         let _ = free_tx.send(RowBatch::new(kind, camera.width(), capacity));
     }
-    let (done_tx, done_rx) = crossbeam_channel::bounded::<(usize, RowBatch)>(batches);
+    // `None`: a render thread panicked (its job will never come).
+    let (done_tx, done_rx) = crossbeam_channel::bounded::<Option<(usize, RowBatch)>>(batches);
     let next = AtomicUsize::new(0);
     std::thread::scope(|s| {
         for _ in 0..threads {
-            let (free_rx, done_tx, next) = (free_rx.clone(), done_tx.clone(), &next);
+            let (free_rx, next) = (free_rx.clone(), &next);
+            let done = PanicNotice(done_tx.clone());
             s.spawn(move || {
                 // A free batch first, then a job: the first job not yet handed over is then
                 // always being rendered, whatever the batches waiting behind it.
@@ -209,7 +211,7 @@ fn render_in_order<E>(
                         break;
                     };
                     batch.render(camera, angle, rows);
-                    if done_tx.send((j, batch)).is_err() {
+                    if done.0.send(Some((j, batch))).is_err() {
                         break;
                     }
                 }
@@ -224,12 +226,12 @@ fn render_in_order<E>(
                         break batch;
                     }
                     match done_rx.recv() {
-                        Ok((k, batch)) => {
+                        Ok(Some((k, batch))) => {
                             waiting.insert(k, batch);
                         }
-                        // Every thread has ended without job `j`: one panicked, and the
-                        // scope passes its panic on.
-                        Err(_) => return Ok(()),
+                        // A thread panicked: the scope passes its panic on once the others
+                        // have stopped.
+                        Ok(None) | Err(_) => return Ok(()),
                     }
                 };
                 consume(j, &batch)?;
@@ -242,6 +244,18 @@ fn render_in_order<E>(
         drop((free_tx, done_rx));
         result
     })
+}
+
+/// Held by a render thread: tells the writer if the thread panics, so that it stops waiting
+/// for the thread's job.
+struct PanicNotice(crossbeam_channel::Sender<Option<(usize, RowBatch)>>);
+
+impl Drop for PanicNotice {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            let _ = self.0.send(None);
+        }
+    }
 }
 
 /// Renders `rows` of angle `angle` into consecutive rows of `cube` (and, for raw counts, of
@@ -613,5 +627,23 @@ mod tests {
         });
         assert_eq!(got, Err(3));
         assert_eq!(calls, 4);
+    }
+
+    /// A render thread that panics passes its panic on instead of leaving the writer
+    /// waiting for its job.
+    #[test]
+    fn a_panicking_render_thread_panics_the_caller() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes/rig-tiny.toml");
+        let scene = Scene::load(Path::new(path)).expect("scene");
+        let camera = SoftwareCamera::new(scene.clone());
+        let order = row_order(&scene, Interleave::Bil);
+        // A row beyond the sensor: the camera panics on it.
+        let bad = [(0, scene.sensor.height + 5)];
+        let mut jobs: Vec<(usize, &[(usize, usize)])> = order.chunks(2).map(|p| (0, p)).collect();
+        jobs.insert(3, (0, &bad[..]));
+        let got = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            render_in_order(&camera, RowKind::Raw, &jobs, 2, 2, |_, _| Ok::<(), ()>(()))
+        }));
+        assert!(got.is_err());
     }
 }
