@@ -8,7 +8,9 @@
 //! `truth.json`. A scene with a lens field of view writes it as `[lens] horizontal_fov_deg`
 //! (filmscope's extension of the capture format).
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use firmware_sim::{Scene, SoftwareCamera};
 use serde_json::json;
@@ -89,10 +91,15 @@ fn render_threads() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
-/// Rows rendered per batch: about a million samples, at least one row per thread.
-fn batch_rows(width: usize, threads: usize) -> usize {
-    ((1 << 20) / width.max(1)).max(threads)
+/// Rows of one render job: about a quarter of a million samples, at least one row.
+fn job_rows(width: usize) -> usize {
+    ((1 << 18) / width.max(1)).max(1)
 }
+
+/// Batches per render thread that exist at once (being rendered, waiting their turn, being
+/// written): the memory [`render_in_order`] holds, and how far rendering may run ahead of a
+/// writer that stalls.
+const BATCHES_PER_THREAD: usize = 4;
 
 /// The `(band, row)`s of one angle in the order the cube's file holds them, so that the
 /// writer goes through its file front to back: band by band for BSQ, row by row (every
@@ -111,12 +118,11 @@ fn row_order(scene: &Scene, interleave: Interleave) -> Vec<(usize, usize)> {
     }
 }
 
-/// A batch of one angle's rows rendered on several threads: each row is rendered from its
-/// own seed, so the result is the same on any number of threads.
+/// One job's rows of one angle, rendered: each row from its own seed, so the result is the
+/// same on any thread and in any order.
 struct RowBatch {
     kind: RowKind,
     width: usize,
-    capacity: usize,
     cube: Vec<f32>,
     white: Vec<f32>,
     dark: Vec<f32>,
@@ -132,44 +138,29 @@ impl RowBatch {
         Self {
             kind,
             width,
-            capacity,
             cube: vec![0.0; capacity * width],
             white: vec![0.0; refs],
             dark: vec![0.0; refs],
         }
     }
 
-    fn capacity(&self) -> usize {
-        self.capacity
-    }
-
-    /// Renders `rows` (`(band, row)`s, at most `capacity`) of angle `angle`.
-    fn render(
-        &mut self,
-        camera: &SoftwareCamera,
-        angle: usize,
-        rows: &[(usize, usize)],
-        threads: usize,
-    ) {
-        let (w, kind) = (self.width, self.kind);
-        let per_thread = rows.len().div_ceil(threads.max(1)).max(1);
-        let span = per_thread * w;
-        let refs = kind == RowKind::Raw;
-        let mut whites = self.white.chunks_mut(span);
-        let mut darks = self.dark.chunks_mut(span);
-        std::thread::scope(|s| {
-            for (part, cube) in rows.chunks(per_thread).zip(self.cube.chunks_mut(span)) {
-                let (white, dark) = if refs {
-                    (
-                        whites.next().unwrap_or_default(),
-                        darks.next().unwrap_or_default(),
-                    )
-                } else {
-                    (Default::default(), Default::default())
-                };
-                s.spawn(move || render_rows(camera, kind, angle, part, cube, white, dark));
-            }
-        });
+    /// Renders `rows` (`(band, row)`s, at most the capacity) of angle `angle`.
+    fn render(&mut self, camera: &SoftwareCamera, angle: usize, rows: &[(usize, usize)]) {
+        let n = rows.len() * self.width;
+        let (white, dark) = if self.kind == RowKind::Raw {
+            (&mut self.white[..n], &mut self.dark[..n])
+        } else {
+            (&mut [][..], &mut [][..])
+        };
+        render_rows(
+            camera,
+            self.kind,
+            angle,
+            rows,
+            &mut self.cube[..n],
+            white,
+            dark,
+        );
     }
 
     fn cube_row(&self, k: usize) -> &[f32] {
@@ -182,6 +173,88 @@ impl RowBatch {
 
     fn dark_row(&self, k: usize) -> &[f32] {
         &self.dark[k * self.width..(k + 1) * self.width]
+    }
+}
+
+/// Renders `jobs` (each an angle and up to `capacity` of its `(band, row)`s) on `threads`
+/// threads and hands each batch to `consume` on the calling thread, in job order, while the
+/// threads go on with the jobs that follow. At most `threads * BATCHES_PER_THREAD` batches
+/// exist at once. An error from `consume` stops the rendering and is returned.
+fn render_in_order<E>(
+    camera: &SoftwareCamera,
+    kind: RowKind,
+    jobs: &[(usize, &[(usize, usize)])],
+    capacity: usize,
+    threads: usize,
+    mut consume: impl FnMut(usize, &RowBatch) -> Result<(), E>,
+) -> Result<(), E> {
+    let threads = threads.clamp(1, jobs.len().max(1));
+    let batches = (threads * BATCHES_PER_THREAD).min(jobs.len());
+    let (free_tx, free_rx) = crossbeam_channel::bounded::<RowBatch>(batches);
+    for _ in 0..batches {
+        // Cannot fail: the channel holds them all and its receiver is alive.
+        let _ = free_tx.send(RowBatch::new(kind, camera.width(), capacity));
+    }
+    // `None`: a render thread panicked (its job will never come).
+    let (done_tx, done_rx) = crossbeam_channel::bounded::<Option<(usize, RowBatch)>>(batches);
+    let next = AtomicUsize::new(0);
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            let (free_rx, next) = (free_rx.clone(), &next);
+            let done = PanicNotice(done_tx.clone());
+            s.spawn(move || {
+                // A free batch first, then a job: the first job not yet handed over is then
+                // always being rendered, whatever the batches waiting behind it.
+                while let Ok(mut batch) = free_rx.recv() {
+                    let j = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(&(angle, rows)) = jobs.get(j) else {
+                        break;
+                    };
+                    batch.render(camera, angle, rows);
+                    if done.0.send(Some((j, batch))).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        drop((free_rx, done_tx));
+        let mut waiting: BTreeMap<usize, RowBatch> = BTreeMap::new();
+        let mut handed = || -> Result<(), E> {
+            for j in 0..jobs.len() {
+                let batch = loop {
+                    if let Some(batch) = waiting.remove(&j) {
+                        break batch;
+                    }
+                    match done_rx.recv() {
+                        Ok(Some((k, batch))) => {
+                            waiting.insert(k, batch);
+                        }
+                        // A thread panicked: the scope passes its panic on once the others
+                        // have stopped.
+                        Ok(None) | Err(_) => return Ok(()),
+                    }
+                };
+                consume(j, &batch)?;
+                let _ = free_tx.send(batch);
+            }
+            Ok(())
+        };
+        let result = handed();
+        // Threads still rendering stop at their next hand-over.
+        drop((free_tx, done_rx));
+        result
+    })
+}
+
+/// Held by a render thread: tells the writer if the thread panics, so that it stops waiting
+/// for the thread's job.
+struct PanicNotice(crossbeam_channel::Sender<Option<(usize, RowBatch)>>);
+
+impl Drop for PanicNotice {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            let _ = self.0.send(None);
+        }
     }
 }
 
@@ -235,31 +308,86 @@ fn render_rows(
 pub fn camera_samples_per_s(scene: &Scene, rows: usize) -> f64 {
     let t0 = std::time::Instant::now();
     let camera = SoftwareCamera::new(scene.clone());
-    let threads = render_threads();
     let (w, rows) = (camera.width(), rows.clamp(1, camera.height()));
     let order: Vec<(usize, usize)> = (0..rows)
         .flat_map(|r| (0..scene.bands_nm.len()).map(move |b| (b, r)))
         .collect();
-    let mut batch = RowBatch::new(RowKind::Raw, w, batch_rows(w, threads));
-    for a in 0..scene.angles_deg.len() {
-        for part in order.chunks(batch.capacity()) {
-            batch.render(&camera, a, part, threads);
+    let capacity = job_rows(w);
+    let jobs: Vec<(usize, &[(usize, usize)])> = (0..scene.angles_deg.len())
+        .flat_map(|a| order.chunks(capacity).map(move |part| (a, part)))
+        .collect();
+    let rendered = render_in_order(
+        &camera,
+        RowKind::Raw,
+        &jobs,
+        capacity,
+        render_threads(),
+        |_, batch| {
             std::hint::black_box(&batch.cube);
-        }
-    }
+            Ok::<(), std::convert::Infallible>(())
+        },
+    );
+    let _ = rendered;
     (order.len() * scene.angles_deg.len() * w) as f64 / t0.elapsed().as_secs_f64()
+}
+
+/// One angle's files while its rows are written: the cube and, for raw counts, the white
+/// and dark references.
+struct AngleFiles {
+    cube: (PathBuf, EnviWriter),
+    refs: Option<[(PathBuf, EnviWriter); 2]>,
+}
+
+impl AngleFiles {
+    /// Writes row `k` of `batch` as band row `(band, row)`.
+    fn write(
+        &mut self,
+        band: usize,
+        row: usize,
+        batch: &RowBatch,
+        k: usize,
+    ) -> Result<(), SimulateError> {
+        let (path, cube) = &mut self.cube;
+        cube.write_band_row(band, row, batch.cube_row(k))
+            .map_err(|e| path_err(path, &e))?;
+        if let Some([(white_path, white), (dark_path, dark)]) = self.refs.as_mut() {
+            white
+                .write_band_row(band, row, batch.white_row(k))
+                .map_err(|e| path_err(white_path, &e))?;
+            dark.write_band_row(band, row, batch.dark_row(k))
+                .map_err(|e| path_err(dark_path, &e))?;
+        }
+        Ok(())
+    }
+
+    /// Writes the headers and renames every file into place (the data flushed to disk
+    /// first).
+    fn finish(self) -> Result<(), SimulateError> {
+        let (path, cube) = self.cube;
+        cube.finish().map_err(|e| path_err(&path, &e))?;
+        for (path, writer) in self.refs.into_iter().flatten() {
+            writer.finish().map_err(|e| path_err(&path, &e))?;
+        }
+        Ok(())
+    }
+}
+
+fn path_err(p: &Path, e: &dyn std::fmt::Display) -> SimulateError {
+    SimulateError(format!("{}: {e}", p.display()))
 }
 
 /// Writes `scene` as a capture in `out_dir` (created if needed); returns the capture.toml
 /// path. `on_rows` is told of every band row written (for a progress bar). Rows are
-/// rendered on every core, in batches, and written in each cube's file order.
+/// rendered on every core, in jobs written in each cube's file order while the following
+/// jobs render; an angle's files are flushed and renamed into place on a thread of their
+/// own while the next angle is written.
 pub fn write_capture(
     scene: &Scene,
     out_dir: &Path,
     opts: SimulateOptions,
     on_rows: &dyn Fn(u64),
 ) -> Result<PathBuf, SimulateError> {
-    let err = |p: &Path, e: &dyn std::fmt::Display| SimulateError(format!("{}: {e}", p.display()));
+    let err = |p: &Path, e: &dyn std::fmt::Display| path_err(p, e);
     std::fs::create_dir_all(out_dir.join("truth")).map_err(|e| err(out_dir, &e))?;
     let camera = SoftwareCamera::new(scene.clone());
     let (w, h) = (camera.width(), camera.height());
@@ -270,10 +398,10 @@ pub fn write_capture(
     } else {
         RowKind::Raw
     };
-    let threads = render_threads();
-    let mut angles = Vec::new();
     let sat = format!("{}", scene.sensor.saturation_counts());
-    for (a, &deg) in scene.angles_deg.iter().enumerate() {
+    let mut angles = Vec::new();
+    let mut files = Vec::new();
+    for &deg in &scene.angles_deg {
         let tag = format!("{:02}", deg.round() as i64);
         let cube_path = out_dir.join(format!("a{tag}.hdr"));
         let desc = format!("filmscope simulate: {} at {deg} deg", scene.name);
@@ -285,77 +413,74 @@ pub fn write_capture(
         if kind == RowKind::Raw {
             hd.extra.push(("saturation counts".into(), sat.clone()));
         }
-        let mut cube = EnviWriter::create(&cube_path, &hd).map_err(|e| err(&cube_path, &e))?;
-        let white_path = out_dir.join(format!("white{tag}.hdr"));
-        let dark_path = out_dir.join(format!("dark{tag}.hdr"));
-        let mut refs = if kind == RowKind::Raw {
-            let href = header(
-                scene,
-                DataType::F32,
-                opts,
-                "white reference (averaged counts)",
-            );
-            let dref = header(
-                scene,
-                DataType::F32,
-                opts,
-                "dark reference (averaged counts)",
-            );
-            Some((
-                EnviWriter::create(&white_path, &href).map_err(|e| err(&white_path, &e))?,
-                EnviWriter::create(&dark_path, &dref).map_err(|e| err(&dark_path, &e))?,
-            ))
-        } else {
-            None
-        };
-        let order = row_order(scene, opts.interleave);
-        let capacity = batch_rows(w, threads);
-        let parts: Vec<&[(usize, usize)]> = order.chunks(capacity).collect();
-        // Two batches: while one is written, the next is rendered.
-        let mut ready = RowBatch::new(kind, w, capacity);
-        let mut next = RowBatch::new(kind, w, capacity);
-        if let Some(first) = parts.first() {
-            ready.render(&camera, a, first, threads);
-        }
-        for (i, rows) in parts.iter().enumerate() {
-            let written = std::thread::scope(|s| {
-                if let Some(following) = parts.get(i + 1) {
-                    let (camera, next) = (&camera, &mut next);
-                    s.spawn(move || next.render(camera, a, following, threads));
-                }
-                for (k, &(b, r)) in rows.iter().enumerate() {
-                    cube.write_band_row(b, r, ready.cube_row(k))
-                        .map_err(|e| err(&cube_path, &e))?;
-                    if let Some((white, dark)) = refs.as_mut() {
-                        white
-                            .write_band_row(b, r, ready.white_row(k))
-                            .map_err(|e| err(&white_path, &e))?;
-                        dark.write_band_row(b, r, ready.dark_row(k))
-                            .map_err(|e| err(&dark_path, &e))?;
-                    }
-                }
-                Ok::<(), SimulateError>(())
-            });
-            written?;
-            std::mem::swap(&mut ready, &mut next);
-            on_rows(rows.len() as u64);
-        }
-        cube.finish().map_err(|e| err(&cube_path, &e))?;
-        let (white, dark) = match refs {
-            Some((white, dark)) => {
-                white.finish().map_err(|e| err(&white_path, &e))?;
-                dark.finish().map_err(|e| err(&dark_path, &e))?;
-                (Some(white_path), Some(dark_path))
+        let cube = EnviWriter::create(&cube_path, &hd).map_err(|e| err(&cube_path, &e))?;
+        let (white, dark) = if kind == RowKind::Raw {
+            let mut refs = Vec::new();
+            for (name, what) in [("white", "white"), ("dark", "dark")] {
+                let path = out_dir.join(format!("{name}{tag}.hdr"));
+                let desc = format!("{what} reference (averaged counts)");
+                let href = header(scene, DataType::F32, opts, &desc);
+                let writer = EnviWriter::create(&path, &href).map_err(|e| err(&path, &e))?;
+                refs.push((path, writer));
             }
-            None => (None, None),
+            let dark = refs.pop();
+            (refs.pop(), dark)
+        } else {
+            (None, None)
         };
         angles.push(Angle {
             incidence_deg: deg,
-            cube: cube_path,
-            white,
-            dark,
+            cube: cube_path.clone(),
+            white: white.as_ref().map(|(p, _)| p.clone()),
+            dark: dark.as_ref().map(|(p, _)| p.clone()),
             white_reflectance: 1.0,
         });
+        files.push(Some(AngleFiles {
+            cube: (cube_path, cube),
+            refs: white.zip(dark).map(|(white, dark)| [white, dark]),
+        }));
+    }
+    let order = row_order(scene, opts.interleave);
+    let capacity = job_rows(w);
+    let per_angle = order.len().div_ceil(capacity);
+    let jobs: Vec<(usize, &[(usize, usize)])> = (0..scene.angles_deg.len())
+        .flat_map(|a| order.chunks(capacity).map(move |part| (a, part)))
+        .collect();
+    let mut finishing = Vec::new();
+    let written = render_in_order(
+        &camera,
+        kind,
+        &jobs,
+        capacity,
+        render_threads(),
+        |j, batch| {
+            let (a, rows) = jobs[j];
+            let angle = files[a]
+                .as_mut()
+                .ok_or_else(|| SimulateError(format!("angle {a} written after its end")))?;
+            for (k, &(b, r)) in rows.iter().enumerate() {
+                angle.write(b, r, batch, k)?;
+            }
+            on_rows(rows.len() as u64);
+            if (j + 1) % per_angle == 0 {
+                if let Some(done) = files[a].take() {
+                    finishing.push(std::thread::spawn(move || done.finish()));
+                }
+            }
+            Ok(())
+        },
+    );
+    // Every angle's files are finished (or, after an error, their temporary files removed)
+    // before this returns.
+    let finished: Vec<Result<(), SimulateError>> = finishing
+        .into_iter()
+        .map(|t| t.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+        .collect();
+    written?;
+    finished.into_iter().collect::<Result<(), _>>()?;
+    // Angles without rows (a scene without bands or rows) have nothing to wait for.
+    for angle in files.into_iter().flatten() {
+        angle.finish()?;
     }
     let truth_map = out_dir.join("truth").join("thickness_nm.hdr");
     write_f32_map(
@@ -443,7 +568,7 @@ mod tests {
     use super::*;
 
     /// Rows rendered on one thread, on three, and one by one through the camera's own
-    /// calls are the same bits: every row has its own seed.
+    /// calls are the same bits, handed over in job order: every row has its own seed.
     #[test]
     fn batches_are_the_same_on_any_number_of_threads() {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes/rig-tiny.toml");
@@ -452,24 +577,73 @@ mod tests {
         let w = camera.width();
         let order = row_order(&scene, Interleave::Bil);
         let rows = &order[..order.len().min(40)];
+        let jobs: Vec<(usize, &[(usize, usize)])> = rows.chunks(3).map(|part| (1, part)).collect();
         let render = |threads| {
-            let mut batch = RowBatch::new(RowKind::Raw, w, rows.len());
-            batch.render(&camera, 1, rows, threads);
-            batch
+            let (mut cube, mut white, mut dark) = (Vec::new(), Vec::new(), Vec::new());
+            let mut seen = Vec::new();
+            render_in_order(&camera, RowKind::Raw, &jobs, 3, threads, |j, batch| {
+                seen.push(j);
+                for k in 0..jobs[j].1.len() {
+                    cube.extend_from_slice(batch.cube_row(k));
+                    white.extend_from_slice(batch.white_row(k));
+                    dark.extend_from_slice(batch.dark_row(k));
+                }
+                Ok::<(), ()>(())
+            })
+            .expect("rendered");
+            assert_eq!(seen, (0..jobs.len()).collect::<Vec<_>>());
+            (cube, white, dark)
         };
         let (one, three) = (render(1), render(3));
-        assert_eq!(one.cube, three.cube);
-        assert_eq!(one.white, three.white);
-        assert_eq!(one.dark, three.dark);
+        assert!(one == three, "one thread and three differ");
         let (mut raw, mut white, mut dark) = (vec![0u16; w], vec![0f32; w], vec![0f32; w]);
         for (k, &(b, r)) in rows.iter().enumerate() {
             camera.raw_row(1, b, r, &mut raw);
             camera.white_row(1, b, r, &mut white);
             camera.dark_row(1, b, r, &mut dark);
             let counts: Vec<f32> = raw.iter().map(|&c| f32::from(c)).collect();
-            assert_eq!(one.cube_row(k), &counts[..]);
-            assert_eq!(one.white_row(k), &white[..]);
-            assert_eq!(one.dark_row(k), &dark[..]);
+            assert_eq!(&one.0[k * w..(k + 1) * w], &counts[..]);
+            assert_eq!(&one.1[k * w..(k + 1) * w], &white[..]);
+            assert_eq!(&one.2[k * w..(k + 1) * w], &dark[..]);
         }
+    }
+
+    /// An error from the consumer stops the rendering and comes back; the threads end.
+    #[test]
+    fn a_failing_consumer_stops_the_rendering() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes/rig-tiny.toml");
+        let scene = Scene::load(Path::new(path)).expect("scene");
+        let camera = SoftwareCamera::new(scene.clone());
+        let order = row_order(&scene, Interleave::Bil);
+        let jobs: Vec<(usize, &[(usize, usize)])> = order.chunks(2).map(|p| (0, p)).collect();
+        let mut calls = 0;
+        let got = render_in_order(&camera, RowKind::Raw, &jobs, 2, 2, |j, _| {
+            calls += 1;
+            if j == 3 {
+                Err(j)
+            } else {
+                Ok(())
+            }
+        });
+        assert_eq!(got, Err(3));
+        assert_eq!(calls, 4);
+    }
+
+    /// A render thread that panics passes its panic on instead of leaving the writer
+    /// waiting for its job.
+    #[test]
+    fn a_panicking_render_thread_panics_the_caller() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes/rig-tiny.toml");
+        let scene = Scene::load(Path::new(path)).expect("scene");
+        let camera = SoftwareCamera::new(scene.clone());
+        let order = row_order(&scene, Interleave::Bil);
+        // A row beyond the sensor: the camera panics on it.
+        let bad = [(0, scene.sensor.height + 5)];
+        let mut jobs: Vec<(usize, &[(usize, usize)])> = order.chunks(2).map(|p| (0, p)).collect();
+        jobs.insert(3, (0, &bad[..]));
+        let got = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            render_in_order(&camera, RowKind::Raw, &jobs, 2, 2, |_, _| Ok::<(), ()>(()))
+        }));
+        assert!(got.is_err());
     }
 }

@@ -25,7 +25,8 @@
 //! boundary).
 //! A scene with a lens field of view, whose columns each see their own angle, and a scene
 //! too small for a table to pay (more nodes than a quarter of a frame's pixels), evaluate
-//! the exact model per pixel.
+//! the exact model per pixel. The row loops are compiled for AVX2 where the CPU has it
+//! ([`filmscope_core::simd::wide`]), with the same results bit for bit.
 
 use std::sync::{Arc, Mutex, PoisonError};
 
@@ -60,6 +61,9 @@ type ColumnEntry = (usize, usize, Arc<Vec<BandModel>>);
 
 /// `(angle, band)`s whose column models are kept.
 const COLUMN_ENTRIES: usize = 8;
+
+/// Columns [`SoftwareCamera::expose`] prepares at a time before drawing their noise.
+const CHUNK: usize = 256;
 
 impl Clone for ColumnModels {
     fn clone(&self) -> Self {
@@ -248,6 +252,7 @@ impl SoftwareCamera {
     /// the scene's `reflectance_noise_percent`, the sample gets that Gaussian reflectance
     /// noise and the references none. Every pixel takes its draws in column order, then the
     /// defective ones are overwritten.
+    #[inline(always)]
     fn expose(
         &self,
         band: usize,
@@ -295,27 +300,42 @@ impl SoftwareCamera {
                 let gain = s.gain_e_per_count;
                 let per_e = 1.0 / gain;
                 let read = s.read_noise_counts;
-                for col in 0..w {
-                    let signal = (lit(col) * r(col)).max(0.0);
-                    let electrons = rng.fast_poisson(signal * gain);
-                    let counts = dark + electrons * per_e + read * rng.fast_normal();
-                    emit(col, round_clamp(counts, sat));
+                // Per chunk of columns, the mean electrons first (no draws, no branches),
+                // then the draws: the generator's chain is all the second loop carries.
+                let mut mean = [0f64; CHUNK];
+                for start in (0..w).step_by(CHUNK) {
+                    let mean = &mut mean[..CHUNK.min(w - start)];
+                    for (k, m) in mean.iter_mut().enumerate() {
+                        let col = start + k;
+                        *m = (lit(col) * r(col)).max(0.0) * gain;
+                    }
+                    for (k, &m) in mean.iter().enumerate() {
+                        let electrons = rng.fast_poisson(m);
+                        let counts = dark + electrons * per_e + read * rng.fast_normal();
+                        emit(start + k, round_clamp(counts, sat));
+                    }
                 }
             }
             (None, Exposure::Reference { frames }) => {
                 // The mean of `frames` exposures: shot and read noise shrink by sqrt(frames);
                 // drawn at once (the central limit of the per-frame Poisson and Gaussian
-                // draws) rather than frame by frame.
+                // draws) rather than frame by frame. Per chunk of columns, each pixel's
+                // noise-free level and deviation first, then the draws.
                 let kf = f64::from(frames);
                 let shot_var = 1.0 / (s.gain_e_per_count * kf);
                 let read_var = s.read_noise_counts * s.read_noise_counts / kf;
-                for col in 0..w {
-                    let signal = (lit(col) * r(col)).max(0.0);
-                    let sd = (signal * shot_var + read_var).sqrt();
-                    emit(
-                        col,
-                        (dark + signal + sd * rng.fast_normal()).clamp(0.0, sat),
-                    );
+                let (mut level, mut sd) = ([0f64; CHUNK], [0f64; CHUNK]);
+                for start in (0..w).step_by(CHUNK) {
+                    let n = CHUNK.min(w - start);
+                    let (level, sd) = (&mut level[..n], &mut sd[..n]);
+                    for (k, (l, d)) in level.iter_mut().zip(sd.iter_mut()).enumerate() {
+                        let signal = (lit(start + k) * r(start + k)).max(0.0);
+                        *d = (signal * shot_var + read_var).sqrt();
+                        *l = dark + signal;
+                    }
+                    for (k, (&l, &d)) in level.iter().zip(sd.iter()).enumerate() {
+                        emit(start + k, (l + d * rng.fast_normal()).clamp(0.0, sat));
+                    }
                 }
             }
         }
@@ -333,53 +353,68 @@ impl SoftwareCamera {
     /// Raw counts of one row of the sample (one exposure), as the camera link delivers them.
     /// Its band reflectance comes from the `(angle, band)`'s table where there is one.
     pub fn raw_row(&self, angle: usize, band: usize, row: usize, out: &mut [u16]) {
-        let w = self.width();
-        let mut rng = self.rng(STREAM_SAMPLE, angle, band, row);
-        let emit = |c: usize, v: f64| out[c] = v as u16;
-        match &self.tables[angle * self.scene.bands_nm.len() + band] {
-            Some(table) => {
-                let thickness = &self.scene.thickness_nm[row * w..(row + 1) * w];
-                let r = |c: usize| table.reflectance(f64::from(thickness[c]));
-                self.expose(band, row, Exposure::Sample, &mut rng, r, emit);
+        filmscope_core::simd::wide(true, {
+            #[inline(always)]
+            || {
+                let w = self.width();
+                let mut rng = self.rng(STREAM_SAMPLE, angle, band, row);
+                let emit = |c: usize, v: f64| out[c] = v as u16;
+                match &self.tables[angle * self.scene.bands_nm.len() + band] {
+                    Some(table) => {
+                        let thickness = &self.scene.thickness_nm[row * w..(row + 1) * w];
+                        let r = |c: usize| table.reflectance(f64::from(thickness[c]));
+                        self.expose(band, row, Exposure::Sample, &mut rng, r, emit);
+                    }
+                    None => {
+                        let mut refl = vec![0f32; w];
+                        self.reflectance_row(angle, band, row, &mut refl);
+                        let r = |c: usize| f64::from(refl[c]);
+                        self.expose(band, row, Exposure::Sample, &mut rng, r, emit);
+                    }
+                }
             }
-            None => {
-                let mut refl = vec![0f32; w];
-                self.reflectance_row(angle, band, row, &mut refl);
-                let r = |c: usize| f64::from(refl[c]);
-                self.expose(band, row, Exposure::Sample, &mut rng, r, emit);
-            }
-        }
+        })
     }
 
     /// The white reference row (a perfect diffuse white, `white_frames` exposures averaged),
     /// in counts, dark included.
     pub fn white_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
-        let mut rng = self.rng(STREAM_WHITE, angle, band, row);
-        let frames = self.scene.sensor.white_frames;
-        let emit = |c: usize, v: f64| out[c] = v as f32;
-        self.expose(
-            band,
-            row,
-            Exposure::Reference { frames },
-            &mut rng,
-            |_| 1.0,
-            emit,
-        );
+        filmscope_core::simd::wide(true, {
+            #[inline(always)]
+            || {
+                let mut rng = self.rng(STREAM_WHITE, angle, band, row);
+                let frames = self.scene.sensor.white_frames;
+                let emit = |c: usize, v: f64| out[c] = v as f32;
+                self.expose(
+                    band,
+                    row,
+                    Exposure::Reference { frames },
+                    &mut rng,
+                    |_| 1.0,
+                    emit,
+                );
+            }
+        })
     }
 
     /// The dark reference row (shutter closed, `white_frames` exposures averaged), in counts.
     pub fn dark_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
-        let mut rng = self.rng(STREAM_DARK, angle, band, row);
-        let frames = self.scene.sensor.white_frames;
-        let emit = |c: usize, v: f64| out[c] = v as f32;
-        self.expose(
-            band,
-            row,
-            Exposure::Reference { frames },
-            &mut rng,
-            |_| 0.0,
-            emit,
-        );
+        filmscope_core::simd::wide(true, {
+            #[inline(always)]
+            || {
+                let mut rng = self.rng(STREAM_DARK, angle, band, row);
+                let frames = self.scene.sensor.white_frames;
+                let emit = |c: usize, v: f64| out[c] = v as f32;
+                self.expose(
+                    band,
+                    row,
+                    Exposure::Reference { frames },
+                    &mut rng,
+                    |_| 0.0,
+                    emit,
+                );
+            }
+        })
     }
 
     fn rng(&self, stream: u64, angle: usize, band: usize, row: usize) -> Rng {

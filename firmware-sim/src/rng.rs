@@ -104,12 +104,19 @@ impl Rng {
     /// mean `m` is one of mean `floor(m)` plus an independent one of mean `m - floor(m)`:
     /// the first from a Walker alias table of its whole mean (two draws, one comparison;
     /// counts whose probability is under 1e-20 left out), the second by Knuth's product of
-    /// uniforms (one or two draws). Beyond 64, [`Rng::fast_normal`].
-    #[inline]
+    /// uniforms (one or two draws). Beyond 64, [`Rng::fast_normal`], inlined into the
+    /// caller; up to 64, a call.
+    #[inline(always)]
     pub fn fast_poisson(&mut self, mean: f64) -> f64 {
         if mean > 64.0 {
             return round_non_negative(mean + mean.sqrt() * self.fast_normal());
         }
+        self.small_poisson(mean)
+    }
+
+    /// [`Rng::fast_poisson`] up to a mean of 64.
+    #[inline(never)]
+    fn small_poisson(&mut self, mean: f64) -> f64 {
         // Zero, negative or NaN.
         if mean.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             return 0.0;
