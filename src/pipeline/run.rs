@@ -44,15 +44,15 @@ pub struct PipelineConfig {
     /// worker: a line-scan capture's run of lines carries all its bands, and with strips as
     /// tall as the run one worker would take a whole run while the other waited.
     pub strip_rows: usize,
-    /// Bands a worker holds before feeding them to its pixels row by row: every band streams
-    /// past every pixel's state, so on a sensor whose state does not fit the caches a sample
-    /// costs its state's memory traffic; holding `band_block` bands divides that traffic by
-    /// `band_block` at `2 * band_block` bytes per pixel of row buffers (packed samples,
-    /// [`filmscope_core::track::pack_sample`]; 1: feed each row as it arrives). Over an angle's last bands the
-    /// blocks shrink (`block_bands`), so that little is left to feed when its last row
-    /// arrives. Four: on a 4 MP sweep the same pace as eight (the software camera's 131-134
-    /// M samples/s either way; two: 119 M), at 8 bytes a pixel of peak memory fewer
-    /// (`filmscope bench-rss-child`: 540.5 -> 508.8 MB; two 492.8).
+    /// Bands a worker holds before feeding them to its pixels row by row (at most; fewer
+    /// where [`HELD_BYTES`] says): every band streams past every pixel's state, so on a
+    /// sensor whose state does not fit the caches a sample costs its state's memory
+    /// traffic; holding `band_block` bands divides that traffic by `band_block` at
+    /// `2 * band_block` bytes per pixel of row buffers (packed samples,
+    /// [`filmscope_core::track::pack_sample`]; 1: feed each row as it arrives). Over an
+    /// angle's last bands the blocks shrink (`block_bands`), so that little is left to feed
+    /// when its last row arrives. Four: measured on a 4 MP sweep, 167 M samples/s against
+    /// 146 M with two and 133 M with one.
     pub band_block: usize,
     /// What the solver may use.
     pub solver: SolverOptions,
@@ -61,7 +61,7 @@ pub struct PipelineConfig {
 impl Default for PipelineConfig {
     fn default() -> Self {
         Self {
-            channel_capacity: 64,
+            channel_capacity: 16,
             workers: 2,
             strip_rows: 4,
             band_block: 4,
@@ -69,6 +69,11 @@ impl Default for PipelineConfig {
         }
     }
 }
+
+/// Bytes of held samples ([`PipelineConfig::band_block`]) a sweep may keep across the
+/// image: a large sensor holds fewer bands, trading memory traffic for peak memory (a 4 MP
+/// sweep holds one band, 8.4 MB, where four would take 34 MB; a 1 MP sweep holds four).
+pub const HELD_BYTES: usize = 12 << 20;
 
 /// A worker's queue holds this many times [`PipelineConfig::channel_capacity`] messages: a
 /// source's block of up to 16 rows reaches a worker as up to this many strips' parts.
@@ -266,7 +271,10 @@ fn sweep(
             start_txs.push(start_tx);
             let done = done_tx.clone();
             let options = spec.options;
-            let band_block = config.band_block.max(1);
+            let band_block = config
+                .band_block
+                .min(HELD_BYTES / (2 * w * h).max(1))
+                .max(1);
             let block = [band_block, spec.bands_nm.len()];
             scope.spawn(move || worker(i, strips, w, options, block, order, start_rx, rx, done));
         }
