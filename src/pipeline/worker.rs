@@ -15,27 +15,16 @@ use super::state::{BandModels, ShardState, ShardTally, Strips, Tally};
 use crate::source::RowOrder;
 
 /// Bands of the block that starts at `band` of an angle's `bands`: `band_block`, but at most
-/// half of the bands left (rounded up) and at least [`FINAL_BLOCK_BANDS`] (or what is left).
-/// A block is fed once its last band has arrived, so whatever is still to feed when the
-/// angle's last row arrives is latency: with the blocks halving towards the end, each is fed
-/// while the next (half as many bands) arrives, and the angle's last block is fed row by row
-/// as its last band arrives ([`streams_rows`]).
+/// half of the bands left (rounded up). A block is fed once its last band has arrived, so
+/// whatever is still to feed when the angle's last row arrives is latency: with the blocks
+/// halving towards the end, each is fed while the next (half as many bands) arrives, and the
+/// angle's last block, one band, is fed row by row as its rows arrive ([`streams_rows`]).
+/// Halving down to one band, against stopping at four: the live latency's drain measured
+/// 8-13 against 14-21 ms per megapixel (1 MP, `filmscope bench`'s paced sweep).
 pub fn block_bands(band: usize, bands: usize, band_block: usize) -> usize {
     let left = bands.saturating_sub(band);
-    band_block
-        .min(left.div_ceil(2))
-        .max(FINAL_BLOCK_BANDS.min(band_block))
-        .min(left)
-        .max(1)
+    band_block.min(left.div_ceil(2)).max(1)
 }
-
-/// Bands of an angle's last block. Feeding a block costs one pass over its pixels' state
-/// (memory traffic, the same for any number of bands) and each band's arithmetic; the last
-/// block is fed as its last band's rows arrive, so what is left when the angle's last row
-/// arrives is the part of that pass the band's arrival did not cover. One band a block (one
-/// pass a band) left the workers a band behind; four let the block before it be fed while
-/// its first three arrive.
-pub const FINAL_BLOCK_BANDS: usize = 4;
 
 /// Whether the block of `limit` bands that starts at `first` is the angle's last (of
 /// `bands`): its rows are fed as its last band's rows arrive (in row order), each row of
@@ -365,7 +354,7 @@ fn feed_held(
 
 #[cfg(test)]
 mod tests {
-    use super::{block_bands, streams_rows, FINAL_BLOCK_BANDS};
+    use super::{block_bands, streams_rows};
 
     /// The blocks an angle of `bands` bands is fed in, as `(first band, bands)`.
     fn blocks(bands: usize, band_block: usize) -> Vec<(usize, usize)> {
@@ -383,7 +372,7 @@ mod tests {
     fn blocks_shrink_towards_an_angle_end_and_only_the_last_streams() {
         let b = blocks(161, 8);
         let mut expected: Vec<_> = (0..19).map(|k| (8 * k, 8)).collect();
-        expected.extend([(152, 5), (157, FINAL_BLOCK_BANDS)]);
+        expected.extend([(152, 5), (157, 2), (159, 1), (160, 1)]);
         assert_eq!(b, expected);
         let streams: Vec<_> = b.iter().map(|&(f, n)| streams_rows(f, n, 161)).collect();
         assert_eq!(streams.iter().filter(|&&s| s).count(), 1);
