@@ -20,4 +20,4 @@ pub use run::{
     run_sweep, run_sweep_sampled, tally_parallel, update_parallel, LatencyParts, PipelineConfig,
     Prior, PriorUpdate, SampleHook, SweepOutput,
 };
-pub use state::{BandModels, ShardState, ShardTally, Tally};
+pub use state::{BandModels, ShardState, ShardTally, Strips, Tally};
