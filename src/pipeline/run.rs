@@ -289,14 +289,6 @@ fn sweep(
             match msg {
                 Control::Angle(deg) => {
                     solver.begin_angle(deg);
-                    // Thicknesses move only at angle ends: the band models need cover only
-                    // those the pixels hold now.
-                    let span = states
-                        .iter()
-                        .flatten()
-                        .filter_map(ShardState::thickness_span)
-                        .reduce(|a, b| [a[0].min(b[0]), a[1].max(b[1])]);
-                    solver.set_thickness_span(span.map(|s| s.map(f64::from)));
                     let snapshot = Arc::new(BandModels::of(&solver, workers));
                     let began = Arc::new(solver.context().clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
@@ -318,15 +310,6 @@ fn sweep(
                 }
                 Control::AngleEnd(at) => {
                     last_row_at = at;
-                    // The sample holds the angle's every row already (the calibrate stage
-                    // feeds it before the workers): its refit runs while the workers feed
-                    // and tally their last rows.
-                    if let Some(hook) = hook.as_mut() {
-                        let complete = solver.angles_done() + 1;
-                        if let Some(m) = (hook.refit)(complete) {
-                            solver.set_external_index(m);
-                        }
-                    }
                     let mut tallies: Vec<Option<ShardTally>> = (0..workers).map(|_| None).collect();
                     for _ in 0..workers {
                         match done_rx.recv() {
@@ -350,6 +333,12 @@ fn sweep(
                         .collect();
                     let mut shards = image_shards(&mut owned, strips, w);
                     let last = solver.angles_done() + 1 == angles;
+                    if let Some(hook) = hook.as_mut() {
+                        let complete = solver.angles_done() + 1;
+                        if let Some(m) = (hook.refit)(complete) {
+                            solver.set_external_index(m);
+                        }
+                    }
                     let mut parts = LatencyParts {
                         drain: at.elapsed(),
                         ..LatencyParts::default()

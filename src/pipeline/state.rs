@@ -86,14 +86,6 @@ impl ShardState {
         state
     }
 
-    /// The least and greatest thickness its pixels hold, if any holds one.
-    pub fn thickness_span(&self) -> Option<[f32; 2]> {
-        self.fits
-            .iter()
-            .filter_map(FitLanes::thickness_span)
-            .reduce(|a, b| [a[0].min(b[0]), a[1].max(b[1])])
-    }
-
     /// Gives the trackers' memory back, once nothing reads them (the sweep's last angle end,
     /// after [`super::run::tally_parallel`] and [`Shard::keep_tracker_flags`]; or after the last update,
     /// which kept their flags): the results take it.

@@ -359,14 +359,6 @@ impl FitLanes {
         }
     }
 
-    /// The least and greatest finite thickness of the block's lanes, if any has one.
-    pub fn thickness_span(&self) -> Option<[f32; 2]> {
-        let finite = self.thickness_nm.iter().filter(|d| d.is_finite());
-        let lo = finite.clone().fold(f32::INFINITY, |a, &d| a.min(d));
-        let hi = finite.fold(f32::NEG_INFINITY, |a, &d| a.max(d));
-        (lo <= hi).then_some([lo, hi])
-    }
-
     /// Every lane's thickness, `g_d` and squared error after the angle end's step with the
     /// index step `dp`, as [`GnSums::thickness_step`] (clamped to a quarter of the lane's
     /// order step) and [`GnSums::shift`] give them for a pixel without index sums, the same

@@ -97,8 +97,6 @@ pub struct SweepSolver {
     spectral_index: bool,
     spectral_gains: [f64; 3],
     spectral_candidate: Option<IndexModel>,
-    /// The thicknesses the pixels hold this angle ([`SweepSolver::set_thickness_span`]).
-    thickness_span: Option<[f64; 2]>,
 }
 
 impl core::ops::Deref for SweepSolver {
@@ -127,7 +125,6 @@ impl SweepSolver {
             spectral_index: false,
             spectral_gains: [f64::NAN; 3],
             spectral_candidate: None,
-            thickness_span: None,
         }
     }
 
@@ -153,14 +150,6 @@ impl SweepSolver {
     pub fn set_external_index(&mut self, index: IndexModel) {
         self.external = Some(index);
         self.ctx.external_index = true;
-    }
-
-    /// The least and greatest thickness the pixels hold for the coming angle (`None`: none
-    /// holds one), from the caller's state: thicknesses move only at angle ends, so the band
-    /// models are made for, and tabulated over, these (and the orders either side) only,
-    /// not the whole search range. Until told, the whole range.
-    pub fn set_thickness_span(&mut self, span: Option<[f64; 2]>) {
-        self.thickness_span = Some(span.unwrap_or([f64::NAN; 2]));
     }
 
     /// Holds the prior index for the whole sweep (the extremum-shift fit is still made and
@@ -220,21 +209,15 @@ impl SweepSolver {
         }
     }
 
-    /// The thicknesses the band models are tabulated over: the pixels' (the search range
-    /// until [`SweepSolver::set_thickness_span`]) widened by an interference order at the
-    /// longest band and lowest index either side (the neighbouring orders' misfits look
-    /// there), within the search range so widened. A thickness outside it has its models
-    /// computed per sample; an empty span, no pixel with a thickness, tabulates nothing.
+    /// The thicknesses the band models are tabulated over: the search range widened by an
+    /// interference
+    /// order at the longest band and lowest index either side (the neighbouring orders'
+    /// misfits look there). A thickness outside it has its models computed per sample.
     pub fn table_range_nm(&self) -> [f64; 2] {
         let [lo, hi] = self.ctx.spec.thickness_range_nm;
         let [_, l_max] = self.band_span_nm();
         let step = 1.2 * l_max / (2.0 * self.ctx.spec.index_range[0].max(1.0));
-        let full = [lo - step, hi + step];
-        match self.thickness_span {
-            Some([a, b]) if b >= a => [(a - step).max(full[0]), (b + step).min(full[1])],
-            Some(_) => [full[0], full[0]],
-            None => full,
-        }
+        [lo - step, hi + step]
     }
 
     /// Tabulates the band models (in band order, as many as `knots` holds; the rest are

@@ -229,34 +229,3 @@ mod vote_tests {
         }
     }
 }
-
-/// The band models are tabulated over the thicknesses the pixels hold and an order either
-/// side, within the widened search range (whole until told); with no pixel holding one,
-/// not at all.
-#[test]
-fn tables_cover_the_pixels_thicknesses_only() {
-    let spec = paper_rig_spec(64, 1);
-    let mut solver = SweepSolver::new(spec, Some(IndexModel::constant(1.37)));
-    solver.begin_angle(10.0);
-    let knots = |s: &SweepSolver| {
-        let mut coefs = vec![None; s.spec().bands_nm.len()];
-        s.band_models(&mut coefs);
-        let mut counts = vec![0; coefs.len()];
-        s.band_knots(&coefs, &mut counts);
-        counts.iter().sum::<usize>()
-    };
-    let full = solver.table_range_nm();
-    let all = knots(&solver);
-    solver.set_thickness_span(Some([400.0, 420.0]));
-    let [lo, hi] = solver.table_range_nm();
-    assert!(
-        lo > full[0] && lo < 400.0 && hi > 420.0 && hi < full[1],
-        "{lo}..{hi}"
-    );
-    let narrow = knots(&solver);
-    assert!(narrow > 0 && 3 * narrow < all, "{narrow} of {all} knots");
-    solver.set_thickness_span(Some([full[0] - 1e3, full[1] + 1e3]));
-    assert_eq!(solver.table_range_nm(), full);
-    solver.set_thickness_span(None);
-    assert_eq!(knots(&solver), 0);
-}
