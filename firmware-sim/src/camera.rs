@@ -379,30 +379,26 @@ impl SoftwareCamera {
     /// The white reference row (a perfect diffuse white, `white_frames` exposures averaged),
     /// in counts, dark included.
     pub fn white_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
-        filmscope_core::simd::wide(true, {
-            #[inline(always)]
-            || {
-                let mut rng = self.rng(STREAM_WHITE, angle, band, row);
-                let frames = self.scene.sensor.white_frames;
-                let emit = |c: usize, v: f64| out[c] = v as f32;
-                self.expose(
-                    band,
-                    row,
-                    Exposure::Reference { frames },
-                    &mut rng,
-                    |_| 1.0,
-                    emit,
-                );
-            }
-        })
+        self.reference_row(STREAM_WHITE, 1.0, [angle, band, row], out);
     }
 
     /// The dark reference row (shutter closed, `white_frames` exposures averaged), in counts.
     pub fn dark_row(&self, angle: usize, band: usize, row: usize, out: &mut [f32]) {
+        self.reference_row(STREAM_DARK, 0.0, [angle, band, row], out);
+    }
+
+    /// A reference row of a target of reflectance `level` from noise stream `stream`.
+    fn reference_row(
+        &self,
+        stream: u64,
+        level: f64,
+        [angle, band, row]: [usize; 3],
+        out: &mut [f32],
+    ) {
         filmscope_core::simd::wide(true, {
             #[inline(always)]
             || {
-                let mut rng = self.rng(STREAM_DARK, angle, band, row);
+                let mut rng = self.rng(stream, angle, band, row);
                 let frames = self.scene.sensor.white_frames;
                 let emit = |c: usize, v: f64| out[c] = v as f32;
                 self.expose(
@@ -410,7 +406,7 @@ impl SoftwareCamera {
                     row,
                     Exposure::Reference { frames },
                     &mut rng,
-                    |_| 0.0,
+                    |_| level,
                     emit,
                 );
             }

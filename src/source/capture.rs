@@ -128,6 +128,16 @@ impl CaptureSource {
             },
         };
         let err = |e: crate::io::EnviError| e.to_string();
+        // Sends rows `r0..r0 + n` of band `b`; false once the pipeline stopped listening.
+        let send = |b: usize, r0: usize, n: usize, samples: Samples| {
+            let msg = StreamMsg::Rows(RowBlock {
+                band: b as u16,
+                first_row: r0 as u32,
+                rows: n as u32,
+                samples,
+            });
+            tx.send(msg).is_ok()
+        };
         if cube.header().interleave == crate::io::Interleave::Bsq {
             let runs = row_runs(h, only, BSQ_RUN_ROWS);
             for b in 0..bands {
@@ -147,13 +157,7 @@ impl CaptureSource {
                             }
                         }
                     }
-                    let msg = StreamMsg::Rows(RowBlock {
-                        band: b as u16,
-                        first_row: r0 as u32,
-                        rows: n as u32,
-                        samples: block(counts, wv, dv),
-                    });
-                    if tx.send(msg).is_err() {
+                    if !send(b, r0, n, block(counts, wv, dv)) {
                         return Ok(false);
                     }
                 }
@@ -198,13 +202,7 @@ impl CaptureSource {
             for (b, c) in counts.into_iter().enumerate() {
                 let wb = wv.as_mut().and_then(Iterator::next);
                 let db = dv.as_mut().and_then(Iterator::next);
-                let msg = StreamMsg::Rows(RowBlock {
-                    band: b as u16,
-                    first_row: r0 as u32,
-                    rows: n as u32,
-                    samples: block(c, wb, db),
-                });
-                if tx.send(msg).is_err() {
+                if !send(b, r0, n, block(c, wb, db)) {
                     return Ok(false);
                 }
             }
