@@ -300,6 +300,30 @@ struct Pairs {
     slope_h: [Lanes; 2],
 }
 
+/// The lanes' knots at their three table positions and the index derivative at the
+/// thickness's two, gathered for one block at a time: the caller keeps one across a row's
+/// blocks ([`push_row`]), so that it is not zeroed for every block. A lane's stale knots
+/// are never added: only lanes inside the table are.
+#[derive(Clone, Copy)]
+pub struct KnotGather {
+    pairs: [Pairs; 3],
+    j_n: [Lanes; 2],
+}
+
+impl KnotGather {
+    /// Nothing gathered yet.
+    pub const EMPTY: Self = Self {
+        pairs: [Pairs::ZERO; 3],
+        j_n: [[0.0; LANES]; 2],
+    };
+}
+
+impl Default for KnotGather {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
 /// The lanes' knots at their three table positions, as [`FitLanes::add_from`] takes them.
 struct Tabled<'a> {
     /// At the thickness, one order thinner, one order thicker.
@@ -434,12 +458,14 @@ impl FitLanes {
     /// saturated sample, NaN one without a usable reference): counts them, and with the
     /// band's model (`coef` and the angle's `knots`) adds every usable sample of a pixel with
     /// a thickness to its sums, as [`GnSums::add`] does (the index's sums to `index`'s).
+    /// `gather` is scratch space, kept across a row's blocks.
     #[inline(always)]
     pub fn push(
         &mut self,
         values: &[f32],
         model: Option<(&BandCoef, &[Knot])>,
         mut index: BlockIndex<'_>,
+        gather: &mut KnotGather,
     ) {
         let mut v = [0.0; LANES];
         let n = values.len().min(LANES);
@@ -462,7 +488,7 @@ impl FitLanes {
         // The lanes left to the computed model.
         let mut rest = ok;
         if let Some((span, k)) = coef.table().and_then(|t| Some((t, t.knots(knots)?))) {
-            let inside = self.add_tabled(span, k, &ok, &v, u, &mut index);
+            let inside = self.add_tabled((span, k), &ok, &v, u, &mut index, gather);
             for i in 0..LANES {
                 rest[i] = ok[i] & !inside[i];
             }
@@ -502,12 +528,12 @@ impl FitLanes {
     #[inline(always)]
     fn add_tabled(
         &mut self,
-        span: TableSpan,
-        k: &[Knot],
+        (span, k): (TableSpan, &[Knot]),
         ok: &Mask,
         v: &Lanes,
         u: f32,
         index: &mut BlockIndex<'_>,
+        gather: &mut KnotGather,
     ) -> Mask {
         // Positions of the thickness and the orders either side: knot and fraction.
         // (Separate arrays, each zeroed in place: one struct of them would be zeroed by a
@@ -530,8 +556,7 @@ impl FitLanes {
             }
         }
         // One lane at a time: each lane's knots.
-        let mut pairs = [Pairs::ZERO; 3];
-        let mut j_n = [[0.0; LANES]; 2];
+        let KnotGather { pairs, j_n } = gather;
         for i in 0..LANES {
             for p in 0..3 {
                 let j = knot[p][i] as usize;
@@ -549,8 +574,8 @@ impl FitLanes {
             }
         }
         let at = Tabled {
-            pairs: &pairs,
-            j_n: &j_n,
+            pairs,
+            j_n,
             frac: &frac,
             inv_h: span.inv_h(),
         };
@@ -679,8 +704,14 @@ pub fn push_row(
     model: Option<(&BandCoef, &[Knot])>,
     (sampling, row, index): (IndexSampling, usize, &mut [IndexLanes]),
 ) {
+    let mut gather = KnotGather::EMPTY;
     for (b, (block, v)) in blocks.iter_mut().zip(values.chunks(LANES)).enumerate() {
-        block.push(v, model, sampling.block(index, row, b, v.len()));
+        block.push(
+            v,
+            model,
+            sampling.block(index, row, b, v.len()),
+            &mut gather,
+        );
     }
 }
 
