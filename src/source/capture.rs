@@ -10,8 +10,27 @@ use super::{
     DEFAULT_THICKNESS_RANGE_NM,
 };
 use crate::io::{Capture, EnviReader};
+use filmscope_core::calibrate::calibrate_row;
 
-/// Bytes of a capture's run of lines (`bil`, `bip`) read before its rows are handed on:
+/// One row's decoded counts and references ([`CaptureSource`] calibrates as it reads).
+struct RowScratch {
+    counts: Vec<f32>,
+    white: Vec<f32>,
+    dark: Vec<f32>,
+}
+
+impl RowScratch {
+    fn new(width: usize) -> Self {
+        Self {
+            counts: vec![0.0; width],
+            white: vec![0.0; width],
+            dark: vec![0.0; width],
+        }
+    }
+}
+
+/// Bytes of a capture's run of lines (`bil`, `bip`, calibrated) read before its rows are
+/// handed on:
 /// each message then carries several rows of a band (fewer messages, and the workers feed
 /// blocks of rows as from a band-sequential source).
 const LINE_RUN_BYTES: usize = 16 << 20;
@@ -94,7 +113,10 @@ impl CaptureSource {
     /// Streams angle `a`'s rows (those in `only`, sorted, or every one) as blocks of
     /// consecutive rows of one band: `bil` and `bip` a run of lines at a time (each line
     /// read whole, once, its bands handed on band by band), `bsq` band by band in the
-    /// file's order (a run of rows of a band at a time, then the band's end).
+    /// file's order (a run of rows of a band at a time, then the band's end). Raw counts
+    /// are calibrated row by row as they are decoded, so the blocks carry reflectance: a
+    /// run's counts and references are never held as arrays of their own (their memory
+    /// traffic cost the read more than the decoding).
     fn stream_angle(
         &self,
         a: usize,
@@ -116,48 +138,65 @@ impl CaptureSource {
         }
         // A reference of one line serves every line.
         let ref_line = |r: &EnviReader, line: usize| if r.header().lines == 1 { 0 } else { line };
-        let block = |counts: Vec<f32>, white: Option<Vec<f32>>, dark: Option<Vec<f32>>| match white
-        {
-            None => Samples::Reflectance(counts),
-            Some(white) => Samples::Raw {
-                counts,
-                dark,
-                white,
-                white_reflectance: angle.white_reflectance as f32,
-                saturation_counts: self.saturation_counts,
-            },
-        };
         let err = |e: crate::io::EnviError| e.to_string();
-        // Sends rows `r0..r0 + n` of band `b`; false once the pipeline stopped listening.
-        let send = |b: usize, r0: usize, n: usize, samples: Samples| {
+        // Sends rows `r0..r0 + n` of band `b`, calibrated; false once the pipeline stopped
+        // listening.
+        let send = |b: usize, r0: usize, n: usize, reflectance: Vec<f32>| {
             let msg = StreamMsg::Rows(RowBlock {
                 band: b as u16,
                 first_row: r0 as u32,
                 rows: n as u32,
-                samples,
+                samples: Samples::Reflectance(reflectance),
             });
             tx.send(msg).is_ok()
+        };
+        // One row's counts and references, decoded: a few kB that stay in cache between
+        // the decoding and the calibration, rather than three arrays of a whole run.
+        let mut row = RowScratch::new(w);
+        let white_reflectance = angle.white_reflectance as f32;
+        let saturation_counts = self.saturation_counts;
+        // Band `b` of line `line`, calibrated into `out` (a reflectance cube's values as
+        // they are); the readers' lines already loaded for `bil` and `bip`.
+        let mut read_row = |cube: &mut EnviReader,
+                            white: Option<&mut EnviReader>,
+                            dark: Option<&mut EnviReader>,
+                            b: usize,
+                            line: usize,
+                            out: &mut [f32]|
+         -> Result<(), String> {
+            let Some(white) = white else {
+                return cube.read_band_row(b, line, out).map_err(err);
+            };
+            cube.read_band_row(b, line, &mut row.counts).map_err(err)?;
+            let l = ref_line(white, line);
+            white.read_band_row(b, l, &mut row.white).map_err(err)?;
+            let dark = match dark {
+                Some(d) => {
+                    let l = ref_line(d, line);
+                    d.read_band_row(b, l, &mut row.dark).map_err(err)?;
+                    Some(&row.dark[..])
+                }
+                None => None,
+            };
+            calibrate_row(
+                &row.counts,
+                dark,
+                &row.white,
+                white_reflectance,
+                saturation_counts,
+                out,
+            );
+            Ok(())
         };
         if cube.header().interleave == crate::io::Interleave::Bsq {
             let runs = row_runs(h, only, BSQ_RUN_ROWS);
             for b in 0..bands {
                 for &(r0, n) in &runs {
-                    let mut counts = vec![0f32; n * w];
-                    let mut wv = white.as_ref().map(|_| vec![0f32; n * w]);
-                    let mut dv = dark.as_ref().map(|_| vec![0f32; n * w]);
-                    for k in 0..n {
-                        let s = k * w..(k + 1) * w;
-                        cube.read_band_row(b, r0 + k, &mut counts[s.clone()])
-                            .map_err(err)?;
-                        for (r, v) in [(white.as_mut(), wv.as_mut()), (dark.as_mut(), dv.as_mut())]
-                        {
-                            if let (Some(r), Some(v)) = (r, v) {
-                                let line = ref_line(r, r0 + k);
-                                r.read_band_row(b, line, &mut v[s.clone()]).map_err(err)?;
-                            }
-                        }
+                    let mut out = vec![0f32; n * w];
+                    for (k, o) in out.chunks_exact_mut(w).enumerate() {
+                        read_row(&mut cube, white.as_mut(), dark.as_mut(), b, r0 + k, o)?;
                     }
-                    if !send(b, r0, n, block(counts, wv, dv)) {
+                    if !send(b, r0, n, out) {
                         return Ok(false);
                     }
                 }
@@ -167,42 +206,24 @@ impl CaptureSource {
             }
             return Ok(true);
         }
-        // A run of lines' samples, references included, about `LINE_RUN_BYTES`.
-        let arrays = 1 + usize::from(white.is_some()) + usize::from(dark.is_some());
-        let per_line = (arrays * bands * w * 4).max(1);
-        let run_lines = (LINE_RUN_BYTES / per_line).clamp(1, MAX_RUN_LINES);
+        // A run of lines' calibrated samples, about `LINE_RUN_BYTES`.
+        let run_lines = (LINE_RUN_BYTES / (bands * w * 4).max(1)).clamp(1, MAX_RUN_LINES);
         for (r0, n) in row_runs(h, only, run_lines) {
-            let mut counts: Vec<Vec<f32>> = (0..bands).map(|_| vec![0f32; n * w]).collect();
-            let mut wv: Option<Vec<Vec<f32>>> = white
-                .as_ref()
-                .map(|_| (0..bands).map(|_| vec![0f32; n * w]).collect());
-            let mut dv: Option<Vec<Vec<f32>>> = dark
-                .as_ref()
-                .map(|_| (0..bands).map(|_| vec![0f32; n * w]).collect());
+            let mut out: Vec<Vec<f32>> = (0..bands).map(|_| vec![0f32; n * w]).collect();
             for k in 0..n {
                 let line = r0 + k;
-                let s = k * w..(k + 1) * w;
                 cube.load_line(line).map_err(err)?;
-                for (b, c) in counts.iter_mut().enumerate() {
-                    cube.read_band_row(b, line, &mut c[s.clone()])
-                        .map_err(err)?;
+                for r in [white.as_mut(), dark.as_mut()].into_iter().flatten() {
+                    let l = ref_line(r, line);
+                    r.load_line(l).map_err(err)?;
                 }
-                for (r, v) in [(white.as_mut(), wv.as_mut()), (dark.as_mut(), dv.as_mut())] {
-                    if let (Some(r), Some(v)) = (r, v) {
-                        let line = ref_line(r, line);
-                        r.load_line(line).map_err(err)?;
-                        for (b, v) in v.iter_mut().enumerate() {
-                            r.read_band_row(b, line, &mut v[s.clone()]).map_err(err)?;
-                        }
-                    }
+                for (b, o) in out.iter_mut().enumerate() {
+                    let o = &mut o[k * w..(k + 1) * w];
+                    read_row(&mut cube, white.as_mut(), dark.as_mut(), b, line, o)?;
                 }
             }
-            let mut wv = wv.map(Vec::into_iter);
-            let mut dv = dv.map(Vec::into_iter);
-            for (b, c) in counts.into_iter().enumerate() {
-                let wb = wv.as_mut().and_then(Iterator::next);
-                let db = dv.as_mut().and_then(Iterator::next);
-                if !send(b, r0, n, block(c, wb, db)) {
+            for (b, o) in out.into_iter().enumerate() {
+                if !send(b, r0, n, o) {
                     return Ok(false);
                 }
             }
