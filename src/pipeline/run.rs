@@ -275,13 +275,15 @@ fn sweep(
                 .min(HELD_BYTES / (2 * w * h).max(1))
                 .max(1);
             let block = [band_block, spec.bands_nm.len()];
-            scope.spawn(move || worker(i, strips, w, options, block, order, start_rx, rx, done));
+            named(scope, format!("worker-{i}"), move || {
+                worker(i, strips, w, options, block, order, start_rx, rx, done)
+            })?;
         }
         drop(done_tx);
-        scope.spawn(move || source.stream(&src_tx));
-        scope.spawn(move || {
+        named(scope, "source".into(), move || source.stream(&src_tx))?;
+        named(scope, "calibrate".into(), move || {
             calibrate_stage(src_rx, ctl_tx, worker_txs, (w, h), strips, tap, on_rows)
-        });
+        })?;
 
         let mut abort = None;
         for msg in ctl_rx.iter() {
@@ -454,6 +456,19 @@ fn image_shards(states: &mut [ShardState], strips: Strips, width: usize) -> Vec<
         .collect();
     shards.sort_by_key(|s| s.first_row);
     shards
+}
+
+/// Spawns `f` on a thread of `scope` named `name` (as `top -H`, `perf` and debuggers show
+/// it); a thread that cannot start is the sweep's error, not a panic.
+fn named<'scope, T: Send + 'scope>(
+    scope: &'scope std::thread::Scope<'scope, '_>,
+    name: String,
+    f: impl FnOnce() -> T + Send + 'scope,
+) -> Result<std::thread::ScopedJoinHandle<'scope, T>, PipelineError> {
+    std::thread::Builder::new()
+        .name(name)
+        .spawn_scoped(scope, f)
+        .map_err(|e| PipelineError(format!("cannot start a pipeline thread: {e}")))
 }
 
 /// `f` of every item, in order, on `threads` threads (each a run of the items, the first run
