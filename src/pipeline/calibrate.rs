@@ -1,6 +1,6 @@
-//! The calibrate stage: raw counts to reflectance, rows split among the workers, angle
-//! ends told to the coordinator; and the calibrated stream for consumers outside the
-//! pipeline.
+//! The calibrate stage: raw counts to reflectance (a live camera's; a capture on disk is
+//! calibrated as it is read), rows split among the workers, angle ends told to the
+//! coordinator; and the calibrated stream for consumers outside the pipeline.
 
 use std::sync::Mutex;
 use std::time::Instant;
