@@ -176,6 +176,18 @@ impl RowBatch {
     }
 }
 
+/// The render jobs of `angles` angles whose rows are `order`: each angle's rows in runs of
+/// `capacity`, angle after angle.
+fn angle_jobs(
+    order: &[(usize, usize)],
+    angles: usize,
+    capacity: usize,
+) -> Vec<(usize, &[(usize, usize)])> {
+    (0..angles)
+        .flat_map(|a| order.chunks(capacity).map(move |part| (a, part)))
+        .collect()
+}
+
 /// Renders `jobs` (each an angle and up to `capacity` of its `(band, row)`s) on `threads`
 /// threads and hands each batch to `consume` on the calling thread, in job order, while the
 /// threads go on with the jobs that follow. At most `threads * BATCHES_PER_THREAD` batches
@@ -313,10 +325,8 @@ pub fn camera_samples_per_s(scene: &Scene, rows: usize) -> f64 {
         .flat_map(|r| (0..scene.bands_nm.len()).map(move |b| (b, r)))
         .collect();
     let capacity = job_rows(w);
-    let jobs: Vec<(usize, &[(usize, usize)])> = (0..scene.angles_deg.len())
-        .flat_map(|a| order.chunks(capacity).map(move |part| (a, part)))
-        .collect();
-    let rendered = render_in_order(
+    let jobs = angle_jobs(&order, scene.angles_deg.len(), capacity);
+    let Ok(()) = render_in_order(
         &camera,
         RowKind::Raw,
         &jobs,
@@ -327,7 +337,6 @@ pub fn camera_samples_per_s(scene: &Scene, rows: usize) -> f64 {
             Ok::<(), std::convert::Infallible>(())
         },
     );
-    let _ = rendered;
     (order.len() * scene.angles_deg.len() * w) as f64 / t0.elapsed().as_secs_f64()
 }
 
@@ -387,8 +396,7 @@ pub fn write_capture(
     opts: SimulateOptions,
     on_rows: &dyn Fn(u64),
 ) -> Result<PathBuf, SimulateError> {
-    let err = |p: &Path, e: &dyn std::fmt::Display| path_err(p, e);
-    std::fs::create_dir_all(out_dir.join("truth")).map_err(|e| err(out_dir, &e))?;
+    std::fs::create_dir_all(out_dir.join("truth")).map_err(|e| path_err(out_dir, &e))?;
     let camera = SoftwareCamera::new(scene.clone());
     let (w, h) = (camera.width(), camera.height());
     let kind = if opts.noise_free {
@@ -413,39 +421,36 @@ pub fn write_capture(
         if kind == RowKind::Raw {
             hd.extra.push(("saturation counts".into(), sat.clone()));
         }
-        let cube = EnviWriter::create(&cube_path, &hd).map_err(|e| err(&cube_path, &e))?;
-        let (white, dark) = if kind == RowKind::Raw {
-            let mut refs = Vec::new();
-            for (name, what) in [("white", "white"), ("dark", "dark")] {
-                let path = out_dir.join(format!("{name}{tag}.hdr"));
-                let desc = format!("{what} reference (averaged counts)");
-                let href = header(scene, DataType::F32, opts, &desc);
-                let writer = EnviWriter::create(&path, &href).map_err(|e| err(&path, &e))?;
-                refs.push((path, writer));
-            }
-            let dark = refs.pop();
-            (refs.pop(), dark)
-        } else {
-            (None, None)
+        let cube = EnviWriter::create(&cube_path, &hd).map_err(|e| path_err(&cube_path, &e))?;
+        let reference = |name: &str| {
+            let path = out_dir.join(format!("{name}{tag}.hdr"));
+            let desc = format!("{name} reference (averaged counts)");
+            let href = header(scene, DataType::F32, opts, &desc);
+            let writer = EnviWriter::create(&path, &href).map_err(|e| path_err(&path, &e))?;
+            Ok::<_, SimulateError>((path, writer))
         };
+        let refs = if kind == RowKind::Raw {
+            Some([reference("white")?, reference("dark")?])
+        } else {
+            None
+        };
+        let ref_path = |k: usize| refs.as_ref().map(|r| r[k].0.clone());
         angles.push(Angle {
             incidence_deg: deg,
             cube: cube_path.clone(),
-            white: white.as_ref().map(|(p, _)| p.clone()),
-            dark: dark.as_ref().map(|(p, _)| p.clone()),
+            white: ref_path(0),
+            dark: ref_path(1),
             white_reflectance: 1.0,
         });
         files.push(Some(AngleFiles {
             cube: (cube_path, cube),
-            refs: white.zip(dark).map(|(white, dark)| [white, dark]),
+            refs,
         }));
     }
     let order = row_order(scene, opts.interleave);
     let capacity = job_rows(w);
     let per_angle = order.len().div_ceil(capacity);
-    let jobs: Vec<(usize, &[(usize, usize)])> = (0..scene.angles_deg.len())
-        .flat_map(|a| order.chunks(capacity).map(move |part| (a, part)))
-        .collect();
+    let jobs = angle_jobs(&order, scene.angles_deg.len(), capacity);
     let mut finishing = Vec::new();
     let written = render_in_order(
         &camera,
@@ -491,7 +496,7 @@ pub fn write_capture(
         Some("true film thickness, nm"),
         &[],
     )
-    .map_err(|e| err(&truth_map, &e))?;
+    .map_err(|e| path_err(&truth_map, &e))?;
     let toml_path = out_dir.join("capture.toml");
     // A dispersive substrate travels with the capture as a refractiveindex.info entry.
     let substrate = if scene.stack.substrate.is_constant() {
@@ -507,7 +512,7 @@ pub fn write_capture(
             ],
             &format!("substrate of scene {}", scene.name),
         );
-        write_atomic(&path, text.as_bytes()).map_err(|e| err(&path, &e))?;
+        write_atomic(&path, text.as_bytes()).map_err(|e| path_err(&path, &e))?;
         Some(crate::io::SubstrateMaterial {
             name: name.into(),
             dispersion: scene.stack.substrate,
@@ -558,8 +563,8 @@ pub fn write_capture(
         (t, _) => t,
     };
     let truth_path = out_dir.join("truth.json");
-    let text = serde_json::to_string_pretty(&truth).map_err(|e| err(&truth_path, &e))?;
-    write_atomic(&truth_path, text.as_bytes()).map_err(|e| err(&truth_path, &e))?;
+    let text = serde_json::to_string_pretty(&truth).map_err(|e| path_err(&truth_path, &e))?;
+    write_atomic(&truth_path, text.as_bytes()).map_err(|e| path_err(&truth_path, &e))?;
     Ok(toml_path)
 }
 
@@ -567,13 +572,19 @@ pub fn write_capture(
 mod tests {
     use super::*;
 
+    /// The tiny rig scene and its camera.
+    fn tiny() -> (Scene, SoftwareCamera) {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes/rig-tiny.toml");
+        let scene = Scene::load(Path::new(path)).expect("scene");
+        let camera = SoftwareCamera::new(scene.clone());
+        (scene, camera)
+    }
+
     /// Rows rendered on one thread, on three, and one by one through the camera's own
     /// calls are the same bits, handed over in job order: every row has its own seed.
     #[test]
     fn batches_are_the_same_on_any_number_of_threads() {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes/rig-tiny.toml");
-        let scene = Scene::load(Path::new(path)).expect("scene");
-        let camera = SoftwareCamera::new(scene.clone());
+        let (scene, camera) = tiny();
         let w = camera.width();
         let order = row_order(&scene, Interleave::Bil);
         let rows = &order[..order.len().min(40)];
@@ -611,9 +622,7 @@ mod tests {
     /// An error from the consumer stops the rendering and comes back; the threads end.
     #[test]
     fn a_failing_consumer_stops_the_rendering() {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes/rig-tiny.toml");
-        let scene = Scene::load(Path::new(path)).expect("scene");
-        let camera = SoftwareCamera::new(scene.clone());
+        let (scene, camera) = tiny();
         let order = row_order(&scene, Interleave::Bil);
         let jobs: Vec<(usize, &[(usize, usize)])> = order.chunks(2).map(|p| (0, p)).collect();
         let mut calls = 0;
@@ -633,9 +642,7 @@ mod tests {
     /// waiting for its job.
     #[test]
     fn a_panicking_render_thread_panics_the_caller() {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes/rig-tiny.toml");
-        let scene = Scene::load(Path::new(path)).expect("scene");
-        let camera = SoftwareCamera::new(scene.clone());
+        let (scene, camera) = tiny();
         let order = row_order(&scene, Interleave::Bil);
         // A row beyond the sensor: the camera panics on it.
         let bad = [(0, scene.sensor.height + 5)];

@@ -517,6 +517,17 @@ pub struct BenchReport {
     pub inspect_latency_error: Option<String>,
 }
 
+/// The run of `measure`'s three whose `key` is the middle one: a figure that moves from
+/// run to run on a shared machine.
+fn median_of_three<T>(
+    mut measure: impl FnMut() -> Result<T>,
+    key: impl Fn(&T) -> f64,
+) -> Result<T> {
+    let mut runs = vec![measure()?, measure()?, measure()?];
+    runs.sort_by(|a, b| key(a).total_cmp(&key(b)));
+    Ok(runs.swap_remove(1))
+}
+
 /// Runs every measurement. `scene_path` gives the spectra (the paper's MgF2 sample by default).
 pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Result<BenchReport> {
     let min = Duration::from_millis(if quick { 300 } else { 1500 });
@@ -541,38 +552,37 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     progress("pipeline");
     let pipe_scene = scene_with(scene_path, pw, 16, None)?;
     let frames = Arc::new(Frames::render(&pipe_scene, 16).map_err(|e| anyhow!(e))?);
-    // The median of three sweeps: one sweep's rate moved by 20 % from run to run on this
-    // 2-core machine.
-    let mut rates = Vec::new();
-    for _ in 0..3 {
-        let mut source = ReplaySource::new(frames.clone(), ph, 16);
-        let out = run_sweep(&mut source, PipelineConfig::default(), None, &|_| {})
-            .map_err(|e| anyhow!("{e}"))?;
-        rates.push(out.samples as f64 / out.stream_time.as_secs_f64());
-    }
-    rates.sort_by(f64::total_cmp);
-    let pipeline = rates[1];
-    // Latency: the same sweep from a camera at half that rate, so no rows queue up (at full
-    // speed the last row waits behind the queued ones: that is throughput, counted above).
+    // One sweep's rate moved by 20 % from run to run on this 2-core machine.
+    let pipeline = median_of_three(
+        || {
+            let mut source = ReplaySource::new(frames.clone(), ph, 16);
+            let out = run_sweep(&mut source, PipelineConfig::default(), None, &|_| {})
+                .map_err(|e| anyhow!("{e}"))?;
+            Ok(out.samples as f64 / out.stream_time.as_secs_f64())
+        },
+        |&rate| rate,
+    )?;
+    // Latency: the same sweep from a camera at half that rate, slower than the pipeline (at
+    // full speed the last row waits behind the queued ones: that is throughput, counted
+    // above).
     progress("latency (camera at half the pipeline's rate)");
     // Streamed once, as from a live camera: the index refitted on the sample as each angle
     // completes, the last angle's refit included in the latency.
-    // The median of three sweeps, as for the pipeline: one sweep's latency moved by half
-    // from run to run on this 2-core virtual machine.
+    // One sweep's latency moved by half from run to run on this 2-core virtual machine.
     let live = RunConfig {
         one_pass: true,
         ..RunConfig::default()
     };
-    let mut sweeps = Vec::new();
-    for _ in 0..3 {
-        let mut paced = ReplaySource::new(frames.clone(), ph, 16).paced(0.5 * pipeline);
-        let out = crate::estimate::filmscope_passes(&mut paced, &live, &|_| {})
-            .map_err(|e| anyhow!("{e}"))?
-            .out;
-        sweeps.push((out.solve_latency, out.latency_parts));
-    }
-    sweeps.sort_by_key(|s| s.0);
-    let (median, lp) = sweeps[1];
+    let (median, lp) = median_of_three(
+        || {
+            let mut paced = ReplaySource::new(frames.clone(), ph, 16).paced(0.5 * pipeline);
+            let out = crate::estimate::filmscope_passes(&mut paced, &live, &|_| {})
+                .map_err(|e| anyhow!("{e}"))?
+                .out;
+            Ok((out.solve_latency, out.latency_parts))
+        },
+        |s| s.0.as_secs_f64(),
+    )?;
     let per_mpix = |d: Duration| d.as_secs_f64() * 1e3 / ((pw * ph) as f64 / 1e6);
     let latency = per_mpix(median);
     let latency_parts = [lp.drain, lp.tally, lp.results, lp.sums, lp.update, lp.ties].map(per_mpix);

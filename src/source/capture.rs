@@ -30,9 +30,8 @@ impl RowScratch {
 }
 
 /// Bytes of a capture's run of lines (`bil`, `bip`, calibrated) read before its rows are
-/// handed on:
-/// each message then carries several rows of a band (fewer messages, and the workers feed
-/// blocks of rows as from a band-sequential source).
+/// handed on: each message then carries several rows of a band (fewer messages, and the
+/// workers feed blocks of rows as from a band-sequential source).
 const LINE_RUN_BYTES: usize = 16 << 20;
 
 /// Most lines in such a run.

@@ -210,9 +210,9 @@ impl SweepSolver {
     }
 
     /// The thicknesses the band models are tabulated over: the search range widened by an
-    /// interference
-    /// order at the longest band and lowest index either side (the neighbouring orders'
-    /// misfits look there). A thickness outside it has its models computed per sample.
+    /// interference order at the longest band and lowest index either side (the
+    /// neighbouring orders' misfits look there). A thickness outside it has its models
+    /// computed per sample.
     pub fn table_range_nm(&self) -> [f64; 2] {
         let [lo, hi] = self.ctx.spec.thickness_range_nm;
         let [_, l_max] = self.band_span_nm();
