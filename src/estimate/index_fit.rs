@@ -3,9 +3,9 @@
 //! into the solver's index model, a thickness seed map and `summary.json`'s evidence.
 
 use filmscope_core::solve::sample::{
-    fit_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len, Failure,
-    Geometry, ModelKind, Parallel, SampleFit, Seat, Spectra, Start, CENTRE, CONSTANT_PREFERENCE,
-    GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY, RUN,
+    fit_index, hold_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len,
+    Failure, Geometry, ModelKind, Parallel, SampleFit, Seat, Spectra, Start, CENTRE,
+    CONSTANT_PREFERENCE, GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY, RUN,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
 use serde_json::json;
@@ -303,6 +303,21 @@ impl SampleTap {
             })
         });
         fit_index(&geo, &spectra, start, &mut scratch, &Threads)
+    }
+
+    /// The sites seated under the given index `(kind, params)`, held rather than fitted
+    /// ([`hold_index`]).
+    pub fn hold(&self, spec: &SweepSpec, kind: ModelKind, params: [f64; 3]) -> SampleFit {
+        let geo = geometry(spec, &self.angles_deg);
+        let spectra = Spectra {
+            values: &self.values,
+            sites: self.sites.len(),
+            angle_stride: self.angle_stride,
+            run: RUN,
+        };
+        let mut scratch =
+            vec![0.0f32; workspace_len(self.sites.len(), self.angles_deg.len(), self.bands)];
+        hold_index(&geo, &spectra, kind, params, &mut scratch, &Threads)
     }
 
     /// Every pixel's starting thickness from the sites' (bilinear over the site grid, the

@@ -1,6 +1,6 @@
 //! The estimator with the film's index known beforehand (`estimate --film-index`): a
-//! library material, a refractiveindex.info YAML file or a number, held for one streaming
-//! pass that gives every pixel its order and thickness; no index is fitted.
+//! library material, a refractiveindex.info YAML file or a number, held through the
+//! estimator's passes; no index is fitted.
 //!
 //! The estimator's index model holds a constant, a Cauchy of up to three terms or a
 //! one-pole Sellmeier; a material given in another form (a Sellmeier of two or three
@@ -10,10 +10,12 @@
 use std::time::Instant;
 
 use filmscope_core::optics::Dispersion;
+use filmscope_core::solve::sample::ModelKind;
 use filmscope_core::solve::IndexModel;
 use serde_json::json;
 
-use crate::estimate::passes::{angle_reports, result_from_sweep};
+use crate::estimate::index_fit::SampleTap;
+use crate::estimate::passes::{angle_reports, fill, passes_under, result_from_sweep};
 use crate::estimate::run::{Run, RunConfig};
 use crate::pipeline::{run_sweep, PipelineError, Prior, PriorUpdate};
 use crate::source::Source;
@@ -33,7 +35,11 @@ pub fn index_model_of(film: &Dispersion, bands_nm: &[f64]) -> Result<IndexModel,
 }
 
 /// Runs the streaming estimator on `source` with the film's index held at `film` (named
-/// `name` in `summary.json`'s `index_model_choice`); one pass over the data.
+/// `name` in `summary.json`'s `index_model_choice`). A replayable source takes the fitted
+/// index's passes ([`passes_under`]) with the sample's sites seated under the given index
+/// ([`SampleTap::hold`]): a film without a fringe pair starts every pixel from their map, and
+/// they check the per-pixel pass and search the pixels it leaves unsolved. A live source, or
+/// a sample too small to seat, streams once.
 pub fn run_with_index(
     source: &mut dyn Source,
     config: &RunConfig,
@@ -45,21 +51,72 @@ pub fn run_with_index(
     let angles_deg = source.angles_deg();
     let t0 = Instant::now();
     let index = index_model_of(film, &spec.bands_nm).map_err(PipelineError)?;
-    let out = run_sweep(
-        source,
-        config.pipeline,
-        Some(Prior::new(index, PriorUpdate::Hold, None)),
-        on_rows,
-    )?;
+    let mut sample = None;
+    if source.replayable() && !config.one_pass {
+        let mut tap = SampleTap::new(&spec, config.sample_sites, angles_deg.len());
+        fill(source, &mut tap)?;
+        let began = Instant::now();
+        let (kind, params) = ModelKind::of_index(&index);
+        let fit = tap.hold(&spec, kind, params);
+        if fit.best.is_some() {
+            let fit_seconds = began.elapsed().as_secs_f64();
+            sample = Some(passes_under(
+                source,
+                config,
+                &tap,
+                fit,
+                fit_seconds,
+                on_rows,
+            )?);
+        }
+    }
+    let out = match &sample {
+        Some(p) => &p.out,
+        None => &run_sweep(
+            source,
+            config.pipeline,
+            Some(Prior::new(index, PriorUpdate::Hold, None)),
+            on_rows,
+        )?,
+    };
     let samples = (spec.width * spec.height * spec.bands_nm.len() * angles_deg.len()) as u64;
     let max_err = spec
         .bands_nm
         .iter()
         .map(|&l| (index.at(l) - film.index_at(l)).abs())
         .fold(0.0, f64::max);
-    let mut result = result_from_sweep(&out);
+    let mut result = result_from_sweep(out);
     result.index = index;
     result.index_sigma = None;
+    if let Some(why) = sample.as_ref().and_then(|p| p.fit.as_ref()?.failure) {
+        // `result_from_sweep` notes no index: there is one, it does not fit.
+        result.notes = vec![format!("{}: every pixel is NaN", why.message())];
+    }
+    let mut model_choice = json!({
+        "given": name,
+        "reason": "the film's index was given (--film-index): held, not fitted",
+        "largest_difference_from_given": max_err,
+        "passes": sample.as_ref().map_or(1, |p| p.passes),
+    });
+    if let Some(p) = &sample {
+        // The sample's evidence under the given index: how well it fits, and the checks.
+        for key in [
+            "chi2_nu",
+            "noise_sigma",
+            "sampled_sites",
+            "sites_used",
+            "fit_seconds",
+            "failure",
+            "sites_disagreeing",
+            "per_pixel_failure",
+            "pixels_searched",
+            "pixels_solved_by_search",
+        ] {
+            if let Some(v) = p.choice.get(key) {
+                model_choice[key] = v.clone();
+            }
+        }
+    }
     Ok(Run {
         result,
         spec,
@@ -68,12 +125,8 @@ pub fn run_with_index(
         solve_latency_ms: Some(out.solve_latency.as_secs_f64() * 1e3),
         state_bytes_per_pixel: Some(out.state_bytes_per_pixel),
         samples,
-        angle_reports: angle_reports(&out),
-        model_choice: json!({
-            "given": name,
-            "reason": "the film's index was given (--film-index): held, not fitted",
-            "largest_difference_from_given": max_err,
-        }),
+        angle_reports: angle_reports(out),
+        model_choice,
         field_model: None,
         field_model_choice: None,
     })

@@ -102,6 +102,23 @@ pub fn filmscope_passes(
     let began = Instant::now();
     let fit = tap.fit(&spec, None, true);
     let fit_seconds = began.elapsed().as_secs_f64();
+    passes_under(source, config, &tap, fit, fit_seconds, on_rows)
+}
+
+/// The passes of a replayable source after the sample's fit `fit` (of `tap`, taking
+/// `fit_seconds`), which gives the index (fitted, or held as given): one streaming pass
+/// holding it, every pixel starting from the sample's map when the film has no fringe pair;
+/// again from that map where its sites disagree with the sample; the search for the pixels
+/// left unsolved; every pixel flagged if the sites still disagree.
+pub fn passes_under(
+    source: &mut dyn Source,
+    config: &RunConfig,
+    tap: &SampleTap,
+    fit: SampleFit,
+    fit_seconds: f64,
+    on_rows: &(dyn Fn(u64) + Sync),
+) -> Result<Passes, PipelineError> {
+    let spec = source.spec().clone();
     let index = index_model(&fit);
     let seed = if fringes_across_band(&spec, &fit) < SEEDED_BELOW_FRINGES {
         tap.seed_map(&fit, spec.width, spec.height).map(Arc::new)
@@ -116,7 +133,7 @@ pub fn filmscope_passes(
     // (orders from extrema gone wrong, or left unsolved), every pixel starts from the
     // sample's map instead.
     if let (Some(i), false) = (index, seeded) {
-        if sites_disagree(&tap, &fit, &out, true) > MAX_DISAGREEING_SITES {
+        if sites_disagree(tap, &fit, &out, true) > MAX_DISAGREEING_SITES {
             if let Some(map) = tap.seed_map(&fit, spec.width, spec.height) {
                 let prior = Prior::new(i, PriorUpdate::Hold, Some(Arc::new(map)));
                 out = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
@@ -128,11 +145,11 @@ pub fn filmscope_passes(
     if repaired.is_some() {
         passes += 1;
     }
-    let (out, fit, mut choice) = finish(out, fit, &tap, passes);
+    let (out, fit, mut choice) = finish(out, fit, tap, passes);
     choice["fit_seconds"] = json!(fit_seconds);
     choice["pixels_searched"] = json!(repaired.map(|r| r.0));
     choice["pixels_solved_by_search"] = json!(repaired.map(|r| r.1));
-    flag_if_disagreeing(&tap, &fit, out, &mut choice).map(|out| Passes {
+    flag_if_disagreeing(tap, &fit, out, &mut choice).map(|out| Passes {
         out,
         passes,
         fit: Some(fit),
@@ -168,7 +185,7 @@ pub fn check_capture_memory(
 }
 
 /// Streams the image rows `tap` reads from `source` once into it.
-fn fill(source: &mut dyn Source, tap: &mut dyn Tap) -> Result<(), PipelineError> {
+pub fn fill(source: &mut dyn Source, tap: &mut dyn Tap) -> Result<(), PipelineError> {
     let rows = tap.image_rows();
     for_each_calibrated_rows(source, Some(&rows), |event| match event {
         Calibrated::Angle(deg) => tap.angle(deg),

@@ -26,6 +26,7 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::refine::{passband_phase_span, passband_rule, MAX_BAND_NODES};
+use super::IndexModel;
 use crate::optics::{Dispersion, FilmAtAngle, Indices, Polarization};
 
 /// Pixels a site keeps: its centre and two neighbours each side along the row.
@@ -142,6 +143,18 @@ impl ModelKind {
                 b: [p[0], 0.0, 0.0],
                 c_um: [libm::sqrt(p[1].max(0.0)), 0.0, 0.0],
             },
+        }
+    }
+
+    /// The model and parameters holding the solver's model `m`: [`ModelKind::dispersion`]
+    /// gives `m`'s dispersion back.
+    pub fn of_index(m: &IndexModel) -> (Self, [f64; 3]) {
+        match m.pole {
+            Some(p) if p.a == 1.0 => (Self::Sellmeier1, [p.s, p.l_um * p.l_um, 0.0]),
+            Some(p) => (Self::Sellmeier1c, [p.s, p.l_um * p.l_um, p.a]),
+            None if m.c_um4 != 0.0 => (Self::Cauchy3, [m.a, m.b_um2, m.c_um4]),
+            None if m.b_um2 != 0.0 => (Self::Cauchy2, [m.a, m.b_um2, 0.0]),
+            None => (Self::Constant, [m.a, 0.0, 0.0]),
         }
     }
 
@@ -278,6 +291,8 @@ pub enum Failure {
     NoFit,
     /// The index is under-determined (its standard error exceeds [`MAX_INDEX_SIGMA`]).
     Underdetermined,
+    /// The given index ([`hold_index`]) does not fit the spectra within the noise.
+    GivenIndexMisfit,
 }
 
 impl Failure {
@@ -287,6 +302,7 @@ impl Failure {
             Self::TooLittleData => "too few usable sampled pixels or angles to fit an index",
             Self::NoFit => "no index model fits the sampled spectra within their noise (reduced chi-square above the gate after two starts): wrong metadata (angles, polarisation, substrate) or a film the single-layer model cannot describe",
             Self::Underdetermined => "the sampled spectra do not determine the index (its standard error at 550 nm exceeds 0.01): a film too thin or too close to its substrate's index",
+            Self::GivenIndexMisfit => "the given film index does not fit the sampled spectra within their noise (reduced chi-square above the gate): not this film's index (fit it instead: leave out --film-index), or wrong metadata (angles, polarisation, substrate)",
         }
     }
 }
@@ -328,6 +344,18 @@ pub struct SampleFit {
 }
 
 impl SampleFit {
+    /// No fit yet: too little data until the sites are weighed.
+    const EMPTY: Self = Self {
+        best: None,
+        candidates: heapless::Vec::new(),
+        failure: Some(Failure::TooLittleData),
+        noise_sigma: f64::NAN,
+        thickness_nm: [f32::NAN; MAX_SITES],
+        sites_used: 0,
+        starts: 0,
+        searched: false,
+    };
+
     /// The chosen index model, unless the fit failed.
     pub fn index(&self) -> Option<Dispersion> {
         match (self.failure, self.best) {
@@ -416,39 +444,11 @@ pub fn fit_index(
     scratch: &mut [f32],
     par: &dyn Parallel,
 ) -> SampleFit {
-    let mut fit = SampleFit {
-        best: None,
-        candidates: heapless::Vec::new(),
-        failure: Some(Failure::TooLittleData),
-        noise_sigma: f64::NAN,
-        thickness_nm: [f32::NAN; MAX_SITES],
-        sites_used: 0,
-        starts: 0,
-        searched: false,
-    };
-    let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
+    let mut fit = SampleFit::EMPTY;
     let sites = spectra.sites.min(MAX_SITES);
-    if na < 1
-        || !(8..=MAX_BANDS).contains(&nb)
-        || sites == 0
-        || scratch.len() < workspace_len(sites, na, nb)
-    {
+    let Some((usable, weight)) = weigh_sites(geo, spectra, scratch, &mut fit) else {
         return fit;
-    }
-    let mut site_sigma = [f64::NAN; MAX_SITES];
-    fit.noise_sigma = noise_sigma(geo, spectra, scratch, &mut site_sigma);
-    let mut usable = complete_sites(spectra, sites, na, nb);
-    for (k, u) in usable.iter_mut().enumerate().take(sites) {
-        *u &= site_sigma[k] > 0.0 && site_sigma[k].is_finite();
-    }
-    fit.sites_used = usable.iter().filter(|&&u| u).count();
-    if fit.sites_used < 2 {
-        return fit;
-    }
-    let mut weight = [0.0; MAX_SITES];
-    for (w, s) in weight.iter_mut().zip(&site_sigma) {
-        *w = 1.0 / (s * s);
-    }
+    };
     let problem = Problem {
         geo,
         spectra,
@@ -560,6 +560,101 @@ pub fn fit_index(
     }
 }
 
+/// The noise, usable sites and their weights (one over each site's noise variance) of
+/// `spectra`, `fit`'s noise and sites used set; `None` when there is too little to fit
+/// (`fit` failed with [`Failure::TooLittleData`]).
+fn weigh_sites(
+    geo: &Geometry<'_>,
+    spectra: &Spectra<'_>,
+    scratch: &mut [f32],
+    fit: &mut SampleFit,
+) -> Option<([bool; MAX_SITES], [f64; MAX_SITES])> {
+    let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
+    let sites = spectra.sites.min(MAX_SITES);
+    if na < 1
+        || !(8..=MAX_BANDS).contains(&nb)
+        || sites == 0
+        || scratch.len() < workspace_len(sites, na, nb)
+    {
+        return None;
+    }
+    let mut site_sigma = [f64::NAN; MAX_SITES];
+    fit.noise_sigma = noise_sigma(geo, spectra, scratch, &mut site_sigma);
+    let mut usable = complete_sites(spectra, sites, na, nb);
+    for (k, u) in usable.iter_mut().enumerate().take(sites) {
+        *u &= site_sigma[k] > 0.0 && site_sigma[k].is_finite();
+    }
+    fit.sites_used = usable.iter().filter(|&&u| u).count();
+    if fit.sites_used < 2 {
+        return None;
+    }
+    let mut weight = [0.0; MAX_SITES];
+    for (w, s) in weight.iter_mut().zip(&site_sigma) {
+        *w = 1.0 / (s * s);
+    }
+    Some((usable, weight))
+}
+
+/// The sample's fit with the index given rather than fitted (`estimate --film-index`): each
+/// usable site seated under `(kind, params)` as [`seat_pixels`] seats a pixel, weighed by
+/// its own noise; the candidate's chi-square is theirs, its `n550_sigma` zero (the index is
+/// held). A reduced chi-square above [`GATE_CHI2_NU`] fails it, as it fails a fitted
+/// index: thicknesses under an index that does not fit are wrong. The sites' thicknesses
+/// seed and check the per-pixel pass as a fitted index's do.
+pub fn hold_index(
+    geo: &Geometry<'_>,
+    spectra: &Spectra<'_>,
+    kind: ModelKind,
+    params: [f64; 3],
+    scratch: &mut [f32],
+    par: &dyn Parallel,
+) -> SampleFit {
+    let mut fit = SampleFit::EMPTY;
+    let sites = spectra.sites.min(MAX_SITES);
+    let Some((usable, weight)) = weigh_sites(geo, spectra, scratch, &mut fit) else {
+        return fit;
+    };
+    let problem = Problem {
+        geo,
+        spectra,
+        usable: &usable[..sites],
+        weight,
+        par,
+    };
+    let Some((t, sums, _)) = problem.seat(kind, &params, scratch) else {
+        fit.failure = Some(Failure::NoFit);
+        return fit;
+    };
+    let (mut chi2, mut n) = (0.0, 0usize);
+    for (k, s) in sums.iter().enumerate().take(sites) {
+        if usable[k] {
+            chi2 += s.sse;
+            n += s.n;
+        }
+    }
+    let chi2_nu = chi2 / n.saturating_sub(fit.sites_used).max(1) as f64;
+    let (lo, hi) = problem.band_span();
+    let c = Candidate {
+        kind,
+        params,
+        chi2,
+        chi2_nu,
+        score: chi2,
+        n550_sigma: 0.0,
+        physical: kind.physical(&params, lo, hi, geo.index_range),
+    };
+    let _ = fit.candidates.push(c);
+    fit.best = Some(c);
+    fit.failure = (chi2_nu > GATE_CHI2_NU).then_some(Failure::GivenIndexMisfit);
+    fit.starts = 1;
+    for (k, slot) in fit.thickness_nm.iter_mut().enumerate().take(sites) {
+        if usable[k] {
+            *slot = t[k] as f32;
+        }
+    }
+    fit
+}
+
 /// One pixel's thickness under a given index ([`seat_pixels`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Seat {
@@ -617,39 +712,9 @@ pub fn seat_pixels(
         weight: [1.0 / (noise_sigma * noise_sigma); MAX_SITES],
         par,
     };
-    let all: [usize; MAX_SITES] = core::array::from_fn(|k| k);
-    let mut t = [f64::NAN; MAX_SITES];
-    let mut margin = [f64::NAN; MAX_SITES];
-    if problem
-        .score_point(
-            kind,
-            &params,
-            &all[..sites],
-            nb,
-            0,
-            scratch,
-            Some(&mut t),
-            Some(&mut margin),
-        )
-        .is_none()
-    {
+    let Some((t, sums, margin)) = problem.seat(kind, &params, scratch) else {
         return;
-    }
-    // Gauss-Newton on each thickness with the index held, the passband's quadrature in full.
-    let mut sums = [SiteSums::default(); MAX_SITES];
-    for _ in 0..4 {
-        if problem.normal(kind, &params, &t, &mut sums).is_none() {
-            return;
-        }
-        for (k, s) in sums.iter().enumerate().take(sites) {
-            if usable[k] && s.jdd > 0.0 {
-                t[k] += (s.gd / s.jdd).clamp(-5.0, 5.0);
-            }
-        }
-    }
-    if problem.normal(kind, &params, &t, &mut sums).is_none() {
-        return;
-    }
+    };
     for (k, o) in out.iter_mut().enumerate().take(sites) {
         let s = &sums[k];
         if !usable[k] || s.jdd <= 0.0 || s.n < 2 {
@@ -954,6 +1019,53 @@ impl Problem<'_> {
             n += s.n;
         }
         Some((hpp, gp, sse, n))
+    }
+
+    /// Every usable site's thickness under `(kind, p)` held: the best of the dictionary over
+    /// the thickness range on every band, then Gauss-Newton on each thickness with the
+    /// passband's quadrature in full. The thicknesses, the sites' sums at them and each
+    /// site's margin (how much worse, chi-square, the best thickness in another order's
+    /// basin fits); `None` when a model cannot be evaluated.
+    fn seat(
+        &self,
+        kind: ModelKind,
+        p: &[f64; 3],
+        scratch: &mut [f32],
+    ) -> Option<([f64; MAX_SITES], [SiteSums; MAX_SITES], [f64; MAX_SITES])> {
+        let all: [usize; MAX_SITES] = core::array::from_fn(|k| k);
+        let sites = self.usable.len();
+        let mut t = [f64::NAN; MAX_SITES];
+        let mut margin = [f64::NAN; MAX_SITES];
+        self.score_point(
+            kind,
+            p,
+            &all[..sites],
+            self.geo.bands_nm.len(),
+            0,
+            scratch,
+            Some(&mut t),
+            Some(&mut margin),
+        )?;
+        let mut sums = [SiteSums::default(); MAX_SITES];
+        for _ in 0..4 {
+            self.normal(kind, p, &t, &mut sums)?;
+            for (k, s) in sums.iter().enumerate().take(sites) {
+                if self.usable[k] && s.jdd > 0.0 {
+                    t[k] += (s.gd / s.jdd).clamp(-5.0, 5.0);
+                }
+            }
+        }
+        self.normal(kind, p, &t, &mut sums)?;
+        Some((t, sums, margin))
+    }
+
+    /// The band's shortest and longest centre wavelengths, nm.
+    fn band_span(&self) -> (f64, f64) {
+        let b = self.geo.bands_nm;
+        (
+            b.iter().copied().fold(f64::INFINITY, f64::min),
+            b.iter().copied().fold(0.0, f64::max),
+        )
     }
 
     /// Levenberg-Marquardt on every usable site from `(kind, p)` and thicknesses `t`
@@ -1742,11 +1854,17 @@ mod tests {
     }
 
     fn run(case: &Case, seed: u64) -> (SampleFit, Vec<f32>) {
-        run_as(case, case.pol, seed)
+        run_as(case, case.pol, seed, None)
     }
 
-    /// Simulates `case` in `truth_pol` light and fits it as `case.pol` light.
-    fn run_as(case: &Case, truth_pol: Polarization, seed: u64) -> (SampleFit, Vec<f32>) {
+    /// Simulates `case` in `truth_pol` light and fits it as `case.pol` light, the index
+    /// held at `held` when given ([`hold_index`]).
+    fn run_as(
+        case: &Case,
+        truth_pol: Polarization,
+        seed: u64,
+        held: Option<(ModelKind, [f64; 3])>,
+    ) -> (SampleFit, Vec<f32>) {
         let mut bands = Vec::new();
         let mut l = case.bands.0;
         while l <= case.bands.1 + 1e-9 {
@@ -1796,10 +1914,77 @@ mod tests {
             run: RUN,
         };
         let mut scratch = vec![0.0f32; workspace_len(sites, na, nb)];
-        (
-            fit_index(&geo, &spectra, None, &mut scratch, &Serial),
-            truth,
-        )
+        let fit = match held {
+            Some((kind, p)) => hold_index(&geo, &spectra, kind, p, &mut scratch, &Serial),
+            None => fit_index(&geo, &spectra, None, &mut scratch, &Serial),
+        };
+        (fit, truth)
+    }
+
+    /// The index given rather than fitted: a real TiO2-like dispersion held (through the
+    /// solver's model, as `--film-index` gives it) seats every site within 0.3 nm at a
+    /// reduced chi-square near 1; held 0.02 high, the chi-square says the index is wrong
+    /// and the fit fails.
+    #[test]
+    fn a_given_index_is_held_and_its_misfit_reported() {
+        let film = Dispersion::Sellmeier {
+            a: 1.0,
+            b: [4.9, 0.0, 0.0],
+            c_um: [0.21, 0.0, 0.0],
+        };
+        let case = Case {
+            film,
+            substrate: 1.52,
+            base_nm: 180.0,
+            angles: &[10.0, 30.0, 50.0, 65.0],
+            bands: (400.0, 720.0, 4.0),
+            fwhm: 8.0,
+            pol: Polarization::P,
+            noise: 0.003,
+        };
+        let model = IndexModel::from_dispersion(film).expect("one pole");
+        let (kind, p) = ModelKind::of_index(&model);
+        assert_eq!(kind, ModelKind::Sellmeier1);
+        let (fit, truth) = run_as(&case, case.pol, 9, Some((kind, p)));
+        assert!(fit.failure.is_none(), "{:?}", fit.failure);
+        let c = fit.best.expect("a candidate");
+        assert_eq!((c.kind, c.params, c.n550_sigma), (kind, p, 0.0));
+        assert!(c.chi2_nu < 1.2, "{}", c.chi2_nu);
+        assert_eq!(fit.sites_used, truth.len());
+        for (t, d) in fit.thickness_nm.iter().zip(&truth) {
+            assert!((t - d).abs() < 0.3, "{t} vs {d}");
+        }
+        let off = Dispersion::Sellmeier {
+            a: 1.0,
+            b: [4.9 * 1.02 * 1.02 + 0.04, 0.0, 0.0],
+            c_um: [0.21, 0.0, 0.0],
+        };
+        let (kind, p) = ModelKind::of_index(&IndexModel::from_dispersion(off).expect("one pole"));
+        let (wrong, _) = run_as(&case, case.pol, 9, Some((kind, p)));
+        assert_eq!(wrong.failure, Some(Failure::GivenIndexMisfit));
+        assert!(wrong.best.expect("a candidate").chi2_nu > 3.0, "{wrong:?}");
+    }
+
+    /// Every model's parameters survive the trip through the solver's index model.
+    #[test]
+    fn model_parameters_round_trip_through_the_solvers_model() {
+        for (kind, p) in [
+            (ModelKind::Constant, [1.46, 0.0, 0.0]),
+            (ModelKind::Cauchy2, [1.45, 0.0036, 0.0]),
+            (ModelKind::Cauchy3, [2.2, 0.02, 0.003]),
+            (ModelKind::Sellmeier1, [4.9, 0.0441, 0.0]),
+            (ModelKind::Sellmeier1c, [3.1, 0.04, 1.3]),
+        ] {
+            let m = IndexModel::from_dispersion(kind.dispersion(&p)).expect("a model");
+            let (k2, p2) = ModelKind::of_index(&m);
+            assert_eq!(k2, kind);
+            for (a, b) in p.iter().zip(&p2) {
+                assert!(
+                    (a - b).abs() <= 1e-12 * a.abs().max(1.0),
+                    "{kind:?} {p:?} {p2:?}"
+                );
+            }
+        }
     }
 
     /// Pixels of a thick dispersive high-index film (20 extrema a spectrum, 3 angles) seated
@@ -2013,7 +2198,7 @@ mod tests {
             ..case
         };
         // The same spectra fitted as s light: simulate p, fit s.
-        let (p_fit, _) = run_as(&wrong, Polarization::P, 5);
+        let (p_fit, _) = run_as(&wrong, Polarization::P, 5, None);
         assert_eq!(p_fit.failure, Some(Failure::NoFit), "{p_fit:?}");
     }
 
