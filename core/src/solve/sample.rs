@@ -1188,13 +1188,7 @@ impl Problem<'_> {
         }
         // Scale by the reduced chi-square when the fit is worse than the noise.
         let n550_sigma = libm::sqrt(var.max(0.0) * chi2_nu.max(1.0));
-        let lo = self
-            .geo
-            .bands_nm
-            .iter()
-            .copied()
-            .fold(f64::INFINITY, f64::min);
-        let hi = self.geo.bands_nm.iter().copied().fold(0.0, f64::max);
+        let (lo, hi) = self.band_span();
         Some(Candidate {
             kind,
             params: p,
@@ -1220,13 +1214,7 @@ impl Problem<'_> {
         t: &[f64; MAX_SITES],
         scratch: &mut [f32],
     ) -> SampleFit {
-        let lo = self
-            .geo
-            .bands_nm
-            .iter()
-            .copied()
-            .fold(f64::INFINITY, f64::min);
-        let hi = self.geo.bands_nm.iter().copied().fold(0.0, f64::max);
+        let (lo, hi) = self.band_span();
         let n_at = |c: &Candidate, l_nm: f64| c.kind.eval(&c.params, l_nm * 1e-3).0;
         let mut best: Option<(Candidate, [f64; MAX_SITES])> = None;
         let base = if base.kind == ModelKind::Cauchy2 {
