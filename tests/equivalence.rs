@@ -353,3 +353,50 @@ fn strips_of_any_height_give_the_same_maps() {
         same(&reference, &got, &format!("strips of {strip_rows} rows"));
     }
 }
+
+/// A sweep whose every pixel starts seeded under a held index, given the image's noise,
+/// tracks no extrema (it makes no extremum-pair index estimate): given the noise the
+/// tracked sweep pooled, its maps are the tracked sweep's bit for bit (the extrema decide
+/// nothing there), on the tiny scene (dead and hot pixels included) seeded 1.5 nm off the
+/// truth.
+#[test]
+fn a_seeded_sweep_under_a_held_index_needs_no_extrema() {
+    use filmscope::pipeline::{run_sweep, Prior, PriorUpdate, SweepOutput};
+    use filmscope::source::{Frames, ReplaySource};
+    use std::sync::Arc;
+    let scene = common::tiny_scene();
+    let frames = Arc::new(Frames::render(&scene, scene.sensor.height).expect("frames"));
+    let truth = filmscope::cli::eval::Truth::of_scene(&scene);
+    let seed: Arc<Vec<f32>> = Arc::new(truth.thickness_nm.iter().map(|d| d + 1.5).collect());
+    let index =
+        filmscope::estimate::known_index::index_model_of(&scene.stack.film, &frames.spec.bands_nm)
+            .expect("index");
+    let sweep = |prior: Prior| -> SweepOutput {
+        let mut source = ReplaySource::new(frames.clone(), scene.sensor.height, 4);
+        run_sweep(&mut source, PipelineConfig::default(), Some(prior), &|_| {}).expect("sweep")
+    };
+    let tracked = sweep(Prior::new(index, PriorUpdate::Hold, Some(seed.clone())));
+    let noise = tracked.noise_sigma.expect("the trackers' noise");
+    let untracked =
+        sweep(Prior::new(index, PriorUpdate::Hold, Some(seed)).with_noise(f64::from(noise)));
+    assert_eq!(untracked.noise_sigma, Some(noise));
+    // The extrema's own index estimate (the angles' pair index) is the tracked sweep's only.
+    assert!(tracked.angles.iter().any(|a| a.pair.is_some()));
+    assert!(untracked.angles.iter().all(|a| a.pair.is_none()));
+    let valid = tracked
+        .results
+        .iter()
+        .filter(|r| r.thickness_nm.is_finite())
+        .count();
+    assert!(valid * 10 > tracked.results.len() * 9, "{valid}");
+    for (i, (a, b)) in tracked.results.iter().zip(&untracked.results).enumerate() {
+        assert_eq!(a.flags, b.flags, "pixel {i}");
+        for (x, y) in [
+            (a.thickness_nm, b.thickness_nm),
+            (a.thickness_sigma_nm, b.thickness_sigma_nm),
+            (a.confidence, b.confidence),
+        ] {
+            assert_eq!(x.to_bits(), y.to_bits(), "pixel {i}: {x} vs {y}");
+        }
+    }
+}

@@ -126,7 +126,7 @@ pub fn passes_under(
         None
     };
     let seeded = seed.is_some();
-    let prior = index.map(|i| Prior::new(i, PriorUpdate::Hold, seed));
+    let prior = index.map(|i| Prior::new(i, PriorUpdate::Hold, seed).with_noise(fit.noise_sigma));
     let mut out = run_sweep(source, config.pipeline, prior, on_rows)?;
     let mut passes = 2;
     // The per-pixel pass must agree with the sample's own thicknesses; where it does not
@@ -135,7 +135,8 @@ pub fn passes_under(
     if let (Some(i), false) = (index, seeded) {
         if sites_disagree(tap, &fit, &out, true) > MAX_DISAGREEING_SITES {
             if let Some(map) = tap.seed_map(&fit, spec.width, spec.height) {
-                let prior = Prior::new(i, PriorUpdate::Hold, Some(Arc::new(map)));
+                let prior = Prior::new(i, PriorUpdate::Hold, Some(Arc::new(map)))
+                    .with_noise(fit.noise_sigma);
                 out = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
                 passes += 1;
             }

@@ -149,6 +149,10 @@ pub struct Prior {
     /// global search on sampled spectra): such pixels need no extrema. The map the sweep's
     /// output replaces, not per-pixel state.
     pub seed: Option<Arc<Vec<f32>>>,
+    /// The image's noise (reflectance) measured beforehand (the pixel sample's), if it was.
+    /// A sweep with every pixel seeded under a held index and this noise tracks no extrema
+    /// ([`SolverOptions::extrema`]).
+    pub noise_sigma: Option<f32>,
 }
 
 impl Prior {
@@ -158,7 +162,27 @@ impl Prior {
             index,
             update,
             seed,
+            noise_sigma: None,
         }
+    }
+
+    /// The prior with the image's noise measured beforehand (ignored unless finite and
+    /// positive).
+    pub fn with_noise(mut self, sigma: f64) -> Self {
+        self.noise_sigma = (sigma.is_finite() && sigma > 0.0).then_some(sigma as f32);
+        self
+    }
+
+    /// The noise of a sweep that needs no extrema: every pixel seeded, the index held and
+    /// the noise known.
+    fn untracked_noise(&self, pixels: usize) -> Option<f32> {
+        let seeded = self
+            .seed
+            .as_ref()
+            .is_some_and(|m| m.len() == pixels && m.iter().all(|d| d.is_finite()));
+        (seeded && self.update == PriorUpdate::Hold)
+            .then_some(self.noise_sigma)
+            .flatten()
     }
 }
 
@@ -220,6 +244,10 @@ fn sweep(
     let mut spec = source.spec().clone();
     spec.options = config.solver;
     let (w, h) = (spec.width, spec.height);
+    let untracked = prior.as_ref().and_then(|p| p.untracked_noise(w * h));
+    if untracked.is_some() {
+        spec.options.extrema = false;
+    }
     let strips = Strips::new(h, config.strip_rows, config.workers);
     let order = source.row_order();
     let workers = strips.workers();
@@ -230,6 +258,9 @@ fn sweep(
         Some(PriorUpdate::FullSpectra) => solver = solver.with_spectral_index(),
         Some(PriorUpdate::Hold) => solver = solver.with_held_index(),
         _ => {}
+    }
+    if let Some(sigma) = untracked {
+        solver = solver.with_noise(sigma);
     }
     let mut solver = Box::new(solver);
     let seed = prior

@@ -417,7 +417,8 @@ impl<'a> Shard<'a> {
                 let lists = &mut self.lists
                     [local * per_row * row::LANES..(local + 1) * per_row * row::LANES];
                 let lanes = values.chunks(row::LANES).zip(pixels.chunks_mut(row::LANES));
-                for (b, (t, (v, p))) in trackers.iter_mut().zip(lanes).enumerate() {
+                let tracked = if options.extrema { trackers.len() } else { 0 };
+                for (b, (t, (v, p))) in trackers.iter_mut().zip(lanes).take(tracked).enumerate() {
                     let mut sinks = BlockSinks {
                         pixels: p,
                         lists: &mut *lists,
@@ -472,7 +473,9 @@ impl<'a> Shard<'a> {
                 if let Some(rms) = self.fits[block].rms(lane) {
                     fit.rms.add(rms);
                 }
-                fit.noise.add(self.trackers[block].noise_sigma(lane));
+                if spec.options.extrema {
+                    fit.noise.add(self.trackers[block].noise_sigma(lane));
+                }
             }
         }
     }

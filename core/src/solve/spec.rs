@@ -57,6 +57,12 @@ pub struct SolverOptions {
     /// and FMA on x86-64, [`crate::simd::wide`]); off: the portable build's. The same
     /// results bit for bit either way.
     pub wide_simd: bool,
+    /// Every pixel's fringe extrema tracked. Off only for a sweep whose every pixel starts
+    /// seeded under a held index ([`crate::solve::shard::Shard::seed`]): no order is chosen
+    /// from extrema and no index moved by them, so the tracker's work (about two fifths of
+    /// the per-sample work) is skipped, and the image's noise is the solver's given one
+    /// ([`crate::solve::sweep::SweepSolver::with_noise`]).
+    pub extrema: bool,
 }
 
 impl Default for SolverOptions {
@@ -68,6 +74,7 @@ impl Default for SolverOptions {
             subband: true,
             index_pixels: super::fit_row::INDEX_PIXELS,
             wide_simd: true,
+            extrema: true,
         }
     }
 }

@@ -160,6 +160,14 @@ impl SweepSolver {
         self
     }
 
+    /// The image's noise (reflectance) given rather than pooled from the pixels' trackers:
+    /// for a sweep that tracks no extrema ([`super::SolverOptions::extrema`] off), from the
+    /// pixel sample's own measure ([`super::sample::SampleFit::noise_sigma`]).
+    pub fn with_noise(mut self, sigma: f32) -> Self {
+        self.ctx.noise_median = Some(sigma);
+        self
+    }
+
     /// Whether the index comes from the full spectra.
     pub fn spectral_index(&self) -> bool {
         self.spectral_index
