@@ -59,9 +59,9 @@ pub struct SolverOptions {
     pub wide_simd: bool,
     /// Every pixel's fringe extrema tracked. Off only for a sweep whose every pixel starts
     /// seeded under a held index ([`crate::solve::shard::Shard::seed`]): no order is chosen
-    /// from extrema and no index moved by them, so the tracker's work (about two fifths of
-    /// the per-sample work) is skipped, and the image's noise is the solver's given one
-    /// ([`crate::solve::sweep::SweepSolver::with_noise`]).
+    /// from extrema and no index moved by them, so the tracker's work (over half of the
+    /// per-sample kernels' time in `filmscope bench`) is skipped, and the image's noise is
+    /// the solver's given one ([`crate::solve::sweep::SweepSolver::with_noise`]).
     pub extrema: bool,
 }
 
