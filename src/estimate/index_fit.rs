@@ -285,15 +285,6 @@ impl SampleTap {
     /// refitted and chosen again from it (else only its model refined, kept if it passes
     /// the gate).
     pub fn fit(&self, spec: &SweepSpec, start: Option<&SampleFit>, reselect: bool) -> SampleFit {
-        let geo = geometry(spec, &self.angles_deg);
-        let spectra = Spectra {
-            values: &self.values,
-            sites: self.sites.len(),
-            angle_stride: self.angle_stride,
-            run: RUN,
-        };
-        let mut scratch =
-            vec![0.0f32; workspace_len(self.sites.len(), self.angles_deg.len(), self.bands)];
         let start = start.and_then(|f| {
             f.best.map(|c| Start {
                 kind: c.kind,
@@ -302,12 +293,26 @@ impl SampleTap {
                 thickness_nm: Some(f.thickness_nm),
             })
         });
-        fit_index(&geo, &spectra, start, &mut scratch, &Threads)
+        self.on_held(spec, |geo, spectra, scratch| {
+            fit_index(geo, spectra, start, scratch, &Threads)
+        })
     }
 
     /// The sites seated under the given index `(kind, params)`, held rather than fitted
     /// ([`hold_index`]).
     pub fn hold(&self, spec: &SweepSpec, kind: ModelKind, params: [f64; 3]) -> SampleFit {
+        self.on_held(spec, |geo, spectra, scratch| {
+            hold_index(geo, spectra, kind, params, scratch, &Threads)
+        })
+    }
+
+    /// `f` on the angles held so far: their geometry, the held spectra and the fit's
+    /// workspace.
+    fn on_held(
+        &self,
+        spec: &SweepSpec,
+        f: impl FnOnce(&Geometry<'_>, &Spectra<'_>, &mut [f32]) -> SampleFit,
+    ) -> SampleFit {
         let geo = geometry(spec, &self.angles_deg);
         let spectra = Spectra {
             values: &self.values,
@@ -317,7 +322,7 @@ impl SampleTap {
         };
         let mut scratch =
             vec![0.0f32; workspace_len(self.sites.len(), self.angles_deg.len(), self.bands)];
-        hold_index(&geo, &spectra, kind, params, &mut scratch, &Threads)
+        f(&geo, &spectra, &mut scratch)
     }
 
     /// Every pixel's starting thickness from the sites' (bilinear over the site grid, the

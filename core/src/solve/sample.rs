@@ -444,18 +444,19 @@ pub fn fit_index(
     scratch: &mut [f32],
     par: &dyn Parallel,
 ) -> SampleFit {
-    let mut fit = SampleFit::EMPTY;
-    let sites = spectra.sites.min(MAX_SITES);
-    let Some((usable, weight)) = weigh_sites(geo, spectra, scratch, &mut fit) else {
-        return fit;
-    };
-    let problem = Problem {
-        geo,
-        spectra,
-        usable: &usable[..sites],
-        weight,
-        par,
-    };
+    on_weighed_sites(geo, spectra, scratch, par, |problem, fit, scratch| {
+        fit_weighed(problem, fit, start, scratch)
+    })
+}
+
+/// [`fit_index`] once the sites are weighed.
+fn fit_weighed(
+    problem: &Problem<'_>,
+    mut fit: SampleFit,
+    start: Option<Start>,
+    scratch: &mut [f32],
+) -> SampleFit {
+    let (geo, usable, sites) = (problem.geo, problem.usable, problem.usable.len());
     // Warm start first: refine and keep if it passes the gate.
     let mut thick = [f64::NAN; MAX_SITES];
     if let Some(Start {
@@ -560,15 +561,18 @@ pub fn fit_index(
     }
 }
 
-/// The noise, usable sites and their weights (one over each site's noise variance) of
-/// `spectra`, `fit`'s noise and sites used set; `None` when there is too little to fit
-/// (`fit` failed with [`Failure::TooLittleData`]).
-fn weigh_sites(
+/// Weighs the sites of `spectra` (the noise, the usable sites and their weights, one over
+/// each site's noise variance) and hands their [`Problem`] and the fit so far (its noise and
+/// sites used set) to `body`; a fit failed with [`Failure::TooLittleData`] when there is
+/// too little to fit.
+fn on_weighed_sites(
     geo: &Geometry<'_>,
     spectra: &Spectra<'_>,
     scratch: &mut [f32],
-    fit: &mut SampleFit,
-) -> Option<([bool; MAX_SITES], [f64; MAX_SITES])> {
+    par: &dyn Parallel,
+    body: impl FnOnce(&Problem<'_>, SampleFit, &mut [f32]) -> SampleFit,
+) -> SampleFit {
+    let mut fit = SampleFit::EMPTY;
     let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
     let sites = spectra.sites.min(MAX_SITES);
     if na < 1
@@ -576,7 +580,7 @@ fn weigh_sites(
         || sites == 0
         || scratch.len() < workspace_len(sites, na, nb)
     {
-        return None;
+        return fit;
     }
     let mut site_sigma = [f64::NAN; MAX_SITES];
     fit.noise_sigma = noise_sigma(geo, spectra, scratch, &mut site_sigma);
@@ -586,13 +590,20 @@ fn weigh_sites(
     }
     fit.sites_used = usable.iter().filter(|&&u| u).count();
     if fit.sites_used < 2 {
-        return None;
+        return fit;
     }
     let mut weight = [0.0; MAX_SITES];
     for (w, s) in weight.iter_mut().zip(&site_sigma) {
         *w = 1.0 / (s * s);
     }
-    Some((usable, weight))
+    let problem = Problem {
+        geo,
+        spectra,
+        usable: &usable[..sites],
+        weight,
+        par,
+    };
+    body(&problem, fit, scratch)
 }
 
 /// The sample's fit with the index given rather than fitted (`estimate --film-index`): each
@@ -609,28 +620,27 @@ pub fn hold_index(
     scratch: &mut [f32],
     par: &dyn Parallel,
 ) -> SampleFit {
-    let mut fit = SampleFit::EMPTY;
-    let sites = spectra.sites.min(MAX_SITES);
-    let Some((usable, weight)) = weigh_sites(geo, spectra, scratch, &mut fit) else {
-        return fit;
-    };
-    let problem = Problem {
-        geo,
-        spectra,
-        usable: &usable[..sites],
-        weight,
-        par,
-    };
+    on_weighed_sites(geo, spectra, scratch, par, |problem, fit, scratch| {
+        hold_weighed(problem, fit, kind, params, scratch)
+    })
+}
+
+/// [`hold_index`] once the sites are weighed.
+fn hold_weighed(
+    problem: &Problem<'_>,
+    mut fit: SampleFit,
+    kind: ModelKind,
+    params: [f64; 3],
+    scratch: &mut [f32],
+) -> SampleFit {
     let Some((t, sums, _)) = problem.seat(kind, &params, scratch) else {
         fit.failure = Some(Failure::NoFit);
         return fit;
     };
     let (mut chi2, mut n) = (0.0, 0usize);
-    for (k, s) in sums.iter().enumerate().take(sites) {
-        if usable[k] {
-            chi2 += s.sse;
-            n += s.n;
-        }
+    for (s, _) in sums.iter().zip(problem.usable).filter(|(_, &u)| u) {
+        chi2 += s.sse;
+        n += s.n;
     }
     let chi2_nu = chi2 / n.saturating_sub(fit.sites_used).max(1) as f64;
     let (lo, hi) = problem.band_span();
@@ -641,16 +651,14 @@ pub fn hold_index(
         chi2_nu,
         score: chi2,
         n550_sigma: 0.0,
-        physical: kind.physical(&params, lo, hi, geo.index_range),
+        physical: kind.physical(&params, lo, hi, problem.geo.index_range),
     };
     let _ = fit.candidates.push(c);
-    fit.best = Some(c);
-    fit.failure = (chi2_nu > GATE_CHI2_NU).then_some(Failure::GivenIndexMisfit);
     fit.starts = 1;
-    for (k, slot) in fit.thickness_nm.iter_mut().enumerate().take(sites) {
-        if usable[k] {
-            *slot = t[k] as f32;
-        }
+    let mut fit = problem.settle(fit, c, &t);
+    // The gate failed: the given index does not fit (it is not under-determined: held).
+    if fit.failure.is_some() {
+        fit.failure = Some(Failure::GivenIndexMisfit);
     }
     fit
 }
