@@ -149,17 +149,20 @@ impl FilmAtAngle {
         sum / self.n_pol as f64
     }
 
-    /// `d R / d c` at `c = cos(Delta)`.
+    /// Reflectance and `d R / d c` at `c = cos(Delta)`, sharing each polarisation's
+    /// denominator.
     #[inline]
-    pub fn reflectance_slope_at_cos(&self, c: f64) -> f64 {
-        let mut sum = 0.0;
+    pub fn reflectance_and_slope_at_cos(&self, c: f64) -> (f64, f64) {
+        let (mut r, mut slope) = (0.0, 0.0);
         for &(r12, r23) in &self.coeffs[..self.n_pol] {
             let b = 2.0 * r12 * r23;
             let (a, e) = (r12 * r12 + r23 * r23, r12 * r12 * r23 * r23);
-            let den = 1.0 + e + b * c;
-            sum += b * (1.0 + e - a) / (den * den);
+            let inv = 1.0 / (1.0 + e + b * c);
+            r += (a + b * c) * inv;
+            slope += b * (1.0 + e - a) * inv * inv;
         }
-        sum / self.n_pol as f64
+        let k = 1.0 / self.n_pol as f64;
+        (r * k, slope * k)
     }
 
     /// Reflectance of a film of `thickness_nm` at vacuum wavelength `wavelength_nm`.

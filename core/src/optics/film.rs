@@ -119,10 +119,8 @@ impl BandModel {
                     let k = 4.0 * core::f64::consts::PI * f.kz_film / l;
                     let delta = k * thickness_nm;
                     let (s, c) = (libm::sin(delta), libm::cos(delta));
-                    (
-                        f.reflectance_at_cos(c),
-                        -f.reflectance_slope_at_cos(c) * s * k,
-                    )
+                    let (r, dr_dc) = f.reflectance_and_slope_at_cos(c);
+                    (r, -dr_dc * s * k)
                 }
                 None => {
                     let at = |d: f64| self.stack.reflectance(d, self.incidence_deg, l);

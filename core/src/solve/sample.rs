@@ -962,7 +962,7 @@ impl Problem<'_> {
                     for nd in &nodes[..count] {
                         let ph = nd.phase_per_nm * d;
                         let (sn, cs) = libm::sincos(ph);
-                        let r = nd.film.reflectance_at_cos(cs);
+                        let (r, dr_dc) = nd.film.reflectance_and_slope_at_cos(cs);
                         // The raised index's phase is a small step `e` away: its cosine
                         // by the angle sum, `cos e` and `sin e` by their series.
                         let e = (nd.phase_up_per_nm - nd.phase_per_nm) * d;
@@ -970,10 +970,7 @@ impl Problem<'_> {
                         let r_up = nd.film_up.reflectance_at_cos(cs * ce - sn * se);
                         let dr_dn = (r_up - r) / INDEX_STEP;
                         m += nd.weight * r;
-                        jd += nd.weight
-                            * nd.film.reflectance_slope_at_cos(cs)
-                            * -sn
-                            * nd.phase_per_nm;
+                        jd += nd.weight * dr_dc * -sn * nd.phase_per_nm;
                         for q in 0..3 {
                             jp[q] += nd.weight * dr_dn * nd.dn_dp[q];
                         }
