@@ -302,8 +302,8 @@ struct Pairs {
 
 /// The lanes' knots at their three table positions and the index derivative at the
 /// thickness's two, gathered for one block at a time: the caller keeps one across a row's
-/// blocks ([`push_row`]), so that it is not zeroed for every block. A lane's stale knots
-/// are never added: only lanes inside the table are.
+/// blocks ([`push_row`]), so that it is not zeroed for every block. A lane's stale or
+/// clamped knots are never added: only lanes inside the table are.
 #[derive(Clone, Copy)]
 pub struct KnotGather {
     pairs: [Pairs; 3],
@@ -535,6 +535,10 @@ impl FitLanes {
         index: &mut BlockIndex<'_>,
         gather: &mut KnotGather,
     ) -> Mask {
+        // A table of under two knots has no lane inside.
+        let Some(last) = k.len().checked_sub(2) else {
+            return [0; LANES];
+        };
         // Positions of the thickness and the orders either side: knot and fraction.
         // (Separate arrays, each zeroed in place: one struct of them would be zeroed by a
         // call to `memset`, moved by one to `memcpy`.)
@@ -555,21 +559,22 @@ impl FitLanes {
                 frac[p][i] = f;
             }
         }
-        // One lane at a time: each lane's knots.
+        // One lane at a time: each lane's knots, its knot clamped to the table rather than
+        // checked (a branch per lane and position cost a seventh of the kernel): a lane
+        // outside reads the last pair, which is never added.
         let KnotGather { pairs, j_n } = gather;
         for i in 0..LANES {
             for p in 0..3 {
-                let j = knot[p][i] as usize;
-                if let Some(&[a, b]) = k.get(j..j + 2) {
-                    let pair = &mut pairs[p];
-                    pair.m[0][i] = a.m;
-                    pair.m[1][i] = b.m;
-                    pair.slope_h[0][i] = a.slope_h;
-                    pair.slope_h[1][i] = b.slope_h;
-                    if p == 0 {
-                        j_n[0][i] = a.j_n;
-                        j_n[1][i] = b.j_n;
-                    }
+                let j = (knot[p][i] as usize).min(last);
+                let (a, b) = (k[j], k[j + 1]);
+                let pair = &mut pairs[p];
+                pair.m[0][i] = a.m;
+                pair.m[1][i] = b.m;
+                pair.slope_h[0][i] = a.slope_h;
+                pair.slope_h[1][i] = b.slope_h;
+                if p == 0 {
+                    j_n[0][i] = a.j_n;
+                    j_n[1][i] = b.j_n;
                 }
             }
         }
