@@ -927,9 +927,10 @@ impl Problem<'_> {
     }
 
     /// [`Problem::normal`]'s sums over sites `first..first + sites.len()`: theirs into
-    /// `sites`, the index blocks returned.
+    /// `sites`, the index blocks returned (with `INDEX`; else only the thickness's sums are
+    /// made, the index's derivatives skipped, and the blocks are zero).
     #[allow(clippy::too_many_arguments)]
-    fn normal_part(
+    fn normal_part<const INDEX: bool>(
         &self,
         kind: ModelKind,
         p: &[f64; 3],
@@ -963,16 +964,18 @@ impl Problem<'_> {
                         let ph = nd.phase_per_nm * d;
                         let (sn, cs) = libm::sincos(ph);
                         let (r, dr_dc) = nd.film.reflectance_and_slope_at_cos(cs);
-                        // The raised index's phase is a small step `e` away: its cosine
-                        // by the angle sum, `cos e` and `sin e` by their series.
-                        let e = (nd.phase_up_per_nm - nd.phase_per_nm) * d;
-                        let (ce, se) = (1.0 - 0.5 * e * e, e - e * e * e / 6.0);
-                        let r_up = nd.film_up.reflectance_at_cos(cs * ce - sn * se);
-                        let dr_dn = (r_up - r) / INDEX_STEP;
                         m += nd.weight * r;
                         jd += nd.weight * dr_dc * -sn * nd.phase_per_nm;
-                        for q in 0..3 {
-                            jp[q] += nd.weight * dr_dn * nd.dn_dp[q];
+                        if INDEX {
+                            // The raised index's phase is a small step `e` away: its cosine
+                            // by the angle sum, `cos e` and `sin e` by their series.
+                            let e = (nd.phase_up_per_nm - nd.phase_per_nm) * d;
+                            let (ce, se) = (1.0 - 0.5 * e * e, e - e * e * e / 6.0);
+                            let r_up = nd.film_up.reflectance_at_cos(cs * ce - sn * se);
+                            let dr_dn = (r_up - r) / INDEX_STEP;
+                            for q in 0..3 {
+                                jp[q] += nd.weight * dr_dn * nd.dn_dp[q];
+                            }
                         }
                     }
                     let res = f64::from(y) - m;
@@ -981,11 +984,13 @@ impl Problem<'_> {
                     s.n += 1;
                     s.jdd += w * jd * jd;
                     s.gd += w * jd * res;
-                    for q in 0..3 {
-                        s.jdp[q] += w * jd * jp[q];
+                    if INDEX {
+                        for q in 0..3 {
+                            s.jdp[q] += w * jd * jp[q];
+                        }
+                        hpp += jp * jp.transpose() * w;
+                        gp += jp * (res * w);
                     }
-                    hpp += jp * jp.transpose() * w;
-                    gp += jp * (res * w);
                 }
             }
         }
@@ -993,8 +998,9 @@ impl Problem<'_> {
     }
 
     /// One pass computing the full normal equations: per-site sums and the pooled index
-    /// blocks `(H_pp, g_p)`, chi-square (in noise units) and residual count.
-    fn normal(
+    /// blocks `(H_pp, g_p)`, chi-square (in noise units) and residual count; without `INDEX`
+    /// (the index held) the thickness's sums only, the blocks and `jdp` zero.
+    fn normal<const INDEX: bool>(
         &self,
         kind: ModelKind,
         p: &[f64; 3],
@@ -1012,8 +1018,9 @@ impl Problem<'_> {
         let (lo, hi) = sites.split_at_mut(half);
         let (mut first, mut second) = (None, None);
         {
-            let mut a = || first = self.normal_part(kind, p, t, d_max, 0, &mut lo[..half]);
-            let mut b = || second = self.normal_part(kind, p, t, d_max, half, &mut hi[..n - half]);
+            let mut a = || first = self.normal_part::<INDEX>(kind, p, t, d_max, 0, &mut lo[..half]);
+            let mut b =
+                || second = self.normal_part::<INDEX>(kind, p, t, d_max, half, &mut hi[..n - half]);
             self.par.run(&mut [&mut a, &mut b]);
         }
         let ((h1, g1), (h2, g2)) = (first?, second?);
@@ -1052,15 +1059,16 @@ impl Problem<'_> {
             Some(&mut margin),
         )?;
         let mut sums = [SiteSums::default(); MAX_SITES];
+        // The index is held: the thickness's sums alone.
         for _ in 0..4 {
-            self.normal(kind, p, &t, &mut sums)?;
+            self.normal::<false>(kind, p, &t, &mut sums)?;
             for (k, s) in sums.iter().enumerate().take(sites) {
                 if self.usable[k] && s.jdd > 0.0 {
                     t[k] += (s.gd / s.jdd).clamp(-5.0, 5.0);
                 }
             }
         }
-        self.normal(kind, p, &t, &mut sums)?;
+        self.normal::<false>(kind, p, &t, &mut sums)?;
         Some((t, sums, margin))
     }
 
@@ -1084,7 +1092,7 @@ impl Problem<'_> {
     ) -> Option<Candidate> {
         let np = kind.params();
         let mut sites = [SiteSums::default(); MAX_SITES];
-        let (mut hpp, mut gp, mut chi2, mut n) = self.normal(kind, &p, t, &mut sites)?;
+        let (mut hpp, mut gp, mut chi2, mut n) = self.normal::<true>(kind, &p, t, &mut sites)?;
         let mut lambda = 1e-3;
         let mut cov = Matrix3::zeros();
         for _ in 0..steps {
@@ -1136,7 +1144,7 @@ impl Problem<'_> {
             }
             let trial = if ok {
                 let mut trial_sites = [SiteSums::default(); MAX_SITES];
-                self.normal(kind, &p_new, &t_new, &mut trial_sites)
+                self.normal::<true>(kind, &p_new, &t_new, &mut trial_sites)
                     .map(|r| (r, trial_sites))
             } else {
                 None
