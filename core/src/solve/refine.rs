@@ -384,7 +384,8 @@ impl BandCoef {
     /// Tabulates the band's model over thicknesses `range_nm` into `knots` (which must hold
     /// [`BandCoef::knots_for`]'s count), `first` being the knots' offset in the angle's table.
     /// Each knot costs the model's quadrature with its thickness derivative and two
-    /// band-centre evaluations for the index derivative, once per angle.
+    /// band-centre evaluations for the index derivative, once per angle; the phases step
+    /// from knot to knot by a rotation, no sine or cosine per knot.
     pub fn tabulate(&mut self, range_nm: [f64; 2], first: usize, knots: &mut [Knot]) {
         let Some((h, count)) = self.knots_for(range_nm) else {
             self.table = None;
