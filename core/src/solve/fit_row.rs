@@ -560,7 +560,7 @@ impl FitLanes {
             }
         }
         // One lane at a time: each lane's knots, its knot clamped to the table rather than
-        // checked (a branch per lane and position cost a seventh of the kernel): a lane
+        // checked (a branch per lane and position cost an eighth of the kernel): a lane
         // outside reads the last pair, which is never added.
         let KnotGather { pairs, j_n } = gather;
         for i in 0..LANES {
