@@ -395,9 +395,8 @@ fn sweep(
                     tally_parallel(&mut solver, &mut shards, tallies, workers, &mut parts);
                     let releasing = Instant::now();
                     if last {
-                        // The trackers are read no more (their flags kept): the results
-                        // take their memory, not memory of their own on top of the state.
-                        each(&mut shards, workers, Shard::keep_tracker_flags);
+                        // The trackers are read no more: the results take their memory,
+                        // not memory of their own on top of the state.
                         drop(shards);
                         owned.iter_mut().for_each(ShardState::release_trackers);
                         results = vec![PixelResult::UNSOLVED; w * h];
@@ -443,7 +442,6 @@ fn sweep(
     if results_at != Some(solver.angles_done()) {
         let mut owned: Vec<ShardState> =
             states.into_iter().map(Option::unwrap_or_default).collect();
-        // The last update kept the trackers' flags in the pixels'.
         owned.iter_mut().for_each(ShardState::release_trackers);
         if results.len() != w * h {
             results = vec![PixelResult::UNSOLVED; w * h];
@@ -593,9 +591,7 @@ pub fn tally_parallel(
 /// index's sums, the update and the ties. At the sweep's last angle, `results` (the image's,
 /// row-major; the shards hold its rows in order) gets every pixel's final result
 /// ([`Shard::finish`]) from the same pass that updates it. `parts` gets each pass's wall
-/// time. The trackers are not read but for their overflow flags, which a shard whose
-/// trackers were released holds in its pixels' flags already
-/// ([`Shard::keep_tracker_flags`]).
+/// time. The trackers are not read (their overflow flags are the pixels' already).
 pub fn update_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],

@@ -87,8 +87,7 @@ impl ShardState {
     }
 
     /// Gives the trackers' memory back, once nothing reads them (the sweep's last angle end,
-    /// after [`super::run::tally_parallel`] and [`Shard::keep_tracker_flags`]; or after the last update,
-    /// which kept their flags): the results take it.
+    /// after [`super::run::tally_parallel`]; or after the last update): the results take it.
     pub fn release_trackers(&mut self) {
         self.trackers = Vec::new();
     }

@@ -118,7 +118,11 @@ impl LaneSinks for BlockSinks<'_> {
             // Takes and refuses what the head does.
             let _ = self.lists[slot].current.push(e);
         }
-        p.current.push(e)
+        // The overflow is the pixel's from the moment it happens: nothing reads the
+        // tracker's own flag for the results.
+        p.current
+            .push(e)
+            .inspect_err(|_| p.flags |= flags::TRACKER_OVERFLOW)
     }
 }
 
@@ -196,7 +200,7 @@ impl<'a> Shard<'a> {
     /// A shard over caller-owned states, trackers, fits and what the index's sample keeps
     /// (`trackers.len()` and `fits.len()` must be [`tracker_blocks`]`(pixels.len(), width)`,
     /// or `trackers` empty once released at the sweep's last angle end, for the passes after
-    /// [`Shard::tally_rows`] ([`Shard::keep_tracker_flags`]),
+    /// [`Shard::tally_rows`]),
     /// `sample.1.len()` the rows times `sample.0`'s [`IndexSampling::blocks_per_row`],
     /// `sample.2.len()` [`row::LANES`] times that).
     pub fn new(
@@ -322,18 +326,6 @@ impl<'a> Shard<'a> {
     /// Whether image row `row` belongs to this shard.
     pub fn holds(&self, row: usize) -> bool {
         row >= self.first_row && row < self.first_row + self.rows()
-    }
-
-    /// Copies what the angle-end update reads of the trackers, their overflow flags, into
-    /// the pixels' flags, so that the trackers can be released before it (the sweep's last
-    /// angle: the results take their memory).
-    pub fn keep_tracker_flags(&mut self) {
-        let lanes = row::lanes(self.trackers, self.width);
-        for (p, (t, lane)) in self.pixels.iter_mut().zip(lanes) {
-            if t.overflow(lane) {
-                p.flags |= flags::TRACKER_OVERFLOW;
-            }
-        }
     }
 
     /// Starts an angle: resets the trackers and the current extrema.
@@ -573,7 +565,6 @@ impl<'a> Shard<'a> {
         for (r, c) in (0..rows).flat_map(|r| (0..w).map(move |c| (r, c))) {
             let i = r * w + c;
             let mut f = self.fit_at(r, c);
-            // The overflow flag read in place, not through a copy of the pixel's tracker.
             let ((block, lane), sample) = self.lanes_at(r, c);
             if lane == 0 {
                 steps = None;
@@ -581,14 +572,9 @@ impl<'a> Shard<'a> {
             // Whether only the lane steps' three values changed (all the lanes need back).
             let mut stepped = false;
             let slot = sample.map(Self::list_slot);
-            // (Released trackers left their flags in the pixel's: `keep_tracker_flags`.)
-            let overflow = self.trackers.get(block).is_some_and(|t| t.overflow(lane));
             let p = &mut self.pixels[i];
             if !p.current.is_empty() {
                 p.flags |= SEEN_EXTREMA;
-            }
-            if overflow {
-                p.flags |= flags::TRACKER_OVERFLOW;
             }
             // A seeded pixel has no extrema to choose its order again from: it keeps its
             // thickness and steps with the index like the others.

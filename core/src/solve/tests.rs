@@ -76,9 +76,9 @@ mod release_tests {
         }
     }
 
-    /// An overflow found at the sweep's last angle reaches the results whether the update
-    /// reads it from the trackers or, once they are released, from the pixels' flags
-    /// (`keep_tracker_flags`, then a shard without trackers).
+    /// An overflow found at the sweep's last angle reaches the results whether the trackers
+    /// are kept through the update or released before it (a shard without trackers): the
+    /// pixel's flags hold it from the moment it happens.
     #[test]
     fn a_released_tracker_leaves_its_overflow_in_the_results() {
         let mut solver = SweepSolver::new(paper_rig_spec(W, 1), Some(IndexModel::constant(1.38)));
@@ -88,7 +88,6 @@ mod release_tests {
             let mut out = [PixelResult::UNSOLVED; W];
             feed(&mut storage.shard(), &solver);
             if release {
-                storage.shard().keep_tracker_flags();
                 let mut shard = Shard::new(
                     0,
                     W,
