@@ -138,6 +138,41 @@ impl FilmAtAngle {
         self.reflectance_at_cos(libm::cos(delta))
     }
 
+    /// How many polarisations the reflectance averages: 1 (S or P) or 2 (unpolarised).
+    #[inline]
+    pub fn polarizations(&self) -> usize {
+        self.n_pol
+    }
+
+    /// [`FilmAtAngle::reflectance_at_cos`] of a film of `P` [`FilmAtAngle::polarizations`]:
+    /// the same operations in a loop of fixed length, which a caller's loop over many `c`
+    /// can vectorise.
+    #[inline(always)]
+    pub fn reflectance_at_cos_of<const P: usize>(&self, c: f64) -> f64 {
+        let mut sum = 0.0;
+        for &(r12, r23) in &self.coeffs[..P] {
+            let b = 2.0 * r12 * r23 * c;
+            sum += (r12 * r12 + r23 * r23 + b) / (1.0 + r12 * r12 * r23 * r23 + b);
+        }
+        sum / P as f64
+    }
+
+    /// [`FilmAtAngle::reflectance_and_slope_at_cos`] of a film of `P`
+    /// [`FilmAtAngle::polarizations`], as [`FilmAtAngle::reflectance_at_cos_of`].
+    #[inline(always)]
+    pub fn reflectance_and_slope_at_cos_of<const P: usize>(&self, c: f64) -> (f64, f64) {
+        let (mut r, mut slope) = (0.0, 0.0);
+        for &(r12, r23) in &self.coeffs[..P] {
+            let b = 2.0 * r12 * r23;
+            let (a, e) = (r12 * r12 + r23 * r23, r12 * r12 * r23 * r23);
+            let inv = 1.0 / (1.0 + e + b * c);
+            r += (a + b * c) * inv;
+            slope += b * (1.0 + e - a) * inv * inv;
+        }
+        let k = 1.0 / P as f64;
+        (r * k, slope * k)
+    }
+
     /// Reflectance as a function of `c = cos(Delta)` (or of a passband-damped `D cos(Delta)`).
     #[inline]
     pub fn reflectance_at_cos(&self, c: f64) -> f64 {
