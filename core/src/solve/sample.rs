@@ -838,10 +838,10 @@ struct Node {
 /// 33 bits of pi/2 is exact) and fdlibm's polynomials on `|r| <= pi/4`. Within 2 units in
 /// the last place of `libm::sincos` (tested).
 #[inline(always)]
+#[allow(clippy::excessive_precision)] // fdlibm's constants as it prints them
 fn sincos_phase(x: f64) -> (f64, f64) {
     // Adding 1.5 * 2^52 rounds to an integer, which lands in the low bits.
     const TOINT: f64 = 6_755_399_441_055_744.0;
-    const FRAC_2_PI: f64 = 6.366_197_723_675_813_824_33e-1;
     const PIO2_1: f64 = 1.570_796_326_734_125_614_17;
     const PIO2_1T: f64 = 6.077_100_506_506_192_249_32e-11;
     const S: [f64; 6] = [
@@ -860,7 +860,7 @@ fn sincos_phase(x: f64) -> (f64, f64) {
         2.087_572_321_298_174_827_90e-9,
         -1.135_964_755_778_819_482_65e-11,
     ];
-    let shifted = x * FRAC_2_PI + TOINT;
+    let shifted = x * core::f64::consts::FRAC_2_PI + TOINT;
     let k = shifted - TOINT;
     let quadrant = shifted.to_bits();
     let r = (x - k * PIO2_1) - k * PIO2_1T;
