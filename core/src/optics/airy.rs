@@ -144,6 +144,19 @@ impl FilmAtAngle {
         self.n_pol
     }
 
+    /// Polarisation `pol`'s reflectance as `(A + B c) / (E + B c)` at `c = cos(Delta)`:
+    /// `(A, B, E)`, each computed as [`FilmAtAngle::reflectance_at_cos`] computes it (the
+    /// same results bit for bit from them).
+    #[inline]
+    pub fn cos_terms(&self, pol: usize) -> (f64, f64, f64) {
+        let (r12, r23) = self.coeffs[pol];
+        (
+            r12 * r12 + r23 * r23,
+            2.0 * r12 * r23,
+            1.0 + r12 * r12 * r23 * r23,
+        )
+    }
+
     /// [`FilmAtAngle::reflectance_at_cos`] of a film of `P` [`FilmAtAngle::polarizations`]:
     /// the same operations in a loop of fixed length, which a caller's loop over many `c`
     /// can vectorise.

@@ -832,6 +832,51 @@ struct Node {
     dn_dp: [f64; 3],
 }
 
+/// Columns of [`Problem::score_point`]'s dictionary at most: angles times bands.
+const COLUMNS: usize = SEARCH_ANGLES * SEAT_BANDS;
+
+/// The dictionary's rows (`rows`: `nv` columns each, a row a thickness) and each row's sum
+/// of squares (`m2`), for a film of `P` polarisations: each column's phase advances by a
+/// rotation and its passband damping by a ratio that itself shrinks geometrically (`st`,
+/// `rot`), so no row needs a cosine or an exponential; its reflectance is
+/// [`FilmAtAngle::reflectance_at_cos`]'s from the column's `terms`, bit for bit.
+#[inline(always)]
+fn dictionary_rows<const P: usize>(
+    rows: &mut [f32],
+    nv: usize,
+    m2: &mut [f64],
+    st: &mut [[f64; COLUMNS]; 5],
+    rot: &[[f64; COLUMNS]; 2],
+    terms: &[[[f64; COLUMNS]; 3]; 2],
+) {
+    let mut m = [0.0f64; COLUMNS];
+    let m = &mut m[..nv];
+    for (row, m2) in rows.chunks_exact_mut(nv.max(1)).zip(m2.iter_mut()) {
+        let [c, s, damp, ratio, shrink] = st;
+        let (c, s, damp) = (&mut c[..nv], &mut s[..nv], &mut damp[..nv]);
+        let (ratio, shrink) = (&mut ratio[..nv], &shrink[..nv]);
+        let (cd, sd) = (&rot[0][..nv], &rot[1][..nv]);
+        for j in 0..nv {
+            let x = damp[j] * c[j];
+            let mut sum = 0.0;
+            for t in &terms[..P] {
+                let b = t[1][j] * x;
+                sum += (t[0][j] + b) / (t[2][j] + b);
+            }
+            m[j] = sum / P as f64;
+            (c[j], s[j]) = (c[j] * cd[j] - s[j] * sd[j], s[j] * cd[j] + c[j] * sd[j]);
+            damp[j] *= ratio[j];
+            ratio[j] *= shrink[j];
+        }
+        let mut sum = 0.0;
+        for (v, &mj) in row.iter_mut().zip(m.iter()) {
+            *v = mj as f32;
+            sum += mj * mj;
+        }
+        *m2 = sum;
+    }
+}
+
 /// `(sin x, cos x)` of a film's phase (`|x|` under a million radians: a phase is a few
 /// thousand at most), without a branch, so that a loop over many phases vectorises:
 /// Cody-Waite reduction by pi/2 (the quotient below 2^20, so its product with the first
@@ -997,12 +1042,16 @@ impl Problem<'_> {
         // compile to vector instructions (AVX2 where the CPU has it): each site's sums take
         // the nodes in the same order as one site at a time would.
         let (h, g) = (&mut hpp, &mut gp);
-        crate::simd::wide(true, || match self.geo.polarization {
-            Polarization::Unpolarized => {
-                self.normal_blocks::<INDEX, 2>(kind, p, t, d_max, first, sites, h, g)
-            }
-            _ => self.normal_blocks::<INDEX, 1>(kind, p, t, d_max, first, sites, h, g),
-        })?;
+        crate::simd::wide(
+            true,
+            #[inline(always)]
+            || match self.geo.polarization {
+                Polarization::Unpolarized => {
+                    self.normal_blocks::<INDEX, 2>(kind, p, t, d_max, first, sites, h, g)
+                }
+                _ => self.normal_blocks::<INDEX, 1>(kind, p, t, d_max, first, sites, h, g),
+            },
+        )?;
         Some((hpp, gp))
     }
 
@@ -1660,41 +1709,38 @@ impl Problem<'_> {
         // rotation and its passband damping by a ratio that itself shrinks geometrically,
         // so no row needs a cosine or an exponential.
         let mut m2 = [0.0f64; MAX_DICTIONARY];
-        let mut rot = [[0.0f64; 5]; SEARCH_ANGLES * SEAT_BANDS];
-        for (r, f) in rot.iter_mut().zip(films.iter()) {
+        // Each column's state as arrays (cosine, sine, damping, its ratio and the ratio's
+        // ratio; the rotation's cosine and sine; each polarisation's `(A, B, E)`), so that a
+        // row's columns are computed in vector instructions.
+        let mut st = [[0.0f64; COLUMNS]; 5];
+        let mut rot = [[0.0f64; COLUMNS]; 2];
+        let mut terms = [[[0.0f64; COLUMNS]; 3]; 2];
+        for (j, f) in films.iter().enumerate() {
             let (p0, dp, s2) = (f.1 * t_lo, f.1 * h, f.2 * f.2);
-            *r = [
-                libm::cos(p0),
-                libm::sin(p0),
-                libm::exp(-0.5 * s2 * p0 * p0),
-                libm::exp(-0.5 * s2 * (2.0 * p0 * dp + dp * dp)),
-                libm::exp(-s2 * dp * dp),
-            ];
-        }
-        let steps: heapless::Vec<(f64, f64), { SEARCH_ANGLES * SEAT_BANDS }> = films
-            .iter()
-            .map(|f| (libm::cos(f.1 * h), libm::sin(f.1 * h)))
-            .collect();
-        for i in 0..count {
-            let row = &mut scratch[i * nv..(i + 1) * nv];
-            let mut s = 0.0;
-            for (((v, f), r), &(cd, sd)) in row
-                .iter_mut()
-                .zip(films.iter())
-                .zip(rot.iter_mut())
-                .zip(&steps)
-            {
-                let m = f.0.reflectance_at_cos(r[2] * r[0]);
-                *v = m as f32;
-                s += m * m;
-                let (c, sn) = (r[0] * cd - r[1] * sd, r[1] * cd + r[0] * sd);
-                r[0] = c;
-                r[1] = sn;
-                r[2] *= r[3];
-                r[3] *= r[4];
+            st[0][j] = libm::cos(p0);
+            st[1][j] = libm::sin(p0);
+            st[2][j] = libm::exp(-0.5 * s2 * p0 * p0);
+            st[3][j] = libm::exp(-0.5 * s2 * (2.0 * p0 * dp + dp * dp));
+            st[4][j] = libm::exp(-s2 * dp * dp);
+            rot[0][j] = libm::cos(f.1 * h);
+            rot[1][j] = libm::sin(f.1 * h);
+            for (pol, t) in terms.iter_mut().enumerate() {
+                (t[0][j], t[1][j], t[2][j]) = f.0.cos_terms(pol);
             }
-            m2[i] = s;
         }
+        let rows = &mut scratch[..count * nv];
+        let m2_rows = &mut m2[..count];
+        crate::simd::wide(
+            true,
+            #[inline(always)]
+            || {
+                if geo.polarization == Polarization::Unpolarized {
+                    dictionary_rows::<2>(rows, nv, m2_rows, &mut st, &rot, &terms);
+                } else {
+                    dictionary_rows::<1>(rows, nv, m2_rows, &mut st, &rot, &terms);
+                }
+            },
+        );
         let mut total = 0.0;
         let mut y = [0.0f32; SEARCH_ANGLES * SEAT_BANDS];
         for &k in sites {
@@ -1733,11 +1779,15 @@ impl Problem<'_> {
                 }
             }
             let mut sses = [f64::INFINITY; MAX_DICTIONARY];
-            crate::simd::wide(true, || {
-                for (i, sse) in sses.iter_mut().enumerate().take(count) {
-                    *sse = m2[i] - 2.0 * dot(&scratch[i * nv..(i + 1) * nv], &y[..nv]) + y2;
-                }
-            });
+            crate::simd::wide(
+                true,
+                #[inline(always)]
+                || {
+                    for (i, sse) in sses.iter_mut().enumerate().take(count) {
+                        *sse = m2[i] - 2.0 * dot(&scratch[i * nv..(i + 1) * nv], &y[..nv]) + y2;
+                    }
+                },
+            );
             let mut best = (f64::INFINITY, 0usize);
             for (i, &sse) in sses.iter().enumerate().take(count) {
                 if sse < best.0 {
