@@ -67,51 +67,57 @@ pub struct OrderChoice {
     pub order_step_nm: f64,
 }
 
-/// `libm::round(x)` (halves away from zero), bit for bit, without its call: the order
-/// search rounds every extremum's order for every candidate, and the software `round` took
-/// a fifth of the search's samples in a `perf` profile of a live 1 MP sweep. `x as i64` truncates
-/// (exactly, below `2^52`; at and above it `x` is already an integer), `x - t` is exact.
+/// `2^52`: at and above it every `f64` is an integer.
+const TWO_52: f64 = 4_503_599_627_370_496.0;
+
+/// `libm::floor(x)` for `0 <= x < 2^52`, exactly and without a branch: adding and taking
+/// away `2^52` rounds to the nearest integer, one too many where that rounded up.
+#[inline(always)]
+fn floor_small(x: f64) -> f64 {
+    let r = (x + TWO_52) - TWO_52;
+    if r > x {
+        r - 1.0
+    } else {
+        r
+    }
+}
+
+/// `libm::round(x)` (halves away from zero), bit for bit, without its call or a branch:
+/// the order search rounds every extremum's order for every candidate, a loop over the
+/// candidates that compiles to vector instructions. `|x|`'s floor and fraction are exact
+/// below `2^52`; at and above it `x` is already an integer (or infinite, or NaN).
 #[inline(always)]
 fn round(x: f64) -> f64 {
-    const TWO_52: f64 = 4_503_599_627_370_496.0;
-    const SIGN: u64 = 1 << 63;
-    if x.to_bits() & !SIGN >= TWO_52.to_bits() {
-        // Integers, infinities and NaN: as they are.
-        return x;
-    }
-    let t = (x as i64) as f64;
-    let frac = x - t;
-    let r = if frac >= 0.5 {
-        t + 1.0
-    } else if frac <= -0.5 {
-        t - 1.0
-    } else {
-        t
-    };
+    let a = x.abs();
+    let t = floor_small(a);
+    let r = if a - t >= 0.5 { t + 1.0 } else { t };
     // A zero keeps the sign of `x` (-0.3 rounds to -0.0).
-    f64::from_bits((r.to_bits() & !SIGN) | (x.to_bits() & SIGN))
-}
-
-/// `libm::ceil(x) as i64`, without the call (the cast saturates; NaN gives 0).
-#[inline(always)]
-fn ceil_i64(x: f64) -> i64 {
-    let t = x as i64;
-    if (t as f64) < x {
-        t.saturating_add(1)
+    let r = r.copysign(x);
+    if a < TWO_52 {
+        r
     } else {
-        t
+        x
     }
 }
 
-/// `libm::floor(x) as i64`, without the call (the cast saturates; NaN gives 0).
+/// `libm::floor(x)` for `|x| < 2^52` (what an extremum count needs), without a branch.
 #[inline(always)]
-fn floor_i64(x: f64) -> i64 {
-    let t = x as i64;
-    if (t as f64) > x {
-        t.saturating_sub(1)
-    } else {
+fn floor_f(x: f64) -> f64 {
+    let t = floor_small(x.abs());
+    // Below zero the floor of `x` is minus the ceiling of `|x|`.
+    if x >= 0.0 {
         t
+    } else if t < x.abs() {
+        -t - 1.0
+    } else {
+        -t
     }
+}
+
+/// `libm::ceil(x)` for `|x| < 2^52`, without a branch.
+#[inline(always)]
+fn ceil_f(x: f64) -> f64 {
+    -floor_f(-x)
 }
 
 impl OrderContext {
@@ -128,8 +134,10 @@ impl OrderContext {
     }
 
     /// Extrema a film of `thickness_nm` shows at angle `a` inside the reliable range, given
-    /// `root[a]`: `sqrt(n^2 - x)` at the reliable range's long and short ends.
-    fn predicted_count(&self, thickness_nm: f64, a: usize, root: &[[f64; 2]; 2]) -> i64 {
+    /// `root[a]`: `sqrt(n^2 - x)` at the reliable range's long and short ends (a whole
+    /// number, as a float: the counts of real films are far below `2^52`).
+    #[inline(always)]
+    fn predicted_count(&self, thickness_nm: f64, a: usize, root: &[[f64; 2]; 2]) -> f64 {
         let at = |l: f64, r: f64| thickness_nm * 2.0 * r / l;
         let (q_lo, q_hi) = (
             at(self.reliable_nm[1], root[a][0]),
@@ -137,40 +145,54 @@ impl OrderContext {
         );
         // Extrema sit at q = peak_offset + k / 2.
         let offset = self.peak_offset[a];
-        let first = ceil_i64((q_lo - offset) * 2.0);
-        let last = floor_i64((q_hi - offset) * 2.0);
-        let first = first.max(1 - (2.0 * offset) as i64);
-        (last - first + 1).max(0)
+        let first = ceil_f((q_lo - offset) * 2.0);
+        let last = floor_f((q_hi - offset) * 2.0);
+        let first = first.max(1.0 - floor_f(2.0 * offset));
+        (last - first + 1.0).max(0.0)
     }
 
-    /// Scores the thickness `d0`: assigns each extremum (`(u, parity)`, see
+    /// Scores the thicknesses `d0[..n]`: assigns each extremum (`(u, parity)`, see
     /// [`OrderContext::resolve`]) its nearest allowed order, refits the thickness by least
-    /// squares and returns `(thickness, cost)`; `seen[a]` extrema of angle `a` lie inside the
-    /// reliable range.
-    fn score(
+    /// squares; `(thickness, cost)` of each into `out[..n]`; `seen[a]` extrema of angle `a`
+    /// lie inside the reliable range. The candidates are the inner loops (in blocks of
+    /// four), each candidate's sums taking the extrema in order.
+    #[inline(always)]
+    fn score_all(
         &self,
-        d0: f64,
+        d0: &[f64; MAX_CANDIDATES],
+        n: usize,
         obs: &[(f64, f64)],
         seen: [i64; 2],
         root: &[[f64; 2]; 2],
-    ) -> (f64, f64) {
-        let (mut suq, mut suu) = (0.0, 0.0);
+        out: &mut [[f64; MAX_CANDIDATES]; 2],
+    ) {
+        let n = n.next_multiple_of(4).min(MAX_CANDIDATES);
+        let mut suq = [0.0; MAX_CANDIDATES];
+        let mut suu = 0.0;
         for &(u, p) in obs {
-            let q = p + round(d0 * u - p);
-            suq += u * q;
+            for (s, &d) in suq[..n].iter_mut().zip(&d0[..n]) {
+                let q = p + round(d * u - p);
+                *s += u * q;
+            }
             suu += u * u;
         }
-        let d = suq / suu;
-        let mut cost = 0.0;
+        let [ds, costs] = out;
+        for (d, s) in ds[..n].iter_mut().zip(&suq[..n]) {
+            *d = s / suu;
+        }
+        costs[..n].fill(0.0);
         for &(u, p) in obs {
-            let e = d * u - p;
-            let r = e - round(e);
-            cost += r * r;
+            for (cost, &d) in costs[..n].iter_mut().zip(&ds[..n]) {
+                let e = d * u - p;
+                let r = e - round(e);
+                *cost += r * r;
+            }
         }
         for (a, &seen) in seen.iter().enumerate().take(self.angles) {
-            cost += COUNT_PENALTY * (self.predicted_count(d, a, root) - seen).abs() as f64;
+            for (cost, &d) in costs[..n].iter_mut().zip(&ds[..n]) {
+                *cost += COUNT_PENALTY * (self.predicted_count(d, a, root) - seen as f64).abs();
+            }
         }
-        (d, cost)
     }
 
     /// Finds the best order for the observations (the first [`MAX_OBSERVATIONS`]; a pixel's
@@ -221,11 +243,11 @@ impl OrderContext {
         let mean_u = prepared.iter().map(|o| o.0).sum::<f64>() / obs.len() as f64;
         let order_step_nm = 1.0 / mean_u;
         let [d_lo, d_hi] = self.thickness_range_nm;
-        let mut best = (f64::NAN, f64::INFINITY);
-        let mut second = (f64::NAN, f64::INFINITY);
+        // The candidates' thicknesses, then their scores in one batch.
+        let mut d0s = [0.0; MAX_CANDIDATES];
+        let mut n = 0;
         let mut m = libm::ceil(d_lo * u0 - p0 - 0.5).max(0.0);
-        let mut tried = 0;
-        while tried < MAX_CANDIDATES {
+        while n < MAX_CANDIDATES {
             let q = p0 + m;
             m += 1.0;
             if q <= 0.0 {
@@ -235,8 +257,18 @@ impl OrderContext {
             if d0 > d_hi * 1.05 + order_step_nm {
                 break;
             }
-            tried += 1;
-            let (d, cost) = self.score(d0, prepared, seen, &root);
+            d0s[n] = d0;
+            n += 1;
+        }
+        let mut scored = [[0.0; MAX_CANDIDATES]; 2];
+        crate::simd::wide(
+            true,
+            #[inline(always)]
+            || self.score_all(&d0s, n, prepared, seen, &root, &mut scored),
+        );
+        let mut best = (f64::NAN, f64::INFINITY);
+        let mut second = (f64::NAN, f64::INFINITY);
+        for (&d, &cost) in scored[0][..n].iter().zip(&scored[1][..n]) {
             if !(d.is_finite() && d > 0.0) {
                 continue;
             }
@@ -318,8 +350,10 @@ mod tests {
                 a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()),
                 "round({x:e})"
             );
-            assert_eq!(ceil_i64(x), libm::ceil(x) as i64, "ceil({x:e})");
-            assert_eq!(floor_i64(x), libm::floor(x) as i64, "floor({x:e})");
+            if x.abs() < TWO_52 {
+                assert_eq!(ceil_f(x), libm::ceil(x), "ceil({x:e})");
+                assert_eq!(floor_f(x), libm::floor(x), "floor({x:e})");
+            }
         }
     }
 
