@@ -1,6 +1,7 @@
 //! The per-sample loops compiled twice: as built (SSE2 on x86-64, the portable baseline) and,
 //! chosen at run time, for AVX2 and FMA, whose eight-lane registers take the lane loops of
-//! the tracker and the full-spectrum sums in half as many steps.
+//! the tracker and the full-spectrum sums in half as many steps. The order search's
+//! candidates and the sample fit's sites and dictionary columns are vectorised the same way.
 //!
 //! Rust never fuses a multiply and an add on its own, so both builds do the same operations
 //! in the same order and give the same results bit for bit (tested on whole sweeps); only

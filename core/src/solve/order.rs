@@ -50,6 +50,9 @@ pub struct OrderContext {
     pub thickness_range_nm: [f64; 2],
     /// Wavelength range in which the tracker reliably finds extrema, nm.
     pub reliable_nm: [f64; 2],
+    /// The candidates scored in the widest vector instructions the CPU has
+    /// ([`crate::simd::wide`]; the solver's `wide_simd`): the same choices either way.
+    pub wide: bool,
 }
 
 /// The best order's thickness and how clearly it won.
@@ -262,7 +265,7 @@ impl OrderContext {
         }
         let mut scored = [[0.0; MAX_CANDIDATES]; 2];
         crate::simd::wide(
-            true,
+            self.wide,
             #[inline(always)]
             || self.score_all(&d0s, n, prepared, seen, &root, &mut scored),
         );
@@ -391,6 +394,7 @@ mod tests {
             peak_offset: [offset; 2],
             thickness_range_nm: [50.0, 2000.0],
             reliable_nm: [430.0, 700.0],
+            wide: true,
         }
     }
 

@@ -697,6 +697,7 @@ impl<'a> Shard<'a> {
             ],
             thickness_range_nm: spec.thickness_range_nm,
             reliable_nm: spec.reliable_range_nm(),
+            wide: spec.options.wide_simd,
         })
     }
 

@@ -53,9 +53,9 @@ pub struct SolverOptions {
     /// step is theirs, and so are the ratio votes, the RMS median and the pooled noise.
     /// Every pixel of a sensor with fewer than twice as many.
     pub index_pixels: usize,
-    /// The per-sample work compiled for the widest vector instructions the CPU has (AVX2
-    /// and FMA on x86-64, [`crate::simd::wide`]); off: the portable build's. The same
-    /// results bit for bit either way.
+    /// The per-sample work and the order search compiled for the widest vector
+    /// instructions the CPU has (AVX2 and FMA on x86-64, [`crate::simd::wide`]); off: the
+    /// portable build's. The same results bit for bit either way.
     pub wide_simd: bool,
     /// Every pixel's fringe extrema tracked. Off only for a sweep whose every pixel starts
     /// seeded under a held index ([`crate::solve::shard::Shard::seed`]): no order is chosen
