@@ -145,8 +145,8 @@ impl FilmAtAngle {
     }
 
     /// Polarisation `pol`'s reflectance as `(A + B c) / (E + B c)` at `c = cos(Delta)`:
-    /// `(A, B, E)`, each computed as [`FilmAtAngle::reflectance_at_cos`] computes it (the
-    /// same results bit for bit from them).
+    /// `(A, B, E)`, each as [`FilmAtAngle::reflectance_at_cos`] computes it (the same
+    /// results from them, bit for bit).
     #[inline]
     pub fn cos_terms(&self, pol: usize) -> (f64, f64, f64) {
         let (r12, r23) = self.coeffs[pol];
@@ -157,9 +157,8 @@ impl FilmAtAngle {
         )
     }
 
-    /// [`FilmAtAngle::reflectance_at_cos`] of a film of `P` [`FilmAtAngle::polarizations`]:
-    /// the same operations in a loop of fixed length, which a caller's loop over many `c`
-    /// can vectorise.
+    /// [`FilmAtAngle::reflectance_at_cos`] of a film of `P` [`FilmAtAngle::polarizations`],
+    /// in a loop of fixed length, which a caller's loop over many `c` can vectorise.
     #[inline(always)]
     pub fn reflectance_at_cos_of<const P: usize>(&self, c: f64) -> f64 {
         let mut sum = 0.0;
@@ -189,28 +188,22 @@ impl FilmAtAngle {
     /// Reflectance as a function of `c = cos(Delta)` (or of a passband-damped `D cos(Delta)`).
     #[inline]
     pub fn reflectance_at_cos(&self, c: f64) -> f64 {
-        let mut sum = 0.0;
-        for &(r12, r23) in &self.coeffs[..self.n_pol] {
-            let b = 2.0 * r12 * r23 * c;
-            sum += (r12 * r12 + r23 * r23 + b) / (1.0 + r12 * r12 * r23 * r23 + b);
+        if self.n_pol == 1 {
+            self.reflectance_at_cos_of::<1>(c)
+        } else {
+            self.reflectance_at_cos_of::<2>(c)
         }
-        sum / self.n_pol as f64
     }
 
     /// Reflectance and `d R / d c` at `c = cos(Delta)`, sharing each polarisation's
     /// denominator.
     #[inline]
     pub fn reflectance_and_slope_at_cos(&self, c: f64) -> (f64, f64) {
-        let (mut r, mut slope) = (0.0, 0.0);
-        for &(r12, r23) in &self.coeffs[..self.n_pol] {
-            let b = 2.0 * r12 * r23;
-            let (a, e) = (r12 * r12 + r23 * r23, r12 * r12 * r23 * r23);
-            let inv = 1.0 / (1.0 + e + b * c);
-            r += (a + b * c) * inv;
-            slope += b * (1.0 + e - a) * inv * inv;
+        if self.n_pol == 1 {
+            self.reflectance_and_slope_at_cos_of::<1>(c)
+        } else {
+            self.reflectance_and_slope_at_cos_of::<2>(c)
         }
-        let k = 1.0 / self.n_pol as f64;
-        (r * k, slope * k)
     }
 
     /// Reflectance of a film of `thickness_nm` at vacuum wavelength `wavelength_nm`.
