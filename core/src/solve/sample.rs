@@ -926,6 +926,16 @@ fn sincos_phase(x: f64) -> (f64, f64) {
     (sin, cos)
 }
 
+/// Where [`Problem::normal`] linearises the model: the index model and its parameters,
+/// each site's thickness, and the thickest (which sets the passband quadrature's nodes).
+#[derive(Clone, Copy)]
+struct Linearisation<'a> {
+    kind: ModelKind,
+    p: &'a [f64; 3],
+    t: &'a [f64; MAX_SITES],
+    d_max: f64,
+}
+
 /// Runs jobs, on several threads where the caller has them (`std`: a scoped thread each);
 /// the sample fit hands it the halves of its sites' sums, so the result does not depend on
 /// how the jobs are run.
@@ -1020,57 +1030,43 @@ impl Problem<'_> {
         Some((nodes, count))
     }
 
-    /// [`Problem::normal`]'s sums over sites `first..first + sites.len()`: theirs into
-    /// `sites`, the index blocks returned (with `INDEX`; else only the thickness's sums are
-    /// made, the index's derivatives skipped, and the blocks are zero).
-    #[allow(clippy::too_many_arguments)]
+    /// [`Problem::normal`]'s sums over sites `first..first + sites.len()` at `at`: theirs
+    /// into `sites`, the index blocks returned (with `INDEX`; else only the thickness's sums
+    /// are made, the index's derivatives skipped, and the blocks are zero). The sites'
+    /// models are made a block at a time, node by node, in loops of fixed length that
+    /// compile to vector instructions (AVX2 where the CPU has it): each site's sums take the
+    /// nodes in the same order as one site at a time would.
     fn normal_part<const INDEX: bool>(
         &self,
-        kind: ModelKind,
-        p: &[f64; 3],
-        t: &[f64; MAX_SITES],
-        d_max: f64,
+        at: Linearisation<'_>,
         first: usize,
         sites: &mut [SiteSums],
     ) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+        crate::simd::wide(
+            true,
+            #[inline(always)]
+            || match self.geo.polarization {
+                Polarization::Unpolarized => self.normal_blocks::<INDEX, 2>(at, first, sites),
+                _ => self.normal_blocks::<INDEX, 1>(at, first, sites),
+            },
+        )
+    }
+
+    /// [`Problem::normal_part`] for a film of `P` polarisations
+    /// ([`FilmAtAngle::polarizations`]).
+    #[inline(always)]
+    fn normal_blocks<const INDEX: bool, const P: usize>(
+        &self,
+        Linearisation { kind, p, t, d_max }: Linearisation<'_>,
+        first: usize,
+        sites: &mut [SiteSums],
+    ) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+        const BLOCK: usize = 16;
         let mut hpp = Matrix3::zeros();
         let mut gp = Vector3::zeros();
         if sites.is_empty() {
             return Some((hpp, gp));
         }
-        // The sites' models a block at a time, node by node, in loops of fixed length that
-        // compile to vector instructions (AVX2 where the CPU has it): each site's sums take
-        // the nodes in the same order as one site at a time would.
-        let (h, g) = (&mut hpp, &mut gp);
-        crate::simd::wide(
-            true,
-            #[inline(always)]
-            || match self.geo.polarization {
-                Polarization::Unpolarized => {
-                    self.normal_blocks::<INDEX, 2>(kind, p, t, d_max, first, sites, h, g)
-                }
-                _ => self.normal_blocks::<INDEX, 1>(kind, p, t, d_max, first, sites, h, g),
-            },
-        )?;
-        Some((hpp, gp))
-    }
-
-    /// [`Problem::normal_part`]'s sums for a film of `P` polarisations
-    /// ([`FilmAtAngle::polarizations`]).
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    fn normal_blocks<const INDEX: bool, const P: usize>(
-        &self,
-        kind: ModelKind,
-        p: &[f64; 3],
-        t: &[f64; MAX_SITES],
-        d_max: f64,
-        first: usize,
-        sites: &mut [SiteSums],
-        hpp: &mut Matrix3<f64>,
-        gp: &mut Vector3<f64>,
-    ) -> Option<()> {
-        const BLOCK: usize = 16;
         let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
         for a in 0..na {
             for b in 0..nb {
@@ -1124,14 +1120,14 @@ impl Problem<'_> {
                             for q in 0..3 {
                                 s.jdp[q] += w * jd[j] * jp[q];
                             }
-                            *hpp += jp * jp.transpose() * w;
-                            *gp += jp * (res * w);
+                            hpp += jp * jp.transpose() * w;
+                            gp += jp * (res * w);
                         }
                     }
                 }
             }
         }
-        Some(())
+        Some((hpp, gp))
     }
 
     /// One pass computing the full normal equations: per-site sums and the pooled index
@@ -1155,9 +1151,9 @@ impl Problem<'_> {
         let (lo, hi) = sites.split_at_mut(half);
         let (mut first, mut second) = (None, None);
         {
-            let mut a = || first = self.normal_part::<INDEX>(kind, p, t, d_max, 0, &mut lo[..half]);
-            let mut b =
-                || second = self.normal_part::<INDEX>(kind, p, t, d_max, half, &mut hi[..n - half]);
+            let at = Linearisation { kind, p, t, d_max };
+            let mut a = || first = self.normal_part::<INDEX>(at, 0, &mut lo[..half]);
+            let mut b = || second = self.normal_part::<INDEX>(at, half, &mut hi[..n - half]);
             self.par.run(&mut [&mut a, &mut b]);
         }
         let ((h1, g1), (h2, g2)) = (first?, second?);
