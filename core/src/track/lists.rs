@@ -4,8 +4,8 @@
 use super::{Extremum, MAX_EXTREMA, WINDOW};
 
 /// A pixel's extrema at one angle as the tracker confirms them, in increasing band order.
-/// A sink holds at most [`MAX_EXTREMA`]; past that `push` hands the extremum back and the
-/// tracker flags the overflow.
+/// A sink holds at most [`MAX_EXTREMA`]; past that `push` hands the extremum back, and
+/// the sink's owner flags the overflow.
 pub trait ExtremumSink {
     /// The last extremum taken, if any.
     fn last_extremum(&self) -> Option<Extremum>;

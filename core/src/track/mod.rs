@@ -8,11 +8,11 @@
 //! pixel's own noise, estimated on the fly from the mean absolute second difference.
 //!
 //! State is a fixed-size [`PixelTracker`] per pixel, reset at each angle, whatever the number
-//! of bands; found extrema go to a caller-owned [`ExtremumSink`] of fixed capacity (overflow is
-//! a flag, never growth): a whole [`ExtremaList`] or its last extrema, an [`ExtremaHead`]. The
-//! workers run [`row`], the same tracker over a row's pixels at once (structure of arrays,
-//! vectorised, the same results bit for bit); [`PixelTracker`] is its reference and handles its
-//! rare events.
+//! of bands; found extrema go to a caller-owned [`ExtremumSink`] of fixed capacity (a full
+//! sink refuses an extremum and its owner flags the overflow: never growth): a whole
+//! [`ExtremaList`] or its last extrema, an [`ExtremaHead`]. The workers run [`row`], the
+//! same tracker over a row's pixels at once (structure of arrays, vectorised, the same
+//! results bit for bit); [`PixelTracker`] is its reference and handles its rare events.
 
 /// Samples in the smoothing window (odd).
 pub const WINDOW: usize = 9;
@@ -267,8 +267,6 @@ pub struct PixelTracker {
     seen: u16,
     head: u8,
     mode: Mode,
-    /// More extrema found than the list holds.
-    pub overflow: bool,
 }
 
 /// `|a - 2 b + v|` of three steps (exact): one term of the noise estimate.
@@ -492,9 +490,8 @@ impl PixelTracker {
         // less than two bands apart could come out of order (found by the property tests):
         // the list stays in increasing band order.
         let pos = out.last_extremum().map_or(pos, |last| pos.max(last.pos()));
-        if out.push(Extremum::at(pos, kind)).is_err() {
-            self.overflow = true;
-        }
+        // A full sink refuses it: its owner flags the overflow.
+        let _ = out.push(Extremum::at(pos, kind));
     }
 }
 

@@ -6,7 +6,7 @@
 //! vectorises the per-sample arithmetic (ring, moments, noise sums, the smoothed value, its
 //! vertex, the running extremes). The rare events, an extremum confirmed or a change of mode,
 //! are found by a mask and handed to the scalar tracker's own state machine for those lanes
-//! alone, so the two give the same extrema, noise, bad-sample counts and overflow flags bit for
+//! alone, so the two give the same extrema, noise and bad-sample counts bit for
 //! bit (the `row` tests feed both the same spectra).
 //!
 //! A pixel whose first sample of an angle is unusable does not start its window with the row
@@ -23,15 +23,6 @@ use super::{
 
 /// Pixels per block of [`TrackerLanes`].
 pub const LANES: usize = 32;
-
-/// The bit of [`TrackerLanes`]' `lag` that holds a lane's overflow flag.
-const OVERFLOW_BIT: u16 = 1 << 15;
-
-/// The lag a lane's `lag` word holds (its overflow flag left out): 0 for a lane in step.
-#[inline(always)]
-fn lag_of(word: u16) -> u16 {
-    word & !OVERFLOW_BIT
-}
 
 /// Ring slot `j` places after `head` (`j < 2 * WINDOW`), without a division.
 #[inline(always)]
@@ -55,10 +46,9 @@ pub struct TrackerLanes {
     ext_pos: [u16; LANES],
     min_val: [f32; LANES],
     min_pos: [u16; LANES],
-    /// Below [`OVERFLOW_BIT`], the samples by which a lane's window lags the row's: 0 for a
-    /// lane in step, the count of leading unusable samples for one *out of step* (its own
-    /// count is `seen` less that, its ring position `head` less that, mod [`WINDOW`]); the
-    /// lane's overflow flag in [`OVERFLOW_BIT`].
+    /// The samples by which a lane's window lags the row's: 0 for a lane in step, the count
+    /// of leading unusable samples for one *out of step* (its own count is `seen` less that,
+    /// its ring position `head` less that, mod [`WINDOW`]).
     lag: [u16; LANES],
     /// `Mode as u8`.
     mode: [u8; LANES],
@@ -114,16 +104,10 @@ impl TrackerLanes {
         self.lane_but_window(i).noise_sigma()
     }
 
-    /// Whether lane `i` found more extrema than its list holds.
-    #[inline]
-    pub fn overflow(&self, i: usize) -> bool {
-        self.lag[i] & OVERFLOW_BIT != 0
-    }
-
     /// Samples by which lane `i`'s window lags the row's (0: in step).
     #[inline]
     fn lag(&self, i: usize) -> u16 {
-        lag_of(self.lag[i])
+        self.lag[i]
     }
 
     /// Lane `i` as a scalar tracker, its ring left empty (its window's moments computed from
@@ -153,7 +137,6 @@ impl TrackerLanes {
             seen: self.seen - lag,
             head: ring_slot(usize::from(self.head), WINDOW - behind) as u8,
             mode: Mode::from_u8(self.mode[i]),
-            overflow: self.overflow(i),
         }
     }
 
@@ -165,8 +148,7 @@ impl TrackerLanes {
         }
         self.d2_sum[i] = t.d2_sum;
         // At least 1: a lane out of step stays so (the row's count saturates at 65535).
-        let lag = (self.seen - t.seen).clamp(1, !OVERFLOW_BIT);
-        self.lag[i] = lag | (self.lag[i] & OVERFLOW_BIT);
+        self.lag[i] = (self.seen - t.seen).max(1);
         self.set_extremes(i, t);
     }
 
@@ -177,7 +159,6 @@ impl TrackerLanes {
         self.min_val[i] = t.min_val;
         self.min_pos[i] = t.min_pos;
         self.mode[i] = t.mode as u8;
-        self.lag[i] = self.lag(i) | if t.overflow { OVERFLOW_BIT } else { 0 };
     }
 
     /// Feeds one band's samples of the block's pixels (`values.len() <= LANES`, lane `i`'s
@@ -236,7 +217,7 @@ impl TrackerLanes {
             let start = Mode::Start as u8;
             let starting = if self.any_out_of_step {
                 (self.mode.iter().zip(&self.lag))
-                    .fold(false, |a, (&m, &lag)| a | (m == start && lag_of(lag) == 0))
+                    .fold(false, |a, (&m, &lag)| a | (m == start && lag == 0))
             } else {
                 self.mode.iter().fold(false, |a, &m| a | (m == start))
             };
@@ -247,7 +228,7 @@ impl TrackerLanes {
             };
             if any {
                 let lag = self.lag;
-                for i in (0..LANES).filter(|&i| slow[i] && lag_of(lag[i]) == 0) {
+                for i in (0..LANES).filter(|&i| slow[i] && lag[i] == 0) {
                     // The state machine reads no ring and writes only the extremes.
                     let mut t = self.lane_but_ring(i);
                     t.decide(band, subband, &mut Lane { sinks, i });
@@ -408,7 +389,7 @@ pub const fn blocks_for(rows: usize, width: usize) -> usize {
 }
 
 /// Pixel `i` (row-major, rows of `width`) of an image whose trackers are `blocks`, as a scalar
-/// tracker (a copy: its noise, bad samples and overflow).
+/// tracker (a copy: its noise and bad samples).
 pub fn pixel(blocks: &[TrackerLanes], width: usize, i: usize) -> PixelTracker {
     let (b, lane) = locate(width, i);
     blocks[b].lane(lane)
