@@ -246,14 +246,17 @@ fn bench_refine(c: &mut Criterion) {
         }
     };
     // Every pixel keeping the index's sums (a small sensor), one in 16 (a 1 Mpix one: two
-    // lanes of every block) and one in 64 (4 Mpix: one lane of every other block).
+    // lanes of every block), one in 64 (4 Mpix: one lane of every other block) and none
+    // (the index held).
     for (name, stride) in [
-        ("fit_lanes_tabled_1024px_x_151b", 1),
-        ("fit_lanes_tabled_1024px_x_151b_index_1_in_16", 16),
-        ("fit_lanes_tabled_1024px_x_151b_index_1_in_64", 64),
+        ("fit_lanes_tabled_1024px_x_151b", Some(1)),
+        ("fit_lanes_tabled_1024px_x_151b_index_1_in_16", Some(16)),
+        ("fit_lanes_tabled_1024px_x_151b_index_1_in_64", Some(64)),
+        ("fit_lanes_tabled_1024px_x_151b_index_held", None),
     ] {
-        let sampling = IndexSampling::one_in(stride);
-        let mut index = vec![IndexLanes::EMPTY; sampling.blocks_per_row(PIXELS)];
+        let sampling = stride.map(IndexSampling::one_in);
+        let per_row = sampling.map_or(0, |s| s.blocks_per_row(PIXELS));
+        let mut index = vec![IndexLanes::EMPTY; per_row];
         g.bench_function(name, |bench| {
             bench.iter(|| {
                 blocks.fill(FitLanes::default());
@@ -261,7 +264,8 @@ fn bench_refine(c: &mut Criterion) {
                 seed(&mut blocks);
                 for (coef, row) in tabled.iter().zip(measured.chunks_exact(PIXELS)) {
                     let model = Some((coef, &knots[..]));
-                    fit_row::push_row(&mut blocks, row, model, (sampling, 0, &mut index));
+                    let index = sampling.map(|s| (s, 0, &mut index[..]));
+                    fit_row::push_row(&mut blocks, row, model, index);
                 }
                 black_box((&blocks, &index));
             });

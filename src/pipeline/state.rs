@@ -162,6 +162,8 @@ pub struct BandModels {
     pub coefs: Vec<Option<BandCoef>>,
     /// The tabulated bands' knots.
     pub knots: Vec<Knot>,
+    /// Whether the sweep holds its index ([`AngleModels::index_held`]).
+    pub index_held: bool,
 }
 
 impl BandModels {
@@ -186,7 +188,11 @@ impl BandModels {
         } else {
             Vec::new()
         };
-        Self { coefs, knots }
+        Self {
+            coefs,
+            knots,
+            index_held: solver.index_held(),
+        }
     }
 
     /// A borrowed view for [`Shard::feed_row`].
@@ -194,6 +200,7 @@ impl BandModels {
         AngleModels {
             coefs: &self.coefs,
             knots: &self.knots,
+            index_held: self.index_held,
         }
     }
 }

@@ -8,7 +8,7 @@ use crossbeam_channel::Sender;
 use filmscope_core::solve::SweepSpec;
 use firmware_sim::{Scene, SoftwareCamera};
 
-use super::{calibrate_block, stream_band_sequential, Samples, SimSource, Source, StreamMsg};
+use super::{calibrate_block, row_runs, stream_runs, Samples, SimSource, Source, StreamMsg};
 
 /// Calibrated reflectance frames of the first `rows` rows of a scene, every angle and band,
 /// held in memory to be replayed.
@@ -105,28 +105,33 @@ impl Source for ReplaySource {
     }
 
     fn stream(&mut self, tx: &Sender<StreamMsg>) {
+        self.stream_runs(tx, None);
+    }
+
+    fn stream_rows(&mut self, tx: &Sender<StreamMsg>, rows: &[usize]) {
+        self.stream_runs(tx, Some(rows));
+    }
+}
+
+impl ReplaySource {
+    /// Streams every row, or only those in `only` (sorted).
+    fn stream_runs(&mut self, tx: &Sender<StreamMsg>, only: Option<&[usize]>) {
         let f = &self.frames;
         let (w, h) = (self.spec.width, self.spec.height);
         let (start, pace) = (Instant::now(), self.pace);
         let mut sent = 0usize;
-        stream_band_sequential(
-            tx,
-            &f.angles_deg,
-            f.bands(),
-            h,
-            self.rows_per_block,
-            |a, b, r0, rows| {
-                let mut v = Vec::with_capacity(rows * w);
-                for r in r0..r0 + rows {
-                    v.extend_from_slice(f.row(a, b, r));
-                }
-                sent += v.len();
-                if let Some(rate) = pace {
-                    let due = start + Duration::from_secs_f64(sent as f64 / rate);
-                    std::thread::sleep(due.saturating_duration_since(Instant::now()));
-                }
-                Samples::Reflectance(v)
-            },
-        );
+        let runs = row_runs(h, only, self.rows_per_block);
+        stream_runs(tx, &f.angles_deg, f.bands(), &runs, |a, b, r0, rows| {
+            let mut v = Vec::with_capacity(rows * w);
+            for r in r0..r0 + rows {
+                v.extend_from_slice(f.row(a, b, r));
+            }
+            sent += v.len();
+            if let Some(rate) = pace {
+                let due = start + Duration::from_secs_f64(sent as f64 / rate);
+                std::thread::sleep(due.saturating_duration_since(Instant::now()));
+            }
+            Samples::Reflectance(v)
+        });
     }
 }

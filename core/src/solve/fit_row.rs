@@ -87,6 +87,9 @@ impl Default for FitLanes {
     }
 }
 
+/// Where the thickness-index cross terms (`h_dp`) are in [`GnSums::to_pixel_terms`]' array.
+const CROSS_TERMS: core::ops::RangeInclusive<usize> = 1..=3;
+
 /// The samples of one block, padded to [`LANES`].
 type Lanes = [f32; LANES];
 
@@ -306,6 +309,8 @@ struct Pairs {
 /// clamped knots are never added: only lanes inside the table are.
 #[derive(Clone, Copy)]
 pub struct KnotGather {
+    /// Each lane's read of its three intervals ([`Knot`]'s value and slope at both ends).
+    reads: [[[f32; 4]; LANES]; 3],
     pairs: [Pairs; 3],
     j_n: [Lanes; 2],
 }
@@ -313,6 +318,7 @@ pub struct KnotGather {
 impl KnotGather {
     /// Nothing gathered yet.
     pub const EMPTY: Self = Self {
+        reads: [[[0.0; 4]; LANES]; 3],
         pairs: [Pairs::ZERO; 3],
         j_n: [[0.0; LANES]; 2],
     };
@@ -344,14 +350,12 @@ impl Pairs {
 
     /// Lane `i`'s two knots, `j_n` their index derivatives.
     #[inline(always)]
-    fn knots(&self, i: usize, j_n: [f32; 2]) -> [Knot; 2] {
-        // (No `array::map`: its call would keep the lane loop from vectorising.)
-        let knot = |e: usize| Knot {
-            m: self.m[e][i],
-            slope_h: self.slope_h[e][i],
-            j_n: j_n[e],
-        };
-        [knot(0), knot(1)]
+    fn knots(&self, i: usize, j_n: [f32; 2]) -> Knot {
+        Knot {
+            m: [self.m[0][i], self.m[1][i]],
+            slope_h: [self.slope_h[0][i], self.slope_h[1][i]],
+            j_n,
+        }
     }
 }
 
@@ -459,8 +463,12 @@ impl FitLanes {
     /// band's model (`coef` and the angle's `knots`) adds every usable sample of a pixel with
     /// a thickness to its sums, as [`GnSums::add`] does (the index's sums to `index`'s).
     /// `gather` is scratch space, kept across a row's blocks.
+    ///
+    /// Without `INDEX` (a held index: nothing steps it), the samples add neither the
+    /// index's sums nor the thickness-index cross terms (`h_dp` stays as it is) and the index
+    /// derivative is not fetched.
     #[inline(always)]
-    pub fn push(
+    pub fn push<const INDEX: bool>(
         &mut self,
         values: &[f32],
         model: Option<(&BandCoef, &[Knot])>,
@@ -488,7 +496,7 @@ impl FitLanes {
         // The lanes left to the computed model.
         let mut rest = ok;
         if let Some((span, k)) = coef.table().and_then(|t| Some((t, t.knots(knots)?))) {
-            let inside = self.add_tabled((span, k), &ok, &v, u, &mut index, gather);
+            let inside = self.add_tabled::<INDEX>((span, k), &ok, &v, u, &mut index, gather);
             for i in 0..LANES {
                 rest[i] = ok[i] & !inside[i];
             }
@@ -504,9 +512,13 @@ impl FitLanes {
             );
             let s: SampleModel = e.into();
             for (k, t) in GnSums::pixel_terms(s, v[i], u).into_iter().enumerate() {
-                self.sums[k][i] += t;
+                if INDEX || !CROSS_TERMS.contains(&k) {
+                    self.sums[k][i] += t;
+                }
             }
-            index.add(i, GnSums::index_terms(s.j_n, v[i] - s.m, u));
+            if INDEX {
+                index.add(i, GnSums::index_terms(s.j_n, v[i] - s.m, u));
+            }
             self.gn_samples[i] = self.gn_samples[i].saturating_add(1);
         }
     }
@@ -526,7 +538,7 @@ impl FitLanes {
     /// orders all fall inside the band's table (`span`, its knots `k`) from the table;
     /// returns which (1, else 0).
     #[inline(always)]
-    fn add_tabled(
+    fn add_tabled<const INDEX: bool>(
         &mut self,
         (span, k): (TableSpan, &[Knot]),
         ok: &Mask,
@@ -562,20 +574,26 @@ impl FitLanes {
         // One lane at a time: each lane's knots, its knot clamped to the table rather than
         // checked (a branch per lane and position cost an eighth of the kernel): a lane
         // outside reads the last pair, which is never added.
-        let KnotGather { pairs, j_n } = gather;
+        let KnotGather { reads, pairs, j_n } = gather;
         for i in 0..LANES {
             for p in 0..3 {
-                let j = (knot[p][i] as usize).min(last);
-                let (a, b) = (k[j], k[j + 1]);
-                let pair = &mut pairs[p];
-                pair.m[0][i] = a.m;
-                pair.m[1][i] = b.m;
-                pair.slope_h[0][i] = a.slope_h;
-                pair.slope_h[1][i] = b.slope_h;
-                if p == 0 {
-                    j_n[0][i] = a.j_n;
-                    j_n[1][i] = b.j_n;
+                let r = &k[(knot[p][i] as usize).min(last)];
+                reads[p][i] = [r.m[0], r.slope_h[0], r.m[1], r.slope_h[1]];
+                if INDEX && p == 0 {
+                    j_n[0][i] = r.j_n[0];
+                    j_n[1][i] = r.j_n[1];
                 }
+            }
+        }
+        // Then lane by lane into the model's arrays.
+        for p in 0..3 {
+            let pair = &mut pairs[p];
+            for i in 0..LANES {
+                let [ma, sa, mb, sb] = reads[p][i];
+                pair.m[0][i] = ma;
+                pair.slope_h[0][i] = sa;
+                pair.m[1][i] = mb;
+                pair.slope_h[1][i] = sb;
             }
         }
         let at = Tabled {
@@ -585,14 +603,18 @@ impl FitLanes {
             inv_h: span.inv_h(),
         };
         let all = inside.iter().fold(1, |a, &i| a & i) == 1;
+        if !INDEX {
+            self.add_with::<false, 0>(all, &at, &inside, v, u, &mut []);
+            return inside;
+        }
         match index {
-            BlockIndex::Lanes(x) => self.add_with(all, &at, &inside, v, u, &mut x.sums),
-            BlockIndex::None => self.add_with(all, &at, &inside, v, u, &mut []),
+            BlockIndex::Lanes(x) => self.add_with::<true, _>(all, &at, &inside, v, u, &mut x.sums),
+            BlockIndex::None => self.add_with::<true, 0>(all, &at, &inside, v, u, &mut []),
             BlockIndex::Slots { .. } => {
                 // A few lanes keep the index's sums: those from each lane's index derivative
                 // and residual, kept by the lane loop.
                 let mut kept = [[0.0; LANES]; 2];
-                self.add_with(all, &at, &inside, v, u, &mut kept);
+                self.add_with::<true, 2>(all, &at, &inside, v, u, &mut kept);
                 if let BlockIndex::Slots { lane, stride, .. } = *index {
                     for i in (lane..LANES).step_by(stride).filter(|&i| inside[i] != 0) {
                         index.add(i, GnSums::index_terms(kept[0][i], kept[1][i], u));
@@ -605,7 +627,7 @@ impl FitLanes {
 
     /// [`FitLanes::add_from`], unmasked if `all` lanes are inside.
     #[inline(always)]
-    fn add_with<const N: usize>(
+    fn add_with<const INDEX: bool, const N: usize>(
         &mut self,
         all: bool,
         at: &Tabled<'_>,
@@ -615,18 +637,19 @@ impl FitLanes {
         x: &mut [Lanes; N],
     ) {
         if all {
-            self.add_from::<false, N>(at, inside, v, u, x);
+            self.add_from::<false, INDEX, N>(at, inside, v, u, x);
         } else {
-            self.add_from::<true, N>(at, inside, v, u, x);
+            self.add_from::<true, INDEX, N>(at, inside, v, u, x);
         }
     }
 
     /// Adds the samples `v` from the lanes' knots `at`. `MASKED`: only the lanes `inside`
     /// (1, else 0); the others keep their sums (an added zero could change a zero's sign).
+    /// Without `INDEX`, no cross terms (and `N` is 0).
     /// The index's: with [`INDEX_TERMS`] rows, `x` gets them lane for lane; with two, each
     /// lane's index derivative and residual; with none, nothing.
     #[inline(always)]
-    fn add_from<const MASKED: bool, const N: usize>(
+    fn add_from<const MASKED: bool, const INDEX: bool, const N: usize>(
         &mut self,
         at: &Tabled<'_>,
         inside: &Mask,
@@ -662,8 +685,10 @@ impl FitLanes {
             };
             let add = !MASKED || inside[i] != 0;
             for (k, t) in GnSums::pixel_terms(s, v[i], u).into_iter().enumerate() {
-                let sum = self.sums[k][i];
-                self.sums[k][i] = if add { sum + t } else { sum };
+                if INDEX || !CROSS_TERMS.contains(&k) {
+                    let sum = self.sums[k][i];
+                    self.sums[k][i] = if add { sum + t } else { sum };
+                }
             }
             let r = v[i] - s.m;
             if N == INDEX_TERMS {
@@ -701,22 +726,29 @@ fn knot_of(x: f32) -> (u32, f32) {
 
 /// Feeds band samples `values` of image row `row` to the row's blocks
 /// (`values.len().div_ceil(LANES)` of them): [`FitLanes::push`] for each block, the
-/// index's sums of the pixels `sampling` picks to the row's index blocks `index`.
+/// index's sums of the pixels `sampling` picks to the row's index blocks `index` (`None`:
+/// the index is held, no pixel adds them, [`FitLanes::push`] without `INDEX`).
 #[inline(always)]
 pub fn push_row(
     blocks: &mut [FitLanes],
     values: &[f32],
     model: Option<(&BandCoef, &[Knot])>,
-    (sampling, row, index): (IndexSampling, usize, &mut [IndexLanes]),
+    index: Option<(IndexSampling, usize, &mut [IndexLanes])>,
 ) {
     let mut gather = KnotGather::EMPTY;
-    for (b, (block, v)) in blocks.iter_mut().zip(values.chunks(LANES)).enumerate() {
-        block.push(
-            v,
-            model,
-            sampling.block(index, row, b, v.len()),
-            &mut gather,
-        );
+    let rows = blocks.iter_mut().zip(values.chunks(LANES));
+    match index {
+        Some((sampling, row, index)) => {
+            for (b, (block, v)) in rows.enumerate() {
+                let at = sampling.block(index, row, b, v.len());
+                block.push::<true>(v, model, at, &mut gather);
+            }
+        }
+        None => {
+            for (block, v) in rows {
+                block.push::<false>(v, model, BlockIndex::None, &mut gather);
+            }
+        }
     }
 }
 
@@ -784,13 +816,15 @@ mod tests {
 
     /// A row block gives every pixel the sums, counts and sample numbers the scalar
     /// [`GnSums::add`] gives it, bit for bit (the index's sums to the pixels that keep them,
-    /// every pixel, one in 2, 4 or 64 of them): pixels inside the table, at and beyond its
+    /// every pixel, one in 2, 4 or 64 of them; with the index held, none, and no cross
+    /// terms either): pixels inside the table, at and beyond its
     /// ends (computed), without a thickness, and samples saturated, dead or corrupted.
     #[test]
     fn lanes_match_the_scalar_sums() {
         for (stride, row) in [(1, 0), (2, 1), (4, 0), (4, 7), (64, 5), (64, 40)] {
-            lanes_match_the_scalar_sums_with(IndexSampling::one_in(stride), row);
+            lanes_match_the_scalar_sums_with(Some(IndexSampling::one_in(stride)), row);
         }
+        lanes_match_the_scalar_sums_with(None, 0);
     }
 
     /// Feeds `values` of image row `row` to a one-block row (`lanes`, its index blocks
@@ -802,15 +836,10 @@ mod tests {
         scalar: &mut [PixelFit],
         values: &[f32],
         (coef, knots): (&BandCoef, &[Knot]),
-        (sampling, row): (IndexSampling, usize),
+        (sampling, row): (Option<IndexSampling>, usize),
     ) {
-        let per_row = sampling.blocks_per_row(values.len());
-        push_row(
-            lanes,
-            values,
-            Some((coef, knots)),
-            (sampling, row, &mut index[..per_row]),
-        );
+        let index = sampling.map(|s| (s, row, &mut index[..s.blocks_per_row(values.len())]));
+        push_row(lanes, values, Some((coef, knots)), index);
         for (p, &v) in scalar.iter_mut().zip(values) {
             p.samples += 1;
             if v.is_infinite() {
@@ -824,15 +853,17 @@ mod tests {
         }
     }
 
-    /// The pixel's sums as `row`'s index blocks `index` keep them (zeros where they do not).
+    /// The pixel's sums as `row`'s index blocks `index` keep them (zeros where they do not;
+    /// with the index held, `None`, what pixel `i`'s place would hold under every pixel's).
     fn with_index(
         l: PixelFit,
-        sampling: IndexSampling,
+        sampling: Option<IndexSampling>,
         row: usize,
         i: usize,
         index: &[IndexLanes],
     ) -> PixelFit {
         let terms = sampling
+            .unwrap_or(IndexSampling::ALL)
             .slot(row, i)
             .map_or([0.0; INDEX_TERMS], |k| index[k / LANES].terms(k % LANES));
         PixelFit {
@@ -841,19 +872,26 @@ mod tests {
         }
     }
 
-    /// The sums a pixel of `row` keeps under `sampling`, of the scalar's `p`.
-    fn kept(p: &PixelFit, sampling: IndexSampling, row: usize, i: usize) -> [u32; 16] {
-        let index = match sampling.slot(row, i) {
+    /// The sums a pixel of `row` keeps under `sampling`, of the scalar's `p`: with the index
+    /// held (`None`), neither the index's nor the cross terms.
+    fn kept(p: &PixelFit, sampling: Option<IndexSampling>, row: usize, i: usize) -> [u32; 16] {
+        let index = match sampling.and_then(|s| s.slot(row, i)) {
             Some(_) => p.gn.to_index_terms(),
             None => [0.0; INDEX_TERMS],
         };
+        let mut pixel = p.gn.to_pixel_terms();
+        if sampling.is_none() {
+            for k in CROSS_TERMS {
+                pixel[k] = 0.0;
+            }
+        }
         let mut t = [0; 16];
-        t[..8].copy_from_slice(&p.gn.to_pixel_terms().map(f32::to_bits));
+        t[..8].copy_from_slice(&pixel.map(f32::to_bits));
         t[8..].copy_from_slice(&index.map(f32::to_bits));
         t
     }
 
-    fn lanes_match_the_scalar_sums_with(sampling: IndexSampling, row: usize) {
+    fn lanes_match_the_scalar_sums_with(sampling: Option<IndexSampling>, row: usize) {
         let (coefs, knots, first) = bands();
         let knots = &knots[..first];
         let n = 29;
@@ -908,6 +946,9 @@ mod tests {
             );
         }
         assert!(scalar.iter().filter(|p| p.gn.samples > 0).count() > 20);
+        if sampling.is_none() {
+            held_adds_no_index_terms(&lanes[0], &index[0]);
+        }
         // The sampled pixels (and only they) have index sums.
         let with_sums = (0..n).filter(|&i| {
             with_index(lanes[0].pixel(i, [0.0; 8]), sampling, row, i, &index)
@@ -915,8 +956,9 @@ mod tests {
                 .h_pp[0]
                 != 0.0
         });
-        let sampled =
-            (0..n).filter(|&i| sampling.slot(row, i).is_some() && scalar[i].gn.samples > 0);
+        let sampled = (0..n).filter(|&i| {
+            sampling.is_some_and(|s| s.slot(row, i).is_some()) && scalar[i].gn.samples > 0
+        });
         assert_eq!(
             with_sums.collect::<Vec<_>>(),
             sampled.collect::<Vec<_>>(),
@@ -956,15 +998,16 @@ mod tests {
 
     /// A full block whose every lane is inside the band's table with a usable sample (the
     /// unmasked path the pipeline runs on most blocks) gives [`GnSums::add`]'s sums bit for
-    /// bit (the index's to every pixel, or to one in 4).
+    /// bit (the index's to every pixel, to one in 4, or, the index held, to none).
     #[test]
     fn a_full_block_inside_the_table_matches_the_scalar_sums() {
         for stride in [1, 4] {
-            a_full_block_matches_with(IndexSampling::one_in(stride));
+            a_full_block_matches_with(Some(IndexSampling::one_in(stride)));
         }
+        a_full_block_matches_with(None);
     }
 
-    fn a_full_block_matches_with(sampling: IndexSampling) {
+    fn a_full_block_matches_with(sampling: Option<IndexSampling>) {
         let (coefs, knots, first) = bands();
         let knots = &knots[..first];
         let step = 130.0f32;
@@ -1006,5 +1049,21 @@ mod tests {
             );
         }
         assert_eq!(FitLanes::EMPTY.rms(0), None);
+        if sampling.is_none() {
+            held_adds_no_index_terms(&lanes[0], &index[0]);
+        }
+    }
+
+    /// With the index held, no lane has cross terms and the index blocks are untouched.
+    fn held_adds_no_index_terms(lanes: &FitLanes, index: &IndexLanes) {
+        for i in 0..LANES {
+            let p = lanes.pixel(i, [0.0; INDEX_TERMS]);
+            assert_eq!(p.gn.h_dp.map(f32::to_bits), [0; 3], "lane {i}");
+            assert_eq!(
+                index.terms(i).map(f32::to_bits),
+                [0; INDEX_TERMS],
+                "lane {i}"
+            );
+        }
     }
 }

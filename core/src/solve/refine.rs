@@ -174,15 +174,21 @@ pub struct BandCoef {
     table: Option<TableSpan>,
 }
 
-/// The tabulated model of one band at one thickness knot: the passband-averaged reflectance,
-/// its thickness derivative times the knot spacing (for cubic Hermite interpolation) and its
-/// index derivative (linearly interpolated: a Jacobian's small error slows Gauss-Newton a
-/// little but cannot bias where it converges, which the residual alone decides).
+/// The tabulated model of one band at one thickness knot and the next: at each, the
+/// passband-averaged reflectance, its thickness derivative times the knot spacing (for cubic
+/// Hermite interpolation) and its index derivative (linearly interpolated: a Jacobian's small
+/// error slows Gauss-Newton a little but cannot bias where it converges, which the residual
+/// alone decides). Every knot's values are held twice, by its own record and the one before,
+/// so that a sample's interval is one aligned read: 16 bytes for the value and slope at both
+/// ends, which is all a sample takes but where the index is fitted (the table's reads were
+/// most of the per-sample work as three reads of 12-byte knots). The band's last knot holds
+/// its own values as the next.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[repr(C, align(32))]
 pub struct Knot {
-    pub(crate) m: f32,
-    pub(crate) slope_h: f32,
-    pub(crate) j_n: f32,
+    pub(crate) m: [f32; 2],
+    pub(crate) slope_h: [f32; 2],
+    pub(crate) j_n: [f32; 2],
 }
 
 /// Where one band's knots sit in the angle's table.
@@ -244,23 +250,23 @@ pub(crate) struct SampleModel {
 }
 
 impl SampleModel {
-    /// From the knots either side of the thickness (`a`, `b`, at fraction `u`) and of the
+    /// From the knots either side of the thickness (`k`, at fraction `u`) and of the
     /// orders either side (`lo`, `hi`: knots and fraction), `inv_h` the band's knots per nm.
     #[inline(always)]
     pub(crate) fn from_knots(
-        [a, b]: [Knot; 2],
+        k: Knot,
         u: f32,
-        lo: ([Knot; 2], f32),
-        hi: ([Knot; 2], f32),
+        lo: (Knot, f32),
+        hi: (Knot, f32),
         inv_h: f32,
     ) -> Self {
-        let (m, slope) = hermite(a, b, u);
+        let (m, slope) = hermite(&k, u);
         Self {
             m,
             j_d: slope * inv_h,
-            j_n: a.j_n + (b.j_n - a.j_n) * u,
-            m_minus: hermite(lo.0[0], lo.0[1], lo.1).0,
-            m_plus: hermite(hi.0[0], hi.0[1], hi.1).0,
+            j_n: k.j_n[0] + (k.j_n[1] - k.j_n[0]) * u,
+            m_minus: hermite(&lo.0, lo.1).0,
+            m_plus: hermite(&hi.0, hi.1).0,
         }
     }
 }
@@ -295,6 +301,9 @@ pub struct AngleModels<'a> {
     pub coefs: &'a [Option<BandCoef>],
     /// The tabulated bands' knots.
     pub knots: &'a [Knot],
+    /// Whether the sweep holds its index ([`super::SweepSolver::index_held`]): nothing
+    /// steps it, so the samples add neither its sums nor the thickness-index cross terms.
+    pub index_held: bool,
 }
 
 /// The model of one band at one thickness: reflectance, its thickness and index derivatives,
@@ -416,11 +425,20 @@ impl BandCoef {
                 / INDEX_STEP;
             centre.step();
             centre_up.step();
+            let (m, slope_h, j_n) = (m as f32, (slope * h) as f32, j_n as f32);
             *k = Knot {
-                m: m as f32,
-                slope_h: (slope * h) as f32,
-                j_n: j_n as f32,
+                m: [m; 2],
+                slope_h: [slope_h; 2],
+                j_n: [j_n; 2],
             };
+        }
+        // Each record's next knot: the following record's own.
+        for j in 1..knots.len() {
+            let next = knots[j];
+            let k = &mut knots[j - 1];
+            k.m[1] = next.m[0];
+            k.slope_h[1] = next.slope_h[0];
+            k.j_n[1] = next.j_n[0];
         }
         self.table = Some(TableSpan {
             first: first as u32,
@@ -451,14 +469,7 @@ impl BandCoef {
                 t.locate((thickness_nm + order_step_nm) as f32),
             );
             if let (Some((i, u)), Some(lo), Some(hi), Some(k)) = (c, lo, hi, t.knots(knots)) {
-                let pair = |i: usize| [k[i], k[i + 1]];
-                let s = SampleModel::from_knots(
-                    pair(i),
-                    u,
-                    (pair(lo.0), lo.1),
-                    (pair(hi.0), hi.1),
-                    t.inv_h,
-                );
+                let s = SampleModel::from_knots(k[i], u, (k[lo.0], lo.1), (k[hi.0], hi.1), t.inv_h);
                 return BandEval {
                     m: f64::from(s.m),
                     j_d: f64::from(s.j_d),
@@ -515,15 +526,16 @@ impl BandCoef {
 /// Cubic Hermite interpolation between two knots at fraction `u`: the value and its
 /// derivative in knot units (`d / du`).
 #[inline]
-fn hermite(a: Knot, b: Knot, u: f32) -> (f32, f32) {
+fn hermite(k: &Knot, u: f32) -> (f32, f32) {
     let (u2, u3) = (u * u, u * u * u);
-    let value = (2.0 * u3 - 3.0 * u2 + 1.0) * a.m
-        + (u3 - 2.0 * u2 + u) * a.slope_h
-        + (3.0 * u2 - 2.0 * u3) * b.m
-        + (u3 - u2) * b.slope_h;
-    let slope = (6.0 * u2 - 6.0 * u) * (a.m - b.m)
-        + (3.0 * u2 - 4.0 * u + 1.0) * a.slope_h
-        + (3.0 * u2 - 2.0 * u) * b.slope_h;
+    let ([ma, mb], [sa, sb]) = (k.m, k.slope_h);
+    let value = (2.0 * u3 - 3.0 * u2 + 1.0) * ma
+        + (u3 - 2.0 * u2 + u) * sa
+        + (3.0 * u2 - 2.0 * u3) * mb
+        + (u3 - u2) * sb;
+    let slope = (6.0 * u2 - 6.0 * u) * (ma - mb)
+        + (3.0 * u2 - 4.0 * u + 1.0) * sa
+        + (3.0 * u2 - 2.0 * u) * sb;
     (value, slope)
 }
 
@@ -820,19 +832,21 @@ mod tests {
             let d = range[0] + h * j as f64;
             let (m, slope) = c.model_and_slope(d);
             let e = c.eval_exact(d, 1.0);
-            let k = knots[j];
-            assert!(
-                (f64::from(k.m) - m).abs() < 1e-6,
-                "knot {j}: {} vs {m}",
-                k.m
-            );
-            assert!(
-                (f64::from(k.slope_h) - slope * h).abs() < 1e-6,
-                "knot {j}: {} vs {}",
-                k.slope_h,
-                slope * h
-            );
-            assert!((f64::from(k.j_n) - e.j_n).abs() < 1e-5 * e.j_n.abs().max(1.0));
+            // The knot's own values, and the record before's as its next.
+            let mut held = vec![(knots[j].m[0], knots[j].slope_h[0], knots[j].j_n[0])];
+            if j > 0 {
+                let k = knots[j - 1];
+                held.push((k.m[1], k.slope_h[1], k.j_n[1]));
+            }
+            for (km, ks, kn) in held {
+                assert!((f64::from(km) - m).abs() < 1e-6, "knot {j}: {km} vs {m}");
+                assert!(
+                    (f64::from(ks) - slope * h).abs() < 1e-6,
+                    "knot {j}: {ks} vs {}",
+                    slope * h
+                );
+                assert!((f64::from(kn) - e.j_n).abs() < 1e-5 * e.j_n.abs().max(1.0));
+            }
         }
     }
 

@@ -421,7 +421,8 @@ impl<'a> Shard<'a> {
                     t.push(band as u16, v, options.subband, &mut sinks);
                 }
                 let model = coef.map(|c| (c, models.knots));
-                fit_row::push_row(fits, values, model, (self.sampling, row, index));
+                let index = (!models.index_held).then_some((self.sampling, row, index));
+                fit_row::push_row(fits, values, model, index);
             }
         });
     }

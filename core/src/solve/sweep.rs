@@ -160,6 +160,11 @@ impl SweepSolver {
         self
     }
 
+    /// Whether the index is held for the sweep ([`Self::with_held_index`]).
+    pub fn index_held(&self) -> bool {
+        self.ctx.held_index
+    }
+
     /// The image's noise (reflectance) given rather than pooled from the pixels' trackers:
     /// for a sweep that tracks no extrema ([`super::SolverOptions::extrema`] off), from the
     /// pixel sample's own measure ([`super::sample::SampleFit::noise_sigma`]).
@@ -323,10 +328,24 @@ impl SweepSolver {
     /// the data ask for (a term enters only if it lowers the chi-square by
     /// [`SPECTRAL_TERM_CHI2`]; terms once in stay). When the index moves, each refined pixel's
     /// thickness follows through its cross terms (`update`).
+    ///
+    /// A held index ([`SweepSolver::with_held_index`]) takes no step: the pixels add no index
+    /// sums ([`super::refine::AngleModels::index_held`]), and the residual's variance is the
+    /// pixels' own (their thickness eliminated).
     pub fn set_schur(&mut self, s: &SchurSums) {
         self.last_refined = false;
         let mut spectral_next = None;
-        if s.pixels >= 16.0 && s.h[0] > 0.0 && s.samples > s.pixels * 2.0 {
+        let enough = s.pixels >= 16.0 && s.samples > s.pixels * 2.0;
+        if self.ctx.held_index {
+            if enough {
+                let terms = self.ctx.index.map_or(1, |m| m.terms()).clamp(1, 3);
+                let dof = (s.samples - s.pixels - terms as f64).max(1.0);
+                self.ctx.residual_sigma = Some(libm::sqrt(s.sse.max(0.0) / dof));
+                self.last_refined = true;
+                self.refined_steps += 1;
+            }
+            self.spectral_dn = f64::NAN;
+        } else if enough && s.h[0] > 0.0 {
             let steps = [s.step(1), s.step(2), s.step(3)];
             let full = steps[2].or(steps[1]).or(steps[0]);
             let dof = (s.samples - s.pixels - 3.0).max(1.0);

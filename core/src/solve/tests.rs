@@ -65,6 +65,7 @@ mod release_tests {
         let models = AngleModels {
             coefs: &[],
             knots: &[],
+            index_held: solver.index_held(),
         };
         for b in 0..spec.bands_nm.len() {
             let values: [f32; W] = core::array::from_fn(|i| {
@@ -130,6 +131,7 @@ mod vote_tests {
         let models = AngleModels {
             coefs: &[],
             knots: &[],
+            index_held: solver.index_held(),
         };
         let bands = spec.bands_nm.len();
         for (b, &l) in spec.bands_nm.iter().enumerate() {
