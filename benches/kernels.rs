@@ -265,7 +265,7 @@ fn bench_refine(c: &mut Criterion) {
                 for (coef, row) in tabled.iter().zip(measured.chunks_exact(PIXELS)) {
                     let model = Some((coef, &knots[..]));
                     let index = sampling.map(|s| (s, 0, &mut index[..]));
-                    fit_row::push_row(&mut blocks, row, model, index);
+                    fit_row::push_row(&mut blocks, row, model, index, false);
                 }
                 black_box((&blocks, &index));
             });

@@ -309,24 +309,21 @@ struct Pairs {
 /// clamped knots are never added: only lanes inside the table are.
 #[derive(Clone, Copy)]
 pub struct KnotGather {
-    /// Each lane's read of its three intervals ([`Knot`]'s value and slope at both ends).
-    reads: [[[f32; 4]; LANES]; 3],
     pairs: [Pairs; 3],
     j_n: [Lanes; 2],
+    /// Whether the knots are read with AVX2.
+    avx2: bool,
 }
 
 impl KnotGather {
-    /// Nothing gathered yet.
-    pub const EMPTY: Self = Self {
-        reads: [[[0.0; 4]; LANES]; 3],
-        pairs: [Pairs::ZERO; 3],
-        j_n: [[0.0; LANES]; 2],
-    };
-}
-
-impl Default for KnotGather {
-    fn default() -> Self {
-        Self::EMPTY
+    /// Nothing gathered yet; the knots read with AVX2 if `wide` and the CPU has it (as
+    /// [`crate::simd::wide`] decides its build: the portable one reads them lane by lane).
+    pub fn new(wide: bool) -> Self {
+        Self {
+            pairs: [Pairs::ZERO; 3],
+            j_n: [[0.0; LANES]; 2],
+            avx2: wide && crate::simd::has_avx2_fma(),
+        }
     }
 }
 
@@ -571,29 +568,49 @@ impl FitLanes {
                 frac[p][i] = f;
             }
         }
-        // One lane at a time: each lane's knots, its knot clamped to the table rather than
-        // checked (a branch per lane and position cost an eighth of the kernel): a lane
-        // outside reads the last pair, which is never added.
-        let KnotGather { reads, pairs, j_n } = gather;
-        for i in 0..LANES {
+        // Each lane's knots, its knot clamped to the table rather than checked (a branch per
+        // lane and position cost an eighth of the kernel): a lane outside reads the last
+        // pair, which is never added.
+        let KnotGather { pairs, j_n, avx2 } = gather;
+        for p in 0..3 {
+            for i in 0..LANES {
+                knot[p][i] = knot[p][i].min(last as u32);
+            }
+        }
+        #[cfg(all(feature = "std", target_arch = "x86_64"))]
+        let read = *avx2 && {
             for p in 0..3 {
-                let r = &k[(knot[p][i] as usize).min(last)];
-                reads[p][i] = [r.m[0], r.slope_h[0], r.m[1], r.slope_h[1]];
-                if INDEX && p == 0 {
-                    j_n[0][i] = r.j_n[0];
-                    j_n[1][i] = r.j_n[1];
+                // SAFETY: AVX2 was found ([`KnotGather::new`]); every knot is below `last + 1
+                // = k.len() - 1`.
+                #[allow(unsafe_code)]
+                unsafe {
+                    read_avx2(k, &knot[p], &mut pairs[p]);
+                }
+            }
+            true
+        };
+        #[cfg(not(all(feature = "std", target_arch = "x86_64")))]
+        let read = {
+            let _ = avx2;
+            false
+        };
+        if !read {
+            for p in 0..3 {
+                let pair = &mut pairs[p];
+                for i in 0..LANES {
+                    let r = &k[knot[p][i] as usize];
+                    pair.m[0][i] = r.m[0];
+                    pair.slope_h[0][i] = r.slope_h[0];
+                    pair.m[1][i] = r.m[1];
+                    pair.slope_h[1][i] = r.slope_h[1];
                 }
             }
         }
-        // Then lane by lane into the model's arrays.
-        for p in 0..3 {
-            let pair = &mut pairs[p];
+        if INDEX {
             for i in 0..LANES {
-                let [ma, sa, mb, sb] = reads[p][i];
-                pair.m[0][i] = ma;
-                pair.slope_h[0][i] = sa;
-                pair.m[1][i] = mb;
-                pair.slope_h[1][i] = sb;
+                let r = &k[knot[0][i] as usize];
+                j_n[0][i] = r.j_n[0];
+                j_n[1][i] = r.j_n[1];
             }
         }
         let at = Tabled {
@@ -708,6 +725,46 @@ impl FitLanes {
     }
 }
 
+/// Reads the value and slope at both ends of the intervals `knot` (each below
+/// `k.len() - 1`) of all lanes into `pair`: each lane's record is one 16-byte read, four lanes'
+/// records a 4 x 4 transposition in registers (lane by lane, each of the four values took a
+/// read and a write of its own, most of the per-sample work).
+///
+/// # Safety
+/// The CPU has AVX2 and every `knot[i]` indexes `k`.
+#[cfg(all(feature = "std", target_arch = "x86_64"))]
+#[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
+#[inline]
+unsafe fn read_avx2(k: &[Knot], knot: &[u32; LANES], pair: &mut Pairs) {
+    use core::arch::x86_64::*;
+    let base = k.as_ptr();
+    for g in (0..LANES).step_by(8) {
+        // SAFETY: `knot[g + l]` indexes `k` (the caller's promise); a `Knot` is 32-byte
+        // aligned and starts with the four values (`repr(C)`).
+        let read = |l: usize| unsafe { _mm_load_ps(base.add(knot[g + l] as usize).cast()) };
+        // Lanes l and l + 4 side by side, each `[m0, m1, s0, s1]` (the record's order).
+        let q = [0, 1, 2, 3].map(|l| _mm256_set_m128(read(l + 4), read(l)));
+        let m01 = _mm256_unpacklo_ps(q[0], q[1]);
+        let s01 = _mm256_unpackhi_ps(q[0], q[1]);
+        let m23 = _mm256_unpacklo_ps(q[2], q[3]);
+        let s23 = _mm256_unpackhi_ps(q[2], q[3]);
+        let pd = _mm256_castps_pd;
+        let ps = _mm256_castpd_ps;
+        let m0 = ps(_mm256_unpacklo_pd(pd(m01), pd(m23)));
+        let m1 = ps(_mm256_unpackhi_pd(pd(m01), pd(m23)));
+        let s0 = ps(_mm256_unpacklo_pd(pd(s01), pd(s23)));
+        let s1 = ps(_mm256_unpackhi_pd(pd(s01), pd(s23)));
+        // SAFETY: `g + 8 <= LANES`: eight floats of each array.
+        unsafe {
+            _mm256_storeu_ps(pair.m[0][g..].as_mut_ptr(), m0);
+            _mm256_storeu_ps(pair.slope_h[0][g..].as_mut_ptr(), s0);
+            _mm256_storeu_ps(pair.m[1][g..].as_mut_ptr(), m1);
+            _mm256_storeu_ps(pair.slope_h[1][g..].as_mut_ptr(), s1);
+        }
+    }
+}
+
 /// The knot and fraction of a table position `0 <= x < 2^22`: `(x as u32, x - knot as f32)`
 /// (what [`BandCoef::eval`] computes), without a float-to-integer conversion, which would
 /// keep the lane loop from vectorising: `x + 2^23` is rounded to an integer (the f32 spacing
@@ -727,15 +784,17 @@ fn knot_of(x: f32) -> (u32, f32) {
 /// Feeds band samples `values` of image row `row` to the row's blocks
 /// (`values.len().div_ceil(LANES)` of them): [`FitLanes::push`] for each block, the
 /// index's sums of the pixels `sampling` picks to the row's index blocks `index` (`None`:
-/// the index is held, no pixel adds them, [`FitLanes::push`] without `INDEX`).
+/// the index is held, no pixel adds them, [`FitLanes::push`] without `INDEX`). `wide`: as
+/// [`crate::simd::wide`] was asked to run (the table's knots read with AVX2 in its build).
 #[inline(always)]
 pub fn push_row(
     blocks: &mut [FitLanes],
     values: &[f32],
     model: Option<(&BandCoef, &[Knot])>,
     index: Option<(IndexSampling, usize, &mut [IndexLanes])>,
+    wide: bool,
 ) {
-    let mut gather = KnotGather::EMPTY;
+    let mut gather = KnotGather::new(wide);
     let rows = blocks.iter_mut().zip(values.chunks(LANES));
     match index {
         Some((sampling, row, index)) => {
@@ -821,10 +880,12 @@ mod tests {
     /// ends (computed), without a thickness, and samples saturated, dead or corrupted.
     #[test]
     fn lanes_match_the_scalar_sums() {
-        for (stride, row) in [(1, 0), (2, 1), (4, 0), (4, 7), (64, 5), (64, 40)] {
-            lanes_match_the_scalar_sums_with(Some(IndexSampling::one_in(stride)), row);
+        for wide in [false, true] {
+            for (stride, row) in [(1, 0), (2, 1), (4, 0), (4, 7), (64, 5), (64, 40)] {
+                lanes_match_the_scalar_sums_with(Some(IndexSampling::one_in(stride)), row, wide);
+            }
+            lanes_match_the_scalar_sums_with(None, 0, wide);
         }
-        lanes_match_the_scalar_sums_with(None, 0);
     }
 
     /// Feeds `values` of image row `row` to a one-block row (`lanes`, its index blocks
@@ -836,10 +897,10 @@ mod tests {
         scalar: &mut [PixelFit],
         values: &[f32],
         (coef, knots): (&BandCoef, &[Knot]),
-        (sampling, row): (Option<IndexSampling>, usize),
+        (sampling, row, wide): (Option<IndexSampling>, usize, bool),
     ) {
         let index = sampling.map(|s| (s, row, &mut index[..s.blocks_per_row(values.len())]));
-        push_row(lanes, values, Some((coef, knots)), index);
+        push_row(lanes, values, Some((coef, knots)), index, wide);
         for (p, &v) in scalar.iter_mut().zip(values) {
             p.samples += 1;
             if v.is_infinite() {
@@ -891,7 +952,7 @@ mod tests {
         t
     }
 
-    fn lanes_match_the_scalar_sums_with(sampling: Option<IndexSampling>, row: usize) {
+    fn lanes_match_the_scalar_sums_with(sampling: Option<IndexSampling>, row: usize, wide: bool) {
         let (coefs, knots, first) = bands();
         let knots = &knots[..first];
         let n = 29;
@@ -921,7 +982,13 @@ mod tests {
                 _ => 0.1 + 0.01 * ((i * 7 + s * 3) % 13) as f32,
             });
             let block = (&mut lanes, &mut index);
-            feed(block, &mut scalar, &values, (coef, knots), (sampling, row));
+            feed(
+                block,
+                &mut scalar,
+                &values,
+                (coef, knots),
+                (sampling, row, wide),
+            );
         }
         for (i, p) in scalar.iter().enumerate() {
             let l = with_index(
@@ -938,11 +1005,11 @@ mod tests {
                     [f.samples, f.saturated.into(), f.dead.into(), f.gn.samples],
                 )
             };
-            assert_eq!(bits(&l), bits(p), "pixel {i}, {sampling:?}");
+            assert_eq!(bits(&l), bits(p), "pixel {i}, {sampling:?}, wide {wide}");
             assert_eq!(
                 kept(&l, sampling, row, i),
                 kept(p, sampling, row, i),
-                "pixel {i}, {sampling:?}"
+                "pixel {i}, {sampling:?}, wide {wide}"
             );
         }
         assert!(scalar.iter().filter(|p| p.gn.samples > 0).count() > 20);
@@ -1001,13 +1068,15 @@ mod tests {
     /// bit (the index's to every pixel, to one in 4, or, the index held, to none).
     #[test]
     fn a_full_block_inside_the_table_matches_the_scalar_sums() {
-        for stride in [1, 4] {
-            a_full_block_matches_with(Some(IndexSampling::one_in(stride)));
+        for wide in [false, true] {
+            for stride in [1, 4] {
+                a_full_block_matches_with(Some(IndexSampling::one_in(stride)), wide);
+            }
+            a_full_block_matches_with(None, wide);
         }
-        a_full_block_matches_with(None);
     }
 
-    fn a_full_block_matches_with(sampling: Option<IndexSampling>) {
+    fn a_full_block_matches_with(sampling: Option<IndexSampling>, wide: bool) {
         let (coefs, knots, first) = bands();
         let knots = &knots[..first];
         let step = 130.0f32;
@@ -1026,7 +1095,13 @@ mod tests {
             let values: [f32; LANES] =
                 core::array::from_fn(|i| 0.05 + 0.013 * ((i * 5 + s * 7) % 17) as f32);
             let block = (&mut lanes, &mut index);
-            feed(block, &mut scalar, &values, (coef, knots), (sampling, row));
+            feed(
+                block,
+                &mut scalar,
+                &values,
+                (coef, knots),
+                (sampling, row, wide),
+            );
         }
         for (i, p) in scalar.iter().enumerate() {
             let l = with_index(

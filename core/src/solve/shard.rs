@@ -422,7 +422,7 @@ impl<'a> Shard<'a> {
                 }
                 let model = coef.map(|c| (c, models.knots));
                 let index = (!models.index_held).then_some((self.sampling, row, index));
-                fit_row::push_row(fits, values, model, index);
+                fit_row::push_row(fits, values, model, index, options.wide_simd);
             }
         });
     }
