@@ -6,18 +6,20 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use crossbeam_channel::{bounded, Receiver, Sender};
-use filmscope_core::track::pack_sample;
+use filmscope_core::track::pack_samples;
 
 use super::msg::{Control, PipelineError, Tap, WorkerMsg, WorkerRows};
 use super::state::Strips;
 use crate::source::{calibrate_block, Source, StreamMsg};
 
+/// The stage's loop: `strips` split the rows among `workers`, their samples packed for
+/// AVX2 if `wide` ([`filmscope_core::simd::wide`]).
 pub(super) fn calibrate_stage(
     rx: Receiver<StreamMsg>,
     control: Sender<Control>,
     workers: Vec<Sender<WorkerMsg>>,
     (width, height): (usize, usize),
-    strips: Strips,
+    (strips, wide): (Strips, bool),
     tap: Option<&Mutex<dyn Tap + Send>>,
     on_rows: &(dyn Fn(u64) + Sync),
 ) {
@@ -74,10 +76,8 @@ pub(super) fn calibrate_stage(
                     let strip = strips.of_row(first + k);
                     let (s_first, s_rows) = strips.span(strip);
                     let n = (s_first + s_rows - (first + k)).min(rows - k);
-                    let part: Vec<u16> = values[k * width..(k + n) * width]
-                        .iter()
-                        .map(|&v| pack_sample(v))
-                        .collect();
+                    let mut part = vec![0; n * width];
+                    pack_samples(&values[k * width..(k + n) * width], &mut part, wide);
                     if workers[strips.worker(strip)]
                         .send(WorkerMsg::Rows(WorkerRows {
                             band: block.band,

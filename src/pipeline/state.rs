@@ -78,9 +78,7 @@ impl ShardState {
         if let Some((map, index)) = seed {
             for shard in state.shards(strips.spans_of(worker), w).iter_mut() {
                 let at = shard.first_row * w;
-                for (i, &d) in map[at..at + shard.pixels.len()].iter().enumerate() {
-                    shard.seed(i, d, index, spec);
-                }
+                shard.seed(&map[at..at + shard.pixels.len()], index, spec);
             }
         }
         state

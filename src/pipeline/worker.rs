@@ -7,7 +7,7 @@ use crossbeam_channel::{Receiver, Sender};
 use filmscope_core::solve::index::RatioHistogram;
 use filmscope_core::solve::sweep::SolverOptions;
 use filmscope_core::solve::{Shard, SweepContext};
-use filmscope_core::track::unpack_sample;
+use filmscope_core::track::unpack_samples;
 
 use super::held::HeldBlock;
 use super::msg::{Done, Start, WorkerMsg, WorkerRows};
@@ -340,9 +340,7 @@ fn feed_held(
                     continue;
                 };
                 let k = r - image_rows.start;
-                for (x, &q) in unpacked.iter_mut().zip(held.row(e, k, width)) {
-                    *x = unpack_sample(q);
-                }
+                unpack_samples(held.row(e, k, width), &mut unpacked, options.wide_simd);
                 shard.feed_row(options, models.view(), usize::from(e.band), r, &unpacked);
                 tally.fed(owned, r, behind);
             }

@@ -443,6 +443,13 @@ impl FitLanes {
         (n > 0).then(|| libm::sqrtf(self.sums[SSE_TERM][i] / f32::from(n)))
     }
 
+    /// Starts lane `i` at `thickness_nm`, one order `order_step_nm` thick (the rest of it
+    /// unchanged).
+    pub fn seed(&mut self, i: usize, thickness_nm: f32, order_step_nm: f32) {
+        self.thickness_nm[i] = thickness_nm;
+        self.order_step_nm[i] = order_step_nm;
+    }
+
     /// Stores `p` in lane `i` (all but the shared sample count and the index's sums).
     pub fn set_pixel(&mut self, i: usize, p: &PixelFit) {
         self.thickness_nm[i] = p.thickness_nm;

@@ -298,18 +298,20 @@ impl<'a> Shard<'a> {
             .map(|lane| &self.lists[Self::list_slot(lane)])
     }
 
-    /// Starts pixel `i` at `thickness_nm` with `index`, as a global search on sampled
-    /// spectra put it ([`super::sample`]): it is refined from the first angle on, needing no
-    /// extrema. A NaN thickness leaves it as it was.
-    pub fn seed(&mut self, i: usize, thickness_nm: f32, index: IndexModel, spec: &SweepSpec) {
-        if thickness_nm.is_finite() {
-            let mid = spec.bands_nm[spec.bands_nm.len() / 2];
-            let mut f = self.fit(i);
-            f.thickness_nm = thickness_nm;
-            f.order_step_nm = (mid / (2.0 * index.at(mid))) as f32;
-            self.set_fit(i, &f);
-            let p = &mut self.pixels[i];
-            p.flags = flags::FROM_SPECTRUM_SEARCH | (p.flags & SEEN_EXTREMA);
+    /// Starts the shard's pixels at the thicknesses `map` (row-major, the shard's; NaN leaves
+    /// a pixel as it was) with `index`, as a global search on sampled spectra put them
+    /// ([`super::sample`]): they are refined from the first angle on, needing no extrema.
+    pub fn seed(&mut self, map: &[f32], index: IndexModel, spec: &SweepSpec) {
+        let mid = spec.bands_nm[spec.bands_nm.len() / 2];
+        let order_step_nm = (mid / (2.0 * index.at(mid))) as f32;
+        let w = self.width.max(1);
+        for (i, &d) in map.iter().enumerate().take(self.pixels.len()) {
+            if d.is_finite() {
+                let ((b, lane), _) = self.lanes_at(i / w, i % w);
+                self.fits[b].seed(lane, d, order_step_nm);
+                let p = &mut self.pixels[i];
+                p.flags = flags::FROM_SPECTRUM_SEARCH | (p.flags & SEEN_EXTREMA);
+            }
         }
     }
 

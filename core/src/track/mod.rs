@@ -82,7 +82,7 @@ const PACKED_DEAD: u16 = u16::MAX - 1;
 /// clamped below the two codes kept for a saturated sample (infinite) and one without a
 /// usable value, which [`unpack_sample`] gives back as `+inf` and NaN. Lane loops of it vectorise (no branch, no
 /// float-to-integer conversion).
-#[inline]
+#[inline(always)]
 pub fn pack_sample(v: f32) -> u16 {
     let q = to_step(v).1.min(PACKED_DEAD - 1);
     let q = if usable(v) { q } else { PACKED_DEAD };
@@ -95,13 +95,42 @@ pub fn pack_sample(v: f32) -> u16 {
 
 /// The sample [`pack_sample`] packed as `q`: a ring step's reflectance (exact), `+inf` for a
 /// saturated one, NaN for one without a usable value.
-#[inline]
+#[inline(always)]
 pub fn unpack_sample(q: u16) -> f32 {
-    match q {
-        PACKED_SATURATED => f32::INFINITY,
-        PACKED_DEAD => f32::NAN,
-        q => f32::from(q) * (1.0 / RING_STEPS_PER_UNIT) + RING_ORIGIN,
+    // Selects, not branches: lane loops of it vectorise.
+    let v = f32::from(q) * (1.0 / RING_STEPS_PER_UNIT) + RING_ORIGIN;
+    let v = if q == PACKED_DEAD { f32::NAN } else { v };
+    if q == PACKED_SATURATED {
+        f32::INFINITY
+    } else {
+        v
     }
+}
+
+/// [`pack_sample`] of every value of `values` into `out` (as many as both hold), compiled
+/// for AVX2 if `wide` ([`crate::simd::wide`]).
+pub fn pack_samples(values: &[f32], out: &mut [u16], wide: bool) {
+    crate::simd::wide(wide, {
+        #[inline(always)]
+        || {
+            for (q, &v) in out.iter_mut().zip(values) {
+                *q = pack_sample(v);
+            }
+        }
+    });
+}
+
+/// [`unpack_sample`] of every code of `packed` into `out` (as many as both hold), compiled
+/// for AVX2 if `wide` ([`crate::simd::wide`]).
+pub fn unpack_samples(packed: &[u16], out: &mut [f32], wide: bool) {
+    crate::simd::wide(wide, {
+        #[inline(always)]
+        || {
+            for (x, &q) in out.iter_mut().zip(packed) {
+                *x = unpack_sample(q);
+            }
+        }
+    });
 }
 
 /// [`to_step`]'s ring step.
