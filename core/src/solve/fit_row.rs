@@ -479,9 +479,17 @@ impl FitLanes {
         mut index: BlockIndex<'_>,
         gather: &mut KnotGather,
     ) {
-        let mut v = [0.0; LANES];
-        let n = values.len().min(LANES);
-        v[..n].copy_from_slice(&values[..n]);
+        // A whole block copied as one array (a copy of a slice's length is a call to
+        // `memmove`: a twentieth of the kernel); a row's last, short one padded.
+        let v = match <&Lanes>::try_from(values) {
+            Ok(whole) => *whole,
+            Err(_) => {
+                let mut v = [0.0; LANES];
+                let n = values.len().min(LANES);
+                v[..n].copy_from_slice(&values[..n]);
+                v
+            }
+        };
         self.samples = self.samples.saturating_add(1);
         if !v.iter().fold(true, |a, &x| a & usable(x)) {
             self.count_bad(&v);
