@@ -179,10 +179,10 @@ pub struct BandCoef {
 /// Hermite interpolation) and its index derivative (linearly interpolated: a Jacobian's small
 /// error slows Gauss-Newton a little but cannot bias where it converges, which the residual
 /// alone decides). Every knot's values are held twice, by its own record and the one before,
-/// so that a sample's interval is one aligned read: 16 bytes for the value and slope at both
-/// ends, which is all a sample takes but where the index is fitted (the table's reads were
-/// most of the per-sample work as three reads of 12-byte knots). The band's last knot holds
-/// its own values as the next.
+/// so that a sample's interval is one aligned 16-byte read of the value and slope at both
+/// ends: all a sample takes unless the index is fitted (read as two 12-byte knots for each of
+/// a sample's three positions, the table was most of the per-sample work). The band's last
+/// knot holds its own values as the next.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[repr(C, align(32))]
 pub struct Knot {
