@@ -592,34 +592,8 @@ impl FitLanes {
                 knot[p][i] = knot[p][i].min(last as u32);
             }
         }
-        #[cfg(all(feature = "std", target_arch = "x86_64"))]
-        let read = *avx2 && {
-            for p in 0..3 {
-                // SAFETY: AVX2 was found ([`KnotGather::new`]); every knot is below `last + 1
-                // = k.len() - 1`.
-                #[allow(unsafe_code)]
-                unsafe {
-                    read_avx2(k, &knot[p], &mut pairs[p]);
-                }
-            }
-            true
-        };
-        #[cfg(not(all(feature = "std", target_arch = "x86_64")))]
-        let read = {
-            let _ = avx2;
-            false
-        };
-        if !read {
-            for p in 0..3 {
-                let pair = &mut pairs[p];
-                for i in 0..LANES {
-                    let r = &k[knot[p][i] as usize];
-                    pair.m[0][i] = r.m[0];
-                    pair.slope_h[0][i] = r.slope_h[0];
-                    pair.m[1][i] = r.m[1];
-                    pair.slope_h[1][i] = r.slope_h[1];
-                }
-            }
+        for p in 0..3 {
+            read_pairs(k, &knot[p], &mut pairs[p], *avx2);
         }
         if INDEX {
             for i in 0..LANES {
@@ -737,6 +711,29 @@ impl FitLanes {
             let add = !MASKED || inside[i] != 0;
             self.gn_samples[i] = self.gn_samples[i].saturating_add(u16::from(add));
         }
+    }
+}
+
+/// Each lane's value and slope at both ends of its interval `knot[i]` (below `k.len() - 1`)
+/// into `pair`: with AVX2 ([`read_avx2`]) if `avx2` (the CPU has it), else lane by lane.
+#[inline(always)]
+fn read_pairs(k: &[Knot], knot: &[u32; LANES], pair: &mut Pairs, avx2: bool) {
+    #[cfg(all(feature = "std", target_arch = "x86_64"))]
+    if avx2 {
+        // SAFETY: AVX2 was found ([`KnotGather::new`]); every knot indexes `k`.
+        #[allow(unsafe_code)]
+        unsafe {
+            read_avx2(k, knot, pair);
+        }
+        return;
+    }
+    let _ = avx2;
+    for i in 0..LANES {
+        let r = &k[knot[i] as usize];
+        pair.m[0][i] = r.m[0];
+        pair.slope_h[0][i] = r.slope_h[0];
+        pair.m[1][i] = r.m[1];
+        pair.slope_h[1][i] = r.slope_h[1];
     }
 }
 
@@ -929,10 +926,11 @@ mod tests {
         }
     }
 
-    /// The pixel's sums as `row`'s index blocks `index` keep them (zeros where they do not;
-    /// with the index held, `None`, what pixel `i`'s place would hold under every pixel's).
-    fn with_index(
-        l: PixelFit,
+    /// Lane `i` of `lanes` with its index sums as `row`'s index blocks `index` keep them
+    /// (zeros where they do not; with the index held, `None`, what pixel `i`'s place would
+    /// hold under every pixel's).
+    fn lane(
+        lanes: &FitLanes,
         sampling: Option<IndexSampling>,
         row: usize,
         i: usize,
@@ -942,10 +940,7 @@ mod tests {
             .unwrap_or(IndexSampling::ALL)
             .slot(row, i)
             .map_or([0.0; INDEX_TERMS], |k| index[k / LANES].terms(k % LANES));
-        PixelFit {
-            gn: GnSums::from_terms(l.gn.to_pixel_terms(), terms, l.gn.samples),
-            ..l
-        }
+        lanes.pixel(i, terms)
     }
 
     /// The sums a pixel of `row` keeps under `sampling`, of the scalar's `p`: with the index
@@ -996,23 +991,11 @@ mod tests {
                 2 if i % 6 == 0 => 3e7,
                 _ => 0.1 + 0.01 * ((i * 7 + s * 3) % 13) as f32,
             });
-            let block = (&mut lanes, &mut index);
-            feed(
-                block,
-                &mut scalar,
-                &values,
-                (coef, knots),
-                (sampling, row, wide),
-            );
+            let (block, model) = ((&mut lanes, &mut index), (coef, knots));
+            feed(block, &mut scalar, &values, model, (sampling, row, wide));
         }
         for (i, p) in scalar.iter().enumerate() {
-            let l = with_index(
-                lanes[0].pixel(i, [0.0; INDEX_TERMS]),
-                sampling,
-                row,
-                i,
-                &index,
-            );
+            let l = lane(&lanes[0], sampling, row, i, &index);
             let bits = |f: &PixelFit| {
                 let t = [f.thickness_nm, f.order_step_nm].map(f32::to_bits);
                 (
@@ -1032,12 +1015,8 @@ mod tests {
             held_adds_no_index_terms(&lanes[0], &index[0]);
         }
         // The sampled pixels (and only they) have index sums.
-        let with_sums = (0..n).filter(|&i| {
-            with_index(lanes[0].pixel(i, [0.0; 8]), sampling, row, i, &index)
-                .gn
-                .h_pp[0]
-                != 0.0
-        });
+        let with_sums =
+            (0..n).filter(|&i| lane(&lanes[0], sampling, row, i, &index).gn.h_pp[0] != 0.0);
         let sampled = (0..n).filter(|&i| {
             sampling.is_some_and(|s| s.slot(row, i).is_some()) && scalar[i].gn.samples > 0
         });
@@ -1109,23 +1088,11 @@ mod tests {
             let coef = coefs[s % 2].as_ref().expect("a band");
             let values: [f32; LANES] =
                 core::array::from_fn(|i| 0.05 + 0.013 * ((i * 5 + s * 7) % 17) as f32);
-            let block = (&mut lanes, &mut index);
-            feed(
-                block,
-                &mut scalar,
-                &values,
-                (coef, knots),
-                (sampling, row, wide),
-            );
+            let (block, model) = ((&mut lanes, &mut index), (coef, knots));
+            feed(block, &mut scalar, &values, model, (sampling, row, wide));
         }
         for (i, p) in scalar.iter().enumerate() {
-            let l = with_index(
-                lanes[0].pixel(i, [0.0; INDEX_TERMS]),
-                sampling,
-                row,
-                i,
-                &index,
-            );
+            let l = lane(&lanes[0], sampling, row, i, &index);
             assert_eq!(
                 kept(&l, sampling, row, i),
                 kept(p, sampling, row, i),
