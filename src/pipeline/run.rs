@@ -323,6 +323,16 @@ fn sweep(
             match msg {
                 Control::Angle(deg) => {
                     solver.begin_angle(deg);
+                    // The tables cover the thicknesses the pixels read this angle, no more
+                    // (those of a seeded 400 nm film are a third of the search range's).
+                    let span = states.iter().flatten().fold(
+                        [f32::INFINITY, f32::NEG_INFINITY],
+                        |a, st| {
+                            let s = st.thickness_span();
+                            [a[0].min(s[0]), a[1].max(s[1])]
+                        },
+                    );
+                    solver.set_table_span(Some(span.map(f64::from)));
                     let snapshot = Arc::new(BandModels::of(&solver, workers));
                     let began = Arc::new(solver.context().clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);

@@ -84,6 +84,17 @@ impl ShardState {
         state
     }
 
+    /// Where the pixels' samples read their models ([`FitLanes::thickness_span`]), over the
+    /// shard's pixels.
+    pub fn thickness_span(&self) -> [f32; 2] {
+        self.fits
+            .iter()
+            .fold([f32::INFINITY, f32::NEG_INFINITY], |a, f| {
+                let s = f.thickness_span();
+                [a[0].min(s[0]), a[1].max(s[1])]
+            })
+    }
+
     /// Gives the trackers' memory back, once nothing reads them (the sweep's last angle end,
     /// after [`super::run::tally_parallel`]; or after the last update): the results take it.
     pub fn release_trackers(&mut self) {
@@ -165,9 +176,8 @@ pub struct BandModels {
 }
 
 impl BandModels {
-    /// The models of `solver`'s current angle, every band tabulated if the sensor has
-    /// enough pixels to repay it (a knot costs about what one pixel's sample does computed:
-    /// tables pay from twice as many pixels as knots per band).
+    /// The models of `solver`'s current angle, every band tabulated over the pixels'
+    /// thicknesses if the sensor has enough pixels to repay it ([`SweepSolver::band_knots`]).
     ///
     /// `threads` share the tabulation (the workers wait for it: measured at 128 x 96, the
     /// five angles' tables took 41.5 ms of a 100-130 ms pass on one thread).
@@ -178,8 +188,7 @@ impl BandModels {
         let mut counts = vec![0; coefs.len()];
         solver.band_knots(&coefs, &mut counts);
         let knots: usize = counts.iter().sum();
-        let bands = coefs.iter().flatten().count().max(1);
-        let knots = if spec.width * spec.height >= 2 * knots / bands {
+        let knots = if knots > 0 {
             let mut table = vec![Knot::default(); knots];
             tabulate_on(solver, threads, &counts, &mut coefs, &mut table);
             table

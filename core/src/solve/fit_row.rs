@@ -428,6 +428,19 @@ impl FitLanes {
         out
     }
 
+    /// The least thickness less its order step and the greatest plus it over the lanes
+    /// with a thickness (`[inf, -inf]` if none has): where their samples read the models.
+    pub fn thickness_span(&self) -> [f32; 2] {
+        let mut span = [f32::INFINITY, f32::NEG_INFINITY];
+        for i in 0..LANES {
+            let (d, s) = (self.thickness_nm[i], self.order_step_nm[i]);
+            if d.is_finite() && s.is_finite() {
+                span = [span[0].min(d - s), span[1].max(d + s)];
+            }
+        }
+        span
+    }
+
     /// Stores lane `i`'s thickness, `g_d` and squared error after a step
     /// ([`FitLanes::steps`]), the rest of it unchanged.
     pub fn set_step(&mut self, i: usize, thickness_nm: f32, g_d: f32, sse: f32) {

@@ -390,6 +390,17 @@ impl BandCoef {
         (count <= MAX_KNOTS_PER_BAND).then_some((h, count))
     }
 
+    /// The part of `range_nm`'s knot grid ([`BandCoef::knots_for`]) that covers the
+    /// thicknesses `within_nm`, clamped to `range_nm` (`None` if they do not meet): a table
+    /// of it has the whole range's knots there, so a thickness in both interpolates the same.
+    pub fn range_within(&self, range_nm: [f64; 2], within_nm: [f64; 2]) -> Option<[f64; 2]> {
+        let (h, count) = self.knots_for(range_nm)?;
+        let last = (count - 1) as f64;
+        let lo = libm::floor((within_nm[0] - range_nm[0]) / h).max(0.0);
+        let hi = libm::ceil((within_nm[1] - range_nm[0]) / h).min(last);
+        (lo < hi).then(|| [range_nm[0] + lo * h, range_nm[0] + hi * h])
+    }
+
     /// Tabulates the band's model over thicknesses `range_nm` into `knots` (which must hold
     /// [`BandCoef::knots_for`]'s count), `first` being the knots' offset in the angle's table.
     /// Each knot costs the model's quadrature with its thickness derivative and two
@@ -804,6 +815,64 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A table over part of the range ([`BandCoef::range_within`]) has the whole range's
+    /// knots there: the same models (within the stepped phases' 1e-6) at any thickness
+    /// inside both, the computed model outside it; spans beyond the range are clamped to it
+    /// or give none.
+    #[test]
+    fn a_partial_table_holds_the_whole_tables_knots() {
+        let full = [-310.0, 2360.0];
+        let mut whole = BandCoef::new(
+            IndexModel::constant(1.38),
+            1.0,
+            1.65,
+            Polarization::S,
+            30.0,
+            540.0,
+            4.0,
+            full[1],
+        )
+        .expect("propagating");
+        let mut part = whole.clone();
+        let (h, count) = whole.knots_for(full).expect("a table");
+        let mut knots = vec![Knot::default(); count];
+        whole.tabulate(full, 0, &mut knots);
+        let within = [101.3, 733.9];
+        let sub = part.range_within(full, within).expect("inside");
+        assert!(sub[0] <= within[0] && sub[1] >= within[1], "{sub:?}");
+        assert!(sub[1] - sub[0] < within[1] - within[0] + 2.0 * h + 1e-9);
+        let off = (sub[0] - full[0]) / h;
+        assert!((off - off.round()).abs() < 1e-9, "{off}: not on the grid");
+        let (_, n) = part.knots_for(sub).expect("a table");
+        assert!(n < count / 3, "{n} of {count}");
+        let mut sub_knots = vec![Knot::default(); n];
+        part.tabulate(sub, 0, &mut sub_knots);
+        // The thickness and both orders (80 nm either side) inside the part.
+        for d in [190.0, 402.7, 640.0] {
+            let (a, b) = (whole.eval(&knots, d, 80.0), part.eval(&sub_knots, d, 80.0));
+            for (x, y) in [
+                (a.m, b.m),
+                (a.j_d, b.j_d),
+                (a.m_minus, b.m_minus),
+                (a.m_plus, b.m_plus),
+            ] {
+                assert!((x - y).abs() < 1e-6, "{d} nm: {x} vs {y}");
+            }
+        }
+        // Outside the part: computed, as the whole range's own model.
+        let e = part.eval(&sub_knots, 1500.0, 80.0);
+        assert!((e.m - whole.eval_exact(1500.0, 80.0).m).abs() < 1e-12);
+        assert_eq!(
+            part.range_within(full, [-900.0, 50.0]).map(|r| r[0]),
+            Some(full[0])
+        );
+        assert_eq!(part.range_within(full, [3000.0, 3100.0]), None);
+        assert_eq!(
+            part.range_within(full, [f64::INFINITY, f64::NEG_INFINITY]),
+            None
+        );
     }
 
     /// The knots' phases are rotated, not computed: over the most knots a band holds, the

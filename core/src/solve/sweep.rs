@@ -97,6 +97,8 @@ pub struct SweepSolver {
     spectral_index: bool,
     spectral_gains: [f64; 3],
     spectral_candidate: Option<IndexModel>,
+    /// The thicknesses the pixels' models are read at this angle ([`SweepSolver::set_table_span`]).
+    table_span: Option<[f64; 2]>,
 }
 
 impl core::ops::Deref for SweepSolver {
@@ -125,6 +127,7 @@ impl SweepSolver {
             spectral_index: false,
             spectral_gains: [f64::NAN; 3],
             spectral_candidate: None,
+            table_span: None,
         }
     }
 
@@ -240,10 +243,9 @@ impl SweepSolver {
     /// on): runs split where their knots do ([`SweepSolver::band_knots`]) can be tabulated on
     /// as many threads.
     pub fn tabulate(&self, models: &mut [Option<BandCoef>], knots: &mut [Knot], first: usize) {
-        let range = self.table_range_nm();
         let mut used = 0;
         for c in models.iter_mut().flatten() {
-            let Some((_, n)) = c.knots_for(range) else {
+            let Some((range, n)) = self.band_table(c) else {
                 continue;
             };
             if used + n > knots.len() {
@@ -255,15 +257,49 @@ impl SweepSolver {
     }
 
     /// Knots each band of `models` needs ([`SweepSolver::tabulate`]; 0 for a band without a
-    /// model or a table).
+    /// model or a table): those over the span set ([`SweepSolver::set_table_span`]), and
+    /// none at all for an image of fewer pixels than twice a band's knots over the whole
+    /// table range (a knot costs about what a pixel's sample does computed, and whether the
+    /// models are computed or tabulated does not depend on where the pixels are).
     pub fn band_knots(&self, models: &[Option<BandCoef>], out: &mut [usize]) {
-        let range = self.table_range_nm();
+        let full = self.table_range_nm();
+        let (mut whole, mut bands) = (0, 0);
+        for c in models.iter().flatten() {
+            whole += c.knots_for(full).map_or(0, |(_, n)| n);
+            bands += 1;
+        }
+        let spec = &self.ctx.spec;
+        if spec.width * spec.height < 2 * whole / bands.max(1) {
+            out.fill(0);
+            return;
+        }
         for (o, c) in out.iter_mut().zip(models) {
             *o = c
                 .as_ref()
-                .and_then(|c| c.knots_for(range))
+                .and_then(|c| self.band_table(c))
                 .map_or(0, |(_, n)| n);
         }
+    }
+
+    /// The thicknesses band model `c` is tabulated over and its knot count: the table range
+    /// ([`SweepSolver::table_range_nm`]), or the part of its knots that covers the span set
+    /// ([`SweepSolver::set_table_span`]).
+    fn band_table(&self, c: &BandCoef) -> Option<([f64; 2], usize)> {
+        let full = self.table_range_nm();
+        let range = match self.table_span {
+            Some(span) => c.range_within(full, span)?,
+            None => full,
+        };
+        c.knots_for(range).map(|(_, n)| (range, n))
+    }
+
+    /// The thicknesses at which this angle's samples read the pixels' models: over the
+    /// image, from the least of a pixel's thickness less its order step to the greatest of
+    /// its thickness plus it (`None`: the whole table range). The tables then cover only
+    /// these ([`SweepSolver::tabulate`]; none if the span is empty, as at a first angle
+    /// without seeded pixels); a thickness outside has its models computed per sample.
+    pub fn set_table_span(&mut self, span: Option<[f64; 2]>) {
+        self.table_span = span;
     }
 
     /// Starts an angle (then fill the band models with [`SweepSolver::band_models`]).
