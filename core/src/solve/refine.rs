@@ -835,7 +835,7 @@ mod tests {
             full[1],
         )
         .expect("propagating");
-        let mut part = whole.clone();
+        let mut part = whole;
         let (h, count) = whole.knots_for(full).expect("a table");
         let mut knots = vec![Knot::default(); count];
         whole.tabulate(full, 0, &mut knots);
