@@ -19,6 +19,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::bounded;
+use filmscope_core::solve::fit_row::thickness_span;
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
 use filmscope_core::solve::sweep::SolverOptions;
 use filmscope_core::solve::sweep::{FitStats, SchurSums};
@@ -274,10 +275,22 @@ fn sweep(
     // Each worker's state made on a thread of its own (zeroing and seeding the state took
     // 2.4-6.4 ms of a 256 x 192 sweep's 150-200 on one).
     let mut ids: Vec<usize> = (0..workers).collect();
-    let mut states: Vec<Option<ShardState>> = each(&mut ids, workers, |&mut i| {
+    // The first angle's tables cover the seeded thicknesses (none without a seed).
+    let mut table_span = EMPTY_SPAN;
+    let made = each(&mut ids, workers, |&mut i| {
         let seed = seed.as_ref().map(|(map, index)| (map.as_slice(), *index));
-        Some(ShardState::for_worker(strips, i, &spec, seed))
+        let st = ShardState::for_worker(strips, i, &spec, seed);
+        let span = match seed {
+            Some(_) => thickness_span(&st.fits),
+            None => EMPTY_SPAN,
+        };
+        (Some(st), span)
     });
+    let mut states: Vec<Option<ShardState>> = Vec::new();
+    for (st, span) in made {
+        states.push(st);
+        table_span = widen(table_span, span);
+    }
     let mut reports = Vec::new();
     let mut samples = 0u64;
     let mut last_row_at = Instant::now();
@@ -325,14 +338,7 @@ fn sweep(
                     solver.begin_angle(deg);
                     // The tables cover the thicknesses the pixels read this angle, no more
                     // (those of a seeded 400 nm film are a third of the search range's).
-                    let span = states.iter().flatten().fold(
-                        [f32::INFINITY, f32::NEG_INFINITY],
-                        |a, st| {
-                            let s = st.thickness_span();
-                            [a[0].min(s[0]), a[1].max(s[1])]
-                        },
-                    );
-                    solver.set_table_span(Some(span.map(f64::from)));
+                    solver.set_table_span(Some(table_span.map(f64::from)));
                     let snapshot = Arc::new(BandModels::of(&solver, workers));
                     let began = Arc::new(solver.context().clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
@@ -416,8 +422,9 @@ fn sweep(
                     }
                     parts.results = releasing.elapsed();
                     let out = last.then_some(results.as_mut_slice());
-                    let report =
+                    let (report, span) =
                         update_parallel(&mut solver, &mut shards, out, workers, &mut parts);
+                    table_span = span;
                     reports.push(report);
                     latency_parts = parts;
                     if last {
@@ -599,18 +606,29 @@ pub fn tally_parallel(
     parts.tally = lap(&mut clock);
 }
 
+/// A span of thicknesses holding none ([`widen`] takes any other).
+const EMPTY_SPAN: [f32; 2] = [f32::INFINITY, f32::NEG_INFINITY];
+
+/// The span holding both `a` and `b`.
+fn widen(a: [f32; 2], b: [f32; 2]) -> [f32; 2] {
+    [a[0].min(b[0]), a[1].max(b[1])]
+}
+
 /// The angle end's passes after [`tally_parallel`], each run on `threads` threads: the
 /// index's sums, the update and the ties. At the sweep's last angle, `results` (the image's,
 /// row-major; the shards hold its rows in order) gets every pixel's final result
 /// ([`Shard::finish`]) from the same pass that updates it. `parts` gets each pass's wall
-/// time. The trackers are not read (their overflow flags are the pixels' already).
+/// time. The trackers are not read (their overflow flags are the pixels' already). Returns
+/// the angle's report and where the pixels read their models at the next angle
+/// ([`Shard::thickness_span`], taken by the update's threads while each shard is in cache:
+/// a pass of its own took 9.6 ms over a 1 MP image).
 pub fn update_parallel(
     solver: &mut SweepSolver,
     shards: &mut [Shard<'_>],
     results: Option<&mut [PixelResult]>,
     threads: usize,
     parts: &mut LatencyParts,
-) -> AngleReport {
+) -> (AngleReport, [f32; 2]) {
     let mut clock = Instant::now();
     // Per-row sums merged in row order: the same floating-point result for any sharding.
     let mut rows: Vec<(usize, RatioSums, SchurSums)> = each(shards, threads, |sh| {
@@ -640,7 +658,7 @@ pub fn update_parallel(
             rest = tail;
         }
     }
-    let ties = {
+    let updated = {
         let solver = &*solver;
         let mut jobs: Vec<_> = shards
             .iter_mut()
@@ -655,15 +673,20 @@ pub fn update_parallel(
             sh.update(solver, out.as_deref_mut().map(|o| &mut **o), |i| {
                 ties.insert(i)
             });
-            ties
+            (ties, sh.thickness_span())
         })
     };
     parts.update = lap(&mut clock);
+    let (ties, spans): (Vec<TieSet>, Vec<[f32; 2]>) = updated.into_iter().unzip();
     filmscope_core::solve::sweep::resolve_orders(solver, shards, |k, _| ties[k].iter());
-    for ((sh, out), ties) in shards.iter().zip(outs.iter_mut()).zip(&ties) {
+    let mut span = EMPTY_SPAN;
+    for (((sh, out), ties), &s) in shards.iter().zip(outs.iter_mut()).zip(&ties).zip(&spans) {
         sh.finish_pixels(solver, out, ties.iter());
+        // A shard whose ties took an order has moved since its update.
+        let tied = ties.iter().next().is_some();
+        span = widen(span, if tied { sh.thickness_span() } else { s });
     }
     let report = solver.end_angle();
     parts.ties = lap(&mut clock);
-    report
+    (report, span)
 }

@@ -84,17 +84,6 @@ impl ShardState {
         state
     }
 
-    /// Where the pixels' samples read their models ([`FitLanes::thickness_span`]), over the
-    /// shard's pixels.
-    pub fn thickness_span(&self) -> [f32; 2] {
-        self.fits
-            .iter()
-            .fold([f32::INFINITY, f32::NEG_INFINITY], |a, f| {
-                let s = f.thickness_span();
-                [a[0].min(s[0]), a[1].max(s[1])]
-            })
-    }
-
     /// Gives the trackers' memory back, once nothing reads them (the sweep's last angle end,
     /// after [`super::run::tally_parallel`]; or after the last update): the results take it.
     pub fn release_trackers(&mut self) {

@@ -429,6 +429,12 @@ impl<'a> Shard<'a> {
         });
     }
 
+    /// Where the shard's pixels read their models at the next angle
+    /// ([`crate::solve::fit_row::thickness_span`]).
+    pub fn thickness_span(&self) -> [f32; 2] {
+        crate::solve::fit_row::thickness_span(self.fits)
+    }
+
     /// Angle-end pass 1, over the pixels that keep the index's sums ([`IndexSampling`]; every
     /// pixel of a small sensor): their extremum ratios against the reference angle (the
     /// votes), the RMS residuals of the refined ones and their noise. Image-wide statistics
