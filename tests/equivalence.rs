@@ -400,3 +400,48 @@ fn a_seeded_sweep_under_a_held_index_needs_no_extrema() {
         }
     }
 }
+
+/// Every angle's band tables cover the thicknesses its pixels read (the tables' span is
+/// taken from the pixels as each angle ends): a seeded sweep's from its first angle on, an
+/// unseeded one's once its pixels have orders (its first angle has none to cover).
+#[test]
+fn each_angles_tables_cover_the_pixels_thicknesses() {
+    use filmscope::pipeline::{run_sweep, Prior, PriorUpdate, SweepOutput};
+    use filmscope::source::{Frames, ReplaySource};
+    use std::sync::Arc;
+    let scene = common::tiny_scene();
+    let frames = Arc::new(Frames::render(&scene, scene.sensor.height).expect("frames"));
+    let truth = filmscope::cli::eval::Truth::of_scene(&scene);
+    let seed: Arc<Vec<f32>> = Arc::new(truth.thickness_nm.iter().map(|d| d + 1.5).collect());
+    let index =
+        filmscope::estimate::known_index::index_model_of(&scene.stack.film, &frames.spec.bands_nm)
+            .expect("index");
+    let sweep = |prior: Option<Prior>| -> SweepOutput {
+        let mut source = ReplaySource::new(frames.clone(), scene.sensor.height, 4);
+        run_sweep(&mut source, PipelineConfig::default(), prior, &|_| {}).expect("sweep")
+    };
+    // The share of the sweep's final thicknesses inside `span`.
+    let inside = |out: &SweepOutput, span: [f32; 2]| {
+        let d: Vec<f32> = out
+            .results
+            .iter()
+            .map(|r| r.thickness_nm)
+            .filter(|d| d.is_finite())
+            .collect();
+        assert!(d.len() * 2 > out.results.len(), "{} solved", d.len());
+        d.iter().filter(|&&x| span[0] <= x && x <= span[1]).count() as f64 / d.len() as f64
+    };
+    let seeded = sweep(Some(Prior::new(index, PriorUpdate::Hold, Some(seed))));
+    let angles = scene.angles_deg.len();
+    assert_eq!(seeded.table_spans_nm.len(), angles);
+    for (k, &span) in seeded.table_spans_nm.iter().enumerate() {
+        let share = inside(&seeded, span);
+        assert!(share > 0.99, "seeded, angle {k}: {span:?} holds {share}");
+    }
+    let free = sweep(None);
+    assert_eq!(free.table_spans_nm.len(), angles);
+    assert!(free.table_spans_nm[0][0] > free.table_spans_nm[0][1]);
+    let last = free.table_spans_nm[angles - 1];
+    let share = inside(&free, last);
+    assert!(share > 0.99, "unseeded, last angle: {last:?} holds {share}");
+}

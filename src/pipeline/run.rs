@@ -116,6 +116,10 @@ pub struct SweepOutput {
     pub samples: u64,
     /// Bytes of solver state per pixel.
     pub state_bytes_per_pixel: usize,
+    /// The thicknesses (nm, least and greatest) each angle's band models were tabulated
+    /// over: the pixels' thicknesses as the angle began, an order either side (`[inf,
+    /// -inf]`: no pixel had one, every model is computed).
+    pub table_spans_nm: Vec<[f32; 2]>,
 }
 
 /// The last angle's end, pass by pass: from its last row to the workers' hand-over
@@ -292,6 +296,7 @@ fn sweep(
         table_span = widen(table_span, span);
     }
     let mut reports = Vec::new();
+    let mut table_spans = Vec::new();
     let mut samples = 0u64;
     let mut last_row_at = Instant::now();
     let mut latency_parts = LatencyParts::default();
@@ -339,6 +344,7 @@ fn sweep(
                     // The tables cover the thicknesses the pixels read this angle, no more
                     // (those of a seeded 400 nm film are a third of the search range's).
                     solver.set_table_span(Some(table_span.map(f64::from)));
+                    table_spans.push(table_span);
                     let snapshot = Arc::new(BandModels::of(&solver, workers));
                     let began = Arc::new(solver.context().clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
@@ -492,6 +498,7 @@ fn sweep(
         latency_parts,
         samples,
         state_bytes_per_pixel,
+        table_spans_nm: table_spans,
     })
 }
 
@@ -679,9 +686,11 @@ pub fn update_parallel(
     parts.update = lap(&mut clock);
     let (ties, spans): (Vec<TieSet>, Vec<[f32; 2]>) = updated.into_iter().unzip();
     filmscope_core::solve::sweep::resolve_orders(solver, shards, |k, _| ties[k].iter());
-    let mut span = EMPTY_SPAN;
-    for (((sh, out), ties), &s) in shards.iter().zip(outs.iter_mut()).zip(&ties).zip(&spans) {
+    for ((sh, out), ties) in shards.iter().zip(outs.iter_mut()).zip(&ties) {
         sh.finish_pixels(solver, out, ties.iter());
+    }
+    let mut span = EMPTY_SPAN;
+    for ((sh, ties), &s) in shards.iter().zip(&ties).zip(&spans) {
         // A shard whose ties took an order has moved since its update.
         let tied = ties.iter().next().is_some();
         span = widen(span, if tied { sh.thickness_span() } else { s });
