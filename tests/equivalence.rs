@@ -402,14 +402,19 @@ fn a_seeded_sweep_under_a_held_index_needs_no_extrema() {
 }
 
 /// Every angle's band tables cover the thicknesses its pixels read (the tables' span is
-/// taken from the pixels as each angle ends): a seeded sweep's from its first angle on, an
-/// unseeded one's once its pixels have orders (its first angle has none to cover).
+/// taken from the pixels as each angle ends) and hold knots: a seeded sweep's from its first
+/// angle on, an unseeded one's once its pixels have orders (its first angle has none to
+/// cover). A sample outside the tables has its model computed, many times slower, so a
+/// sweep that stopped using them would give the same maps, only late.
 #[test]
 fn each_angles_tables_cover_the_pixels_thicknesses() {
     use filmscope::pipeline::{run_sweep, Prior, PriorUpdate, SweepOutput};
     use filmscope::source::{Frames, ReplaySource};
     use std::sync::Arc;
-    let scene = common::tiny_scene();
+    // Enough pixels that the tables repay their knots (the tiny scene's 32 x 24 do not).
+    let text = common::TINY_SCENE.replace("width = 32\nheight = 24", "width = 96\nheight = 64");
+    let scene = firmware_sim::Scene::from_toml(&text, "tiny-96x64").expect("scene");
+    assert_eq!(scene.sensor.width, 96);
     let frames = Arc::new(Frames::render(&scene, scene.sensor.height).expect("frames"));
     let truth = filmscope::cli::eval::Truth::of_scene(&scene);
     let seed: Arc<Vec<f32>> = Arc::new(truth.thickness_nm.iter().map(|d| d + 1.5).collect());
@@ -433,15 +438,20 @@ fn each_angles_tables_cover_the_pixels_thicknesses() {
     };
     let seeded = sweep(Some(Prior::new(index, PriorUpdate::Hold, Some(seed))));
     let angles = scene.angles_deg.len();
-    assert_eq!(seeded.table_spans_nm.len(), angles);
-    for (k, &span) in seeded.table_spans_nm.iter().enumerate() {
-        let share = inside(&seeded, span);
-        assert!(share > 0.99, "seeded, angle {k}: {span:?} holds {share}");
+    assert_eq!(seeded.tables.len(), angles);
+    for (k, t) in seeded.tables.iter().enumerate() {
+        let share = inside(&seeded, t.span_nm);
+        assert!(share > 0.99, "seeded, angle {k}: {t:?} holds {share}");
+        assert!(t.knots > 0, "seeded, angle {k}: {t:?}");
     }
     let free = sweep(None);
-    assert_eq!(free.table_spans_nm.len(), angles);
-    assert!(free.table_spans_nm[0][0] > free.table_spans_nm[0][1]);
-    let last = free.table_spans_nm[angles - 1];
-    let share = inside(&free, last);
+    assert_eq!(free.tables.len(), angles);
+    let (first, last) = (free.tables[0], free.tables[angles - 1]);
+    assert!(
+        first.span_nm[0] > first.span_nm[1] && first.knots == 0,
+        "{first:?}"
+    );
+    let share = inside(&free, last.span_nm);
     assert!(share > 0.99, "unseeded, last angle: {last:?} holds {share}");
+    assert!(last.knots > 0, "unseeded, last angle: {last:?}");
 }

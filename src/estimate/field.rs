@@ -1187,7 +1187,7 @@ mod tests {
             latency_parts: Default::default(),
             samples: 0,
             state_bytes_per_pixel: 0,
-            table_spans_nm: Vec::new(),
+            tables: Vec::new(),
         }
     }
 

@@ -116,10 +116,21 @@ pub struct SweepOutput {
     pub samples: u64,
     /// Bytes of solver state per pixel.
     pub state_bytes_per_pixel: usize,
-    /// The thicknesses (nm, least and greatest) each angle's band models were tabulated
-    /// over: the pixels' thicknesses as the angle began, an order either side (`[inf,
-    /// -inf]`: no pixel had one, every model is computed).
-    pub table_spans_nm: Vec<[f32; 2]>,
+    /// What each angle's band models were tabulated over ([`AngleTables`]).
+    pub tables: Vec<AngleTables>,
+}
+
+/// An angle's band model tables ([`BandModels::of`]): where the pixels' samples read their
+/// models, and how many knots cover that. A sample outside them, or an angle without
+/// knots, has its model computed, many times slower: this tells whether they were used.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AngleTables {
+    /// The thicknesses (nm, least and greatest) tabulated over: the pixels' thicknesses as
+    /// the angle began, an order either side (`[inf, -inf]`: no pixel had one).
+    pub span_nm: [f32; 2],
+    /// Knots over all bands (0: every model computed, as on an image too small to repay a
+    /// table, [`filmscope_core::solve::SweepSolver::band_knots`]).
+    pub knots: usize,
 }
 
 /// The last angle's end, pass by pass: from its last row to the workers' hand-over
@@ -296,7 +307,7 @@ fn sweep(
         table_span = widen(table_span, span);
     }
     let mut reports = Vec::new();
-    let mut table_spans = Vec::new();
+    let mut tables = Vec::new();
     let mut samples = 0u64;
     let mut last_row_at = Instant::now();
     let mut latency_parts = LatencyParts::default();
@@ -344,8 +355,11 @@ fn sweep(
                     // The tables cover the thicknesses the pixels read this angle, no more
                     // (those of a seeded 400 nm film are a third of the search range's).
                     solver.set_table_span(Some(table_span.map(f64::from)));
-                    table_spans.push(table_span);
                     let snapshot = Arc::new(BandModels::of(&solver, workers));
+                    tables.push(AngleTables {
+                        span_nm: table_span,
+                        knots: snapshot.knots(),
+                    });
                     let began = Arc::new(solver.context().clone());
                     let left = angles.saturating_sub(solver.angles_done()).max(1);
                     for (i, tx) in start_txs.iter().enumerate() {
@@ -498,7 +512,7 @@ fn sweep(
         latency_parts,
         samples,
         state_bytes_per_pixel,
-        table_spans_nm: table_spans,
+        tables,
     })
 }
 

@@ -191,6 +191,11 @@ impl BandModels {
         }
     }
 
+    /// Knots tabulated, over all bands.
+    pub fn knots(&self) -> usize {
+        self.knots.len()
+    }
+
     /// A borrowed view for [`Shard::feed_row`].
     pub fn view(&self) -> AngleModels<'_> {
         AngleModels {
