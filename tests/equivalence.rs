@@ -354,6 +354,36 @@ fn strips_of_any_height_give_the_same_maps() {
     }
 }
 
+/// `scene` rendered, its thickness map 1.5 nm off the truth (a seed), and its film's index
+/// as the estimator holds it.
+fn seeded_under_held_index(
+    scene: &firmware_sim::Scene,
+) -> (
+    std::sync::Arc<filmscope::source::Frames>,
+    std::sync::Arc<Vec<f32>>,
+    filmscope_core::solve::IndexModel,
+) {
+    use filmscope::source::Frames;
+    use std::sync::Arc;
+    let frames = Arc::new(Frames::render(scene, scene.sensor.height).expect("frames"));
+    let truth = filmscope::cli::eval::Truth::of_scene(scene);
+    let seed: Arc<Vec<f32>> = Arc::new(truth.thickness_nm.iter().map(|d| d + 1.5).collect());
+    let index =
+        filmscope::estimate::known_index::index_model_of(&scene.stack.film, &frames.spec.bands_nm)
+            .expect("index");
+    (frames, seed, index)
+}
+
+/// One sweep of `frames` (replayed 4 rows a block) from `prior`.
+fn sweep_of(
+    frames: &std::sync::Arc<filmscope::source::Frames>,
+    prior: Option<filmscope::pipeline::Prior>,
+) -> filmscope::pipeline::SweepOutput {
+    let mut source = filmscope::source::ReplaySource::new(frames.clone(), frames.spec.height, 4);
+    filmscope::pipeline::run_sweep(&mut source, PipelineConfig::default(), prior, &|_| {})
+        .expect("sweep")
+}
+
 /// A sweep whose every pixel starts seeded under a held index, given the image's noise,
 /// tracks no extrema (it makes no extremum-pair index estimate): given the noise the
 /// tracked sweep pooled, its maps are the tracked sweep's bit for bit (the extrema decide
@@ -361,20 +391,9 @@ fn strips_of_any_height_give_the_same_maps() {
 /// truth.
 #[test]
 fn a_seeded_sweep_under_a_held_index_needs_no_extrema() {
-    use filmscope::pipeline::{run_sweep, Prior, PriorUpdate, SweepOutput};
-    use filmscope::source::{Frames, ReplaySource};
-    use std::sync::Arc;
-    let scene = common::tiny_scene();
-    let frames = Arc::new(Frames::render(&scene, scene.sensor.height).expect("frames"));
-    let truth = filmscope::cli::eval::Truth::of_scene(&scene);
-    let seed: Arc<Vec<f32>> = Arc::new(truth.thickness_nm.iter().map(|d| d + 1.5).collect());
-    let index =
-        filmscope::estimate::known_index::index_model_of(&scene.stack.film, &frames.spec.bands_nm)
-            .expect("index");
-    let sweep = |prior: Prior| -> SweepOutput {
-        let mut source = ReplaySource::new(frames.clone(), scene.sensor.height, 4);
-        run_sweep(&mut source, PipelineConfig::default(), Some(prior), &|_| {}).expect("sweep")
-    };
+    use filmscope::pipeline::{Prior, PriorUpdate};
+    let (frames, seed, index) = seeded_under_held_index(&common::tiny_scene());
+    let sweep = |prior: Prior| sweep_of(&frames, Some(prior));
     let tracked = sweep(Prior::new(index, PriorUpdate::Hold, Some(seed.clone())));
     let noise = tracked.noise_sigma.expect("the trackers' noise");
     let untracked =
@@ -408,23 +427,13 @@ fn a_seeded_sweep_under_a_held_index_needs_no_extrema() {
 /// sweep that stopped using them would give the same maps, only late.
 #[test]
 fn each_angles_tables_cover_the_pixels_thicknesses() {
-    use filmscope::pipeline::{run_sweep, Prior, PriorUpdate, SweepOutput};
-    use filmscope::source::{Frames, ReplaySource};
-    use std::sync::Arc;
+    use filmscope::pipeline::{Prior, PriorUpdate, SweepOutput};
     // Enough pixels that the tables repay their knots (the tiny scene's 32 x 24 do not).
     let text = common::TINY_SCENE.replace("width = 32\nheight = 24", "width = 96\nheight = 64");
     let scene = firmware_sim::Scene::from_toml(&text, "tiny-96x64").expect("scene");
     assert_eq!(scene.sensor.width, 96);
-    let frames = Arc::new(Frames::render(&scene, scene.sensor.height).expect("frames"));
-    let truth = filmscope::cli::eval::Truth::of_scene(&scene);
-    let seed: Arc<Vec<f32>> = Arc::new(truth.thickness_nm.iter().map(|d| d + 1.5).collect());
-    let index =
-        filmscope::estimate::known_index::index_model_of(&scene.stack.film, &frames.spec.bands_nm)
-            .expect("index");
-    let sweep = |prior: Option<Prior>| -> SweepOutput {
-        let mut source = ReplaySource::new(frames.clone(), scene.sensor.height, 4);
-        run_sweep(&mut source, PipelineConfig::default(), prior, &|_| {}).expect("sweep")
-    };
+    let (frames, seed, index) = seeded_under_held_index(&scene);
+    let sweep = |prior: Option<Prior>| sweep_of(&frames, prior);
     // The share of the sweep's final thicknesses inside `span`.
     let inside = |out: &SweepOutput, span: [f32; 2]| {
         let d: Vec<f32> = out

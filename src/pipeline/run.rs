@@ -290,22 +290,18 @@ fn sweep(
     // Each worker's state made on a thread of its own (zeroing and seeding the state took
     // 2.4-6.4 ms of a 256 x 192 sweep's 150-200 on one).
     let mut ids: Vec<usize> = (0..workers).collect();
-    // The first angle's tables cover the seeded thicknesses (none without a seed).
-    let mut table_span = EMPTY_SPAN;
-    let made = each(&mut ids, workers, |&mut i| {
-        let seed = seed.as_ref().map(|(map, index)| (map.as_slice(), *index));
-        let st = ShardState::for_worker(strips, i, &spec, seed);
-        let span = match seed {
-            Some(_) => thickness_span(&st.fits),
-            None => EMPTY_SPAN,
-        };
-        (Some(st), span)
-    });
-    let mut states: Vec<Option<ShardState>> = Vec::new();
-    for (st, span) in made {
-        states.push(st);
-        table_span = widen(table_span, span);
-    }
+    // The first angle's tables cover the seeded thicknesses (none without a seed: no
+    // pixel has one yet).
+    let (mut states, spans): (Vec<Option<ShardState>>, Vec<[f32; 2]>) =
+        each(&mut ids, workers, |&mut i| {
+            let seed = seed.as_ref().map(|(map, index)| (map.as_slice(), *index));
+            let st = ShardState::for_worker(strips, i, &spec, seed);
+            let span = thickness_span(&st.fits);
+            (Some(st), span)
+        })
+        .into_iter()
+        .unzip();
+    let mut table_span = spans.into_iter().fold(EMPTY_SPAN, widen);
     let mut reports = Vec::new();
     let mut tables = Vec::new();
     let mut samples = 0u64;
