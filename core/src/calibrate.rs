@@ -3,7 +3,9 @@
 //!
 //! Unusable samples are marked in the value itself so the stream needs no side channel:
 //! `+inf` for a saturated sample (raw at or above the ADC's full scale) and NaN for a sample
-//! without a usable reference (`white - dark` not positive: a dead pixel or a bad white).
+//! without a usable reference (`white - dark` not positive: a dead pixel or a bad white; or
+//! a white or dark at the full scale: clipped, so its true level, and the sample's
+//! reflectance, are unknown; taken as it is, a clipped white reads the sample high).
 
 /// Calibrates one row. `dark` may be absent (zero), `white` is required; all slices have the
 /// row's width. `saturation_counts` is the ADC's full scale (`f32::INFINITY` if unknown).
@@ -46,7 +48,7 @@ pub fn calibrate_row(
 fn calibrated(r: f32, d: f32, w: f32, white_reflectance: f32, saturation_counts: f32) -> f32 {
     let span = w - d;
     let value = white_reflectance * (r - d) / span;
-    let usable = span > 1e-3 && r.is_finite() && d.is_finite();
+    let usable = span > 1e-3 && r.is_finite() && d.is_finite() && w.max(d) < saturation_counts;
     if r >= saturation_counts {
         f32::INFINITY
     } else if usable {
@@ -75,5 +77,25 @@ mod tests {
         assert_eq!(out[1], f32::INFINITY);
         assert!(out[2].is_nan());
         assert!((out[3] - 0.99 * 436.0 / 2000.0).abs() < 1e-6);
+    }
+
+    /// A white (or dark) reference at the ADC's full scale is clipped: the sample has no
+    /// usable reference (NaN), not a reflectance read high against the clipped level; just
+    /// below full scale it is a reference like any other.
+    #[test]
+    fn a_clipped_reference_is_no_reference() {
+        let mut out = [0.0; 4];
+        calibrate_row(
+            &[3000.0, 3000.0, 3000.0, 3000.0],
+            Some(&[64.0, 64.0, 4095.0, 64.0]),
+            &[4095.0, 4094.5, 4095.0, 5000.0],
+            1.0,
+            4095.0,
+            &mut out,
+        );
+        assert!(out[0].is_nan());
+        assert!((out[1] - 2936.0 / 4030.5).abs() < 1e-6);
+        assert!(out[2].is_nan());
+        assert!(out[3].is_nan());
     }
 }

@@ -189,6 +189,20 @@ impl Sensor {
     pub fn saturation_counts(&self) -> f64 {
         f64::from((1u32 << self.bit_depth) - 1)
     }
+
+    /// Mean counts a perfect white gives where the light is brightest (the band's red end,
+    /// the image centre), dark included: below [`Sensor::saturation_counts`] in a valid
+    /// scene, so that the white reference is never clipped.
+    pub fn peak_white_counts(&self) -> f64 {
+        self.dark_counts + self.white_counts * throughput(1.0)
+    }
+}
+
+/// Lamp x filter throughput at `position` across the band (0 its blue end, 1 its red end),
+/// relative to mid-band: a halogen lamp through an LCTF, weaker in the blue (0.75 at the blue
+/// end, 1.25 at the red).
+pub fn throughput(position: f64) -> f64 {
+    (0.6 + 0.4 * position) / 0.8
 }
 
 /// A validated scene.
@@ -350,7 +364,7 @@ impl Scene {
             width: s.width.unwrap_or(96),
             height: s.height.unwrap_or(64),
             bit_depth: s.bit_depth.unwrap_or(12),
-            white_counts: s.white_counts.unwrap_or(3400.0),
+            white_counts: s.white_counts.unwrap_or(3000.0),
             gain_e_per_count: s.gain_e_per_count.unwrap_or(1.5),
             read_noise_counts: s.read_noise_counts.unwrap_or(2.0),
             dark_counts: s.dark_counts.unwrap_or(64.0),
@@ -372,12 +386,24 @@ impl Scene {
                 sensor.bit_depth
             ));
         }
-        if !(sensor.white_counts > 0.0
-            && sensor.white_counts + sensor.dark_counts <= sensor.saturation_counts())
-        {
-            return Err(
-                "[sensor] white_counts + dark_counts must be positive and below saturation".into(),
-            );
+        if !sensor.white_counts.is_finite() || sensor.white_counts <= 0.0 {
+            return Err(format!(
+                "[sensor] white_counts {} must be positive",
+                sensor.white_counts
+            ));
+        }
+        let peak = sensor.peak_white_counts();
+        if !peak.is_finite() || peak >= sensor.saturation_counts() {
+            return Err(format!(
+                "[sensor] a perfect white reads {} counts at the band's red end (dark_counts {} \
+                 + white_counts {} x {}), at or above saturation ({}): the white reference \
+                 would clip; lower white_counts",
+                peak,
+                sensor.dark_counts,
+                sensor.white_counts,
+                throughput(1.0),
+                sensor.saturation_counts()
+            ));
         }
         if !(sensor.gain_e_per_count > 0.0
             && sensor.read_noise_counts >= 0.0
