@@ -197,3 +197,88 @@ fn a_closed_stdout_ends_quietly_not_with_a_panic() {
     );
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
+
+/// Over-exposes every white reference of the capture in `dir`: its brightest tenth (the red
+/// end of the band, the image centre) reads the 12-bit full scale, as a saturated white
+/// does. Returns the white cubes' headers.
+fn clip_whites(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut headers = Vec::new();
+    for entry in std::fs::read_dir(dir).expect("capture folder") {
+        let img = entry.expect("entry").path();
+        let name = img.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        if !(name.starts_with("white") && name.ends_with(".img")) {
+            continue;
+        }
+        let hdr = img.with_extension("hdr");
+        let text = std::fs::read_to_string(&hdr).expect("white header");
+        assert!(text.contains("data type = 4"), "{text}");
+        let big = text.contains("byte order = 1");
+        let mut bytes = std::fs::read(&img).expect("white data");
+        let of = |b: &[u8]| {
+            let a = [b[0], b[1], b[2], b[3]];
+            if big {
+                f32::from_be_bytes(a)
+            } else {
+                f32::from_le_bytes(a)
+            }
+        };
+        let mut values: Vec<f32> = bytes.chunks_exact(4).map(of).collect();
+        values.sort_by(f32::total_cmp);
+        let level = values[values.len() * 9 / 10];
+        let full: f32 = 4095.0;
+        for b in bytes.chunks_exact_mut(4) {
+            if of(b) >= level {
+                b.copy_from_slice(&if big {
+                    full.to_be_bytes()
+                } else {
+                    full.to_le_bytes()
+                });
+            }
+        }
+        std::fs::write(&img, bytes).expect("write white");
+        headers.push(hdr);
+    }
+    headers
+}
+
+/// A white reference clipped at the ADC's full scale (over-exposed) is no reference: its
+/// samples are not used, so a thin film's index (measured through the reflectance level)
+/// stays the film's, and `estimate` names each clipped white and its bands in a note, on
+/// stderr and in summary.json. (Read against the clipped level, those samples were up to a
+/// tenth too bright.)
+#[test]
+fn a_clipped_white_is_named_and_its_samples_are_not_used() {
+    let dir = tempdir();
+    let cap = dir.path().join("cap");
+    let thin = common::TINY_SCENE.replace("base_nm = 620.0", "base_nm = 120.0");
+    let scene = firmware_sim::Scene::from_toml(&thin, "thin").expect("scene");
+    write_capture(&scene, &cap, SimulateOptions::default(), &|_| {}).expect("capture");
+    let whites = clip_whites(&cap);
+    assert_eq!(whites.len(), 4);
+    let out = dir.path().join("est");
+    let run = filmscope()
+        .args(["estimate", s(&cap), "--out", s(&out)])
+        .output()
+        .expect("run");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary"))
+            .expect("json");
+    let n = summary["refractive_index"].as_f64().expect("index");
+    assert!((n - 2.1).abs() < 0.003, "n = {n}");
+    let notes: Vec<&str> = summary["notes"]
+        .as_array()
+        .expect("notes")
+        .iter()
+        .filter_map(|v| v.as_str())
+        .filter(|n| n.contains("white reference is at full scale"))
+        .collect();
+    assert_eq!(notes.len(), whites.len(), "{notes:?}");
+    for hdr in &whites {
+        let named = |text: &str| text.contains(&format!("{}: the white reference", s(hdr)));
+        assert!(notes.iter().any(|n| named(n)), "{notes:?}");
+        assert!(stderr.lines().any(named), "{stderr}");
+    }
+    assert!(notes.iter().all(|n| n.contains("720.0 nm")), "{notes:?}");
+}

@@ -198,8 +198,9 @@ fn estimate_capture<'py>(
             let label = cap.path.display().to_string();
             let fov = cap.lens.field_of_view();
             let mut source = CaptureSource::new(cap)?;
-            let run = run(&mut source, &config, fov, film.as_ref())
+            let mut run = run(&mut source, &config, fov, film.as_ref())
                 .map_err(|e| format!("{label}: {e}"))?;
+            run.result.notes.extend(source.clipped_references());
             let summary = outputs(&run, out.as_deref(), &label)?;
             Ok((run, summary))
         })

@@ -203,7 +203,7 @@ pub fn estimate(
     let label = cap.path.display().to_string();
     let fov = cap.lens.field_of_view();
     let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
-    let run = match film {
+    let mut run = match film {
         None => run_in_field_with_bar(&mut source, &config, fov, &label)?,
         Some((name, d)) => {
             if config.method != Method::Filmscope {
@@ -222,6 +222,7 @@ pub fn estimate(
             run
         }
     };
+    run.result.notes.extend(source.clipped_references());
     let summary = crate::estimate::write_outputs_into(out_dir.path(), &run, &label)?;
     out_dir.commit()?;
     for note in &run.result.notes {

@@ -40,6 +40,35 @@ const MAX_RUN_LINES: usize = 16;
 /// Rows of a band of a `bsq` capture in one message.
 const BSQ_RUN_ROWS: usize = 16;
 
+/// Samples of one angle whose reference (white or dark) was at the ADC's full scale and
+/// their count was not (a hot pixel, saturated in both, is the sample's own flag), and the
+/// first and last band they were in.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Clipped {
+    samples: u64,
+    bands: [usize; 2],
+}
+
+impl Clipped {
+    /// Counts the samples of band `band` whose `reference` is at or above `saturation` and
+    /// whose `counts` are below it.
+    fn count(&mut self, counts: &[f32], reference: &[f32], band: usize, saturation: f32) {
+        let n = counts
+            .iter()
+            .zip(reference)
+            .filter(|&(&c, &r)| r >= saturation && c < saturation)
+            .count() as u64;
+        if n > 0 {
+            self.bands = if self.samples == 0 {
+                [band, band]
+            } else {
+                [self.bands[0].min(band), self.bands[1].max(band)]
+            };
+            self.samples += n;
+        }
+    }
+}
+
 /// An ENVI capture replayed in each cube's own interleave.
 pub struct CaptureSource {
     capture: Capture,
@@ -47,6 +76,9 @@ pub struct CaptureSource {
     saturation_counts: f32,
     /// The first cube's: `bil` and `bip` are read a run of lines at a time.
     row_order: RowOrder,
+    /// Per angle (streamed order), its white's and dark's clipped samples, of the pass that
+    /// read the most rows.
+    clipped: Vec<[Clipped; 2]>,
 }
 
 impl CaptureSource {
@@ -101,11 +133,13 @@ impl CaptureSource {
             crate::io::Interleave::Bsq => RowOrder::BandMajor,
             _ => RowOrder::LineMajor,
         };
+        let clipped = vec![[Clipped::default(); 2]; capture.angles.len()];
         Ok(Self {
             capture,
             spec,
             saturation_counts,
             row_order,
+            clipped,
         })
     }
 
@@ -116,11 +150,13 @@ impl CaptureSource {
     /// are calibrated row by row as they are decoded, so the blocks carry reflectance: a
     /// run's counts and references are never held as arrays of their own (their memory
     /// traffic cost the read more than the decoding).
+    /// The white's and dark's samples at full scale are counted into `clipped`.
     fn stream_angle(
         &self,
         a: usize,
         tx: &Sender<StreamMsg>,
         only: Option<&[usize]>,
+        clipped: &mut [Clipped; 2],
     ) -> Result<bool, String> {
         let angle = &self.capture.angles[a];
         let (w, h) = (self.spec.width, self.spec.height);
@@ -169,10 +205,12 @@ impl CaptureSource {
             cube.read_band_row(b, line, &mut row.counts).map_err(err)?;
             let l = ref_line(white, line);
             white.read_band_row(b, l, &mut row.white).map_err(err)?;
+            clipped[0].count(&row.counts, &row.white, b, saturation_counts);
             let dark = match dark {
                 Some(d) => {
                     let l = ref_line(d, line);
                     d.read_band_row(b, l, &mut row.dark).map_err(err)?;
+                    clipped[1].count(&row.counts, &row.dark, b, saturation_counts);
                     Some(&row.dark[..])
                 }
                 None => None,
@@ -237,7 +275,16 @@ impl CaptureSource {
             if tx.send(StreamMsg::Angle { incidence_deg: deg }).is_err() {
                 return;
             }
-            match self.stream_angle(a, tx, only) {
+            let mut clipped = [Clipped::default(); 2];
+            let streamed = self.stream_angle(a, tx, only, &mut clipped);
+            if let Some(kept) = self.clipped.get_mut(a) {
+                for (k, c) in kept.iter_mut().zip(clipped) {
+                    if c.samples > k.samples {
+                        *k = c;
+                    }
+                }
+            }
+            match streamed {
                 Ok(true) => {}
                 Ok(false) => return,
                 Err(e) => {
@@ -255,6 +302,34 @@ impl CaptureSource {
     /// The capture file.
     pub fn path(&self) -> PathBuf {
         self.capture.path.clone()
+    }
+
+    /// One line for each reference found clipped as the capture was streamed (at the ADC's
+    /// full scale, its true level unknown, where the sample's count was not): its file, how
+    /// many samples, in which bands. Those samples had no usable reference (they count among
+    /// the pixels' dead samples).
+    pub fn clipped_references(&self) -> Vec<String> {
+        let mut lines = Vec::new();
+        for (angle, clipped) in self.capture.angles.iter().zip(&self.clipped) {
+            let refs = [("white", &angle.white), ("dark", &angle.dark)];
+            for ((what, file), c) in refs.into_iter().zip(clipped) {
+                let (Some(file), true) = (file, c.samples > 0) else {
+                    continue;
+                };
+                let nm = |b: usize| self.spec.bands_nm.get(b).copied().unwrap_or(f64::NAN);
+                lines.push(format!(
+                    "{}: the {what} reference is at full scale ({} counts) in {} samples, bands \
+                     {:.1}-{:.1} nm: clipped (over-exposed), so those samples have no usable \
+                     reference",
+                    file.display(),
+                    self.saturation_counts,
+                    c.samples,
+                    nm(c.bands[0]),
+                    nm(c.bands[1]),
+                ));
+            }
+        }
+        lines
     }
 }
 
