@@ -42,13 +42,21 @@ pub fn calibrate_row(
     }
 }
 
+/// Whether a reference level (white or dark, counts) is clipped: at or above
+/// `saturation_counts`, the ADC's full scale, so its true level is unknown.
+#[inline(always)]
+pub fn clipped(reference: f32, saturation_counts: f32) -> bool {
+    reference >= saturation_counts
+}
+
 /// One sample: `+inf` at or above `saturation_counts`, NaN without a usable reference or
 /// count, else the reflectance.
 #[inline(always)]
 fn calibrated(r: f32, d: f32, w: f32, white_reflectance: f32, saturation_counts: f32) -> f32 {
     let span = w - d;
     let value = white_reflectance * (r - d) / span;
-    let usable = span > 1e-3 && r.is_finite() && d.is_finite() && w.max(d) < saturation_counts;
+    let usable =
+        span > 1e-3 && r.is_finite() && d.is_finite() && !clipped(w.max(d), saturation_counts);
     if r >= saturation_counts {
         f32::INFINITY
     } else if usable {

@@ -477,12 +477,7 @@ mod tests {
     /// The rig's scene (`config/scenes/rig-tiny.toml`) seen by a 16-bit sensor without
     /// vignetting or defects, its reflectance noise `noise_percent` (`None`: shot and read).
     fn camera(noise_percent: Option<f64>) -> SoftwareCamera {
-        let path = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../config/scenes/rig-tiny.toml"
-        );
-        let text = std::fs::read_to_string(path).expect("rig-tiny scene");
-        let mut doc: toml::Table = text.parse().expect("TOML");
+        let mut doc: toml::Table = rig_tiny().parse().expect("TOML");
         let sensor = doc
             .get_mut("sensor")
             .and_then(|s| s.as_table_mut())
@@ -503,14 +498,24 @@ mod tests {
         SoftwareCamera::new(Scene::from_toml(&doc.to_string(), "t").expect("scene"))
     }
 
-    /// Calibrated minus true reflectance at every pixel of every band and angle.
-    fn errors(cam: &SoftwareCamera) -> Vec<f64> {
+    /// The text of `config/scenes/rig-tiny.toml`.
+    fn rig_tiny() -> String {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../config/scenes/rig-tiny.toml"
+        );
+        std::fs::read_to_string(path).expect("rig-tiny scene")
+    }
+
+    /// `(calibrated, true reflectance, white counts)` at every pixel of the bands `bands` of
+    /// every angle.
+    fn samples(cam: &SoftwareCamera, bands: std::ops::Range<usize>) -> Vec<(f64, f64, f32)> {
         let w = cam.width();
         let (mut raw, mut white, mut dark, mut truth) =
             (vec![0u16; w], vec![0f32; w], vec![0f32; w], vec![0f32; w]);
         let mut out = Vec::new();
         for a in 0..cam.scene().angles_deg.len() {
-            for b in 0..cam.scene().bands_nm.len() {
+            for b in bands.clone() {
                 for row in 0..cam.height() {
                     cam.raw_row(a, b, row, &mut raw);
                     cam.white_row(a, b, row, &mut white);
@@ -519,12 +524,18 @@ mod tests {
                     for c in 0..w {
                         let r = (f64::from(raw[c]) - f64::from(dark[c]))
                             / f64::from(white[c] - dark[c]);
-                        out.push(r - f64::from(truth[c]));
+                        out.push((r, f64::from(truth[c]), white[c]));
                     }
                 }
             }
         }
         out
+    }
+
+    /// Calibrated minus true reflectance at every pixel of every band and angle.
+    fn errors(cam: &SoftwareCamera) -> Vec<f64> {
+        let bands = 0..cam.scene().bands_nm.len();
+        samples(cam, bands).iter().map(|(r, t, _)| r - t).collect()
     }
 
     fn scene(name: &str) -> Scene {
@@ -542,11 +553,7 @@ mod tests {
     /// 3400-count white up to 5 % high, and thin films' indices by up to 0.004.)
     #[test]
     fn the_white_reference_never_clips() {
-        let path = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../config/scenes/rig-tiny.toml"
-        );
-        let text = std::fs::read_to_string(path).expect("rig-tiny scene");
+        let text = rig_tiny();
         let with = |extra: &str| {
             let defects = "dead_pixels = 2\nhot_pixels = 1";
             Scene::from_toml(
@@ -561,25 +568,11 @@ mod tests {
         let sensor = cam.scene().sensor.clone();
         assert_eq!(sensor.bit_depth, 12);
         assert!(sensor.peak_white_counts() < sensor.saturation_counts());
-        let (w, last) = (cam.width(), cam.scene().bands_nm.len() - 1);
-        let (mut raw, mut white, mut dark, mut truth) =
-            (vec![0u16; w], vec![0f32; w], vec![0f32; w], vec![0f32; w]);
-        let (mut sum, mut n, mut brightest) = (0.0, 0.0, 0f32);
-        for a in 0..cam.scene().angles_deg.len() {
-            for row in 0..cam.height() {
-                cam.raw_row(a, last, row, &mut raw);
-                cam.white_row(a, last, row, &mut white);
-                cam.dark_row(a, last, row, &mut dark);
-                cam.reflectance_row(a, last, row, &mut truth);
-                for c in 0..w {
-                    brightest = brightest.max(white[c]);
-                    let r =
-                        (f64::from(raw[c]) - f64::from(dark[c])) / f64::from(white[c] - dark[c]);
-                    sum += r / f64::from(truth[c]) - 1.0;
-                    n += 1.0;
-                }
-            }
-        }
+        let last = cam.scene().bands_nm.len() - 1;
+        let red = samples(&cam, last..last + 1);
+        let brightest = red.iter().map(|s| s.2).fold(0f32, f32::max);
+        let n = red.len() as f64;
+        let sum: f64 = red.iter().map(|(r, t, _)| r / t - 1.0).sum();
         assert!(
             f64::from(brightest) < sensor.saturation_counts() - 100.0,
             "{brightest}"

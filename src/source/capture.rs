@@ -10,7 +10,7 @@ use super::{
     DEFAULT_THICKNESS_RANGE_NM,
 };
 use crate::io::{Capture, EnviReader};
-use filmscope_core::calibrate::calibrate_row;
+use filmscope_core::calibrate::{calibrate_row, clipped};
 
 /// One row's decoded counts and references ([`CaptureSource`] calibrates as it reads).
 struct RowScratch {
@@ -56,7 +56,7 @@ impl Clipped {
         let n = counts
             .iter()
             .zip(reference)
-            .filter(|&(&c, &r)| r >= saturation && c < saturation)
+            .filter(|&(&c, &r)| clipped(r, saturation) && c < saturation)
             .count() as u64;
         if n > 0 {
             self.bands = if self.samples == 0 {
@@ -149,8 +149,8 @@ impl CaptureSource {
     /// file's order (a run of rows of a band at a time, then the band's end). Raw counts
     /// are calibrated row by row as they are decoded, so the blocks carry reflectance: a
     /// run's counts and references are never held as arrays of their own (their memory
-    /// traffic cost the read more than the decoding).
-    /// The white's and dark's samples at full scale are counted into `clipped`.
+    /// traffic cost the read more than the decoding). The samples whose white or dark is
+    /// clipped (and whose count is not) are counted into `clipped`.
     fn stream_angle(
         &self,
         a: usize,
