@@ -4,8 +4,8 @@
 
 use filmscope_core::solve::sample::{
     fit_index, hold_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len,
-    Failure, Geometry, ModelKind, Parallel, SampleFit, Seat, Spectra, Start, CENTRE,
-    CONSTANT_PREFERENCE, GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY, RUN,
+    Failure, Geometry, ModelKind, Parallel, Residual, SampleFit, Seat, Spectra, Start, CENTRE,
+    CONSTANT_PREFERENCE, GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY, OUTLIER_SITE_RATIO, RUN,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
 use serde_json::json;
@@ -49,6 +49,7 @@ fn geometry<'a>(spec: &'a SweepSpec, angles_deg: &'a [f64]) -> Geometry<'a> {
         polarization: spec.polarization,
         index_range: spec.index_range,
         thickness_range_nm: spec.thickness_range_nm,
+        model_error: spec.model_error,
     }
 }
 
@@ -182,13 +183,15 @@ impl PixelTap {
         &self.pixels
     }
 
-    /// Each held pixel's thickness under the index `(kind, params)` and the image's noise.
+    /// Each held pixel's thickness under the index `(kind, params)`, the image's noise and
+    /// the model's error (the sample fit's).
     pub fn seat(
         &self,
         spec: &SweepSpec,
         kind: ModelKind,
         params: [f64; 3],
         noise_sigma: f64,
+        model_error: f64,
     ) -> Vec<Seat> {
         let angles = self.angles_deg.len().min(self.angle_stride);
         let geo = geometry(spec, &self.angles_deg[..angles]);
@@ -209,6 +212,7 @@ impl PixelTap {
                 kind,
                 params,
                 noise_sigma,
+                model_error,
                 &mut scratch,
                 seats,
                 &Threads,
@@ -439,6 +443,14 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
         "chi2_nu": fit.best.and_then(|c| finite(c.chi2_nu)),
         "n_550_sigma": fit.best.and_then(|c| finite(c.n550_sigma)),
         "noise_sigma": finite(fit.noise_sigma),
+        "model_error": finite(fit.model_error),
+        "residual": residual_json(fit),
+        "sites_set_aside": tap
+            .centres()
+            .zip(&fit.set_aside)
+            .filter(|(_, &aside)| aside)
+            .map(|((r, c), _)| [c, r])
+            .collect::<Vec<_>>(),
         "sampled_sites": tap.sites.len(),
         "sites_used": fit.sites_used,
         "site_run_pixels": RUN,
@@ -448,8 +460,88 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
         "passes": passes,
         "candidates": candidates,
         "criterion": format!(
-            "lowest chi2 + {MODEL_PENALTY} x parameters (a constant index counted as two, the Cauchy model with its slope held at zero, preferred unless the slope gains {CONSTANT_PREFERENCE}) among physical models (index inside the search range and falling with wavelength, a Sellmeier pole below the band), chi2 in units of the noise measured from each site's run of {RUN} pixels; the fit fails when its reduced chi-square exceeds {GATE_CHI2_NU} after a second start"
+            "lowest chi2 + {MODEL_PENALTY} x parameters (a constant index counted as two, the Cauchy model with its slope held at zero, preferred unless the slope gains {CONSTANT_PREFERENCE}) among physical models (index inside the search range and falling with wavelength, a Sellmeier pole below the band), chi2 in units of the noise measured from each site's run of {RUN} pixels (per site, band and angle) plus the model error; a fit that misses the noise alone is fitted again with its misfit beyond the noise as the model error (sites fitting {OUTLIER_SITE_RATIO}x worse than the median set aside) and fails when that misfit exceeds the tolerated model error (model_error_tolerated) or its reduced chi-square exceeds {GATE_CHI2_NU}"
         ),
+        "model_error_tolerated": fit.tolerated_model_error,
         "models": ModelKind::ALL.iter().map(|k| k.name()).collect::<Vec<_>>(),
     })
+}
+
+/// `summary.json`'s `index_model_choice.residual`: what the chosen fit leaves on the sampled
+/// sites, its size against the noise and its shape, with a one-line reading.
+fn residual_json(fit: &SampleFit) -> serde_json::Value {
+    let r = &fit.residual;
+    let finite = |x: f64| x.is_finite().then_some(x);
+    json!({
+        "rms": finite(r.rms),
+        "noise_rms": finite(r.noise_rms),
+        "model_rms": finite(r.model_rms),
+        "band_correlation": finite(r.band_correlation),
+        "blue_rms": finite(r.blue_rms),
+        "red_rms": finite(r.red_rms),
+        "per_angle": r.per_angle.iter().map(|a| json!({
+            "rms": finite(a.rms),
+            "mean": finite(a.mean),
+            "noise_rms": finite(a.noise_rms),
+        })).collect::<Vec<_>>(),
+        "shape": residual_shape(r),
+    })
+}
+
+/// One line reading a fit's residual: noise, or a misfit and where it lies.
+pub fn residual_shape(r: &Residual) -> String {
+    if !r.rms.is_finite() {
+        return "no fit".into();
+    }
+    if r.model_rms <= 0.5 * r.noise_rms {
+        return format!(
+            "within the noise (RMS {:.1e} against noise {:.1e})",
+            r.rms, r.noise_rms
+        );
+    }
+    let mut parts = vec![format!(
+        "a misfit of {:.1e} beyond noise {:.1e}",
+        r.model_rms, r.noise_rms
+    )];
+    parts.push(if r.band_correlation > 0.7 {
+        format!(
+            "smooth along the band (neighbour correlation {:.2})",
+            r.band_correlation
+        )
+    } else {
+        format!(
+            "rough along the band (neighbour correlation {:.2})",
+            r.band_correlation
+        )
+    });
+    if r.blue_rms > 1.5 * r.red_rms {
+        parts.push(format!(
+            "{:.1}x larger in the blue third than the red",
+            r.blue_rms / r.red_rms
+        ));
+    } else if r.red_rms > 1.5 * r.blue_rms {
+        parts.push(format!(
+            "{:.1}x larger in the red third than the blue",
+            r.red_rms / r.blue_rms
+        ));
+    }
+    let rms: Vec<f64> = r.per_angle.iter().map(|a| a.rms).collect();
+    if let (Some(lo), Some(hi)) = (
+        rms.iter().copied().reduce(f64::min),
+        rms.iter().copied().reduce(f64::max),
+    ) {
+        if rms.len() > 1 && hi > 2.0 * lo {
+            parts.push(format!("uneven over the angles (RMS {lo:.1e} to {hi:.1e})"));
+        }
+    }
+    if let Some(a) = r
+        .per_angle
+        .iter()
+        .max_by(|a, b| a.mean.abs().total_cmp(&b.mean.abs()))
+    {
+        if a.mean.abs() > 0.5 * r.model_rms {
+            parts.push(format!("an offset of {:+.1e}", a.mean));
+        }
+    }
+    parts.join(", ")
 }

@@ -249,7 +249,13 @@ fn repair(
     }
     let mut tap = PixelTap::new(spec, &pixels, source.angles_deg().len());
     fill(source, &mut tap)?;
-    let seats = tap.seat(spec, best.kind, best.params, fit.noise_sigma);
+    let seats = tap.seat(
+        spec,
+        best.kind,
+        best.params,
+        fit.noise_sigma,
+        fit.model_error,
+    );
     let [d_lo, d_hi] = spec.thickness_range_nm;
     let chi2_limit = SEARCH_CHI2_NU * best.chi2_nu.max(1.0);
     let mut solved = 0;
@@ -339,8 +345,50 @@ fn finish(
         }
     } else if let Some(c) = fit.best {
         out.index_sigma = c.n550_sigma;
+        with_sample_share(&mut out, &fit, c.kind.dispersion(&c.params).index_at(550.0));
     }
     (out, fit, choice)
+}
+
+/// Each solved pixel's thickness sigma with the sample fit's share added: the index's
+/// standard error carried to the thickness (the fringes pin the optical path
+/// `d sqrt(n^2 - sin^2 theta)`, so `dd/dn = -d n / (n^2 - sin^2 theta)`, over the angles'
+/// mean `sin^2 theta`) and, when the fit carries a model error, the pixel's own share widened
+/// by the residual's correlation along the band (`Residual::correlation_factor`). A pixel
+/// whose sigma then exceeds [`MAX_THICKNESS_SIGMA_NM`] is flagged `imprecise`.
+fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
+    let angles = &out.angles;
+    let sin2 = if angles.is_empty() {
+        0.0
+    } else {
+        angles
+            .iter()
+            .map(|a| (out.spec.ambient_index * a.incidence_deg.to_radians().sin()).powi(2))
+            .sum::<f64>()
+            / angles.len() as f64
+    };
+    let slope = n550 / (n550 * n550 - sin2).max(1e-6);
+    let own = if fit.model_error > 0.0 {
+        fit.residual.correlation_factor()
+    } else {
+        1.0
+    };
+    let index_sigma = fit.best.map_or(0.0, |c| c.n550_sigma);
+    for r in &mut out.results {
+        let d = f64::from(r.thickness_nm);
+        let s = f64::from(r.thickness_sigma_nm);
+        if !(d.is_finite() && s.is_finite()) {
+            continue;
+        }
+        let from_index = d * slope * index_sigma;
+        let sigma = ((s * own).powi(2) + from_index * from_index).sqrt();
+        r.thickness_sigma_nm = sigma as f32;
+        if sigma > MAX_THICKNESS_SIGMA_NM {
+            r.flags |= flags::IMPRECISE;
+            r.thickness_nm = f32::NAN;
+            r.confidence = 0.0;
+        }
+    }
 }
 
 /// The per-angle progress of a pass (`summary.json` `angle_reports`).

@@ -106,6 +106,7 @@ pub fn sweep_spec(
         polarization,
         index_range,
         thickness_range_nm,
+        model_error: filmscope_core::solve::sample::DEFAULT_MODEL_ERROR,
         options: Default::default(),
     })
 }

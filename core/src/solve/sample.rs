@@ -77,6 +77,15 @@ const NODES: usize = MAX_BAND_NODES;
 /// fail the gate on that error alone. A 16-bit sensor's rounding is 4e-6, real captures'
 /// noise 1e-3 and more.
 pub const NOISE_FLOOR: f64 = 1e-4;
+/// The model error tolerated by default, RMS reflectance: what a single-layer model leaves
+/// on a real film (slight absorption, inhomogeneity, the instrument's bandwidth): about
+/// 1e-3 on a measured HfO2 film on fused silica.
+pub const DEFAULT_MODEL_ERROR: f64 = 1e-3;
+/// A site whose reduced chi-square exceeds this many times the sites' median is set aside
+/// when the fit misses the gate (a defect, a scratch, a particle under it).
+pub const OUTLIER_SITE_RATIO: f64 = 5.0;
+/// Most angles the noise model tells apart (more share the last one's factor).
+pub const NOISE_ANGLES: usize = 256;
 /// Index step of the numerical `dR/dn`.
 const INDEX_STEP: f64 = 1e-5;
 /// Wavelength (um) at which the models' index is quoted and searched.
@@ -233,6 +242,10 @@ pub struct Geometry<'a> {
     pub index_range: [f64; 2],
     /// Thickness search range, nm.
     pub thickness_range_nm: [f64; 2],
+    /// The model error tolerated, RMS reflectance: a fit that misses the spectra by more
+    /// than their noise passes the gate when its misfit beyond the noise is within this
+    /// ([`DEFAULT_MODEL_ERROR`]; 0: judged against the noise alone).
+    pub model_error: f64,
 }
 
 /// The sampled spectra: site `k`, run pixel `j`, angle `a`, band `b` at
@@ -300,9 +313,9 @@ impl Failure {
     pub fn message(self) -> &'static str {
         match self {
             Self::TooLittleData => "too few usable sampled pixels or angles to fit an index",
-            Self::NoFit => "no index model fits the sampled spectra within their noise (reduced chi-square above the gate after two starts): wrong metadata (angles, polarisation, substrate) or a film the single-layer model cannot describe",
+            Self::NoFit => "no index model fits the sampled spectra within their noise and the tolerated model error ([fit] model_error): wrong metadata (angles, polarisation, substrate), a bare back face or a second layer, or a film the single-layer model cannot describe",
             Self::Underdetermined => "the sampled spectra do not determine the index (its standard error at 550 nm exceeds 0.01): a film too thin or too close to its substrate's index",
-            Self::GivenIndexMisfit => "the given film index does not fit the sampled spectra within their noise (reduced chi-square above the gate): not this film's index (fit it instead: leave out --film-index), or wrong metadata (angles, polarisation, substrate)",
+            Self::GivenIndexMisfit => "the given film index does not fit the sampled spectra within their noise and the tolerated model error: not this film's index (fit it instead: leave out --film-index), or wrong metadata (angles, polarisation, substrate)",
         }
     }
 }
@@ -341,6 +354,69 @@ pub struct SampleFit {
     pub starts: usize,
     /// Whether the global search ran (no warm start, or the warm start failed the gate).
     pub searched: bool,
+    /// What the chosen fit leaves: its size and shape across bands and angles.
+    pub residual: Residual,
+    /// The model error the fit was weighed with, RMS reflectance: 0 when the spectra fit
+    /// within their noise, else the misfit beyond it (`residual.model_rms` of the fit under
+    /// the noise alone), added to every sample's noise variance.
+    pub model_error: f64,
+    /// Sites set aside because they fit far worse than the rest ([`OUTLIER_SITE_RATIO`]).
+    pub set_aside: [bool; MAX_SITES],
+    /// The model error tolerated ([`Geometry::model_error`]).
+    pub tolerated_model_error: f64,
+}
+
+/// Most angles a [`Residual`] reports one by one.
+pub const RESIDUAL_ANGLES: usize = 32;
+
+/// One angle's share of a [`Residual`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AngleResidual {
+    /// RMS of the residual (measured minus model), reflectance.
+    pub rms: f64,
+    /// Mean of the residual (an offset the model misses), reflectance.
+    pub mean: f64,
+    /// RMS of the noise the samples carry, reflectance.
+    pub noise_rms: f64,
+}
+
+/// What a fit leaves over the sites' own pixels: the residual's size and its shape across
+/// bands and angles, so a reader can tell noise (white, at the noise's size) from the
+/// model's misfit (larger, smooth along the band, a part of the band or an angle).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Residual {
+    /// RMS of the residual, reflectance.
+    pub rms: f64,
+    /// RMS of the samples' noise, reflectance.
+    pub noise_rms: f64,
+    /// The misfit beyond the noise, `sqrt(rms^2 - noise_rms^2)` (0 when within it).
+    pub model_rms: f64,
+    /// Correlation of neighbouring bands' residuals (about 0 for noise, towards 1 for a
+    /// smooth misfit).
+    pub band_correlation: f64,
+    /// RMS over the band's blue third and its red third.
+    pub blue_rms: f64,
+    /// RMS over the band's red third.
+    pub red_rms: f64,
+    /// Each angle's, in streaming order (the first [`RESIDUAL_ANGLES`]).
+    pub per_angle: heapless::Vec<AngleResidual, RESIDUAL_ANGLES>,
+}
+
+impl Residual {
+    /// The factor by which this residual widens the parameters' standard errors beyond what
+    /// independent samples of its size give: its misfit beyond the noise, correlated along
+    /// the band as `r` (the neighbouring bands' covariance over the misfit's variance), is
+    /// `(1 - r) / (1 + r)` as many independent samples (an AR(1) misfit), the noise's share
+    /// is not: `sqrt(f_noise + f_model (1 + r) / (1 - r))` by the two shares of the variance.
+    pub fn correlation_factor(&self) -> f64 {
+        let (total, model) = (self.rms * self.rms, self.model_rms * self.model_rms);
+        if !(total > 0.0 && model > 0.0) {
+            return 1.0;
+        }
+        let r = (self.band_correlation * total / model).clamp(0.0, 0.99);
+        let share = model / total;
+        libm::sqrt(1.0 - share + share * (1.0 + r) / (1.0 - r))
+    }
 }
 
 impl SampleFit {
@@ -354,6 +430,18 @@ impl SampleFit {
         sites_used: 0,
         starts: 0,
         searched: false,
+        residual: Residual {
+            rms: f64::NAN,
+            noise_rms: f64::NAN,
+            model_rms: f64::NAN,
+            band_correlation: f64::NAN,
+            blue_rms: f64::NAN,
+            red_rms: f64::NAN,
+            per_angle: heapless::Vec::new(),
+        },
+        model_error: 0.0,
+        set_aside: [false; MAX_SITES],
+        tolerated_model_error: f64::NAN,
     };
 
     /// The chosen index model, unless the fit failed.
@@ -552,7 +640,7 @@ fn fit_weighed(
     match result {
         Some(mut r) => {
             r.starts = fit.starts;
-            r
+            problem.with_model_error(r, None, scratch)
         }
         None => {
             fit.failure = Some(Failure::NoFit);
@@ -561,8 +649,7 @@ fn fit_weighed(
     }
 }
 
-/// Weighs the sites of `spectra` (the noise, the usable sites and their weights, one over
-/// each site's noise variance) and hands their [`Problem`] and the fit so far (its noise and
+/// Weighs the sites of `spectra` (the noise of each sample and the usable sites) and hands their [`Problem`] and the fit so far (its noise and
 /// sites used set) to `body`; a fit failed with [`Failure::TooLittleData`] when there is
 /// too little to fit.
 fn on_weighed_sites(
@@ -573,6 +660,7 @@ fn on_weighed_sites(
     body: impl FnOnce(&Problem<'_>, SampleFit, &mut [f32]) -> SampleFit,
 ) -> SampleFit {
     let mut fit = SampleFit::EMPTY;
+    fit.tolerated_model_error = geo.model_error;
     let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
     let sites = spectra.sites.min(MAX_SITES);
     if na < 1
@@ -582,25 +670,21 @@ fn on_weighed_sites(
     {
         return fit;
     }
-    let mut site_sigma = [f64::NAN; MAX_SITES];
-    fit.noise_sigma = noise_sigma(geo, spectra, scratch, &mut site_sigma);
+    let (noise, median_sigma) = measure_noise(geo, spectra, scratch);
+    fit.noise_sigma = median_sigma;
     let mut usable = complete_sites(spectra, sites, na, nb);
     for (k, u) in usable.iter_mut().enumerate().take(sites) {
-        *u &= site_sigma[k] > 0.0 && site_sigma[k].is_finite();
+        *u &= noise.site[k] > 0.0 && noise.site[k].is_finite();
     }
     fit.sites_used = usable.iter().filter(|&&u| u).count();
     if fit.sites_used < 2 {
         return fit;
     }
-    let mut weight = [0.0; MAX_SITES];
-    for (w, s) in weight.iter_mut().zip(&site_sigma) {
-        *w = 1.0 / (s * s);
-    }
     let problem = Problem {
         geo,
         spectra,
         usable: &usable[..sites],
-        weight,
+        noise,
         par,
     };
     body(&problem, fit, scratch)
@@ -655,7 +739,8 @@ fn hold_weighed(
     };
     let _ = fit.candidates.push(c);
     fit.starts = 1;
-    let mut fit = problem.settle(fit, c, &t);
+    let fit = problem.settle(fit, c, &t);
+    let mut fit = problem.with_model_error(fit, Some((kind, params)), scratch);
     // The gate failed: the given index does not fit (it is not under-determined: held).
     if fit.failure.is_some() {
         fit.failure = Some(Failure::GivenIndexMisfit);
@@ -681,8 +766,9 @@ pub struct Seat {
 /// Each pixel's thickness from its full spectra under the index `(kind, params)` by the
 /// sample fit's own search (a dictionary over the thickness range, then Gauss-Newton with
 /// the passband quadrature): for pixels whose order the streaming pass could not settle.
-/// `spectra` holds one pixel per site (`run` 1); `noise_sigma` is the image's (the sample
-/// fit's). `scratch` holds at least [`workspace_len`] values; `out` one entry per site.
+/// `spectra` holds one pixel per site (`run` 1); `noise_sigma` is the image's and
+/// `model_error` the model's (the sample fit's: [`SampleFit::noise_sigma`],
+/// [`SampleFit::model_error`]), the chi-squares in units of both. `scratch` holds at least [`workspace_len`] values; `out` one entry per site.
 #[allow(clippy::too_many_arguments)]
 pub fn seat_pixels(
     geo: &Geometry<'_>,
@@ -690,6 +776,7 @@ pub fn seat_pixels(
     kind: ModelKind,
     params: [f64; 3],
     noise_sigma: f64,
+    model_error: f64,
     scratch: &mut [f32],
     out: &mut [Seat],
     par: &dyn Parallel,
@@ -717,7 +804,10 @@ pub fn seat_pixels(
         geo,
         spectra,
         usable: &usable[..sites],
-        weight: [1.0 / (noise_sigma * noise_sigma); MAX_SITES],
+        noise: Noise {
+            model2: model_error * model_error,
+            ..Noise::uniform(noise_sigma)
+        },
         par,
     };
     let Some((t, sums, margin)) = problem.seat(kind, &params, scratch) else {
@@ -757,30 +847,161 @@ fn complete_sites(
     usable
 }
 
-/// Each site's noise, `site_sigma`, from its run's fourth differences across the row: the
-/// RMS of those within 4 robust sigmas of zero (a step or a hot pixel left out), over
-/// `sqrt(70)` (the fourth difference of white noise has 70 times its variance). Sites see
-/// different noise (vignetting, shot noise at their own reflectance), so each is weighed by
-/// its own. Returns the median site's.
-fn noise_sigma(
-    geo: &Geometry<'_>,
-    spectra: &Spectra<'_>,
-    scratch: &mut [f32],
-    site_sigma: &mut [f64; MAX_SITES],
-) -> f64 {
-    let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
-    let sites = spectra.sites.min(MAX_SITES);
-    if spectra.run != RUN {
+/// The sample's noise: sample `(k, a, b)` (site, angle, band) has the variance
+/// `(site[k] angle[a] band[b])^2 + model2`. Sites see different noise (vignetting, shot noise
+/// at their own reflectance), bands too (a lamp dim in the blue, the filter's throughput) and
+/// angles (a darker angle), so each is weighed by its own; `model2` is the model's error
+/// ([`SampleFit::model_error`]) added to each.
+#[derive(Clone)]
+struct Noise {
+    site: [f64; MAX_SITES],
+    angle: [f64; NOISE_ANGLES],
+    band: [f64; MAX_BANDS],
+    model2: f64,
+}
+
+impl Noise {
+    /// The same noise `sigma` at every sample.
+    fn uniform(sigma: f64) -> Self {
+        Self {
+            site: [sigma; MAX_SITES],
+            angle: [1.0; NOISE_ANGLES],
+            band: [1.0; MAX_BANDS],
+            model2: 0.0,
+        }
+    }
+
+    /// The noise variance of sample `(k, a, b)`, without the model's error.
+    #[inline]
+    fn noise2(&self, k: usize, a: usize, b: usize) -> f64 {
+        let s =
+            (self.site[k] * self.angle[a.min(NOISE_ANGLES - 1)] * self.band[b]).max(NOISE_FLOOR);
+        s * s
+    }
+
+    /// The weight of sample `(k, a, b)`: one over its noise and model variance.
+    #[inline]
+    fn weight(&self, k: usize, a: usize, b: usize) -> f64 {
+        1.0 / (self.noise2(k, a, b) + self.model2)
+    }
+
+    /// Site `k`'s weight over all its samples (the search's, which weighs bands alike).
+    #[inline]
+    fn site_weight(&self, k: usize) -> f64 {
+        let s = self.site[k].max(NOISE_FLOOR);
+        1.0 / (s * s + self.model2)
+    }
+}
+
+/// The fourth difference across site `k`'s run at angle `a`, band `b` (NaN where a value is
+/// missing): white noise of sigma `s` gives `sqrt(70) s`; a thickness varying smoothly over
+/// five pixels nothing.
+#[inline]
+fn fourth_difference(spectra: &Spectra<'_>, nb: usize, k: usize, a: usize, b: usize) -> f32 {
+    let v: [f32; RUN] = core::array::from_fn(|j| spectra.at(nb, k, j, a, b));
+    v[0] - 4.0 * v[1] + 6.0 * v[2] - 4.0 * v[3] + v[4]
+}
+
+/// The median of `v` (reordered), NaN when empty.
+fn median(v: &mut [f32]) -> f64 {
+    if v.is_empty() {
         return f64::NAN;
     }
-    for (k, out) in site_sigma.iter_mut().enumerate().take(sites) {
+    let n = v.len();
+    let (_, m, _) = v.select_nth_unstable_by(n / 2, f32::total_cmp);
+    f64::from(*m)
+}
+
+/// `|d|` of a normal deviate's median over its sigma.
+const MEDIAN_ABS: f64 = 0.674_49;
+
+/// The sample's noise from its runs' fourth differences across the row, in four passes: each
+/// site's typical level (the median `|d|`), the profile across bands (the median over sites
+/// and angles of `|d|` over its site's level, pooled over neighbouring bands until about 200
+/// values), across angles (likewise over sites and bands), and each site's level again as
+/// the RMS of its differences within 4 robust sigmas of zero (a step or a hot pixel left
+/// out) once the profiles are divided out. Returns the noise (its model error 0) and the
+/// median site's level.
+fn measure_noise(geo: &Geometry<'_>, spectra: &Spectra<'_>, scratch: &mut [f32]) -> (Noise, f64) {
+    let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
+    let sites = spectra.sites.min(MAX_SITES);
+    let mut noise = Noise::uniform(f64::NAN);
+    if spectra.run != RUN {
+        return (noise, f64::NAN);
+    }
+    let unit = MEDIAN_ABS * libm::sqrt(70.0);
+    // 1. Each site's level.
+    let mut level = [f64::NAN; MAX_SITES];
+    for (k, out) in level.iter_mut().enumerate().take(sites) {
         let mut n = 0;
         for a in 0..na {
             for b in 0..nb {
-                let v: [f32; RUN] = core::array::from_fn(|j| spectra.at(nb, k, j, a, b));
-                let d = v[0] - 4.0 * v[1] + 6.0 * v[2] - 4.0 * v[3] + v[4];
+                let d = fourth_difference(spectra, nb, k, a, b);
                 if d.is_finite() {
                     scratch[n] = d.abs();
+                    n += 1;
+                }
+            }
+        }
+        if n >= 16 {
+            let m = median(&mut scratch[..n]) / unit;
+            if m > 0.0 {
+                *out = m;
+            }
+        }
+    }
+    let levelled = level.iter().take(sites).filter(|l| l.is_finite()).count();
+    if levelled == 0 {
+        return (noise, f64::NAN);
+    }
+    // 2. Across bands, pooled over neighbouring bands to about 200 values.
+    let per_band = levelled * na;
+    let half = (200usize.div_ceil(per_band.max(1)) / 2).min(nb / 8);
+    let ratio = |k: usize, a: usize, b: usize| -> f32 {
+        (f64::from(fourth_difference(spectra, nb, k, a, b).abs()) / level[k]) as f32
+    };
+    for b in 0..nb {
+        let mut n = 0;
+        for bb in b.saturating_sub(half)..(b + half + 1).min(nb) {
+            for k in (0..sites).filter(|&k| level[k].is_finite()) {
+                for a in 0..na {
+                    let r = ratio(k, a, bb);
+                    if r.is_finite() {
+                        scratch[n] = r;
+                        n += 1;
+                    }
+                }
+            }
+        }
+        let m = median(&mut scratch[..n]) / unit;
+        noise.band[b] = if m > 0.0 && m.is_finite() { m } else { 1.0 };
+    }
+    normalise(&mut noise.band[..nb]);
+    // 3. Across angles.
+    for a in 0..na.min(NOISE_ANGLES) {
+        let mut n = 0;
+        for k in (0..sites).filter(|&k| level[k].is_finite()) {
+            for b in 0..nb {
+                let r = ratio(k, a, b) / noise.band[b] as f32;
+                if r.is_finite() {
+                    scratch[n] = r;
+                    n += 1;
+                }
+            }
+        }
+        let m = median(&mut scratch[..n]) / unit;
+        noise.angle[a] = if m > 0.0 && m.is_finite() { m } else { 1.0 };
+    }
+    normalise(&mut noise.angle[..na.min(NOISE_ANGLES)]);
+    // 4. Each site's level with the profiles divided out.
+    for k in 0..sites {
+        let mut n = 0;
+        for a in 0..na {
+            let fa = noise.angle[a.min(NOISE_ANGLES - 1)];
+            for b in 0..nb {
+                let d = fourth_difference(spectra, nb, k, a, b);
+                if d.is_finite() {
+                    scratch[n] = (f64::from(d.abs()) / (fa * noise.band[b])) as f32;
                     n += 1;
                 }
             }
@@ -788,8 +1009,7 @@ fn noise_sigma(
         if n < 16 {
             continue;
         }
-        let (_, m, _) = scratch[..n].select_nth_unstable_by(n / 2, f32::total_cmp);
-        let cut = 4.0 * 1.4826 * f64::from(*m);
+        let cut = 4.0 * 1.4826 * median(&mut scratch[..n]);
         let (mut sum, mut count) = (0.0, 0usize);
         for &d in &scratch[..n] {
             let d = f64::from(d);
@@ -799,21 +1019,27 @@ fn noise_sigma(
             }
         }
         if count > 0 {
-            *out = libm::sqrt(sum / count as f64 / 70.0).max(NOISE_FLOOR);
+            noise.site[k] = libm::sqrt(sum / count as f64 / 70.0).max(NOISE_FLOOR);
         }
     }
     let mut n = 0;
-    for &s in site_sigma.iter().take(sites) {
+    for &s in noise.site.iter().take(sites) {
         if s.is_finite() {
             scratch[n] = s as f32;
             n += 1;
         }
     }
-    if n == 0 {
-        return f64::NAN;
+    let m = median(&mut scratch[..n]);
+    (noise, m)
+}
+
+/// Scales `v` to a mean square of 1 (unchanged when it has none).
+fn normalise(v: &mut [f64]) {
+    let ms = v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64;
+    if ms > 0.0 && ms.is_finite() {
+        let s = 1.0 / libm::sqrt(ms);
+        v.iter_mut().for_each(|x| *x *= s);
     }
-    let (_, m, _) = scratch[..n].select_nth_unstable_by(n / 2, f32::total_cmp);
-    f64::from(*m)
 }
 
 /// Starting points of the refinement: the search's scores and Cauchy parameters, best first.
@@ -960,8 +1186,8 @@ struct Problem<'a> {
     geo: &'a Geometry<'a>,
     spectra: &'a Spectra<'a>,
     usable: &'a [bool],
-    /// Each site's weight, one over its noise variance.
-    weight: [f64; MAX_SITES],
+    /// Each sample's noise and the model's error.
+    noise: Noise,
     /// Where the two halves of the sites' sums run.
     par: &'a dyn Parallel,
 }
@@ -1110,7 +1336,7 @@ impl Problem<'_> {
                             continue;
                         }
                         let res = f64::from(y) - m[j];
-                        let w = self.weight[k];
+                        let w = self.noise.weight(k, a, b);
                         s.sse += w * res * res;
                         s.n += 1;
                         s.jdd += w * jd[j] * jd[j];
@@ -1440,9 +1666,13 @@ impl Problem<'_> {
         self.settle(fit, c, &tt)
     }
 
-    /// `fit` ending with `c` and its sites' thicknesses `tt`, judged by the gate.
-    fn settle(&self, mut fit: SampleFit, c: Candidate, tt: &[f64; MAX_SITES]) -> SampleFit {
-        fit.best = Some(c);
+    /// `fit` ending with `c` and its sites' thicknesses `tt`, with what it leaves
+    /// ([`Residual`]), judged by the gate: a reduced chi-square (in units of the noise and the
+    /// model error weighed) within [`GATE_CHI2_NU`], a model error within the tolerated
+    /// one, an index standard error within [`MAX_INDEX_SIGMA`]. Weighed with a model error,
+    /// the index's standard error is widened by the residual's correlation along the band
+    /// ([`Residual::correlation_factor`]): a smooth misfit is fewer independent samples.
+    fn settle(&self, mut fit: SampleFit, mut c: Candidate, tt: &[f64; MAX_SITES]) -> SampleFit {
         for (k, slot) in fit.thickness_nm.iter_mut().enumerate() {
             *slot = if k < self.usable.len() && self.usable[k] {
                 tt[k] as f32
@@ -1450,7 +1680,16 @@ impl Problem<'_> {
                 f32::NAN
             };
         }
-        fit.failure = if c.chi2_nu > GATE_CHI2_NU {
+        if let Some(r) = self.residual(c.kind, &c.params, tt) {
+            fit.residual = r;
+        }
+        fit.model_error = libm::sqrt(self.noise.model2);
+        if fit.model_error > 0.0 {
+            c.n550_sigma *= fit.residual.correlation_factor();
+        }
+        fit.best = Some(c);
+        let misfit = fit.model_error > 0.0 && !(fit.residual.model_rms <= self.geo.model_error);
+        fit.failure = if c.chi2_nu > GATE_CHI2_NU || misfit {
             Some(Failure::NoFit)
         } else if c.n550_sigma > MAX_INDEX_SIGMA {
             Some(Failure::Underdetermined)
@@ -1458,6 +1697,167 @@ impl Problem<'_> {
             None
         };
         fit
+    }
+
+    /// What `(kind, p)` at the sites' thicknesses `t` leaves on their own pixels (`None`
+    /// when the model cannot be evaluated).
+    fn residual(&self, kind: ModelKind, p: &[f64; 3], t: &[f64; MAX_SITES]) -> Option<Residual> {
+        let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        let sites = self.usable.len();
+        let d_max = (0..sites)
+            .filter(|&k| self.usable[k])
+            .map(|k| t[k])
+            .fold(0.0, f64::max);
+        let (lo, hi) = self.band_span();
+        let (blue, red) = (lo + (hi - lo) / 3.0, hi - (hi - lo) / 3.0);
+        let mut out = Residual::default();
+        let (mut n, mut r2, mut s2, mut lag, mut lag_r2) = (0usize, 0.0, 0.0, 0.0, 0.0);
+        let (mut blue2, mut nblue, mut red2, mut nred) = (0.0, 0usize, 0.0, 0usize);
+        for a in 0..na {
+            let mut prev = [f64::NAN; MAX_SITES];
+            let (mut an, mut ar, mut ar2, mut as2) = (0usize, 0.0, 0.0, 0.0);
+            for b in 0..nb {
+                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
+                let l = self.geo.bands_nm[b];
+                for k in (0..sites).filter(|&k| self.usable[k]) {
+                    let y = self.spectra.centre_at(nb, k, a, b);
+                    if !y.is_finite() {
+                        prev[k] = f64::NAN;
+                        continue;
+                    }
+                    let m: f64 = nodes[..count]
+                        .iter()
+                        .map(|nd| {
+                            nd.weight
+                                * nd.film
+                                    .reflectance_at_cos(libm::cos(nd.phase_per_nm * t[k]))
+                        })
+                        .sum();
+                    let r = f64::from(y) - m;
+                    let v = self.noise.noise2(k, a, b);
+                    (an, ar, ar2, as2) = (an + 1, ar + r, ar2 + r * r, as2 + v);
+                    if prev[k].is_finite() {
+                        lag += prev[k] * r;
+                        lag_r2 += 0.5 * (prev[k] * prev[k] + r * r);
+                    }
+                    prev[k] = r;
+                    if l <= blue {
+                        (blue2, nblue) = (blue2 + r * r, nblue + 1);
+                    } else if l >= red {
+                        (red2, nred) = (red2 + r * r, nred + 1);
+                    }
+                }
+            }
+            (n, r2, s2) = (n + an, r2 + ar2, s2 + as2);
+            let per = an.max(1) as f64;
+            let _ = out.per_angle.push(AngleResidual {
+                rms: libm::sqrt(ar2 / per),
+                mean: ar / per,
+                noise_rms: libm::sqrt(as2 / per),
+            });
+        }
+        if n == 0 {
+            return None;
+        }
+        // The fit's own parameters absorb a little of the noise: the residual's mean square
+        // over the degrees of freedom.
+        let used = self.usable.iter().filter(|&&u| u).count();
+        let dof = n.saturating_sub(used + kind.params()).max(1) as f64;
+        out.rms = libm::sqrt(r2 / dof);
+        out.noise_rms = libm::sqrt(s2 / n as f64);
+        out.model_rms = libm::sqrt((out.rms * out.rms - out.noise_rms * out.noise_rms).max(0.0));
+        out.band_correlation = if lag_r2 > 0.0 { lag / lag_r2 } else { 0.0 };
+        out.blue_rms = libm::sqrt(blue2 / nblue.max(1) as f64);
+        out.red_rms = libm::sqrt(red2 / nred.max(1) as f64);
+        Some(out)
+    }
+
+    /// `fit` again when it misses the gate against the noise alone: the sites that fit far
+    /// worse than the rest ([`OUTLIER_SITE_RATIO`], at most a quarter) set aside, the misfit
+    /// beyond the noise taken as the model's error and added to every sample's variance, and
+    /// the index fitted again under it (`held`: seated again under the given index). `fit`
+    /// as it is when it passed, when it was already weighed with a model error, when none
+    /// is tolerated, or when its misfit is more than twice the tolerated one.
+    fn with_model_error(
+        &self,
+        fit: SampleFit,
+        held: Option<(ModelKind, [f64; 3])>,
+        scratch: &mut [f32],
+    ) -> SampleFit {
+        let tol = self.geo.model_error;
+        let Some(best) = fit.best else { return fit };
+        if fit.failure != Some(Failure::NoFit) || self.noise.model2 > 0.0 || !(tol > 0.0) {
+            return fit;
+        }
+        let sites = self.usable.len();
+        let mut tt = [f64::NAN; MAX_SITES];
+        for (d, &t) in tt.iter_mut().zip(&fit.thickness_nm) {
+            *d = f64::from(t);
+        }
+        let mut sums = [SiteSums::default(); MAX_SITES];
+        if self
+            .normal::<false>(best.kind, &best.params, &tt, &mut sums)
+            .is_none()
+        {
+            return fit;
+        }
+        let chi2_of = |k: usize| sums[k].sse / sums[k].n.max(1) as f64;
+        let mut v: heapless::Vec<f32, MAX_SITES> = (0..sites)
+            .filter(|&k| self.usable[k] && sums[k].n > 0)
+            .map(|k| chi2_of(k) as f32)
+            .collect();
+        let typical = median(&mut v);
+        let mut aside = [false; MAX_SITES];
+        for k in (0..sites).filter(|&k| self.usable[k]) {
+            let c = chi2_of(k);
+            aside[k] = c > OUTLIER_SITE_RATIO * typical && c > GATE_CHI2_NU;
+        }
+        let used = self.usable.iter().filter(|&&u| u).count();
+        if aside.iter().filter(|&&a| a).count() * 4 > used {
+            aside = [false; MAX_SITES];
+        }
+        let mut usable = [false; MAX_SITES];
+        for k in 0..sites {
+            usable[k] = self.usable[k] && !aside[k];
+        }
+        let kept = Problem {
+            usable: &usable[..sites],
+            noise: self.noise.clone(),
+            ..*self
+        };
+        let Some(left) = kept.residual(best.kind, &best.params, &tt) else {
+            return fit;
+        };
+        let m = left.model_rms;
+        if !(m > 0.0 && m <= 2.0 * tol) {
+            return fit;
+        }
+        let weighed = Problem {
+            noise: Noise {
+                model2: m * m,
+                ..self.noise.clone()
+            },
+            ..kept
+        };
+        let mut again = SampleFit {
+            candidates: heapless::Vec::new(),
+            sites_used: usable.iter().filter(|&&u| u).count(),
+            ..fit.clone()
+        };
+        again = match held {
+            Some((kind, params)) => hold_weighed(&weighed, again, kind, params, scratch),
+            None => {
+                let mut seated = tt;
+                let base = weighed
+                    .refine(best.kind, best.params, &mut seated, MAX_STEPS)
+                    .unwrap_or(best);
+                weighed.choose(again, base, &seated, scratch)
+            }
+        };
+        again.set_aside = aside;
+        again.starts = fit.starts;
+        again.searched = fit.searched;
+        again
     }
 
     /// Each usable site's best thickness under `(kind, p)` over the thickness range, on the
@@ -1801,7 +2201,7 @@ impl Problem<'_> {
                     .filter(|&(i, _)| i.abs_diff(best.1) > far)
                     .map(|(_, &v)| v)
                     .fold(f64::INFINITY, f64::min);
-                m[k] = (alt - best.0) * self.weight[k];
+                m[k] = (alt - best.0) * self.noise.site_weight(k);
             }
             if t.is_none() {
                 // Scoring a grid point: the minimum between dictionary rows from the
@@ -1815,7 +2215,7 @@ impl Problem<'_> {
                         sse = (sse - (c - a) * (c - a) / (8.0 * curv)).max(0.0);
                     }
                 }
-                total += sse * self.weight[k];
+                total += sse * self.noise.site_weight(k);
                 continue;
             }
             // Seating a site: two Gauss-Newton steps on the thickness.
@@ -1855,7 +2255,7 @@ impl Problem<'_> {
             if let Some(t) = t.as_deref_mut() {
                 t[k] = d;
             }
-            total += sse * self.weight[k];
+            total += sse * self.noise.site_weight(k);
         }
         Some(total)
     }
@@ -2066,6 +2466,7 @@ mod tests {
             polarization: case.pol,
             index_range: [1.2, 3.0],
             thickness_range_nm: [10.0, 3000.0],
+            model_error: DEFAULT_MODEL_ERROR,
         };
         let spectra = Spectra {
             values: &values,
@@ -2190,6 +2591,7 @@ mod tests {
             polarization: Polarization::S,
             index_range: [1.2, 3.0],
             thickness_range_nm: [50.0, 2000.0],
+            model_error: 0.0,
         };
         let spectra = Spectra {
             values: &values,
@@ -2205,6 +2607,7 @@ mod tests {
             ModelKind::Cauchy3,
             [a, b, c],
             noise,
+            0.0,
             &mut scratch,
             &mut out,
             &Serial,
@@ -2221,6 +2624,7 @@ mod tests {
             ModelKind::Cauchy3,
             [a + 0.02, b, c],
             noise,
+            0.0,
             &mut scratch,
             &mut out,
             &Serial,

@@ -31,6 +31,9 @@ pub struct SweepSpec {
     pub index_range: [f64; 2],
     /// Thickness search range, nm.
     pub thickness_range_nm: [f64; 2],
+    /// The model error the index fit tolerates, RMS reflectance
+    /// ([`super::sample::DEFAULT_MODEL_ERROR`]; `[fit] model_error` in a capture).
+    pub model_error: f64,
     /// What the solver may use (all on by default; off only to measure what each is worth).
     pub options: SolverOptions,
 }
@@ -148,6 +151,7 @@ pub(crate) fn paper_rig_spec(width: usize, height: usize) -> SweepSpec {
         polarization: Polarization::S,
         index_range: [1.2, 2.8],
         thickness_range_nm: [30.0, 2000.0],
+        model_error: super::sample::DEFAULT_MODEL_ERROR,
         options: SolverOptions::default(),
     };
     for b in 0..151 {
