@@ -144,13 +144,13 @@ pub fn check_bands(
     Ok(())
 }
 
-/// An angle count in `[2, MAX_ANGLES]`.
+/// An angle count in `[1, MAX_ANGLES]`.
 pub fn check_angle_count(key: &str, n: usize) -> Result<(), String> {
-    if !(2..=MAX_ANGLES).contains(&n) {
+    if !(1..=MAX_ANGLES).contains(&n) {
         return Err(bad(
             key,
             format!("{n} angles"),
-            &format!("2 to {MAX_ANGLES} angles"),
+            &format!("1 to {MAX_ANGLES} angles"),
         ));
     }
     Ok(())

@@ -534,6 +534,7 @@ pub fn write_capture(
             horizontal_fov_deg: scene.field_of_view.map(|f| f.horizontal_deg()),
         },
         angles,
+        fit: Default::default(),
         unknown_keys: Vec::new(),
     };
     capture

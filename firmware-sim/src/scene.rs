@@ -318,9 +318,9 @@ impl Scene {
             }
         }
         let rig = f.rig;
-        if rig.angles_deg.len() < 2 {
+        if rig.angles_deg.is_empty() {
             return Err(format!(
-                "[rig] angles_deg needs at least two angles, has {}",
+                "[rig] angles_deg needs at least one angle, has {}",
                 rig.angles_deg.len()
             ));
         }

@@ -189,7 +189,12 @@ pub fn estimate(
         })
         .transpose()?;
     let budget = memory_budget(max_memory)?;
-    let cap = Capture::load(capture)?;
+    let mut cap = Capture::load(capture)?;
+    if let Some(m) = method.index.model_error {
+        cap.fit.model_error = Some(m);
+        cap.check_values()
+            .map_err(|e| anyhow!("--model-error {m}: {e}"))?;
+    }
     for key in &cap.unknown_keys {
         eprintln!(
             "filmscope: warning: {}: unknown key {} (ignored)",

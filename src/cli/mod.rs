@@ -29,6 +29,11 @@ pub struct IndexArgs {
     /// each angle completes (default: the sample's stream, then every pixel's).
     #[arg(long)]
     pub one_pass: bool,
+    /// The model error the index fit tolerates, RMS reflectance (overrides the capture's
+    /// `[fit] model_error`; default 0.001): a fit missing the spectra by more than their
+    /// noise and this gives no index. 0 judges against the noise alone.
+    #[arg(long, value_name = "RMS")]
+    pub model_error: Option<f64>,
 }
 
 /// The method and its settings, as `estimate` and `eval` take them.

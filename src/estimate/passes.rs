@@ -120,7 +120,10 @@ pub fn passes_under(
 ) -> Result<Passes, PipelineError> {
     let spec = source.spec().clone();
     let index = index_model(&fit);
-    let seed = if fringes_across_band(&spec, &fit) < SEEDED_BELOW_FRINGES {
+    // One angle has no second angle to take fringe orders from: every pixel starts from the
+    // sample's map, as a film without fringe pairs does.
+    let one_angle = source.angles_deg().len() < 2;
+    let seed = if one_angle || fringes_across_band(&spec, &fit) < SEEDED_BELOW_FRINGES {
         tap.seed_map(&fit, spec.width, spec.height).map(Arc::new)
     } else {
         None

@@ -14,6 +14,9 @@
 //! index_range = [1.2, 3.0]
 //! thickness_range_nm = [50.0, 2000.0]
 //!
+//! [fit]                      # optional, a filmscope extension of the contract
+//! model_error = 0.001        # RMS reflectance the model may miss by beyond the noise
+//!
 //! [lens]                     # optional, a filmscope extension of the contract
 //! horizontal_fov_deg = 30.0  # the lens's horizontal field of view, in (0, 180)
 //!
@@ -106,6 +109,16 @@ pub struct Search {
     pub thickness_range_nm: Option<[f64; 2]>,
 }
 
+/// The optional `[fit]` table (a filmscope extension): how the index fit judges the spectra.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Fit {
+    /// The model error tolerated, RMS reflectance in `[0, 0.05]`: what the single-layer
+    /// model may miss the spectra by beyond their noise and still give an index (`None`: the
+    /// default, [`crate::solve::sample::DEFAULT_MODEL_ERROR`]; 0: judged against the noise
+    /// alone).
+    pub model_error: Option<f64>,
+}
+
 /// The optional `[lens]` table (a filmscope extension of the capture contract).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Lens {
@@ -152,6 +165,8 @@ pub struct Capture {
     pub search: Search,
     /// `[lens]` (all `None` when absent).
     pub lens: Lens,
+    /// `[fit]` (all `None` when absent).
+    pub fit: Fit,
     /// `[[angle]]` entries in file order (the estimator accepts any order).
     pub angles: Vec<Angle>,
     /// Keys the format does not define, as dotted paths (`sample.foo`, `angle[1].bar`,
@@ -244,8 +259,8 @@ pub enum CaptureErrorKind {
         /// The parser's message, on one line.
         message: String,
     },
-    /// Fewer than two `[[angle]]` entries.
-    #[error("needs at least two [[angle]] entries, found {found}")]
+    /// No `[[angle]]` entry.
+    #[error("needs at least one [[angle]] entry, found {found}")]
     TooFewAngles {
         /// Entries found.
         found: usize,
@@ -377,8 +392,16 @@ struct RawCapture {
     search: Option<RawSearch>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     lens: Option<RawLens>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    fit: Option<RawFit>,
     #[serde(default)]
     angle: Vec<RawAngle>,
+}
+
+#[derive(Deserialize, Serialize)]
+struct RawFit {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    model_error: Option<f64>,
 }
 
 #[derive(Deserialize, Serialize)]
@@ -434,6 +457,9 @@ const SAMPLE_KEYS: &[&str] = &[
     "polarization",
 ];
 const SEARCH_KEYS: &[&str] = &["index_range", "thickness_range_nm"];
+const FIT_KEYS: &[&str] = &["model_error"];
+/// The largest `fit.model_error` a capture may give, RMS reflectance.
+pub const MAX_MODEL_ERROR: f64 = 0.05;
 const LENS_KEYS: &[&str] = &["horizontal_fov_deg"];
 const ANGLE_KEYS: &[&str] = &[
     "incidence_deg",
@@ -564,6 +590,9 @@ impl Capture {
             lens: Lens {
                 horizontal_fov_deg: raw.lens.and_then(|l| l.horizontal_fov_deg),
             },
+            fit: Fit {
+                model_error: raw.fit.and_then(|f| f.model_error),
+            },
             angles,
             unknown_keys,
         };
@@ -588,12 +617,19 @@ impl Capture {
         if let Some(r) = self.search.thickness_range_nm {
             crate::limits::check_thickness_range("search.thickness_range_nm", r).map_err(bad)?;
         }
+        if let Some(value) = self.fit.model_error {
+            if !(0.0..=MAX_MODEL_ERROR).contains(&value) {
+                return Err(bad(format!(
+                    "fit.model_error = {value}: outside 0 to {MAX_MODEL_ERROR} (RMS reflectance)"
+                )));
+            }
+        }
         if let Some(value) = self.lens.horizontal_fov_deg {
             if crate::optics::FieldOfView::new(value).is_none() {
                 return Err(err(CaptureErrorKind::BadFieldOfView { value }));
             }
         }
-        if self.angles.len() < 2 {
+        if self.angles.is_empty() {
             return Err(err(CaptureErrorKind::TooFewAngles {
                 found: self.angles.len(),
             }));
@@ -781,6 +817,9 @@ impl Capture {
         let lens = self.lens.horizontal_fov_deg.map(|f| RawLens {
             horizontal_fov_deg: Some(f),
         });
+        let fit = self.fit.model_error.map(|m| RawFit {
+            model_error: Some(m),
+        });
         let raw = RawCapture {
             sample: RawSample {
                 ambient_index: self.sample.ambient_index,
@@ -790,6 +829,7 @@ impl Capture {
             },
             search,
             lens,
+            fit,
             angle,
         };
         let text = toml::to_string(&raw).map_err(|e| {
@@ -856,6 +896,7 @@ fn unknown_keys(table: &toml::Table) -> Vec<String> {
             "sample" => check(&mut out, "sample", value, SAMPLE_KEYS),
             "search" => check(&mut out, "search", value, SEARCH_KEYS),
             "lens" => check(&mut out, "lens", value, LENS_KEYS),
+            "fit" => check(&mut out, "fit", value, FIT_KEYS),
             "angle" => {
                 for (i, entry) in value.as_array().into_iter().flatten().enumerate() {
                     check(&mut out, &format!("angle[{}]", i + 1), entry, ANGLE_KEYS);

@@ -468,9 +468,9 @@ fn sweep(
         }
     })?;
 
-    if solver.angles_done() < 2 {
+    if solver.angles_done() < 1 {
         return Err(PipelineError(format!(
-            "the stream ended after {} angle(s); at least two are needed",
+            "the stream ended after {} angle(s); at least one is needed",
             solver.angles_done()
         )));
     }

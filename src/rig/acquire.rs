@@ -207,6 +207,7 @@ impl Acquisition {
             },
             lens: Lens::default(),
             angles: angles.to_vec(),
+            fit: Default::default(),
             unknown_keys: Vec::new(),
         };
         capture.write_toml(&path).map_err(|e| e.to_string())

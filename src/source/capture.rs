@@ -102,7 +102,7 @@ impl CaptureSource {
             .search
             .thickness_range_nm
             .unwrap_or(DEFAULT_THICKNESS_RANGE_NM);
-        let spec = sweep_spec(
+        let mut spec = sweep_spec(
             info.samples,
             info.lines,
             &bands,
@@ -115,6 +115,9 @@ impl CaptureSource {
         )
         .map_err(|e| format!("{}: {e}", capture.path.display()))?
         .with_substrate(capture.sample.substrate_dispersion());
+        if let Some(m) = capture.fit.model_error {
+            spec.model_error = m;
+        }
         // Raw counts saturate at the ADC's full scale: the header's `saturation counts` (a
         // filmscope extension of ENVI) when given, else the u16 maximum.
         let first = EnviReader::open(&capture.angles[0].cube).map_err(|e| e.to_string())?;
