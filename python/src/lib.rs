@@ -89,6 +89,7 @@ impl Options<'_> {
             },
             sample_sites: self.sample_sites,
             one_pass: self.one_pass,
+            model_error: None,
         })
     }
 }

@@ -54,6 +54,14 @@ impl super::MethodArgs {
     /// model's settings `wide`; every value checked.
     fn run_config(&self, pipeline: PipelineConfig, wide: FieldConfig) -> Result<RunConfig> {
         check_index_args(self.index)?;
+        if let Some(m) = self.index.model_error {
+            if !(0.0..=crate::io::capture::MAX_MODEL_ERROR).contains(&m) {
+                bail!(
+                    "--model-error {m}: outside 0 to {} (RMS reflectance)",
+                    crate::io::capture::MAX_MODEL_ERROR
+                );
+            }
+        }
         crate::limits::check_cli(
             pipeline.workers,
             pipeline.channel_capacity,
@@ -64,6 +72,7 @@ impl super::MethodArgs {
         .map_err(|e| anyhow!(e))?;
         Ok(RunConfig {
             method: self.method,
+            model_error: self.index.model_error,
             pipeline: PipelineConfig {
                 solver: SolverOptions {
                     index_pixels: self.index_pixels,
@@ -189,12 +198,7 @@ pub fn estimate(
         })
         .transpose()?;
     let budget = memory_budget(max_memory)?;
-    let mut cap = Capture::load(capture)?;
-    if let Some(m) = method.index.model_error {
-        cap.fit.model_error = Some(m);
-        cap.check_values()
-            .map_err(|e| anyhow!("--model-error {m}: {e}"))?;
-    }
+    let cap = Capture::load(capture)?;
     for key in &cap.unknown_keys {
         eprintln!(
             "filmscope: warning: {}: unknown key {} (ignored)",

@@ -47,7 +47,7 @@ pub fn run_with_index(
     name: &str,
     on_rows: &(dyn Fn(u64) + Sync),
 ) -> Result<Run, PipelineError> {
-    let spec = source.spec().clone();
+    let spec = config.fitted_spec(source.spec());
     let angles_deg = source.angles_deg();
     let t0 = Instant::now();
     let index = index_model_of(film, &spec.bands_nm).map_err(PipelineError)?;

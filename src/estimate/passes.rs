@@ -55,7 +55,7 @@ pub fn filmscope_passes(
     config: &RunConfig,
     on_rows: &(dyn Fn(u64) + Sync),
 ) -> Result<Passes, PipelineError> {
-    let spec = source.spec().clone();
+    let spec = config.fitted_spec(source.spec());
     let mut tap = SampleTap::new(&spec, config.sample_sites, source.angles_deg().len());
     if config.one_pass || !source.replayable() {
         // A live camera streams once: the sample is held as it streams and refitted as each

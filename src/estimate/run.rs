@@ -25,6 +25,20 @@ pub struct RunConfig {
     /// Stream once, as from a live camera, even when the source could be replayed (the
     /// index refitted on the sample as each angle completes).
     pub one_pass: bool,
+    /// The model error the index fit tolerates, RMS reflectance, over the capture's own
+    /// (`[fit] model_error`) when given.
+    pub model_error: Option<f64>,
+}
+
+impl RunConfig {
+    /// `spec` as this run fits it: its tolerated model error replaced when the run gives one.
+    pub fn fitted_spec(&self, spec: &SweepSpec) -> SweepSpec {
+        let mut spec = spec.clone();
+        if let Some(m) = self.model_error {
+            spec.model_error = m;
+        }
+        spec
+    }
 }
 
 impl Default for RunConfig {
@@ -36,6 +50,7 @@ impl Default for RunConfig {
             field: FieldConfig::default(),
             sample_sites: crate::estimate::index_fit::DEFAULT_SITES,
             one_pass: false,
+            model_error: None,
         }
     }
 }

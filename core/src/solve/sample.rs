@@ -2425,6 +2425,32 @@ mod tests {
         seed: u64,
         held: Option<(ModelKind, [f64; 3])>,
     ) -> (SampleFit, Vec<f32>) {
+        let truth = Case {
+            pol: truth_pol,
+            ..*case
+        };
+        run_told(
+            &truth,
+            case,
+            seed,
+            held,
+            DEFAULT_MODEL_ERROR,
+            |_, _, _, _| 0.0,
+        )
+    }
+
+    /// Simulates `truth` (each sample's reflectance plus `extra(site, run pixel, band nm,
+    /// angle index)` and the noise) and fits it as `told` says the capture was taken (its
+    /// polarisation, angles and substrate), tolerating `model_error`.
+    fn run_told(
+        truth: &Case,
+        told: &Case,
+        seed: u64,
+        held: Option<(ModelKind, [f64; 3])>,
+        model_error: f64,
+        mut extra: impl FnMut(usize, usize, f64, usize) -> f64,
+    ) -> (SampleFit, Vec<f32>) {
+        let case = told;
         let mut bands = Vec::new();
         let mut l = case.bands.0;
         while l <= case.bands.1 + 1e-9 {
@@ -2434,29 +2460,30 @@ mod tests {
         let fwhm = vec![case.fwhm; bands.len()];
         let stack = FilmStack {
             ambient_index: 1.0,
-            film: case.film,
-            substrate: Dispersion::constant(case.substrate),
-            polarization: truth_pol,
+            film: truth.film,
+            substrate: Dispersion::constant(truth.substrate),
+            polarization: truth.pol,
         };
         let sites = 32;
         let (na, nb) = (case.angles.len(), bands.len());
         let mut values = vec![0.0f32; sites * RUN * na * nb];
         let mut rng = Noise(seed | 1);
-        let mut truth = Vec::new();
+        let mut thickness = Vec::new();
         for k in 0..sites {
-            let centre = case.base_nm * (1.0 + 0.1 * (k as f64 / sites as f64 - 0.5));
-            truth.push(centre as f32);
+            let centre = truth.base_nm * (1.0 + 0.1 * (k as f64 / sites as f64 - 0.5));
+            thickness.push(centre as f32);
             for j in 0..RUN {
                 let d = centre + 0.3 * (j as f64 - 2.0);
-                for (a, &deg) in case.angles.iter().enumerate() {
+                for (a, &deg) in truth.angles.iter().enumerate() {
                     for (b, &l) in bands.iter().enumerate() {
                         let r = stack.band_reflectance(d, deg, &Passband::gaussian(l, case.fwhm));
                         values[((k * RUN + j) * na + a) * nb + b] =
-                            (r + case.noise * rng.normal()) as f32;
+                            (r + extra(k, j, l, a) + truth.noise * rng.normal()) as f32;
                     }
                 }
             }
         }
+        let truth = thickness;
         let geo = Geometry {
             bands_nm: &bands,
             fwhm_nm: &fwhm,
@@ -2466,7 +2493,7 @@ mod tests {
             polarization: case.pol,
             index_range: [1.2, 3.0],
             thickness_range_nm: [10.0, 3000.0],
-            model_error: DEFAULT_MODEL_ERROR,
+            model_error,
         };
         let spectra = Spectra {
             values: &values,
@@ -2764,6 +2791,151 @@ mod tests {
         // The same spectra fitted as s light: simulate p, fit s.
         let (p_fit, _) = run_as(&wrong, Polarization::P, 5, None);
         assert_eq!(p_fit.failure, Some(Failure::NoFit), "{p_fit:?}");
+    }
+
+    /// A film measured with a good camera's low noise, for the model-error tests.
+    const QUIET: Case = Case {
+        film: Dispersion::Cauchy {
+            a: 2.05,
+            b_um2: 0.02,
+            c_um4: 0.0,
+        },
+        substrate: 1.52,
+        base_nm: 420.0,
+        angles: &[10.0, 30.0, 50.0],
+        bands: (420.0, 720.0, 3.0),
+        fwhm: 4.0,
+        pol: Polarization::S,
+        noise: 3e-4,
+    };
+
+    /// A capture whose metadata are wrong misses the spectra by far more than any model
+    /// error tolerated, at a good camera's low noise too: each refused, none given an index.
+    #[test]
+    fn gross_misfits_are_refused_at_low_noise() {
+        let (fit, _) = run_told(
+            &QUIET,
+            &QUIET,
+            3,
+            None,
+            DEFAULT_MODEL_ERROR,
+            |_, _, _, _| 0.0,
+        );
+        assert!(fit.failure.is_none(), "{fit:?}");
+        assert_eq!(
+            fit.model_error, 0.0,
+            "the right metadata fit within the noise"
+        );
+        let wrong = [
+            (
+                "polarisation",
+                Case {
+                    pol: Polarization::P,
+                    ..QUIET
+                },
+            ),
+            (
+                "angles",
+                Case {
+                    angles: &[14.0, 34.0, 54.0],
+                    ..QUIET
+                },
+            ),
+            (
+                "substrate",
+                Case {
+                    substrate: 1.65,
+                    ..QUIET
+                },
+            ),
+        ];
+        for (what, told) in wrong {
+            let (fit, _) = run_told(&QUIET, &told, 3, None, DEFAULT_MODEL_ERROR, |_, _, _, _| {
+                0.0
+            });
+            assert_eq!(fit.failure, Some(Failure::NoFit), "wrong {what}: {fit:?}");
+            assert!(
+                fit.residual.model_rms > DEFAULT_MODEL_ERROR,
+                "wrong {what}: {fit:?}"
+            );
+        }
+    }
+
+    /// A smooth misfit of a real rig (here 6e-4 RMS along the band, twice the noise) fails
+    /// the noise alone but not a tolerated model error: the index comes out right, the
+    /// misfit is measured and reported, and the index's sigma widens with it.
+    #[test]
+    fn a_small_smooth_misfit_is_carried_as_the_model_error() {
+        let ripple = |_: usize, _: usize, l: f64, _: usize| 8.5e-4 * libm::sin(l / 37.0);
+        let (strict, _) = run_told(&QUIET, &QUIET, 4, None, 0.0, ripple);
+        assert_eq!(strict.failure, Some(Failure::NoFit), "{strict:?}");
+        let (fit, _) = run_told(&QUIET, &QUIET, 4, None, DEFAULT_MODEL_ERROR, ripple);
+        let (plain, _) = run_told(
+            &QUIET,
+            &QUIET,
+            4,
+            None,
+            DEFAULT_MODEL_ERROR,
+            |_, _, _, _| 0.0,
+        );
+        assert!(fit.failure.is_none(), "{fit:?}");
+        let n = fit.index().expect("an index").index_at(550.0);
+        let err = n - QUIET.film.index_at(550.0);
+        assert!(err.abs() < 0.005, "n(550) off by {err}");
+        assert!(
+            (fit.residual.model_rms - 6e-4).abs() < 2e-4,
+            "model_rms {}",
+            fit.residual.model_rms
+        );
+        assert!(fit.residual.band_correlation > 0.5, "{:?}", fit.residual);
+        let (s, s0) = (
+            fit.best.map_or(0.0, |c| c.n550_sigma),
+            plain.best.map_or(0.0, |c| c.n550_sigma),
+        );
+        assert!(s > 2.0 * s0, "sigma {s} against {s0} without the misfit");
+    }
+
+    /// A site whose spectra fit far worse than the rest (a particle on the film) is set
+    /// aside rather than refusing the sample, and the index comes from the others.
+    #[test]
+    fn a_defect_site_is_set_aside() {
+        let defect = |k: usize, _: usize, l: f64, _: usize| {
+            if k == 5 {
+                0.02 * libm::cos(l / 20.0)
+            } else {
+                0.0
+            }
+        };
+        let (fit, _) = run_told(&QUIET, &QUIET, 6, None, DEFAULT_MODEL_ERROR, defect);
+        assert!(fit.failure.is_none(), "{fit:?}");
+        assert!(fit.set_aside[5], "{:?}", &fit.set_aside[..32]);
+        assert_eq!(fit.set_aside.iter().filter(|&&a| a).count(), 1);
+        let n = fit.index().expect("an index").index_at(550.0);
+        let err = n - QUIET.film.index_at(550.0);
+        assert!(err.abs() < 0.002, "n(550) off by {err}");
+    }
+
+    /// Noise three times higher in the blue of the band (a dim lamp's shot noise) and twice
+    /// as high at one angle is measured as it is: the fit's reduced chi-square near 1 and the
+    /// index right, the blue and that angle weighed down.
+    #[test]
+    fn noise_varying_over_bands_and_angles_is_weighed_as_it_is() {
+        let case = Case {
+            noise: 0.0,
+            ..QUIET
+        };
+        let mut rng = Noise(99);
+        let uneven = |_: usize, _: usize, l: f64, a: usize| {
+            let blue = if l < 520.0 { 3.0 } else { 1.0 };
+            let dark = if a == 1 { 2.0 } else { 1.0 };
+            1e-3 * blue * dark * rng.normal()
+        };
+        let (fit, _) = run_told(&case, &case, 7, None, 0.0, uneven);
+        assert!(fit.failure.is_none(), "{fit:?}");
+        let c = fit.best.expect("a fit");
+        assert!((0.85..1.15).contains(&c.chi2_nu), "chi2_nu {}", c.chi2_nu);
+        let err = c.kind.dispersion(&c.params).index_at(550.0) - QUIET.film.index_at(550.0);
+        assert!(err.abs() < 0.003, "n(550) off by {err}");
     }
 
     #[test]

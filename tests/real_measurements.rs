@@ -1,0 +1,198 @@
+//! Real measurements: a measured spectrum (not one our own model made), and captures of one
+//! angle, as a reflectometer or a camera fixed over a web takes them.
+
+mod common;
+
+use std::path::Path;
+
+use common::{filmscope, run_ok, s};
+use filmscope::cli::eval::{evaluate, Truth};
+use filmscope::estimate::{run_method, RunConfig};
+use filmscope::source::SimSource;
+use firmware_sim::{Scene, SoftwareCamera};
+
+/// The measured transmittance of an HfO2 film on UV fused silica (ThinFilmsTools.jl, MIT):
+/// `(wavelength nm, T)` over 400-720 nm at every `step` nm.
+fn hfo2_transmittance(step: usize) -> Vec<(f64, f64)> {
+    let path = format!(
+        "{}/tests/fixtures/measured/hfo2-on-fused-silica-transmittance.txt",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let text = std::fs::read_to_string(path).expect("fixture");
+    text.lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let mut f = l
+                .split_whitespace()
+                .map(|v| v.parse::<f64>().expect("number"));
+            (f.next().expect("wavelength"), f.next().expect("T") / 100.0)
+        })
+        .filter(|&(l, _)| (400.0..=720.0).contains(&l))
+        .step_by(step)
+        .collect()
+}
+
+/// The film side's reflectance from the transmittance of a lossless film on a substrate whose
+/// bare back face reflects incoherently: `T = (1 - R_f)(1 - R_b) / (1 - R_f R_b)`, so `R_f =
+/// (1 - R_b - T) / (1 - R_b - T R_b)`, `R_b` the substrate-air Fresnel reflectance (fused
+/// silica, Malitson 1965).
+fn film_side_reflectance(l_nm: f64, t: f64) -> f64 {
+    let x2 = (l_nm * 1e-3).powi(2);
+    let n2 = 1.0
+        + 0.696_166_3 * x2 / (x2 - 0.068_404_3f64.powi(2))
+        + 0.407_942_6 * x2 / (x2 - 0.116_241_4f64.powi(2))
+        + 0.897_479_4 * x2 / (x2 - 9.896_161f64.powi(2));
+    let n = n2.sqrt();
+    let rb = ((n - 1.0) / (n + 1.0)).powi(2);
+    (1.0 - rb - t) / (1.0 - rb - t * rb)
+}
+
+/// Writes a one-angle float-reflectance capture of `width x height` pixels, each the same
+/// spectrum plus its own white noise of `noise` (a seeded generator), with `extra` lines in
+/// capture.toml.
+fn write_capture(dir: &Path, spectrum: &[(f64, f64)], noise: f64, extra: &str) {
+    let (w, h) = (16usize, 12usize);
+    std::fs::create_dir_all(dir).expect("dir");
+    let mut rng = firmware_sim::rng::Rng::from_words(&[11]);
+    let mut bytes = Vec::with_capacity(spectrum.len() * w * h * 4);
+    for &(_, r) in spectrum {
+        for _ in 0..w * h {
+            let v = (r + noise * rng.normal()) as f32;
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    std::fs::write(dir.join("a0.img"), bytes).expect("cube");
+    let list = |f: &dyn Fn(f64) -> String| {
+        spectrum
+            .iter()
+            .map(|&(l, _)| f(l))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let header = format!(
+        "ENVI\nsamples = {w}\nlines = {h}\nbands = {}\nheader offset = 0\nfile type = ENVI Standard\ndata type = 4\ninterleave = bsq\nbyte order = 0\nwavelength units = Nanometers\nwavelength = {{{}}}\nfwhm = {{{}}}\n",
+        spectrum.len(),
+        list(&|l| format!("{l:.1}")),
+        list(&|_| "2.0".into()),
+    );
+    std::fs::write(dir.join("a0.hdr"), header).expect("header");
+    let toml = format!(
+        "[sample]\nsubstrate = \"sio2\"\npolarization = \"unpolarized\"\n{extra}\n[[angle]]\nincidence_deg = 0.0\ncube = \"a0.hdr\"\n"
+    );
+    std::fs::write(dir.join("capture.toml"), toml).expect("capture.toml");
+}
+
+fn summary(dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json");
+    serde_json::from_str(&text).expect("json")
+}
+
+/// A measured HfO2 film on fused silica at the data's own noise (its band-to-band 2.8e-4, each
+/// pixel the measured spectrum with noise of that size of its own): every pixel valid, the
+/// index and thickness within the spread of published fits of the same data (185.6-193.9 nm,
+/// n(550) 2.00-2.01), the single-layer model's misfit reported as the model error. Judged
+/// against the noise alone (`--model-error 0`), the same capture gives no index.
+#[test]
+fn a_measured_hfo2_film_on_fused_silica() {
+    let dir = common::tempdir();
+    let (cap, est, strict) = (
+        dir.path().join("cap"),
+        dir.path().join("est"),
+        dir.path().join("strict"),
+    );
+    let spectrum: Vec<(f64, f64)> = hfo2_transmittance(2)
+        .into_iter()
+        .map(|(l, t)| (l, film_side_reflectance(l, t)))
+        .collect();
+    write_capture(&cap, &spectrum, 2.8e-4, "");
+    run_ok(&["estimate", s(&cap), "--out", s(&est)]);
+    let sum = summary(&est);
+    let n = sum["refractive_index"].as_f64().expect("an index");
+    let d = sum["thickness_nm"]["median"].as_f64().expect("a thickness");
+    assert!((1.995..=2.015).contains(&n), "n(550) {n}");
+    assert!((185.0..=195.0).contains(&d), "thickness {d} nm");
+    assert_eq!(sum["valid_fraction"].as_f64(), Some(1.0), "{sum}");
+    let choice = &sum["index_model_choice"];
+    let model = choice["model_error"].as_f64().expect("model_error");
+    assert!((1e-4..1e-3).contains(&model), "model error {model}");
+    assert!(choice["residual"]["shape"].as_str().is_some(), "{choice}");
+
+    let out = filmscope()
+        .args([
+            "estimate",
+            s(&cap),
+            "--out",
+            s(&strict),
+            "--model-error",
+            "0",
+        ])
+        .output()
+        .expect("run");
+    assert!(out.status.success(), "{out:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("no index"), "{stderr}");
+    assert_eq!(summary(&strict)["valid_fraction"].as_f64(), Some(0.0));
+}
+
+/// A one-angle scene at normal incidence: `film` (a library material) `base_nm` thick on
+/// glass, unpolarised, 0.1 % noise.
+fn normal_incidence(film: &str, base_nm: f64) -> Scene {
+    let text = format!(
+        r#"
+name = "one-angle-{film}"
+seed = 5
+polarization = "unpolarized"
+[film.dispersion]
+model = "material"
+name = "{film}"
+[film.thickness]
+base_nm = {base_nm}
+gradient_nm = [-30.0, 16.0]
+[substrate]
+index = 1.52
+[rig]
+angles_deg = [0.0]
+bands_nm = [400.0, 750.0, 2.0]
+fwhm_nm = 3.0
+[sensor]
+width = 48
+height = 32
+reflectance_noise_percent = 0.1
+"#
+    );
+    Scene::from_toml(&text, "one-angle").expect("scene")
+}
+
+/// One angle, the index free: a TiO2 film on glass (well above the substrate's index) gets
+/// its index from the fringes' contrast and their spacing, and every pixel its thickness.
+#[test]
+fn one_angle_index_free_tio2_on_glass() {
+    let scene = normal_incidence("tio2", 350.0);
+    let truth = Truth::of_scene(&scene);
+    let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
+    let run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
+    let r = evaluate("tio2", &truth, &run);
+    assert!(r.index_error.abs() <= 0.01, "index error {}", r.index_error);
+    assert!(r.thickness_mae_nm <= 1.0, "MAE {}", r.thickness_mae_nm);
+    assert!(r.valid_fraction >= 0.99, "valid {}", r.valid_fraction);
+}
+
+/// One angle, the index given: a normal-incidence reflectometer's thickness map.
+#[test]
+fn one_angle_index_given_thickness_map() {
+    let scene = normal_incidence("ta2o5", 1200.0);
+    let truth = Truth::of_scene(&scene);
+    let film = filmscope::material::from_arg("ta2o5").expect("material");
+    let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
+    let run = filmscope::estimate::known_index::run_with_index(
+        &mut source,
+        &RunConfig::default(),
+        &film,
+        "ta2o5",
+        &|_| {},
+    )
+    .expect("run");
+    let r = evaluate("ta2o5", &truth, &run);
+    assert!(r.thickness_mae_nm <= 1.0, "MAE {}", r.thickness_mae_nm);
+    assert!(r.valid_fraction >= 0.99, "valid {}", r.valid_fraction);
+}
