@@ -112,7 +112,11 @@ impl SoftwareCamera {
         let throughput = scene
             .bands_nm
             .iter()
-            .map(|&l| crate::scene::throughput(if hi > lo { (l - lo) / (hi - lo) } else { 0.5 }))
+            .map(|&l| {
+                scene
+                    .sensor
+                    .throughput(if hi > lo { (l - lo) / (hi - lo) } else { 0.5 })
+            })
             .collect();
         let n_px = scene.sensor.width * scene.sensor.height;
         let mut rng = Rng::from_words(&[scene.seed, STREAM_DEFECTS]);

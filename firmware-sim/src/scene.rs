@@ -142,6 +142,7 @@ struct SensorFile {
     dead_pixels: Option<usize>,
     hot_pixels: Option<usize>,
     reflectance_noise_percent: Option<f64>,
+    lamp_blue_ratio: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -182,6 +183,10 @@ pub struct Sensor {
     /// references are exact. 0 leaves only the ADC's rounding of the sample counts
     /// (1 / sqrt(12) count).
     pub reflectance_noise_percent: Option<f64>,
+    /// The lamp x filter throughput at the band's blue end over its red end, in `(0, 1]`
+    /// (default 0.6: a halogen lamp through an LCTF; 0.2 is a lamp five times dimmer in the
+    /// blue, whose shot noise there is over twice the red's).
+    pub lamp_blue_ratio: f64,
 }
 
 impl Sensor {
@@ -194,15 +199,16 @@ impl Sensor {
     /// the image centre), dark included: below [`Sensor::saturation_counts`] in a valid
     /// scene, so that the white reference is never clipped.
     pub fn peak_white_counts(&self) -> f64 {
-        self.dark_counts + self.white_counts * throughput(1.0)
+        self.dark_counts + self.white_counts * self.throughput(1.0)
     }
-}
 
-/// Lamp x filter throughput at `position` across the band (0 its blue end, 1 its red end),
-/// relative to mid-band: a halogen lamp through an LCTF, weaker in the blue (0.75 at the blue
-/// end, 1.25 at the red).
-pub fn throughput(position: f64) -> f64 {
-    (0.6 + 0.4 * position) / 0.8
+    /// Lamp x filter throughput at `position` across the band (0 its blue end, 1 its red
+    /// end), relative to mid-band, rising linearly from the blue to the red by
+    /// [`Sensor::lamp_blue_ratio`] (the default's 0.75 at the blue end, 1.25 at the red).
+    pub fn throughput(&self, position: f64) -> f64 {
+        let r = self.lamp_blue_ratio;
+        (r + (1.0 - r) * position) / (0.5 * (1.0 + r))
+    }
 }
 
 /// A validated scene.
@@ -373,7 +379,14 @@ impl Scene {
             dead_pixels: s.dead_pixels.unwrap_or(0),
             hot_pixels: s.hot_pixels.unwrap_or(0),
             reflectance_noise_percent: s.reflectance_noise_percent,
+            lamp_blue_ratio: s.lamp_blue_ratio.unwrap_or(0.6),
         };
+        if !(sensor.lamp_blue_ratio > 0.0 && sensor.lamp_blue_ratio <= 1.0) {
+            return Err(format!(
+                "[sensor] lamp_blue_ratio {} is outside (0, 1]",
+                sensor.lamp_blue_ratio
+            ));
+        }
         if sensor.width == 0 || sensor.height == 0 || sensor.width * sensor.height > 1 << 24 {
             return Err(format!(
                 "[sensor] {}x{} pixels: need 1..16M",
@@ -401,7 +414,7 @@ impl Scene {
                 peak,
                 sensor.dark_counts,
                 sensor.white_counts,
-                throughput(1.0),
+                sensor.throughput(1.0),
                 sensor.saturation_counts()
             ));
         }
