@@ -210,10 +210,10 @@ const TWO: &str = "[[angle]]\nincidence_deg = 10\ncube = \"a10.hdr\"\n[[angle]]\
 #[test]
 fn value_errors() -> TestResult {
     expect_error(
-        &with_angles("[[angle]]\nincidence_deg = 10\ncube = \"a10.hdr\"\n"),
+        &with_angles(&format!("[fit]\nmodel_error = 0.2\n{TWO}")),
         none,
         "capture.toml",
-        "needs at least two [[angle]] entries, found 1",
+        "fit.model_error = 0.2: outside 0 to 0.05",
     )?;
     expect_error(
         "[sample]\nsubstrate_index = 1.5\n",

@@ -169,9 +169,14 @@ fn every_drawn_scene_simulates_and_estimates() {
     let dir = common::tempdir();
     let (seed, count) = (3, 4);
     let mut seen = 0;
-    let result = random_eval(count, seed, &RunConfig::default(), dir.path(), &mut |_| {
-        seen += 1
-    });
+    let result = random_eval(
+        count,
+        seed,
+        &RunConfig::default(),
+        dir.path(),
+        false,
+        &mut |_| seen += 1,
+    );
     assert_eq!(seen, count);
     assert_eq!(result.rows.len(), count);
     for row in &result.rows {
@@ -223,7 +228,8 @@ fn every_drawn_scene_simulates_and_estimates() {
 fn thick_high_index_films_with_a_step_have_every_pixel_solved() {
     let dir = common::tempdir();
     for i in [3, 49] {
-        let row = filmscope::cli::eval::random_scene(2, i, &RunConfig::default(), dir.path());
+        let row =
+            filmscope::cli::eval::random_scene(2, i, &RunConfig::default(), dir.path(), false);
         assert!(row.passed, "{}", row.table_row());
         let s = row.score.expect("a score");
         assert!(s.valid_fraction >= 0.99, "{}", row.table_row());

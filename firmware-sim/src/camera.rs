@@ -32,6 +32,8 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use filmscope_core::optics::BandModel;
 
+use crate::imperfect::ImperfectTable;
+
 use crate::rng::{round_non_negative, Rng};
 use crate::scene::Scene;
 use crate::table::ReflectanceTable;
@@ -95,6 +97,9 @@ pub struct SoftwareCamera {
     /// `tables[angle * bands + band]`: the band reflectance over the scene's thickness
     /// range, for noisy rows; `None` where the model is evaluated per pixel instead.
     tables: Arc<Vec<Option<ReflectanceTable>>>,
+    /// With the scene's imperfections, `imperfect[angle * bands + band]`: the reflectance a
+    /// real rig measures, in place of the ideal models and tables.
+    imperfect: Arc<Vec<ImperfectTable>>,
 }
 
 impl SoftwareCamera {
@@ -137,7 +142,12 @@ impl SoftwareCamera {
             }
         }
         defects.sort_unstable_by_key(|&(i, _)| i);
-        let tables = Arc::new(tables(&scene, &models));
+        let imperfect = Arc::new(imperfect_tables(&scene));
+        let tables = if imperfect.is_empty() {
+            Arc::new(tables(&scene, &models))
+        } else {
+            Arc::new(vec![None; models.len()])
+        };
         Self {
             scene,
             models,
@@ -145,6 +155,7 @@ impl SoftwareCamera {
             defects,
             columns: ColumnModels::default(),
             tables,
+            imperfect,
         }
     }
 
@@ -192,6 +203,12 @@ impl SoftwareCamera {
             let models = self.column_models(angle, band);
             for ((o, &d), model) in out.iter_mut().zip(thickness).zip(models.iter()) {
                 *o = model.reflectance(f64::from(d)) as f32;
+            }
+            return;
+        }
+        if let Some(table) = self.imperfect.get(angle * self.scene.bands_nm.len() + band) {
+            for (o, &d) in out.iter_mut().zip(thickness) {
+                *o = table.reflectance(f64::from(d)) as f32;
             }
             return;
         }
@@ -433,6 +450,58 @@ fn round_clamp(x: f64, max: f64) -> f64 {
 /// The tables of every `(angle, band)` (angle-major), built on every core: none under a lens
 /// field of view, and none where a table would need more nodes than a quarter of a frame's
 /// pixels (evaluating the model per pixel is then as cheap).
+/// Every `(angle, band)`'s [`ImperfectTable`] over the scene's thickness range when the scene
+/// has imperfections (none otherwise), built on as many threads as the machine has.
+fn imperfect_tables(scene: &Scene) -> Vec<ImperfectTable> {
+    let imp = scene.imperfections;
+    if !imp.any() || scene.thickness_nm.is_empty() {
+        return Vec::new();
+    }
+    let lo = scene
+        .thickness_nm
+        .iter()
+        .copied()
+        .fold(f32::INFINITY, f32::min);
+    let hi = scene.thickness_nm.iter().copied().fold(0f32, f32::max);
+    let range = [f64::from(lo), f64::from(hi)];
+    let nb = scene.bands_nm.len();
+    let jobs: Vec<(usize, usize)> = (0..scene.angles_deg.len())
+        .flat_map(|a| (0..nb).map(move |b| (a, b)))
+        .collect();
+    let one = |&(a, b): &(usize, usize)| {
+        let band = scene.passband(b);
+        let lo_l = band.center_nm - 2.0 * band.fwhm_nm;
+        let max_index = (0..=8)
+            .map(|i| {
+                scene
+                    .stack
+                    .film
+                    .index_at(lo_l + f64::from(i) * band.fwhm_nm * 0.5)
+            })
+            .fold(0.0, f64::max);
+        ImperfectTable::new(
+            &scene.stack,
+            &imp,
+            scene.angles_deg[a],
+            &band,
+            range,
+            max_index,
+        )
+    };
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let chunk = jobs.len().div_ceil(threads).max(1);
+    std::thread::scope(|s| {
+        let parts: Vec<_> = jobs
+            .chunks(chunk)
+            .map(|part| s.spawn(move || part.iter().map(one).collect::<Vec<_>>()))
+            .collect();
+        parts
+            .into_iter()
+            .flat_map(|p| p.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+            .collect()
+    })
+}
+
 fn tables(scene: &Scene, models: &[BandModel]) -> Vec<Option<ReflectanceTable>> {
     if scene.field_of_view.is_some() || models.is_empty() {
         return vec![None; models.len()];

@@ -10,6 +10,8 @@
 //!   `filmscope eval --random`.
 //! - [`rng`]: the deterministic generator behind thickness maps and noise.
 //! - [`table`]: band reflectance tabulated over thickness, for rendering at camera rates.
+//! - [`imperfect`]: what real samples and rigs add to the ideal film (absorption, a bare
+//!   back face, stage and wavelength errors, flare, polariser leak, side lobes).
 //! - [`clock`]: the virtual clock (motion and settle times cost no wall time in tests).
 //! - [`world`]: where the simulated stage points and what the filter passes.
 //! - [`serial`]: line assembly, transcripts, serial faults and the in-memory port.
@@ -19,6 +21,7 @@
 pub mod camera;
 pub mod camlink;
 pub mod clock;
+pub mod imperfect;
 pub mod kurios;
 pub mod line;
 pub mod random;

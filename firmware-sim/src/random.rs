@@ -121,6 +121,33 @@ fn round_to(x: f64, per_unit: f64) -> f64 {
 
 /// Scene `i` of the random set `seed`.
 pub fn draw(seed: u64, i: usize) -> RandomScene {
+    draw_as(seed, i, false)
+}
+
+/// Reflectance noise of the realistic scenes, percent of a perfect white (averaged frames of
+/// a good camera).
+pub const REALISTIC_NOISE_PERCENT: [f64; 2] = [0.01, 0.06];
+/// Each imperfection is drawn into a realistic scene with this probability.
+pub const IMPERFECTION_CHANCE: f64 = 0.7;
+/// A realistic scene has a bare back face its capture does not declare with this
+/// probability.
+pub const UNDECLARED_BACK_FACE_CHANCE: f64 = 0.15;
+
+/// Scene `i` of the random set `seed` as a real sample on a real rig measures it
+/// (`eval --random --realistic`): the same film, rig and sensor size as [`draw`]'s, written as
+/// float reflectance with a good camera's low noise ([`REALISTIC_NOISE_PERCENT`]), and each
+/// of these drawn with [`IMPERFECTION_CHANCE`] ([`crate::imperfect::Imperfections`]): film
+/// absorption (k 0.001-0.008 at 450 nm with an Urbach tail of 60-120 nm), a stage offset
+/// (+-0.4 deg), a wavelength shift (+-0.5 nm), flare (up to 0.3 % of the white), polariser
+/// leak (0.5-2 % of the other polarisation, s or p light), side lobes (1-4 % of the light from
+/// a band ten times wider); a bare back face the capture does not declare with
+/// [`UNDECLARED_BACK_FACE_CHANCE`].
+pub fn draw_realistic(seed: u64, i: usize) -> RandomScene {
+    draw_as(seed, i, true)
+}
+
+/// [`draw`], or [`draw_realistic`].
+fn draw_as(seed: u64, i: usize, realistic: bool) -> RandomScene {
     let mut rng = Rng::from_words(&[seed, i as u64, 0x7A4D_5CE7]);
     let names = materials::names();
     let material = names[integer(&mut rng, [0, names.len() - 1])];
@@ -186,7 +213,18 @@ pub fn draw(seed: u64, i: usize) -> RandomScene {
     ][integer(&mut rng, [0, 2])];
     let big_endian = rng.uniform() < 0.5;
     let scene_seed = rng.next_u64() >> 16;
-    let name = format!("random-{seed}-{i}");
+    let name = if realistic {
+        format!("realistic-{seed}-{i}")
+    } else {
+        format!("random-{seed}-{i}")
+    };
+    let (float_reflectance, noise, imperfections) = if realistic {
+        let mut more = Rng::from_words(&[seed, i as u64, 0x1DEA_1E57]);
+        let noise = round_to(uniform(&mut more, REALISTIC_NOISE_PERCENT), 1000.0);
+        (true, noise, imperfections_toml(&mut more, polarization))
+    } else {
+        (float_reflectance, noise, String::new())
+    };
     let noise_line = if float_reflectance {
         format!("reflectance_noise_percent = {noise:?}\n")
     } else {
@@ -220,7 +258,7 @@ pub fn draw(seed: u64, i: usize) -> RandomScene {
          [sensor]\n\
          width = {width}\n\
          height = {height}\n\
-         {noise_line}",
+         {noise_line}         {imperfections}",
         gradient[0],
         gradient[1],
         angle_list.join(", "),
@@ -255,6 +293,60 @@ pub fn draw(seed: u64, i: usize) -> RandomScene {
         interleave,
         big_endian,
     }
+}
+
+/// A realistic scene's `[imperfections]` table, each effect drawn with
+/// [`IMPERFECTION_CHANCE`] at its size ([`draw_realistic`]); empty when none is drawn.
+fn imperfections_toml(rng: &mut Rng, polarization: &str) -> String {
+    let mut lines = Vec::new();
+    let mut maybe = |rng: &mut Rng, line: &dyn Fn(&mut Rng) -> String| {
+        if rng.uniform() < IMPERFECTION_CHANCE {
+            lines.push(line(rng));
+        }
+    };
+    maybe(rng, &|r| {
+        format!(
+            "film_k = {:?}\nfilm_k_tail_nm = {:?}",
+            round_to(uniform(r, [0.001, 0.008]), 10000.0),
+            uniform(r, [60.0, 120.0]).round()
+        )
+    });
+    maybe(rng, &|r| {
+        format!(
+            "stage_offset_deg = {:?}",
+            round_to(uniform(r, [-0.4, 0.4]), 100.0)
+        )
+    });
+    maybe(rng, &|r| {
+        format!(
+            "wavelength_shift_nm = {:?}",
+            round_to(uniform(r, [-0.5, 0.5]), 100.0)
+        )
+    });
+    maybe(rng, &|r| {
+        format!("flare = {:?}", round_to(uniform(r, [0.0, 0.003]), 10000.0))
+    });
+    if polarization != "unpolarized" {
+        maybe(rng, &|r| {
+            format!(
+                "polariser_leak = {:?}",
+                round_to(uniform(r, [0.005, 0.02]), 1000.0)
+            )
+        });
+    }
+    maybe(rng, &|r| {
+        format!(
+            "side_lobes = {:?}",
+            round_to(uniform(r, [0.01, 0.04]), 1000.0)
+        )
+    });
+    if rng.uniform() < UNDECLARED_BACK_FACE_CHANCE {
+        lines.push("back_face = \"bare\"".to_owned());
+    }
+    if lines.is_empty() {
+        return String::new();
+    }
+    format!("\n[imperfections]\n{}\n", lines.join("\n"))
 }
 
 #[cfg(test)]

@@ -35,6 +35,20 @@ struct SceneFile {
     rig: RigFile,
     sensor: Option<SensorFile>,
     search: Option<SearchFile>,
+    imperfections: Option<ImperfectionsFile>,
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct ImperfectionsFile {
+    film_k: Option<f64>,
+    film_k_tail_nm: Option<f64>,
+    stage_offset_deg: Option<f64>,
+    wavelength_shift_nm: Option<f64>,
+    flare: Option<f64>,
+    polariser_leak: Option<f64>,
+    side_lobes: Option<f64>,
+    back_face: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -240,6 +254,9 @@ pub struct Scene {
     pub index_range: Option<[f64; 2]>,
     /// Search bounds written into the capture, if the scene gives them.
     pub thickness_range_nm: Option<[f64; 2]>,
+    /// What the real sample and rig add to the ideal film (`[imperfections]`; none by
+    /// default). The capture declares the ideal: the estimator is not told of them.
+    pub imperfections: crate::imperfect::Imperfections,
 }
 
 impl Scene {
@@ -445,6 +462,37 @@ impl Scene {
             Some(s) => (s.index_range, s.thickness_range_nm),
             None => (None, None),
         };
+        let imperfections = match f.imperfections {
+            None => crate::imperfect::Imperfections::default(),
+            Some(m) => {
+                let bare = match m.back_face.as_deref() {
+                    None | Some("none") => false,
+                    Some("bare") => true,
+                    Some(other) => {
+                        return Err(format!(
+                            "[imperfections] back_face = {other:?}: \"none\" or \"bare\""
+                        ))
+                    }
+                };
+                let imp = crate::imperfect::Imperfections {
+                    film_k: m.film_k.unwrap_or(0.0),
+                    film_k_tail_nm: m.film_k_tail_nm.unwrap_or(0.0),
+                    stage_offset_deg: m.stage_offset_deg.unwrap_or(0.0),
+                    wavelength_shift_nm: m.wavelength_shift_nm.unwrap_or(0.0),
+                    flare: m.flare.unwrap_or(0.0),
+                    polariser_leak: m.polariser_leak.unwrap_or(0.0),
+                    side_lobes: m.side_lobes.unwrap_or(0.0),
+                    bare_back_face: bare,
+                };
+                imp.check()?;
+                if imp.any() && field_of_view.is_some() {
+                    return Err(
+                        "[imperfections] cannot go with [rig] horizontal_fov_deg".to_string()
+                    );
+                }
+                imp
+            }
+        };
         Ok(Self {
             name: f.name.unwrap_or(stem),
             description: f.description.unwrap_or_default(),
@@ -458,6 +506,7 @@ impl Scene {
             thickness_nm,
             index_range,
             thickness_range_nm,
+            imperfections,
         })
     }
 

@@ -354,6 +354,7 @@ fn ablated(list: &[super::Ablation]) -> (SolverOptions, FieldConfig) {
 pub fn eval(
     inputs: &[PathBuf],
     random: Option<(usize, u64, Option<PathBuf>)>,
+    realistic: bool,
     seed: Option<u64>,
     method: &super::MethodArgs,
     json: bool,
@@ -381,7 +382,7 @@ pub fn eval(
     };
     let config = method.run_config(pipeline, wide)?;
     if let Some((count, seed, save)) = random {
-        return eval_random(count, seed, &config, json, save.as_deref());
+        return eval_random(count, seed, &config, json, save.as_deref(), realistic);
     }
     if !json {
         println!(
@@ -458,12 +459,17 @@ fn eval_random(
     config: &RunConfig,
     json: bool,
     save_scenes: Option<&Path>,
+    realistic: bool,
 ) -> Result<()> {
     if let Some(dir) = save_scenes {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create", dir.display()))?;
         for i in 0..count {
-            let drawn = firmware_sim::random::draw(seed, i);
+            let drawn = if realistic {
+                firmware_sim::random::draw_realistic(seed, i)
+            } else {
+                firmware_sim::random::draw(seed, i)
+            };
             let path = dir.join(format!("{}.toml", drawn.scene.name));
             write_atomic(&path, drawn.toml.as_bytes())
                 .with_context(|| format!("{}: cannot write", path.display()))?;
@@ -476,11 +482,12 @@ fn eval_random(
     if !json {
         println!("{}", crate::cli::eval::RandomRow::table_header());
     }
-    let result = crate::cli::eval::random_eval(count, seed, config, work.path(), &mut |row| {
-        if !json {
-            println!("{}", row.table_row());
-        }
-    });
+    let result =
+        crate::cli::eval::random_eval(count, seed, config, work.path(), realistic, &mut |row| {
+            if !json {
+                println!("{}", row.table_row());
+            }
+        });
     drop(work);
     if json {
         println!("{}", serde_json::to_string(&result)?);
@@ -490,6 +497,7 @@ fn eval_random(
             result.closing_line(),
             result.seconds
         );
+        println!("{}", result.coverage_line());
     }
     Ok(())
 }

@@ -217,6 +217,12 @@ enum Command {
         /// (`random-SEED-I.toml`), so a row can be run again with `eval FILE`.
         #[arg(long, value_name = "DIR", requires = "random")]
         save_scenes: Option<PathBuf>,
+        /// With --random: scenes as real samples on a real rig measure them (a good
+        /// camera's low noise, film absorption, stage and wavelength errors, flare,
+        /// polariser leak, side lobes, some with an undeclared bare back face), judged by
+        /// the realistic criteria; each row lists what was drawn.
+        #[arg(long, requires = "random")]
+        realistic: bool,
         #[command(flatten)]
         method: MethodArgs,
         /// One JSON object per input on stdout instead of a table (with --random: one
@@ -451,12 +457,14 @@ pub fn main() -> std::process::ExitCode {
             random,
             seed,
             save_scenes,
+            realistic,
             method,
             json,
             ablate,
         } => commands::eval(
             &inputs,
             random.map(|n| (n, seed.unwrap_or(1), save_scenes)),
+            realistic,
             seed,
             &method,
             json,

@@ -84,6 +84,18 @@ pub const DEFAULT_MODEL_ERROR: f64 = 1e-3;
 /// A site whose reduced chi-square exceeds this many times the sites' median is set aside
 /// when the fit misses the gate (a defect, a scratch, a particle under it).
 pub const OUTLIER_SITE_RATIO: f64 = 5.0;
+/// Fewest angles, and their smallest span (degrees), for each angle's reflectance scale and
+/// offset to be told apart from the index: with fewer, the fringes' positions across angles
+/// cannot pin the index once the reflectance level is free.
+pub const TERM_ANGLES: usize = 3;
+/// See [`TERM_ANGLES`].
+pub const TERM_SPAN_DEG: f64 = 20.0;
+/// Rounds of the terms and the index fitted by turns.
+const TERM_ROUNDS: usize = 4;
+/// The range a reflectance scale may take (a white standard's error, side lobes).
+pub const TERM_SCALE: [f64; 2] = [0.8, 1.25];
+/// The range a reflectance offset may take (flare, side lobes).
+pub const TERM_OFFSET: [f64; 2] = [-0.02, 0.05];
 /// Most angles the noise model tells apart (more share the last one's factor).
 pub const NOISE_ANGLES: usize = 256;
 /// Index step of the numerical `dR/dn`.
@@ -364,6 +376,10 @@ pub struct SampleFit {
     pub set_aside: [bool; MAX_SITES],
     /// The model error tolerated ([`Geometry::model_error`]).
     pub tolerated_model_error: f64,
+    /// Each angle's reflectance `(scale, offset)` when the evidence asked for them
+    /// (`measured = scale x film + offset`: a white standard's error, flare, the filter's side
+    /// lobes), in streaming order; empty when not fitted.
+    pub reflectance_terms: heapless::Vec<(f64, f64), RESIDUAL_ANGLES>,
 }
 
 /// Most angles a [`Residual`] reports one by one.
@@ -442,6 +458,7 @@ impl SampleFit {
         model_error: 0.0,
         set_aside: [false; MAX_SITES],
         tolerated_model_error: f64::NAN,
+        reflectance_terms: heapless::Vec::new(),
     };
 
     /// The chosen index model, unless the fit failed.
@@ -685,6 +702,8 @@ fn on_weighed_sites(
         spectra,
         usable: &usable[..sites],
         noise,
+        terms: Terms::NONE,
+        retry: false,
         par,
     };
     body(&problem, fit, scratch)
@@ -808,6 +827,8 @@ pub fn seat_pixels(
             model2: model_error * model_error,
             ..Noise::uniform(noise_sigma)
         },
+        terms: Terms::NONE,
+        retry: false,
         par,
     };
     let Some((t, sums, margin)) = problem.seat(kind, &params, scratch) else {
@@ -1188,6 +1209,13 @@ struct Problem<'a> {
     usable: &'a [bool],
     /// Each sample's noise and the model's error.
     noise: Noise,
+    /// Each angle's reflectance scale and offset (`measured = scale x true + offset`: a
+    /// white standard's error, flare, the filter's side lobes), taken out of the measured
+    /// spectra; `(1, 0)` unless the evidence asked for them ([`Problem::with_model_error`]).
+    terms: Terms,
+    /// Whether this is the fit again after a miss ([`Problem::with_model_error`]), which is
+    /// not tried a third time.
+    retry: bool,
     /// Where the two halves of the sites' sums run.
     par: &'a dyn Parallel,
 }
@@ -1202,7 +1230,41 @@ struct SiteSums {
     gd: f64,
 }
 
+/// Each angle's reflectance scale and offset ([`Problem::terms`]).
+#[derive(Clone, Copy)]
+struct Terms {
+    scale: [f64; NOISE_ANGLES],
+    offset: [f64; NOISE_ANGLES],
+}
+
+impl Terms {
+    /// No correction.
+    const NONE: Self = Self {
+        scale: [1.0; NOISE_ANGLES],
+        offset: [0.0; NOISE_ANGLES],
+    };
+
+    /// Whether any angle is corrected.
+    fn fitted(&self) -> bool {
+        self.scale.iter().any(|&s| s != 1.0) || self.offset.iter().any(|&o| o != 0.0)
+    }
+}
+
+/// Most angles whose reflectance terms are fitted (the marginal covariance's size).
+pub const TERM_MAX_ANGLES: usize = 12;
+/// Index parameters and two terms an angle.
+const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES;
+
 impl Problem<'_> {
+    /// Site `k`'s measured value at angle `a`, band `b`, its angle's scale and offset taken
+    /// out (NaN: none).
+    #[inline]
+    fn measured(&self, bands: usize, k: usize, a: usize, b: usize) -> f64 {
+        let y = f64::from(self.spectra.centre_at(bands, k, a, b));
+        let a = a.min(NOISE_ANGLES - 1);
+        (y - self.terms.offset[a]) / self.terms.scale[a]
+    }
+
     /// The indices at vacuum wavelength `l_nm`, the film's being `film`.
     fn indices(&self, film: f64, l_nm: f64) -> Indices {
         Indices {
@@ -1331,11 +1393,11 @@ impl Problem<'_> {
                         if !self.usable[k] {
                             continue;
                         }
-                        let y = self.spectra.centre_at(nb, k, a, b);
+                        let y = self.measured(nb, k, a, b);
                         if !y.is_finite() {
                             continue;
                         }
-                        let res = f64::from(y) - m[j];
+                        let res = y - m[j];
                         let w = self.noise.weight(k, a, b);
                         s.sse += w * res * res;
                         s.n += 1;
@@ -1684,6 +1746,12 @@ impl Problem<'_> {
             fit.residual = r;
         }
         fit.model_error = libm::sqrt(self.noise.model2);
+        if self.terms.fitted() {
+            // The terms trade with the index: its sigma with them free, not held.
+            if let Some(s) = self.marginal_n550_sigma(c.kind, &c.params, tt) {
+                c.n550_sigma = s * libm::sqrt(c.chi2_nu.max(1.0));
+            }
+        }
         if fit.model_error > 0.0 {
             c.n550_sigma *= fit.residual.correlation_factor();
         }
@@ -1720,7 +1788,7 @@ impl Problem<'_> {
                 let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
                 let l = self.geo.bands_nm[b];
                 for k in (0..sites).filter(|&k| self.usable[k]) {
-                    let y = self.spectra.centre_at(nb, k, a, b);
+                    let y = self.measured(nb, k, a, b);
                     if !y.is_finite() {
                         prev[k] = f64::NAN;
                         continue;
@@ -1733,7 +1801,7 @@ impl Problem<'_> {
                                     .reflectance_at_cos(libm::cos(nd.phase_per_nm * t[k]))
                         })
                         .sum();
-                    let r = f64::from(y) - m;
+                    let r = y - m;
                     let v = self.noise.noise2(k, a, b);
                     (an, ar, ar2, as2) = (an + 1, ar + r, ar2 + r * r, as2 + v);
                     if prev[k].is_finite() {
@@ -1773,11 +1841,14 @@ impl Problem<'_> {
     }
 
     /// `fit` again when it misses the gate against the noise alone: the sites that fit far
-    /// worse than the rest ([`OUTLIER_SITE_RATIO`], at most a quarter) set aside, the misfit
-    /// beyond the noise taken as the model's error and added to every sample's variance, and
-    /// the index fitted again under it (`held`: seated again under the given index). `fit`
-    /// as it is when it passed, when it was already weighed with a model error, when none
-    /// is tolerated, or when its misfit is more than twice the tolerated one.
+    /// worse than the rest ([`OUTLIER_SITE_RATIO`], at most a quarter) set aside; with angle
+    /// leverage ([`TERM_ANGLES`] angles over [`TERM_SPAN_DEG`]), each angle's reflectance
+    /// scale and offset fitted with the index and kept when their chi-square gain beats
+    /// their BIC penalty; the misfit still beyond the noise taken as the model's error and
+    /// added to every sample's variance; and the index fitted and its model chosen again
+    /// under them (`held`: seated again under the given index). `fit` as it is when it
+    /// passed, on a second try, when no model error is tolerated, or when the misfit is more
+    /// than twice the tolerated one.
     fn with_model_error(
         &self,
         fit: SampleFit,
@@ -1785,8 +1856,8 @@ impl Problem<'_> {
         scratch: &mut [f32],
     ) -> SampleFit {
         let tol = self.geo.model_error;
-        let Some(best) = fit.best else { return fit };
-        if fit.failure != Some(Failure::NoFit) || self.noise.model2 > 0.0 || !(tol > 0.0) {
+        let Some(mut best) = fit.best else { return fit };
+        if fit.failure != Some(Failure::NoFit) || self.retry || !(tol > 0.0) {
             return fit;
         }
         let sites = self.usable.len();
@@ -1820,16 +1891,25 @@ impl Problem<'_> {
         for k in 0..sites {
             usable[k] = self.usable[k] && !aside[k];
         }
-        let kept = Problem {
+        let mut kept = Problem {
             usable: &usable[..sites],
             noise: self.noise.clone(),
+            retry: true,
             ..*self
         };
+        let fitted_terms = if held.is_none() {
+            kept.with_terms(&mut best, &mut tt)
+        } else {
+            None
+        };
+        if let Some(terms) = fitted_terms {
+            kept.terms = terms;
+        }
         let Some(left) = kept.residual(best.kind, &best.params, &tt) else {
             return fit;
         };
         let m = left.model_rms;
-        if !(m > 0.0 && m <= 2.0 * tol) {
+        if !(m <= 2.0 * tol) {
             return fit;
         }
         let weighed = Problem {
@@ -1854,10 +1934,195 @@ impl Problem<'_> {
                 weighed.choose(again, base, &seated, scratch)
             }
         };
+        if fitted_terms.is_some() {
+            let na = self.geo.angles_deg.len().min(RESIDUAL_ANGLES);
+            again.reflectance_terms = (0..na)
+                .map(|a| (weighed.terms.scale[a], weighed.terms.offset[a]))
+                .collect();
+        }
         again.set_aside = aside;
         again.starts = fit.starts;
         again.searched = fit.searched;
         again
+    }
+
+    /// Each angle's reflectance scale and offset fitted with the index `best` and the sites'
+    /// thicknesses `t` (both updated), by turns: the terms by weighted least squares of the
+    /// measured spectra on the model, then the index and thicknesses under them. The terms
+    /// when the capture has the angle leverage to tell them from the index and their
+    /// chi-square gain exceeds their BIC penalty (`ln n` a parameter), else `None` (`best`
+    /// and `t` as they were).
+    fn with_terms(&self, best: &mut Candidate, t: &mut [f64; MAX_SITES]) -> Option<Terms> {
+        let angles = self.geo.angles_deg;
+        let na = angles.len();
+        let span = angles.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+            - angles.iter().copied().fold(f64::INFINITY, f64::min);
+        if na < TERM_ANGLES || span < TERM_SPAN_DEG || na > TERM_MAX_ANGLES {
+            return None;
+        }
+        let mut sums = [SiteSums::default(); MAX_SITES];
+        let (_, _, before, n) = self.normal::<false>(best.kind, &best.params, t, &mut sums)?;
+        let mut trial = Problem {
+            noise: self.noise.clone(),
+            ..*self
+        };
+        let (mut cand, mut tt) = (*best, *t);
+        for _ in 0..TERM_ROUNDS {
+            trial.terms = self.terms_for(cand.kind, &cand.params, &tt)?;
+            cand = trial.refine(cand.kind, cand.params, &mut tt, MAX_STEPS)?;
+        }
+        let penalty = 2.0 * na as f64 * libm::log(n.max(2) as f64);
+        if cand.chi2 + penalty < before {
+            *best = cand;
+            *t = tt;
+            Some(trial.terms)
+        } else {
+            None
+        }
+    }
+
+    /// The standard error of the index at 550 nm of `(kind, p)` at the sites' thicknesses
+    /// `t` with each angle's reflectance scale and offset free (the information matrix over
+    /// the index parameters, the terms and the thicknesses, the thicknesses and the terms
+    /// eliminated), before any scaling by the fit's reduced chi-square.
+    fn marginal_n550_sigma(
+        &self,
+        kind: ModelKind,
+        p: &[f64; 3],
+        t: &[f64; MAX_SITES],
+    ) -> Option<f64> {
+        type M = nalgebra::SMatrix<f64, MARGINAL, MARGINAL>;
+        type V = nalgebra::SVector<f64, MARGINAL>;
+        let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        if na > TERM_MAX_ANGLES {
+            return None;
+        }
+        let sites = self.usable.len();
+        let d_max = (0..sites)
+            .filter(|&k| self.usable[k])
+            .map(|k| t[k])
+            .fold(0.0, f64::max);
+        let np = kind.params();
+        let mut h = M::zeros();
+        // Per site: the thickness's own information and its cross terms.
+        let mut jdd = [0.0f64; MAX_SITES];
+        let mut cross = [V::zeros(); 1];
+        let mut reduce = M::zeros();
+        for k in (0..sites).filter(|&k| self.usable[k]) {
+            cross[0] = V::zeros();
+            for a in 0..na {
+                for b in 0..nb {
+                    let y = self.spectra.centre_at(nb, k, a, b);
+                    if !y.is_finite() {
+                        continue;
+                    }
+                    let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
+                    let (mut m, mut jd, mut jp) = (0.0, 0.0, [0.0; 3]);
+                    for nd in &nodes[..count] {
+                        let ph = nd.phase_per_nm * t[k];
+                        let (sn, cs) = (libm::sin(ph), libm::cos(ph));
+                        let (r, dr_dc) = nd.film.reflectance_and_slope_at_cos(cs);
+                        m += nd.weight * r;
+                        jd += nd.weight * dr_dc * -sn * nd.phase_per_nm;
+                        let r_up = nd
+                            .film_up
+                            .reflectance_at_cos(libm::cos(nd.phase_up_per_nm * t[k]));
+                        let dr_dn = (r_up - r) / INDEX_STEP;
+                        for (q, j) in jp.iter_mut().enumerate() {
+                            *j += nd.weight * dr_dn * nd.dn_dp[q];
+                        }
+                    }
+                    let g = self.terms.scale[a];
+                    let w = self.noise.weight(k, a, b);
+                    let mut u = V::zeros();
+                    for q in 0..np {
+                        u[q] = g * jp[q];
+                    }
+                    u[3 + 2 * a] = m;
+                    u[3 + 2 * a + 1] = 1.0;
+                    h += u * u.transpose() * w;
+                    jdd[k] += w * g * g * jd * jd;
+                    cross[0] += u * (w * g * jd);
+                }
+            }
+            if jdd[k] > 0.0 {
+                reduce += cross[0] * cross[0].transpose() / jdd[k];
+            }
+        }
+        h -= reduce;
+        // Only the parameters in play: the model's and each angle's two terms.
+        let mut keep: heapless::Vec<usize, MARGINAL> = (0..np).collect();
+        for a in 0..na {
+            let _ = keep.push(3 + 2 * a);
+            let _ = keep.push(3 + 2 * a + 1);
+        }
+        let n = keep.len();
+        let mut sub = M::identity();
+        for (i, &ki) in keep.iter().enumerate() {
+            for (j, &kj) in keep.iter().enumerate() {
+                sub[(i, j)] = h[(ki, kj)];
+            }
+        }
+        let inv = sub.try_inverse()?;
+        let (_, g550) = kind.eval(p, L0_UM);
+        let mut var = 0.0;
+        for i in 0..np {
+            for j in 0..np {
+                var += g550[i] * inv[(i, j)] * g550[j];
+            }
+        }
+        let _ = n;
+        (var > 0.0).then(|| libm::sqrt(var))
+    }
+
+    /// Each angle's reflectance scale and offset that best map the model `(kind, p)` at the
+    /// sites' thicknesses `t` onto the measured spectra (weighted least squares, within
+    /// [`TERM_SCALE`] and [`TERM_OFFSET`]).
+    fn terms_for(&self, kind: ModelKind, p: &[f64; 3], t: &[f64; MAX_SITES]) -> Option<Terms> {
+        let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        let sites = self.usable.len();
+        let d_max = (0..sites)
+            .filter(|&k| self.usable[k])
+            .map(|k| t[k])
+            .fold(0.0, f64::max);
+        let mut terms = Terms::NONE;
+        for a in 0..na.min(NOISE_ANGLES) {
+            let (mut sw, mut sm, mut smm, mut sy, mut smy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for b in 0..nb {
+                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
+                for k in (0..sites).filter(|&k| self.usable[k]) {
+                    let y = f64::from(self.spectra.centre_at(nb, k, a, b));
+                    if !y.is_finite() {
+                        continue;
+                    }
+                    let m: f64 = nodes[..count]
+                        .iter()
+                        .map(|nd| {
+                            nd.weight
+                                * nd.film
+                                    .reflectance_at_cos(libm::cos(nd.phase_per_nm * t[k]))
+                        })
+                        .sum();
+                    let w = self.noise.weight(k, a, b);
+                    (sw, sm, smm, sy, smy) = (
+                        sw + w,
+                        sm + w * m,
+                        smm + w * m * m,
+                        sy + w * y,
+                        smy + w * m * y,
+                    );
+                }
+            }
+            let det = sw * smm - sm * sm;
+            if !(det > 0.0) {
+                continue;
+            }
+            let scale = ((sw * smy - sm * sy) / det).clamp(TERM_SCALE[0], TERM_SCALE[1]);
+            let offset = ((sy - scale * sm) / sw).clamp(TERM_OFFSET[0], TERM_OFFSET[1]);
+            terms.scale[a] = scale;
+            terms.offset[a] = offset;
+        }
+        Some(terms)
     }
 
     /// Each usable site's best thickness under `(kind, p)` over the thickness range, on the
@@ -2147,7 +2412,7 @@ impl Problem<'_> {
             let mut missing = false;
             for a in 0..na.min(SEARCH_ANGLES) {
                 for (jb, &b) in picked.iter().enumerate() {
-                    let v = self.spectra.centre_at(nb, k, a, b);
+                    let v = self.measured(nb, k, a, b) as f32;
                     y[a * nbs + jb] = v;
                     if !v.is_finite() {
                         missing = true;
