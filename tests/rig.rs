@@ -659,7 +659,7 @@ fn random_device_faults_over_many_sweeps_end_complete_or_with_a_clear_error() {
                 match Capture::load(&capture) {
                     Ok(cap) => {
                         partial += 1;
-                        assert!(cap.angles.len() >= 2, "{faults}");
+                        assert!(!cap.angles.is_empty(), "{faults}");
                         if let Ok(log) = &log {
                             let log: serde_json::Value =
                                 serde_json::from_str(log).expect("acquisition.json is JSON");
@@ -687,7 +687,7 @@ fn random_device_faults_over_many_sweeps_end_complete_or_with_a_clear_error() {
         }
     }
     eprintln!(
-        "device faults: {sweeps} sweeps (seed {seed:#x}): {complete} complete, {partial} stopped with a loadable partial capture, {unusable} stopped with fewer than two angles; errors {errors:?}"
+        "device faults: {sweeps} sweeps (seed {seed:#x}): {complete} complete, {partial} stopped with a loadable partial capture, {unusable} stopped with no complete angle; errors {errors:?}"
     );
     assert_eq!(complete + partial + unusable, sweeps);
 }

@@ -140,7 +140,7 @@ fn bad_scene_files_get_one_line_naming_the_file() {
     let cases: [(&str, &str); 4] = [
         ("garbage.toml", "this is = = not toml"),
         ("no-film.toml", "[substrate]\nindex = 1.65\n[rig]\nangles_deg = [10.0, 20.0]\nbands_nm = [420.0, 720.0, 2.0]\nfwhm_nm = 4.0\n"),
-        ("one-angle.toml", "[film]\nindex = 1.4\n[film.thickness]\nbase_nm = 300.0\n[substrate]\nindex = 1.65\n[rig]\nangles_deg = [10.0]\nbands_nm = [420.0, 720.0, 2.0]\nfwhm_nm = 4.0\n"),
+        ("no-angle.toml", "[film]\nindex = 1.4\n[film.thickness]\nbase_nm = 300.0\n[substrate]\nindex = 1.65\n[rig]\nangles_deg = []\nbands_nm = [420.0, 720.0, 2.0]\nfwhm_nm = 4.0\n"),
         ("empty.toml", ""),
     ];
     for (name, text) in cases {

@@ -23,7 +23,7 @@ pub const SIDE_LOBE_WIDTH: f64 = 10.0;
 pub const BAND_NODES: usize = 17;
 
 /// Grid nodes per shortest fringe period of a [`ImperfectTable`].
-const POINTS_PER_FRINGE: f64 = 24.0;
+const POINTS_PER_FRINGE: f64 = 48.0;
 
 /// A sample's and a rig's departures from the ideal film (all zero or off: the ideal).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

@@ -185,6 +185,31 @@ impl FilmAtAngle {
         (r * k, slope * k)
     }
 
+    /// Reflectance of the film made weakly absorbing, as a function of `c = cos(Delta)` and
+    /// the amplitude `a` a wave keeps over the film's round trip (`exp(-4 pi d n k / (lambda
+    /// n cos theta2))` for an extinction coefficient `k` well below `n`: `r23` becomes
+    /// `a r23`; the interfaces' own change, of order `k / n`, is left out), with `d R / d c` and
+    /// `d R / d a`; averaged over the polarisations as [`FilmAtAngle::reflectance_at_cos`].
+    #[inline]
+    pub fn absorbing_at_cos(&self, c: f64, a: f64) -> (f64, f64, f64) {
+        let (mut r, mut dc, mut da) = (0.0, 0.0, 0.0);
+        for &(r12, r23) in &self.coeffs[..self.n_pol] {
+            let q = a * r23;
+            let num = r12 * r12 + q * q + 2.0 * r12 * q * c;
+            let den = 1.0 + r12 * r12 * q * q + 2.0 * r12 * q * c;
+            let inv = 1.0 / den;
+            r += num * inv;
+            // d/dq of num/den, then times dq/da = r23; d/dc likewise.
+            let dnum_dq = 2.0 * q + 2.0 * r12 * c;
+            let dden_dq = 2.0 * r12 * r12 * q + 2.0 * r12 * c;
+            da += (dnum_dq * den - num * dden_dq) * inv * inv * r23;
+            let (dnum_dc, dden_dc) = (2.0 * r12 * q, 2.0 * r12 * q);
+            dc += (dnum_dc * den - num * dden_dc) * inv * inv;
+        }
+        let k = 1.0 / self.n_pol as f64;
+        (r * k, dc * k, da * k)
+    }
+
     /// Reflectance as a function of `c = cos(Delta)` (or of a passband-damped `D cos(Delta)`).
     #[inline]
     pub fn reflectance_at_cos(&self, c: f64) -> f64 {

@@ -96,6 +96,17 @@ const TERM_ROUNDS: usize = 4;
 pub const TERM_SCALE: [f64; 2] = [0.8, 1.25];
 /// The range a reflectance offset may take (flare, side lobes).
 pub const TERM_OFFSET: [f64; 2] = [-0.02, 0.05];
+/// The film's extinction coefficient's Urbach tail, nm: `k(l) = film_k exp((450 - l) / tail)`
+/// ([`Problem::film_k`] is `k` at 450 nm).
+pub const ABSORPTION_TAIL_NM: f64 = 90.0;
+/// Extinction coefficients at 450 nm the absorption search tries first.
+const ABSORPTION_GRID: [f64; 6] = [0.001, 0.002, 0.004, 0.008, 0.016, 0.032];
+
+/// `k(l) / k(450 nm)` ([`ABSORPTION_TAIL_NM`]).
+fn absorption_shape(l_nm: f64) -> f64 {
+    libm::exp((450.0 - l_nm) / ABSORPTION_TAIL_NM)
+}
+
 /// Most angles the noise model tells apart (more share the last one's factor).
 pub const NOISE_ANGLES: usize = 256;
 /// Index step of the numerical `dR/dn`.
@@ -380,6 +391,9 @@ pub struct SampleFit {
     /// (`measured = scale x film + offset`: a white standard's error, flare, the filter's side
     /// lobes), in streaming order; empty when not fitted.
     pub reflectance_terms: heapless::Vec<(f64, f64), RESIDUAL_ANGLES>,
+    /// The film's extinction coefficient at 450 nm when the evidence asked for it (0: a
+    /// transparent film), its tail to the blue [`ABSORPTION_TAIL_NM`].
+    pub film_k: f64,
 }
 
 /// Most angles a [`Residual`] reports one by one.
@@ -459,6 +473,7 @@ impl SampleFit {
         set_aside: [false; MAX_SITES],
         tolerated_model_error: f64::NAN,
         reflectance_terms: heapless::Vec::new(),
+        film_k: 0.0,
     };
 
     /// The chosen index model, unless the fit failed.
@@ -704,6 +719,7 @@ fn on_weighed_sites(
         noise,
         terms: Terms::NONE,
         retry: false,
+        film_k: 0.0,
         par,
     };
     body(&problem, fit, scratch)
@@ -829,6 +845,7 @@ pub fn seat_pixels(
         },
         terms: Terms::NONE,
         retry: false,
+        film_k: 0.0,
         par,
     };
     let Some((t, sums, margin)) = problem.seat(kind, &params, scratch) else {
@@ -1077,6 +1094,9 @@ struct Node {
     /// `dR/dn` at the node needs the film one index step up.
     film_up: FilmAtAngle,
     dn_dp: [f64; 3],
+    /// The round trip's attenuation exponent per nm of thickness and unit of
+    /// [`Problem::film_k`]: `a = exp(-film_k absorb_per_nm d)` ([`ABSORPTION_TAIL_NM`]).
+    absorb_per_nm: f64,
 }
 
 /// Columns of [`Problem::score_point`]'s dictionary at most: angles times bands.
@@ -1216,8 +1236,21 @@ struct Problem<'a> {
     /// Whether this is the fit again after a miss ([`Problem::with_model_error`]), which is
     /// not tried a third time.
     retry: bool,
+    /// The film's extinction coefficient at 450 nm (0: a transparent film), its tail to the
+    /// blue [`ABSORPTION_TAIL_NM`], when the evidence asked for it.
+    film_k: f64,
     /// Where the two halves of the sites' sums run.
     par: &'a dyn Parallel,
+}
+
+/// A site's band reflectance and its derivatives ([`Problem::site_model`]).
+#[derive(Clone, Copy, Default)]
+struct SiteModel {
+    m: f64,
+    dm_dd: f64,
+    dm_dp: [f64; 3],
+    /// With respect to [`Problem::film_k`].
+    dm_dk: f64,
 }
 
 /// Per-site normal-equation sums of one iteration.
@@ -1252,8 +1285,8 @@ impl Terms {
 
 /// Most angles whose reflectance terms are fitted (the marginal covariance's size).
 pub const TERM_MAX_ANGLES: usize = 12;
-/// Index parameters and two terms an angle.
-const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES;
+/// Index parameters, two terms an angle and the film's absorption.
+const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + 1;
 
 impl Problem<'_> {
     /// Site `k`'s measured value at angle `a`, band `b`, its angle's scale and offset taken
@@ -1308,6 +1341,8 @@ impl Problem<'_> {
                 film,
                 film_up,
                 dn_dp,
+                absorb_per_nm: 4.0 * core::f64::consts::PI * n * absorption_shape(l)
+                    / (l * film.kz_film),
             })
         };
         let first = node(rule[0])?;
@@ -1330,6 +1365,9 @@ impl Problem<'_> {
         first: usize,
         sites: &mut [SiteSums],
     ) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+        if self.film_k > 0.0 {
+            return self.normal_absorbing::<INDEX>(at, first, sites);
+        }
         crate::simd::wide(
             true,
             #[inline(always)]
@@ -1416,6 +1454,75 @@ impl Problem<'_> {
             }
         }
         Some((hpp, gp))
+    }
+
+    /// [`Problem::normal_part`] for an absorbing film ([`Problem::film_k`]), one site and
+    /// node at a time ([`Problem::site_model`]).
+    fn normal_absorbing<const INDEX: bool>(
+        &self,
+        Linearisation { kind, p, t, d_max }: Linearisation<'_>,
+        first: usize,
+        sites: &mut [SiteSums],
+    ) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+        let mut hpp = Matrix3::zeros();
+        let mut gp = Vector3::zeros();
+        let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        for a in 0..na {
+            for b in 0..nb {
+                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
+                for (j, s) in sites.iter_mut().enumerate() {
+                    let k = first + j;
+                    if !self.usable[k] {
+                        continue;
+                    }
+                    let y = self.measured(nb, k, a, b);
+                    if !y.is_finite() {
+                        continue;
+                    }
+                    let fit = self.site_model(&nodes[..count], t[k]);
+                    let res = y - fit.m;
+                    let w = self.noise.weight(k, a, b);
+                    s.sse += w * res * res;
+                    s.n += 1;
+                    s.jdd += w * fit.dm_dd * fit.dm_dd;
+                    s.gd += w * fit.dm_dd * res;
+                    if INDEX {
+                        let jp = Vector3::from(fit.dm_dp);
+                        for q in 0..3 {
+                            s.jdp[q] += w * fit.dm_dd * jp[q];
+                        }
+                        hpp += jp * jp.transpose() * w;
+                        gp += jp * (res * w);
+                    }
+                }
+            }
+        }
+        Some((hpp, gp))
+    }
+
+    /// A site's band reflectance at thickness `d` over a band's passband `nodes`, with its
+    /// derivatives, the film absorbing as [`Problem::film_k`] says.
+    fn site_model(&self, nodes: &[Node], d: f64) -> SiteModel {
+        let mut out = SiteModel::default();
+        for nd in nodes {
+            let ph = nd.phase_per_nm * d;
+            let (sn, cs) = (libm::sin(ph), libm::cos(ph));
+            let att = self.film_k * nd.absorb_per_nm;
+            let a = libm::exp(-att * d);
+            let (r, dr_dc, dr_da) = nd.film.absorbing_at_cos(cs, a);
+            out.m += nd.weight * r;
+            out.dm_dd += nd.weight * (dr_dc * -sn * nd.phase_per_nm - dr_da * att * a);
+            out.dm_dk += nd.weight * dr_da * -nd.absorb_per_nm * d * a;
+            let r_up = nd
+                .film_up
+                .absorbing_at_cos(libm::cos(nd.phase_up_per_nm * d), a)
+                .0;
+            let dr_dn = (r_up - r) / INDEX_STEP;
+            for (q, j) in out.dm_dp.iter_mut().enumerate() {
+                *j += nd.weight * dr_dn * nd.dn_dp[q];
+            }
+        }
+        out
     }
 
     /// One pass computing the full normal equations: per-site sums and the pooled index
@@ -1746,7 +1853,7 @@ impl Problem<'_> {
             fit.residual = r;
         }
         fit.model_error = libm::sqrt(self.noise.model2);
-        if self.terms.fitted() {
+        if self.terms.fitted() || self.film_k > 0.0 {
             // The terms trade with the index: its sigma with them free, not held.
             if let Some(s) = self.marginal_n550_sigma(c.kind, &c.params, tt) {
                 c.n550_sigma = s * libm::sqrt(c.chi2_nu.max(1.0));
@@ -1793,14 +1900,7 @@ impl Problem<'_> {
                         prev[k] = f64::NAN;
                         continue;
                     }
-                    let m: f64 = nodes[..count]
-                        .iter()
-                        .map(|nd| {
-                            nd.weight
-                                * nd.film
-                                    .reflectance_at_cos(libm::cos(nd.phase_per_nm * t[k]))
-                        })
-                        .sum();
+                    let m = self.site_model(&nodes[..count], t[k]).m;
                     let r = y - m;
                     let v = self.noise.noise2(k, a, b);
                     (an, ar, ar2, as2) = (an + 1, ar + r, ar2 + r * r, as2 + v);
@@ -1897,6 +1997,14 @@ impl Problem<'_> {
             retry: true,
             ..*self
         };
+        let film_k = if held.is_none() {
+            kept.with_absorption(&mut best, &mut tt)
+        } else {
+            None
+        };
+        if let Some(k) = film_k {
+            kept.film_k = k;
+        }
         let fitted_terms = if held.is_none() {
             kept.with_terms(&mut best, &mut tt)
         } else {
@@ -1940,6 +2048,7 @@ impl Problem<'_> {
                 .map(|a| (weighed.terms.scale[a], weighed.terms.offset[a]))
                 .collect();
         }
+        again.film_k = kept.film_k;
         again.set_aside = aside;
         again.starts = fit.starts;
         again.searched = fit.searched;
@@ -1982,9 +2091,10 @@ impl Problem<'_> {
     }
 
     /// The standard error of the index at 550 nm of `(kind, p)` at the sites' thicknesses
-    /// `t` with each angle's reflectance scale and offset free (the information matrix over
-    /// the index parameters, the terms and the thicknesses, the thicknesses and the terms
-    /// eliminated), before any scaling by the fit's reduced chi-square.
+    /// `t` with the nuisance terms in play free (each angle's reflectance scale and offset
+    /// when fitted, the film's absorption when fitted): the information matrix over the
+    /// index parameters, those terms and the thicknesses, the thicknesses and the terms
+    /// eliminated; before any scaling by the fit's reduced chi-square.
     fn marginal_n550_sigma(
         &self,
         kind: ModelKind,
@@ -1994,7 +2104,8 @@ impl Problem<'_> {
         type M = nalgebra::SMatrix<f64, MARGINAL, MARGINAL>;
         type V = nalgebra::SVector<f64, MARGINAL>;
         let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
-        if na > TERM_MAX_ANGLES {
+        let terms = self.terms.fitted();
+        if terms && na > TERM_MAX_ANGLES {
             return None;
         }
         let sites = self.usable.len();
@@ -2003,60 +2114,50 @@ impl Problem<'_> {
             .map(|k| t[k])
             .fold(0.0, f64::max);
         let np = kind.params();
+        let k_slot = MARGINAL - 1;
         let mut h = M::zeros();
-        // Per site: the thickness's own information and its cross terms.
-        let mut jdd = [0.0f64; MAX_SITES];
-        let mut cross = [V::zeros(); 1];
         let mut reduce = M::zeros();
         for k in (0..sites).filter(|&k| self.usable[k]) {
-            cross[0] = V::zeros();
+            let (mut jdd, mut cross) = (0.0, V::zeros());
             for a in 0..na {
                 for b in 0..nb {
-                    let y = self.spectra.centre_at(nb, k, a, b);
-                    if !y.is_finite() {
+                    if !self.spectra.centre_at(nb, k, a, b).is_finite() {
                         continue;
                     }
                     let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
-                    let (mut m, mut jd, mut jp) = (0.0, 0.0, [0.0; 3]);
-                    for nd in &nodes[..count] {
-                        let ph = nd.phase_per_nm * t[k];
-                        let (sn, cs) = (libm::sin(ph), libm::cos(ph));
-                        let (r, dr_dc) = nd.film.reflectance_and_slope_at_cos(cs);
-                        m += nd.weight * r;
-                        jd += nd.weight * dr_dc * -sn * nd.phase_per_nm;
-                        let r_up = nd
-                            .film_up
-                            .reflectance_at_cos(libm::cos(nd.phase_up_per_nm * t[k]));
-                        let dr_dn = (r_up - r) / INDEX_STEP;
-                        for (q, j) in jp.iter_mut().enumerate() {
-                            *j += nd.weight * dr_dn * nd.dn_dp[q];
-                        }
-                    }
-                    let g = self.terms.scale[a];
+                    let fit = self.site_model(&nodes[..count], t[k]);
+                    let g = self.terms.scale[a.min(NOISE_ANGLES - 1)];
                     let w = self.noise.weight(k, a, b);
                     let mut u = V::zeros();
                     for q in 0..np {
-                        u[q] = g * jp[q];
+                        u[q] = g * fit.dm_dp[q];
                     }
-                    u[3 + 2 * a] = m;
-                    u[3 + 2 * a + 1] = 1.0;
+                    if terms {
+                        u[3 + 2 * a] = fit.m;
+                        u[3 + 2 * a + 1] = 1.0;
+                    }
+                    u[k_slot] = g * fit.dm_dk;
                     h += u * u.transpose() * w;
-                    jdd[k] += w * g * g * jd * jd;
-                    cross[0] += u * (w * g * jd);
+                    jdd += w * g * g * fit.dm_dd * fit.dm_dd;
+                    cross += u * (w * g * fit.dm_dd);
                 }
             }
-            if jdd[k] > 0.0 {
-                reduce += cross[0] * cross[0].transpose() / jdd[k];
+            if jdd > 0.0 {
+                reduce += cross * cross.transpose() / jdd;
             }
         }
         h -= reduce;
-        // Only the parameters in play: the model's and each angle's two terms.
+        // Only the parameters in play.
         let mut keep: heapless::Vec<usize, MARGINAL> = (0..np).collect();
-        for a in 0..na {
-            let _ = keep.push(3 + 2 * a);
-            let _ = keep.push(3 + 2 * a + 1);
+        if terms {
+            for a in 0..na {
+                let _ = keep.push(3 + 2 * a);
+                let _ = keep.push(3 + 2 * a + 1);
+            }
         }
-        let n = keep.len();
+        if self.film_k > 0.0 {
+            let _ = keep.push(k_slot);
+        }
         let mut sub = M::identity();
         for (i, &ki) in keep.iter().enumerate() {
             for (j, &kj) in keep.iter().enumerate() {
@@ -2071,8 +2172,65 @@ impl Problem<'_> {
                 var += g550[i] * inv[(i, j)] * g550[j];
             }
         }
-        let _ = n;
         (var > 0.0).then(|| libm::sqrt(var))
+    }
+
+    /// The film's extinction coefficient at 450 nm fitted with the index `best` and the
+    /// sites' thicknesses `t` (both updated): a grid of coefficients, each with the index and
+    /// thicknesses refined under it, then a parabola through the best and its neighbours
+    /// (in log k). The coefficient when its chi-square gain exceeds its BIC penalty (`ln n`),
+    /// else `None` (`best` and `t` as they were).
+    fn with_absorption(&self, best: &mut Candidate, t: &mut [f64; MAX_SITES]) -> Option<f64> {
+        let mut sums = [SiteSums::default(); MAX_SITES];
+        let (_, _, before, n) = self.normal::<false>(best.kind, &best.params, t, &mut sums)?;
+        let at = |k: f64| -> Option<(Candidate, [f64; MAX_SITES])> {
+            let trial = Problem {
+                film_k: k,
+                noise: self.noise.clone(),
+                ..*self
+            };
+            let mut tt = *t;
+            let c = trial.refine(best.kind, best.params, &mut tt, MAX_STEPS)?;
+            Some((c, tt))
+        };
+        let mut tried: heapless::Vec<(f64, Candidate, [f64; MAX_SITES]), 8> = heapless::Vec::new();
+        for &k in &ABSORPTION_GRID {
+            if let Some((c, tt)) = at(k) {
+                let _ = tried.push((k, c, tt));
+            }
+        }
+        let (i, _) = tried
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1 .1.chi2.total_cmp(&b.1 .1.chi2))?;
+        let (mut k_best, mut c_best, mut t_best) = tried[i];
+        if i > 0 && i + 1 < tried.len() {
+            // The parabola's vertex in log k through the best and its neighbours.
+            let (x0, x1, x2) = (
+                libm::log(tried[i - 1].0),
+                libm::log(tried[i].0),
+                libm::log(tried[i + 1].0),
+            );
+            let (y0, y1, y2) = (tried[i - 1].1.chi2, tried[i].1.chi2, tried[i + 1].1.chi2);
+            let den = (x0 - x1) * (x0 - x2) * (x1 - x2);
+            let a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den;
+            let b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den;
+            if a > 0.0 {
+                let k = libm::exp(-b / (2.0 * a));
+                if let Some((c, tt)) = at(k) {
+                    if c.chi2 < c_best.chi2 {
+                        (k_best, c_best, t_best) = (k, c, tt);
+                    }
+                }
+            }
+        }
+        if c_best.chi2 + libm::log(n.max(2) as f64) < before {
+            *best = c_best;
+            *t = t_best;
+            Some(k_best)
+        } else {
+            None
+        }
     }
 
     /// Each angle's reflectance scale and offset that best map the model `(kind, p)` at the
@@ -2095,14 +2253,7 @@ impl Problem<'_> {
                     if !y.is_finite() {
                         continue;
                     }
-                    let m: f64 = nodes[..count]
-                        .iter()
-                        .map(|nd| {
-                            nd.weight
-                                * nd.film
-                                    .reflectance_at_cos(libm::cos(nd.phase_per_nm * t[k]))
-                        })
-                        .sum();
+                    let m = self.site_model(&nodes[..count], t[k]).m;
                     let w = self.noise.weight(k, a, b);
                     (sw, sm, smm, sy, smy) = (
                         sw + w,
