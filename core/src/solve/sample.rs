@@ -102,6 +102,9 @@ pub const ABSORPTION_TAIL_NM: f64 = 90.0;
 /// Extinction coefficients at 450 nm the absorption search tries first.
 const ABSORPTION_GRID: [f64; 6] = [0.001, 0.002, 0.004, 0.008, 0.016, 0.032];
 
+/// Shares of the other polarisation the leak search tries first.
+const LEAK_GRID: [f64; 5] = [0.0025, 0.005, 0.01, 0.02, 0.04];
+
 /// `k(l) / k(450 nm)` ([`ABSORPTION_TAIL_NM`]).
 fn absorption_shape(l_nm: f64) -> f64 {
     libm::exp((450.0 - l_nm) / ABSORPTION_TAIL_NM)
@@ -394,6 +397,9 @@ pub struct SampleFit {
     /// The film's extinction coefficient at 450 nm when the evidence asked for it (0: a
     /// transparent film), its tail to the blue [`ABSORPTION_TAIL_NM`].
     pub film_k: f64,
+    /// The share of the other polarisation a leaking polariser lets through, when the
+    /// evidence asked for it (0: none).
+    pub polariser_leak: f64,
 }
 
 /// Most angles a [`Residual`] reports one by one.
@@ -474,6 +480,7 @@ impl SampleFit {
         tolerated_model_error: f64::NAN,
         reflectance_terms: heapless::Vec::new(),
         film_k: 0.0,
+        polariser_leak: 0.0,
     };
 
     /// The chosen index model, unless the fit failed.
@@ -720,6 +727,7 @@ fn on_weighed_sites(
         terms: Terms::NONE,
         retry: false,
         film_k: 0.0,
+        leak: 0.0,
         par,
     };
     body(&problem, fit, scratch)
@@ -846,6 +854,7 @@ pub fn seat_pixels(
         terms: Terms::NONE,
         retry: false,
         film_k: 0.0,
+        leak: 0.0,
         par,
     };
     let Some((t, sums, margin)) = problem.seat(kind, &params, scratch) else {
@@ -1097,6 +1106,9 @@ struct Node {
     /// The round trip's attenuation exponent per nm of thickness and unit of
     /// [`Problem::film_k`]: `a = exp(-film_k absorb_per_nm d)` ([`ABSORPTION_TAIL_NM`]).
     absorb_per_nm: f64,
+    /// The film in the other polarisation (s for p light, p for s; unpolarised light's own),
+    /// which a leaking polariser mixes in ([`Problem::leak`]).
+    film_other: FilmAtAngle,
 }
 
 /// Columns of [`Problem::score_point`]'s dictionary at most: angles times bands.
@@ -1239,6 +1251,9 @@ struct Problem<'a> {
     /// The film's extinction coefficient at 450 nm (0: a transparent film), its tail to the
     /// blue [`ABSORPTION_TAIL_NM`], when the evidence asked for it.
     film_k: f64,
+    /// The share of the light in the other polarisation (a polariser's finite extinction;
+    /// s or p light), when the evidence asked for it.
+    leak: f64,
     /// Where the two halves of the sites' sums run.
     par: &'a dyn Parallel,
 }
@@ -1251,6 +1266,8 @@ struct SiteModel {
     dm_dp: [f64; 3],
     /// With respect to [`Problem::film_k`].
     dm_dk: f64,
+    /// With respect to [`Problem::leak`].
+    dm_dleak: f64,
 }
 
 /// Per-site normal-equation sums of one iteration.
@@ -1285,8 +1302,8 @@ impl Terms {
 
 /// Most angles whose reflectance terms are fitted (the marginal covariance's size).
 pub const TERM_MAX_ANGLES: usize = 12;
-/// Index parameters, two terms an angle and the film's absorption.
-const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + 1;
+/// Index parameters, two terms an angle, the film's absorption and the polariser's leak.
+const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + 2;
 
 impl Problem<'_> {
     /// Site `k`'s measured value at angle `a`, band `b`, its angle's scale and offset taken
@@ -1334,6 +1351,12 @@ impl Problem<'_> {
             }
             let film = FilmAtAngle::new(self.indices(n, l), deg, pol)?;
             let film_up = FilmAtAngle::new(self.indices(n + INDEX_STEP, l), deg, pol)?;
+            let other = match pol {
+                Polarization::S => Polarization::P,
+                Polarization::P => Polarization::S,
+                Polarization::Unpolarized => Polarization::Unpolarized,
+            };
+            let film_other = FilmAtAngle::new(self.indices(n, l), deg, other)?;
             Some(Node {
                 weight: w,
                 phase_per_nm: 4.0 * core::f64::consts::PI * film.kz_film / l,
@@ -1343,6 +1366,7 @@ impl Problem<'_> {
                 dn_dp,
                 absorb_per_nm: 4.0 * core::f64::consts::PI * n * absorption_shape(l)
                     / (l * film.kz_film),
+                film_other,
             })
         };
         let first = node(rule[0])?;
@@ -1365,7 +1389,7 @@ impl Problem<'_> {
         first: usize,
         sites: &mut [SiteSums],
     ) -> Option<(Matrix3<f64>, Vector3<f64>)> {
-        if self.film_k > 0.0 {
+        if self.film_k > 0.0 || self.leak > 0.0 {
             return self.normal_absorbing::<INDEX>(at, first, sites);
         }
         crate::simd::wide(
@@ -1509,7 +1533,19 @@ impl Problem<'_> {
             let (sn, cs) = (libm::sin(ph), libm::cos(ph));
             let att = self.film_k * nd.absorb_per_nm;
             let a = libm::exp(-att * d);
-            let (r, dr_dc, dr_da) = nd.film.absorbing_at_cos(cs, a);
+            let (own, own_dc, own_da) = nd.film.absorbing_at_cos(cs, a);
+            let (r, dr_dc, dr_da) = if self.leak > 0.0 {
+                let (o, o_dc, o_da) = nd.film_other.absorbing_at_cos(cs, a);
+                out.dm_dleak += nd.weight * (o - own);
+                let e = self.leak;
+                (
+                    (1.0 - e) * own + e * o,
+                    (1.0 - e) * own_dc + e * o_dc,
+                    (1.0 - e) * own_da + e * o_da,
+                )
+            } else {
+                (own, own_dc, own_da)
+            };
             out.m += nd.weight * r;
             out.dm_dd += nd.weight * (dr_dc * -sn * nd.phase_per_nm - dr_da * att * a);
             out.dm_dk += nd.weight * dr_da * -nd.absorb_per_nm * d * a;
@@ -1517,7 +1553,8 @@ impl Problem<'_> {
                 .film_up
                 .absorbing_at_cos(libm::cos(nd.phase_up_per_nm * d), a)
                 .0;
-            let dr_dn = (r_up - r) / INDEX_STEP;
+            // The index's slope from the measured polarisation alone (the leak is small).
+            let dr_dn = (r_up - own) / INDEX_STEP * (1.0 - self.leak);
             for (q, j) in out.dm_dp.iter_mut().enumerate() {
                 *j += nd.weight * dr_dn * nd.dn_dp[q];
             }
@@ -1853,7 +1890,7 @@ impl Problem<'_> {
             fit.residual = r;
         }
         fit.model_error = libm::sqrt(self.noise.model2);
-        if self.terms.fitted() || self.film_k > 0.0 {
+        if self.terms.fitted() || self.film_k > 0.0 || self.leak > 0.0 {
             // The terms trade with the index: its sigma with them free, not held.
             if let Some(s) = self.marginal_n550_sigma(c.kind, &c.params, tt) {
                 c.n550_sigma = s * libm::sqrt(c.chi2_nu.max(1.0));
@@ -1997,13 +2034,19 @@ impl Problem<'_> {
             retry: true,
             ..*self
         };
-        let film_k = if held.is_none() {
-            kept.with_absorption(&mut best, &mut tt)
-        } else {
-            None
-        };
-        if let Some(k) = film_k {
-            kept.film_k = k;
+        if held.is_none() {
+            if let Some(k) =
+                kept.with_nuisance(&mut best, &mut tt, &ABSORPTION_GRID, |p, v| p.film_k = v)
+            {
+                kept.film_k = k;
+            }
+            if self.geo.polarization != Polarization::Unpolarized {
+                if let Some(e) =
+                    kept.with_nuisance(&mut best, &mut tt, &LEAK_GRID, |p, v| p.leak = v)
+                {
+                    kept.leak = e;
+                }
+            }
         }
         let fitted_terms = if held.is_none() {
             kept.with_terms(&mut best, &mut tt)
@@ -2049,6 +2092,7 @@ impl Problem<'_> {
                 .collect();
         }
         again.film_k = kept.film_k;
+        again.polariser_leak = kept.leak;
         again.set_aside = aside;
         again.starts = fit.starts;
         again.searched = fit.searched;
@@ -2114,7 +2158,7 @@ impl Problem<'_> {
             .map(|k| t[k])
             .fold(0.0, f64::max);
         let np = kind.params();
-        let k_slot = MARGINAL - 1;
+        let (k_slot, leak_slot) = (MARGINAL - 2, MARGINAL - 1);
         let mut h = M::zeros();
         let mut reduce = M::zeros();
         for k in (0..sites).filter(|&k| self.usable[k]) {
@@ -2137,6 +2181,7 @@ impl Problem<'_> {
                         u[3 + 2 * a + 1] = 1.0;
                     }
                     u[k_slot] = g * fit.dm_dk;
+                    u[leak_slot] = g * fit.dm_dleak;
                     h += u * u.transpose() * w;
                     jdd += w * g * g * fit.dm_dd * fit.dm_dd;
                     cross += u * (w * g * fit.dm_dd);
@@ -2158,6 +2203,9 @@ impl Problem<'_> {
         if self.film_k > 0.0 {
             let _ = keep.push(k_slot);
         }
+        if self.leak > 0.0 {
+            let _ = keep.push(leak_slot);
+        }
         let mut sub = M::identity();
         for (i, &ki) in keep.iter().enumerate() {
             for (j, &kj) in keep.iter().enumerate() {
@@ -2175,37 +2223,43 @@ impl Problem<'_> {
         (var > 0.0).then(|| libm::sqrt(var))
     }
 
-    /// The film's extinction coefficient at 450 nm fitted with the index `best` and the
-    /// sites' thicknesses `t` (both updated): a grid of coefficients, each with the index and
-    /// thicknesses refined under it, then a parabola through the best and its neighbours
-    /// (in log k). The coefficient when its chi-square gain exceeds its BIC penalty (`ln n`),
-    /// else `None` (`best` and `t` as they were).
-    fn with_absorption(&self, best: &mut Candidate, t: &mut [f64; MAX_SITES]) -> Option<f64> {
+    /// One nuisance parameter (set on a copy of the problem by `apply`) fitted with the
+    /// index `best` and the sites' thicknesses `t` (both updated): each value of `grid` with
+    /// the index and thicknesses refined under it, then a parabola through the best and its
+    /// neighbours (in log value). The value when its chi-square gain exceeds its BIC penalty
+    /// (`ln n`), else `None` (`best` and `t` as they were).
+    fn with_nuisance(
+        &self,
+        best: &mut Candidate,
+        t: &mut [f64; MAX_SITES],
+        grid: &[f64],
+        apply: impl Fn(&mut Problem<'_>, f64),
+    ) -> Option<f64> {
         let mut sums = [SiteSums::default(); MAX_SITES];
         let (_, _, before, n) = self.normal::<false>(best.kind, &best.params, t, &mut sums)?;
-        let at = |k: f64| -> Option<(Candidate, [f64; MAX_SITES])> {
-            let trial = Problem {
-                film_k: k,
+        let at = |v: f64| -> Option<(Candidate, [f64; MAX_SITES])> {
+            let mut trial = Problem {
                 noise: self.noise.clone(),
                 ..*self
             };
+            apply(&mut trial, v);
             let mut tt = *t;
             let c = trial.refine(best.kind, best.params, &mut tt, MAX_STEPS)?;
             Some((c, tt))
         };
         let mut tried: heapless::Vec<(f64, Candidate, [f64; MAX_SITES]), 8> = heapless::Vec::new();
-        for &k in &ABSORPTION_GRID {
-            if let Some((c, tt)) = at(k) {
-                let _ = tried.push((k, c, tt));
+        for &v in grid {
+            if let Some((c, tt)) = at(v) {
+                let _ = tried.push((v, c, tt));
             }
         }
         let (i, _) = tried
             .iter()
             .enumerate()
             .min_by(|a, b| a.1 .1.chi2.total_cmp(&b.1 .1.chi2))?;
-        let (mut k_best, mut c_best, mut t_best) = tried[i];
+        let (mut v_best, mut c_best, mut t_best) = tried[i];
         if i > 0 && i + 1 < tried.len() {
-            // The parabola's vertex in log k through the best and its neighbours.
+            // The parabola's vertex in log value through the best and its neighbours.
             let (x0, x1, x2) = (
                 libm::log(tried[i - 1].0),
                 libm::log(tried[i].0),
@@ -2216,10 +2270,10 @@ impl Problem<'_> {
             let a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den;
             let b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den;
             if a > 0.0 {
-                let k = libm::exp(-b / (2.0 * a));
-                if let Some((c, tt)) = at(k) {
+                let v = libm::exp(-b / (2.0 * a));
+                if let Some((c, tt)) = at(v) {
                     if c.chi2 < c_best.chi2 {
-                        (k_best, c_best, t_best) = (k, c, tt);
+                        (v_best, c_best, t_best) = (v, c, tt);
                     }
                 }
             }
@@ -2227,7 +2281,7 @@ impl Problem<'_> {
         if c_best.chi2 + libm::log(n.max(2) as f64) < before {
             *best = c_best;
             *t = t_best;
-            Some(k_best)
+            Some(v_best)
         } else {
             None
         }
