@@ -200,6 +200,7 @@ def estimate(
     one_pass: bool = False,
     field: str = "auto",
     film_index: Optional[Material] = None,
+    model_error: Optional[float] = None,
 ) -> EstimateResult:
     """Estimates the film's refractive index and a per-pixel thickness map.
 
@@ -226,6 +227,9 @@ def estimate(
             instead of fitted, as ``filmscope estimate --film-index`` (a model the estimator
             cannot hold, such as a two- or three-term Sellmeier, as its least-squares
             three-term Cauchy over the bands).
+        model_error: the model error the index fit tolerates, RMS reflectance, as
+            ``estimate --model-error`` (default: the capture's ``[fit] model_error``, else
+            0.001; 0 judges the fit against the noise alone).
 
     Returns:
         An :class:`EstimateResult`.
@@ -239,10 +243,11 @@ def estimate(
     ss = n.DEFAULT_SAMPLE_SITES if sample_sites is None else int(sample_sites)
     out_s = None if out is None else os.fspath(out)
     fi = None if film_index is None else _material_json(film_index, "film_index")
+    me = None if model_error is None else float(model_error)
     if isinstance(path_or_array, (str, os.PathLike)):
         path = os.fspath(path_or_array)
         raw = n.estimate_capture(
-            path, out_s, method, int(workers), int(channel_capacity), ip, ss, bool(one_pass), field, fi
+            path, out_s, method, int(workers), int(channel_capacity), ip, ss, bool(one_pass), field, fi, me
         )
         return EstimateResult(raw, path, ("capture", path))
     arr = np.asarray(path_or_array)
@@ -283,6 +288,7 @@ def estimate(
         ss,
         bool(one_pass),
         fi,
+        me,
     )
     fw_list = fw if fw is not None else _band_spacing(wl)
     return EstimateResult(raw, None, ("array", cube, wl, ang, fw_list, sub_json, float(ambient_index), polarization))

@@ -82,6 +82,7 @@ def estimate(
     one_pass: bool = False,
     field: str = "auto",
     film_index: Optional[Material] = None,
+    model_error: Optional[float] = None,
 ) -> EstimateResult:
     """Estimates the film's index and thickness map from a capture folder or a
     ``(angles, lines, samples, bands)`` reflectance array (GIL released while it runs)."""

@@ -49,6 +49,7 @@ struct Options<'a> {
     sample_sites: usize,
     one_pass: bool,
     field: &'a str,
+    model_error: Option<f64>,
 }
 
 impl Options<'_> {
@@ -58,6 +59,14 @@ impl Options<'_> {
             .ok_or_else(|| format!("method {:?}: use filmscope, paper or brute", self.method))?;
         let choice = FieldChoice::from_name(self.field)
             .ok_or_else(|| format!("field {:?}: use auto, narrow or wide", self.field))?;
+        if let Some(m) = self.model_error {
+            let max = filmscope::io::capture::MAX_MODEL_ERROR;
+            if !(0.0..=max).contains(&m) {
+                return Err(format!(
+                    "model_error {m}: outside 0 to {max} (RMS reflectance)"
+                ));
+            }
+        }
         let max = filmscope_core::solve::sample::MAX_SITES;
         if !(4..=max).contains(&self.sample_sites) {
             return Err(format!(
@@ -89,7 +98,7 @@ impl Options<'_> {
             },
             sample_sites: self.sample_sites,
             one_pass: self.one_pass,
-            model_error: None,
+            model_error: self.model_error,
         })
     }
 }
@@ -162,7 +171,7 @@ fn result_dict<'py>(py: Python<'py>, run: &Run, summary: &Summary) -> PyResult<B
 /// Runs the estimator on the capture at `path` (a folder or its capture.toml), as
 /// `filmscope estimate` does; writes the outputs into `out` when given.
 #[pyfunction]
-#[pyo3(signature = (path, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, field, film_index))]
+#[pyo3(signature = (path, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, field, film_index, model_error))]
 #[allow(clippy::too_many_arguments)]
 fn estimate_capture<'py>(
     py: Python<'py>,
@@ -176,6 +185,7 @@ fn estimate_capture<'py>(
     one_pass: bool,
     field: &str,
     film_index: Option<&str>,
+    model_error: Option<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let opts = Options {
         method,
@@ -185,6 +195,7 @@ fn estimate_capture<'py>(
         sample_sites,
         one_pass,
         field,
+        model_error,
     };
     let config = opts.config().map_err(fail)?;
     let film = given_index(film_index, &config)?;
@@ -288,7 +299,7 @@ fn polarization(name: &str) -> Result<Polarization, String> {
 /// Runs the estimator on a reflectance array: `data` the native-endian `float32` bytes of
 /// a C-ordered `(angles, lines, samples, bands)` array.
 #[pyfunction]
-#[pyo3(signature = (data, shape, wavelengths_nm, angles_deg, fwhm_nm, ambient_index, substrate, polarization_name, index_range, thickness_range_nm, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, film_index))]
+#[pyo3(signature = (data, shape, wavelengths_nm, angles_deg, fwhm_nm, ambient_index, substrate, polarization_name, index_range, thickness_range_nm, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, film_index, model_error))]
 #[allow(clippy::too_many_arguments)]
 fn estimate_array<'py>(
     py: Python<'py>,
@@ -310,6 +321,7 @@ fn estimate_array<'py>(
     sample_sites: usize,
     one_pass: bool,
     film_index: Option<&str>,
+    model_error: Option<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let opts = Options {
         method,
@@ -319,6 +331,7 @@ fn estimate_array<'py>(
         sample_sites,
         one_pass,
         field: "narrow",
+        model_error,
     };
     let config = opts.config().map_err(fail)?;
     let film = given_index(film_index, &config)?;

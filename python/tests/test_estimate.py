@@ -117,3 +117,34 @@ def test_bad_inputs_raise_one_line(tmp_path):
         filmscope.estimate(cube, wl, [10, 20, 30], method="magic")
     with pytest.raises(filmscope.FilmscopeError, match="substrate"):
         filmscope.estimate(cube, wl, [10, 20, 30], substrate="unobtainium")
+
+
+def _hfo2_film_side_reflectance():
+    """The measured HfO2-on-fused-silica transmittance fixture as the film side's reflectance
+    (a lossless film, the substrate's bare back face summed incoherently), 400-720 nm."""
+    path = Path(__file__).resolve().parents[2] / "tests/fixtures/measured/hfo2-on-fused-silica-transmittance.txt"
+    data = np.loadtxt(path)
+    keep = (data[:, 0] >= 400) & (data[:, 0] <= 720)
+    wl, t = data[keep, 0][::2], data[keep, 1][::2] / 100.0
+    x2 = (wl / 1000.0) ** 2
+    n2 = 1 + 0.6961663 * x2 / (x2 - 0.0684043**2) + 0.4079426 * x2 / (x2 - 0.1162414**2) + 0.8974794 * x2 / (x2 - 9.896161**2)
+    rb = ((np.sqrt(n2) - 1) / (np.sqrt(n2) + 1)) ** 2
+    return wl, (1 - rb - t) / (1 - rb - t * rb)
+
+
+def test_a_measured_spectrum_at_one_angle():
+    """One angle from Python: the measured HfO2 film gets every pixel, its index and
+    thickness within the published fits' spread, and no index when judged against the noise
+    alone (model_error=0)."""
+    wl, r = _hfo2_film_side_reflectance()
+    rng = np.random.default_rng(3)
+    cube = r[None, None, None, :] + 2.8e-4 * rng.standard_normal((1, 12, 16, len(wl)))
+    kw = dict(fwhm_nm=2.0, substrate="sio2", polarization="unpolarized")
+    res = filmscope.estimate(cube, wl, [0.0], **kw)
+    assert 1.995 <= res.summary["refractive_index"] <= 2.015
+    assert 185.0 <= np.nanmedian(res.thickness_nm) <= 195.0
+    assert np.isfinite(res.thickness_nm).all()
+    strict = filmscope.estimate(cube, wl, [0.0], model_error=0.0, **kw)
+    assert not np.isfinite(strict.thickness_nm).any()
+    with pytest.raises(filmscope.FilmscopeError, match="model_error"):
+        filmscope.estimate(cube, wl, [0.0], model_error=0.5, **kw)

@@ -4,8 +4,9 @@
 
 use filmscope_core::solve::sample::{
     fit_index, hold_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len,
-    Failure, Geometry, ModelKind, Parallel, Residual, SampleFit, Seat, Spectra, Start, CENTRE,
-    CONSTANT_PREFERENCE, GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY, OUTLIER_SITE_RATIO, RUN,
+    Failure, Geometry, ModelKind, Parallel, Residual, SampleFit, Seat, Spectra, Start,
+    ABSORPTION_TAIL_NM, CENTRE, CONSTANT_PREFERENCE, GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY,
+    OUTLIER_SITE_RATIO, RUN,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
 use serde_json::json;
@@ -444,6 +445,16 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
         "n_550_sigma": fit.best.and_then(|c| finite(c.n550_sigma)),
         "noise_sigma": finite(fit.noise_sigma),
         "model_error": finite(fit.model_error),
+        "nuisance_terms": {
+            "film_k_450nm": (fit.film_k > 0.0).then_some(fit.film_k),
+            "absorption_tail_nm": ABSORPTION_TAIL_NM,
+            "polariser_leak": (fit.polariser_leak > 0.0).then_some(fit.polariser_leak),
+            "reflectance_terms": fit
+                .reflectance_terms
+                .iter()
+                .map(|&(scale, offset)| json!({"scale": scale, "offset": offset}))
+                .collect::<Vec<_>>(),
+        },
         "residual": residual_json(fit),
         "sites_set_aside": tap
             .centres()

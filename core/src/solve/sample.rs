@@ -1900,7 +1900,8 @@ impl Problem<'_> {
             c.n550_sigma *= fit.residual.correlation_factor();
         }
         fit.best = Some(c);
-        let misfit = fit.model_error > 0.0 && !(fit.residual.model_rms <= self.geo.model_error);
+        let within = fit.residual.model_rms <= self.geo.model_error;
+        let misfit = fit.model_error > 0.0 && !within;
         fit.failure = if c.chi2_nu > GATE_CHI2_NU || misfit {
             Some(Failure::NoFit)
         } else if c.n550_sigma > MAX_INDEX_SIGMA {
@@ -1994,7 +1995,7 @@ impl Problem<'_> {
     ) -> SampleFit {
         let tol = self.geo.model_error;
         let Some(mut best) = fit.best else { return fit };
-        if fit.failure != Some(Failure::NoFit) || self.retry || !(tol > 0.0) {
+        if fit.failure != Some(Failure::NoFit) || self.retry || tol.is_nan() || tol <= 0.0 {
             return fit;
         }
         let sites = self.usable.len();
@@ -2060,7 +2061,7 @@ impl Problem<'_> {
             return fit;
         };
         let m = left.model_rms;
-        if !(m <= 2.0 * tol) {
+        if m.is_nan() || m > 2.0 * tol {
             return fit;
         }
         let weighed = Problem {
@@ -2319,7 +2320,7 @@ impl Problem<'_> {
                 }
             }
             let det = sw * smm - sm * sm;
-            if !(det > 0.0) {
+            if det.is_nan() || det <= 0.0 {
                 continue;
             }
             let scale = ((sw * smy - sm * sy) / det).clamp(TERM_SCALE[0], TERM_SCALE[1]);
