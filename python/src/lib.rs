@@ -363,8 +363,8 @@ fn estimate_array<'py>(
             )));
         }
     }
-    if na < 2 {
-        return Err(fail("array: at least two angles are needed"));
+    if na < 1 {
+        return Err(fail("array: at least one angle is needed"));
     }
     for &a in &angles_deg {
         if !(a.is_finite() && (0.0..90.0).contains(&a)) {

@@ -436,10 +436,10 @@ impl Acquisition {
         if let Some(o) = v.as_object_mut() {
             o.insert(
                 "re_estimate".into(),
-                json!(if self.log.angles_done_deg.len() >= 2 {
-                    "filmscope estimate on capture.toml uses the complete angles"
+                json!(if self.log.angles_done_deg.is_empty() {
+                    "no complete angle: the capture cannot be estimated"
                 } else {
-                    "fewer than two complete angles: the capture cannot be estimated"
+                    "filmscope estimate on capture.toml uses the complete angles"
                 }),
             );
         }
