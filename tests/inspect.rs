@@ -619,6 +619,86 @@ fn a_folder_without_its_line_gets_it_on_restart() {
     assert!(log.contains("recovered: record of S000002"), "{log}");
 }
 
+/// A record missing from the middle of the log (an append a full disk failed, the line
+/// went on): the restart appends it from the folder's record.json, once, though later
+/// samples have their records.
+#[test]
+fn a_record_missing_below_the_last_counter_is_reconciled_on_restart() {
+    let dir = tempdir();
+    let rec = recipe(dir.path(), None, "");
+    let out = dir.path().join("line");
+    let run = inspect(&rec, &out, &["--samples", "3"])
+        .output()
+        .expect("run");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let text = std::fs::read_to_string(out.join("results.jsonl")).expect("results");
+    let (lost, kept): (Vec<&str>, Vec<&str>) = text
+        .lines()
+        .partition(|l| l.contains("\"counter\":2,") && l.contains("\"kind\":\"sample\""));
+    assert_eq!(lost.len(), 1, "{text}");
+    let lost: Value = serde_json::from_str(lost[0]).expect("json");
+    std::fs::write(out.join("results.jsonl"), kept.join("\n") + "\n").expect("cut");
+    let run = inspect(&rec, &out, &["--samples", "1"])
+        .output()
+        .expect("restart");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let recs = samples(&out);
+    let mut counters: Vec<u64> = recs.iter().filter_map(|r| r["counter"].as_u64()).collect();
+    assert_eq!(
+        counters,
+        vec![1, 3, 2, 4],
+        "appended at restart, before the next sample"
+    );
+    counters.sort_unstable();
+    counters.dedup();
+    assert_eq!(counters.len(), 4, "each once");
+    assert_eq!(recs[2], lost, "the record came back as it was");
+    let log = std::fs::read_to_string(out.join("inspect.log")).expect("log");
+    assert!(log.contains("recovered: record of S000002"), "{log}");
+}
+
+/// Below the recipe's free-space floor no sample is measured: an alarm record names the
+/// free bytes and the floor, and the run stops at once with one line saying the disk is
+/// full (not that the rig failed).
+#[test]
+fn below_the_free_space_floor_the_line_stops_with_an_alarm() {
+    let dir = tempdir();
+    let rec = recipe(
+        dir.path(),
+        None,
+        "[retention]\nmin_free_bytes = 1_000_000_000_000_000_000\n",
+    );
+    let out = dir.path().join("line");
+    let run = inspect(&rec, &out, &["--samples", "3"])
+        .output()
+        .expect("run");
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    let errors: Vec<_> = err
+        .lines()
+        .filter(|l| l.starts_with("filmscope:"))
+        .collect();
+    assert_eq!(errors.len(), 1, "{err}");
+    assert!(
+        errors[0].contains("disk full") && errors[0].contains("retention.min_free_bytes"),
+        "{err}"
+    );
+    assert!(!err.contains("rig"), "{err}");
+    let recs = records(&out);
+    assert_eq!(recs.len(), 1, "{recs:?}");
+    assert_eq!(recs[0]["kind"], "alarm");
+    assert_eq!(recs[0]["variable"], "disk_free_bytes");
+    assert!(folders(&out).is_empty(), "nothing measured");
+}
+
 /// Without `--sim` and without the devices, each sample's sweep fails: the log gets a
 /// device error line a sample, no record or folder is written, and three in a row stop the
 /// run with an error.

@@ -90,12 +90,16 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
                     }
                 }
             }
+            Err(e) if e.is_disk_full() => {
+                line.say(&format!("stop: {e}"));
+                return Err(anyhow!(e));
+            }
             Err(e) => {
                 errors_in_a_row += 1;
                 eprintln!("filmscope: {e}");
                 if errors_in_a_row >= 3 {
                     return Err(anyhow!(
-                        "three samples in a row failed on the rig; stopping"
+                        "three samples in a row failed; stopping (last: {e})"
                     ));
                 }
                 std::thread::sleep(Duration::from_secs(1));

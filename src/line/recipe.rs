@@ -236,6 +236,10 @@ pub struct RetentionSpec {
     /// Rotated results files kept (default 8).
     #[serde(default = "rotated_keep_default")]
     pub results_keep: usize,
+    /// Free bytes the output's file system must keep: below it no sample is measured and
+    /// an alarm is raised (default 1 GiB).
+    #[serde(default = "min_free_default")]
+    pub min_free_bytes: u64,
 }
 
 fn failed() -> RawPolicy {
@@ -253,6 +257,9 @@ fn rotate_default() -> u64 {
 fn rotated_keep_default() -> usize {
     8
 }
+fn min_free_default() -> u64 {
+    1 << 30
+}
 
 impl Default for RetentionSpec {
     fn default() -> Self {
@@ -262,6 +269,7 @@ impl Default for RetentionSpec {
             raw_budget_bytes: budget_default(),
             results_rotate_bytes: rotate_default(),
             results_keep: rotated_keep_default(),
+            min_free_bytes: min_free_default(),
         }
     }
 }

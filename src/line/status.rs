@@ -149,6 +149,16 @@ impl StatusServer {
         }
     }
 
+    /// Shows an alarm that belongs to no sample (the disk below its free-space floor).
+    pub fn publish_alarm(&self, alarm: &Value) {
+        let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        s.counts.alarms += 1;
+        s.alarms.push_back(alarm.clone());
+        while s.alarms.len() > RECENT_ALARMS {
+            s.alarms.pop_front();
+        }
+    }
+
     /// Replaces `/api/history`'s body.
     pub fn set_history(&self, history: Value) {
         self.state.lock().unwrap_or_else(|p| p.into_inner()).history = history;
