@@ -35,11 +35,14 @@ pub struct Args<'a> {
 pub fn inspect(a: &Args<'_>) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        // A second signal ends the process at once (exit 130), the first stops it cleanly.
+        signal_hook::flag::register_conditional_shutdown(sig, 130, stop.clone())
+            .context("signal handler")?;
         signal_hook::flag::register(sig, stop.clone()).context("signal handler")?;
     }
     let rig = crate::rig::RigConfig::load_or_builtin(a.rig)?;
     let recipe = Recipe::load(a.recipe)?;
-    let mut line = Line::open(InspectOptions {
+    let line = Line::open(InspectOptions {
         rig,
         recipe,
         recipe_path: a.recipe.to_owned(),
@@ -47,8 +50,16 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
         sim: a.sim,
         status_port: a.status_port,
         mqtt_port: a.mqtt_port,
-    })
-    .map_err(|e| anyhow!(e))?;
+        stop: stop.clone(),
+    });
+    let mut line = match line {
+        Ok(line) => line,
+        Err(e) if e.is_interrupted() => {
+            eprintln!("filmscope: {e}");
+            return Ok(());
+        }
+        Err(e) => return Err(anyhow!(e)),
+    };
     if let Some(url) = line.status_url() {
         eprintln!("status page: {url}");
     }

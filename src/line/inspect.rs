@@ -16,8 +16,8 @@
 use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
 
 use serde_json::{json, Value};
@@ -45,8 +45,15 @@ pub struct InspectError(pub String);
 
 /// How a disk-full error begins.
 const DISK_FULL: &str = "disk full";
+/// The error of a start-up a signal stopped.
+const INTERRUPTED: &str = "stopped by a signal during start-up; nothing measured";
 
 impl InspectError {
+    /// Whether start-up was stopped by SIGINT/SIGTERM.
+    pub fn is_interrupted(&self) -> bool {
+        self.0 == INTERRUPTED
+    }
+
     /// Whether the line stopped because its disk is full or below its free-space floor.
     pub fn is_disk_full(&self) -> bool {
         self.0.starts_with(DISK_FULL)
@@ -80,6 +87,10 @@ pub struct InspectOptions {
     pub status_port: Option<u16>,
     /// MQTT broker port instead of the recipe's.
     pub mqtt_port: Option<u16>,
+    /// Set by SIGINT/SIGTERM: start-up stops between any two of its steps (and between
+    /// any two sample folders it recovers) with an error that
+    /// [`InspectError::is_interrupted`].
+    pub stop: Arc<AtomicBool>,
 }
 
 /// One measured sample.
@@ -170,11 +181,21 @@ impl Line {
     /// Opens `opts.out`, recovering what a crash left, and starts the MQTT client and the
     /// status page the recipe names.
     pub fn open(opts: InspectOptions) -> Result<Self, InspectError> {
+        let stop = opts.stop.clone();
+        let go_on = || {
+            if stop.load(Ordering::SeqCst) {
+                Err(InspectError(INTERRUPTED.into()))
+            } else {
+                Ok(())
+            }
+        };
+        go_on()?;
         let out = opts.out.clone();
         let samples_dir = out.join("samples");
         std::fs::create_dir_all(&samples_dir)
             .map_err(|e| ie(&samples_dir.display().to_string())(&e))?;
         let lock = take_lock(&out)?;
+        go_on()?;
         let logpath = out.join("inspect.log");
         let logfile = OpenOptions::new()
             .append(true)
@@ -196,6 +217,7 @@ impl Line {
             opts.recipe.spc.history,
         )
         .map_err(|e| InspectError(e.to_string()))?;
+        go_on()?;
         let mut line = Self {
             samples_dir,
             logfile,
@@ -232,6 +254,7 @@ impl Line {
         let mut records = std::mem::take(&mut rec.records);
         line.counter = rec.max_counter;
         line.recover_folders(&mut records, &rec)?;
+        go_on()?;
         for r in &records {
             if let Some(c) = r["counter"].as_u64() {
                 line.counter = line.counter.max(c);
@@ -252,6 +275,7 @@ impl Line {
             seq.defect_every = s.defect_every;
             line.sequence = Some(seq);
         }
+        go_on()?;
         if let Some(mut m) = line.opts.recipe.mqtt.clone() {
             if let Some(p) = line.opts.mqtt_port {
                 m.port = p;
@@ -267,6 +291,7 @@ impl Line {
             (None, Some(p)) => Some(("127.0.0.1".to_owned(), p)),
             (None, None) => None,
         };
+        go_on()?;
         if let Some((bind, port)) = status {
             match StatusServer::start(&bind, port, &line.opts.recipe.film) {
                 Ok(server) => {
@@ -310,6 +335,9 @@ impl Line {
             .collect();
         names.sort();
         for n in names {
+            if self.opts.stop.load(Ordering::SeqCst) {
+                return Err(InspectError(INTERRUPTED.into()));
+            }
             let p = self.samples_dir.join(&n);
             if n.starts_with(".tmp-") {
                 let _ = std::fs::remove_dir_all(&p);
@@ -912,6 +940,7 @@ pub fn bench_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectError>
             sim: true,
             status_port: None,
             mqtt_port: None,
+            stop: Arc::new(AtomicBool::new(false)),
         })?;
         let mut l = Vec::new();
         for _ in 0..samples {
