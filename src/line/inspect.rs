@@ -299,8 +299,11 @@ impl Line {
                     line.status = Some(server);
                     line.refresh_status_history();
                 }
-                // The line goes on without its page; the log says why.
-                Err(e) => line.say(&format!("device error: {e}; no status page")),
+                // A page the recipe asks for and nobody could reach would go unnoticed.
+                Err(e) => {
+                    line.say(&format!("stop: {e}"));
+                    return Err(InspectError(e.to_string()));
+                }
             }
         }
         Ok(line)
