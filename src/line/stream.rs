@@ -104,6 +104,8 @@ pub struct Recovered {
     pub oldest_counter: Option<u64>,
     /// Bytes of a torn last line cut off.
     pub torn_bytes: u64,
+    /// Bytes read back from the results files (their tails, not the whole files).
+    pub bytes_read: u64,
     /// Lines that were not JSON (skipped).
     pub bad_lines: usize,
 }
@@ -276,6 +278,7 @@ fn read_tail(
         let mut chunk = vec![0u8; n as usize];
         f.seek(SeekFrom::Start(start))?;
         f.read_exact(&mut chunk)?;
+        rec.bytes_read += n;
         chunk.extend_from_slice(&carry);
         let mut upto = chunk.len();
         // Every line that starts inside this chunk after a newline is complete.
@@ -588,6 +591,28 @@ mod tests {
         assert_eq!((back.max_counter, back.bad_lines), (1000, 0));
         assert_eq!(back.oldest_counter, Some(301));
         assert!(back.sample_counters.contains(&301) && !back.sample_counters.contains(&300));
+    }
+
+    #[test]
+    fn start_up_reads_the_tail_not_the_whole_file() {
+        let dir = tempfile::tempdir().expect("dir");
+        let (mut log, _) = ResultsLog::open(dir.path(), 1 << 30, 2, 10).expect("open");
+        for c in 1..=3000u64 {
+            log.append(&json!({"kind": "sample", "counter": c, "pad": "z".repeat(300)}))
+                .expect("append");
+        }
+        let len = std::fs::metadata(ResultsLog::path_in(dir.path()))
+            .expect("size")
+            .len();
+        assert!(len > 1_000_000, "{len}");
+        let (_, back) = ResultsLog::open(dir.path(), 1 << 30, 2, 10).expect("reopen");
+        assert_eq!(back.records.len(), 10);
+        assert_eq!(back.max_counter, 3000);
+        assert!(
+            back.bytes_read <= TAIL_CHUNK,
+            "{} of {len} bytes read",
+            back.bytes_read
+        );
     }
 
     #[test]
