@@ -109,6 +109,37 @@ fn check(d: Dispersion) -> Result<Dispersion, String> {
     }
 }
 
+/// Refuses a model whose index is not finite, or not above `ambient`, anywhere over the
+/// band from the lowest to the highest of `bands_nm` (each band centre and every nm
+/// between): one line naming the first wavelength where it fails.
+pub fn check_over_band(d: &Dispersion, bands_nm: &[f64], ambient: f64) -> Result<(), String> {
+    let finite = bands_nm.iter().copied().filter(|l| l.is_finite());
+    let lo = finite.clone().fold(f64::INFINITY, f64::min);
+    let hi = finite.fold(f64::NEG_INFINITY, f64::max);
+    if !(lo.is_finite() && hi.is_finite() && lo > 0.0) {
+        return Ok(());
+    }
+    // At most a few thousand points: bands lie within 200..3000 nm.
+    let steps = (hi - lo).ceil().clamp(0.0, 10_000.0) as usize;
+    let grid = (0..=steps).map(|i| (lo + i as f64).min(hi));
+    let mut points: Vec<f64> = grid.chain(bands_nm.iter().copied()).collect();
+    points.sort_by(f64::total_cmp);
+    for l in points.into_iter().filter(|l| l.is_finite()) {
+        let n = d.index_at(l);
+        if !(n.is_finite() && n > ambient) {
+            let what = if n.is_finite() {
+                format!("{n:.4} is not above the ambient's index {ambient:.4}")
+            } else {
+                format!("{n} is not a number")
+            };
+            return Err(format!(
+                "n({l:.1} nm) = {what} (the captured band is {lo:.1}-{hi:.1} nm)"
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// A material as a command-line option gives it: a number (a constant index), a library
 /// name or a refractiveindex.info YAML path.
 pub fn from_arg(text: &str) -> Result<Dispersion, String> {
@@ -489,6 +520,38 @@ impl DispersionRecord {
 
 #[cfg(test)]
 mod tests {
+
+    /// n(550 nm) = 2.1, but below 450 nm the index falls under the ambient's and turns
+    /// negative (3.806 - 0.1561 / l^4, l in um).
+    const SINKING: Dispersion = Dispersion::Cauchy {
+        a: 3.806,
+        b_um2: 0.0,
+        c_um4: -0.1561,
+    };
+
+    #[test]
+    fn an_index_is_checked_over_the_whole_band() {
+        assert!((SINKING.index_at(550.0) - 2.1).abs() < 0.01);
+        assert!(SINKING.index_at(430.0) < 0.0);
+        let bands: Vec<f64> = (0..101).map(|i| 420.0 + 3.0 * f64::from(i)).collect();
+        let e = check_over_band(&SINKING, &bands, 1.0).expect_err("refused");
+        assert!(e.starts_with("n(420.0 nm) = -1.2"), "{e}");
+        assert!(e.contains("not above the ambient's index 1.0000"), "{e}");
+        // The red half of the band is fine; a denser ambient is not.
+        let red: Vec<f64> = bands.iter().copied().filter(|&l| l >= 510.0).collect();
+        check_over_band(&SINKING, &red, 1.0).expect("red half");
+        let e = check_over_band(&Dispersion::constant(1.3), &red, 1.33).expect_err("water");
+        assert!(e.starts_with("n(510.0 nm) = 1.3000"), "{e}");
+        // A Sellmeier pole inside the band gives no finite index there.
+        let pole = Dispersion::Sellmeier {
+            a: 1.0,
+            b: [1.0, 0.0, 0.0],
+            c_um: [0.6, 0.0, 0.0],
+        };
+        let e = check_over_band(&pole, &bands, 1.0).expect_err("pole");
+        assert!(e.starts_with("n("), "{e}");
+    }
+
     use super::*;
 
     /// Every model written as YAML reads back with the same n to 1e-9 over the visible.

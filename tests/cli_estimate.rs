@@ -278,3 +278,61 @@ fn a_clipped_white_is_named_and_its_samples_are_not_used() {
     }
     assert!(notes.iter().all(|n| n.contains("720.0 nm")), "{notes:?}");
 }
+
+#[test]
+fn estimate_into_a_results_folder_keeps_the_users_files() {
+    let dir = tempdir();
+    let cap = dir.path().join("cap");
+    capture(&cap);
+    let out = dir.path().join("est");
+    let estimate = || {
+        let run = filmscope()
+            .args(["estimate", s(&cap), "--out", s(&out)])
+            .output()
+            .expect("run");
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        String::from_utf8_lossy(&run.stderr).into_owned()
+    };
+    estimate();
+    for args in [
+        vec!["report", s(&out)],
+        vec!["report", s(&out), "--pixel", "3,4"],
+    ] {
+        let run = filmscope().args(&args).output().expect("run");
+        assert!(run.status.success(), "{args:?}: {run:?}");
+    }
+    assert!(out.join("report.html").exists() && out.join("pixel-3-4.png").exists());
+    std::fs::write(out.join("notes.txt"), "lot 7, wiped twice").expect("notes");
+    std::fs::create_dir(out.join("photos")).expect("folder");
+    std::fs::write(out.join("photos").join("edge.jpg"), "jpeg").expect("photo");
+    let err = estimate();
+    // The user's files stay, untouched.
+    assert_eq!(
+        std::fs::read_to_string(out.join("notes.txt")).expect("notes kept"),
+        "lot 7, wiped twice"
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("photos").join("edge.jpg")).expect("photo kept"),
+        "jpeg"
+    );
+    // The report of the previous maps is removed, and named in one note.
+    let notes: Vec<_> = err.lines().filter(|l| l.contains("removed")).collect();
+    assert_eq!(notes.len(), 1, "{err}");
+    for name in ["report.html", "pixel-3-4.png", "pixel-3-4.csv", "notes.txt"] {
+        assert!(notes[0].contains(name), "{err}");
+    }
+    assert!(!out.join("report.html").exists());
+    assert!(out.join("summary.json").exists() && out.join("thickness_nm.hdr").exists());
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        left.iter().all(|n| n == "cap" || n == "est"),
+        "left over: {left:?}"
+    );
+}

@@ -537,6 +537,79 @@ fn a_bad_recipe_is_one_line_naming_file_and_key() {
     );
 }
 
+/// The hostile values of a recipe (a billion rotated files, a history of 1e9 or 1e18
+/// samples, rotation past 1e18 bytes) are refused at load with one line naming the file,
+/// the key, the value and its range, before anything is opened.
+#[test]
+fn hostile_recipe_values_are_refused_with_one_line() {
+    let dir = tempdir();
+    for (from, to, says) in [
+        (
+            "results_keep = 8",
+            "results_keep = 1_000_000_000",
+            "retention.results_keep = 1000000000: expected 1 to 1000",
+        ),
+        (
+            "history = 500",
+            "history = 1_000_000_000",
+            "spc.history = 1000000000: expected 2 to 10000",
+        ),
+        (
+            "history = 500",
+            "history = 1_000_000_000_000_000_000",
+            "spc.history = 1000000000000000000: expected 2 to 10000",
+        ),
+        ("history = 500", "history = 1e18", "spc.history"),
+        (
+            "results_rotate_bytes = 67_108_864",
+            "results_rotate_bytes = 1_000_000_000_000_000_000",
+            "retention.results_rotate_bytes = 1000000000000000000: expected 4096 to 1073741824",
+        ),
+    ] {
+        let p = dir.path().join("hostile.toml");
+        assert!(DEMO.contains(from), "{from}");
+        std::fs::write(&p, DEMO.replace(from, to)).expect("write");
+        let out = dir.path().join("o");
+        let run = inspect(&p, &out, &["--samples", "1"])
+            .output()
+            .expect("run");
+        assert!(!run.status.success(), "{to}");
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(err.lines().count(), 1, "{to}: {err}");
+        assert!(
+            err.contains("hostile.toml") && err.contains(says),
+            "{to}: {err}"
+        );
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(!out.exists(), "nothing opened");
+    }
+}
+
+/// A start-up that SIGINT/SIGTERM stopped (the flag set) ends before its next step with an
+/// error saying so, measures nothing and leaves no lock.
+#[test]
+fn a_signal_stops_start_up() {
+    use filmscope::line::inspect::{InspectOptions, Line};
+    use filmscope::line::recipe::Recipe;
+    let dir = tempdir();
+    let rec = recipe(dir.path(), None, "");
+    let out = dir.path().join("line");
+    let opts = InspectOptions {
+        rig: filmscope::rig::RigConfig::load(&rig()).expect("rig"),
+        recipe: Recipe::load(&rec).expect("recipe"),
+        recipe_path: rec.clone(),
+        out: out.clone(),
+        sim: true,
+        status_port: None,
+        mqtt_port: None,
+        stop: Arc::new(std::sync::atomic::AtomicBool::new(true)),
+    };
+    let e = Line::open(opts).err().expect("stopped");
+    assert!(e.is_interrupted(), "{e}");
+    assert!(!out.join("inspect.lock").exists());
+    assert!(!out.join("samples").exists(), "nothing opened");
+}
+
 /// A held index the film disagrees with is re-solved over the rig's whole range, and the
 /// sample fails on its index; `solve` searches the whole range at once.
 #[test]
@@ -617,6 +690,86 @@ fn a_folder_without_its_line_gets_it_on_restart() {
     assert_eq!(recs[1], lost, "the record came back as it was");
     let log = std::fs::read_to_string(out.join("inspect.log")).expect("log");
     assert!(log.contains("recovered: record of S000002"), "{log}");
+}
+
+/// A record missing from the middle of the log (an append a full disk failed, the line
+/// went on): the restart appends it from the folder's record.json, once, though later
+/// samples have their records.
+#[test]
+fn a_record_missing_below_the_last_counter_is_reconciled_on_restart() {
+    let dir = tempdir();
+    let rec = recipe(dir.path(), None, "");
+    let out = dir.path().join("line");
+    let run = inspect(&rec, &out, &["--samples", "3"])
+        .output()
+        .expect("run");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let text = std::fs::read_to_string(out.join("results.jsonl")).expect("results");
+    let (lost, kept): (Vec<&str>, Vec<&str>) = text
+        .lines()
+        .partition(|l| l.contains("\"counter\":2,") && l.contains("\"kind\":\"sample\""));
+    assert_eq!(lost.len(), 1, "{text}");
+    let lost: Value = serde_json::from_str(lost[0]).expect("json");
+    std::fs::write(out.join("results.jsonl"), kept.join("\n") + "\n").expect("cut");
+    let run = inspect(&rec, &out, &["--samples", "1"])
+        .output()
+        .expect("restart");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let recs = samples(&out);
+    let mut counters: Vec<u64> = recs.iter().filter_map(|r| r["counter"].as_u64()).collect();
+    assert_eq!(
+        counters,
+        vec![1, 3, 2, 4],
+        "appended at restart, before the next sample"
+    );
+    counters.sort_unstable();
+    counters.dedup();
+    assert_eq!(counters.len(), 4, "each once");
+    assert_eq!(recs[2], lost, "the record came back as it was");
+    let log = std::fs::read_to_string(out.join("inspect.log")).expect("log");
+    assert!(log.contains("recovered: record of S000002"), "{log}");
+}
+
+/// Below the recipe's free-space floor no sample is measured: an alarm record names the
+/// free bytes and the floor, and the run stops at once with one line saying the disk is
+/// full (not that the rig failed).
+#[test]
+fn below_the_free_space_floor_the_line_stops_with_an_alarm() {
+    let dir = tempdir();
+    let rec = recipe(
+        dir.path(),
+        None,
+        "[retention]\nmin_free_bytes = 1_000_000_000_000_000\n",
+    );
+    let out = dir.path().join("line");
+    let run = inspect(&rec, &out, &["--samples", "3"])
+        .output()
+        .expect("run");
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    let errors: Vec<_> = err
+        .lines()
+        .filter(|l| l.starts_with("filmscope:"))
+        .collect();
+    assert_eq!(errors.len(), 1, "{err}");
+    assert!(
+        errors[0].contains("disk full") && errors[0].contains("retention.min_free_bytes"),
+        "{err}"
+    );
+    assert!(!err.contains("rig"), "{err}");
+    let recs = records(&out);
+    assert_eq!(recs.len(), 1, "{recs:?}");
+    assert_eq!(recs[0]["kind"], "alarm");
+    assert_eq!(recs[0]["variable"], "disk_free_bytes");
+    assert!(folders(&out).is_empty(), "nothing measured");
 }
 
 /// Without `--sim` and without the devices, each sample's sweep fails: the log gets a

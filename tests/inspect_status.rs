@@ -35,9 +35,13 @@ fn chromium() -> Result<PathBuf, String> {
 
 fn get(addr: std::net::SocketAddr, path: &str) -> (String, String) {
     let mut s = std::net::TcpStream::connect(addr).expect("connect");
+    // A bound, so that a server that stopped answering fails the test instead of hanging it.
+    s.set_read_timeout(Some(Duration::from_secs(60)))
+        .expect("timeout");
     write!(s, "GET {path} HTTP/1.0\r\nHost: x\r\n\r\n").expect("send");
     let mut body = String::new();
-    s.read_to_string(&mut body).expect("read");
+    s.read_to_string(&mut body)
+        .unwrap_or_else(|e| panic!("{path}: no answer: {e}"));
     let (head, rest) = body.split_once("\r\n\r\n").expect("http");
     (head.to_owned(), rest.to_owned())
 }
@@ -186,4 +190,189 @@ fn status_page_shows_a_new_sample_without_reload_in_chromium() {
         .and_then(|n| n.parse().ok())
         .expect("data-polls");
     assert!(polls >= 2, "polled {polls} times");
+}
+
+/// Threads of this process.
+fn threads() -> usize {
+    std::fs::read_to_string("/proc/self/status")
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix("Threads:"))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or(0)
+}
+
+/// Connections a hostile client holds open against `addr` (loopback only): `half_open`
+/// requests whose head never ends, a request announcing a 2 GB body it never sends, and
+/// one whose header is 1 MiB. Returns the sockets (dropping them closes them) and what the
+/// oversized header got back.
+fn attack(addr: std::net::SocketAddr, half_open: usize) -> (Vec<std::net::TcpStream>, String) {
+    assert!(addr.ip().is_loopback());
+    let mut held = Vec::new();
+    for _ in 0..half_open {
+        let mut s = std::net::TcpStream::connect(addr).expect("connect");
+        s.write_all(b"GET / HTTP/1.1\r\nHost: x\r\nX-Slow: ")
+            .expect("send");
+        held.push(s);
+    }
+    for head in [
+        "POST /api/latest HTTP/1.1\r\nHost: x\r\nContent-Length: 2000000000\r\n\r\n",
+        "GET /api/latest HTTP/1.1\r\nHost: x\r\nContent-Length: 2000000000\r\n\r\n",
+    ] {
+        let mut s = std::net::TcpStream::connect(addr).expect("connect");
+        s.write_all(head.as_bytes()).expect("send");
+        held.push(s);
+    }
+    let mut big = std::net::TcpStream::connect(addr).expect("connect");
+    big.set_read_timeout(Some(Duration::from_secs(30)))
+        .expect("timeout");
+    let mut head = b"GET / HTTP/1.1\r\nHost: x\r\nX-Big: ".to_vec();
+    head.resize(head.len() + (1 << 20), b'a');
+    head.extend_from_slice(b"\r\n\r\n");
+    // The server stops reading at its limit: the rest may not be taken.
+    let _ = big.write_all(&head);
+    let mut answer = Vec::new();
+    let _ = big.read_to_end(&mut answer);
+    (held, String::from_utf8_lossy(&answer).into_owned())
+}
+
+/// A 2 GB `Content-Length` with no body, 300 half-open requests and a 1 MiB header: the page
+/// keeps answering, the big header gets 431, and the server takes no thread per client.
+#[test]
+fn hostile_clients_do_not_knock_the_page_over() {
+    let server = StatusServer::start("127.0.0.1", 0, "test film").expect("server");
+    let before = threads();
+    let (mut held, big) = attack(server.addr(), 300);
+    assert!(big.is_empty() || big.starts_with("HTTP/1.1 431"), "{big}");
+    for path in ["/api/latest", "/metrics", "/"] {
+        let (head, _) = get(server.addr(), path);
+        assert!(head.contains(" 200 "), "{path}: {head}");
+    }
+    // Threads do not follow the clients (other tests of this file may start a few).
+    assert!(
+        threads() < before + 20,
+        "{} threads, {before} before",
+        threads()
+    );
+    // The request that announced a body is answered without it, and closed.
+    for s in held.iter_mut().rev().take(2) {
+        s.set_read_timeout(Some(Duration::from_secs(30)))
+            .expect("timeout");
+        let mut answer = String::new();
+        let _ = s.read_to_string(&mut answer);
+        assert!(
+            answer.starts_with("HTTP/1.1 200") || answer.starts_with("HTTP/1.1 405"),
+            "{answer}"
+        );
+    }
+    drop(held);
+    let (head, _) = get(server.addr(), "/api/latest");
+    assert!(head.contains(" 200 "), "{head}");
+}
+
+/// The demo recipe without its broker, written into `dir`.
+fn recipe(dir: &std::path::Path) -> PathBuf {
+    let demo = include_str!("../config/recipes/demo.toml");
+    let mut out = String::new();
+    let mut skip = false;
+    for line in demo.lines() {
+        if line.starts_with('[') {
+            skip = line.starts_with("[mqtt]");
+        }
+        if !skip {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    let p = dir.join("recipe.toml");
+    std::fs::write(&p, out).expect("recipe");
+    p
+}
+
+fn inspect(recipe: &std::path::Path, out: &std::path::Path, port: &str) -> Command {
+    let mut c = common::filmscope();
+    c.args([
+        "inspect",
+        "--rig",
+        concat!(env!("CARGO_MANIFEST_DIR"), "/config/rig.toml"),
+        "--sim",
+        "--recipe",
+        common::s(recipe),
+        "--out",
+        common::s(out),
+        "--samples",
+        "4",
+        "--status-port",
+        port,
+    ]);
+    c
+}
+
+/// `inspect` under the same attack while it measures: every sample is measured and
+/// recorded, and the page answers throughout.
+#[test]
+fn inspect_keeps_measuring_under_hostile_clients() {
+    let dir = common::tempdir();
+    let rec = recipe(dir.path());
+    let out = dir.path().join("line");
+    let mut child = inspect(&rec, &out, "0")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("inspect");
+    let mut err = std::io::BufReader::new(child.stderr.take().expect("stderr"));
+    let mut first = String::new();
+    std::io::BufRead::read_line(&mut err, &mut first).expect("read");
+    let url = first
+        .trim()
+        .strip_prefix("status page: http://")
+        .and_then(|u| u.strip_suffix('/'))
+        .unwrap_or_else(|| panic!("{first}"));
+    let addr: std::net::SocketAddr = url.parse().expect("address");
+    let (held, _) = attack(addr, 300);
+    let (head, _) = get(addr, "/api/latest");
+    assert!(head.contains(" 200 "), "{head}");
+    // Bounded, so that an inspect that cannot stop fails the test instead of hanging it.
+    let deadline = Instant::now() + Duration::from_secs(300);
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("inspect did not exit while hostile clients were connected");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let mut rest = String::new();
+    let _ = err.read_to_string(&mut rest);
+    assert!(status.success(), "{rest}");
+    drop(held);
+    let samples = std::fs::read_to_string(out.join("results.jsonl"))
+        .expect("results")
+        .lines()
+        .filter(|l| l.contains("\"kind\":\"sample\""))
+        .count();
+    assert_eq!(samples, 4);
+}
+
+/// A status page that cannot listen (its port taken) stops `inspect` at start with one
+/// line naming the address.
+#[test]
+fn a_status_page_that_cannot_listen_is_an_error_at_start() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let port = taken.local_addr().expect("addr").port().to_string();
+    let dir = common::tempdir();
+    let rec = recipe(dir.path());
+    let run = inspect(&rec, &dir.path().join("line"), &port)
+        .output()
+        .expect("run");
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains(&format!("status page on 127.0.0.1:{port}: cannot listen")),
+        "{err}"
+    );
 }

@@ -297,3 +297,64 @@ fn a_given_film_index_is_held() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--film-index \"unobtainium\""));
 }
+
+/// A material whose index is 2.1 at 550 nm but falls below the ambient's and turns negative
+/// below 450 nm (Cauchy 3.806 - 0.1561 / l^4): `--film-index` is refused with one line naming
+/// a wavelength of the captured band, and so is a scene with that film.
+#[test]
+fn an_index_below_the_ambient_anywhere_in_the_band_is_refused() {
+    let dir = tempdir();
+    let cap = dir.path().join("cap");
+    filmscope::simulate::write_capture(
+        &common::tiny_scene(),
+        &cap,
+        filmscope::simulate::SimulateOptions::default(),
+        &|_| {},
+    )
+    .expect("capture");
+    let yml = dir.path().join("sinking.yml");
+    std::fs::write(
+        &yml,
+        "REFERENCES: made up\nDATA:\n  - type: formula 5\n    wavelength_range: 0.3 1.0\n    coefficients: 3.806 -0.1561 -4\n",
+    )
+    .expect("yml");
+    let out = dir.path().join("est");
+    let run = filmscope()
+        .args([
+            "estimate",
+            s(&cap),
+            "--out",
+            s(&out),
+            "--film-index",
+            s(&yml),
+        ])
+        .output()
+        .expect("run");
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("--film-index")
+            && err.contains("sinking.yml")
+            && err.contains("n(420.0 nm) = -1.2"),
+        "{err}"
+    );
+    assert!(!out.exists(), "nothing written");
+    let scene = dir.path().join("sinking.toml");
+    std::fs::write(
+        &scene,
+        common::TINY_SCENE.replace(
+            "[film]\nindex = 2.1\n",
+            "[film]\ndispersion = { model = \"cauchy\", a = 3.806, b_um2 = 0.0, c_um4 = -0.1561 }\n",
+        ),
+    )
+    .expect("scene");
+    let run = filmscope()
+        .args(["simulate", s(&scene), "--out", s(&dir.path().join("sim"))])
+        .output()
+        .expect("run");
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("[film] n(420.0 nm) = -1.2"), "{err}");
+}

@@ -361,6 +361,19 @@ impl Scene {
         }
         let n_bands = ((stop - start) / step + 1e-9).floor() as usize + 1;
         let bands_nm: Vec<f64> = (0..n_bands).map(|i| start + step * i as f64).collect();
+        // Film and substrate above the ambient, finite, over the whole band (every nm).
+        for (what, d) in [("[film]", &stack.film), ("[substrate]", &stack.substrate)] {
+            let nm = (stop - start).ceil() as usize;
+            for l in (0..=nm).map(|i| (start + i as f64).min(stop)) {
+                let n = d.index_at(l);
+                if !(n.is_finite() && n > stack.ambient_index) {
+                    return Err(format!(
+                        "{what} n({l:.1} nm) = {n:.4} is not a finite index above ambient_index {} over the band {start}-{stop} nm",
+                        stack.ambient_index
+                    ));
+                }
+            }
+        }
         if !(rig.fwhm_nm.is_finite() && rig.fwhm_nm >= 0.0 && rig.fwhm_nm < 100.0) {
             return Err(format!("[rig] fwhm_nm {} is outside 0..100", rig.fwhm_nm));
         }

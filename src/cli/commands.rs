@@ -211,7 +211,19 @@ pub fn estimate(
     let out_dir = crate::io::OutputDir::begin(out)?;
     let label = cap.path.display().to_string();
     let fov = cap.lens.field_of_view();
+    let ambient = cap.sample.ambient_index;
+    let substrate = cap.sample.substrate.clone();
     let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
+    // Materials hold over the whole captured band, not only at 550 nm.
+    let bands = source.spec().bands_nm.clone();
+    if let Some((name, d)) = &film {
+        crate::material::check_over_band(d, &bands, ambient)
+            .map_err(|e| anyhow!("--film-index {name:?}: {e}"))?;
+    }
+    if let Some(s) = &substrate {
+        crate::material::check_over_band(&s.dispersion, &bands, ambient)
+            .map_err(|e| anyhow!("{label}: sample.substrate = {:?}: {e}", s.name))?;
+    }
     let mut run = match film {
         None => run_in_field_with_bar(&mut source, &config, fov, &label)?,
         Some((name, d)) => {

@@ -35,11 +35,14 @@ pub struct Args<'a> {
 pub fn inspect(a: &Args<'_>) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        // A second signal ends the process at once (exit 130), the first stops it cleanly.
+        signal_hook::flag::register_conditional_shutdown(sig, 130, stop.clone())
+            .context("signal handler")?;
         signal_hook::flag::register(sig, stop.clone()).context("signal handler")?;
     }
     let rig = crate::rig::RigConfig::load_or_builtin(a.rig)?;
     let recipe = Recipe::load(a.recipe)?;
-    let mut line = Line::open(InspectOptions {
+    let line = Line::open(InspectOptions {
         rig,
         recipe,
         recipe_path: a.recipe.to_owned(),
@@ -47,8 +50,16 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
         sim: a.sim,
         status_port: a.status_port,
         mqtt_port: a.mqtt_port,
-    })
-    .map_err(|e| anyhow!(e))?;
+        stop: stop.clone(),
+    });
+    let mut line = match line {
+        Ok(line) => line,
+        Err(e) if e.is_interrupted() => {
+            eprintln!("filmscope: {e}");
+            return Ok(());
+        }
+        Err(e) => return Err(anyhow!(e)),
+    };
     if let Some(url) = line.status_url() {
         eprintln!("status page: {url}");
     }
@@ -90,12 +101,16 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
                     }
                 }
             }
+            Err(e) if e.is_disk_full() => {
+                line.say(&format!("stop: {e}"));
+                return Err(anyhow!(e));
+            }
             Err(e) => {
                 errors_in_a_row += 1;
                 eprintln!("filmscope: {e}");
                 if errors_in_a_row >= 3 {
                     return Err(anyhow!(
-                        "three samples in a row failed on the rig; stopping"
+                        "three samples in a row failed; stopping (last: {e})"
                     ));
                 }
                 std::thread::sleep(Duration::from_secs(1));

@@ -35,5 +35,5 @@ pub use envi::{
     read_cube, write_f32_map, BandRow, ByteOrder, Cube, DataType, EnviError, EnviErrorKind,
     EnviHeader, EnviReader, EnviWriter, Interleave,
 };
-pub use output::{check_outside_inputs, OutputDir, OutputDirError};
+pub use output::{check_outside_inputs, OutputDir, OutputDirError, Replaced};
 pub use time::{counter_of, sample_id, utc_iso};

@@ -12,10 +12,18 @@
 //! process no longer running: the next [`OutputDir::begin`] on the same target renames it
 //! back. Staging folders and locks of processes no longer running are removed.
 //!
+//! Only what filmscope wrote is replaced. Every entry of the previous `OUT` that the new
+//! result does not write and that is not a filmscope file (a user's `notes.txt`, a folder
+//! of their own) is moved into the new `OUT` after the swap. The previous result's
+//! filmscope files the new one does not write (`report.html` and `pixel-X-Y.png`/`.csv` of
+//! `filmscope report`, which describe the previous maps) are removed, and named in one
+//! note on stderr. A writer killed after the swap but before its move leaves the user's
+//! entries in `OUT.old-PID-N`; the next [`OutputDir::begin`] moves them in then.
+//!
 //! A second writer while the first runs is refused with one line naming the first's pid.
 //! A target that exists but holds something other than a filmscope result (no
 //! `summary.json`, `acquisition.json` or `capture` folder, and not empty) is refused
-//! rather than replaced.
+//! rather than written into.
 
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, Write};
@@ -32,6 +40,98 @@ const RESULT_MARKERS: [&str; 4] = [
     "capture",
     "capture.toml",
 ];
+
+/// Files and folders a filmscope result consists of (`estimate`, `acquire`).
+const RESULT_FILES: [&str; 16] = [
+    "summary.json",
+    "acquisition.json",
+    "capture",
+    "capture.toml",
+    "thickness_nm.hdr",
+    "thickness_nm.img",
+    "thickness_nm.png",
+    "thickness_sigma_nm.hdr",
+    "thickness_sigma_nm.img",
+    "confidence.hdr",
+    "confidence.img",
+    "flags.hdr",
+    "flags.img",
+    "index.csv",
+    "index.yml",
+    "report.html",
+];
+
+/// Whether `name` is a file filmscope writes into a result folder: one of
+/// [`RESULT_FILES`] or a `pixel-X-Y.png`/`.csv` of `filmscope report --pixel`.
+fn is_filmscope_file(name: &str) -> bool {
+    if RESULT_FILES.contains(&name) {
+        return true;
+    }
+    let Some(stem) = name
+        .strip_suffix(".png")
+        .or_else(|| name.strip_suffix(".csv"))
+    else {
+        return false;
+    };
+    let Some((x, y)) = stem.strip_prefix("pixel-").and_then(|r| r.split_once('-')) else {
+        return false;
+    };
+    let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+    digits(x) && digits(y)
+}
+
+/// What a commit did with the previous result's entries the new one does not write.
+#[derive(Debug, Default, Clone, PartialEq, Eq)]
+pub struct Replaced {
+    /// Entries not written by filmscope, moved into the new result (sorted).
+    pub kept: Vec<String>,
+    /// filmscope files of the previous result the new one does not write, removed
+    /// (sorted): its `report.html` and `pixel-X-Y` files.
+    pub removed: Vec<String>,
+}
+
+impl Replaced {
+    /// One line for stderr when previous filmscope files were removed, naming them.
+    pub fn note(&self, target: &Path) -> Option<String> {
+        if self.removed.is_empty() {
+            return None;
+        }
+        let mut line = format!(
+            "{}: removed {} of the previous result (they described its maps; run `filmscope report` again)",
+            target.display(),
+            self.removed.join(", ")
+        );
+        if !self.kept.is_empty() {
+            line.push_str(&format!("; kept {}", self.kept.join(", ")));
+        }
+        Some(line)
+    }
+}
+
+/// Moves every entry of `old` that `new` does not hold and that is not a filmscope file
+/// into `new`; lists the filmscope files of `old` that `new` does not hold (removed with
+/// `old` by the caller).
+fn carry_over(old: &Path, new: &Path) -> io::Result<Replaced> {
+    let mut done = Replaced::default();
+    let mut names: Vec<_> = fs::read_dir(old)?
+        .map(|e| e.map(|e| e.file_name()))
+        .collect::<io::Result<_>>()?;
+    names.sort();
+    for name in names {
+        let to = new.join(&name);
+        if fs::symlink_metadata(&to).is_ok() {
+            continue;
+        }
+        let text = name.to_string_lossy().into_owned();
+        if is_filmscope_file(&text) {
+            done.removed.push(text);
+        } else {
+            fs::rename(old.join(&name), &to)?;
+            done.kept.push(text);
+        }
+    }
+    Ok(done)
+}
 
 /// A result folder that cannot be written, one line: `PATH: problem`.
 #[derive(Debug, thiserror::Error)]
@@ -179,6 +279,17 @@ impl OutputDir {
         }
         for old in olds {
             if self.target.exists() {
+                // Killed after the swap: the user's entries may still be aside.
+                carry_over(&old, &self.target).map_err(|e| {
+                    fail(
+                        &old,
+                        format!(
+                            "cannot move the files kept from the previous result into {}: {e}",
+                            self.target.display()
+                        ),
+                    )
+                })?;
+                sync_dir(&self.target);
                 let _ = fs::remove_dir_all(&old);
             } else {
                 fs::rename(&old, &self.target)
@@ -203,8 +314,11 @@ impl OutputDir {
         fs::read_dir(&self.target).is_ok_and(|mut d| d.next().is_some())
     }
 
-    /// Flushes the staging folder to disk and swaps it in for the target.
-    pub fn commit(mut self) -> Result<(), OutputDirError> {
+    /// Flushes the staging folder to disk and swaps it in for the target; then moves the
+    /// previous result's entries that are not filmscope's into it (see the
+    /// [module docs](self)) and prints one note on stderr naming the previous filmscope
+    /// files removed, if any.
+    pub fn commit(mut self) -> Result<Replaced, OutputDirError> {
         sync_tree(&self.staging).map_err(|e| fail(&self.staging, format!("cannot flush: {e}")))?;
         let n = COUNTER.fetch_add(1, Ordering::Relaxed);
         let old = sibling(&self.target, "old", std::process::id(), n);
@@ -229,10 +343,24 @@ impl OutputDir {
         }
         self.done = true;
         sync_dir(self.target.parent().unwrap_or(Path::new(".")));
+        let mut replaced = Replaced::default();
         if had_old {
+            replaced = carry_over(&old, &self.target).map_err(|e| {
+                fail(
+                    &old,
+                    format!(
+                        "the new result is in {}, but the files kept from the previous one could not be moved there ({e}); they stay here",
+                        self.target.display()
+                    ),
+                )
+            })?;
+            sync_dir(&self.target);
             let _ = fs::remove_dir_all(&old);
         }
-        Ok(())
+        if let Some(note) = replaced.note(&self.target) {
+            eprintln!("filmscope: note: {note}");
+        }
+        Ok(replaced)
     }
 
     /// Commits a partial result (an interrupted acquisition): into the target when it
@@ -431,6 +559,76 @@ mod tests {
             assert_eq!(fs::read_to_string(out.join("summary.json"))?, "old");
             assert!(!dir.path().join("maps.tmp-4999999-1").exists());
         }
+        drop(w);
+        Ok(())
+    }
+
+    #[test]
+    fn a_users_files_are_kept_and_only_filmscope_files_replaced(
+    ) -> Result<(), Box<dyn std::error::Error>> {
+        let dir = tempfile::tempdir()?;
+        let out = dir.path().join("maps");
+        let w = OutputDir::begin(&out)?;
+        fs::write(w.path().join("summary.json"), "1")?;
+        fs::write(w.path().join("index.csv"), "1")?;
+        w.commit()?;
+        fs::write(out.join("notes.txt"), "mine")?;
+        fs::create_dir(out.join("photos"))?;
+        fs::write(out.join("photos").join("a.jpg"), "jpg")?;
+        fs::write(out.join("report.html"), "old report")?;
+        fs::write(out.join("pixel-3-14.png"), "old")?;
+        fs::write(out.join("pixel-3-14.csv"), "old")?;
+        fs::write(out.join("pixel-3.csv"), "not a pixel file")?;
+        let w = OutputDir::begin(&out)?;
+        fs::write(w.path().join("summary.json"), "2")?;
+        let replaced = w.commit()?;
+        assert_eq!(fs::read_to_string(out.join("summary.json"))?, "2");
+        assert_eq!(fs::read_to_string(out.join("notes.txt"))?, "mine");
+        assert_eq!(fs::read_to_string(out.join("photos").join("a.jpg"))?, "jpg");
+        assert_eq!(
+            fs::read_to_string(out.join("pixel-3.csv"))?,
+            "not a pixel file"
+        );
+        assert_eq!(replaced.kept, ["notes.txt", "photos", "pixel-3.csv"]);
+        assert_eq!(
+            replaced.removed,
+            [
+                "index.csv",
+                "pixel-3-14.csv",
+                "pixel-3-14.png",
+                "report.html"
+            ]
+        );
+        assert!(!out.join("report.html").exists() && !out.join("index.csv").exists());
+        let note = replaced.note(&out).ok_or("no note")?;
+        assert!(
+            note.contains("report.html") && note.contains("notes.txt"),
+            "{note}"
+        );
+        let names: Vec<_> = fs::read_dir(dir.path())?.filter_map(Result::ok).collect();
+        assert_eq!(names.len(), 1, "no old folder or lock left");
+        Ok(())
+    }
+
+    #[test]
+    fn a_users_files_left_aside_by_a_dead_writer_are_moved_in(
+    ) -> Result<(), Box<dyn std::error::Error>> {
+        if !Path::new("/proc/self").exists() {
+            return Ok(());
+        }
+        let dir = tempfile::tempdir()?;
+        let out = dir.path().join("maps");
+        fs::create_dir(&out)?;
+        fs::write(out.join("summary.json"), "new")?;
+        // Killed after the swap, before the move: the user's file is still aside.
+        let old = dir.path().join("maps.old-4999999-0");
+        fs::create_dir(&old)?;
+        fs::write(old.join("summary.json"), "old")?;
+        fs::write(old.join("notes.txt"), "mine")?;
+        let w = OutputDir::begin(&out)?;
+        assert_eq!(fs::read_to_string(out.join("notes.txt"))?, "mine");
+        assert_eq!(fs::read_to_string(out.join("summary.json"))?, "new");
+        assert!(!old.exists());
         drop(w);
         Ok(())
     }

@@ -4,14 +4,20 @@
 //! (MQTT, status page), update the trends and raise alarms, then apply the retention policy.
 //!
 //! `DIR` after a crash: folders still under a temporary name are deleted; a folder renamed
-//! into place whose record had not been appended yet gets it appended from its
-//! `record.json`; numbering continues after the highest counter seen in folders or records.
+//! into place whose record is missing from the records read back (the newest
+//! `spc.history` samples') gets it appended from its `record.json`, whatever its number;
+//! numbering continues after the highest counter seen in folders or records.
+//!
+//! A record that cannot be appended (a full disk) waits in memory and is appended, in
+//! order, before any later one; a restart appends it from the folder. Below the recipe's
+//! free-space floor (`retention.min_free_bytes`) no sample is measured: an alarm record
+//! says so and [`Line::measure`] fails with an error that [`InspectError::is_disk_full`].
 
 use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
 
 use serde_json::{json, Value};
@@ -37,6 +43,29 @@ use firmware_sim::line::SampleSequence;
 #[error("{0}")]
 pub struct InspectError(pub String);
 
+/// How a disk-full error begins.
+const DISK_FULL: &str = "disk full";
+/// The error of a start-up a signal stopped.
+const INTERRUPTED: &str = "stopped by a signal during start-up; nothing measured";
+
+impl InspectError {
+    /// Whether start-up was stopped by SIGINT/SIGTERM.
+    pub fn is_interrupted(&self) -> bool {
+        self.0 == INTERRUPTED
+    }
+
+    /// Whether the line stopped because its disk is full or below its free-space floor.
+    pub fn is_disk_full(&self) -> bool {
+        self.0.starts_with(DISK_FULL)
+    }
+}
+
+/// Bytes free to an unprivileged writer on the file system holding `path`.
+pub fn available_bytes(path: &Path) -> std::io::Result<u64> {
+    let st = rustix::fs::statvfs(path)?;
+    Ok(st.f_bavail.saturating_mul(st.f_frsize))
+}
+
 fn ie(what: &str) -> impl FnOnce(&dyn std::fmt::Display) -> InspectError + '_ {
     move |e| InspectError(format!("{what}: {e}"))
 }
@@ -58,6 +87,10 @@ pub struct InspectOptions {
     pub status_port: Option<u16>,
     /// MQTT broker port instead of the recipe's.
     pub mqtt_port: Option<u16>,
+    /// Set by SIGINT/SIGTERM: start-up stops between any two of its steps (and between
+    /// any two sample folders it recovers) with an error that
+    /// [`InspectError::is_interrupted`].
+    pub stop: Arc<AtomicBool>,
 }
 
 /// One measured sample.
@@ -86,6 +119,8 @@ pub struct Line {
     status: Option<StatusServer>,
     sequence: Option<SampleSequence>,
     mqtt_down: bool,
+    /// Records not yet appended (the disk was full), oldest first.
+    unlogged: std::collections::VecDeque<Value>,
     /// Samples measured by this process.
     pub measured: u64,
     latencies_ms: Vec<f64>,
@@ -146,11 +181,21 @@ impl Line {
     /// Opens `opts.out`, recovering what a crash left, and starts the MQTT client and the
     /// status page the recipe names.
     pub fn open(opts: InspectOptions) -> Result<Self, InspectError> {
+        let stop = opts.stop.clone();
+        let go_on = || {
+            if stop.load(Ordering::SeqCst) {
+                Err(InspectError(INTERRUPTED.into()))
+            } else {
+                Ok(())
+            }
+        };
+        go_on()?;
         let out = opts.out.clone();
         let samples_dir = out.join("samples");
         std::fs::create_dir_all(&samples_dir)
             .map_err(|e| ie(&samples_dir.display().to_string())(&e))?;
         let lock = take_lock(&out)?;
+        go_on()?;
         let logpath = out.join("inspect.log");
         let logfile = OpenOptions::new()
             .append(true)
@@ -164,10 +209,15 @@ impl Line {
             )
             .map_err(|e| InspectError(format!("{}: {e}", opts.recipe_path.display())))?;
         let r = &opts.recipe.retention;
-        // Alarms share the stream: keep enough records for a full history of samples.
-        let keep_last = opts.recipe.spc.history.saturating_mul(8);
-        let (log, rec) = ResultsLog::open(&out, r.results_rotate_bytes, r.results_keep, keep_last)
-            .map_err(|e| InspectError(e.to_string()))?;
+        // Read back from the end until a full history of samples is found.
+        let (log, mut rec) = ResultsLog::open(
+            &out,
+            r.results_rotate_bytes,
+            r.results_keep,
+            opts.recipe.spc.history,
+        )
+        .map_err(|e| InspectError(e.to_string()))?;
+        go_on()?;
         let mut line = Self {
             samples_dir,
             logfile,
@@ -178,6 +228,7 @@ impl Line {
             status: None,
             sequence: None,
             mqtt_down: false,
+            unlogged: std::collections::VecDeque::new(),
             measured: 0,
             latencies_ms: Vec::new(),
             alarms_raised: 0,
@@ -187,7 +238,7 @@ impl Line {
             opts,
         };
         line.say(&format!(
-            "start: {} record(s) found{}{}",
+            "start: {} record(s) read back{}{}",
             rec.read,
             if rec.torn_bytes > 0 {
                 format!(", a torn last line of {} bytes cut", rec.torn_bytes)
@@ -200,9 +251,10 @@ impl Line {
                 String::new()
             }
         ));
-        let mut records = rec.records;
+        let mut records = std::mem::take(&mut rec.records);
         line.counter = rec.max_counter;
-        line.recover_folders(&mut records, rec.max_counter)?;
+        line.recover_folders(&mut records, &rec)?;
+        go_on()?;
         for r in &records {
             if let Some(c) = r["counter"].as_u64() {
                 line.counter = line.counter.max(c);
@@ -223,6 +275,7 @@ impl Line {
             seq.defect_every = s.defect_every;
             line.sequence = Some(seq);
         }
+        go_on()?;
         if let Some(mut m) = line.opts.recipe.mqtt.clone() {
             if let Some(p) = line.opts.mqtt_port {
                 m.port = p;
@@ -238,6 +291,7 @@ impl Line {
             (None, Some(p)) => Some(("127.0.0.1".to_owned(), p)),
             (None, None) => None,
         };
+        go_on()?;
         if let Some((bind, port)) = status {
             match StatusServer::start(&bind, port, &line.opts.recipe.film) {
                 Ok(server) => {
@@ -245,8 +299,11 @@ impl Line {
                     line.status = Some(server);
                     line.refresh_status_history();
                 }
-                // The line goes on without its page; the log says why.
-                Err(e) => line.say(&format!("device error: {e}; no status page")),
+                // A page the recipe asks for and nobody could reach would go unnoticed.
+                Err(e) => {
+                    line.say(&format!("stop: {e}"));
+                    return Err(InspectError(e.to_string()));
+                }
             }
         }
         Ok(line)
@@ -272,7 +329,7 @@ impl Line {
     fn recover_folders(
         &mut self,
         records: &mut std::collections::VecDeque<Value>,
-        max_rec: u64,
+        rec: &super::stream::Recovered,
     ) -> Result<(), InspectError> {
         let mut names: Vec<String> = std::fs::read_dir(&self.samples_dir)
             .map_err(|e| ie(&self.samples_dir.display().to_string())(&e))?
@@ -281,6 +338,9 @@ impl Line {
             .collect();
         names.sort();
         for n in names {
+            if self.opts.stop.load(Ordering::SeqCst) {
+                return Err(InspectError(INTERRUPTED.into()));
+            }
             let p = self.samples_dir.join(&n);
             if n.starts_with(".tmp-") {
                 let _ = std::fs::remove_dir_all(&p);
@@ -289,7 +349,8 @@ impl Line {
             }
             let Some(c) = counter_of(&n) else { continue };
             self.counter = self.counter.max(c);
-            if c <= max_rec {
+            // Older than every record read back: logged (or rotated away) long ago.
+            if rec.oldest_counter.is_some_and(|o| c < o) || rec.sample_counters.contains(&c) {
                 continue;
             }
             match std::fs::read_to_string(p.join("record.json"))
@@ -369,8 +430,106 @@ impl Line {
         }
     }
 
-    /// Measures the next sample.
+    /// Measures the next sample. Fails without measuring when the disk is below the
+    /// recipe's free-space floor (after an alarm record) or records wait that still cannot
+    /// be appended; a failure that a full disk caused is named as such.
     pub fn measure(&mut self) -> Result<SampleOutcome, InspectError> {
+        self.check_free_space()?;
+        self.append_unlogged().map_err(|e| self.name_disk_full(e))?;
+        self.measure_one().map_err(|e| self.name_disk_full(e))
+    }
+
+    /// Refuses to measure below the free-space floor, with an alarm record.
+    fn check_free_space(&mut self) -> Result<(), InspectError> {
+        let floor = self.opts.recipe.retention.min_free_bytes;
+        let free = match available_bytes(&self.opts.out) {
+            Ok(f) => f,
+            Err(e) => {
+                self.say(&format!("retention: free space unknown: {e}"));
+                return Ok(());
+            }
+        };
+        if free >= floor {
+            return Ok(());
+        }
+        let text = format!(
+            "{DISK_FULL}: {} has {free} bytes free, below retention.min_free_bytes = {floor}; measuring stopped (free space, then restart)",
+            self.opts.out.display()
+        );
+        let alarm = json!({
+            "kind": "alarm",
+            "sample_id": Value::Null,
+            "counter": self.counter,
+            "timestamp": utc_iso(SystemTime::now()),
+            "variable": "disk_free_bytes",
+            "rule": "free_space_floor",
+            "text": text,
+            "value": free,
+            "floor": floor,
+        });
+        self.say(&format!("alarm {text}"));
+        if self.log.append(&alarm).is_ok() {
+            self.publish(&alarm);
+        }
+        if let Some(st) = &self.status {
+            st.publish_alarm(&alarm);
+        }
+        Err(InspectError(text))
+    }
+
+    /// Appends the records a full disk held back, oldest first.
+    fn append_unlogged(&mut self) -> Result<(), InspectError> {
+        while let Some(r) = self.unlogged.front().cloned() {
+            self.log
+                .append(&r)
+                .map_err(|e| InspectError(format!("records wait to be appended: {e}")))?;
+            self.unlogged.pop_front();
+            self.say(&format!(
+                "recovered: record of {} appended",
+                r["sample_id"].as_str().unwrap_or("?")
+            ));
+            self.publish(&r);
+            if r["kind"] == "sample" {
+                self.push_history(&r);
+            }
+        }
+        Ok(())
+    }
+
+    /// Appends a record, or keeps it for later (and fails) when it cannot be appended.
+    fn append_record(&mut self, record: &Value) -> Result<(), InspectError> {
+        if !self.unlogged.is_empty() {
+            self.unlogged.push_back(record.clone());
+            return Err(InspectError(
+                "records wait to be appended before this one".into(),
+            ));
+        }
+        self.log.append(record).map_err(|e| {
+            self.unlogged.push_back(record.clone());
+            InspectError(e.to_string())
+        })
+    }
+
+    /// `e`, named a disk-full error when the disk is full or below its floor.
+    fn name_disk_full(&self, e: InspectError) -> InspectError {
+        if e.is_disk_full() {
+            return e;
+        }
+        let floor = self.opts.recipe.retention.min_free_bytes;
+        let free = available_bytes(&self.opts.out).ok();
+        let enospc = e.0.contains("os error 28") || e.0.contains("No space left");
+        if enospc || free.is_some_and(|f| f < floor) {
+            let free = free.map_or("an unknown number of".into(), |f| f.to_string());
+            InspectError(format!(
+                "{DISK_FULL}: {} has {free} bytes free (floor {floor}): {e}",
+                self.opts.out.display()
+            ))
+        } else {
+            e
+        }
+    }
+
+    fn measure_one(&mut self) -> Result<SampleOutcome, InspectError> {
         self.counter += 1;
         let counter = self.counter;
         let t = SystemTime::now();
@@ -462,9 +621,7 @@ impl Line {
         std::fs::rename(&tmp, &folder).map_err(|e| ie(&folder.display().to_string())(&e))?;
         sync_dir(&self.samples_dir);
         // The record, then the alarms, on disk and on the wire.
-        self.log
-            .append(&record)
-            .map_err(|e| InspectError(e.to_string()))?;
+        self.append_record(&record)?;
         self.publish(&record);
         self.push_history(&record);
         let s = &self.opts.recipe.spc;
@@ -483,9 +640,7 @@ impl Line {
                 "ucl": a.limits.ucl,
                 "lcl": a.limits.lcl,
             });
-            self.log
-                .append(&rec)
-                .map_err(|e| InspectError(e.to_string()))?;
+            self.append_record(&rec)?;
             self.publish(&rec);
             alarms.push(rec);
         }
@@ -788,6 +943,7 @@ pub fn bench_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectError>
             sim: true,
             status_port: None,
             mqtt_port: None,
+            stop: Arc::new(AtomicBool::new(false)),
         })?;
         let mut l = Vec::new();
         for _ in 0..samples {

@@ -236,6 +236,10 @@ pub struct RetentionSpec {
     /// Rotated results files kept (default 8).
     #[serde(default = "rotated_keep_default")]
     pub results_keep: usize,
+    /// Free bytes the output's file system must keep: below it no sample is measured and
+    /// an alarm is raised (default 1 GiB).
+    #[serde(default = "min_free_default")]
+    pub min_free_bytes: u64,
 }
 
 fn failed() -> RawPolicy {
@@ -253,6 +257,9 @@ fn rotate_default() -> u64 {
 fn rotated_keep_default() -> usize {
     8
 }
+fn min_free_default() -> u64 {
+    1 << 30
+}
 
 impl Default for RetentionSpec {
     fn default() -> Self {
@@ -262,6 +269,7 @@ impl Default for RetentionSpec {
             raw_budget_bytes: budget_default(),
             results_rotate_bytes: rotate_default(),
             results_keep: rotated_keep_default(),
+            min_free_bytes: min_free_default(),
         }
     }
 }
@@ -348,10 +356,34 @@ impl Default for SimSpec {
     }
 }
 
+/// Most bytes of a recipe file.
+pub const MAX_RECIPE_BYTES: u64 = 1 << 20;
+/// Most characters of the film's name.
+pub const MAX_NAME: usize = 200;
+/// Most nm of a nominal thickness or tolerance.
+pub const MAX_THICKNESS_NM: f64 = 50_000.0;
+/// Most pixels of a defect area (a 64 MP sensor).
+pub const MAX_PIXELS: u64 = 1 << 26;
+/// Most `[[roi]]` rectangles.
+pub const MAX_ROIS: usize = 256;
+/// Most samples of the SPC history (`spc.history`): a few MB of points, and start-up reads
+/// back at most this many sample records.
+pub const MAX_HISTORY: u64 = 10_000;
+/// Most bytes of `raw_budget_bytes` and `min_free_bytes` (1 PiB).
+pub const MAX_BYTES: u64 = 1 << 50;
+/// Most bytes of a results file before it rotates (1 GiB).
+pub const MAX_ROTATE_BYTES: u64 = 1 << 30;
+/// Most rotated results files (a rotation renames each once).
+pub const MAX_RESULTS_KEEP: u64 = 1000;
+/// Most characters of an MQTT topic.
+pub const MAX_TOPIC: usize = 256;
+/// Most characters of an MQTT client id.
+pub const MAX_CLIENT_ID: usize = 128;
+
 impl Recipe {
     /// Reads and checks a recipe file.
     pub fn load(path: &Path) -> Result<Self, RecipeError> {
-        let text = std::fs::read_to_string(path).map_err(|e| RecipeError {
+        let text = crate::limits::read_small(path, MAX_RECIPE_BYTES).map_err(|e| RecipeError {
             path: path.to_owned(),
             problem: format!("cannot read: {e}"),
         })?;
@@ -369,8 +401,121 @@ impl Recipe {
         Ok(recipe)
     }
 
-    /// The checks beyond the types: each names its key and value.
+    /// The checks beyond the types: each names its key, its value and the range it must
+    /// lie in (`config/recipes/demo.toml` gives each key's meaning).
     fn check(&self) -> Result<(), String> {
+        self.check_shapes()?;
+        self.check_ranges()
+    }
+
+    /// Every number within a stated range, every text of a sane length: no value can make
+    /// start-up, a rotation or a history allocation unbounded.
+    fn check_ranges(&self) -> Result<(), String> {
+        fn int_in<T: Into<u64> + Copy + std::fmt::Display>(
+            key: &str,
+            v: T,
+            lo: u64,
+            hi: u64,
+        ) -> Result<(), String> {
+            if (lo..=hi).contains(&v.into()) {
+                Ok(())
+            } else {
+                Err(format!("{key} = {v}: expected {lo} to {hi}"))
+            }
+        }
+        fn num_in(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), String> {
+            if v.is_finite() && (lo..=hi).contains(&v) {
+                Ok(())
+            } else if v.is_finite() && v != 0.0 && !(1e-6..1e9).contains(&v.abs()) {
+                Err(format!("{key} = {v:e}: expected {lo} to {hi}"))
+            } else {
+                Err(format!("{key} = {v}: expected {lo} to {hi}"))
+            }
+        }
+        fn text(key: &str, v: &str, max: usize) -> Result<(), String> {
+            if v.trim().is_empty() || v.chars().count() > max || v.chars().any(char::is_control) {
+                Err(format!(
+                    "{key} = {:?}: expected 1 to {max} characters, no control characters",
+                    v.chars().take(40).collect::<String>()
+                ))
+            } else {
+                Ok(())
+            }
+        }
+        let usize_in = |key: &str, v: usize, lo: u64, hi: u64| int_in(key, v as u64, lo, hi);
+        text("film", &self.film, MAX_NAME)?;
+        num_in("index.nominal", self.index.nominal, 1.0, 6.0)?;
+        num_in("index.tolerance", self.index.tolerance, 0.0, 1.0)?;
+        num_in("index.resolve_above", self.index.resolve_above, 0.0, 5.0)?;
+        let t = &self.thickness;
+        num_in("thickness.nominal_nm", t.nominal_nm, 0.0, MAX_THICKNESS_NM)?;
+        if let Some(v) = t.tolerance_nm {
+            num_in("thickness.tolerance_nm", v, 0.0, MAX_THICKNESS_NM)?;
+        }
+        if let Some(v) = t.max_std_nm {
+            num_in("thickness.max_std_nm", v, 0.0, MAX_THICKNESS_NM)?;
+        }
+        usize_in(
+            "acceptance.max_defect_area_px",
+            self.acceptance.max_defect_area_px,
+            0,
+            MAX_PIXELS,
+        )?;
+        if self.roi.len() > MAX_ROIS {
+            return Err(format!(
+                "roi: {} rectangles: expected at most {MAX_ROIS}",
+                self.roi.len()
+            ));
+        }
+        let sp = &self.spc;
+        usize_in("spc.history", sp.history, 2, MAX_HISTORY)?;
+        usize_in("spc.baseline", sp.baseline, 2, sp.history as u64)?;
+        usize_in("spc.min_points", sp.min_points, 2, sp.history as u64)?;
+        let r = &self.retention;
+        int_in("retention.every_n", r.every_n, 1, 1_000_000)?;
+        int_in(
+            "retention.raw_budget_bytes",
+            r.raw_budget_bytes,
+            0,
+            MAX_BYTES,
+        )?;
+        int_in(
+            "retention.results_rotate_bytes",
+            r.results_rotate_bytes,
+            4096,
+            MAX_ROTATE_BYTES,
+        )?;
+        usize_in(
+            "retention.results_keep",
+            r.results_keep,
+            1,
+            MAX_RESULTS_KEEP,
+        )?;
+        int_in("retention.min_free_bytes", r.min_free_bytes, 0, MAX_BYTES)?;
+        if let Some(m) = &self.mqtt {
+            text("mqtt.host", &m.host, 253)?;
+            if m.host.contains(char::is_whitespace) {
+                return Err(format!("mqtt.host = {:?}: a host name or address", m.host));
+            }
+            int_in("mqtt.port", m.port, 1, 65_535)?;
+            text("mqtt.topic", &m.topic, MAX_TOPIC)?;
+            text("mqtt.client_id", &m.client_id, MAX_CLIENT_ID)?;
+        }
+        if let Some(st) = &self.status {
+            text("status.bind", &st.bind, 253)?;
+        }
+        num_in(
+            "sim.drift_nm_per_sample",
+            self.sim.drift_nm_per_sample,
+            -100.0,
+            100.0,
+        )?;
+        int_in("sim.defect_every", self.sim.defect_every, 0, 1_000_000)?;
+        Ok(())
+    }
+
+    /// The checks of signs, pairs and combinations.
+    fn check_shapes(&self) -> Result<(), String> {
         let positive = |key: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
@@ -439,12 +584,6 @@ impl Recipe {
         if self.retention.raw == RawPolicy::EveryNth && self.retention.every_n == 0 {
             return Err("retention.every_n = 0: must be at least 1".into());
         }
-        if self.retention.results_rotate_bytes < 4096 {
-            return Err(format!(
-                "retention.results_rotate_bytes = {}: at least 4096",
-                self.retention.results_rotate_bytes
-            ));
-        }
         if let Some(m) = &self.mqtt {
             if m.topic.is_empty() || m.topic.contains(['+', '#']) {
                 return Err(format!(
@@ -484,7 +623,24 @@ fn toml_line(e: &toml::de::Error, text: &str) -> String {
                 .next()
                 .unwrap_or("")
                 .trim();
-            format!("line {line}: {msg} (at {snippet:?})")
+            // The key the value belongs to: its line's text before `=`, under its table.
+            let whole = text.lines().nth(line - 1).unwrap_or("");
+            let key = whole.split_once('=').map(|(k, _)| k.trim()).unwrap_or("");
+            let table = text
+                .lines()
+                .take(line - 1)
+                .filter(|l| l.trim_start().starts_with('['))
+                .last()
+                .and_then(|l| l.trim().trim_matches(['[', ']']).split(']').next())
+                .map(|t| format!("{}.", t.trim()))
+                .unwrap_or_default();
+            if key.is_empty() || key.starts_with('[') {
+                format!("line {line}: {msg} (at {snippet:?})")
+            } else {
+                let key: String = format!("{table}{key}").chars().take(80).collect();
+                let key = crate::limits::printable(&key);
+                format!("line {line}: {key}: {msg} (at {snippet:?})")
+            }
         }
         None => msg,
     }
@@ -520,12 +676,61 @@ mod tests {
     }
 
     #[test]
+    fn hostile_values_are_refused_with_their_range() {
+        for (extra, line) in [
+            (
+                "[retention]\nresults_keep = 1_000_000_000\n",
+                "r.toml: retention.results_keep = 1000000000: expected 1 to 1000",
+            ),
+            (
+                "[spc]\nhistory = 1_000_000_000\n",
+                "r.toml: spc.history = 1000000000: expected 2 to 10000",
+            ),
+            (
+                "[spc]\nhistory = 1_000_000_000_000_000_000\n",
+                "r.toml: spc.history = 1000000000000000000: expected 2 to 10000",
+            ),
+            (
+                "[retention]\nresults_rotate_bytes = 1_000_000_000_000_000_000\n",
+                "r.toml: retention.results_rotate_bytes = 1000000000000000000: expected 4096 to 1073741824",
+            ),
+            (
+                "[retention]\nmin_free_bytes = 9_000_000_000_000_000_000\n",
+                "r.toml: retention.min_free_bytes = 9000000000000000000: expected 0 to 1125899906842624",
+            ),
+            (
+                "[spc]\nhistory = 10\nbaseline = 25\n",
+                "r.toml: spc.baseline = 25: expected 2 to 10",
+            ),
+            (
+                "[mqtt]\nport = 0\n",
+                "r.toml: mqtt.port = 0: expected 1 to 65535",
+            ),
+            (
+                "[sim]\ndrift_nm_per_sample = 1e300\n",
+                "r.toml: sim.drift_nm_per_sample = 1e300: expected -100 to 100",
+            ),
+        ] {
+            let e = parse(&format!("{MIN}{extra}")).expect_err(extra);
+            assert_eq!(e, line);
+        }
+        let e = parse(&format!(
+            "{MIN}[mqtt]\nclient_id = \"{}\"\n",
+            "c".repeat(500)
+        ))
+        .expect_err("long id");
+        assert!(e.starts_with("r.toml: mqtt.client_id = \"cccc"), "{e}");
+        let e = parse(&MIN.replace("nominal = 2.1", "nominal = 60")).expect_err("index");
+        assert_eq!(e, "r.toml: index.nominal = 60: expected 1 to 6");
+    }
+
+    #[test]
     fn errors_name_file_key_and_value() {
         let e = parse(&MIN.replace("tolerance = 0.03", "tolerance = -1")).expect_err("an error");
         assert_eq!(e, "r.toml: index.tolerance = -1: must be a positive number");
         let e = parse(&format!("{MIN}colour = 3\n")).expect_err("an error");
         assert!(
-            e.starts_with("r.toml: line 8: unknown field `colour`"),
+            e.starts_with("r.toml: line 8: thickness.colour: unknown field `colour`"),
             "{e}"
         );
         assert!(!e.contains('\n'));

@@ -1,15 +1,38 @@
-//! The status page: a small HTTP server (`tiny_http`) with a live page (latest thickness
-//! map with its out-of-tolerance overlay and verdict, the trend with its control limits,
-//! the alarms; it polls `/api/latest` every second), `/api/latest`, `/api/history`,
-//! `/latest.png` and Prometheus `/metrics`.
+//! The status page: a small HTTP server with a live page (latest thickness map with its
+//! out-of-tolerance overlay and verdict, the trend with its control limits, the alarms; it
+//! polls `/api/latest` every second), `/api/latest`, `/api/history`, `/latest.png` and
+//! Prometheus `/metrics`.
+//!
+//! Nothing a client does can stop or slow a measurement: the server is hyper's HTTP/1 on a
+//! single-threaded tokio runtime on a thread of its own (one thread whatever the number of
+//! clients), sharing only the page's state, which each side holds for a copy at most. At
+//! most [`MAX_CONNECTIONS`] connections are served at once (further ones are closed as
+//! they come); a request head has [`HEAD_TIMEOUT`] to arrive and at most [`MAX_HEAD_BYTES`]
+//! (else 431 and the connection is closed); a request body is never read, whatever its
+//! `Content-Length`; every connection is closed after its response, and after
+//! [`CONNECTION_TIMEOUT`] whatever it does. Only `GET` and `HEAD` are answered.
 
 use std::collections::VecDeque;
+use std::convert::Infallible;
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
+use std::time::Duration;
 
+use http_body_util::Full;
+use hyper::body::{Bytes, Incoming};
+use hyper::{Method, Request, Response, StatusCode};
+use hyper_util::rt::{TokioIo, TokioTimer};
 use serde_json::{json, Value};
-use tiny_http::{Header, Response, Server};
+
+/// Most connections served at once (each a task of a few kB, not a thread).
+pub const MAX_CONNECTIONS: usize = 512;
+/// Most bytes of a request's head (request line and headers).
+pub const MAX_HEAD_BYTES: usize = 16 * 1024;
+/// Time a client has to send its request head.
+pub const HEAD_TIMEOUT: Duration = Duration::from_secs(5);
+/// Longest a connection is kept open, whatever the client does.
+pub const CONNECTION_TIMEOUT: Duration = Duration::from_secs(20);
 
 /// Alarms the page and `/api/latest` show.
 pub const RECENT_ALARMS: usize = 50;
@@ -60,52 +83,45 @@ pub struct Counts {
 pub struct StatusServer {
     addr: SocketAddr,
     state: Arc<Mutex<StatusState>>,
-    server: Arc<Server>,
+    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
     thread: Option<JoinHandle<()>>,
 }
 
 impl StatusServer {
-    /// Listens on `bind:port` (port 0: any free one).
+    /// Listens on `bind:port` (port 0: any free one). Fails, naming the address, when it
+    /// cannot listen there (the port in use, an address not of this machine).
     pub fn start(bind: &str, port: u16, film: &str) -> Result<Self, StatusError> {
         let where_ = format!("{bind}:{port}");
-        let server = Server::http(&where_).map_err(|e| StatusError {
+        let fail = |problem: String| StatusError {
             addr: where_.clone(),
-            problem: e.to_string(),
-        })?;
-        let addr = server.server_addr().to_ip().ok_or_else(|| StatusError {
-            addr: where_.clone(),
-            problem: "not an IP socket".into(),
-        })?;
-        let server = Arc::new(server);
+            problem,
+        };
+        let listener = std::net::TcpListener::bind((bind, port))
+            .map_err(|e| fail(format!("cannot listen: {e}")))?;
+        listener
+            .set_nonblocking(true)
+            .map_err(|e| fail(e.to_string()))?;
+        let addr = listener.local_addr().map_err(|e| fail(e.to_string()))?;
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_io()
+            .enable_time()
+            .build()
+            .map_err(|e| fail(format!("no runtime: {e}")))?;
         let state = Arc::new(Mutex::new(StatusState {
             history: json!({"points": [], "limits": {}, "capability": {}}),
             film: film.to_owned(),
             ..StatusState::default()
         }));
-        let (s, st) = (server.clone(), state.clone());
+        let (shutdown, stopped) = tokio::sync::oneshot::channel();
+        let st = state.clone();
         let thread = std::thread::Builder::new()
             .name("status".into())
-            .spawn(move || {
-                for req in s.incoming_requests() {
-                    let (body, ctype, code) = route(req.url(), &st);
-                    let mut resp = Response::from_data(body).with_status_code(code);
-                    if let Ok(h) = Header::from_bytes("Content-Type", ctype) {
-                        resp = resp.with_header(h);
-                    }
-                    if let Ok(h) = Header::from_bytes("Cache-Control", "no-store") {
-                        resp = resp.with_header(h);
-                    }
-                    let _ = req.respond(resp);
-                }
-            })
-            .map_err(|e| StatusError {
-                addr: where_.clone(),
-                problem: e.to_string(),
-            })?;
+            .spawn(move || runtime.block_on(serve(listener, st, stopped)))
+            .map_err(|e| fail(e.to_string()))?;
         Ok(Self {
             addr,
             state,
-            server,
+            shutdown: Some(shutdown),
             thread: Some(thread),
         })
     }
@@ -149,6 +165,16 @@ impl StatusServer {
         }
     }
 
+    /// Shows an alarm that belongs to no sample (the disk below its free-space floor).
+    pub fn publish_alarm(&self, alarm: &Value) {
+        let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        s.counts.alarms += 1;
+        s.alarms.push_back(alarm.clone());
+        while s.alarms.len() > RECENT_ALARMS {
+            s.alarms.pop_front();
+        }
+    }
+
     /// Replaces `/api/history`'s body.
     pub fn set_history(&self, history: Value) {
         self.state.lock().unwrap_or_else(|p| p.into_inner()).history = history;
@@ -165,11 +191,80 @@ impl StatusServer {
 
 impl Drop for StatusServer {
     fn drop(&mut self) {
-        self.server.unblock();
+        if let Some(s) = self.shutdown.take() {
+            let _ = s.send(());
+        }
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
     }
+}
+
+/// Accepts connections until `stopped`, each served as a task under the bounds of the
+/// [module docs](self); dropping the runtime after it ends every connection still open.
+async fn serve(
+    listener: std::net::TcpListener,
+    state: Arc<Mutex<StatusState>>,
+    mut stopped: tokio::sync::oneshot::Receiver<()>,
+) {
+    let Ok(listener) = tokio::net::TcpListener::from_std(listener) else {
+        return;
+    };
+    let permits = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    loop {
+        let accepted = tokio::select! {
+            _ = &mut stopped => return,
+            a = listener.accept() => a,
+        };
+        let stream = match accepted {
+            Ok((stream, _)) => stream,
+            // Out of file descriptors or the like: wait a moment rather than spin.
+            Err(_) => {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
+            }
+        };
+        let Ok(permit) = permits.clone().try_acquire_owned() else {
+            drop(stream);
+            continue;
+        };
+        let st = state.clone();
+        tokio::spawn(async move {
+            let _permit = permit;
+            let service = hyper::service::service_fn(move |req: Request<Incoming>| {
+                let st = st.clone();
+                async move { Ok::<_, Infallible>(respond(&req, &st)) }
+            });
+            let mut http = hyper::server::conn::http1::Builder::new();
+            http.timer(TokioTimer::new())
+                .header_read_timeout(HEAD_TIMEOUT)
+                .max_buf_size(MAX_HEAD_BYTES)
+                .keep_alive(false);
+            let conn = http.serve_connection(TokioIo::new(stream), service);
+            let _ = tokio::time::timeout(CONNECTION_TIMEOUT, conn).await;
+        });
+    }
+}
+
+/// The response to one request (its body never read).
+fn respond(req: &Request<Incoming>, st: &Mutex<StatusState>) -> Response<Full<Bytes>> {
+    let (body, ctype, code) = if req.method() == Method::GET || req.method() == Method::HEAD {
+        route(req.uri().path(), st)
+    } else {
+        (b"only GET".to_vec(), "text/plain", 405)
+    };
+    let mut resp = Response::new(Full::new(Bytes::from(body)));
+    *resp.status_mut() = StatusCode::from_u16(code).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
+    let headers = resp.headers_mut();
+    headers.insert(
+        hyper::header::CONTENT_TYPE,
+        hyper::header::HeaderValue::from_static(ctype),
+    );
+    headers.insert(
+        hyper::header::CACHE_CONTROL,
+        hyper::header::HeaderValue::from_static("no-store"),
+    );
+    resp
 }
 
 fn route(url: &str, st: &Mutex<StatusState>) -> (Vec<u8>, &'static str, u16) {
