@@ -678,7 +678,7 @@ fn random_device_faults_over_many_sweeps_end_complete_or_with_a_clear_error() {
                         assert!(
                             log["re_estimate"]
                                 .as_str()
-                                .is_some_and(|s| s.contains("fewer than two")),
+                                .is_some_and(|s| s.contains("no complete angle")),
                             "{faults}: {log}"
                         );
                     }

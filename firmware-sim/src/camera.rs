@@ -488,18 +488,7 @@ fn imperfect_tables(scene: &Scene) -> Vec<ImperfectTable> {
             max_index,
         )
     };
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let chunk = jobs.len().div_ceil(threads).max(1);
-    std::thread::scope(|s| {
-        let parts: Vec<_> = jobs
-            .chunks(chunk)
-            .map(|part| s.spawn(move || part.iter().map(one).collect::<Vec<_>>()))
-            .collect();
-        parts
-            .into_iter()
-            .flat_map(|p| p.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
-            .collect()
-    })
+    on_threads(&jobs, one)
 }
 
 fn tables(scene: &Scene, models: &[BandModel]) -> Vec<Option<ReflectanceTable>> {
@@ -529,12 +518,18 @@ fn tables(scene: &Scene, models: &[BandModel]) -> Vec<Option<ReflectanceTable>> 
             max_nodes,
         )
     };
+    on_threads(models, one)
+}
+
+/// `f` of every item, in order, the items split over as many threads as the machine has.
+fn on_threads<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let chunk = models.len().div_ceil(threads);
+    let chunk = items.len().div_ceil(threads).max(1);
+    let f = &f;
     std::thread::scope(|s| {
-        let parts: Vec<_> = models
+        let parts: Vec<_> = items
             .chunks(chunk)
-            .map(|part| s.spawn(move || part.iter().map(one).collect::<Vec<_>>()))
+            .map(|part| s.spawn(move || part.iter().map(f).collect::<Vec<_>>()))
             .collect();
         parts
             .into_iter()

@@ -1573,10 +1573,7 @@ impl Problem<'_> {
         sites: &mut [SiteSums; MAX_SITES],
     ) -> Option<(Matrix3<f64>, Vector3<f64>, f64, usize)> {
         *sites = [SiteSums::default(); MAX_SITES];
-        let d_max = (0..self.usable.len())
-            .filter(|&k| self.usable[k])
-            .map(|k| t[k])
-            .fold(0.0, f64::max);
+        let d_max = self.thickest(t);
         // The sites in two halves, each with its own index blocks, added in a fixed order.
         let n = self.usable.len();
         let half = n.div_ceil(2);
@@ -1635,6 +1632,15 @@ impl Problem<'_> {
         }
         self.normal::<false>(kind, p, &t, &mut sums)?;
         Some((t, sums, margin))
+    }
+
+    /// The thickest usable site's thickness of `t` (which sets the passband quadrature's
+    /// nodes), nm.
+    fn thickest(&self, t: &[f64; MAX_SITES]) -> f64 {
+        (0..self.usable.len())
+            .filter(|&k| self.usable[k])
+            .map(|k| t[k])
+            .fold(0.0, f64::max)
     }
 
     /// The band's shortest and longest centre wavelengths, nm.
@@ -1917,10 +1923,7 @@ impl Problem<'_> {
     fn residual(&self, kind: ModelKind, p: &[f64; 3], t: &[f64; MAX_SITES]) -> Option<Residual> {
         let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
         let sites = self.usable.len();
-        let d_max = (0..sites)
-            .filter(|&k| self.usable[k])
-            .map(|k| t[k])
-            .fold(0.0, f64::max);
+        let d_max = self.thickest(t);
         let (lo, hi) = self.band_span();
         let (blue, red) = (lo + (hi - lo) / 3.0, hi - (hi - lo) / 3.0);
         let mut out = Residual::default();
@@ -2154,10 +2157,7 @@ impl Problem<'_> {
             return None;
         }
         let sites = self.usable.len();
-        let d_max = (0..sites)
-            .filter(|&k| self.usable[k])
-            .map(|k| t[k])
-            .fold(0.0, f64::max);
+        let d_max = self.thickest(t);
         let np = kind.params();
         let (k_slot, leak_slot) = (MARGINAL - 2, MARGINAL - 1);
         let mut h = M::zeros();
@@ -2294,10 +2294,7 @@ impl Problem<'_> {
     fn terms_for(&self, kind: ModelKind, p: &[f64; 3], t: &[f64; MAX_SITES]) -> Option<Terms> {
         let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
         let sites = self.usable.len();
-        let d_max = (0..sites)
-            .filter(|&k| self.usable[k])
-            .map(|k| t[k])
-            .fold(0.0, f64::max);
+        let d_max = self.thickest(t);
         let mut terms = Terms::NONE;
         for a in 0..na.min(NOISE_ANGLES) {
             let (mut sw, mut sm, mut smm, mut sy, mut smy) = (0.0, 0.0, 0.0, 0.0, 0.0);
