@@ -92,10 +92,11 @@ pub const TERM_ANGLES: usize = 3;
 pub const TERM_SPAN_DEG: f64 = 20.0;
 /// Rounds of the terms and the index fitted by turns.
 const TERM_ROUNDS: usize = 4;
-/// The range a reflectance scale may take (a white standard's error, side lobes).
-pub const TERM_SCALE: [f64; 2] = [0.8, 1.25];
-/// The range a reflectance offset may take (flare, side lobes).
-pub const TERM_OFFSET: [f64; 2] = [-0.02, 0.05];
+/// The range a reflectance scale may take: a white standard's few per cent, side lobes'
+/// loss of the main band's share (wider, and the index's reflectance level trades with it).
+pub const TERM_SCALE: [f64; 2] = [0.95, 1.05];
+/// The range a reflectance offset may take: flare and side lobes only add light.
+pub const TERM_OFFSET: [f64; 2] = [0.0, 0.02];
 /// The film's extinction coefficient's Urbach tail, nm: `k(l) = film_k exp((450 - l) / tail)`
 /// ([`Problem::film_k`] is `k` at 450 nm).
 pub const ABSORPTION_TAIL_NM: f64 = 90.0;
