@@ -17,9 +17,15 @@
 //!    parameters (Schur complement; [`nalgebra`] for the small dense solve), for each model of
 //!    [`ModelKind`].
 //! 3. **Model choice by evidence**: the lowest `chi2 + MODEL_PENALTY x parameters`, chi-square
-//!    in units of the measured noise. A fit whose reduced chi-square stays above
-//!    [`GATE_CHI2_NU`] after a second start is reported as failed: no index rather than a
-//!    confident wrong one.
+//!    in units of each sample's noise (per site, band and angle, from the runs).
+//! 4. **Judged against what a measurement can promise**: a fit whose reduced chi-square stays
+//!    above [`GATE_CHI2_NU`] after its starts sets aside the sites that fit far worse than
+//!    the rest, lets in the nuisance terms the evidence pays for (film absorption, a
+//!    polariser's leak, each angle's reflectance scale and offset; BIC), takes the misfit
+//!    still beyond the noise as the model's error and is fitted again in those units. It is
+//!    reported as failed (no index rather than a confident wrong one) when that misfit
+//!    exceeds the tolerated [`Geometry::model_error`]; the index's sigma is marginal over
+//!    the terms and widened by the misfit's correlation along the band.
 //!
 //! Everything works on caller-owned buffers ([`workspace_len`]): nothing allocates.
 
