@@ -7,7 +7,9 @@
 
 mod common;
 
-use filmscope::cli::eval::{evaluate, EvalReport, Truth};
+use common::run_scene;
+
+use filmscope::cli::eval::{EvalReport, Truth};
 use filmscope::estimate::method::Method;
 use filmscope::estimate::{index_model_name, run_method, Run, RunConfig};
 use filmscope::pipeline::{run_sweep, PipelineConfig, Prior, PriorUpdate};
@@ -23,14 +25,6 @@ fn eval(name: &str, method: Method) -> EvalReport {
     let (r, _) = run_scene(name, common::scene(name), &config);
     eprintln!("{}", serde_json::to_string(&r).expect("json"));
     r
-}
-
-/// `scene` from the software camera (one worker) through `config`, scored against its truth.
-fn run_scene(name: &str, scene: firmware_sim::Scene, config: &RunConfig) -> (EvalReport, Run) {
-    let truth = Truth::of_scene(&scene);
-    let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
-    let run = run_method(&mut source, config, &|_| {}).expect("run");
-    (evaluate(name, &truth, &run), run)
 }
 
 /// Checks a run's index error, thickness MAE (nm) and valid share against bounds; `what`

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use common::{filmscope, run_ok, s};
 use filmscope::cli::eval::{evaluate, Truth};
-use filmscope::estimate::{run_method, RunConfig};
+use filmscope::estimate::RunConfig;
 use filmscope::source::SimSource;
 use firmware_sim::{Scene, SoftwareCamera};
 
@@ -168,10 +168,7 @@ reflectance_noise_percent = 0.1
 #[test]
 fn one_angle_index_free_tio2_on_glass() {
     let scene = normal_incidence("tio2", 350.0);
-    let truth = Truth::of_scene(&scene);
-    let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
-    let run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
-    let r = evaluate("tio2", &truth, &run);
+    let (r, _) = common::run_scene("tio2", scene, &RunConfig::default());
     assert!(r.index_error.abs() <= 0.01, "index error {}", r.index_error);
     assert!(r.thickness_mae_nm <= 1.0, "MAE {}", r.thickness_mae_nm);
     assert!(r.valid_fraction >= 0.99, "valid {}", r.valid_fraction);
@@ -229,10 +226,7 @@ lamp_blue_ratio = 0.18
         "dim-blue",
     )
     .expect("scene");
-    let truth = Truth::of_scene(&scene);
-    let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
-    let run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
-    let r = evaluate("dim-blue", &truth, &run);
+    let (r, _) = common::run_scene("dim-blue", scene, &RunConfig::default());
     assert!(
         r.index_error.abs() <= 0.003,
         "index error {}",

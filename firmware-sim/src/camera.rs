@@ -457,12 +457,7 @@ fn imperfect_tables(scene: &Scene) -> Vec<ImperfectTable> {
     if !imp.any() || scene.thickness_nm.is_empty() {
         return Vec::new();
     }
-    let lo = scene
-        .thickness_nm
-        .iter()
-        .copied()
-        .fold(f32::INFINITY, f32::min);
-    let hi = scene.thickness_nm.iter().copied().fold(0f32, f32::max);
+    let (lo, hi) = thickness_span(scene);
     let range = [f64::from(lo), f64::from(hi)];
     let nb = scene.bands_nm.len();
     let jobs: Vec<(usize, usize)> = (0..scene.angles_deg.len())
@@ -495,12 +490,7 @@ fn tables(scene: &Scene, models: &[BandModel]) -> Vec<Option<ReflectanceTable>> 
     if scene.field_of_view.is_some() || models.is_empty() {
         return vec![None; models.len()];
     }
-    let lo = scene
-        .thickness_nm
-        .iter()
-        .copied()
-        .fold(f32::INFINITY, f32::min);
-    let hi = scene.thickness_nm.iter().copied().fold(0f32, f32::max);
+    let (lo, hi) = thickness_span(scene);
     let max_nodes = scene.sensor.width * scene.sensor.height / 4;
     let one = |model: &BandModel| {
         let band = model.band();
@@ -519,6 +509,15 @@ fn tables(scene: &Scene, models: &[BandModel]) -> Vec<Option<ReflectanceTable>> 
         )
     };
     on_threads(models, one)
+}
+
+/// The scene's thinnest and thickest pixel, nm.
+fn thickness_span(scene: &Scene) -> (f32, f32) {
+    let t = scene.thickness_nm.iter().copied();
+    (
+        t.clone().fold(f32::INFINITY, f32::min),
+        t.fold(0f32, f32::max),
+    )
 }
 
 /// `f` of every item, in order, the items split over as many threads as the machine has.

@@ -1265,6 +1265,33 @@ struct Problem<'a> {
     par: &'a dyn Parallel,
 }
 
+impl SiteSums {
+    /// Adds one sample of weight `w`, residual `res`, thickness derivative `jd` and index
+    /// derivatives `jp` (with `INDEX`; else only the thickness's sums) to the site's sums and
+    /// the pooled index blocks `(H_pp, g_p)`.
+    #[inline(always)]
+    fn add<const INDEX: bool>(
+        &mut self,
+        w: f64,
+        res: f64,
+        jd: f64,
+        jp: Vector3<f64>,
+        (hpp, gp): (&mut Matrix3<f64>, &mut Vector3<f64>),
+    ) {
+        self.sse += w * res * res;
+        self.n += 1;
+        self.jdd += w * jd * jd;
+        self.gd += w * jd * res;
+        if INDEX {
+            for q in 0..3 {
+                self.jdp[q] += w * jd * jp[q];
+            }
+            *hpp += jp * jp.transpose() * w;
+            *gp += jp * (res * w);
+        }
+    }
+}
+
 /// A site's band reflectance and its derivatives ([`Problem::site_model`]).
 #[derive(Clone, Copy, Default)]
 struct SiteModel {
@@ -1466,20 +1493,9 @@ impl Problem<'_> {
                         if !y.is_finite() {
                             continue;
                         }
-                        let res = y - m[j];
                         let w = self.noise.weight(k, a, b);
-                        s.sse += w * res * res;
-                        s.n += 1;
-                        s.jdd += w * jd[j] * jd[j];
-                        s.gd += w * jd[j] * res;
-                        if INDEX {
-                            let jp = Vector3::new(jp[0][j], jp[1][j], jp[2][j]);
-                            for q in 0..3 {
-                                s.jdp[q] += w * jd[j] * jp[q];
-                            }
-                            hpp += jp * jp.transpose() * w;
-                            gp += jp * (res * w);
-                        }
+                        let jp = Vector3::new(jp[0][j], jp[1][j], jp[2][j]);
+                        s.add::<INDEX>(w, y - m[j], jd[j], jp, (&mut hpp, &mut gp));
                     }
                 }
             }
@@ -1511,20 +1527,9 @@ impl Problem<'_> {
                         continue;
                     }
                     let fit = self.site_model(&nodes[..count], t[k]);
-                    let res = y - fit.m;
                     let w = self.noise.weight(k, a, b);
-                    s.sse += w * res * res;
-                    s.n += 1;
-                    s.jdd += w * fit.dm_dd * fit.dm_dd;
-                    s.gd += w * fit.dm_dd * res;
-                    if INDEX {
-                        let jp = Vector3::from(fit.dm_dp);
-                        for q in 0..3 {
-                            s.jdp[q] += w * fit.dm_dd * jp[q];
-                        }
-                        hpp += jp * jp.transpose() * w;
-                        gp += jp * (res * w);
-                    }
+                    let jp = Vector3::from(fit.dm_dp);
+                    s.add::<INDEX>(w, y - fit.m, fit.dm_dd, jp, (&mut hpp, &mut gp));
                 }
             }
         }
