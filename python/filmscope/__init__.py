@@ -229,7 +229,7 @@ def estimate(
             three-term Cauchy over the bands).
         model_error: the model error the index fit tolerates, RMS reflectance, as
             ``estimate --model-error`` (default: the capture's ``[fit] model_error``, else
-            0.001; 0 judges the fit against the noise alone).
+            0.003; 0 judges the fit against the noise alone).
 
     Returns:
         An :class:`EstimateResult`.

@@ -30,7 +30,7 @@ pub struct IndexArgs {
     #[arg(long)]
     pub one_pass: bool,
     /// The model error the index fit tolerates, RMS reflectance (overrides the capture's
-    /// `[fit] model_error`; default 0.001): a fit missing the spectra by more than their
+    /// `[fit] model_error`; default 0.003): a fit missing the spectra by more than their
     /// noise and this gives no index. 0 judges against the noise alone.
     #[arg(long, value_name = "RMS")]
     pub model_error: Option<f64>,

@@ -4,12 +4,12 @@
 
 use filmscope_core::solve::sample::{
     fit_index, hold_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len,
-    Failure, Geometry, ModelKind, Parallel, Residual, SampleFit, Seat, Spectra, Start,
+    Failure, Geometry, ModelKind, Parallel, Residual, Term, SampleFit, Seat, Spectra, Start,
     ABSORPTION_TAIL_NM, CENTRE, CONSTANT_PREFERENCE, GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY,
     OUTLIER_SITE_RATIO, RUN,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
-use serde_json::json;
+use serde_json::{json, Value};
 
 use crate::pipeline::Tap;
 
@@ -446,9 +446,11 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
         "noise_sigma": finite(fit.noise_sigma),
         "model_error": finite(fit.model_error),
         "nuisance_terms": {
-            "film_k_450nm": (fit.film_k > 0.0).then_some(fit.film_k),
+            "film_k_450nm": term_json(fit.film_k),
             "absorption_tail_nm": ABSORPTION_TAIL_NM,
-            "polariser_leak": (fit.polariser_leak > 0.0).then_some(fit.polariser_leak),
+            "polariser_leak": term_json(fit.polariser_leak),
+            "stage_offset_deg": term_json(fit.stage_offset_deg),
+            "wavelength_shift_nm": term_json(fit.wavelength_shift_nm),
             "reflectance_terms": fit
                 .reflectance_terms
                 .iter()
@@ -476,6 +478,15 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
         "model_error_tolerated": fit.tolerated_model_error,
         "models": ModelKind::ALL.iter().map(|k| k.name()).collect::<Vec<_>>(),
     })
+}
+
+/// A nuisance term as `summary.json` gives it: `{"value", "sigma"}`, null when not taken.
+fn term_json(t: Term) -> Value {
+    if t.taken() {
+        json!({"value": t.value, "sigma": t.sigma.is_finite().then_some(t.sigma)})
+    } else {
+        Value::Null
+    }
 }
 
 /// `summary.json`'s `index_model_choice.residual`: what the chosen fit leaves on the sampled

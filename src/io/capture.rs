@@ -15,7 +15,7 @@
 //! thickness_range_nm = [50.0, 2000.0]
 //!
 //! [fit]                      # optional, a filmscope extension of the contract
-//! model_error = 0.001        # RMS reflectance the model may miss by beyond the noise
+//! model_error = 0.003        # RMS reflectance the model may miss by beyond the noise
 //!
 //! [lens]                     # optional, a filmscope extension of the contract
 //! horizontal_fov_deg = 30.0  # the lens's horizontal field of view, in (0, 180)

@@ -35,7 +35,6 @@ use crate::io::{
 };
 use crate::source::{
     sweep_spec, CaptureSource, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
-    DEFAULT_THICKNESS_RANGE_NM,
 };
 
 /// Set by Ctrl-C: the sweep stops at the next band.
@@ -150,10 +149,7 @@ impl Acquisition {
                 .as_ref()
                 .and_then(|s| s.index_range)
                 .unwrap_or(DEFAULT_INDEX_RANGE),
-            search
-                .as_ref()
-                .and_then(|s| s.thickness_range_nm)
-                .unwrap_or(DEFAULT_THICKNESS_RANGE_NM),
+            search.as_ref().and_then(|s| s.thickness_range_nm),
         )?;
         Ok(Self {
             rig,

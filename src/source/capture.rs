@@ -7,7 +7,6 @@ use filmscope_core::solve::SweepSpec;
 
 use super::{
     row_runs, sweep_spec, RowBlock, RowOrder, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
-    DEFAULT_THICKNESS_RANGE_NM,
 };
 use crate::io::{Capture, EnviReader};
 use filmscope_core::calibrate::{calibrate_row, clipped};
@@ -98,10 +97,7 @@ impl CaptureSource {
             )
         })?;
         let range_i = capture.search.index_range.unwrap_or(DEFAULT_INDEX_RANGE);
-        let range_d = capture
-            .search
-            .thickness_range_nm
-            .unwrap_or(DEFAULT_THICKNESS_RANGE_NM);
+        let range_d = capture.search.thickness_range_nm;
         let mut spec = sweep_spec(
             info.samples,
             info.lines,

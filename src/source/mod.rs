@@ -63,11 +63,10 @@ pub fn sweep_spec(
     substrate_index: f64,
     polarization: filmscope_core::optics::Polarization,
     index_range: [f64; 2],
-    thickness_range_nm: [f64; 2],
+    thickness_range_nm: Option<[f64; 2]>,
 ) -> Result<SweepSpec, String> {
     // Every source passes here: bounded ranges keep the search finite in time and memory.
     crate::limits::check_index_range("search.index_range", index_range)?;
-    crate::limits::check_thickness_range("search.thickness_range_nm", thickness_range_nm)?;
     crate::limits::check_bands("wavelength", bands_nm, "fwhm", fwhm_nm)?;
     if bands_nm.len() < 16 {
         return Err(format!(
@@ -95,6 +94,13 @@ pub fn sweep_spec(
         };
         let _ = fwhm.push(w);
     }
+    let thickness_range_nm = thickness_range_nm.unwrap_or_else(|| {
+        [
+            DEFAULT_THICKNESS_RANGE_NM[0],
+            resolvable_thickness_nm(&bands, &fwhm),
+        ]
+    });
+    crate::limits::check_thickness_range("search.thickness_range_nm", thickness_range_nm)?;
     Ok(SweepSpec {
         width,
         height,
@@ -113,8 +119,42 @@ pub fn sweep_spec(
 
 /// Default search ranges when a capture gives none.
 pub const DEFAULT_INDEX_RANGE: [f64; 2] = [1.2, 3.0];
-/// Default thickness search range, nm.
+/// Default thickness search range, nm: from its low end up to the thickest film the bands
+/// resolve ([`resolvable_thickness_nm`]), never below its high end.
 pub const DEFAULT_THICKNESS_RANGE_NM: [f64; 2] = [50.0, 2000.0];
+
+/// The index of the thickest films the default search range reaches: a low-index film
+/// (polymer, silica, MgF2) is the thickest for a given fringe period.
+const RESOLVED_FILM_INDEX: f64 = 1.45;
+
+/// The thickest film whose fringes the bands resolve, nm: a fringe period of at least three
+/// band steps and twice the passband's FWHM (which leaves it about 40 % of its contrast) at
+/// normal incidence for a film of index [`RESOLVED_FILM_INDEX`], over the band's red half
+/// (where the search looks for thick films; the median of its bands). The period of a
+/// film `d` thick at wavelength `l` is `l^2 / (2 n d)`. Rounded down to 100 nm, at least
+/// the high end of [`DEFAULT_THICKNESS_RANGE_NM`], at most [`crate::limits::MAX_THICKNESS_NM`].
+pub fn resolvable_thickness_nm(bands_nm: &[f64], fwhm_nm: &[f64]) -> f64 {
+    let nb = bands_nm.len().min(fwhm_nm.len());
+    let mut d: Vec<f64> = (nb / 2..nb)
+        .filter_map(|i| {
+            let j = if i + 1 < nb { i + 1 } else { i.checked_sub(1)? };
+            let step = (bands_nm[j] - bands_nm[i]).abs();
+            let period = (3.0 * step).max(2.0 * fwhm_nm[i]);
+            let l = bands_nm[i];
+            (period > 0.0).then(|| l * l / (2.0 * RESOLVED_FILM_INDEX * period))
+        })
+        .filter(|d| d.is_finite())
+        .collect();
+    if d.is_empty() {
+        return DEFAULT_THICKNESS_RANGE_NM[1];
+    }
+    d.sort_by(f64::total_cmp);
+    let median = d[d.len() / 2];
+    ((median / 100.0).floor() * 100.0).clamp(
+        DEFAULT_THICKNESS_RANGE_NM[1],
+        crate::limits::MAX_THICKNESS_NM,
+    )
+}
 
 /// Runs of consecutive image rows `(first, rows)` of a `height`-row frame, each at most
 /// `per_run` long: every row, or only those in `only` (sorted).

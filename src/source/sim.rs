@@ -6,7 +6,7 @@ use firmware_sim::SoftwareCamera;
 
 use super::{
     row_runs, stream_band_sequential, stream_runs, sweep_spec, Samples, Source, StreamMsg,
-    DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,
+    DEFAULT_INDEX_RANGE,
 };
 
 /// The software camera as a source: raw counts with references, or noise-free reflectance.
@@ -34,9 +34,7 @@ impl SimSource {
             scene.stack.substrate.index_at(550.0),
             scene.stack.polarization,
             scene.index_range.unwrap_or(DEFAULT_INDEX_RANGE),
-            scene
-                .thickness_range_nm
-                .unwrap_or(DEFAULT_THICKNESS_RANGE_NM),
+            scene.thickness_range_nm,
         )?
         .with_substrate(scene.stack.substrate);
         Ok(Self {
