@@ -4,7 +4,7 @@
 
 use filmscope_core::solve::sample::{
     fit_index, hold_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len,
-    Failure, Geometry, ModelKind, Parallel, Residual, Term, SampleFit, Seat, Spectra, Start,
+    Failure, Geometry, ModelKind, Parallel, Residual, SampleFit, Seat, Spectra, Start, Term,
     ABSORPTION_TAIL_NM, CENTRE, CONSTANT_PREFERENCE, GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY,
     OUTLIER_SITE_RATIO, RUN,
 };

@@ -14,8 +14,8 @@ use crate::estimate::index_fit::{
     choice_json, fringes_across_band, index_model, PixelTap, SampleTap, SEEDED_BELOW_FRINGES,
 };
 use crate::pipeline::{
-    for_each_calibrated_rows, run_sweep, run_sweep_sampled, Calibrated, PipelineError, Prior,
-    PriorUpdate, SampleHook, SweepOutput, Tap,
+    for_each_calibrated_rows, run_sweep, run_sweep_sampled, Calibrated, Correction, PipelineError,
+    Prior, PriorUpdate, SampleHook, SweepOutput, Tap,
 };
 use crate::source::Source;
 
@@ -129,7 +129,12 @@ pub fn passes_under(
         None
     };
     let seeded = seed.is_some();
-    let prior = index.map(|i| Prior::new(i, PriorUpdate::Hold, seed).with_noise(fit.noise_sigma));
+    let correction = correction_of(&fit);
+    let prior = index.map(|i| {
+        Prior::new(i, PriorUpdate::Hold, seed)
+            .with_noise(fit.noise_sigma)
+            .with_correction(correction.clone())
+    });
     let mut out = run_sweep(source, config.pipeline, prior, on_rows)?;
     let mut passes = 2;
     // The per-pixel pass must agree with the sample's own thicknesses; where it does not
@@ -139,7 +144,8 @@ pub fn passes_under(
         if sites_disagree(tap, &fit, &out, true) > MAX_DISAGREEING_SITES {
             if let Some(map) = tap.seed_map(&fit, spec.width, spec.height) {
                 let prior = Prior::new(i, PriorUpdate::Hold, Some(Arc::new(map)))
-                    .with_noise(fit.noise_sigma);
+                    .with_noise(fit.noise_sigma)
+                    .with_correction(correction);
                 out = run_sweep(source, config.pipeline, Some(prior), &|_| {})?;
                 passes += 1;
             }
@@ -391,6 +397,20 @@ fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
             r.thickness_nm = f32::NAN;
             r.confidence = 0.0;
         }
+    }
+}
+
+/// What the sample fit found every pixel's data off by (its stage offset, wavelength shift
+/// and each angle's reflectance scale and offset), for the per-pixel passes to take out.
+fn correction_of(fit: &SampleFit) -> Correction {
+    Correction {
+        angle_offset_deg: fit.stage_offset_deg.value,
+        band_shift_nm: fit.wavelength_shift_nm.value,
+        terms: fit
+            .reflectance_terms
+            .iter()
+            .map(|&(s, o)| (s as f32, o as f32))
+            .collect(),
     }
 }
 

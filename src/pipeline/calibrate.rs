@@ -9,6 +9,7 @@ use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::track::pack_samples;
 
 use super::msg::{Control, PipelineError, Tap, WorkerMsg, WorkerRows};
+use super::run::Correction;
 use super::state::Strips;
 use crate::source::{calibrate_block, Source, StreamMsg};
 
@@ -20,20 +21,24 @@ pub(super) fn calibrate_stage(
     workers: Vec<Sender<WorkerMsg>>,
     (width, height): (usize, usize),
     (strips, wide): (Strips, bool),
-    tap: Option<&Mutex<dyn Tap + Send>>,
+    (tap, correction): (Option<&Mutex<dyn Tap + Send>>, &Correction),
     on_rows: &(dyn Fn(u64) + Sync),
 ) {
     let mut in_angle = false;
+    // The angle under way, counted from 0 in streaming order.
+    let mut angle: Option<usize> = None;
     for msg in rx.iter() {
         match msg {
             StreamMsg::Angle { incidence_deg } => {
                 in_angle = true;
+                angle = Some(angle.map_or(0, |a| a + 1));
                 if let Some(t) = tap {
                     t.lock()
                         .unwrap_or_else(|e| e.into_inner())
                         .angle(incidence_deg);
                 }
-                if control.send(Control::Angle(incidence_deg)).is_err() {
+                let deg = incidence_deg + correction.angle_offset_deg;
+                if control.send(Control::Angle(deg)).is_err() {
                     return;
                 }
             }
@@ -53,7 +58,7 @@ pub(super) fn calibrate_stage(
                     let _ = control.send(Control::Abort(what));
                     return;
                 }
-                let values = calibrate_block(block.samples, rows, width);
+                let mut values = calibrate_block(block.samples, rows, width);
                 if values.len() != rows * width {
                     let _ = control.send(Control::Abort(format!(
                         "a block of {rows} rows holds {} samples, not {}",
@@ -69,6 +74,12 @@ pub(super) fn calibrate_stage(
                         rows,
                         &values,
                     );
+                }
+                // The solver's data corrected as the sample fit found (the tap keeps them raw).
+                if let Some(&(scale, offset)) = angle.and_then(|a| correction.terms.get(a)) {
+                    for v in &mut values {
+                        *v = (*v - offset) / scale;
+                    }
                 }
                 // Split the block at strip boundaries, each part to its strip's worker.
                 let mut k = 0;

@@ -169,6 +169,30 @@ pub struct Prior {
     /// A sweep with every pixel seeded under a held index and this noise tracks no extrema
     /// ([`SolverOptions::extrema`]).
     pub noise_sigma: Option<f32>,
+    /// What the sample fit found the capture's metadata and reflectance to be off by, taken
+    /// out of the data before the pixels are solved.
+    pub correction: Correction,
+}
+
+/// The sample fit's nuisance terms that apply to every pixel alike: a stage angle offset, a
+/// wavelength shift and each angle's reflectance scale and offset
+/// (`measured = scale x film + offset`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Correction {
+    /// Added to every measured angle, degrees.
+    pub angle_offset_deg: f64,
+    /// Added to every band's centre, nm.
+    pub band_shift_nm: f64,
+    /// Each angle's `(scale, offset)` in streaming order (empty: none; an angle past the end
+    /// is left as measured).
+    pub terms: Vec<(f32, f32)>,
+}
+
+impl Correction {
+    /// Whether it changes nothing.
+    pub fn is_none(&self) -> bool {
+        self.angle_offset_deg == 0.0 && self.band_shift_nm == 0.0 && self.terms.is_empty()
+    }
 }
 
 impl Prior {
@@ -179,7 +203,14 @@ impl Prior {
             update,
             seed,
             noise_sigma: None,
+            correction: Correction::default(),
         }
+    }
+
+    /// The same prior with the data corrected by `correction`.
+    pub fn with_correction(mut self, correction: Correction) -> Self {
+        self.correction = correction;
+        self
     }
 
     /// The prior with the image's noise measured beforehand (ignored unless finite and
@@ -259,6 +290,13 @@ fn sweep(
     let tap = hook.as_ref().map(|h| h.tap);
     let mut spec = source.spec().clone();
     spec.options = config.solver;
+    let correction = prior
+        .as_ref()
+        .map(|p| p.correction.clone())
+        .unwrap_or_default();
+    for b in spec.bands_nm.iter_mut() {
+        *b += correction.band_shift_nm;
+    }
     let (w, h) = (spec.width, spec.height);
     let untracked = prior.as_ref().and_then(|p| p.untracked_noise(w * h));
     if untracked.is_some() {
@@ -340,7 +378,15 @@ fn sweep(
         named(scope, "source".into(), move || source.stream(&src_tx))?;
         named(scope, "calibrate".into(), move || {
             let split = (strips, spec.options.wide_simd);
-            calibrate_stage(src_rx, ctl_tx, worker_txs, (w, h), split, tap, on_rows)
+            calibrate_stage(
+                src_rx,
+                ctl_tx,
+                worker_txs,
+                (w, h),
+                split,
+                (tap, &correction),
+                on_rows,
+            )
         })?;
 
         let mut abort = None;

@@ -70,6 +70,8 @@ pub const CONSTANT_PREFERENCE: f64 = 4.0;
 pub const MAX_BANDS: usize = 1024;
 /// Most Levenberg-Marquardt steps of a refinement.
 const MAX_STEPS: usize = 40;
+/// Refinement steps at each value of a nuisance term's grid.
+const GRID_STEPS: usize = 6;
 /// Most starts the refinement tries before it reports a failed fit.
 pub const MAX_STARTS: usize = 3;
 /// Fringes across the band above which the search is repeated on the band's red half.
@@ -2362,21 +2364,23 @@ impl Problem<'_> {
     ) -> Option<Term> {
         let mut sums = [SiteSums::default(); MAX_SITES];
         let (_, _, before, n) = self.normal::<false>(best.kind, &best.params, t, &mut sums)?;
-        let at = |v: f64| -> Option<(Candidate, [f64; MAX_SITES])> {
+        let at = |v: f64, steps: usize| -> Option<(Candidate, [f64; MAX_SITES])> {
             let mut trial = Problem {
                 noise: self.noise.clone(),
                 ..*self
             };
             apply(&mut trial, v);
             let mut tt = *t;
-            let c = trial.refine(best.kind, best.params, &mut tt, MAX_STEPS)?;
+            let c = trial.refine(best.kind, best.params, &mut tt, steps)?;
             Some((c, tt))
         };
         let log = grid.iter().all(|&v| v > 0.0);
         let x_of = |v: f64| if log { libm::log(v) } else { v };
         let mut tried: heapless::Vec<(f64, Candidate, [f64; MAX_SITES]), 8> = heapless::Vec::new();
+        // The grid's values a few steps from the fit without the term (the parabola needs
+        // no more), the vertex to convergence.
         for &v in grid {
-            if let Some((c, tt)) = at(v) {
+            if let Some((c, tt)) = at(v, GRID_STEPS) {
                 let _ = tried.push((v, c, tt));
             }
         }
@@ -2396,7 +2400,7 @@ impl Problem<'_> {
             if a > 0.0 {
                 let x = -b / (2.0 * a);
                 let v = if log { libm::exp(x) } else { x };
-                if let Some((c, tt)) = at(v) {
+                if let Some((c, tt)) = at(v, MAX_STEPS) {
                     if c.chi2 < c_best.chi2 {
                         (v_best, c_best, t_best) = (v, c, tt);
                     }
