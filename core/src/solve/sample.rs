@@ -3464,6 +3464,41 @@ mod tests {
         }
     }
 
+    /// A stage whose angles all read 0.4 degrees low at a good camera's noise: the fit takes
+    /// the offset as a nuisance term by evidence, finds it within its sigma's reach, and the
+    /// index comes out right; the same capture told its true angles takes no offset.
+    #[test]
+    fn a_stage_offset_is_found_by_evidence() {
+        let truth = Case {
+            angles: &[10.4, 30.4, 50.4],
+            ..QUIET
+        };
+        let (fit, _) = run_told(
+            &truth,
+            &QUIET,
+            5,
+            None,
+            DEFAULT_MODEL_ERROR,
+            |_, _, _, _| 0.0,
+        );
+        assert!(fit.failure.is_none(), "{fit:?}");
+        let o = fit.stage_offset_deg;
+        assert!((o.value - 0.4).abs() < 0.1, "{o:?}");
+        assert!(o.sigma > 0.0 && o.sigma < 0.1, "{o:?}");
+        let n = fit.index().expect("index").index_at(550.0);
+        let n_true = QUIET.film.index_at(550.0);
+        assert!((n - n_true).abs() < 0.003, "n {n} against {n_true}");
+        let (told_right, _) = run_told(
+            &truth,
+            &truth,
+            5,
+            None,
+            DEFAULT_MODEL_ERROR,
+            |_, _, _, _| 0.0,
+        );
+        assert!(!told_right.stage_offset_deg.taken(), "{told_right:?}");
+    }
+
     /// A smooth misfit of a real rig (here 6e-4 RMS along the band, twice the noise) fails
     /// the noise alone but not a tolerated model error: the index comes out right, the
     /// misfit is measured and reported, and the index's sigma widens with it.
