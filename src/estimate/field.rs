@@ -1166,7 +1166,7 @@ mod tests {
             1.52,
             filmscope_core::optics::Polarization::S,
             [1.2, 3.0],
-            [50.0, 2000.0],
+            Some([50.0, 2000.0]),
         )
         .expect("spec");
         SweepOutput {

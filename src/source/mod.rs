@@ -230,3 +230,50 @@ pub fn stream_band_sequential(
     let runs = row_runs(height, None, rows_per_block);
     stream_runs(tx, angles_deg, bands, &runs, block);
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bands(lo: f64, hi: f64, step: f64) -> Vec<f64> {
+        (0..)
+            .map(|i| lo + step * f64::from(i))
+            .take_while(|&l| l <= hi + 1e-9)
+            .collect()
+    }
+
+    /// The default range reaches the thickest film whose fringes the bands resolve (a
+    /// period of three steps and twice the FWHM at n = 1.45 over the red half), never less
+    /// than 2000 nm.
+    #[test]
+    fn the_default_thickness_range_follows_the_bands() {
+        let cases = [
+            ((380.0, 760.0, 1.0), 2.0, 38_100.0),
+            ((420.0, 720.0, 2.0), 4.0, 17_900.0),
+            ((400.0, 720.0, 4.0), 10.0, 7_000.0),
+            ((420.0, 720.0, 20.0), 40.0, 2_000.0),
+        ];
+        for ((lo, hi, step), fwhm, want) in cases {
+            let b = bands(lo, hi, step);
+            let f = vec![fwhm; b.len()];
+            assert_eq!(
+                resolvable_thickness_nm(&b, &f),
+                want,
+                "{lo}-{hi}/{step}, {fwhm}"
+            );
+        }
+        let spec = sweep_spec(
+            4,
+            4,
+            &bands(420.0, 720.0, 2.0),
+            Some(&[4.0; 151]),
+            1.0,
+            1.52,
+            filmscope_core::optics::Polarization::S,
+            DEFAULT_INDEX_RANGE,
+            None,
+        )
+        .expect("spec");
+        assert_eq!(spec.thickness_range_nm, [50.0, 17_900.0]);
+    }
+}
