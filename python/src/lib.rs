@@ -17,7 +17,7 @@ use filmscope::pipeline::PipelineConfig;
 use filmscope::simulate::{write_capture, SimulateOptions};
 use filmscope::source::{
     stream_band_sequential, sweep_spec, CaptureSource, Samples, Source, StreamMsg,
-    DEFAULT_INDEX_RANGE, DEFAULT_THICKNESS_RANGE_NM,
+    DEFAULT_INDEX_RANGE,
 };
 use filmscope::summary::Summary;
 use filmscope_core::optics::{Dispersion, FilmStack, Passband, Polarization};
@@ -389,7 +389,7 @@ fn estimate_array<'py>(
         substrate_d.index_at(550.0),
         pol,
         index_range.unwrap_or(DEFAULT_INDEX_RANGE),
-        thickness_range_nm.unwrap_or(DEFAULT_THICKNESS_RANGE_NM),
+        thickness_range_nm,
     )
     .map_err(fail)?
     .with_substrate(substrate_d);
