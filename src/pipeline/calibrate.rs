@@ -8,8 +8,7 @@ use std::time::Instant;
 use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::track::pack_samples;
 
-use super::msg::{Control, PipelineError, Tap, WorkerMsg, WorkerRows};
-use super::run::Correction;
+use super::msg::{Control, Correction, PipelineError, Tap, WorkerMsg, WorkerRows};
 use super::state::Strips;
 use crate::source::{calibrate_block, Source, StreamMsg};
 

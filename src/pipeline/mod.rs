@@ -15,9 +15,9 @@ mod ties;
 mod worker;
 
 pub use calibrate::{collect_sweep, for_each_calibrated, for_each_calibrated_rows, Calibrated};
-pub use msg::{PipelineError, Tap};
+pub use msg::{Correction, PipelineError, Tap};
 pub use run::{
-    run_sweep, run_sweep_sampled, tally_parallel, update_parallel, AngleTables, Correction,
-    LatencyParts, PipelineConfig, Prior, PriorUpdate, SampleHook, SweepOutput,
+    run_sweep, run_sweep_sampled, tally_parallel, update_parallel, AngleTables, LatencyParts,
+    PipelineConfig, Prior, PriorUpdate, SampleHook, SweepOutput,
 };
 pub use state::{BandModels, ShardState, ShardTally, Strips, Tally};

@@ -77,3 +77,24 @@ pub trait Tap {
     /// The image rows it reads, sorted and distinct (a stream may skip the others).
     fn image_rows(&self) -> Vec<usize>;
 }
+
+/// The sample fit's nuisance terms that apply to every pixel alike: a stage angle offset, a
+/// wavelength shift and each angle's reflectance scale and offset
+/// (`measured = scale x film + offset`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Correction {
+    /// Added to every measured angle, degrees.
+    pub angle_offset_deg: f64,
+    /// Added to every band's centre, nm.
+    pub band_shift_nm: f64,
+    /// Each angle's `(scale, offset)` in streaming order (empty: none; an angle past the end
+    /// is left as measured).
+    pub terms: Vec<(f32, f32)>,
+}
+
+impl Correction {
+    /// Whether it changes nothing.
+    pub fn is_none(&self) -> bool {
+        self.angle_offset_deg == 0.0 && self.band_shift_nm == 0.0 && self.terms.is_empty()
+    }
+}

@@ -26,7 +26,7 @@ use filmscope_core::solve::sweep::{FitStats, SchurSums};
 use filmscope_core::solve::{AngleReport, IndexModel, PixelResult, Shard, SweepSolver, SweepSpec};
 
 use super::calibrate::calibrate_stage;
-use super::msg::{Control, Done, PipelineError, Start, Tap, WorkerMsg};
+use super::msg::{Control, Correction, Done, PipelineError, Start, Tap, WorkerMsg};
 use super::state::{BandModels, ShardState, ShardTally, Strips, Tally};
 use super::ties::TieSet;
 use super::worker::worker;
@@ -172,27 +172,6 @@ pub struct Prior {
     /// What the sample fit found the capture's metadata and reflectance to be off by, taken
     /// out of the data before the pixels are solved.
     pub correction: Correction,
-}
-
-/// The sample fit's nuisance terms that apply to every pixel alike: a stage angle offset, a
-/// wavelength shift and each angle's reflectance scale and offset
-/// (`measured = scale x film + offset`).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Correction {
-    /// Added to every measured angle, degrees.
-    pub angle_offset_deg: f64,
-    /// Added to every band's centre, nm.
-    pub band_shift_nm: f64,
-    /// Each angle's `(scale, offset)` in streaming order (empty: none; an angle past the end
-    /// is left as measured).
-    pub terms: Vec<(f32, f32)>,
-}
-
-impl Correction {
-    /// Whether it changes nothing.
-    pub fn is_none(&self) -> bool {
-        self.angle_offset_deg == 0.0 && self.band_shift_nm == 0.0 && self.terms.is_empty()
-    }
 }
 
 impl Prior {
