@@ -14,6 +14,7 @@ use filmscope::simulate::{write_capture, SimulateOptions};
 use filmscope::source::CaptureSource;
 use filmscope_core::optics::Dispersion;
 use filmscope_core::solve::IndexModel;
+use firmware_sim::random::Draw;
 
 fn perfect() -> Score {
     Score {
@@ -174,7 +175,7 @@ fn every_drawn_scene_simulates_and_estimates() {
         seed,
         &RunConfig::default(),
         dir.path(),
-        false,
+        Draw::Plain,
         &mut |_| seen += 1,
     );
     assert_eq!(seen, count);
@@ -228,8 +229,13 @@ fn every_drawn_scene_simulates_and_estimates() {
 fn thick_high_index_films_with_a_step_have_every_pixel_solved() {
     let dir = common::tempdir();
     for i in [3, 49] {
-        let row =
-            filmscope::cli::eval::random_scene(2, i, &RunConfig::default(), dir.path(), false);
+        let row = filmscope::cli::eval::random_scene(
+            2,
+            i,
+            &RunConfig::default(),
+            dir.path(),
+            Draw::Plain,
+        );
         assert!(row.passed, "{}", row.table_row());
         let s = row.score.expect("a score");
         assert!(s.valid_fraction >= 0.99, "{}", row.table_row());

@@ -146,6 +146,133 @@ pub fn draw_realistic(seed: u64, i: usize) -> RandomScene {
     draw_as(seed, i, true)
 }
 
+/// Base film thickness of the thick-film scenes, nm (log-uniform).
+pub const THICK_BASE_THICKNESS_NM: [f64; 2] = [40.0, 5000.0];
+/// Substrates of the thick-film scenes: dispersive library materials (glass, fused silica,
+/// polymers, sapphire).
+pub const THICK_SUBSTRATES: [&str; 5] = ["bk7", "sio2", "pmma", "polycarbonate", "al2o3"];
+
+/// Which random set a scene belongs to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Draw {
+    /// [`draw`].
+    Plain,
+    /// [`draw_realistic`].
+    Realistic,
+    /// [`draw_thick`].
+    Thick,
+}
+
+impl Draw {
+    /// The set's name in scene names and closing lines: `random`, `realistic`, `thick`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Plain => "random",
+            Self::Realistic => "realistic",
+            Self::Thick => "thick",
+        }
+    }
+}
+
+/// Scene `i` of the thick-film set `seed` (`eval --random --thick`): [`draw`]'s rig and
+/// sensor with the base thickness log-uniform in [`THICK_BASE_THICKNESS_NM`], two angles, a
+/// dispersive substrate from [`THICK_SUBSTRATES`] and no `[search]` range: the estimator's
+/// default range must reach the film.
+pub fn draw_thick(seed: u64, i: usize) -> RandomScene {
+    draw_kind(Draw::Thick, seed, i)
+}
+
+/// Scene `i` of set `seed` of the kind `kind`.
+pub fn draw_kind(kind: Draw, seed: u64, i: usize) -> RandomScene {
+    match kind {
+        Draw::Plain => draw_as(seed, i, false),
+        Draw::Realistic => draw_as(seed, i, true),
+        Draw::Thick => draw_thick_as(seed, i),
+    }
+}
+
+/// [`draw_thick`].
+fn draw_thick_as(seed: u64, i: usize) -> RandomScene {
+    let mut rng = Rng::from_words(&[seed, i as u64, 0x7B1C_F11D]);
+    let names = materials::names();
+    let material = names[integer(&mut rng, [0, names.len() - 1])];
+    let film_n = materials::by_name(material)
+        .map(|d| d.index_at(550.0))
+        .unwrap_or(1.5);
+    let substrate = loop {
+        let s = THICK_SUBSTRATES[integer(&mut rng, [0, THICK_SUBSTRATES.len() - 1])];
+        let n = materials::by_name(s).map_or(1.5, |d| d.index_at(550.0));
+        if (n - film_n).abs() >= MIN_INDEX_GAP {
+            break s;
+        }
+    };
+    let [lo, hi] = THICK_BASE_THICKNESS_NM;
+    let base = round_to(
+        (lo.ln() + (hi.ln() - lo.ln()) * rng.uniform())
+            .exp()
+            .clamp(lo, hi),
+        10.0,
+    );
+    let gradient = [
+        round_to(base * uniform(&mut rng, [-0.1, 0.1]), 10.0),
+        round_to(base * uniform(&mut rng, [-0.1, 0.1]), 10.0),
+    ];
+    let a0 = round_to(uniform(&mut rng, [0.0, 30.0]), 2.0);
+    let a1 = round_to(a0 + uniform(&mut rng, [15.0, 40.0]), 2.0);
+    let start = uniform(&mut rng, BAND_START_NM).round();
+    let stop = uniform(&mut rng, BAND_STOP_NM).round();
+    let step_nm = round_to(uniform(&mut rng, BAND_STEP_NM), 2.0);
+    let fwhm = round_to(uniform(&mut rng, FWHM_NM), 10.0);
+    let polarization = ["s", "p", "unpolarized"][integer(&mut rng, [0, 2])];
+    let noise = round_to(uniform(&mut rng, NOISE_PERCENT), 100.0);
+    let width = integer(&mut rng, WIDTH);
+    let height = integer(&mut rng, HEIGHT);
+    let big_endian = rng.uniform() < 0.5;
+    let scene_seed = rng.next_u64() >> 16;
+    let name = format!("thick-{seed}-{i}");
+    let toml = format!(
+        "name = {name:?}\n\
+         description = \"{material} {base:?} nm on {substrate}\"\n\
+         seed = {scene_seed}\n\
+         polarization = {polarization:?}\n\
+         \n\
+         [film.dispersion]\n\
+         model = \"material\"\n\
+         name = {material:?}\n\
+         \n\
+         [film.thickness]\n\
+         base_nm = {base:?}\n\
+         gradient_nm = [{:?}, {:?}]\n\
+         \n\
+         [substrate.dispersion]\n\
+         model = \"material\"\n\
+         name = {substrate:?}\n\
+         \n\
+         [rig]\n\
+         angles_deg = [{a0:?}, {a1:?}]\n\
+         bands_nm = [{start:?}, {stop:?}, {step_nm:?}]\n\
+         fwhm_nm = {fwhm:?}\n\
+         \n\
+         [sensor]\n\
+         width = {width}\n\
+         height = {height}\n\
+         reflectance_noise_percent = {noise:?}\n",
+        gradient[0], gradient[1],
+    );
+    let scene = Scene::from_toml(&toml, &name)
+        .unwrap_or_else(|e| panic!("a drawn scene is always valid: {e}\n{toml}"));
+    RandomScene {
+        scene,
+        toml,
+        material,
+        base_thickness_nm: base,
+        has_step: false,
+        float_reflectance: true,
+        interleave: CubeInterleave::Bsq,
+        big_endian,
+    }
+}
+
 /// [`draw`], or [`draw_realistic`].
 fn draw_as(seed: u64, i: usize, realistic: bool) -> RandomScene {
     let mut rng = Rng::from_words(&[seed, i as u64, 0x7A4D_5CE7]);

@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::ValueEnum as _;
+use firmware_sim::random::Draw;
 use firmware_sim::{Scene, SoftwareCamera};
 
 use super::progress::rows_bar;
@@ -366,7 +367,7 @@ fn ablated(list: &[super::Ablation]) -> (SolverOptions, FieldConfig) {
 pub fn eval(
     inputs: &[PathBuf],
     random: Option<(usize, u64, Option<PathBuf>)>,
-    realistic: bool,
+    kind: Draw,
     seed: Option<u64>,
     method: &super::MethodArgs,
     json: bool,
@@ -394,7 +395,7 @@ pub fn eval(
     };
     let config = method.run_config(pipeline, wide)?;
     if let Some((count, seed, save)) = random {
-        return eval_random(count, seed, &config, json, save.as_deref(), realistic);
+        return eval_random(count, seed, &config, json, save.as_deref(), kind);
     }
     if !json {
         println!(
@@ -471,17 +472,13 @@ fn eval_random(
     config: &RunConfig,
     json: bool,
     save_scenes: Option<&Path>,
-    realistic: bool,
+    kind: Draw,
 ) -> Result<()> {
     if let Some(dir) = save_scenes {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create", dir.display()))?;
         for i in 0..count {
-            let drawn = if realistic {
-                firmware_sim::random::draw_realistic(seed, i)
-            } else {
-                firmware_sim::random::draw(seed, i)
-            };
+            let drawn = firmware_sim::random::draw_kind(kind, seed, i);
             let path = dir.join(format!("{}.toml", drawn.scene.name));
             write_atomic(&path, drawn.toml.as_bytes())
                 .with_context(|| format!("{}: cannot write", path.display()))?;
@@ -495,7 +492,7 @@ fn eval_random(
         println!("{}", crate::cli::eval::RandomRow::table_header());
     }
     let result =
-        crate::cli::eval::random_eval(count, seed, config, work.path(), realistic, &mut |row| {
+        crate::cli::eval::random_eval(count, seed, config, work.path(), kind, &mut |row| {
             if !json {
                 println!("{}", row.table_row());
             }

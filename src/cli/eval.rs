@@ -12,6 +12,7 @@ use filmscope_core::colour::{
     delta_e2000, delta_e76, spectral_rmse, Colorimetry, Illuminant, D65_WHITE_XYZ,
 };
 use filmscope_core::optics::{Dispersion, FilmStack, Polarization};
+use firmware_sim::random::Draw;
 use serde::Serialize;
 
 use crate::appearance::spectral::{capture_passbands, BandSpectrum, FilmColour};
@@ -589,8 +590,9 @@ pub struct RandomEval {
     pub seconds: f64,
     /// The criteria applied.
     pub criteria: Criteria,
-    /// Realistic scenes ([`firmware_sim::random::draw_realistic`]).
-    pub realistic: bool,
+    /// Which random set ([`firmware_sim::random::draw_kind`]), by name in JSON.
+    #[serde(serialize_with = "draw_name")]
+    pub kind: Draw,
     /// Mean over scenes of the share of valid pixels within their thickness 1-sigma (a
     /// 1-sigma should cover about 68 %).
     pub thickness_sigma_coverage: Option<f64>,
@@ -600,16 +602,17 @@ pub struct RandomEval {
     pub rows: Vec<RandomRow>,
 }
 
+/// A random set's name (`random`, `realistic`, `thick`) as JSON.
+fn draw_name<S: serde::Serializer>(kind: &Draw, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(kind.name())
+}
+
 impl RandomEval {
     /// `random eval: P of N passed, K index silently wrong`.
     pub fn closing_line(&self) -> String {
         format!(
             "{} eval: {} of {} passed, {} index silently wrong",
-            if self.realistic {
-                "realistic"
-            } else {
-                "random"
-            },
+            self.kind.name(),
             self.passed,
             self.count,
             self.index_silently_wrong
@@ -627,6 +630,15 @@ impl RandomEval {
     }
 }
 
+/// The criteria a random set is judged by: the realistic ones (which scale with the
+/// thickness) for realistic and thick-film scenes.
+fn criteria_of(kind: Draw) -> Criteria {
+    match kind {
+        Draw::Plain => RANDOM_CRITERIA,
+        Draw::Realistic | Draw::Thick => REALISTIC_CRITERIA,
+    }
+}
+
 /// Runs random scene `i` of set `seed` as a user would: draws it
 /// ([`firmware_sim::random::draw`]), writes its capture into `work_dir/scene-I` with the
 /// drawn interleave, byte order and sensor model, reads it back from disk, estimates with
@@ -637,19 +649,11 @@ pub fn random_scene(
     i: usize,
     config: &RunConfig,
     work_dir: &Path,
-    realistic: bool,
+    kind: Draw,
 ) -> RandomRow {
     let t0 = std::time::Instant::now();
-    let drawn = if realistic {
-        firmware_sim::random::draw_realistic(seed, i)
-    } else {
-        firmware_sim::random::draw(seed, i)
-    };
-    let criteria = if realistic {
-        REALISTIC_CRITERIA
-    } else {
-        RANDOM_CRITERIA
-    };
+    let drawn = firmware_sim::random::draw_kind(kind, seed, i);
+    let criteria = criteria_of(kind);
     let scene = &drawn.scene;
     let dir = work_dir.join(format!("scene-{i}"));
     let attempt = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -801,13 +805,13 @@ pub fn random_eval(
     seed: u64,
     config: &RunConfig,
     work_dir: &Path,
-    realistic: bool,
+    kind: Draw,
     on_row: &mut dyn FnMut(&RandomRow),
 ) -> RandomEval {
     let t0 = std::time::Instant::now();
     let mut rows = Vec::with_capacity(count);
     for i in 0..count {
-        let row = random_scene(seed, i, config, work_dir, realistic);
+        let row = random_scene(seed, i, config, work_dir, kind);
         on_row(&row);
         rows.push(row);
     }
@@ -819,15 +823,11 @@ pub fn random_eval(
     RandomEval {
         seed,
         count,
-        realistic,
+        kind,
         passed: rows.iter().filter(|r| r.passed).count(),
         index_silently_wrong: rows.iter().filter(|r| r.index_silently_wrong).count(),
         seconds: t0.elapsed().as_secs_f64(),
-        criteria: if realistic {
-            REALISTIC_CRITERIA
-        } else {
-            RANDOM_CRITERIA
-        },
+        criteria: criteria_of(kind),
         thickness_sigma_coverage: (!within.is_empty())
             .then(|| within.iter().sum::<f64>() / within.len() as f64),
         index_sigma_coverage: (!index_within.is_empty()).then(|| {

@@ -223,6 +223,11 @@ enum Command {
         /// the realistic criteria; each row lists what was drawn.
         #[arg(long, requires = "random")]
         realistic: bool,
+        /// With --random: thick films with no search range given (40-5000 nm on a
+        /// dispersive substrate, two angles), judged by the realistic criteria: the default
+        /// thickness range must reach them.
+        #[arg(long, requires = "random", conflicts_with = "realistic")]
+        thick: bool,
         #[command(flatten)]
         method: MethodArgs,
         /// One JSON object per input on stdout instead of a table (with --random: one
@@ -458,13 +463,18 @@ pub fn main() -> std::process::ExitCode {
             seed,
             save_scenes,
             realistic,
+            thick,
             method,
             json,
             ablate,
         } => commands::eval(
             &inputs,
             random.map(|n| (n, seed.unwrap_or(1), save_scenes)),
-            realistic,
+            match (realistic, thick) {
+                (true, _) => firmware_sim::random::Draw::Realistic,
+                (_, true) => firmware_sim::random::Draw::Thick,
+                _ => firmware_sim::random::Draw::Plain,
+            },
             seed,
             &method,
             json,

@@ -121,7 +121,7 @@ pub fn sweep_spec(
 pub const DEFAULT_INDEX_RANGE: [f64; 2] = [1.2, 3.0];
 /// Default thickness search range, nm: from its low end up to the thickest film the bands
 /// resolve ([`resolvable_thickness_nm`]), never below its high end.
-pub const DEFAULT_THICKNESS_RANGE_NM: [f64; 2] = [50.0, 2000.0];
+pub const DEFAULT_THICKNESS_RANGE_NM: [f64; 2] = [20.0, 2000.0];
 
 /// The index of the thickest films the default search range reaches: a low-index film
 /// (polymer, silica, MgF2) is the thickest for a given fringe period.
@@ -274,6 +274,6 @@ mod tests {
             None,
         )
         .expect("spec");
-        assert_eq!(spec.thickness_range_nm, [50.0, 17_900.0]);
+        assert_eq!(spec.thickness_range_nm, [20.0, 17_900.0]);
     }
 }
