@@ -437,6 +437,12 @@ impl Line {
     /// Raises an alarm (once, until acknowledgements resume) when the connected broker
     /// leaves records unacknowledged beyond `mqtt.ack_timeout_s`.
     fn check_mqtt(&mut self) {
+        self.check_mqtt_after(None);
+    }
+
+    /// [`Line::check_mqtt`] with records unacknowledged for longer than `after` (default
+    /// `mqtt.ack_timeout_s`) counted.
+    fn check_mqtt_after(&mut self, after: Option<Duration>) {
         let Some(m) = &self.mqtt else { return };
         let timeout = self
             .opts
@@ -445,7 +451,7 @@ impl Line {
             .as_ref()
             .map_or(10.0, |s| s.ack_timeout_s);
         let refused = m.refused();
-        match m.stalled(Duration::from_secs_f64(timeout)) {
+        match m.stalled(after.unwrap_or(Duration::from_secs_f64(timeout))) {
             Some((n, seq)) if !self.mqtt_stalled => {
                 self.mqtt_stalled = true;
                 let text = format!(
@@ -1059,7 +1065,8 @@ impl Line {
             .as_ref()?
             .flush(Duration::from_secs_f64(timeout))?;
         if left.connected && !self.mqtt_stalled {
-            self.check_mqtt();
+            // The wait at exit was the timeout: whatever is still unacknowledged counts.
+            self.check_mqtt_after(Some(Duration::ZERO));
         }
         Some(left)
     }

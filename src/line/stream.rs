@@ -10,7 +10,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use rumqttc::{
-    Client, ConnectionError, Event, LastWill, MqttOptions, Packet, QoS, RecvTimeoutError,
+    AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Packet, QoS,
     TlsConfiguration, Transport,
 };
 use serde_json::Value;
@@ -530,6 +530,11 @@ struct Spool {
     last_error: Option<String>,
     queued: u64,
     acked: u64,
+    /// `seq` of each publish handed to rumqttc whose packet id is not known yet (0: the
+    /// status message), in the order handed.
+    requested: std::collections::VecDeque<u64>,
+    /// Packet id to `seq` of the publishes on the wire.
+    in_flight: std::collections::HashMap<u16, u64>,
 }
 
 struct Entry {
@@ -544,6 +549,15 @@ struct Entry {
 impl Spool {
     fn lock(s: &Mutex<Spool>) -> std::sync::MutexGuard<'_, Spool> {
         s.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// The connection is gone (or new): no publish is on the wire any more.
+    fn forget_wire(&mut self) {
+        self.requested.clear();
+        self.in_flight.clear();
+        for e in self.entries.iter_mut() {
+            e.sent = None;
+        }
     }
 
     /// Moves `acked_seq` past the acknowledged records at the front.
@@ -582,6 +596,8 @@ const WINDOW: usize = 64;
 pub struct MqttPublisher {
     spool: Arc<Mutex<Spool>>,
     stop: Arc<AtomicBool>,
+    wake: Arc<tokio::sync::Notify>,
+    halt: Arc<tokio::sync::Notify>,
     thread: Option<JoinHandle<()>>,
     prefix: String,
 }
@@ -609,7 +625,7 @@ impl MqttPublisher {
         if let Some(tls) = tls_config(spec)? {
             o.set_transport(Transport::Tls(TlsConfiguration::Rustls(tls)));
         }
-        let (client, conn) = Client::new(o, 2 * WINDOW);
+        let (client, events) = AsyncClient::new(o, 2 * WINDOW);
         let spool = Arc::new(Mutex::new(Spool {
             entries: std::collections::VecDeque::new(),
             capacity: spec.spool_records.max(1),
@@ -621,25 +637,30 @@ impl MqttPublisher {
             last_error: None,
             queued: 0,
             acked: 0,
-        }));
-        let stop = Arc::new(AtomicBool::new(false));
-        let worker = Worker {
-            client,
-            conn,
-            spool: spool.clone(),
-            stop: stop.clone(),
-            dir: dir.to_owned(),
-            status,
             requested: std::collections::VecDeque::new(),
             in_flight: std::collections::HashMap::new(),
+        }));
+        let stop = Arc::new(AtomicBool::new(false));
+        let wake = Arc::new(tokio::sync::Notify::new());
+        let halt = Arc::new(tokio::sync::Notify::new());
+        let worker = Worker {
+            client,
+            spool: spool.clone(),
+            stop: stop.clone(),
+            wake: wake.clone(),
+            halt: halt.clone(),
+            dir: dir.to_owned(),
+            status,
         };
         let thread = std::thread::Builder::new()
             .name("mqtt".into())
-            .spawn(move || worker.run())
+            .spawn(move || worker.run(events))
             .map_err(|e| format!("mqtt: no thread: {e}"))?;
         Ok(Self {
             spool,
             stop,
+            wake,
+            halt,
             thread: Some(thread),
             prefix: spec.prefix.clone(),
         })
@@ -676,6 +697,8 @@ impl MqttPublisher {
             acked: false,
         });
         s.queued += 1;
+        drop(s);
+        self.wake.notify_one();
     }
 
     /// Records queued by this process.
@@ -748,62 +771,95 @@ impl MqttPublisher {
 impl Drop for MqttPublisher {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
+        self.wake.notify_one();
+        self.halt.notify_one();
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
     }
 }
 
-/// The MQTT thread: drives rumqttc's event loop, sends the spool's records while
-/// connected, maps packet ids to records and stores the acknowledgement state.
+/// The MQTT thread: a single-threaded tokio runtime with two tasks, one driving
+/// rumqttc's event loop (its `poll` is never cancelled while the client runs: a poll cut
+/// short in the middle of a connection drops it), one handing it the spool's records while
+/// connected. Packet ids are mapped to records in the order the publishes were handed over;
+/// the two tasks interleave only at their awaits, so a disconnection is handled whole
+/// before any record is handed over again.
 struct Worker {
-    client: Client,
-    conn: rumqttc::Connection,
+    client: AsyncClient,
     spool: Arc<Mutex<Spool>>,
     stop: Arc<AtomicBool>,
+    wake: Arc<tokio::sync::Notify>,
+    /// Notified once, at the stop.
+    halt: Arc<tokio::sync::Notify>,
     dir: PathBuf,
     status: String,
-    /// `seq` of each publish handed to rumqttc whose packet id is not known yet (0: the
-    /// status message), in the order handed.
-    requested: std::collections::VecDeque<u64>,
-    /// Packet id to `seq` of the publishes on the wire.
-    in_flight: std::collections::HashMap<u16, u64>,
 }
 
 impl Worker {
-    fn run(mut self) {
-        while !self.stop.load(Ordering::SeqCst) {
-            self.send();
-            let ev = self.conn.recv_timeout(Duration::from_millis(20));
-            self.handle(ev);
-            self.store();
-        }
-        // A clean stop: `offline` (retained), then the disconnect; the will is for a crash.
-        if Spool::lock(&self.spool).connected {
-            let _ = self
-                .client
-                .try_publish(self.status.clone(), QoS::AtLeastOnce, true, "offline");
-            let _ = self.client.try_disconnect();
-            let t0 = Instant::now();
-            while t0.elapsed() < Duration::from_millis(500) {
-                match self.conn.recv_timeout(Duration::from_millis(20)) {
-                    Ok(Ok(Event::Outgoing(rumqttc::Outgoing::Disconnect))) | Ok(Err(_)) => break,
-                    Err(RecvTimeoutError::Disconnected) => break,
-                    ev => self.handle(ev),
+    fn run(self, mut events: EventLoop) {
+        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+        else {
+            Spool::lock(&self.spool).last_error = Some("mqtt: no runtime".into());
+            return;
+        };
+        rt.block_on(async move {
+            let me = Arc::new(self);
+            let sender = {
+                let me = me.clone();
+                tokio::spawn(async move {
+                    while !me.stop.load(Ordering::SeqCst) {
+                        me.send();
+                        tokio::select! {
+                            _ = me.wake.notified() => {}
+                            _ = tokio::time::sleep(Duration::from_millis(50)) => {}
+                        }
+                    }
+                })
+            };
+            loop {
+                let ev = tokio::select! {
+                    ev = events.poll() => ev,
+                    _ = me.halt.notified() => break,
+                };
+                let failed = ev.is_err();
+                me.handle(ev);
+                me.store();
+                if failed {
+                    tokio::time::sleep(Duration::from_millis(300)).await;
                 }
             }
-        }
-        self.store();
+            let _ = sender.await;
+            // A clean stop: `offline` (retained), then the disconnect; the will is for a crash.
+            if Spool::lock(&me.spool).connected {
+                let _ = me
+                    .client
+                    .try_publish(me.status.clone(), QoS::AtLeastOnce, true, "offline");
+                let _ = me.client.try_disconnect();
+                let _ = tokio::time::timeout(Duration::from_millis(500), async {
+                    loop {
+                        match events.poll().await {
+                            Ok(Event::Outgoing(rumqttc::Outgoing::Disconnect)) | Err(_) => break,
+                            ev => me.handle(ev),
+                        }
+                    }
+                })
+                .await;
+            }
+            me.store();
+        });
     }
 
     /// Hands rumqttc the records not on the wire, oldest first, while connected.
-    fn send(&mut self) {
-        let mut s = Spool::lock(&self.spool);
+    fn send(&self) {
+        let mut guard = Spool::lock(&self.spool);
+        let s = &mut *guard;
         if !s.connected {
             return;
         }
-        let on_wire = self.requested.len() + self.in_flight.len();
-        let room = WINDOW.saturating_sub(on_wire);
+        let room = WINDOW.saturating_sub(s.requested.len() + s.in_flight.len());
         for e in s
             .entries
             .iter_mut()
@@ -820,22 +876,23 @@ impl Worker {
                 break;
             }
             e.sent = Some(Instant::now());
-            self.requested.push_back(e.seq);
+            s.requested.push_back(e.seq);
         }
     }
 
-    fn handle(&mut self, ev: Result<Result<Event, ConnectionError>, RecvTimeoutError>) {
+    fn handle(&self, ev: Result<Event, ConnectionError>) {
+        let mut guard = Spool::lock(&self.spool);
+        let s = &mut *guard;
         match ev {
-            Ok(Ok(Event::Outgoing(rumqttc::Outgoing::Publish(pkid)))) => {
-                if let Some(seq) = self.requested.pop_front() {
+            Ok(Event::Outgoing(rumqttc::Outgoing::Publish(pkid))) => {
+                if let Some(seq) = s.requested.pop_front() {
                     if seq > 0 {
-                        self.in_flight.insert(pkid, seq);
+                        s.in_flight.insert(pkid, seq);
                     }
                 }
             }
-            Ok(Ok(Event::Incoming(Packet::PubAck(ack)))) => {
-                if let Some(seq) = self.in_flight.remove(&ack.pkid) {
-                    let mut s = Spool::lock(&self.spool);
+            Ok(Event::Incoming(Packet::PubAck(ack))) => {
+                if let Some(seq) = s.in_flight.remove(&ack.pkid) {
                     if let Some(e) = s.entries.iter_mut().find(|e| e.seq == seq && !e.acked) {
                         e.acked = true;
                         s.acked += 1;
@@ -843,51 +900,35 @@ impl Worker {
                     s.advance();
                 }
             }
-            Ok(Ok(Event::Incoming(Packet::ConnAck(_)))) => {
+            Ok(Event::Incoming(Packet::ConnAck(_))) => {
                 // A new session: whatever was on the wire is sent again.
-                self.forget_wire();
-                let mut s = Spool::lock(&self.spool);
+                s.forget_wire();
                 s.connected = true;
                 s.refused = None;
-                drop(s);
                 if self
                     .client
                     .try_publish(self.status.clone(), QoS::AtLeastOnce, true, "online")
                     .is_ok()
                 {
-                    self.requested.push_back(0);
+                    s.requested.push_back(0);
                 }
+                drop(guard);
+                self.wake.notify_one();
             }
-            Ok(Ok(_)) => {}
-            Ok(Err(err)) => {
-                self.forget_wire();
-                let mut s = Spool::lock(&self.spool);
+            Ok(_) => {}
+            Err(err) => {
+                s.forget_wire();
                 s.connected = false;
                 if let ConnectionError::ConnectionRefused(code) = &err {
                     s.refused = Some(format!("the broker refused the connection: {code:?}"));
                 }
                 s.last_error = Some(err.to_string());
-                drop(s);
-                std::thread::sleep(Duration::from_millis(300));
             }
-            Err(RecvTimeoutError::Timeout) => {}
-            Err(RecvTimeoutError::Disconnected) => {
-                std::thread::sleep(Duration::from_millis(20));
-            }
-        }
-    }
-
-    /// The connection is gone (or new): no publish is on the wire any more.
-    fn forget_wire(&mut self) {
-        self.requested.clear();
-        self.in_flight.clear();
-        for e in Spool::lock(&self.spool).entries.iter_mut() {
-            e.sent = None;
         }
     }
 
     /// Stores the acknowledgement state when it moved.
-    fn store(&mut self) {
+    fn store(&self) {
         let state = {
             let mut s = Spool::lock(&self.spool);
             if !s.dirty {
