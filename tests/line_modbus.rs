@@ -244,3 +244,32 @@ fn pymodbus_triggers_and_reads_as_a_plc_would() {
     }
     eprintln!("pymodbus read: {seen:?}");
 }
+
+#[test]
+fn a_modbus_port_in_use_stops_inspect_at_start_with_one_line() {
+    let dir = tempdir();
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let addr = taken.local_addr().expect("addr").to_string();
+    let rec = recipe(dir.path());
+    let o = filmscope()
+        .args([
+            "inspect",
+            "--rig",
+            s(&root().join("config/rig.toml")),
+            "--sim",
+            "--recipe",
+            s(&rec),
+            "--out",
+            s(&dir.path().join("line")),
+            "--modbus",
+            &addr,
+        ])
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert_eq!(
+        err.trim_end(),
+        format!("filmscope: modbus server on {addr}: cannot listen: Address already in use (os error 98)")
+    );
+}

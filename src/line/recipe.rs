@@ -843,6 +843,22 @@ mod tests {
                 "[sim]\ndrift_nm_per_sample = 1e300\n",
                 "r.toml: sim.drift_nm_per_sample = 1e300: expected -100 to 100",
             ),
+            (
+                "[mqtt]\nspool_records = 0\n",
+                "r.toml: mqtt.spool_records = 0: expected 1 to 100000",
+            ),
+            (
+                "[mqtt]\nack_timeout_s = 1e9\n",
+                "r.toml: mqtt.ack_timeout_s = 1e9: expected 0.1 to 3600",
+            ),
+            (
+                "[mqtt]\nclient_cert_file = \"c.pem\"\n",
+                "r.toml: mqtt.client_cert_file, mqtt.client_key_file: give both or neither",
+            ),
+            (
+                "[modbus]\nbind = \"127.0.0.1\"\n",
+                "r.toml: modbus.bind = \"127.0.0.1\": expected host:port (port 0 to 65535)",
+            ),
         ] {
             let e = parse(&format!("{MIN}{extra}")).expect_err(extra);
             assert_eq!(e, line);

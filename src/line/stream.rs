@@ -1091,6 +1091,35 @@ mod tests {
     }
 
     #[test]
+    fn records_after_a_seq_come_back_oldest_first_across_rotations_and_bounded() {
+        let dir = tempfile::tempdir().expect("dir");
+        let (mut log, _) = ResultsLog::open(dir.path(), 4096, 4, 10).expect("open");
+        // Records of a log written before sequence numbers, then numbered ones.
+        log.append(&json!({"kind": "sample", "counter": 0}))
+            .expect("append");
+        for q in 1..=50u64 {
+            log.append(&json!({"kind": "sample", "seq": q, "pad": "p".repeat(100)}))
+                .expect("append");
+        }
+        assert!(rotated(&ResultsLog::path_in(dir.path()), 1).exists());
+        let seqs = |v: &std::collections::VecDeque<Value>| -> Vec<u64> {
+            v.iter().filter_map(|r| r["seq"].as_u64()).collect()
+        };
+        let (after, left_out) = records_after(dir.path(), 4, 40, 100).expect("read");
+        assert_eq!((seqs(&after), left_out), ((41..=50).collect(), false));
+        let (after, left_out) = records_after(dir.path(), 4, 10, 5).expect("read");
+        assert_eq!((seqs(&after), left_out), ((46..=50).collect(), true));
+        let (after, _) = records_after(dir.path(), 4, 50, 100).expect("read");
+        assert!(after.is_empty());
+        let (after, _) = records_after(dir.path(), 4, 0, 100).expect("read");
+        assert_eq!(
+            seqs(&after),
+            (1..=50).collect::<Vec<_>>(),
+            "stops at the unnumbered"
+        );
+    }
+
+    #[test]
     fn rotation_keeps_k_files_and_reads_back_in_order() {
         let dir = tempfile::tempdir().expect("dir");
         let (mut log, _) = ResultsLog::open(dir.path(), 40, 2, 100).expect("open");
