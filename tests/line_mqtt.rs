@@ -631,3 +631,50 @@ fn tls_files_are_checked_when_the_recipe_is_read() {
         );
     }
 }
+
+/// A kill -9 between a sample's folder and its line in `results.jsonl` (so its record was
+/// never published): the restart appends the record from the folder and publishes it.
+#[test]
+fn a_record_restored_after_a_crash_is_published() {
+    let Some(bin) = mosquitto_bin() else { return };
+    let dir = tempdir();
+    let pki = pki(dir.path());
+    let b = broker(&pki, &bin, None);
+    let rec = recipe(dir.path(), &mqtt_table(b.port, "s3cret-line1", ""));
+    let out = dir.path().join("line");
+    let (ok, err) = stderr_of(
+        inspect(&rec, &out, &["--samples", "2"])
+            .spawn()
+            .expect("run"),
+    );
+    assert!(ok, "{err}");
+    // The state as the crash leaves it: the last record neither in the log nor sent.
+    let text = std::fs::read_to_string(out.join("results.jsonl")).expect("log");
+    let mut lines: Vec<&str> = text.lines().collect();
+    let lost: Value = serde_json::from_str(lines.pop().expect("a line")).expect("json");
+    assert_eq!(lost["kind"], "sample", "{lost}");
+    std::fs::write(out.join("results.jsonl"), lines.join("\n") + "\n").expect("cut");
+    let seq = lost["seq"].as_u64().expect("seq");
+    std::fs::write(
+        out.join("mqtt-acked.json"),
+        json!({"acked_seq": seq - 1}).to_string(),
+    )
+    .expect("state");
+    let sub = subscribe(&pki, b.port, "after-crash");
+    let (ok, err) = stderr_of(
+        inspect(&rec, &out, &["--samples", "1"])
+            .spawn()
+            .expect("restart"),
+    );
+    assert!(ok, "{err}");
+    wait_until("the restored record and the new sample", || {
+        sub.records().len() >= 2
+    });
+    let got = sub.records();
+    assert_eq!(got[0]["sample_id"], lost["sample_id"], "{got:?}");
+    assert_eq!(got[0]["seq"], seq, "the restored record takes the free seq");
+    assert_eq!(
+        got[1]["counter"],
+        lost["counter"].as_u64().expect("counter") + 1
+    );
+}
