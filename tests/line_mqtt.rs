@@ -275,13 +275,7 @@ impl Subscriber {
 /// Subscribes (over TLS, as line1) to `PREFIX/#` on `port`, again after every reconnection,
 /// in a session the broker keeps while it is away.
 fn subscribe(pki: &Pki, port: u16, id: &str) -> Subscriber {
-    let spec: filmscope::line::recipe::MqttSpec = serde_json::from_value(json!({
-        "ca_file": pki.dir.join("ca.pem"),
-    }))
-    .expect("spec");
-    let tls = filmscope::line::stream::tls_config(&spec)
-        .expect("tls")
-        .expect("some");
+    let tls = filmscope::line::tls::client_config(&pki.dir.join("ca.pem"), None).expect("tls");
     let mut o = MqttOptions::new(id, "127.0.0.1", port);
     o.set_credentials("line1", "s3cret-line1");
     o.set_transport(Transport::Tls(TlsConfiguration::Rustls(tls)));

@@ -7,6 +7,7 @@
 //! - [`stream`]: `results.jsonl` (fsynced, rotated, rebuilt after a crash) and MQTT (TLS,
 //!   topics per kind, every record kept until the broker acknowledges it).
 //! - [`status`]: the live status page, JSON API and Prometheus metrics.
+//! - [`tls`]: the MQTT client's TLS configuration from the recipe's PEM files.
 //! - [`plc`]: the Modbus TCP server a PLC reads the verdict from and triggers samples with.
 //! - [`retention`]: which raw sweeps are kept, uint16 references, the disk budget.
 //! - [`inspect`]: the loop that ties them to the rig and the estimator.
@@ -18,4 +19,5 @@ pub mod retention;
 pub mod spc;
 pub mod status;
 pub mod stream;
+pub mod tls;
 pub mod verdict;

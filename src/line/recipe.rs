@@ -442,8 +442,6 @@ pub const MAX_RESULTS_KEEP: u64 = 1000;
 pub const MAX_TOPIC: usize = 256;
 /// Most characters of an MQTT user name or password.
 pub const MAX_CREDENTIAL: usize = 256;
-/// Most bytes of a PEM file (CA, client certificate, key).
-pub const MAX_PEM_BYTES: u64 = 1 << 20;
 /// Most unacknowledged records held for sending.
 pub const MAX_SPOOL: u64 = 100_000;
 /// Most characters of an MQTT client id.
@@ -481,7 +479,13 @@ impl Recipe {
                     *f = dir.join(&*f);
                 }
             }
-            super::stream::tls_config(m)?;
+            if let Some(ca) = &m.ca_file {
+                let client = m
+                    .client_cert_file
+                    .as_deref()
+                    .zip(m.client_key_file.as_deref());
+                super::tls::client_config(ca, client)?;
+            }
         }
         Ok(())
     }

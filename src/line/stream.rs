@@ -413,72 +413,6 @@ pub fn topic(prefix: &str, kind: &str) -> String {
     format!("{prefix}/{kind}")
 }
 
-/// The TLS settings of `spec` (none without `ca_file`), read and checked: a file that is
-/// missing, too large or holds no PEM certificate (or key) is an error naming its key and
-/// path.
-pub fn tls_config(spec: &MqttSpec) -> Result<Option<Arc<rustls::ClientConfig>>, String> {
-    use rustls::pki_types::pem::PemObject;
-    use rustls::pki_types::{CertificateDer, PrivateKeyDer};
-    let Some(ca) = &spec.ca_file else {
-        return Ok(None);
-    };
-    let read = |key: &str, p: &Path| {
-        crate::limits::read_small(p, super::recipe::MAX_PEM_BYTES).map_err(|e| {
-            format!(
-                "mqtt.{key} = {:?}: cannot read: {e}",
-                p.display().to_string()
-            )
-        })
-    };
-    let certs = |key: &str, p: &Path| -> Result<Vec<CertificateDer<'static>>, String> {
-        let bytes = read(key, p)?;
-        let certs: Vec<_> = CertificateDer::pem_slice_iter(bytes.as_bytes())
-            .collect::<Result<_, _>>()
-            .map_err(|e| format!("mqtt.{key} = {:?}: not PEM: {e}", p.display().to_string()))?;
-        if certs.is_empty() {
-            return Err(format!(
-                "mqtt.{key} = {:?}: no PEM certificate in it",
-                p.display().to_string()
-            ));
-        }
-        Ok(certs)
-    };
-    let mut roots = rustls::RootCertStore::empty();
-    for c in certs("ca_file", ca)? {
-        roots.add(c).map_err(|e| {
-            format!(
-                "mqtt.ca_file = {:?}: not a usable certificate: {e}",
-                ca.display().to_string()
-            )
-        })?;
-    }
-    let provider = Arc::new(rustls::crypto::ring::default_provider());
-    let builder = rustls::ClientConfig::builder_with_provider(provider)
-        .with_safe_default_protocol_versions()
-        .map_err(|e| format!("mqtt: TLS: {e}"))?
-        .with_root_certificates(roots);
-    let config = match (&spec.client_cert_file, &spec.client_key_file) {
-        (Some(c), Some(k)) => {
-            let chain = certs("client_cert_file", c)?;
-            let bytes = read("client_key_file", k)?;
-            let key = PrivateKeyDer::from_pem_slice(bytes.as_bytes()).map_err(|e| {
-                format!(
-                    "mqtt.client_key_file = {:?}: no PEM private key in it: {e}",
-                    k.display().to_string()
-                )
-            })?;
-            builder.with_client_auth_cert(chain, key).map_err(|e| {
-                format!(
-                    "mqtt.client_key_file = {:?}: does not fit mqtt.client_cert_file: {e}",
-                    k.display().to_string()
-                )
-            })?
-        }
-        _ => builder.with_no_client_auth(),
-    };
-    Ok(Some(Arc::new(config)))
-}
-
 /// `DIR/mqtt-acked.json`: the `seq` up to which the broker acknowledged every record.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq, Eq)]
 pub struct AckState {
@@ -622,7 +556,12 @@ impl MqttPublisher {
         if let Some(u) = &spec.username {
             o.set_credentials(u.clone(), spec.password.clone().unwrap_or_default());
         }
-        if let Some(tls) = tls_config(spec)? {
+        if let Some(ca) = &spec.ca_file {
+            let client = spec
+                .client_cert_file
+                .as_deref()
+                .zip(spec.client_key_file.as_deref());
+            let tls = super::tls::client_config(ca, client)?;
             o.set_transport(Transport::Tls(TlsConfiguration::Rustls(tls)));
         }
         let (client, events) = AsyncClient::new(o, 2 * WINDOW);
@@ -901,7 +840,7 @@ impl Worker {
                 }
             }
             Ok(Event::Incoming(Packet::ConnAck(_))) => {
-                // A new session: whatever was on the wire is sent again.
+                // A clean start: whatever was on the wire is sent again.
                 s.forget_wire();
                 s.connected = true;
                 s.refused = None;
