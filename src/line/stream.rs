@@ -457,6 +457,8 @@ struct Spool {
     /// The oldest record dropped unacknowledged (the spool was full): `acked_seq` stays
     /// below it so that the next start sends it from the log.
     dropped: Option<u64>,
+    /// Records dropped unacknowledged.
+    dropped_n: u64,
     /// Whether `acked_seq` changed since it was last stored.
     dirty: bool,
     connected: bool,
@@ -570,6 +572,7 @@ impl MqttPublisher {
             capacity: spec.spool_records.max(1),
             acked_seq,
             dropped: None,
+            dropped_n: 0,
             dirty: false,
             connected: false,
             refused: None,
@@ -624,6 +627,7 @@ impl MqttPublisher {
             if let Some(e) = s.entries.pop_front() {
                 if !e.acked {
                     s.dropped = Some(s.dropped.map_or(e.seq, |d| d.min(e.seq)));
+                    s.dropped_n += 1;
                 }
             }
         }
@@ -689,12 +693,12 @@ impl MqttPublisher {
             {
                 let s = Spool::lock(&self.spool);
                 let left = s.entries.iter().filter(|e| !e.acked);
-                let first = left.clone().map(|e| e.seq).min().or(s.dropped);
+                let first = left.clone().map(|e| e.seq).chain(s.dropped).min();
                 match first {
                     None => return None,
                     Some(first_seq) if t0.elapsed() > timeout || s.refused.is_some() => {
                         return Some(Unsent {
-                            records: left.count() as u64,
+                            records: left.count() as u64 + s.dropped_n,
                             first_seq,
                             connected: s.connected,
                         });
@@ -1055,6 +1059,41 @@ mod tests {
             seqs(&after),
             (1..=50).collect::<Vec<_>>(),
             "stops at the unnumbered"
+        );
+    }
+
+    #[test]
+    fn a_full_spool_drops_its_oldest_and_keeps_the_acknowledgement_below_it() {
+        let dir = tempfile::tempdir().expect("dir");
+        // A port nothing listens on: the records stay unacknowledged.
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .expect("port");
+        let spec: MqttSpec = serde_json::from_value(json!({
+            "port": port,
+            "spool_records": 3,
+        }))
+        .expect("spec");
+        let m = MqttPublisher::connect(&spec, dir.path(), 10).expect("client");
+        for seq in 9..=15u64 {
+            m.publish(&json!({"kind": "sample", "seq": seq}));
+        }
+        // 9 and 10 were acknowledged before; 11 and 12 dropped from the full spool.
+        let left = m.flush(Duration::ZERO).expect("unsent");
+        assert_eq!(
+            left,
+            Unsent {
+                records: 5,
+                first_seq: 11,
+                connected: false
+            }
+        );
+        assert_eq!((m.sent(), m.acked()), (5, 0));
+        drop(m);
+        assert!(
+            !AckState::path_in(dir.path()).exists(),
+            "nothing acknowledged"
         );
     }
 
