@@ -26,6 +26,8 @@ pub struct Args<'a> {
     pub status_port: Option<u16>,
     /// MQTT port override.
     pub mqtt_port: Option<u16>,
+    /// Modbus server address (`host:port`) override.
+    pub modbus: Option<String>,
     /// Closing summary as JSON.
     pub json: bool,
 }
@@ -50,6 +52,7 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
         sim: a.sim,
         status_port: a.status_port,
         mqtt_port: a.mqtt_port,
+        modbus: a.modbus.clone(),
         stop: stop.clone(),
     });
     let mut line = match line {
@@ -63,8 +66,22 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
     if let Some(url) = line.status_url() {
         eprintln!("status page: {url}");
     }
+    if let Some(addr) = line.modbus_addr() {
+        eprintln!("modbus: listening on {addr}");
+    }
+    let trigger = line.waits_for_trigger();
     let mut errors_in_a_row = 0;
     while a.samples.is_none_or(|n| line.measured < n) && !stop.load(Ordering::SeqCst) {
+        if let Some(why) = line.mqtt_refused() {
+            line.say(&format!("stop: mqtt: {why}"));
+            return Err(anyhow!(
+                "mqtt: {why}; check mqtt.username and mqtt.password in {}",
+                a.recipe.display()
+            ));
+        }
+        if trigger && !line.wait_for_trigger(&stop) {
+            break;
+        }
         match line.measure() {
             Ok(o) => {
                 errors_in_a_row = 0;
@@ -117,9 +134,10 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
             }
         }
     }
-    let delivered = line.flush(Duration::from_secs(5));
+    line.stopped();
+    let unsent = line.flush();
     let mut summary = line.summary();
-    summary["mqtt_all_acknowledged"] = serde_json::json!(delivered);
+    summary["mqtt_unacknowledged"] = serde_json::json!(unsent.as_ref().map(|u| u.records));
     summary["stopped_by_signal"] = serde_json::json!(stop.load(Ordering::SeqCst));
     line.say(&format!("stop: {summary}"));
     if a.json {
@@ -133,9 +151,26 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
             l["max"].as_f64().map_or("-".into(), |v| format!("{v:.1}")),
             a.out.join("results.jsonl").display()
         );
-        if delivered == Some(false) {
-            println!("mqtt: not every record was acknowledged by the broker within 5 s (see inspect.log)");
-        }
+    }
+    if let Some(u) = unsent {
+        let why = match line.mqtt_refused() {
+            Some(r) => format!(
+                "{r}; check mqtt.username and mqtt.password in {}",
+                a.recipe.display()
+            ),
+            None if u.connected => {
+                "the broker accepted the connection but did not acknowledge them".into()
+            }
+            None => "the broker was not reachable".into(),
+        };
+        let text = format!(
+            "mqtt: {} record(s) not acknowledged (from seq {}): {why}; they stay in {} and are sent after the next start",
+            u.records,
+            u.first_seq,
+            a.out.join("results.jsonl").display()
+        );
+        line.say(&format!("stop: {text}"));
+        return Err(anyhow!(text));
     }
     Ok(())
 }

@@ -195,6 +195,10 @@ enum Command {
         /// MQTT broker port instead of the recipe's.
         #[arg(long)]
         mqtt_port: Option<u16>,
+        /// Serve the PLC's Modbus TCP registers on HOST:PORT (port 0: any free one) instead
+        /// of the recipe's `[modbus] bind`.
+        #[arg(long, value_name = "HOST:PORT")]
+        modbus: Option<String>,
         /// One JSON summary line at the end (and no per-sample lines).
         #[arg(long)]
         json: bool,
@@ -446,6 +450,7 @@ pub fn main() -> std::process::ExitCode {
             samples,
             status_port,
             mqtt_port,
+            modbus,
             json,
         } => inspect::inspect(&inspect::Args {
             rig: rig.as_deref(),
@@ -455,6 +460,7 @@ pub fn main() -> std::process::ExitCode {
             samples,
             status_port,
             mqtt_port,
+            modbus,
             json,
         }),
         Command::Eval {

@@ -22,11 +22,12 @@ use std::time::{Duration, Instant, SystemTime};
 
 use serde_json::{json, Value};
 
+use super::plc::{self, LineState, PlcServer};
 use super::recipe::{IndexMode, Recipe};
 use super::retention;
 use super::spc::{self, History, Point, Variable};
 use super::status::StatusServer;
-use super::stream::{MqttPublisher, ResultsLog};
+use super::stream::{AckState, MqttPublisher, ResultsLog, Unsent};
 use super::verdict::{self, Verdict};
 use crate::estimate::{run_method, write_outputs_into, Run, RunConfig};
 use crate::io::{counter_of, sample_id, utc_iso};
@@ -87,6 +88,9 @@ pub struct InspectOptions {
     pub status_port: Option<u16>,
     /// MQTT broker port instead of the recipe's.
     pub mqtt_port: Option<u16>,
+    /// Modbus server address (`host:port`) instead of the recipe's, or without a
+    /// `[modbus]` table.
+    pub modbus: Option<String>,
     /// Set by SIGINT/SIGTERM: start-up stops between any two of its steps (and between
     /// any two sample folders it recovers) with an error that
     /// [`InspectError::is_interrupted`].
@@ -119,6 +123,11 @@ pub struct Line {
     status: Option<StatusServer>,
     sequence: Option<SampleSequence>,
     mqtt_down: bool,
+    /// An alarm was raised for records the connected broker does not acknowledge.
+    mqtt_stalled: bool,
+    /// The `seq` of the last record appended to `results.jsonl`.
+    seq: u64,
+    plc: Option<PlcServer>,
     /// Records not yet appended (the disk was full), oldest first.
     unlogged: std::collections::VecDeque<Value>,
     /// Samples measured by this process.
@@ -228,6 +237,9 @@ impl Line {
             status: None,
             sequence: None,
             mqtt_down: false,
+            mqtt_stalled: false,
+            seq: rec.max_seq,
+            plc: None,
             unlogged: std::collections::VecDeque::new(),
             measured: 0,
             latencies_ms: Vec::new(),
@@ -280,11 +292,25 @@ impl Line {
             if let Some(p) = line.opts.mqtt_port {
                 m.port = p;
             }
-            line.say(&format!(
-                "mqtt: publishing to {}:{} topic {}",
-                m.host, m.port, m.topic
-            ));
-            line.mqtt = Some(MqttPublisher::connect(&m));
+            line.start_mqtt(&m)?;
+        }
+        go_on()?;
+        let modbus = match (&line.opts.recipe.modbus, &line.opts.modbus) {
+            (_, Some(b)) => Some(b.clone()),
+            (Some(mb), None) => Some(mb.bind.clone()),
+            (None, None) => None,
+        };
+        if let Some(bind) = modbus {
+            match PlcServer::start(&bind) {
+                Ok(server) => {
+                    line.say(&format!("modbus: listening on {}", server.addr()));
+                    line.plc = Some(server);
+                }
+                Err(e) => {
+                    line.say(&format!("stop: {e}"));
+                    return Err(InspectError(e.to_string()));
+                }
+            }
         }
         let status = match (&line.opts.recipe.status, line.opts.status_port) {
             (Some(s), p) => Some((s.bind.clone(), p.unwrap_or(s.port))),
@@ -312,6 +338,173 @@ impl Line {
     /// The status page's URL, if served.
     pub fn status_url(&self) -> Option<String> {
         self.status.as_ref().map(StatusServer::url)
+    }
+
+    /// The Modbus server's address, if served.
+    pub fn modbus_addr(&self) -> Option<std::net::SocketAddr> {
+        self.plc.as_ref().map(PlcServer::addr)
+    }
+
+    /// Whether each sample waits for the PLC's trigger coil.
+    pub fn waits_for_trigger(&self) -> bool {
+        self.plc.is_some()
+            && self
+                .opts
+                .recipe
+                .modbus
+                .as_ref()
+                .is_some_and(|m| m.trigger == super::recipe::Trigger::Modbus)
+    }
+
+    /// Waits until a PLC sets the trigger coil (clearing it) or `stop` is set; whether the
+    /// coil was set. Checks the broker's acknowledgements meanwhile.
+    pub fn wait_for_trigger(&mut self, stop: &AtomicBool) -> bool {
+        self.plc_update(|s| s.state = LineState::WaitingForTrigger);
+        while !stop.load(Ordering::SeqCst) {
+            if self.plc.as_ref().is_some_and(PlcServer::take_trigger) {
+                return true;
+            }
+            self.check_mqtt();
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        false
+    }
+
+    /// Tells the PLC the line stops.
+    pub fn stopped(&self) {
+        self.plc_update(|s| s.state = LineState::Stopped);
+    }
+
+    fn plc_update(&self, f: impl FnOnce(&mut plc::Snapshot)) {
+        if let Some(p) = &self.plc {
+            p.update(f);
+        }
+    }
+
+    /// Starts the MQTT client and hands it the records of `results.jsonl` the broker has
+    /// not acknowledged (after the last stored acknowledgement).
+    fn start_mqtt(&mut self, m: &super::recipe::MqttSpec) -> Result<(), InspectError> {
+        let out = self.opts.out.clone();
+        let acked = match AckState::load(&out).map_err(InspectError)? {
+            Some(a) => a.acked_seq.min(self.seq),
+            None => {
+                // MQTT newly configured: the records before it are not sent.
+                let a = AckState {
+                    acked_seq: self.seq,
+                };
+                a.store(&out)
+                    .map_err(|e| ie(&AckState::path_in(&out).display().to_string())(&e))?;
+                a.acked_seq
+            }
+        };
+        self.say(&format!(
+            "mqtt: publishing to {}:{}{} under {}/ (sample, alarm, status)",
+            m.host,
+            m.port,
+            if m.ca_file.is_some() { " over TLS" } else { "" },
+            m.prefix
+        ));
+        let publisher = MqttPublisher::connect(m, &out, acked).map_err(InspectError)?;
+        let r = &self.opts.recipe.retention;
+        let (backlog, left_out) =
+            super::stream::records_after(&out, r.results_keep, acked, m.spool_records)
+                .map_err(|e| InspectError(e.to_string()))?;
+        if !backlog.is_empty() {
+            self.say(&format!(
+                "mqtt: {} record(s) not acknowledged before the last stop queued again (seq {} to {}){}",
+                backlog.len(),
+                backlog.front().and_then(|r| r["seq"].as_u64()).unwrap_or(0),
+                backlog.back().and_then(|r| r["seq"].as_u64()).unwrap_or(0),
+                if left_out {
+                    format!("; older ones beyond mqtt.spool_records = {} are not sent", m.spool_records)
+                } else {
+                    String::new()
+                }
+            ));
+        }
+        for r in &backlog {
+            publisher.publish(r);
+        }
+        self.mqtt = Some(publisher);
+        Ok(())
+    }
+
+    /// Why the broker refused the login, if it did.
+    pub fn mqtt_refused(&self) -> Option<String> {
+        self.mqtt.as_ref().and_then(MqttPublisher::refused)
+    }
+
+    /// Raises an alarm (once, until acknowledgements resume) when the connected broker
+    /// leaves records unacknowledged beyond `mqtt.ack_timeout_s`.
+    fn check_mqtt(&mut self) {
+        self.check_mqtt_after(None);
+    }
+
+    /// [`Line::check_mqtt`] with records unacknowledged for longer than `after` (default
+    /// `mqtt.ack_timeout_s`) counted.
+    fn check_mqtt_after(&mut self, after: Option<Duration>) {
+        let Some(m) = &self.mqtt else { return };
+        let timeout = self
+            .opts
+            .recipe
+            .mqtt
+            .as_ref()
+            .map_or(10.0, |s| s.ack_timeout_s);
+        let refused = m.refused();
+        match m.stalled(after.unwrap_or(Duration::from_secs_f64(timeout))) {
+            Some((n, seq)) if !self.mqtt_stalled => {
+                self.mqtt_stalled = true;
+                let text = format!(
+                    "the broker accepted the connection but has not acknowledged {n} record(s) (the oldest seq {seq}) within mqtt.ack_timeout_s = {timeout} s"
+                );
+                self.raise_alarm("mqtt", "no_acknowledgement", &text, json!(n));
+                self.plc_update(|s| {
+                    s.alarm_bits |= plc::alarm_bit::MQTT_UNACKNOWLEDGED;
+                    s.last_error = plc::ErrorCode::MqttUnacknowledged;
+                });
+            }
+            None if self.mqtt_stalled => {
+                self.mqtt_stalled = false;
+                self.say("mqtt: the broker acknowledges again");
+                self.plc_update(|s| s.alarm_bits &= !plc::alarm_bit::MQTT_UNACKNOWLEDGED);
+            }
+            _ => {}
+        }
+        if refused.is_some() {
+            self.plc_update(|s| {
+                s.alarm_bits |= plc::alarm_bit::MQTT_REFUSED;
+                s.last_error = plc::ErrorCode::MqttRefused;
+            });
+        }
+    }
+
+    /// An alarm record of no sample: to `results.jsonl`, MQTT, the status page and the log.
+    fn raise_alarm(&mut self, variable: &str, rule: &str, text: &str, value: Value) {
+        let mut alarm = json!({
+            "kind": "alarm",
+            "sample_id": Value::Null,
+            "counter": self.counter,
+            "timestamp": utc_iso(SystemTime::now()),
+            "variable": variable,
+            "rule": rule,
+            "text": text,
+            "value": value,
+        });
+        self.say(&format!("alarm {text}"));
+        if self.log_append(&mut alarm).is_ok() {
+            self.publish(&alarm);
+        }
+        if let Some(st) = &self.status {
+            st.publish_alarm(&alarm);
+        }
+    }
+
+    /// Appends `record` to `results.jsonl` with the next `seq`.
+    fn log_append(&mut self, record: &mut Value) -> Result<(), super::stream::StreamError> {
+        record["seq"] = json!(self.seq + 1);
+        self.log.append(record)?;
+        self.seq += 1;
+        Ok(())
     }
 
     /// The highest sample counter so far.
@@ -357,9 +550,8 @@ impl Line {
                 .ok()
                 .and_then(|t| serde_json::from_str::<Value>(&t).ok())
             {
-                Some(r) => {
-                    self.log
-                        .append(&r)
+                Some(mut r) => {
+                    self.log_append(&mut r)
                         .map_err(|e| InspectError(e.to_string()))?;
                     self.say(&format!("recovered: record of {n} appended"));
                     records.push_back(r);
@@ -434,9 +626,47 @@ impl Line {
     /// recipe's free-space floor (after an alarm record) or records wait that still cannot
     /// be appended; a failure that a full disk caused is named as such.
     pub fn measure(&mut self) -> Result<SampleOutcome, InspectError> {
-        self.check_free_space()?;
-        self.append_unlogged().map_err(|e| self.name_disk_full(e))?;
-        self.measure_one().map_err(|e| self.name_disk_full(e))
+        self.plc_update(|s| s.state = LineState::Measuring);
+        let r = self
+            .check_free_space()
+            .and_then(|()| self.append_unlogged().map_err(|e| self.name_disk_full(e)))
+            .and_then(|()| self.measure_one().map_err(|e| self.name_disk_full(e)));
+        self.check_mqtt();
+        let disk = r.as_ref().err().is_some_and(InspectError::is_disk_full);
+        match &r {
+            Ok(o) => {
+                let f = |v: &Value| v.as_f64().map_or(f32::NAN, |x| x as f32);
+                let rec = &o.record;
+                let alarms = !o.alarms.is_empty();
+                self.plc_update(|s| {
+                    s.state = LineState::Between;
+                    s.counter = rec["counter"].as_u64().unwrap_or(0) as u32;
+                    s.pass = Some(rec["verdict"] == "PASS");
+                    s.thickness_nm = [
+                        f(&rec["thickness_nm"]["mean"]),
+                        f(&rec["thickness_nm"]["min"]),
+                        f(&rec["thickness_nm"]["max"]),
+                    ];
+                    s.index_550 = f(&rec["refractive_index"]);
+                    s.valid_fraction = f(&rec["valid_fraction"]);
+                    s.alarm_bits &= !(plc::alarm_bit::RUN_RULE | plc::alarm_bit::DEVICE_ERROR);
+                    if alarms {
+                        s.alarm_bits |= plc::alarm_bit::RUN_RULE;
+                    }
+                });
+            }
+            Err(_) => self.plc_update(|s| {
+                s.state = LineState::Between;
+                if disk {
+                    s.alarm_bits |= plc::alarm_bit::DISK_FLOOR;
+                    s.last_error = plc::ErrorCode::DiskFull;
+                } else {
+                    s.alarm_bits |= plc::alarm_bit::DEVICE_ERROR;
+                    s.last_error = plc::ErrorCode::Device;
+                }
+            }),
+        }
+        r
     }
 
     /// Refuses to measure below the free-space floor, with an alarm record.
@@ -456,7 +686,7 @@ impl Line {
             "{DISK_FULL}: {} has {free} bytes free, below retention.min_free_bytes = {floor}; measuring stopped (free space, then restart)",
             self.opts.out.display()
         );
-        let alarm = json!({
+        let mut alarm = json!({
             "kind": "alarm",
             "sample_id": Value::Null,
             "counter": self.counter,
@@ -468,7 +698,11 @@ impl Line {
             "floor": floor,
         });
         self.say(&format!("alarm {text}"));
-        if self.log.append(&alarm).is_ok() {
+        self.plc_update(|s| {
+            s.alarm_bits |= plc::alarm_bit::DISK_FLOOR;
+            s.last_error = plc::ErrorCode::DiskFull;
+        });
+        if self.log_append(&mut alarm).is_ok() {
             self.publish(&alarm);
         }
         if let Some(st) = &self.status {
@@ -479,9 +713,8 @@ impl Line {
 
     /// Appends the records a full disk held back, oldest first.
     fn append_unlogged(&mut self) -> Result<(), InspectError> {
-        while let Some(r) = self.unlogged.front().cloned() {
-            self.log
-                .append(&r)
+        while let Some(mut r) = self.unlogged.front().cloned() {
+            self.log_append(&mut r)
                 .map_err(|e| InspectError(format!("records wait to be appended: {e}")))?;
             self.unlogged.pop_front();
             self.say(&format!(
@@ -497,14 +730,14 @@ impl Line {
     }
 
     /// Appends a record, or keeps it for later (and fails) when it cannot be appended.
-    fn append_record(&mut self, record: &Value) -> Result<(), InspectError> {
+    fn append_record(&mut self, record: &mut Value) -> Result<(), InspectError> {
         if !self.unlogged.is_empty() {
             self.unlogged.push_back(record.clone());
             return Err(InspectError(
                 "records wait to be appended before this one".into(),
             ));
         }
-        self.log.append(record).map_err(|e| {
+        self.log_append(record).map_err(|e| {
             self.unlogged.push_back(record.clone());
             InspectError(e.to_string())
         })
@@ -621,13 +854,13 @@ impl Line {
         std::fs::rename(&tmp, &folder).map_err(|e| ie(&folder.display().to_string())(&e))?;
         sync_dir(&self.samples_dir);
         // The record, then the alarms, on disk and on the wire.
-        self.append_record(&record)?;
+        self.append_record(&mut record)?;
         self.publish(&record);
         self.push_history(&record);
         let s = &self.opts.recipe.spc;
         let mut alarms = Vec::new();
         for a in spc::alarms(&self.history, s.baseline, s.min_points) {
-            let rec = json!({
+            let mut rec = json!({
                 "kind": "alarm",
                 "sample_id": id,
                 "counter": counter,
@@ -640,7 +873,7 @@ impl Line {
                 "ucl": a.limits.ucl,
                 "lcl": a.limits.lcl,
             });
-            self.append_record(&rec)?;
+            self.append_record(&mut rec)?;
             self.publish(&rec);
             alarms.push(rec);
         }
@@ -707,18 +940,18 @@ impl Line {
     }
 
     fn publish(&mut self, record: &Value) {
-        let Some(m) = self.mqtt.as_mut() else { return };
-        let r = m.publish(record);
+        let Some(m) = self.mqtt.as_ref() else { return };
+        m.publish(record);
         let err = m.take_error();
-        match (r, err) {
-            (Err(e), _) => self.say(&format!("mqtt: record not queued: {e}")),
-            (Ok(()), Some(e)) if !self.mqtt_down => {
+        let connected = m.connected();
+        match err {
+            Some(e) if !self.mqtt_down => {
                 self.mqtt_down = true;
                 self.say(&format!(
-                    "mqtt: broker unreachable: {e} (records wait in the queue)"
+                    "mqtt: broker unreachable: {e} (records wait in the spool and results.jsonl)"
                 ));
             }
-            (Ok(()), None) if self.mqtt_down && m.connected() => {
+            None if self.mqtt_down && connected => {
                 self.mqtt_down = false;
                 self.say("mqtt: broker reached again");
             }
@@ -822,10 +1055,20 @@ impl Line {
         Ok((run2, last, acq_log, true, sim_kind))
     }
 
-    /// Waits up to `timeout` for the broker to acknowledge every published record; `None`
-    /// without MQTT.
-    pub fn flush(&self, timeout: Duration) -> Option<bool> {
-        self.mqtt.as_ref().map(|m| m.flush(timeout))
+    /// Waits up to `mqtt.ack_timeout_s` for the broker to acknowledge every record; what
+    /// is left unacknowledged (none: everything acknowledged, or no MQTT). Records a
+    /// connected broker left unacknowledged raise an alarm.
+    pub fn flush(&mut self) -> Option<Unsent> {
+        let timeout = self.opts.recipe.mqtt.as_ref()?.ack_timeout_s;
+        let left = self
+            .mqtt
+            .as_ref()?
+            .flush(Duration::from_secs_f64(timeout))?;
+        if left.connected && !self.mqtt_stalled {
+            // The wait at exit was the timeout: whatever is still unacknowledged counts.
+            self.check_mqtt_after(Some(Duration::ZERO));
+        }
+        Some(left)
     }
 
     /// What this process did, for the closing summary.
@@ -928,6 +1171,7 @@ pub fn bench_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectError>
         .map_err(|e| InspectError(e.to_string()))?;
     recipe.mqtt = None;
     recipe.status = None;
+    recipe.modbus = None;
     let rig = RigConfig::load(rig).map_err(|e| InspectError(e.to_string()))?;
     let tmp = tempfile::Builder::new()
         .prefix("filmscope-bench-inspect-")
@@ -943,6 +1187,7 @@ pub fn bench_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectError>
             sim: true,
             status_port: None,
             mqtt_port: None,
+            modbus: None,
             stop: Arc::new(AtomicBool::new(false)),
         })?;
         let mut l = Vec::new();

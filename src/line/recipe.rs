@@ -44,6 +44,9 @@ pub struct Recipe {
     /// The status page (none: not served).
     #[serde(default)]
     pub status: Option<StatusSpec>,
+    /// The PLC's Modbus TCP server (none: not served).
+    #[serde(default)]
+    pub modbus: Option<ModbusSpec>,
     /// The simulated line (`--sim` only).
     #[serde(default)]
     pub sim: SimSpec,
@@ -278,18 +281,45 @@ impl Default for RetentionSpec {
 #[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct MqttSpec {
-    /// Broker host (default 127.0.0.1).
+    /// Broker host (default 127.0.0.1); with TLS, the name its certificate is checked for.
     #[serde(default = "localhost")]
     pub host: String,
     /// Broker port (default 1883).
     #[serde(default = "mqtt_port")]
     pub port: u16,
-    /// Topic of the sample records and alarms (default `filmscope/results`).
-    #[serde(default = "topic_default")]
-    pub topic: String,
+    /// Topics: `<prefix>/sample` (retained: the last result), `<prefix>/alarm`,
+    /// `<prefix>/status` (`online`, or `offline` as the last will; retained) (default
+    /// `filmscope`).
+    #[serde(default = "prefix_default")]
+    pub prefix: String,
     /// Client id (default `filmscope-inspect`).
     #[serde(default = "client_default")]
     pub client_id: String,
+    /// User name (none: anonymous).
+    #[serde(default)]
+    pub username: Option<String>,
+    /// Password of `username`.
+    #[serde(default)]
+    pub password: Option<String>,
+    /// PEM file of the certificate authority the broker's certificate is checked against;
+    /// given, the connection is TLS (relative to the recipe's folder).
+    #[serde(default)]
+    pub ca_file: Option<PathBuf>,
+    /// PEM file of the client certificate (with `client_key_file`), for brokers that ask
+    /// for one.
+    #[serde(default)]
+    pub client_cert_file: Option<PathBuf>,
+    /// PEM file of the client certificate's private key.
+    #[serde(default)]
+    pub client_key_file: Option<PathBuf>,
+    /// Seconds a connected broker may leave a record unacknowledged before an alarm, and
+    /// the wait for acknowledgements at exit (default 10).
+    #[serde(default = "ack_timeout_default")]
+    pub ack_timeout_s: f64,
+    /// Most unacknowledged records held for sending; the rest wait in `results.jsonl` for
+    /// the next start (default 10000).
+    #[serde(default = "spool_default")]
+    pub spool_records: usize,
 }
 
 fn localhost() -> String {
@@ -298,11 +328,44 @@ fn localhost() -> String {
 fn mqtt_port() -> u16 {
     1883
 }
-fn topic_default() -> String {
-    "filmscope/results".into()
+fn prefix_default() -> String {
+    "filmscope".into()
 }
 fn client_default() -> String {
     "filmscope-inspect".into()
+}
+fn ack_timeout_default() -> f64 {
+    10.0
+}
+fn spool_default() -> usize {
+    10_000
+}
+
+/// Whether `inspect` measures continuously or when a PLC asks.
+#[derive(Clone, Copy, Debug, Default, Deserialize, serde::Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Trigger {
+    /// One sample after the other.
+    #[default]
+    None,
+    /// Each sample when a PLC sets the Modbus trigger coil.
+    Modbus,
+}
+
+/// `[modbus]`: the PLC's Modbus TCP server (`src/line/plc.rs` has the register map).
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ModbusSpec {
+    /// `host:port` to listen on (default `127.0.0.1:1502`; port 0: any free one, printed).
+    #[serde(default = "modbus_bind_default")]
+    pub bind: String,
+    /// `none` (default): measure continuously; `modbus`: wait for the trigger coil.
+    #[serde(default)]
+    pub trigger: Trigger,
+}
+
+fn modbus_bind_default() -> String {
+    "127.0.0.1:1502".into()
 }
 
 /// `[status]`.
@@ -375,8 +438,12 @@ pub const MAX_BYTES: u64 = 1 << 50;
 pub const MAX_ROTATE_BYTES: u64 = 1 << 30;
 /// Most rotated results files (a rotation renames each once).
 pub const MAX_RESULTS_KEEP: u64 = 1000;
-/// Most characters of an MQTT topic.
+/// Most characters of an MQTT topic prefix.
 pub const MAX_TOPIC: usize = 256;
+/// Most characters of an MQTT user name or password.
+pub const MAX_CREDENTIAL: usize = 256;
+/// Most unacknowledged records held for sending.
+pub const MAX_SPOOL: u64 = 100_000;
 /// Most characters of an MQTT client id.
 pub const MAX_CLIENT_ID: usize = 128;
 
@@ -387,7 +454,40 @@ impl Recipe {
             path: path.to_owned(),
             problem: format!("cannot read: {e}"),
         })?;
-        Self::parse(&text, path)
+        let mut recipe = Self::parse(&text, path)?;
+        recipe.check_files(path).map_err(|problem| RecipeError {
+            path: path.to_owned(),
+            problem,
+        })?;
+        Ok(recipe)
+    }
+
+    /// Resolves the files the recipe names against its folder and reads them: a TLS file
+    /// that is missing or does not parse is refused here, before anything starts.
+    fn check_files(&mut self, path: &Path) -> Result<(), String> {
+        let dir = path.parent().unwrap_or(Path::new("."));
+        if let Some(m) = &mut self.mqtt {
+            for f in [
+                &mut m.ca_file,
+                &mut m.client_cert_file,
+                &mut m.client_key_file,
+            ]
+            .into_iter()
+            .flatten()
+            {
+                if f.is_relative() {
+                    *f = dir.join(&*f);
+                }
+            }
+            if let Some(ca) = &m.ca_file {
+                let client = m
+                    .client_cert_file
+                    .as_deref()
+                    .zip(m.client_key_file.as_deref());
+                super::tls::client_config(ca, client)?;
+            }
+        }
+        Ok(())
     }
 
     /// Parses and checks recipe text; `path` names it in errors.
@@ -498,11 +598,33 @@ impl Recipe {
                 return Err(format!("mqtt.host = {:?}: a host name or address", m.host));
             }
             int_in("mqtt.port", m.port, 1, 65_535)?;
-            text("mqtt.topic", &m.topic, MAX_TOPIC)?;
+            text("mqtt.prefix", &m.prefix, MAX_TOPIC)?;
             text("mqtt.client_id", &m.client_id, MAX_CLIENT_ID)?;
+            if let Some(u) = &m.username {
+                text("mqtt.username", u, MAX_CREDENTIAL)?;
+            }
+            if let Some(p) = &m.password {
+                if p.chars().count() > MAX_CREDENTIAL {
+                    return Err(format!(
+                        "mqtt.password: expected at most {MAX_CREDENTIAL} characters"
+                    ));
+                }
+            }
+            num_in("mqtt.ack_timeout_s", m.ack_timeout_s, 0.1, 3600.0)?;
+            usize_in("mqtt.spool_records", m.spool_records, 1, MAX_SPOOL)?;
         }
         if let Some(st) = &self.status {
             text("status.bind", &st.bind, 253)?;
+        }
+        if let Some(mb) = &self.modbus {
+            text("modbus.bind", &mb.bind, 253)?;
+            let port = mb.bind.rsplit_once(':').map(|(_, p)| p.parse::<u16>());
+            if !matches!(port, Some(Ok(_))) {
+                return Err(format!(
+                    "modbus.bind = {:?}: expected host:port (port 0 to 65535)",
+                    mb.bind
+                ));
+            }
         }
         num_in(
             "sim.drift_nm_per_sample",
@@ -585,11 +707,26 @@ impl Recipe {
             return Err("retention.every_n = 0: must be at least 1".into());
         }
         if let Some(m) = &self.mqtt {
-            if m.topic.is_empty() || m.topic.contains(['+', '#']) {
+            if m.prefix.is_empty()
+                || m.prefix.contains(['+', '#'])
+                || m.prefix.starts_with('/')
+                || m.prefix.ends_with('/')
+            {
                 return Err(format!(
-                    "mqtt.topic = {:?}: a topic to publish to, without wildcards",
-                    m.topic
+                    "mqtt.prefix = {:?}: a topic prefix without wildcards or a leading or trailing /",
+                    m.prefix
                 ));
+            }
+            if m.username.is_none() && m.password.is_some() {
+                return Err("mqtt.password: given without mqtt.username".into());
+            }
+            if m.client_cert_file.is_some() != m.client_key_file.is_some() {
+                return Err(
+                    "mqtt.client_cert_file, mqtt.client_key_file: give both or neither".into(),
+                );
+            }
+            if m.client_cert_file.is_some() && m.ca_file.is_none() {
+                return Err("mqtt.client_cert_file: needs mqtt.ca_file (TLS)".into());
             }
         }
         Ok(())
@@ -709,6 +846,22 @@ mod tests {
             (
                 "[sim]\ndrift_nm_per_sample = 1e300\n",
                 "r.toml: sim.drift_nm_per_sample = 1e300: expected -100 to 100",
+            ),
+            (
+                "[mqtt]\nspool_records = 0\n",
+                "r.toml: mqtt.spool_records = 0: expected 1 to 100000",
+            ),
+            (
+                "[mqtt]\nack_timeout_s = 1e9\n",
+                "r.toml: mqtt.ack_timeout_s = 1e9: expected 0.1 to 3600",
+            ),
+            (
+                "[mqtt]\nclient_cert_file = \"c.pem\"\n",
+                "r.toml: mqtt.client_cert_file, mqtt.client_key_file: give both or neither",
+            ),
+            (
+                "[modbus]\nbind = \"127.0.0.1\"\n",
+                "r.toml: modbus.bind = \"127.0.0.1\": expected host:port (port 0 to 65535)",
             ),
         ] {
             let e = parse(&format!("{MIN}{extra}")).expect_err(extra);

@@ -4,12 +4,15 @@
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use rumqttc::{Client, Event, MqttOptions, Packet, QoS, RecvTimeoutError};
+use rumqttc::{
+    AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Packet, QoS,
+    TlsConfiguration, Transport,
+};
 use serde_json::Value;
 
 use super::recipe::MqttSpec;
@@ -25,9 +28,6 @@ pub enum StreamError {
         /// Why.
         source: std::io::Error,
     },
-    /// The MQTT client.
-    #[error("mqtt {0}")]
-    Mqtt(String),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StreamError + '_ {
@@ -97,6 +97,8 @@ pub struct Recovered {
     pub read: usize,
     /// The highest `counter` of the records read back.
     pub max_counter: u64,
+    /// The highest `seq` (the record's place in the log, counted from 1) read back.
+    pub max_seq: u64,
     /// The counters of the sample records read back.
     pub sample_counters: std::collections::HashSet<u64>,
     /// The lowest `counter` of the records read back: every sample above it has its
@@ -268,17 +270,41 @@ fn read_tail(
     rec: &mut Recovered,
     keep_samples: usize,
 ) -> std::io::Result<()> {
+    if rec.sample_counters.len() >= keep_samples {
+        return Ok(());
+    }
+    let mut bytes = 0;
+    let mut bad = 0;
+    scan_back(f, len, &mut bytes, &mut bad, &mut |line| {
+        take_line(line, rec);
+        rec.sample_counters.len() < keep_samples
+    })?;
+    rec.bytes_read += bytes;
+    rec.bad_lines += bad;
+    Ok(())
+}
+
+/// Hands the lines of `f[..len]` to `visit` from the end, newest first, until it returns
+/// false or the file's start is reached; a line longer than [`MAX_LINE`] is counted in
+/// `bad_lines` without being held. Whether `visit` stopped it.
+fn scan_back(
+    f: &mut File,
+    len: u64,
+    bytes_read: &mut u64,
+    bad_lines: &mut usize,
+    visit: &mut dyn FnMut(&[u8]) -> bool,
+) -> std::io::Result<bool> {
     let mut end = len;
     // The bytes after the chunk just read that begin a line not yet complete.
     let mut carry: Vec<u8> = Vec::new();
     let mut skipping = false;
-    while end > 0 && rec.sample_counters.len() < keep_samples {
+    while end > 0 {
         let n = end.min(TAIL_CHUNK);
         let start = end - n;
         let mut chunk = vec![0u8; n as usize];
         f.seek(SeekFrom::Start(start))?;
         f.read_exact(&mut chunk)?;
-        rec.bytes_read += n;
+        *bytes_read += n;
         chunk.extend_from_slice(&carry);
         let mut upto = chunk.len();
         // Every line that starts inside this chunk after a newline is complete.
@@ -288,27 +314,74 @@ fn read_tail(
         {
             if skipping {
                 skipping = false;
-            } else {
-                take_line(chunk.get(i + 1..upto).unwrap_or_default(), rec);
+            } else if !visit(chunk.get(i + 1..upto).unwrap_or_default()) {
+                return Ok(true);
             }
             upto = i;
-            if rec.sample_counters.len() >= keep_samples {
-                return Ok(());
-            }
         }
         carry = chunk.get(..upto).unwrap_or_default().to_vec();
         if carry.len() > MAX_LINE {
             // Not a record: skip to its start without holding it.
-            rec.bad_lines += 1;
+            *bad_lines += 1;
             carry.clear();
             skipping = true;
         }
         end = start;
     }
-    if end == 0 && !skipping && rec.sample_counters.len() < keep_samples {
-        take_line(&carry, rec);
+    if !skipping && !visit(&carry) {
+        return Ok(true);
     }
-    Ok(())
+    Ok(false)
+}
+
+/// The records of `dir/results.jsonl` and its rotations whose `seq` is above `after`,
+/// oldest first, at most `max` of them (the newest); and whether older ones above `after`
+/// were left out for that bound. Read from the end, so the cost follows what is returned.
+pub fn records_after(
+    dir: &Path,
+    keep: usize,
+    after: u64,
+    max: usize,
+) -> Result<(std::collections::VecDeque<Value>, bool), StreamError> {
+    let path = ResultsLog::path_in(dir);
+    let mut out = std::collections::VecDeque::new();
+    let mut left_out = false;
+    for k in 0..=keep.max(1) {
+        let p = if k == 0 {
+            path.clone()
+        } else {
+            rotated(&path, k)
+        };
+        let Ok(mut f) = File::open(&p) else { break };
+        let len = f.metadata().map_err(io(&p))?.len();
+        let (mut bytes, mut bad) = (0, 0);
+        let stopped = scan_back(&mut f, len, &mut bytes, &mut bad, &mut |line| {
+            if line.iter().all(u8::is_ascii_whitespace) {
+                return true;
+            }
+            let Ok(v) = serde_json::from_slice::<Value>(line) else {
+                return true;
+            };
+            // Records written before sequence numbers: older than any spool.
+            let Some(seq) = v["seq"].as_u64() else {
+                return false;
+            };
+            if seq <= after {
+                return false;
+            }
+            if out.len() >= max {
+                left_out = true;
+                return false;
+            }
+            out.push_front(v);
+            true
+        })
+        .map_err(io(&p))?;
+        if stopped {
+            break;
+        }
+    }
+    Ok((out, left_out))
 }
 
 /// One line read back (newest first).
@@ -319,6 +392,9 @@ fn take_line(line: &[u8], rec: &mut Recovered) {
     match serde_json::from_slice::<Value>(line) {
         Ok(v) => {
             rec.read += 1;
+            if let Some(q) = v["seq"].as_u64() {
+                rec.max_seq = rec.max_seq.max(q);
+            }
             if let Some(c) = v["counter"].as_u64() {
                 rec.max_counter = rec.max_counter.max(c);
                 rec.oldest_counter = Some(rec.oldest_counter.map_or(c, |o| o.min(c)));
@@ -332,140 +408,483 @@ fn take_line(line: &[u8], rec: &mut Recovered) {
     }
 }
 
-/// Publishes records to an MQTT broker (QoS 1), counting the broker's acknowledgements.
-pub struct MqttPublisher {
-    client: Option<Client>,
-    topic: String,
-    sent: u64,
-    acked: Arc<AtomicU64>,
-    connected: Arc<AtomicBool>,
-    last_error: Arc<Mutex<Option<String>>>,
-    stop: Arc<AtomicBool>,
-    thread: Option<JoinHandle<()>>,
+/// The topic of records of `kind` (`sample`, `alarm`, `status`) under `prefix`.
+pub fn topic(prefix: &str, kind: &str) -> String {
+    format!("{prefix}/{kind}")
 }
 
-impl MqttPublisher {
-    /// Connects in the background to the broker of `spec`; publishing starts at once (records
-    /// wait in the client's queue until the broker is reached).
-    pub fn connect(spec: &MqttSpec) -> Self {
-        let mut o = MqttOptions::new(spec.client_id.clone(), spec.host.clone(), spec.port);
-        o.set_keep_alive(Duration::from_secs(15));
-        o.set_max_packet_size(1 << 20, 1 << 20);
-        let (client, mut conn) = Client::new(o, 1024);
-        let acked = Arc::new(AtomicU64::new(0));
-        let connected = Arc::new(AtomicBool::new(false));
-        let last_error = Arc::new(Mutex::new(None));
-        let stop = Arc::new(AtomicBool::new(false));
-        let (a, c, e, st) = (
-            acked.clone(),
-            connected.clone(),
-            last_error.clone(),
-            stop.clone(),
-        );
-        let thread = std::thread::Builder::new()
-            .name("mqtt".into())
-            .spawn(move || loop {
-                if st.load(Ordering::SeqCst) {
-                    break;
-                }
-                match conn.recv_timeout(Duration::from_millis(200)) {
-                    Ok(Ok(Event::Incoming(Packet::PubAck(_)))) => {
-                        a.fetch_add(1, Ordering::SeqCst);
-                    }
-                    Ok(Ok(Event::Incoming(Packet::ConnAck(_)))) => {
-                        c.store(true, Ordering::SeqCst);
-                    }
-                    Ok(Ok(_)) => {}
-                    Ok(Err(err)) => {
-                        c.store(false, Ordering::SeqCst);
-                        *e.lock().unwrap_or_else(|p| p.into_inner()) = Some(err.to_string());
-                        std::thread::sleep(Duration::from_millis(300));
-                    }
-                    Err(RecvTimeoutError::Timeout) => {}
-                    Err(RecvTimeoutError::Disconnected) => break,
-                }
-            })
-            .ok();
-        Self {
-            client: Some(client),
-            topic: spec.topic.clone(),
-            sent: 0,
-            acked,
-            connected,
-            last_error,
-            stop,
-            thread,
+/// `DIR/mqtt-acked.json`: the `seq` up to which the broker acknowledged every record.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq, Eq)]
+pub struct AckState {
+    /// Every record with a `seq` up to this one was acknowledged.
+    pub acked_seq: u64,
+}
+
+impl AckState {
+    /// The file in `dir`.
+    pub fn path_in(dir: &Path) -> PathBuf {
+        dir.join("mqtt-acked.json")
+    }
+
+    /// Reads it (none: no such file; an unreadable one is an error naming it).
+    pub fn load(dir: &Path) -> Result<Option<Self>, String> {
+        let p = Self::path_in(dir);
+        match crate::limits::read_small(&p, 4096) {
+            Ok(t) => serde_json::from_str(&t)
+                .map(Some)
+                .map_err(|e| format!("{}: {e}", p.display())),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(format!("{}: {e}", p.display())),
         }
     }
 
-    /// Queues one record (never blocks: a full queue is an error).
-    pub fn publish(&mut self, record: &Value) -> Result<(), StreamError> {
-        let client = self
-            .client
-            .as_ref()
-            .ok_or_else(|| StreamError::Mqtt("client closed".into()))?;
-        client
-            .try_publish(
-                self.topic.clone(),
-                QoS::AtLeastOnce,
-                false,
-                record.to_string().into_bytes(),
-            )
-            .map_err(|e| StreamError::Mqtt(e.to_string()))?;
-        self.sent += 1;
-        Ok(())
+    /// Writes it (atomically).
+    pub fn store(&self, dir: &Path) -> std::io::Result<()> {
+        let text = serde_json::to_string(self).unwrap_or_default();
+        crate::io::write_atomic(&Self::path_in(dir), text.as_bytes())
+    }
+}
+
+/// Records waiting for the broker's acknowledgement, shared by the line and the MQTT
+/// thread.
+struct Spool {
+    /// Unacknowledged records (and acknowledged ones behind an older unacknowledged one),
+    /// `seq` ascending.
+    entries: std::collections::VecDeque<Entry>,
+    capacity: usize,
+    /// Every record up to this `seq` is acknowledged.
+    acked_seq: u64,
+    /// The oldest record dropped unacknowledged (the spool was full): `acked_seq` stays
+    /// below it so that the next start sends it from the log.
+    dropped: Option<u64>,
+    /// Records dropped unacknowledged.
+    dropped_n: u64,
+    /// Whether `acked_seq` changed since it was last stored.
+    dirty: bool,
+    connected: bool,
+    refused: Option<String>,
+    last_error: Option<String>,
+    queued: u64,
+    acked: u64,
+    /// `seq` of each publish handed to rumqttc whose packet id is not known yet (0: the
+    /// status message), in the order handed.
+    requested: std::collections::VecDeque<u64>,
+    /// Packet id to `seq` of the publishes on the wire.
+    in_flight: std::collections::HashMap<u16, u64>,
+}
+
+struct Entry {
+    seq: u64,
+    topic: String,
+    payload: Vec<u8>,
+    retain: bool,
+    sent: Option<Instant>,
+    acked: bool,
+}
+
+impl Spool {
+    fn lock(s: &Mutex<Spool>) -> std::sync::MutexGuard<'_, Spool> {
+        s.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// Records queued.
+    /// The connection is gone (or new): no publish is on the wire any more.
+    fn forget_wire(&mut self) {
+        self.requested.clear();
+        self.in_flight.clear();
+        for e in self.entries.iter_mut() {
+            e.sent = None;
+        }
+    }
+
+    /// Moves `acked_seq` past the acknowledged records at the front.
+    fn advance(&mut self) {
+        while self.entries.front().is_some_and(|e| e.acked) {
+            if let Some(e) = self.entries.pop_front() {
+                if self.dropped.is_none_or(|d| e.seq < d) && e.seq > self.acked_seq {
+                    self.acked_seq = e.seq;
+                    self.dirty = true;
+                }
+            }
+        }
+    }
+}
+
+/// What is left at exit.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Unsent {
+    /// Records not acknowledged.
+    pub records: u64,
+    /// The lowest `seq` among them.
+    pub first_seq: u64,
+    /// Whether the broker was connected (so it accepted the connection but did not
+    /// acknowledge).
+    pub connected: bool,
+}
+
+/// Records in flight at once (below rumqttc's limit of 100, so its queue never blocks).
+const WINDOW: usize = 64;
+
+/// Publishes records to an MQTT broker, QoS 1, on topics under the recipe's prefix, and
+/// keeps every record until the broker acknowledges it: a record is resent after each
+/// reconnection until acknowledged, and `DIR/mqtt-acked.json` remembers how far the
+/// acknowledgements reached, so a restart sends the rest from `results.jsonl`. Announces
+/// `online` on `<prefix>/status` (retained) with `offline` as its last will.
+pub struct MqttPublisher {
+    spool: Arc<Mutex<Spool>>,
+    stop: Arc<AtomicBool>,
+    wake: Arc<tokio::sync::Notify>,
+    halt: Arc<tokio::sync::Notify>,
+    thread: Option<JoinHandle<()>>,
+    prefix: String,
+}
+
+impl MqttPublisher {
+    /// Connects in the background to the broker of `spec` (TLS, credentials, last will),
+    /// `dir` holding the acknowledgement state; publishing starts at once (records wait in
+    /// the spool until the broker is reached). `acked_seq` is where the stored
+    /// acknowledgements reached.
+    pub fn connect(spec: &MqttSpec, dir: &Path, acked_seq: u64) -> Result<Self, String> {
+        let mut o = MqttOptions::new(spec.client_id.clone(), spec.host.clone(), spec.port);
+        o.set_keep_alive(Duration::from_secs(15));
+        o.set_max_packet_size(1 << 20, 1 << 20);
+        o.set_clean_session(true);
+        let status = topic(&spec.prefix, "status");
+        o.set_last_will(LastWill::new(
+            status.clone(),
+            "offline",
+            QoS::AtLeastOnce,
+            true,
+        ));
+        if let Some(u) = &spec.username {
+            o.set_credentials(u.clone(), spec.password.clone().unwrap_or_default());
+        }
+        if let Some(ca) = &spec.ca_file {
+            let client = spec
+                .client_cert_file
+                .as_deref()
+                .zip(spec.client_key_file.as_deref());
+            let tls = super::tls::client_config(ca, client)?;
+            o.set_transport(Transport::Tls(TlsConfiguration::Rustls(tls)));
+        }
+        let (client, events) = AsyncClient::new(o, 2 * WINDOW);
+        let spool = Arc::new(Mutex::new(Spool {
+            entries: std::collections::VecDeque::new(),
+            capacity: spec.spool_records.max(1),
+            acked_seq,
+            dropped: None,
+            dropped_n: 0,
+            dirty: false,
+            connected: false,
+            refused: None,
+            last_error: None,
+            queued: 0,
+            acked: 0,
+            requested: std::collections::VecDeque::new(),
+            in_flight: std::collections::HashMap::new(),
+        }));
+        let stop = Arc::new(AtomicBool::new(false));
+        let wake = Arc::new(tokio::sync::Notify::new());
+        let halt = Arc::new(tokio::sync::Notify::new());
+        let worker = Worker {
+            client,
+            spool: spool.clone(),
+            stop: stop.clone(),
+            wake: wake.clone(),
+            halt: halt.clone(),
+            dir: dir.to_owned(),
+            status,
+        };
+        let thread = std::thread::Builder::new()
+            .name("mqtt".into())
+            .spawn(move || worker.run(events))
+            .map_err(|e| format!("mqtt: no thread: {e}"))?;
+        Ok(Self {
+            spool,
+            stop,
+            wake,
+            halt,
+            thread: Some(thread),
+            prefix: spec.prefix.clone(),
+        })
+    }
+
+    /// Queues one record of `results.jsonl` (with its `seq`) on the topic of its kind
+    /// (never blocks). A full spool drops its oldest record, which the next start sends.
+    pub fn publish(&self, record: &Value) {
+        let Some(seq) = record["seq"].as_u64() else {
+            return;
+        };
+        let kind = if record["kind"] == "sample" {
+            "sample"
+        } else {
+            "alarm"
+        };
+        let mut s = Spool::lock(&self.spool);
+        if seq <= s.acked_seq || s.entries.back().is_some_and(|e| e.seq >= seq) {
+            return;
+        }
+        if s.entries.len() >= s.capacity {
+            if let Some(e) = s.entries.pop_front() {
+                if !e.acked {
+                    s.dropped = Some(s.dropped.map_or(e.seq, |d| d.min(e.seq)));
+                    s.dropped_n += 1;
+                }
+            }
+        }
+        s.entries.push_back(Entry {
+            seq,
+            topic: topic(&self.prefix, kind),
+            payload: record.to_string().into_bytes(),
+            retain: kind == "sample",
+            sent: None,
+            acked: false,
+        });
+        s.queued += 1;
+        drop(s);
+        self.wake.notify_one();
+    }
+
+    /// Records queued by this process.
     pub fn sent(&self) -> u64 {
-        self.sent
+        Spool::lock(&self.spool).queued
     }
 
-    /// Records the broker acknowledged.
+    /// Records the broker acknowledged in this process.
     pub fn acked(&self) -> u64 {
-        self.acked.load(Ordering::SeqCst)
+        Spool::lock(&self.spool).acked
     }
 
     /// Whether the broker accepted the connection (and it has not failed since).
     pub fn connected(&self) -> bool {
-        self.connected.load(Ordering::SeqCst)
+        Spool::lock(&self.spool).connected
     }
 
     /// The last connection error, taken.
     pub fn take_error(&self) -> Option<String> {
-        self.last_error
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .take()
+        Spool::lock(&self.spool).last_error.take()
     }
 
-    /// Waits up to `timeout` for the broker to acknowledge every record; whether it did.
-    pub fn flush(&self, timeout: Duration) -> bool {
+    /// Why the broker refused the connection (bad user name or password, not
+    /// authorised), if it did.
+    pub fn refused(&self) -> Option<String> {
+        Spool::lock(&self.spool).refused.clone()
+    }
+
+    /// Records a connected broker has left unacknowledged for longer than `timeout`: their
+    /// number and the oldest one's `seq`.
+    pub fn stalled(&self, timeout: Duration) -> Option<(usize, u64)> {
+        let s = Spool::lock(&self.spool);
+        if !s.connected {
+            return None;
+        }
+        let old = s
+            .entries
+            .iter()
+            .filter(|e| !e.acked && e.sent.is_some_and(|t| t.elapsed() > timeout));
+        let n = old.clone().count();
+        old.map(|e| e.seq).min().map(|seq| (n, seq))
+    }
+
+    /// Waits up to `timeout` for the broker to acknowledge every record (returning early
+    /// when it refused the connection); what is left.
+    pub fn flush(&self, timeout: Duration) -> Option<Unsent> {
         let t0 = Instant::now();
-        while self.acked() < self.sent {
-            if t0.elapsed() > timeout {
-                return false;
+        loop {
+            {
+                let s = Spool::lock(&self.spool);
+                let left = s.entries.iter().filter(|e| !e.acked);
+                let first = left.clone().map(|e| e.seq).chain(s.dropped).min();
+                match first {
+                    None => return None,
+                    Some(first_seq) if t0.elapsed() > timeout || s.refused.is_some() => {
+                        return Some(Unsent {
+                            records: left.count() as u64 + s.dropped_n,
+                            first_seq,
+                            connected: s.connected,
+                        });
+                    }
+                    Some(_) => {}
+                }
             }
             std::thread::sleep(Duration::from_millis(10));
         }
-        true
     }
 }
 
 impl Drop for MqttPublisher {
     fn drop(&mut self) {
-        if let Some(c) = self.client.take() {
-            let _ = c.try_disconnect();
-            drop(c);
-        }
-        // Give the disconnect a moment to go out, then stop polling.
-        let t0 = Instant::now();
-        while self.connected() && t0.elapsed() < Duration::from_millis(300) {
-            std::thread::sleep(Duration::from_millis(10));
-        }
         self.stop.store(true, Ordering::SeqCst);
+        self.wake.notify_one();
+        self.halt.notify_one();
         if let Some(t) = self.thread.take() {
             let _ = t.join();
+        }
+    }
+}
+
+/// The MQTT thread: a single-threaded tokio runtime with two tasks, one driving
+/// rumqttc's event loop (its `poll` is never cancelled while the client runs: a poll cut
+/// short in the middle of a connection drops it), one handing it the spool's records while
+/// connected. Packet ids are mapped to records in the order the publishes were handed over;
+/// the two tasks interleave only at their awaits, so a disconnection is handled whole
+/// before any record is handed over again.
+struct Worker {
+    client: AsyncClient,
+    spool: Arc<Mutex<Spool>>,
+    stop: Arc<AtomicBool>,
+    wake: Arc<tokio::sync::Notify>,
+    /// Notified once, at the stop.
+    halt: Arc<tokio::sync::Notify>,
+    dir: PathBuf,
+    status: String,
+}
+
+impl Worker {
+    fn run(self, mut events: EventLoop) {
+        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+        else {
+            Spool::lock(&self.spool).last_error = Some("mqtt: no runtime".into());
+            return;
+        };
+        rt.block_on(async move {
+            let me = Arc::new(self);
+            let sender = {
+                let me = me.clone();
+                tokio::spawn(async move {
+                    while !me.stop.load(Ordering::SeqCst) {
+                        me.send();
+                        tokio::select! {
+                            _ = me.wake.notified() => {}
+                            _ = tokio::time::sleep(Duration::from_millis(50)) => {}
+                        }
+                    }
+                })
+            };
+            loop {
+                let ev = tokio::select! {
+                    ev = events.poll() => ev,
+                    _ = me.halt.notified() => break,
+                };
+                let failed = ev.is_err();
+                me.handle(ev);
+                me.store();
+                if failed {
+                    tokio::time::sleep(Duration::from_millis(300)).await;
+                }
+            }
+            let _ = sender.await;
+            // A clean stop: `offline` (retained), then the disconnect; the will is for a crash.
+            if Spool::lock(&me.spool).connected {
+                let _ = me
+                    .client
+                    .try_publish(me.status.clone(), QoS::AtLeastOnce, true, "offline");
+                let _ = me.client.try_disconnect();
+                let _ = tokio::time::timeout(Duration::from_millis(500), async {
+                    loop {
+                        match events.poll().await {
+                            Ok(Event::Outgoing(rumqttc::Outgoing::Disconnect)) | Err(_) => break,
+                            ev => me.handle(ev),
+                        }
+                    }
+                })
+                .await;
+            }
+            me.store();
+        });
+    }
+
+    /// Hands rumqttc the records not on the wire, oldest first, while connected.
+    fn send(&self) {
+        let mut guard = Spool::lock(&self.spool);
+        let s = &mut *guard;
+        if !s.connected {
+            return;
+        }
+        let room = WINDOW.saturating_sub(s.requested.len() + s.in_flight.len());
+        for e in s
+            .entries
+            .iter_mut()
+            .filter(|e| !e.acked && e.sent.is_none())
+            .take(room)
+        {
+            let r = self.client.try_publish(
+                e.topic.clone(),
+                QoS::AtLeastOnce,
+                e.retain,
+                e.payload.clone(),
+            );
+            if r.is_err() {
+                break;
+            }
+            e.sent = Some(Instant::now());
+            s.requested.push_back(e.seq);
+        }
+    }
+
+    fn handle(&self, ev: Result<Event, ConnectionError>) {
+        let mut guard = Spool::lock(&self.spool);
+        let s = &mut *guard;
+        match ev {
+            Ok(Event::Outgoing(rumqttc::Outgoing::Publish(pkid))) => {
+                if let Some(seq) = s.requested.pop_front() {
+                    if seq > 0 {
+                        s.in_flight.insert(pkid, seq);
+                    }
+                }
+            }
+            Ok(Event::Incoming(Packet::PubAck(ack))) => {
+                if let Some(seq) = s.in_flight.remove(&ack.pkid) {
+                    if let Some(e) = s.entries.iter_mut().find(|e| e.seq == seq && !e.acked) {
+                        e.acked = true;
+                        s.acked += 1;
+                    }
+                    s.advance();
+                }
+            }
+            Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                // A clean start: whatever was on the wire is sent again.
+                s.forget_wire();
+                s.connected = true;
+                s.refused = None;
+                if self
+                    .client
+                    .try_publish(self.status.clone(), QoS::AtLeastOnce, true, "online")
+                    .is_ok()
+                {
+                    s.requested.push_back(0);
+                }
+                drop(guard);
+                self.wake.notify_one();
+            }
+            Ok(_) => {}
+            Err(err) => {
+                s.forget_wire();
+                s.connected = false;
+                if let ConnectionError::ConnectionRefused(code) = &err {
+                    s.refused = Some(format!("the broker refused the connection: {code:?}"));
+                }
+                s.last_error = Some(err.to_string());
+            }
+        }
+    }
+
+    /// Stores the acknowledgement state when it moved.
+    fn store(&self) {
+        let state = {
+            let mut s = Spool::lock(&self.spool);
+            if !s.dirty {
+                return;
+            }
+            s.dirty = false;
+            AckState {
+                acked_seq: s.acked_seq,
+            }
+        };
+        if let Err(e) = state.store(&self.dir) {
+            Spool::lock(&self.spool).last_error =
+                Some(format!("{}: {e}", AckState::path_in(&self.dir).display()));
         }
     }
 }
@@ -474,6 +893,7 @@ impl Drop for MqttPublisher {
 mod tests {
     use super::*;
     use serde_json::json;
+    use std::sync::atomic::AtomicU64;
 
     #[test]
     fn torn_last_line_is_cut_and_appending_goes_on() {
@@ -541,9 +961,7 @@ mod tests {
         // The disk fills half-way through the second record.
         room.store(20, Ordering::SeqCst);
         let e = log.append(&rec(2)).expect_err("disk full");
-        let StreamError::Io { source, .. } = &e else {
-            panic!("{e}")
-        };
+        let StreamError::Io { source, .. } = &e;
         assert!(is_disk_full(source), "{e}");
         assert!(e.to_string().contains("No space left on device"), "{e}");
         let p = ResultsLog::path_in(dir.path());
@@ -612,6 +1030,70 @@ mod tests {
             back.bytes_read <= TAIL_CHUNK,
             "{} of {len} bytes read",
             back.bytes_read
+        );
+    }
+
+    #[test]
+    fn records_after_a_seq_come_back_oldest_first_across_rotations_and_bounded() {
+        let dir = tempfile::tempdir().expect("dir");
+        let (mut log, _) = ResultsLog::open(dir.path(), 4096, 4, 10).expect("open");
+        // Records of a log written before sequence numbers, then numbered ones.
+        log.append(&json!({"kind": "sample", "counter": 0}))
+            .expect("append");
+        for q in 1..=50u64 {
+            log.append(&json!({"kind": "sample", "seq": q, "pad": "p".repeat(100)}))
+                .expect("append");
+        }
+        assert!(rotated(&ResultsLog::path_in(dir.path()), 1).exists());
+        let seqs = |v: &std::collections::VecDeque<Value>| -> Vec<u64> {
+            v.iter().filter_map(|r| r["seq"].as_u64()).collect()
+        };
+        let (after, left_out) = records_after(dir.path(), 4, 40, 100).expect("read");
+        assert_eq!((seqs(&after), left_out), ((41..=50).collect(), false));
+        let (after, left_out) = records_after(dir.path(), 4, 10, 5).expect("read");
+        assert_eq!((seqs(&after), left_out), ((46..=50).collect(), true));
+        let (after, _) = records_after(dir.path(), 4, 50, 100).expect("read");
+        assert!(after.is_empty());
+        let (after, _) = records_after(dir.path(), 4, 0, 100).expect("read");
+        assert_eq!(
+            seqs(&after),
+            (1..=50).collect::<Vec<_>>(),
+            "stops at the unnumbered"
+        );
+    }
+
+    #[test]
+    fn a_full_spool_drops_its_oldest_and_keeps_the_acknowledgement_below_it() {
+        let dir = tempfile::tempdir().expect("dir");
+        // A port nothing listens on: the records stay unacknowledged.
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .expect("port");
+        let spec: MqttSpec = serde_json::from_value(json!({
+            "port": port,
+            "spool_records": 3,
+        }))
+        .expect("spec");
+        let m = MqttPublisher::connect(&spec, dir.path(), 10).expect("client");
+        for seq in 9..=15u64 {
+            m.publish(&json!({"kind": "sample", "seq": seq}));
+        }
+        // 9 and 10 were acknowledged before; 11 and 12 dropped from the full spool.
+        let left = m.flush(Duration::ZERO).expect("unsent");
+        assert_eq!(
+            left,
+            Unsent {
+                records: 5,
+                first_seq: 11,
+                connected: false
+            }
+        );
+        assert_eq!((m.sent(), m.acked()), (5, 0));
+        drop(m);
+        assert!(
+            !AckState::path_in(dir.path()).exists(),
+            "nothing acknowledged"
         );
     }
 
