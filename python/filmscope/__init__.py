@@ -217,7 +217,7 @@ def estimate(
         ambient_index: index of the medium the light comes from (array input).
         polarization: ``"s"``, ``"p"`` or ``"unpolarized"`` (array input).
         index_range: ``[low, high]`` film index search range (array input).
-        thickness_range_nm: ``[low, high]`` thickness search range, nm (array input; default: 50 nm to the thickest film the bands resolve).
+        thickness_range_nm: ``[low, high]`` thickness search range, nm (array input; default: 20 nm to the thickest film the bands resolve).
         out: a folder to write the maps, previews and ``summary.json`` into, as the CLI's
             ``--out`` (default: nothing is kept on disk).
         method: ``"filmscope"`` (default), ``"paper"`` or ``"brute"``.
