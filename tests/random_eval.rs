@@ -242,3 +242,27 @@ fn thick_high_index_films_with_a_step_have_every_pixel_solved() {
         assert_eq!(s.silent_failure_rate, 0.0, "{}", row.table_row());
     }
 }
+
+/// Films thicker than the old fixed 2000 nm search range and thinner than its 50 nm start,
+/// with no range given (`eval --random 100 --seed 3 --thick`: Ta2O5 4.94 um and CaF2 4.74 um
+/// on two angles, Si3N4 40 nm): the default range follows what the bands resolve and reaches
+/// each; every pixel valid, none silently wrong.
+#[test]
+fn thick_and_thin_films_are_reached_without_a_range() {
+    let dir = common::tempdir();
+    for i in [24, 27, 68] {
+        let drawn = firmware_sim::random::draw_thick(3, i);
+        assert!(!drawn.toml.contains("thickness_range_nm"), "{}", drawn.toml);
+        let row = filmscope::cli::eval::random_scene(
+            3,
+            i,
+            &RunConfig::default(),
+            dir.path(),
+            Draw::Thick,
+        );
+        assert!(row.passed, "{}", row.table_row());
+        let s = row.score.expect("a score");
+        assert!(s.valid_fraction >= 0.99, "{}", row.table_row());
+        assert_eq!(s.silent_failure_rate, 0.0, "{}", row.table_row());
+    }
+}
