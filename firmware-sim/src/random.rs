@@ -119,6 +119,22 @@ fn round_to(x: f64, per_unit: f64) -> f64 {
     (x * per_unit).round() / per_unit
 }
 
+/// A base thickness log-uniform in `[lo, hi]` (to 0.1 nm) and a linear gradient of up to
+/// `share` of it along each axis.
+fn thickness_draw(rng: &mut Rng, [lo, hi]: [f64; 2], share: f64) -> (f64, [f64; 2]) {
+    let base = round_to(
+        (lo.ln() + (hi.ln() - lo.ln()) * rng.uniform())
+            .exp()
+            .clamp(lo, hi),
+        10.0,
+    );
+    let gradient = [
+        round_to(base * uniform(rng, [-share, share]), 10.0),
+        round_to(base * uniform(rng, [-share, share]), 10.0),
+    ];
+    (base, gradient)
+}
+
 /// Scene `i` of the random set `seed`.
 pub fn draw(seed: u64, i: usize) -> RandomScene {
     draw_as(seed, i, false)
@@ -206,17 +222,7 @@ fn draw_thick_as(seed: u64, i: usize) -> RandomScene {
             break s;
         }
     };
-    let [lo, hi] = THICK_BASE_THICKNESS_NM;
-    let base = round_to(
-        (lo.ln() + (hi.ln() - lo.ln()) * rng.uniform())
-            .exp()
-            .clamp(lo, hi),
-        10.0,
-    );
-    let gradient = [
-        round_to(base * uniform(&mut rng, [-0.1, 0.1]), 10.0),
-        round_to(base * uniform(&mut rng, [-0.1, 0.1]), 10.0),
-    ];
+    let (base, gradient) = thickness_draw(&mut rng, THICK_BASE_THICKNESS_NM, 0.1);
     let a0 = round_to(uniform(&mut rng, [0.0, 30.0]), 2.0);
     let a1 = round_to(a0 + uniform(&mut rng, [15.0, 40.0]), 2.0);
     let start = uniform(&mut rng, BAND_START_NM).round();
@@ -287,17 +293,7 @@ fn draw_as(seed: u64, i: usize, realistic: bool) -> RandomScene {
             break n;
         }
     };
-    let [lo, hi] = BASE_THICKNESS_NM;
-    let base = round_to(
-        (lo.ln() + (hi.ln() - lo.ln()) * rng.uniform())
-            .exp()
-            .clamp(lo, hi),
-        10.0,
-    );
-    let gradient = [
-        round_to(base * uniform(&mut rng, [-0.15, 0.15]), 10.0),
-        round_to(base * uniform(&mut rng, [-0.15, 0.15]), 10.0),
-    ];
+    let (base, gradient) = thickness_draw(&mut rng, BASE_THICKNESS_NM, 0.15);
     let bumps = integer(&mut rng, [0, 4]);
     let bump_height = round_to(1.0 + base * uniform(&mut rng, [0.02, 0.06]), 10.0);
     let bump_sigma = round_to(uniform(&mut rng, [0.08, 0.25]), 100.0);
