@@ -448,17 +448,18 @@ impl Term {
     }
 }
 
-/// Steps of the model-error grid a [`Residual`] solves on, a factor 10^(1/8) apart from
+/// Steps of the model-error grid a [`Residual`] solves on, a factor 10^(1/4) apart from
 /// 1e-5 (the first step is 0).
-const MODEL_ERROR_STEPS: usize = 48;
+const MODEL_ERROR_STEPS: usize = 24;
 
-/// The model error of grid step `j`: 0, then 1e-5 rising by 10^(1/8) a step (to 1 at the last).
+/// The model error of grid step `j`: 0, then 1e-5 rising by 10^(1/4) a step (to 0.56 at the
+/// last).
 #[inline]
 fn model_error_step(j: usize) -> f64 {
     if j == 0 {
         0.0
     } else {
-        1e-5 * libm::pow(10.0, (j - 1) as f64 / 8.0)
+        1e-5 * libm::pow(10.0, (j - 1) as f64 / 4.0)
     }
 }
 
@@ -2027,6 +2028,10 @@ impl Problem<'_> {
         let (mut blue2, mut nblue, mut red2, mut nred) = (0.0, 0usize, 0.0, 0usize);
         // chi2[j]: the residual in units of the noise plus a model error MODEL_ERROR_GRID[j].
         let mut chi2 = [0.0; MODEL_ERROR_STEPS + 1];
+        let grid2: [f64; MODEL_ERROR_STEPS + 1] = core::array::from_fn(|j| {
+            let m = model_error_step(j);
+            m * m
+        });
         for a in 0..na {
             let mut prev = [f64::NAN; MAX_SITES];
             let (mut an, mut ar, mut ar2, mut as2) = (0usize, 0.0, 0.0, 0.0);
@@ -2043,9 +2048,9 @@ impl Problem<'_> {
                     let r = y - m;
                     let v = self.noise.noise2(k, a, b);
                     (an, ar, ar2, as2) = (an + 1, ar + r, ar2 + r * r, as2 + 1.0 / v);
-                    for (j, c) in chi2.iter_mut().enumerate() {
-                        let m = model_error_step(j);
-                        *c += r * r / (v + m * m);
+                    let r2 = r * r;
+                    for (c, m2) in chi2.iter_mut().zip(&grid2) {
+                        *c += r2 / (v + m2);
                     }
                     if prev[k].is_finite() {
                         lag += prev[k] * r;
