@@ -908,8 +908,20 @@ pub const UNDERFIT_RATIO: f64 = 1.25;
 /// The narrow model's run.
 fn narrow_run(source: &dyn Source, p: &Passes, t0: Instant) -> Run {
     let mut result = result_from_sweep(&p.out);
-    if let Some(f) = p.fit.as_ref().and_then(|f| f.failure) {
-        result.notes.push(f.message().to_owned());
+    if let Some(fit) = p.fit.as_ref() {
+        if let Some(f) = fit.failure {
+            // Where the best fit's misfit lies (blue or red, which angles, an offset) points
+            // to the likely cause among those the message lists.
+            result.notes.push(if fit.residual.rms.is_finite() {
+                format!(
+                    "{}; the best fit leaves {}",
+                    f.message(),
+                    crate::estimate::index_fit::residual_shape(&fit.residual)
+                )
+            } else {
+                f.message().to_owned()
+            });
+        }
     }
     Run {
         result,
