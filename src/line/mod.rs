@@ -9,10 +9,12 @@
 //! - [`status`]: the live status page, JSON API and Prometheus metrics.
 //! - [`tls`]: the MQTT client's TLS configuration from the recipe's PEM files.
 //! - [`plc`]: the Modbus TCP server a PLC reads the verdict from and triggers samples with.
+//! - [`listen`]: the thread and runtime each of those servers runs on.
 //! - [`retention`]: which raw sweeps are kept, uint16 references, the disk budget.
 //! - [`inspect`]: the loop that ties them to the rig and the estimator.
 
 pub mod inspect;
+pub mod listen;
 pub mod plc;
 pub mod recipe;
 pub mod retention;

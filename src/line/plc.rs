@@ -32,10 +32,11 @@
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU16, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
 use std::time::Duration;
 
 use tokio_modbus::{ExceptionCode, Request, Response};
+
+use super::listen::ServerThread;
 
 /// Modbus clients served at once; further ones are closed as they come.
 pub const MAX_CONNECTIONS: usize = 16;
@@ -260,49 +261,29 @@ impl tokio_modbus::server::Service for Service {
 
 /// The Modbus TCP server of the [module docs](self).
 pub struct PlcServer {
-    addr: SocketAddr,
     shared: Arc<Shared>,
-    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
-    thread: Option<JoinHandle<()>>,
+    server: ServerThread,
 }
 
 impl PlcServer {
     /// Listens on `bind` (`host:port`, port 0: any free one). Fails, naming the address,
     /// when it cannot listen there.
     pub fn start(bind: &str) -> Result<Self, PlcError> {
-        let fail = |problem: String| PlcError {
+        let shared = Arc::new(Shared::default());
+        let sh = shared.clone();
+        let server = ServerThread::start(bind, "modbus", move |listener, stopped| {
+            serve(listener, sh, stopped)
+        })
+        .map_err(|problem| PlcError {
             addr: bind.to_owned(),
             problem,
-        };
-        let listener =
-            std::net::TcpListener::bind(bind).map_err(|e| fail(format!("cannot listen: {e}")))?;
-        listener
-            .set_nonblocking(true)
-            .map_err(|e| fail(e.to_string()))?;
-        let addr = listener.local_addr().map_err(|e| fail(e.to_string()))?;
-        let runtime = tokio::runtime::Builder::new_current_thread()
-            .enable_io()
-            .enable_time()
-            .build()
-            .map_err(|e| fail(format!("no runtime: {e}")))?;
-        let shared = Arc::new(Shared::default());
-        let (shutdown, stopped) = tokio::sync::oneshot::channel::<()>();
-        let sh = shared.clone();
-        let thread = std::thread::Builder::new()
-            .name("modbus".into())
-            .spawn(move || runtime.block_on(serve(listener, sh, stopped)))
-            .map_err(|e| fail(e.to_string()))?;
-        Ok(Self {
-            addr,
-            shared,
-            shutdown: Some(shutdown),
-            thread: Some(thread),
-        })
+        })?;
+        Ok(Self { shared, server })
     }
 
     /// Where it listens.
     pub fn addr(&self) -> SocketAddr {
-        self.addr
+        self.server.addr()
     }
 
     /// Changes the snapshot the registers show.
@@ -321,17 +302,6 @@ impl PlcServer {
             self.shared.triggers.fetch_add(1, Ordering::SeqCst);
         }
         set
-    }
-}
-
-impl Drop for PlcServer {
-    fn drop(&mut self) {
-        if let Some(s) = self.shutdown.take() {
-            let _ = s.send(());
-        }
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
     }
 }
 

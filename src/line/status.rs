@@ -16,7 +16,6 @@ use std::collections::VecDeque;
 use std::convert::Infallible;
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
 use std::time::Duration;
 
 use http_body_util::Full;
@@ -24,6 +23,8 @@ use hyper::body::{Bytes, Incoming};
 use hyper::{Method, Request, Response, StatusCode};
 use hyper_util::rt::{TokioIo, TokioTimer};
 use serde_json::{json, Value};
+
+use super::listen::ServerThread;
 
 /// Most connections served at once (each a task of a few kB, not a thread).
 pub const MAX_CONNECTIONS: usize = 512;
@@ -81,59 +82,38 @@ pub struct Counts {
 
 /// A running status server; stops when dropped.
 pub struct StatusServer {
-    addr: SocketAddr,
     state: Arc<Mutex<StatusState>>,
-    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
-    thread: Option<JoinHandle<()>>,
+    server: ServerThread,
 }
 
 impl StatusServer {
     /// Listens on `bind:port` (port 0: any free one). Fails, naming the address, when it
     /// cannot listen there (the port in use, an address not of this machine).
     pub fn start(bind: &str, port: u16, film: &str) -> Result<Self, StatusError> {
-        let where_ = format!("{bind}:{port}");
-        let fail = |problem: String| StatusError {
-            addr: where_.clone(),
-            problem,
-        };
-        let listener = std::net::TcpListener::bind((bind, port))
-            .map_err(|e| fail(format!("cannot listen: {e}")))?;
-        listener
-            .set_nonblocking(true)
-            .map_err(|e| fail(e.to_string()))?;
-        let addr = listener.local_addr().map_err(|e| fail(e.to_string()))?;
-        let runtime = tokio::runtime::Builder::new_current_thread()
-            .enable_io()
-            .enable_time()
-            .build()
-            .map_err(|e| fail(format!("no runtime: {e}")))?;
         let state = Arc::new(Mutex::new(StatusState {
             history: json!({"points": [], "limits": {}, "capability": {}}),
             film: film.to_owned(),
             ..StatusState::default()
         }));
-        let (shutdown, stopped) = tokio::sync::oneshot::channel();
         let st = state.clone();
-        let thread = std::thread::Builder::new()
-            .name("status".into())
-            .spawn(move || runtime.block_on(serve(listener, st, stopped)))
-            .map_err(|e| fail(e.to_string()))?;
-        Ok(Self {
-            addr,
-            state,
-            shutdown: Some(shutdown),
-            thread: Some(thread),
+        let server = ServerThread::start((bind, port), "status", move |listener, stopped| {
+            serve(listener, st, stopped)
         })
+        .map_err(|problem| StatusError {
+            addr: format!("{bind}:{port}"),
+            problem,
+        })?;
+        Ok(Self { state, server })
     }
 
     /// Where it listens.
     pub fn addr(&self) -> SocketAddr {
-        self.addr
+        self.server.addr()
     }
 
     /// The page's URL.
     pub fn url(&self) -> String {
-        format!("http://{}/", self.addr)
+        format!("http://{}/", self.server.addr())
     }
 
     /// Shows a new sample: its record, overlay PNG, the history body and its alarms.
@@ -186,17 +166,6 @@ impl StatusServer {
             .lock()
             .unwrap_or_else(|p| p.into_inner())
             .page_hits
-    }
-}
-
-impl Drop for StatusServer {
-    fn drop(&mut self) {
-        if let Some(s) = self.shutdown.take() {
-            let _ = s.send(());
-        }
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
     }
 }
 
