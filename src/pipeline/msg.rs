@@ -91,10 +91,3 @@ pub struct Correction {
     /// is left as measured).
     pub terms: Vec<(f32, f32)>,
 }
-
-impl Correction {
-    /// Whether it changes nothing.
-    pub fn is_none(&self) -> bool {
-        self.angle_offset_deg == 0.0 && self.band_shift_nm == 0.0 && self.terms.is_empty()
-    }
-}
