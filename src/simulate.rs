@@ -525,6 +525,7 @@ pub fn write_capture(
             substrate_index: scene.stack.substrate.index_at(550.0),
             substrate,
             polarization: scene.stack.polarization,
+            back_face: scene.stack.back_face,
         },
         search: Search {
             index_range: scene.index_range,
@@ -549,6 +550,7 @@ pub fn write_capture(
         "substrate_dispersion": DispersionRecord::dispersive(&scene.stack.substrate),
         "ambient_index": scene.stack.ambient_index,
         "polarization": scene.stack.polarization.name(),
+        "back_face": if scene.imperfections.bare_back_face { "bare" } else { "none" },
         "angles_deg": scene.angles_deg,
         "noise_free": opts.noise_free,
         "thickness_map": "truth/thickness_nm.hdr",

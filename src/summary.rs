@@ -180,6 +180,13 @@ pub struct SampleRecord {
     /// The substrate's dispersion, when it is not a constant.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub substrate: Option<DispersionRecord>,
+    /// The substrate's back face as the model took it: `none` or `bare`.
+    #[serde(default = "no_back_face")]
+    pub back_face: String,
+}
+
+fn no_back_face() -> String {
+    "none".into()
 }
 
 /// The film's index model with its value at 550 nm and a table over the capture's bands.

@@ -24,6 +24,7 @@ fn film_of(name: &str) -> Option<(FilmStack, f64, f64)> {
     };
     Some((
         FilmStack {
+            back_face: filmscope_core::optics::BackFace::None,
             ambient_index: 1.0,
             film: Dispersion::constant(num(p[0])),
             substrate: Dispersion::constant(num(p[2])),

@@ -50,6 +50,7 @@ fn cube_from_scene(name: &str, width: usize, height: usize, noisy: bool) -> (Swe
         .flat_map(|r| scene.thickness_nm[r * full..r * full + w].iter().copied())
         .collect();
     let cube = SweepCube {
+        back_face: filmscope_core::optics::BackFace::None,
         width: w,
         height: h,
         bands_nm: scene.bands_nm.clone(),

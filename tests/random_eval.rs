@@ -130,6 +130,7 @@ fn evaluate_scores_a_perfect_result_as_passing() {
     let mut run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
     let n = 1.9;
     let truth = Truth {
+        back_face: Default::default(),
         film: Dispersion::constant(n),
         substrate: drawn.scene.stack.substrate,
         ambient_index: 1.0,

@@ -134,6 +134,54 @@ fn a_measured_hfo2_film_on_fused_silica() {
     assert_eq!(summary(&strict)["valid_fraction"].as_f64(), Some(0.0));
 }
 
+/// The same measured HfO2 film as a reflectometer sees it with the substrate's bare back face
+/// behind: a lossless sample reflects what it does not transmit, `R = 1 - T`, with no model in
+/// between. Declared (`sample.back_face = "bare"`), it gives the published fits' index and
+/// thickness; undeclared, it is refused or right.
+#[test]
+fn a_measured_hfo2_film_with_its_back_face() {
+    let dir = common::tempdir();
+    let (cap, est, plain_cap, plain) = (
+        dir.path().join("cap"),
+        dir.path().join("est"),
+        dir.path().join("plain-cap"),
+        dir.path().join("plain"),
+    );
+    let spectrum: Vec<(f64, f64)> = hfo2_transmittance(2)
+        .into_iter()
+        .map(|(l, t)| (l, 1.0 - t))
+        .collect();
+    write_capture(&cap, &spectrum, 2.8e-4, "back_face = \"bare\"");
+    run_ok(&["estimate", s(&cap), "--out", s(&est)]);
+    let sum = summary(&est);
+    let n = sum["refractive_index"].as_f64().expect("an index");
+    let d = sum["thickness_nm"]["median"].as_f64().expect("a thickness");
+    assert!((1.995..=2.015).contains(&n), "n(550) {n}");
+    assert!((185.0..=195.0).contains(&d), "thickness {d} nm");
+    assert_eq!(sum["valid_fraction"].as_f64(), Some(1.0), "{sum}");
+    assert_eq!(sum["sample"]["back_face"].as_str(), Some("bare"), "{sum}");
+
+    write_capture(&plain_cap, &spectrum, 2.8e-4, "");
+    run_ok(&["estimate", s(&plain_cap), "--out", s(&plain)]);
+    let sum = summary(&plain);
+    match sum["refractive_index"].as_f64() {
+        Some(n) => {
+            let d = sum["thickness_nm"]["median"].as_f64().unwrap_or(f64::NAN);
+            assert!((1.99..=2.02).contains(&n), "undeclared, n(550) {n}: {sum}");
+            assert!((183.0..=197.0).contains(&d), "undeclared, thickness {d} nm");
+        }
+        None => {
+            assert_eq!(sum["valid_fraction"].as_f64(), Some(0.0), "{sum}");
+            let notes = sum["notes"].to_string();
+            assert!(notes.contains("with the back face bare"), "{notes}");
+        }
+    }
+    eprintln!(
+        "undeclared back face: n(550) {}, notes {}",
+        sum["refractive_index"], sum["notes"]
+    );
+}
+
 /// A one-angle scene at normal incidence: `film` (a library material) `base_nm` thick on
 /// glass, unpolarised, 0.1 % noise.
 fn normal_incidence(film: &str, base_nm: f64) -> Scene {
@@ -234,4 +282,92 @@ lamp_blue_ratio = 0.18
     );
     assert!(r.thickness_mae_nm <= 1.0, "MAE {}", r.thickness_mae_nm);
     assert!(r.valid_fraction >= 0.99, "valid {}", r.valid_fraction);
+}
+
+/// A film on a substrate whose back face is `back_face` (`"none"`, `"bare"` declared, or
+/// `"undeclared"`: bare in the sample, not in the capture), rendered by the rig model's own
+/// optics (an incoherent return through the film, every round trip).
+fn on_a_clear_substrate(substrate: f64, polarization: &str, back_face: &str) -> Scene {
+    let (declared, imperfection) = match back_face {
+        "bare" => ("back_face = \"bare\"", ""),
+        "undeclared" => ("", "[imperfections]\nback_face = \"bare\""),
+        _ => ("", ""),
+    };
+    let text = format!(
+        r#"
+name = "back-face"
+seed = 9
+polarization = "{polarization}"
+[film]
+index = 1.38
+[film.thickness]
+base_nm = 480.0
+gradient_nm = [-40.0, 20.0]
+[substrate]
+index = {substrate}
+{declared}
+[rig]
+angles_deg = [10.0, 30.0, 50.0]
+bands_nm = [420.0, 720.0, 3.0]
+fwhm_nm = 4.0
+[sensor]
+width = 48
+height = 32
+reflectance_noise_percent = 0.1
+{imperfection}
+"#
+    );
+    Scene::from_toml(&text, "back-face").expect("scene")
+}
+
+/// A declared bare back face on glass (S light) and on PET (unpolarised) is measured as well
+/// as the same film on a black-backed substrate; left undeclared, the capture is refused with
+/// a note naming the back face, or right, never silently wrong.
+#[test]
+fn a_declared_bare_back_face_is_measured_as_well_as_none() {
+    for (substrate, pol) in [(1.52, "s"), (1.65, "unpolarized")] {
+        let run = |back: &str| {
+            let name = format!("{substrate}-{pol}-{back}");
+            common::run_scene(
+                &name,
+                on_a_clear_substrate(substrate, pol, back),
+                &RunConfig::default(),
+            )
+        };
+        let (none, bare) = (run("none").0, run("bare").0);
+        let (undeclared, undeclared_run) = run("undeclared");
+        eprintln!(
+            "{substrate} {pol}: n err {:+.4} / {:+.4}, MAE {:.2} / {:.2} nm (none / bare); undeclared valid {:.3}, n err {:+.4}",
+            none.index_error,
+            bare.index_error,
+            none.thickness_mae_nm,
+            bare.thickness_mae_nm,
+            undeclared.valid_fraction,
+            undeclared.index_error
+        );
+        assert!(
+            bare.index_error.abs() <= 0.003,
+            "{substrate}: {}",
+            bare.index_error
+        );
+        assert!(
+            bare.thickness_mae_nm <= none.thickness_mae_nm + 0.5,
+            "{substrate}: MAE {} against {} without a back face",
+            bare.thickness_mae_nm,
+            none.thickness_mae_nm
+        );
+        assert!(
+            bare.valid_fraction >= 0.99,
+            "{substrate}: {}",
+            bare.valid_fraction
+        );
+        let refused = undeclared.valid_fraction == 0.0;
+        let notes = undeclared_run.result.notes.join("; ");
+        assert!(
+            !refused || notes.contains("declare sample.back_face = \"bare\""),
+            "{substrate}: refused without naming the back face: {notes}"
+        );
+        let right = undeclared.index_error.abs() <= 0.01 && undeclared.silent_failure_rate <= 0.01;
+        assert!(refused || right, "{substrate}: undeclared {undeclared:?}");
+    }
 }

@@ -258,6 +258,7 @@ mod tests {
 
     fn stack(pol: Polarization) -> FilmStack {
         FilmStack {
+            back_face: filmscope_core::optics::BackFace::None,
             ambient_index: 1.0,
             film: Dispersion::constant(2.1),
             substrate: Dispersion::constant(1.52),
@@ -279,6 +280,7 @@ mod tests {
                 let band = Passband::gaussian_with_nodes(l, 0.0, 1);
                 let ours = band_reflectance(&stack(pol), &imp, d, deg, &band);
                 let idx = Indices {
+                    back_face: filmscope_core::optics::BackFace::None,
                     ambient: 1.0,
                     film: 2.1,
                     substrate: 1.52,

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use filmscope_core::optics::{
-    materials, Dispersion, FieldOfView, FilmStack, Passband, Polarization,
+    materials, BackFace, Dispersion, FieldOfView, FilmStack, Passband, Polarization,
 };
 use serde::Deserialize;
 
@@ -128,6 +128,8 @@ struct SubstrateFile {
     index: Option<f64>,
     /// A dispersive substrate, in the film's forms (`cauchy`, `sellmeier`, `material`).
     dispersion: Option<DispersionFile>,
+    /// `"bare"`: the back face reflects and the capture says so (`sample.back_face`).
+    back_face: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -255,7 +257,8 @@ pub struct Scene {
     /// Search bounds written into the capture, if the scene gives them.
     pub thickness_range_nm: Option<[f64; 2]>,
     /// What the real sample and rig add to the ideal film (`[imperfections]`; none by
-    /// default). The capture declares the ideal: the estimator is not told of them.
+    /// default). The capture declares the ideal: the estimator is not told of them, except a
+    /// back face the scene declares (`[substrate] back_face`, in `stack`).
     pub imperfections: crate::imperfect::Imperfections,
 }
 
@@ -325,7 +328,13 @@ impl Scene {
             }
             (None, None) => return Err("[substrate] needs `index` or `dispersion`".into()),
         };
+        let back_face = match f.substrate.back_face.as_deref() {
+            None => BackFace::None,
+            Some(name) => BackFace::from_name(name)
+                .ok_or_else(|| format!("[substrate] back_face = {name:?}: \"none\" or \"bare\""))?,
+        };
         let stack = FilmStack {
+            back_face,
             ambient_index: f.ambient_index.unwrap_or(1.0),
             film,
             substrate,
@@ -475,7 +484,7 @@ impl Scene {
             Some(s) => (s.index_range, s.thickness_range_nm),
             None => (None, None),
         };
-        let imperfections = match f.imperfections {
+        let mut imperfections = match f.imperfections {
             None => crate::imperfect::Imperfections::default(),
             Some(m) => {
                 let bare = match m.back_face.as_deref() {
@@ -498,14 +507,18 @@ impl Scene {
                     bare_back_face: bare,
                 };
                 imp.check()?;
-                if imp.any() && field_of_view.is_some() {
-                    return Err(
-                        "[imperfections] cannot go with [rig] horizontal_fov_deg".to_string()
-                    );
-                }
                 imp
             }
         };
+        // A declared back face is rendered as an undeclared one is, by the rig model's own
+        // optics ([`crate::imperfect`]), not by the estimator's.
+        imperfections.bare_back_face |= back_face == BackFace::Bare;
+        if imperfections.any() && field_of_view.is_some() {
+            return Err(
+                "[imperfections] and a bare back face cannot go with [rig] horizontal_fov_deg"
+                    .to_string(),
+            );
+        }
         Ok(Self {
             name: f.name.unwrap_or(stem),
             description: f.description.unwrap_or_default(),

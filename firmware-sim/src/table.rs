@@ -153,6 +153,7 @@ mod tests {
             let polarization = [Polarization::S, Polarization::P, Polarization::Unpolarized]
                 [(rng.next_u64() % 3) as usize];
             let stack = FilmStack {
+                back_face: filmscope_core::optics::BackFace::None,
                 ambient_index: if case % 5 == 0 {
                     1.0 + 0.6 * rng.uniform()
                 } else {
@@ -204,6 +205,7 @@ mod tests {
     #[test]
     fn a_table_larger_than_allowed_is_refused() {
         let stack = FilmStack {
+            back_face: filmscope_core::optics::BackFace::None,
             ambient_index: 1.0,
             film: Dispersion::constant(2.4),
             substrate: Dispersion::constant(1.5),

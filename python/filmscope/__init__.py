@@ -133,8 +133,9 @@ class EstimateResult:
             wl, fw = list(sp["wavelengths_nm"]), list(sp["fwhm_nm"])
             measured = np.frombuffer(sp["measured"], dtype=np.float64).reshape(len(angles), len(wl))
             substrate, ambient, pol = sp["substrate"], sp["ambient_index"], sp["polarization"]
+            back = sp["back_face"]
         elif kind == "array":
-            _, cube, wl, angles, fw, substrate, ambient, pol = self._pixel_input
+            _, cube, wl, angles, fw, substrate, ambient, pol, back = self._pixel_input
             order = np.argsort(angles, kind="stable")
             angles = [angles[i] for i in order]
             measured = cube[order, y, x, :].astype(np.float64)
@@ -145,7 +146,7 @@ class EstimateResult:
         d = float(self.thickness_nm[y, x])
         med = self.summary.get("thickness_nm", {}).get("median")
         raw = _native.pixel_fit(
-            json.dumps(self.refractive_index), substrate, float(ambient), pol,
+            json.dumps(self.refractive_index), substrate, float(ambient), pol, back,
             [float(v) for v in wl], [float(v) for v in fw], [float(a) for a in angles],
             np.ascontiguousarray(measured, dtype=np.float64).tobytes(),
             d, float("nan") if med is None else float(med), x, y,
@@ -189,6 +190,7 @@ def estimate(
     substrate: Material = 1.52,
     ambient_index: float = 1.0,
     polarization: str = "s",
+    back_face: str = "none",
     index_range: Optional[Sequence[float]] = None,
     thickness_range_nm: Optional[Sequence[float]] = None,
     out: Optional[PathLike] = None,
@@ -216,6 +218,9 @@ def estimate(
             refractiveindex.info YAML path or a dispersion dict. A capture gives its own.
         ambient_index: index of the medium the light comes from (array input).
         polarization: ``"s"``, ``"p"`` or ``"unpolarized"`` (array input).
+        back_face: the substrate's back face (array input): ``"none"`` (index-matched,
+            black or absent) or ``"bare"`` (a clear substrate whose far side reflects, added
+            incoherently), as ``sample.back_face`` in a capture.
         index_range: ``[low, high]`` film index search range (array input).
         thickness_range_nm: ``[low, high]`` thickness search range, nm (array input; default: 20 nm to the thickest film the bands resolve).
         out: a folder to write the maps, previews and ``summary.json`` into, as the CLI's
@@ -278,6 +283,7 @@ def estimate(
         float(ambient_index),
         sub_json,
         polarization,
+        back_face,
         ir,
         tr,
         out_s,
@@ -291,7 +297,7 @@ def estimate(
         me,
     )
     fw_list = fw if fw is not None else _band_spacing(wl)
-    return EstimateResult(raw, None, ("array", cube, wl, ang, fw_list, sub_json, float(ambient_index), polarization))
+    return EstimateResult(raw, None, ("array", cube, wl, ang, fw_list, sub_json, float(ambient_index), polarization, back_face))
 
 
 def _band_spacing(wl: Sequence[float]) -> list:
@@ -334,6 +340,7 @@ def reflectance(
     substrate: Material = 1.52,
     polarization: str = "unpolarized",
     ambient_index: float = 1.0,
+    back_face: str = "none",
 ) -> np.ndarray:
     """Reflectance of a film on a substrate: filmscope's forward model.
 
@@ -350,6 +357,8 @@ def reflectance(
         substrate: the substrate's index, in any form ``n_model`` takes.
         polarization: ``"s"``, ``"p"`` or ``"unpolarized"`` (the mean of the two).
         ambient_index: index of the incidence medium.
+        back_face: ``"none"`` or ``"bare"``: the substrate's far side reflecting too (a clear
+            substrate in the ambient medium, its return added incoherently).
 
     Returns:
         ``float64`` array of shape ``broadcast(d_nm, angles_deg).shape + (len(wavelengths_nm),)``.
@@ -367,6 +376,7 @@ def reflectance(
         _material_json(substrate, "substrate"),
         float(ambient_index),
         polarization,
+        back_face,
     )
     return np.frombuffer(raw, dtype=np.float64).reshape(d.shape + (wl.size,)).copy()
 

@@ -71,6 +71,7 @@ def estimate(
     substrate: Material = 1.52,
     ambient_index: float = 1.0,
     polarization: str = "s",
+    back_face: str = "none",
     index_range: Optional[Sequence[float]] = None,
     thickness_range_nm: Optional[Sequence[float]] = None,
     out: Optional[PathLike] = None,
@@ -99,6 +100,7 @@ def reflectance(
     substrate: Material = 1.52,
     polarization: str = "unpolarized",
     ambient_index: float = 1.0,
+    back_face: str = "none",
 ) -> npt.NDArray[np.float64]:
     """The forward model: shape ``broadcast(d_nm, angles_deg).shape + (len(wavelengths_nm),)``."""
 

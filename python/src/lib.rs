@@ -20,7 +20,7 @@ use filmscope::source::{
     DEFAULT_INDEX_RANGE,
 };
 use filmscope::summary::Summary;
-use filmscope_core::optics::{Dispersion, FilmStack, Passband, Polarization};
+use filmscope_core::optics::{BackFace, Dispersion, FilmStack, Passband, Polarization};
 use filmscope_core::solve::SweepSpec;
 use firmware_sim::{Scene, SoftwareCamera};
 use pyo3::create_exception;
@@ -296,10 +296,16 @@ fn polarization(name: &str) -> Result<Polarization, String> {
         .ok_or_else(|| format!("polarization {name:?}: expected \"s\", \"p\" or \"unpolarized\""))
 }
 
+/// The substrate's back face by name, `"none"` or `"bare"`.
+fn back_face(name: &str) -> Result<BackFace, String> {
+    BackFace::from_name(&name.trim().to_lowercase())
+        .ok_or_else(|| format!("back_face {name:?}: expected \"none\" or \"bare\""))
+}
+
 /// Runs the estimator on a reflectance array: `data` the native-endian `float32` bytes of
 /// a C-ordered `(angles, lines, samples, bands)` array.
 #[pyfunction]
-#[pyo3(signature = (data, shape, wavelengths_nm, angles_deg, fwhm_nm, ambient_index, substrate, polarization_name, index_range, thickness_range_nm, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, film_index, model_error))]
+#[pyo3(signature = (data, shape, wavelengths_nm, angles_deg, fwhm_nm, ambient_index, substrate, polarization_name, back_face_name, index_range, thickness_range_nm, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, film_index, model_error))]
 #[allow(clippy::too_many_arguments)]
 fn estimate_array<'py>(
     py: Python<'py>,
@@ -311,6 +317,7 @@ fn estimate_array<'py>(
     ambient_index: f64,
     substrate: &str,
     polarization_name: &str,
+    back_face_name: &str,
     index_range: Option<[f64; 2]>,
     thickness_range_nm: Option<[f64; 2]>,
     out: Option<PathBuf>,
@@ -392,7 +399,8 @@ fn estimate_array<'py>(
         thickness_range_nm,
     )
     .map_err(fail)?
-    .with_substrate(substrate_d);
+    .with_substrate(substrate_d)
+    .with_back_face(back_face(back_face_name).map_err(fail)?);
     let values: Vec<f32> = data
         .chunks_exact(4)
         .map(|c| f32::from_ne_bytes([c[0], c[1], c[2], c[3]]))
@@ -442,7 +450,7 @@ fn index_at(material: &str, wavelengths_nm: Vec<f64>) -> PyResult<Vec<f64>> {
 /// The forward model at every `(thickness, angle)` pair and wavelength: native-endian
 /// `float64` bytes, pair-major.
 #[pyfunction]
-#[pyo3(signature = (film, thickness_nm, angles_deg, wavelengths_nm, fwhm_nm, substrate, ambient_index, polarization_name))]
+#[pyo3(signature = (film, thickness_nm, angles_deg, wavelengths_nm, fwhm_nm, substrate, ambient_index, polarization_name, back_face_name))]
 #[allow(clippy::too_many_arguments)]
 fn reflectance<'py>(
     py: Python<'py>,
@@ -454,8 +462,10 @@ fn reflectance<'py>(
     substrate: &str,
     ambient_index: f64,
     polarization_name: &str,
+    back_face_name: &str,
 ) -> PyResult<Bound<'py, PyBytes>> {
     let stack = FilmStack {
+        back_face: back_face(back_face_name).map_err(fail)?,
         ambient_index,
         film: dispersion(film, "n_model").map_err(fail)?,
         substrate: dispersion(substrate, "substrate").map_err(fail)?,
@@ -681,6 +691,7 @@ fn capture_spectra<'py>(
     )?;
     d.set_item("ambient_index", spec.ambient_index)?;
     d.set_item("polarization", spec.polarization.name())?;
+    d.set_item("back_face", spec.back_face.name())?;
     Ok(d)
 }
 
@@ -688,7 +699,7 @@ fn capture_spectra<'py>(
 /// `fallback_nm`) to one pixel's `measured` spectra (`float64` bytes, `[angle][band]`): a
 /// dict of `model` (bytes as `measured`) and `candidates` (`thickness_nm`, `rms`, `model`).
 #[pyfunction]
-#[pyo3(signature = (film, substrate, ambient_index, polarization_name, wavelengths_nm, fwhm_nm, angles_deg, measured, thickness_nm, fallback_nm, x, y))]
+#[pyo3(signature = (film, substrate, ambient_index, polarization_name, back_face_name, wavelengths_nm, fwhm_nm, angles_deg, measured, thickness_nm, fallback_nm, x, y))]
 #[allow(clippy::too_many_arguments)]
 fn pixel_fit<'py>(
     py: Python<'py>,
@@ -696,6 +707,7 @@ fn pixel_fit<'py>(
     substrate: &str,
     ambient_index: f64,
     polarization_name: &str,
+    back_face_name: &str,
     wavelengths_nm: Vec<f64>,
     fwhm_nm: Vec<f64>,
     angles_deg: Vec<f64>,
@@ -706,6 +718,7 @@ fn pixel_fit<'py>(
     y: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
     let stack = FilmStack {
+        back_face: back_face(back_face_name).map_err(fail)?,
         ambient_index,
         film: dispersion(film, "n_model").map_err(fail)?,
         substrate: dispersion(substrate, "substrate").map_err(fail)?,

@@ -148,3 +148,35 @@ def test_a_measured_spectrum_at_one_angle():
     assert not np.isfinite(strict.thickness_nm).any()
     with pytest.raises(filmscope.FilmscopeError, match="model_error"):
         filmscope.estimate(cube, wl, [0.0], model_error=0.5, **kw)
+
+
+def test_a_declared_bare_back_face_from_tmm_spectra():
+    """Spectra of MgF2 on glass with its bare back face, made by tmm's incoherent stack (not
+    filmscope's model): declared, the index and thickness come back; undeclared, the estimate
+    is refused or right."""
+    tmm = pytest.importorskip("tmm")
+    import math
+
+    wl = np.arange(420.0, 721.0, 3.0)
+    angles = np.array([10.0, 30.0, 50.0])
+    thick = np.linspace(440.0, 520.0, 12)
+
+    def r(pol, d, a, l):
+        return tmm.inc_tmm(pol, [1.0, 1.38, 1.52, 1.0], [np.inf, d, 1e6, np.inf],
+                           ["i", "c", "i", "i"], math.radians(a), l)["R"]
+
+    cols = np.array([[[r("s", d, a, l) for l in wl] for d in thick] for a in angles])
+    rng = np.random.default_rng(3)
+    cube = np.repeat(cols[:, None, :, :], 8, axis=1) + rng.normal(0.0, 2e-4, (3, 8, 12, len(wl)))
+    args = (cube, wl, angles)
+    declared = filmscope.estimate(*args, fwhm_nm=0.5, substrate=1.52, back_face="bare")
+    assert abs(declared.n_550 - 1.38) < 0.003, declared
+    valid = np.isfinite(declared.thickness_nm)
+    assert valid.mean() > 0.95
+    err = np.abs(declared.thickness_nm - thick[None, :])[valid]
+    assert err.mean() < 1.0, err.mean()
+    assert declared.summary["sample"]["back_face"] == "bare"
+    plain = filmscope.estimate(*args, fwhm_nm=0.5, substrate=1.52)
+    assert plain.summary["valid_fraction"] == 0.0 or abs(plain.n_550 - 1.38) < 0.01, plain
+    with pytest.raises(filmscope.FilmscopeError, match="back_face"):
+        filmscope.estimate(*args, fwhm_nm=0.5, substrate=1.52, back_face="frosted")

@@ -43,6 +43,27 @@ def test_matches_tmm_dispersive_film_and_substrate(pol):
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
 
 
+def tmm_bare(pol, n_film, n_sub, d, angle, wl):
+    """A 1 mm substrate, incoherent, with air behind: its bare back face's return."""
+    if pol == "unpolarized":
+        return 0.5 * (tmm_bare("s", n_film, n_sub, d, angle, wl) + tmm_bare("p", n_film, n_sub, d, angle, wl))
+    return tmm.inc_tmm(pol, [1.0, n_film, n_sub, 1.0], [np.inf, d, 1e6, np.inf],
+                       ["i", "c", "i", "i"], math.radians(angle), wl)["R"]
+
+
+@pytest.mark.parametrize("pol", ["s", "p", "unpolarized"])
+@pytest.mark.parametrize("n_film,n_sub", [(1.38, 1.52), (2.35, 1.65)])
+def test_a_bare_back_face_matches_tmm_incoherent_substrate(pol, n_film, n_sub):
+    got = filmscope.reflectance(n_film, THICK[:, None], ANGLES[None, :], WL, substrate=n_sub,
+                                polarization=pol, back_face="bare")
+    want = np.array(
+        [[[tmm_bare(pol, n_film, n_sub, d, a, l) for l in WL] for a in ANGLES] for d in THICK]
+    )
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    with pytest.raises(filmscope.FilmscopeError, match="back_face"):
+        filmscope.reflectance(n_film, 100.0, 10.0, WL, back_face="frosted")
+
+
 def test_broadcast_and_passband():
     r0 = filmscope.reflectance(1.38, [300.0, 310.0], 30.0, WL)
     assert r0.shape == (2, len(WL))

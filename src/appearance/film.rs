@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use filmscope_core::optics::{Dispersion, FilmStack, Polarization};
+use filmscope_core::optics::{BackFace, Dispersion, FilmStack, Polarization};
 use filmscope_core::solve::flags;
 
 use super::AppearanceError;
@@ -86,7 +86,7 @@ impl SampleFilm {
 
         let source = Some(PathBuf::from(&summary.source)).filter(|p| p.exists());
         let capture_path = capture.map(Path::to_path_buf).or(source);
-        let (ambient_index, substrate, polarization) = match (capture, &summary.sample) {
+        let (ambient_index, substrate, polarization, back_face) = match (capture, &summary.sample) {
             (None, Some(sample)) => {
                 // A dispersive substrate is `sample.substrate`; a constant one only
                 // `sample.substrate_index`.
@@ -102,7 +102,13 @@ impl SampleFilm {
                         sample.polarization
                     ))
                 })?;
-                (sample.ambient_index, substrate, pol)
+                let back_face = BackFace::from_name(&sample.back_face).ok_or_else(|| {
+                    bad(format!(
+                        "sample.back_face: `{}` is not none or bare",
+                        sample.back_face
+                    ))
+                })?;
+                (sample.ambient_index, substrate, pol, back_face)
             }
             _ => {
                 let path = capture_path.as_deref().ok_or_else(|| {
@@ -113,6 +119,7 @@ impl SampleFilm {
                     cap.sample.ambient_index,
                     cap.sample.substrate_dispersion(),
                     cap.sample.polarization,
+                    cap.sample.back_face,
                 )
             }
         };
@@ -123,6 +130,7 @@ impl SampleFilm {
             thickness_nm: cube.data,
             flags,
             stack: FilmStack {
+                back_face,
                 ambient_index,
                 film,
                 substrate,

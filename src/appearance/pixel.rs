@@ -441,13 +441,14 @@ pub fn pixel_fit(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use filmscope_core::optics::{Dispersion, Polarization};
+    use filmscope_core::optics::{BackFace, Dispersion, Polarization};
 
     /// Noise-free spectra of a known film: the estimate is the best candidate, its
     /// residual is nil, and the neighbouring orders fit worse.
     #[test]
     fn the_true_thickness_is_the_best_candidate() {
         let stack = FilmStack {
+            back_face: BackFace::None,
             ambient_index: 1.0,
             film: Dispersion::constant(1.38),
             substrate: Dispersion::constant(1.65),

@@ -11,7 +11,7 @@ use std::path::Path;
 use filmscope_core::colour::{
     delta_e2000, delta_e76, spectral_rmse, Colorimetry, Illuminant, D65_WHITE_XYZ,
 };
-use filmscope_core::optics::{Dispersion, FilmStack, Polarization};
+use filmscope_core::optics::{BackFace, Dispersion, FilmStack, Polarization};
 use firmware_sim::random::Draw;
 use serde::Serialize;
 
@@ -34,6 +34,8 @@ pub struct Truth {
     pub ambient_index: f64,
     /// Polarisation.
     pub polarization: Polarization,
+    /// The substrate's back face as the sample has it (declared or not).
+    pub back_face: BackFace,
     /// Thickness per pixel, row-major, nm.
     pub thickness_nm: Vec<f32>,
 }
@@ -46,6 +48,11 @@ impl Truth {
             substrate: scene.stack.substrate,
             ambient_index: scene.stack.ambient_index,
             polarization: scene.stack.polarization,
+            back_face: if scene.imperfections.bare_back_face {
+                BackFace::Bare
+            } else {
+                BackFace::None
+            },
             thickness_nm: scene.thickness_nm.clone(),
         }
     }
@@ -87,6 +94,11 @@ impl Truth {
             substrate,
             ambient_index: num("ambient_index").unwrap_or(1.0),
             polarization: pol,
+            back_face: v
+                .get("back_face")
+                .and_then(|b| b.as_str())
+                .and_then(BackFace::from_name)
+                .unwrap_or_default(),
             thickness_nm: cube.data,
         })
     }
@@ -200,6 +212,7 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
     let n_px = truth.thickness_nm.len().min(r.thickness_nm.len());
     let est_film = r.index.dispersion();
     let true_stack = FilmStack {
+        back_face: truth.back_face,
         ambient_index: truth.ambient_index,
         film: truth.film,
         substrate: truth.substrate,

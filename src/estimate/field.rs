@@ -921,6 +921,7 @@ fn narrow_run(source: &dyn Source, p: &Passes, t0: Instant) -> Run {
             } else {
                 f.message().to_owned()
             });
+            result.notes.extend(p.notes.iter().cloned());
         }
     }
     Run {

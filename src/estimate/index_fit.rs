@@ -42,6 +42,7 @@ impl Parallel for Threads {
 /// The sample fit's view of sweep `spec` at `angles_deg`.
 fn geometry<'a>(spec: &'a SweepSpec, angles_deg: &'a [f64]) -> Geometry<'a> {
     Geometry {
+        back_face: spec.back_face,
         bands_nm: &spec.bands_nm,
         fwhm_nm: &spec.fwhm_nm,
         angles_deg,

@@ -171,6 +171,7 @@ pub fn write_outputs_into(
             substrate_index: run.spec.substrate_index,
             polarization: run.spec.polarization.name().to_owned(),
             substrate: (!run.spec.substrate.is_constant()).then(|| run.spec.substrate.into()),
+            back_face: run.spec.back_face.name().into(),
         }),
         method: r.method.name().to_owned(),
         source: source_label.to_owned(),

@@ -5,7 +5,8 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use filmscope_core::solve::sample::SampleFit;
+use filmscope_core::optics::BackFace;
+use filmscope_core::solve::sample::{Failure, SampleFit};
 use filmscope_core::solve::shard::MAX_THICKNESS_SIGMA_NM;
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
 use serde_json::json;
@@ -42,6 +43,8 @@ pub struct Passes {
     pub fit: Option<SampleFit>,
     /// How the index model was chosen, as JSON (`summary.json` `index_model_choice`).
     pub choice: serde_json::Value,
+    /// What the sample's evidence says beyond the fit (a refused fit's likely cause).
+    pub notes: Vec<String>,
 }
 
 /// The streaming estimator over `source` with one incidence angle per frame: the sampled
@@ -96,13 +99,46 @@ pub fn filmscope_passes(
             passes: 1,
             fit: Some(fit),
             choice,
+            notes: Vec::new(),
         });
     }
     fill(source, &mut tap)?;
     let began = Instant::now();
     let fit = tap.fit(&spec, None, true);
     let fit_seconds = began.elapsed().as_secs_f64();
-    passes_under(source, config, &tap, fit, fit_seconds, on_rows)
+    let hint = back_face_evidence(&tap, &spec, &fit);
+    let mut passes = passes_under(source, config, &tap, fit, fit_seconds, on_rows)?;
+    passes.notes.extend(hint);
+    Ok(passes)
+}
+
+/// When the sample's fit found no model (`NoFit`), the same fit with the substrate's back
+/// face the other way (`bare` for `none`, `none` for `bare`): when that passes, the note
+/// names the back face as the cause. The capture stays refused (its declared physics is the
+/// user's to correct): a fit that passes only under another assumption is evidence, not a
+/// measurement.
+fn back_face_evidence(tap: &SampleTap, spec: &SweepSpec, fit: &SampleFit) -> Option<String> {
+    if fit.failure != Some(Failure::NoFit) {
+        return None;
+    }
+    let (other, fix) = match spec.back_face {
+        BackFace::None => (
+            BackFace::Bare,
+            "if the substrate is clear and unbacked, declare sample.back_face = \"bare\"",
+        ),
+        BackFace::Bare => (
+            BackFace::None,
+            "if the back is blackened or index-matched, declare sample.back_face = \"none\"",
+        ),
+    };
+    let alt = tap.fit(&spec.clone().with_back_face(other), None, true);
+    let c = alt.best.filter(|_| alt.failure.is_none())?;
+    Some(format!(
+        "with the back face {} the sampled spectra fit (n(550) {:.4}, {}): {fix}",
+        other.name(),
+        c.kind.dispersion(&c.params).index_at(550.0),
+        crate::estimate::index_fit::residual_shape(&alt.residual)
+    ))
 }
 
 /// The passes of a replayable source after the sample's fit `fit` (of `tap`, taking
@@ -164,6 +200,7 @@ pub fn passes_under(
         passes,
         fit: Some(fit),
         choice,
+        notes: Vec::new(),
     })
 }
 

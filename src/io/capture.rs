@@ -49,7 +49,7 @@ use serde::{Deserialize, Serialize};
 
 use super::atomic::write_atomic;
 use super::envi::{file_name, DataType, EnviError, EnviErrorKind, EnviHeader, EnviReader};
-use crate::optics::{Dispersion, Polarization};
+use crate::optics::{BackFace, Dispersion, Polarization};
 
 /// The file name looked for when [`Capture::load`] is given a directory.
 pub const CAPTURE_FILE_NAME: &str = "capture.toml";
@@ -78,6 +78,9 @@ pub struct Sample {
     pub substrate: Option<SubstrateMaterial>,
     /// Polarisation reaching the camera (default S).
     pub polarization: Polarization,
+    /// The substrate's back face (`sample.back_face`, default `"none"`): `"bare"` when the
+    /// substrate is transparent and its far side reflects into the camera.
+    pub back_face: BackFace,
 }
 
 /// `sample.substrate`: the substrate's material as the capture names it, and its index
@@ -420,6 +423,8 @@ struct RawSample {
     substrate: Option<String>,
     #[serde(default = "default_polarization")]
     polarization: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    back_face: Option<String>,
 }
 
 #[derive(Deserialize, Serialize)]
@@ -455,6 +460,7 @@ const SAMPLE_KEYS: &[&str] = &[
     "substrate_index",
     "substrate",
     "polarization",
+    "back_face",
 ];
 const SEARCH_KEYS: &[&str] = &["index_range", "thickness_range_nm"];
 const FIT_KEYS: &[&str] = &["model_error"];
@@ -530,6 +536,14 @@ impl Capture {
                     value: raw.sample.polarization.clone(),
                 })
             })?;
+        let back_face = match raw.sample.back_face.as_deref() {
+            None => BackFace::None,
+            Some(name) => BackFace::from_name(name.trim()).ok_or_else(|| {
+                err(CaptureErrorKind::BadValue {
+                    message: format!("sample.back_face = {name:?}: \"none\" or \"bare\""),
+                })
+            })?,
+        };
         let dir = toml_path.parent().unwrap_or(Path::new(""));
         let substrate = match &raw.sample.substrate {
             None => None,
@@ -579,6 +593,7 @@ impl Capture {
                 substrate_index,
                 substrate,
                 polarization,
+                back_face,
             },
             search: raw
                 .search
@@ -826,6 +841,8 @@ impl Capture {
                 substrate_index: Some(self.sample.substrate_index),
                 substrate: self.sample.substrate.as_ref().map(|s| s.name.clone()),
                 polarization: self.sample.polarization.name().to_string(),
+                back_face: (self.sample.back_face != BackFace::None)
+                    .then(|| self.sample.back_face.name().to_string()),
             },
             search,
             lens,

@@ -255,6 +255,7 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::source::SweepCube
         ambient_index: spec.ambient_index,
         substrate_index: spec.substrate_index,
         polarization: spec.polarization,
+        back_face: spec.back_face,
         index_range: spec.index_range,
         thickness_range_nm: spec.thickness_range_nm,
         data,

@@ -150,7 +150,8 @@ impl Acquisition {
                 .and_then(|s| s.index_range)
                 .unwrap_or(DEFAULT_INDEX_RANGE),
             search.as_ref().and_then(|s| s.thickness_range_nm),
-        )?;
+        )?
+        .with_back_face(config.sample.back_face()?);
         Ok(Self {
             rig,
             config,
@@ -188,6 +189,7 @@ impl Acquisition {
         let capture = Capture {
             path: path.clone(),
             sample: Sample {
+                back_face: self.spec.back_face,
                 ambient_index: s.ambient_index,
                 substrate_index: s.substrate_index,
                 substrate: None,

@@ -53,6 +53,21 @@ pub struct SampleConfig {
     /// `s`, `p` or `unpolarized`.
     #[serde(default = "s_pol")]
     pub polarization: String,
+    /// The substrate's back face, `none` (default) or `bare` (as `sample.back_face` in a
+    /// capture).
+    #[serde(default)]
+    pub back_face: Option<String>,
+}
+
+impl SampleConfig {
+    /// The back face, or one line naming the key and the problem.
+    pub fn back_face(&self) -> Result<filmscope_core::optics::BackFace, String> {
+        match self.back_face.as_deref() {
+            None => Ok(filmscope_core::optics::BackFace::None),
+            Some(name) => filmscope_core::optics::BackFace::from_name(name)
+                .ok_or_else(|| format!("sample.back_face = {name:?}: \"none\" or \"bare\"")),
+        }
+    }
 }
 
 fn one() -> f64 {

@@ -110,7 +110,8 @@ impl CaptureSource {
             range_d,
         )
         .map_err(|e| format!("{}: {e}", capture.path.display()))?
-        .with_substrate(capture.sample.substrate_dispersion());
+        .with_substrate(capture.sample.substrate_dispersion())
+        .with_back_face(capture.sample.back_face);
         if let Some(m) = capture.fit.model_error {
             spec.model_error = m;
         }

@@ -24,6 +24,8 @@ pub struct SweepCube {
     pub substrate_index: f64,
     /// Polarisation of the measured light.
     pub polarization: Polarization,
+    /// The substrate's back face.
+    pub back_face: filmscope_core::optics::BackFace,
     /// Film index search range.
     pub index_range: [f64; 2],
     /// Thickness search range, nm.

@@ -102,6 +102,7 @@ pub fn sweep_spec(
     });
     crate::limits::check_thickness_range("search.thickness_range_nm", thickness_range_nm)?;
     Ok(SweepSpec {
+        back_face: filmscope_core::optics::BackFace::None,
         width,
         height,
         bands_nm: bands,

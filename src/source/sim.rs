@@ -36,7 +36,8 @@ impl SimSource {
             scene.index_range.unwrap_or(DEFAULT_INDEX_RANGE),
             scene.thickness_range_nm,
         )?
-        .with_substrate(scene.stack.substrate);
+        .with_substrate(scene.stack.substrate)
+        .with_back_face(scene.stack.back_face);
         Ok(Self {
             camera,
             spec,

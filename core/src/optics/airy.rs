@@ -9,15 +9,80 @@
 use super::fresnel::{fresnel_r, fresnel_r_real, normal_component, snell_invariant};
 use super::{Complex, Polarization};
 
-/// The three real indices of an ambient / film / substrate stack at one wavelength.
+/// The three real indices of an ambient / film / substrate stack at one wavelength, and
+/// whether light comes back from the substrate's far side.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Indices {
     /// Ambient medium (air = 1.0).
     pub ambient: f64,
     /// The film.
     pub film: f64,
-    /// The substrate (semi-infinite).
+    /// The substrate.
     pub substrate: f64,
+    /// The substrate's back face.
+    pub back_face: BackFace,
+}
+
+/// The substrate's back face: what becomes of the light the film lets through.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum BackFace {
+    /// Nothing returns: an index-matched or blackened back, or a substrate thick and lossy
+    /// enough to be semi-infinite.
+    #[default]
+    None,
+    /// A bare, flat back face into the ambient medium, the substrate transparent and much
+    /// thicker than the coherence length: the light it reflects adds to the film's in
+    /// intensity (incoherently), after any number of round trips.
+    Bare,
+}
+
+impl BackFace {
+    /// Parses the names used in capture and scene files: `none`, `bare`.
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "none" => Some(Self::None),
+            "bare" => Some(Self::Bare),
+            _ => None,
+        }
+    }
+
+    /// The name used in capture and scene files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Bare => "bare",
+        }
+    }
+}
+
+/// The back face's reflectance `rb` for one pure polarisation (0 without one): the
+/// substrate-to-ambient interface at the substrate's own angle. It is never beyond the
+/// critical angle, the light having entered from the same ambient.
+fn back_reflectance(idx: Indices, beta: f64, pol: Polarization) -> f64 {
+    if idx.back_face == BackFace::None {
+        return 0.0;
+    }
+    let k3 = idx.substrate * idx.substrate - beta * beta;
+    let k4 = idx.ambient * idx.ambient - beta * beta;
+    if k3 <= 0.0 || k4 <= 0.0 {
+        return 0.0;
+    }
+    let r = fresnel_r_real(
+        pol,
+        idx.substrate,
+        idx.ambient,
+        libm::sqrt(k3),
+        libm::sqrt(k4),
+    );
+    r * r
+}
+
+/// The film's reflectance `r` with the back face's `rb` added incoherently:
+/// `r + (1 - r)^2 rb / (1 - r rb) = (r (1 - 2 rb) + rb) / (1 - r rb)` (a lossless film
+/// transmits `1 - r` and reflects `r` from either side).
+#[inline]
+fn with_back(r: f64, rb: f64) -> f64 {
+    (r * (1.0 - 2.0 * rb) + rb) / (1.0 - r * rb)
 }
 
 /// Reflectance of the stack for one pure polarisation (S or P), general case: evanescent waves
@@ -44,7 +109,7 @@ fn reflectance_pure(
     let phase = Complex::new(m * libm::cos(im), m * libm::sin(im));
     let one = Complex::new(1.0, 0.0);
     let r = (r12 + r23 * phase) / (one + r12 * r23 * phase);
-    r.norm_sqr()
+    with_back(r.norm_sqr(), back_reflectance(idx, beta, pol))
 }
 
 /// Reflectance `R` of a film of `thickness_nm` on its substrate, for light arriving at
@@ -52,7 +117,7 @@ fn reflectance_pure(
 ///
 /// `Unpolarized` is the mean of the S and P reflectances. Valid for any real indices and any
 /// angle in `[0, 90)` degrees, total internal reflection included. `thickness_nm = 0` gives the
-/// bare ambient/substrate interface.
+/// bare ambient/substrate interface (with the back face's return when it has one).
 pub fn film_reflectance(
     idx: Indices,
     thickness_nm: f64,
@@ -86,13 +151,17 @@ pub fn film_reflectance(
 /// For real `r12`, `r23` the Airy sum reduces to
 /// `R = (r12^2 + r23^2 + 2 r12 r23 cos Delta) / (1 + r12^2 r23^2 + 2 r12 r23 cos Delta)`, a
 /// monotonic function of `cos Delta`: peaks sit at `cos Delta = +1` when `r12 r23 > 0` and at
-/// `cos Delta = -1` when `r12 r23 < 0` (see [`FilmAtAngle::peak_phase_offset`]).
+/// `cos Delta = -1` when `r12 r23 < 0` (see [`FilmAtAngle::peak_phase_offset`]). That is
+/// `(A + B c) / (E + B c)`, and a bare back face keeps the form: its incoherent return is a
+/// Moebius map of `R` with the same `c` coefficient in numerator and denominator,
+/// `A' = (1 - 2 rb) A + rb E`, `B' = (1 - rb) B`, `E' = E - rb A`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FilmAtAngle {
     /// `n2 cos(theta2)`: the optical path is `phi = 2 d kz_film`.
     pub kz_film: f64,
-    /// `(r12, r23)` for S, then P (P used only for unpolarised light).
-    coeffs: [(f64, f64); 2],
+    /// `(r12, r23, rb)` for S, then P (P used only for unpolarised light): the interfaces'
+    /// amplitude coefficients and the back face's reflectance (0 without one).
+    coeffs: [(f64, f64, f64); 2],
     /// 1 for S or P, 2 for unpolarised (mean of both).
     n_pol: usize,
 }
@@ -115,15 +184,39 @@ impl FilmAtAngle {
                 fresnel_r_real(p, idx.film, idx.substrate, kz2, kz3),
             )
         };
-        let (coeffs, n_pol) = match pol {
-            Polarization::Unpolarized => ([pair(Polarization::S), pair(Polarization::P)], 2),
-            p => ([pair(p), pair(p)], 1),
+        let pols = match pol {
+            Polarization::Unpolarized => [Polarization::S, Polarization::P],
+            p => [p, p],
         };
+        let coeffs = pols.map(|p| {
+            let (r12, r23) = pair(p);
+            (r12, r23, back_reflectance(idx, beta, p))
+        });
         Some(Self {
             kz_film: kz2,
             coeffs,
-            n_pol,
+            n_pol: if pol == Polarization::Unpolarized {
+                2
+            } else {
+                1
+            },
         })
+    }
+
+    /// `(A, B, E)` of one polarisation's `(r12, r23, rb)`, the back face folded in (the
+    /// fold skipped without one, which keeps the film-only results bit for bit).
+    #[inline(always)]
+    fn terms_of(&(r12, r23, rb): &(f64, f64, f64)) -> (f64, f64, f64) {
+        let (a, b, e) = (
+            r12 * r12 + r23 * r23,
+            2.0 * r12 * r23,
+            1.0 + r12 * r12 * r23 * r23,
+        );
+        if rb == 0.0 {
+            (a, b, e)
+        } else {
+            ((1.0 - 2.0 * rb) * a + rb * e, (1.0 - rb) * b, e - rb * a)
+        }
     }
 
     /// The optical path difference `phi = 2 d n2 cos(theta2)` in nm (eq. 8).
@@ -149,12 +242,7 @@ impl FilmAtAngle {
     /// results from them, bit for bit).
     #[inline]
     pub fn cos_terms(&self, pol: usize) -> (f64, f64, f64) {
-        let (r12, r23) = self.coeffs[pol];
-        (
-            r12 * r12 + r23 * r23,
-            2.0 * r12 * r23,
-            1.0 + r12 * r12 * r23 * r23,
-        )
+        Self::terms_of(&self.coeffs[pol])
     }
 
     /// [`FilmAtAngle::reflectance_at_cos`] of a film of `P` [`FilmAtAngle::polarizations`],
@@ -162,9 +250,10 @@ impl FilmAtAngle {
     #[inline(always)]
     pub fn reflectance_at_cos_of<const P: usize>(&self, c: f64) -> f64 {
         let mut sum = 0.0;
-        for &(r12, r23) in &self.coeffs[..P] {
-            let b = 2.0 * r12 * r23 * c;
-            sum += (r12 * r12 + r23 * r23 + b) / (1.0 + r12 * r12 * r23 * r23 + b);
+        for t in &self.coeffs[..P] {
+            let (a, b, e) = Self::terms_of(t);
+            let bc = b * c;
+            sum += (a + bc) / (e + bc);
         }
         sum / P as f64
     }
@@ -174,12 +263,11 @@ impl FilmAtAngle {
     #[inline(always)]
     pub fn reflectance_and_slope_at_cos_of<const P: usize>(&self, c: f64) -> (f64, f64) {
         let (mut r, mut slope) = (0.0, 0.0);
-        for &(r12, r23) in &self.coeffs[..P] {
-            let b = 2.0 * r12 * r23;
-            let (a, e) = (r12 * r12 + r23 * r23, r12 * r12 * r23 * r23);
-            let inv = 1.0 / (1.0 + e + b * c);
+        for t in &self.coeffs[..P] {
+            let (a, b, e) = Self::terms_of(t);
+            let inv = 1.0 / (e + b * c);
             r += (a + b * c) * inv;
-            slope += b * (1.0 + e - a) * inv * inv;
+            slope += b * (e - a) * inv * inv;
         }
         let k = 1.0 / P as f64;
         (r * k, slope * k)
@@ -189,22 +277,28 @@ impl FilmAtAngle {
     /// the amplitude `a` a wave keeps over the film's round trip (`exp(-4 pi d n k / (lambda
     /// n cos theta2))` for an extinction coefficient `k` well below `n`: `r23` becomes
     /// `a r23`; the interfaces' own change, of order `k / n`, is left out), with `d R / d c` and
-    /// `d R / d a`; averaged over the polarisations as [`FilmAtAngle::reflectance_at_cos`].
+    /// `d R / d a`; averaged over the polarisations as [`FilmAtAngle::reflectance_at_cos`]. A
+    /// back face's return is added as for a lossless film (the film's loss on the way back,
+    /// of order `k / n` of it, is left out).
     #[inline]
     pub fn absorbing_at_cos(&self, c: f64, a: f64) -> (f64, f64, f64) {
         let (mut r, mut dc, mut da) = (0.0, 0.0, 0.0);
-        for &(r12, r23) in &self.coeffs[..self.n_pol] {
+        for &(r12, r23, rb) in &self.coeffs[..self.n_pol] {
             let q = a * r23;
             let num = r12 * r12 + q * q + 2.0 * r12 * q * c;
             let den = 1.0 + r12 * r12 * q * q + 2.0 * r12 * q * c;
             let inv = 1.0 / den;
-            r += num * inv;
+            let film = num * inv;
+            // The back face's return, and its slope `(1 - rb)^2 / (1 - R rb)^2` as a factor.
+            let back = 1.0 / (1.0 - film * rb);
+            let chain = (1.0 - rb) * (1.0 - rb) * back * back;
+            r += with_back(film, rb);
             // d/dq of num/den, then times dq/da = r23; d/dc likewise.
             let dnum_dq = 2.0 * q + 2.0 * r12 * c;
             let dden_dq = 2.0 * r12 * r12 * q + 2.0 * r12 * c;
-            da += (dnum_dq * den - num * dden_dq) * inv * inv * r23;
+            da += (dnum_dq * den - num * dden_dq) * inv * inv * r23 * chain;
             let (dnum_dc, dden_dc) = (2.0 * r12 * q, 2.0 * r12 * q);
-            dc += (dnum_dc * den - num * dden_dc) * inv * inv;
+            dc += (dnum_dc * den - num * dden_dc) * inv * inv * chain;
         }
         let k = 1.0 / self.n_pol as f64;
         (r * k, dc * k, da * k)
@@ -245,7 +339,7 @@ impl FilmAtAngle {
     /// Decided by the sign of `r12 r23` of the first polarisation (S for unpolarised light,
     /// whose S part dominates the fringe contrast away from normal incidence).
     pub fn peak_phase_offset(&self) -> f64 {
-        let (r12, r23) = self.coeffs[0];
+        let (r12, r23, _) = self.coeffs[0];
         if r12 * r23 >= 0.0 {
             0.0
         } else {

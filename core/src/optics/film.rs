@@ -1,7 +1,7 @@
 //! A film on a substrate as a whole: indices with their dispersion, and the polarisation the
 //! camera sees. This is the BRDF model of method.md: `(n, d)` give the colour at any angle.
 
-use super::airy::{film_reflectance, FilmAtAngle, Indices};
+use super::airy::{film_reflectance, BackFace, FilmAtAngle, Indices};
 use super::dispersion::Dispersion;
 use super::passband::Passband;
 use super::Polarization;
@@ -15,6 +15,8 @@ pub struct FilmStack {
     pub film: Dispersion,
     /// The substrate's index against wavelength.
     pub substrate: Dispersion,
+    /// The substrate's back face.
+    pub back_face: BackFace,
     /// Polarisation of the measured light.
     pub polarization: Polarization,
 }
@@ -27,6 +29,7 @@ impl FilmStack {
             ambient: self.ambient_index,
             film: self.film.index_at(wavelength_nm),
             substrate: self.substrate.index_at(wavelength_nm),
+            back_face: self.back_face,
         }
     }
 

@@ -13,7 +13,7 @@ mod film;
 mod fresnel;
 mod passband;
 
-pub use airy::{film_reflectance, FilmAtAngle, Indices};
+pub use airy::{film_reflectance, BackFace, FilmAtAngle, Indices};
 pub use dispersion::{materials, Dispersion};
 pub use field::FieldOfView;
 pub use film::{BandModel, FilmStack};

@@ -3,6 +3,7 @@
 use super::*;
 
 const AIR_PET_MGF2: Indices = Indices {
+    back_face: BackFace::None,
     ambient: 1.0,
     film: 1.37,
     substrate: 1.65,
@@ -37,6 +38,7 @@ fn quarter_wave_of_geometric_mean_index_is_antireflective() {
     let n = ns.sqrt();
     let design_nm = 550.0;
     let idx = Indices {
+        back_face: BackFace::None,
         ambient: 1.0,
         film: n,
         substrate: ns,
@@ -56,6 +58,7 @@ fn reflectance_stays_in_unit_interval() {
     };
     for _ in 0..20_000 {
         let idx = Indices {
+            back_face: BackFace::None,
             ambient: 1.0 + next() * 0.8,
             film: 1.0 + next() * 2.5,
             substrate: 1.0 + next() * 2.0,
@@ -120,6 +123,7 @@ fn half_order_peaks_for_film_above_substrate() {
 #[test]
 fn total_internal_reflection_reflects_everything() {
     let idx = Indices {
+        back_face: BackFace::None,
         ambient: 1.6,
         film: 1.3,
         substrate: 1.4,
@@ -137,6 +141,7 @@ fn passband_weights_are_normalised_and_narrow_band_converges() {
     let total: f64 = b.nodes().map(|(_, w)| w).sum();
     assert!((total - 1.0).abs() < 1e-14);
     let stack = FilmStack {
+        back_face: BackFace::None,
         ambient_index: 1.0,
         film: Dispersion::constant(1.37),
         substrate: Dispersion::constant(1.65),
@@ -183,6 +188,7 @@ fn band_slope_is_the_derivative_of_the_band_reflectance() {
     ] {
         for pol in [Polarization::S, Polarization::P, Polarization::Unpolarized] {
             let stack = FilmStack {
+                back_face: BackFace::None,
                 ambient_index: ambient,
                 film,
                 substrate: Dispersion::constant(1.52),

@@ -13,7 +13,7 @@
 //! Gauss-Hermite quadrature, dispersion followed node by node. Two more sums score the
 //! thicknesses one order either side, so a wrong order is caught on the full spectrum.
 
-use crate::optics::{FilmAtAngle, Indices, Passband, Polarization, HALF_WIDTH_FWHM};
+use crate::optics::{BackFace, FilmAtAngle, Indices, Passband, Polarization, HALF_WIDTH_FWHM};
 
 use super::IndexModel;
 
@@ -330,6 +330,7 @@ impl BandCoef {
         index: IndexModel,
         ambient: f64,
         substrate: f64,
+        back_face: BackFace,
         polarization: Polarization,
         incidence_deg: f64,
         wavelength_nm: f64,
@@ -342,6 +343,7 @@ impl BandCoef {
                     ambient,
                     film: index.at(l) + dn,
                     substrate,
+                    back_face,
                 },
                 incidence_deg,
                 polarization,
@@ -795,6 +797,7 @@ mod tests {
             (tio2, 12.0, 2000.0, 2e-4),
         ] {
             let stack = FilmStack {
+                back_face: BackFace::None,
                 ambient_index: 1.0,
                 film,
                 substrate: Dispersion::constant(1.65),
@@ -802,8 +805,18 @@ mod tests {
             };
             let index = IndexModel::from_dispersion(film).expect("one pole at most");
             for l in [400.0, 420.0, 550.0, 720.0] {
-                let c = BandCoef::new(index, 1.0, 1.65, Polarization::P, 30.0, l, fwhm, d)
-                    .expect("propagating");
+                let c = BandCoef::new(
+                    index,
+                    1.0,
+                    1.65,
+                    BackFace::None,
+                    Polarization::P,
+                    30.0,
+                    l,
+                    fwhm,
+                    d,
+                )
+                .expect("propagating");
                 // The reference: the same truncated Gaussian with twice the nodes the fit
                 // may use, the film's own dispersion node by node.
                 let band = Passband::gaussian_with_nodes(l, fwhm, MAX_NODES);
@@ -828,6 +841,7 @@ mod tests {
             IndexModel::constant(1.38),
             1.0,
             1.65,
+            BackFace::None,
             Polarization::S,
             30.0,
             540.0,
@@ -884,6 +898,7 @@ mod tests {
             IndexModel::constant(2.4),
             1.0,
             1.52,
+            BackFace::None,
             Polarization::Unpolarized,
             60.0,
             400.0,
@@ -931,6 +946,7 @@ mod tests {
                 IndexModel::constant(n),
                 1.0,
                 1.52,
+                BackFace::None,
                 Polarization::S,
                 40.0,
                 l,
@@ -995,6 +1011,7 @@ mod tests {
                     IndexModel::constant(n),
                     1.0,
                     1.65,
+                    BackFace::None,
                     Polarization::S,
                     20.0,
                     420.0 + 2.0 * b as f64,

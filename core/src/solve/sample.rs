@@ -33,7 +33,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::refine::{passband_phase_span, passband_rule, MAX_BAND_NODES};
 use super::IndexModel;
-use crate::optics::{Dispersion, FilmAtAngle, Indices, Polarization};
+use crate::optics::{BackFace, Dispersion, FilmAtAngle, Indices, Polarization};
 
 /// Pixels a site keeps: its centre and two neighbours each side along the row.
 pub const RUN: usize = 5;
@@ -238,7 +238,8 @@ impl ModelKind {
 
     /// Whether `p` is a physical model over `[lo_nm, hi_nm]`: the index at 550 nm inside
     /// `range`, above 1 and falling with wavelength (normal dispersion) across the band, a
-    /// Sellmeier pole below the band.
+    /// Sellmeier pole below the band, and no steeper than a transparent material can be
+    /// ([`STEEPEST_POLE`]).
     fn physical(self, p: &[f64; 3], lo_nm: f64, hi_nm: f64, range: [f64; 2]) -> bool {
         if let Self::Sellmeier1 | Self::Sellmeier1c = self {
             let l_lo = lo_nm * 1e-3;
@@ -262,9 +263,24 @@ impl ModelKind {
             }
             last = n;
         }
-        true
+        // `n^2 - 1` grows towards the blue no faster than a single oscillator's at
+        // STEEPEST_POLE x the band's bluest wavelength: (1/l0^2 - 1/l^2) / (1/l0^2 - 1/lo^2)
+        // between the band's ends, which any sum of oscillators further out keeps.
+        let (lo, hi) = (lo_nm * 1e-3, hi_nm * 1e-3);
+        let x0 = 1.0 / (STEEPEST_POLE * STEEPEST_POLE * lo * lo);
+        let steepest = (x0 - 1.0 / (hi * hi)) / (x0 - 1.0 / (lo * lo));
+        let (n_lo, n_hi) = (self.eval(p, lo).0, self.eval(p, hi).0);
+        n_lo * n_lo - 1.0 <= steepest * (n_hi * n_hi - 1.0)
     }
 }
+
+/// The nearest a film's absorption may sit to its band, as a fraction of the band's bluest
+/// wavelength: a material transparent across the band has its oscillators (the poles of its
+/// Sellmeier form) below this, which bounds how steeply its index may rise to the blue
+/// ([`ModelKind::physical`]). At 0.8 (320 nm for a band from 400 nm) it leaves room for
+/// rutile TiO2 (pole 283 nm, over a large background) and refuses the dispersion a wrong
+/// thickness makes up (an index from 2.5 to 1.6 across the visible).
+pub const STEEPEST_POLE: f64 = 0.8;
 
 /// The sweep's geometry and optics as the sample fit needs them.
 #[derive(Clone, Copy, Debug)]
@@ -279,6 +295,8 @@ pub struct Geometry<'a> {
     pub ambient_index: f64,
     /// The substrate's index against wavelength.
     pub substrate: Dispersion,
+    /// The substrate's back face.
+    pub back_face: BackFace,
     /// Polarisation of the measured light.
     pub polarization: Polarization,
     /// Film index search range.
@@ -356,7 +374,7 @@ impl Failure {
     pub fn message(self) -> &'static str {
         match self {
             Self::TooLittleData => "too few usable sampled pixels or angles to fit an index",
-            Self::NoFit => "no index model fits the sampled spectra within their noise and the tolerated model error ([fit] model_error): wrong metadata (angles, polarisation, substrate), a bare back face or a second layer, or a film the single-layer model cannot describe",
+            Self::NoFit => "no index model fits the sampled spectra within their noise and the tolerated model error ([fit] model_error): wrong metadata (angles, polarisation, substrate, back face), an undeclared bare back face or a second layer, or a film the single-layer model cannot describe",
             Self::Underdetermined => "the sampled spectra do not determine the index (its standard error at 550 nm exceeds 0.01): a film too thin or too close to its substrate's index",
             Self::GivenIndexMisfit => "the given film index does not fit the sampled spectra within their noise and the tolerated model error: not this film's index (fit it instead: leave out --film-index), or wrong metadata (angles, polarisation, substrate)",
         }
@@ -533,6 +551,22 @@ impl Residual {
         let r = (self.band_correlation * total / model).clamp(0.0, 0.99);
         let share = (model / total).min(1.0);
         libm::sqrt(1.0 - share + share * (1.0 + r) / (1.0 - r))
+    }
+
+    /// [`Residual::correlation_factor`] for a parameter every one of `sites` sites shares,
+    /// the index: the noise averages down over the sites, the model's misfit does not (its
+    /// cause, a rig's or a sample's departure from the model, is the same at every site and
+    /// pulls the index the same way), so its share counts `sites` times more:
+    /// `sqrt(f_noise + f_model sites (1 + r) / (1 - r))`.
+    pub fn shared_factor(&self, sites: usize) -> f64 {
+        let own = self.correlation_factor();
+        let (total, model) = (self.rms * self.rms, self.model_rms * self.model_rms);
+        if !(total > 0.0 && model > 0.0) {
+            return own;
+        }
+        let share = (model / total).min(1.0);
+        let correlated = (own * own - (1.0 - share)).max(0.0);
+        libm::sqrt(1.0 - share + correlated * sites.max(1) as f64)
     }
 }
 
@@ -1440,6 +1474,7 @@ impl Problem<'_> {
             ambient: self.geo.ambient_index,
             film,
             substrate: self.geo.substrate.index_at(l_nm),
+            back_face: self.geo.back_face,
         }
     }
 
@@ -1979,8 +2014,9 @@ impl Problem<'_> {
     /// ([`Residual`]), judged by the gate: a reduced chi-square (in units of the noise and the
     /// model error weighed) within [`GATE_CHI2_NU`], a model error within the tolerated
     /// one, an index standard error within [`MAX_INDEX_SIGMA`]. Weighed with a model error,
-    /// the index's standard error is widened by the residual's correlation along the band
-    /// ([`Residual::correlation_factor`]): a smooth misfit is fewer independent samples.
+    /// the index's standard error is widened by the residual's correlation along the band and
+    /// across the sites ([`Residual::shared_factor`]): a smooth misfit common to the sites is
+    /// fewer independent samples.
     fn settle(&self, mut fit: SampleFit, mut c: Candidate, tt: &[f64; MAX_SITES]) -> SampleFit {
         for (k, slot) in fit.thickness_nm.iter_mut().enumerate() {
             *slot = if k < self.usable.len() && self.usable[k] {
@@ -2000,7 +2036,7 @@ impl Problem<'_> {
             }
         }
         if fit.model_error > 0.0 {
-            c.n550_sigma *= fit.residual.correlation_factor();
+            c.n550_sigma *= fit.residual.shared_factor(fit.sites_used);
         }
         fit.best = Some(c);
         let within = fit.residual.model_rms <= self.geo.model_error;
@@ -2359,7 +2395,10 @@ impl Problem<'_> {
     /// neighbours (in log value for a grid of positive values, else in value), whose
     /// curvature gives the term's sigma (scaled by the reduced chi-square when above 1). The
     /// term when its chi-square gain exceeds its BIC penalty (`ln n`), else `None` (`best`
-    /// and `t` as they were).
+    /// and `t` as they were), also when the evidence asks for the grid's outermost value (the
+    /// largest, or either end of a signed grid): more than a real rig or sample has, the term
+    /// would be mopping up a misfit of another cause (an undeclared back face, a second layer,
+    /// wrong metadata), which is left to the model error and its tolerance instead.
     fn with_nuisance(
         &self,
         best: &mut Candidate,
@@ -2393,6 +2432,7 @@ impl Problem<'_> {
             .iter()
             .enumerate()
             .min_by(|a, b| a.1 .1.chi2.total_cmp(&b.1 .1.chi2))?;
+        let outermost = i + 1 == tried.len() || (!log && i == 0);
         let (mut v_best, mut c_best, mut t_best) = tried[i];
         let mut sigma = f64::NAN;
         if i > 0 && i + 1 < tried.len() {
@@ -2415,16 +2455,15 @@ impl Problem<'_> {
                 sigma = if log { v_best * s_x } else { s_x };
             }
         }
-        if c_best.chi2 + libm::log(n.max(2) as f64) < before {
-            *best = c_best;
-            *t = t_best;
-            Some(Term {
-                value: v_best,
-                sigma,
-            })
-        } else {
-            None
+        if outermost || c_best.chi2 + libm::log(n.max(2) as f64) >= before {
+            return None;
         }
+        *best = c_best;
+        *t = t_best;
+        Some(Term {
+            value: v_best,
+            sigma,
+        })
     }
 
     /// Each angle's reflectance scale and offset that best map the model `(kind, p)` at the
@@ -3067,6 +3106,7 @@ mod tests {
         }
         let fwhm = vec![case.fwhm; bands.len()];
         let stack = FilmStack {
+            back_face: BackFace::None,
             ambient_index: 1.0,
             film: truth.film,
             substrate: Dispersion::constant(truth.substrate),
@@ -3093,6 +3133,7 @@ mod tests {
         }
         let truth = thickness;
         let geo = Geometry {
+            back_face: BackFace::None,
             bands_nm: &bands,
             fwhm_nm: &fwhm,
             angles_deg: case.angles,
@@ -3198,6 +3239,7 @@ mod tests {
         let bands: Vec<f64> = (0..150).map(|i| 405.0 + 2.0 * f64::from(i)).collect();
         let fwhm = vec![6.0; bands.len()];
         let stack = FilmStack {
+            back_face: BackFace::None,
             ambient_index: 1.0,
             film,
             substrate: Dispersion::constant(1.6),
@@ -3218,6 +3260,7 @@ mod tests {
             }
         }
         let geo = Geometry {
+            back_face: BackFace::None,
             bands_nm: &bands,
             fwhm_nm: &fwhm,
             angles_deg: &angles,

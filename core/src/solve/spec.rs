@@ -2,7 +2,7 @@
 
 use heapless::Vec as HVec;
 
-use crate::optics::{Dispersion, Polarization};
+use crate::optics::{BackFace, Dispersion, Polarization};
 
 /// Most bands per angle.
 pub const MAX_BANDS: usize = 1024;
@@ -25,6 +25,8 @@ pub struct SweepSpec {
     /// The substrate's index against wavelength, which the model uses (a constant
     /// `substrate_index` for most samples; a glass's Sellmeier formula for a dispersive one).
     pub substrate: Dispersion,
+    /// The substrate's back face (`sample.back_face` in a capture).
+    pub back_face: BackFace,
     /// Polarisation of the measured light.
     pub polarization: Polarization,
     /// Film index search range.
@@ -91,6 +93,12 @@ impl SweepSpec {
         self
     }
 
+    /// The same sweep with the substrate's back face `back_face`.
+    pub fn with_back_face(mut self, back_face: BackFace) -> Self {
+        self.back_face = back_face;
+        self
+    }
+
     /// Wavelength of a fractional band position (linear between band centres).
     #[inline]
     pub fn wavelength_at(&self, band: f32) -> f64 {
@@ -141,6 +149,7 @@ impl SweepSpec {
 #[cfg(test)]
 pub(crate) fn paper_rig_spec(width: usize, height: usize) -> SweepSpec {
     let mut s = SweepSpec {
+        back_face: BackFace::None,
         width,
         height,
         bands_nm: HVec::new(),

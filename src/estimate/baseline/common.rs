@@ -108,6 +108,7 @@ pub(crate) fn median(values: &mut [f64]) -> Option<f64> {
 /// The film stack of the cube with a constant film index `n`.
 pub(crate) fn stack(cube: &SweepCube, n: f64) -> FilmStack {
     FilmStack {
+        back_face: cube.back_face,
         ambient_index: cube.ambient_index,
         film: Dispersion::constant(n),
         substrate: Dispersion::constant(cube.substrate_index),
@@ -229,6 +230,7 @@ mod tests {
     fn cube(n_bands: usize) -> SweepCube {
         let bands_nm: Vec<f64> = (0..n_bands).map(|b| 420.0 + 2.0 * b as f64).collect();
         SweepCube {
+            back_face: Default::default(),
             width: 1,
             height: 1,
             fwhm_nm: vec![4.0; n_bands],
