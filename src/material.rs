@@ -240,6 +240,7 @@ pub fn to_rii_yaml(d: &Dispersion, range_nm: [f64; 2], comment: &str) -> String 
 struct Entry {
     kind: String,
     coefficients: Option<String>,
+    wavelength_range: Option<String>,
     data: Vec<String>,
 }
 
@@ -278,6 +279,9 @@ pub fn from_rii_yaml(text: &str) -> Result<Dispersion, String> {
             in_block = false;
         } else if let Some(v) = kv.strip_prefix("coefficients:") {
             e.coefficients = Some(unquote(v));
+            in_block = false;
+        } else if let Some(v) = kv.strip_prefix("wavelength_range:") {
+            e.wavelength_range = Some(unquote(v));
             in_block = false;
         } else if let Some(v) = kv.strip_prefix("data:") {
             in_block = true;
@@ -359,6 +363,71 @@ pub fn from_rii_yaml(text: &str) -> Result<Dispersion, String> {
                 c_um4: cc,
             })
         }
+        "formula 4" => {
+            // n^2 = C1 + C2 l^C3 / (l^2 - C4^C5) + C6 l^C7 / (l^2 - C8^C9) + sum C_i l^C_{i+1}.
+            let mut c = coefficients()?;
+            if c.is_empty() || c.len() > 17 {
+                return Err(format!(
+                    "formula 4: expected 1 to 17 coefficients, got {}",
+                    c.len()
+                ));
+            }
+            c.resize(17, 0.0);
+            let [lo, hi] = visible_part(entry.wavelength_range.as_deref(), &numbers)?;
+            // Poles with l^0 or l^2 over (l^2 - c^2) and no power terms are a Sellmeier
+            // form, held exactly: C l^0 / (l^2 - c^2) = (C / c^2) l^2 / (l^2 - c^2) - C / c^2.
+            let no_powers = [9, 11, 13, 15].iter().all(|&k| c[k] == 0.0);
+            let poles: Vec<(f64, f64, f64)> = [1, 5]
+                .iter()
+                .filter(|&&k| c[k] != 0.0)
+                .map(|&k| (c[k], c[k + 1], c[k + 2].powf(c[k + 3])))
+                .collect();
+            if no_powers
+                && poles
+                    .iter()
+                    .all(|p| (p.1 == 0.0 || p.1 == 2.0) && p.2 > 0.0)
+            {
+                let mut a = c[0];
+                let (mut b, mut cc) = (Vec::new(), Vec::new());
+                for &(strength, power, c2) in &poles {
+                    let bi = if power == 0.0 {
+                        strength / c2
+                    } else {
+                        strength
+                    };
+                    if power == 0.0 {
+                        a -= bi;
+                    }
+                    b.push(bi);
+                    cc.push(c2.sqrt());
+                }
+                return sellmeier(a, &b, &cc);
+            }
+            let n2 = |l: f64| {
+                let pole = |k: usize| {
+                    if c[k] == 0.0 {
+                        0.0
+                    } else {
+                        c[k] * l.powf(c[k + 1]) / (l * l - c[k + 2].powf(c[k + 3]))
+                    }
+                };
+                let power = |k: usize| {
+                    if c[k] == 0.0 {
+                        0.0
+                    } else {
+                        c[k] * l.powf(c[k + 1])
+                    }
+                };
+                c[0] + pole(1) + pole(5) + power(9) + power(11) + power(13) + power(15)
+            };
+            let rows: Vec<(f64, f64)> = (0..=100)
+                .map(|i| {
+                    let l = lo + (hi - lo) * f64::from(i) / 100.0;
+                    (l, n2(l).max(0.0).sqrt())
+                })
+                .collect();
+            held_within(&rows, "formula 4")
+        }
         "tabulated n" | "tabulated nk" => {
             let mut rows = Vec::new();
             for line in &entry.data {
@@ -374,10 +443,58 @@ pub fn from_rii_yaml(text: &str) -> Result<Dispersion, String> {
             cauchy_fit(&rows)
         }
         other => Err(format!(
-            "DATA type {other:?}: filmscope reads formula 1, 2 and 5 and tabulated n"
+            "DATA type {other:?}: filmscope reads formula 1, 2, 4 and 5 and tabulated n"
         )),
     }
 }
+
+/// The part of an entry's `wavelength_range` (um; absent: all of it) inside 0.38-0.78 um,
+/// where the camera's bands lie.
+fn visible_part(
+    range: Option<&str>,
+    numbers: &dyn Fn(&str) -> Result<Vec<f64>, String>,
+) -> Result<[f64; 2], String> {
+    let (mut lo, mut hi) = (0.38f64, 0.78f64);
+    if let Some(r) = range {
+        let v = numbers(r)?;
+        if v.len() != 2 || v[0].partial_cmp(&v[1]) != Some(std::cmp::Ordering::Less) {
+            return Err(format!(
+                "wavelength_range {r:?}: expected two increasing numbers"
+            ));
+        }
+        (lo, hi) = (lo.max(v[0]), hi.min(v[1]));
+    }
+    if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
+        return Err("wavelength_range: does not reach the visible (0.38-0.78 um)".into());
+    }
+    Ok([lo, hi])
+}
+
+/// The three-term Cauchy through `rows` (`(l_um, n)`, a formula sampled) when it holds them
+/// within [`FORMULA_FIT_TOLERANCE`], else the worst miss as the reason.
+fn held_within(rows: &[(f64, f64)], kind: &str) -> Result<Dispersion, String> {
+    if rows.iter().any(|r| !(r.1 > 0.0 && r.1.is_finite())) {
+        return Err(format!(
+            "{kind}: the formula gives no real index over the visible"
+        ));
+    }
+    let d = cauchy_fit(rows)?;
+    let (worst, at) = rows
+        .iter()
+        .map(|&(l, n)| ((d.index_at(l * 1e3) - n).abs(), l))
+        .fold((0.0, 0.0), |a, b| if b.0 > a.0 { b } else { a });
+    if worst > FORMULA_FIT_TOLERANCE {
+        return Err(format!(
+            "{kind}: a three-term Cauchy misses the formula by {worst:.4} at {:.0} nm (filmscope holds it within {FORMULA_FIT_TOLERANCE})",
+            at * 1e3
+        ));
+    }
+    Ok(d)
+}
+
+/// How far the three-term Cauchy that stands for a formula filmscope cannot hold exactly
+/// (`formula 4`) may miss it over the visible.
+pub const FORMULA_FIT_TOLERANCE: f64 = 1e-3;
 
 /// The least-squares Cauchy `a + b / l^2 + c / l^4` (l in um) through `(l_um, n)` rows:
 /// as many terms as the rows allow (one row: a constant).
@@ -593,6 +710,28 @@ mod tests {
         let d = from_rii_yaml(table).expect("table");
         assert!((d.index_at(500.0) - 1.462).abs() < 1e-3);
         assert!(from_rii_yaml("DATA:\n  - type: formula 3\n    coefficients: 1 2 3\n").is_err());
+        // Formula 4, TiO2 (rutile, ordinary; Devore 1951): n^2 = 5.913 + 0.2441 / (l^2 - 0.0803).
+        let tio2 = "DATA:\n  - type: formula 4\n    wavelength_range: 0.43 1.53\n    coefficients: 5.913 0.2441 0 0.0803 1\n";
+        let d = from_rii_yaml(tio2).expect("formula 4");
+        for l in [450.0, 550.0, 650.0, 750.0] {
+            let x = (l * 1e-3f64).powi(2);
+            let want = (5.913 + 0.2441 / (x - 0.0803)).sqrt();
+            assert!(
+                (d.index_at(l) - want).abs() < 1e-3,
+                "{l}: {} vs {want}",
+                d.index_at(l)
+            );
+        }
+        // A formula 4 with power terms (l^2 and l^-2, as the database's crystals have).
+        let zns = "DATA:\n  - type: formula 4\n    wavelength_range: 0.4 1.0\n    coefficients: 5.131 0 0 0 0 0 0 0 0 0.1 -2 -0.001 2\n";
+        let d = from_rii_yaml(zns).expect("power terms");
+        let x = 0.55f64 * 0.55;
+        let want = (5.131 + 0.1 / x - 0.001 * x).sqrt();
+        assert!((d.index_at(550.0) - want).abs() < 1e-3);
+        let out = from_rii_yaml(
+            "DATA:\n  - type: formula 4\n    wavelength_range: 2 5\n    coefficients: 2\n",
+        );
+        assert!(matches!(out, Err(e) if e.contains("visible")));
         assert!(from_rii_yaml("nothing: here\n").is_err());
     }
 

@@ -148,6 +148,9 @@ pub const IMPERFECTION_CHANCE: f64 = 0.7;
 /// A realistic scene has a bare back face its capture does not declare with this
 /// probability.
 pub const UNDECLARED_BACK_FACE_CHANCE: f64 = 0.15;
+/// A realistic scene without an undeclared back face has a bare back face its capture
+/// declares (`sample.back_face = "bare"`) with this probability.
+pub const DECLARED_BACK_FACE_CHANCE: f64 = 0.15;
 
 /// Scene `i` of the random set `seed` as a real sample on a real rig measures it
 /// (`eval --random --realistic`): the same film, rig and sensor size as [`draw`]'s, written as
@@ -157,7 +160,7 @@ pub const UNDECLARED_BACK_FACE_CHANCE: f64 = 0.15;
 /// (+-0.4 deg), a wavelength shift (+-0.5 nm), flare (up to 0.3 % of the white), polariser
 /// leak (0.5-2 % of the other polarisation, s or p light), side lobes (1-4 % of the light from
 /// a band ten times wider); a bare back face the capture does not declare with
-/// [`UNDECLARED_BACK_FACE_CHANCE`].
+/// [`UNDECLARED_BACK_FACE_CHANCE`], else one it declares with [`DECLARED_BACK_FACE_CHANCE`].
 pub fn draw_realistic(seed: u64, i: usize) -> RandomScene {
     draw_as(seed, i, true)
 }
@@ -346,7 +349,13 @@ fn draw_as(seed: u64, i: usize, realistic: bool) -> RandomScene {
         let noise = round_to(uniform(&mut more, REALISTIC_NOISE_PERCENT), 1000.0);
         (true, noise, imperfections_toml(&mut more, polarization))
     } else {
-        (float_reflectance, noise, String::new())
+        (float_reflectance, noise, (String::new(), false))
+    };
+    let (imperfections, declared_back_face) = imperfections;
+    let back_face_line = if declared_back_face {
+        "back_face = \"bare\"\n"
+    } else {
+        ""
     };
     let noise_line = if float_reflectance {
         format!("reflectance_noise_percent = {noise:?}\n")
@@ -372,6 +381,7 @@ fn draw_as(seed: u64, i: usize, realistic: bool) -> RandomScene {
          \n\
          [substrate]\n\
          index = {substrate:?}\n\
+         {back_face_line}\
          \n\
          [rig]\n\
          angles_deg = [{}]\n\
@@ -419,8 +429,9 @@ fn draw_as(seed: u64, i: usize, realistic: bool) -> RandomScene {
 }
 
 /// A realistic scene's `[imperfections]` table, each effect drawn with
-/// [`IMPERFECTION_CHANCE`] at its size ([`draw_realistic`]); empty when none is drawn.
-fn imperfections_toml(rng: &mut Rng, polarization: &str) -> String {
+/// [`IMPERFECTION_CHANCE`] at its size ([`draw_realistic`]), empty when none is drawn; and
+/// whether the scene has a declared bare back face.
+fn imperfections_toml(rng: &mut Rng, polarization: &str) -> (String, bool) {
     let mut lines = Vec::new();
     let mut maybe = |rng: &mut Rng, line: &dyn Fn(&mut Rng) -> String| {
         if rng.uniform() < IMPERFECTION_CHANCE {
@@ -463,13 +474,19 @@ fn imperfections_toml(rng: &mut Rng, polarization: &str) -> String {
             round_to(uniform(r, [0.01, 0.04]), 1000.0)
         )
     });
+    let mut declared = false;
     if rng.uniform() < UNDECLARED_BACK_FACE_CHANCE {
         lines.push("back_face = \"bare\"".to_owned());
+    } else {
+        declared = rng.uniform() < DECLARED_BACK_FACE_CHANCE;
     }
     if lines.is_empty() {
-        return String::new();
+        return (String::new(), declared);
     }
-    format!("\n[imperfections]\n{}\n", lines.join("\n"))
+    (
+        format!("\n[imperfections]\n{}\n", lines.join("\n")),
+        declared,
+    )
 }
 
 #[cfg(test)]

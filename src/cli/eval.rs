@@ -713,7 +713,7 @@ pub fn random_scene(
         failed: vec!["error".to_owned()],
         index_silently_wrong: false,
         note: None,
-        imperfections: describe_imperfections(&scene.imperfections),
+        imperfections: describe_imperfections(&scene.imperfections, scene.stack.back_face),
         thickness_within_sigma: None,
         index_within_sigma: None,
     };
@@ -736,7 +736,9 @@ pub fn random_scene(
             .then(|| report.index_error.abs() <= report.index_sigma);
             // An undeclared back face is outside the model: refused with a note is right.
             let refused = score.valid_fraction == 0.0 && !report.notes.is_empty();
-            if scene.imperfections.bare_back_face && refused {
+            let undeclared =
+                scene.imperfections.bare_back_face && scene.stack.back_face == BackFace::None;
+            if undeclared && refused {
                 row.passed = true;
                 row.failed.clear();
                 row.note = Some("refused: undeclared back face".to_owned());
@@ -757,7 +759,10 @@ pub fn random_scene(
 }
 
 /// A scene's imperfections in one short line (empty: none).
-pub fn describe_imperfections(imp: &firmware_sim::imperfect::Imperfections) -> String {
+pub fn describe_imperfections(
+    imp: &firmware_sim::imperfect::Imperfections,
+    declared: BackFace,
+) -> String {
     let mut parts = Vec::new();
     if imp.film_k > 0.0 {
         parts.push(format!("k {} (tail {} nm)", imp.film_k, imp.film_k_tail_nm));
@@ -778,7 +783,11 @@ pub fn describe_imperfections(imp: &firmware_sim::imperfect::Imperfections) -> S
         parts.push(format!("side lobes {}", imp.side_lobes));
     }
     if imp.bare_back_face {
-        parts.push("bare back face (undeclared)".to_owned());
+        parts.push(if declared == BackFace::Bare {
+            "bare back face (declared)".to_owned()
+        } else {
+            "bare back face (undeclared)".to_owned()
+        });
     }
     parts.join(", ")
 }
