@@ -208,9 +208,21 @@ fn three_simulated_samples_judged_written_and_published() {
     let got = port.map(|p| subscribe(p, "filmscope/line1/+"));
     let rec = recipe(dir.path(), port, "");
     let out = dir.path().join("line");
-    let run = inspect(&rec, &out, &["--samples", "3", "--json"])
-        .output()
-        .expect("run");
+    let run = inspect(
+        &rec,
+        &out,
+        &[
+            "--samples",
+            "3",
+            "--json",
+            "--lot",
+            "L-42",
+            "--operator",
+            "Ann, B.",
+        ],
+    )
+    .output()
+    .expect("run");
     assert!(
         run.status.success(),
         "{}",
@@ -224,6 +236,21 @@ fn three_simulated_samples_judged_written_and_published() {
 
     let recs = samples(&out);
     assert_eq!(recs.len(), 3);
+    // The log as a spreadsheet opens it: a header and one row per sample, in order.
+    let csv = filmscope()
+        .args(["results", s(&out), "--csv"])
+        .output()
+        .expect("results");
+    assert!(csv.status.success(), "{csv:?}");
+    let csv = String::from_utf8(csv.stdout).expect("utf-8");
+    let rows: Vec<&str> = csv.lines().collect();
+    assert_eq!(rows.len(), 4, "{csv}");
+    assert!(rows[0].starts_with("counter,sample_id,timestamp,lot,operator,recipe,film,verdict"));
+    for (r, rec) in rows[1..].iter().zip(&recs) {
+        let id = rec["sample_id"].as_str().expect("id");
+        assert!(r.contains(&format!(",{id},")), "{r}");
+        assert!(r.contains(",L-42,\"Ann, B.\","), "{r}");
+    }
     for r in &recs {
         for key in [
             "sample_id",
@@ -238,6 +265,10 @@ fn three_simulated_samples_judged_written_and_published() {
         for k in ["mean", "std", "min", "max"] {
             assert!(r["thickness_nm"][k].is_f64(), "thickness_nm.{k}");
         }
+        assert_eq!(
+            (r["lot"].as_str(), r["operator"].as_str()),
+            (Some("L-42"), Some("Ann, B."))
+        );
         assert_eq!(
             r["reasons"].as_array().map(Vec::is_empty),
             Some(r["verdict"] == "PASS")

@@ -988,3 +988,17 @@ pub fn report(run: &Path, out: Option<&Path>, capture: Option<&Path>) -> Result<
     );
     Ok(())
 }
+
+/// `filmscope results OUT --csv`: the line's results log as CSV on stdout
+/// ([`crate::line::results`]).
+pub fn results(out: &Path, alarms: bool) -> Result<()> {
+    let stdout = std::io::stdout();
+    let mut w = std::io::BufWriter::new(stdout.lock());
+    let skipped =
+        crate::line::results::write_csv(out, alarms, &mut w).map_err(anyhow::Error::msg)?;
+    std::io::Write::flush(&mut w).context("writing the CSV")?;
+    if skipped > 0 {
+        eprintln!("filmscope: {skipped} lines of the log are not records (skipped)");
+    }
+    Ok(())
+}

@@ -30,6 +30,10 @@ pub struct Args<'a> {
     pub modbus: Option<String>,
     /// Closing summary as JSON.
     pub json: bool,
+    /// The lot every record names, instead of the recipe's.
+    pub lot: Option<String>,
+    /// The operator every record names, instead of the recipe's.
+    pub operator: Option<String>,
 }
 
 /// Runs `filmscope inspect` until `samples` are done or SIGINT/SIGTERM (the sample under
@@ -43,7 +47,9 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
         signal_hook::flag::register(sig, stop.clone()).context("signal handler")?;
     }
     let rig = crate::rig::RigConfig::load_or_builtin(a.rig)?;
-    let recipe = Recipe::load(a.recipe)?;
+    let recipe = Recipe::load(a.recipe)?
+        .with_labels(a.lot.clone(), a.operator.clone())
+        .map_err(|e| anyhow!("--lot/--operator: {e}"))?;
     let line = Line::open(InspectOptions {
         rig,
         recipe,

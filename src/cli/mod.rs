@@ -202,6 +202,24 @@ enum Command {
         /// One JSON summary line at the end (and no per-sample lines).
         #[arg(long)]
         json: bool,
+        /// The production lot every record names (instead of the recipe's `lot`).
+        #[arg(long)]
+        lot: Option<String>,
+        /// The operator every record names (instead of the recipe's `operator`).
+        #[arg(long)]
+        operator: Option<String>,
+    },
+    /// The line's results log (OUT/results.jsonl and its rotated files, oldest first) as a
+    /// spreadsheet opens it: one CSV row per sample on stdout.
+    Results {
+        /// The `inspect --out` folder.
+        out: PathBuf,
+        /// CSV (RFC 4180: a header row, comma-separated, quoted where needed).
+        #[arg(long, required = true)]
+        csv: bool,
+        /// Alarms too, one row each after the samples' (kind `alarm`).
+        #[arg(long)]
+        alarms: bool,
     },
     /// Accuracy against the truth on scene files or simulated capture directories.
     Eval {
@@ -452,6 +470,8 @@ pub fn main() -> std::process::ExitCode {
             mqtt_port,
             modbus,
             json,
+            lot,
+            operator,
         } => inspect::inspect(&inspect::Args {
             rig: rig.as_deref(),
             recipe: &recipe,
@@ -462,7 +482,14 @@ pub fn main() -> std::process::ExitCode {
             mqtt_port,
             modbus,
             json,
+            lot,
+            operator,
         }),
+        Command::Results {
+            out,
+            csv: _,
+            alarms,
+        } => commands::results(&out, alarms),
         Command::Eval {
             inputs,
             random,

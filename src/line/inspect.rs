@@ -806,6 +806,8 @@ impl Line {
             "timestamp": timestamp,
             "film": recipe.film,
             "recipe": recipe_name,
+            "lot": recipe.lot,
+            "operator": recipe.operator,
             "verdict": v.word(),
             "reasons": v.reasons,
             "refractive_index": finite(index),

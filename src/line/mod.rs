@@ -11,12 +11,14 @@
 //! - [`plc`]: the Modbus TCP server a PLC reads the verdict from and triggers samples with.
 //! - [`listen`]: the thread and runtime each of those servers runs on.
 //! - [`retention`]: which raw sweeps are kept, uint16 references, the disk budget.
+//! - [`results`]: the results log as CSV (`filmscope results OUT --csv`).
 //! - [`inspect`]: the loop that ties them to the rig and the estimator.
 
 pub mod inspect;
 pub mod listen;
 pub mod plc;
 pub mod recipe;
+pub mod results;
 pub mod retention;
 pub mod spc;
 pub mod status;

@@ -22,6 +22,12 @@ pub struct RecipeError {
 pub struct Recipe {
     /// The film's name (e.g. "ZnS AR coat").
     pub film: String,
+    /// The production lot every record names (`inspect --lot` overrides it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lot: Option<String>,
+    /// The operator every record names (`inspect --operator` overrides it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub operator: Option<String>,
     /// The film index.
     pub index: IndexSpec,
     /// The film thickness.
@@ -501,6 +507,19 @@ impl Recipe {
         Ok(recipe)
     }
 
+    /// The recipe with the lot and operator the command line gives in place of its own,
+    /// checked as the recipe's are.
+    pub fn with_labels(
+        mut self,
+        lot: Option<String>,
+        operator: Option<String>,
+    ) -> Result<Self, String> {
+        self.lot = lot.or(self.lot);
+        self.operator = operator.or(self.operator);
+        self.check_ranges()?;
+        Ok(self)
+    }
+
     /// The checks beyond the types: each names its key, its value and the range it must
     /// lie in (`config/recipes/demo.toml` gives each key's meaning).
     fn check(&self) -> Result<(), String> {
@@ -544,6 +563,11 @@ impl Recipe {
         }
         let usize_in = |key: &str, v: usize, lo: u64, hi: u64| int_in(key, v as u64, lo, hi);
         text("film", &self.film, MAX_NAME)?;
+        for (key, v) in [("lot", &self.lot), ("operator", &self.operator)] {
+            if let Some(v) = v {
+                text(key, v, MAX_NAME)?;
+            }
+        }
         num_in("index.nominal", self.index.nominal, 1.0, 6.0)?;
         num_in("index.tolerance", self.index.tolerance, 0.0, 1.0)?;
         num_in("index.resolve_above", self.index.resolve_above, 0.0, 5.0)?;

@@ -238,7 +238,8 @@ impl ResultsLog {
     }
 }
 
-fn rotated(path: &Path, k: usize) -> PathBuf {
+/// The `k`-th rotated file of the log at `path` (`results.jsonl.k`; larger k older).
+pub(crate) fn rotated(path: &Path, k: usize) -> PathBuf {
     let mut s = path.as_os_str().to_owned();
     s.push(format!(".{k}"));
     PathBuf::from(s)
