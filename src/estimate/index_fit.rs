@@ -500,6 +500,7 @@ fn residual_json(fit: &SampleFit) -> serde_json::Value {
         "noise_rms": finite(r.noise_rms),
         "model_rms": finite(r.model_rms),
         "band_correlation": finite(r.band_correlation),
+        "site_correlation": finite(r.site_correlation),
         "blue_rms": finite(r.blue_rms),
         "red_rms": finite(r.red_rms),
         "per_angle": r.per_angle.iter().map(|a| json!({

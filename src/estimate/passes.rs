@@ -401,7 +401,7 @@ fn finish(
 /// `d sqrt(n^2 - sin^2 theta)`, so `dd/dn = -d n / (n^2 - sin^2 theta)`, over the angles'
 /// mean `sin^2 theta`) and, when the fit carries a model error, the pixel's own share widened
 /// by the residual's correlation along the band (`Residual::correlation_factor`). A pixel
-/// whose sigma then exceeds [`MAX_THICKNESS_SIGMA_NM`] is flagged `imprecise`.
+/// whose own share exceeds [`MAX_THICKNESS_SIGMA_NM`] is flagged `imprecise`.
 fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
     let angles = &out.angles;
     let sin2 = if angles.is_empty() {
@@ -429,7 +429,9 @@ fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
         let from_index = d * slope * index_sigma;
         let sigma = ((s * own).powi(2) + from_index * from_index).sqrt();
         r.thickness_sigma_nm = sigma as f32;
-        if sigma > MAX_THICKNESS_SIGMA_NM {
+        // The index's share is common to every pixel (the whole map's scale, reported with
+        // the index): a pixel is imprecise by its own share.
+        if s * own > MAX_THICKNESS_SIGMA_NM {
             r.flags |= flags::IMPRECISE;
             r.thickness_nm = f32::NAN;
             r.confidence = 0.0;

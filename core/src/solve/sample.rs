@@ -529,6 +529,9 @@ pub struct Residual {
     /// Correlation of neighbouring bands' residuals (about 0 for noise, towards 1 for a
     /// smooth misfit).
     pub band_correlation: f64,
+    /// Correlation of different sites' residuals at the same band and angle (about 0 for
+    /// noise and for misfits of each site's own, towards 1 for one misfit common to all).
+    pub site_correlation: f64,
     /// RMS over the band's blue third and its red third.
     pub blue_rms: f64,
     /// RMS over the band's red third.
@@ -554,19 +557,24 @@ impl Residual {
     }
 
     /// [`Residual::correlation_factor`] for a parameter every one of `sites` sites shares,
-    /// the index: the noise averages down over the sites, the model's misfit does not (its
-    /// cause, a rig's or a sample's departure from the model, is the same at every site and
-    /// pulls the index the same way), so its share counts `sites` times more:
-    /// `sqrt(f_noise + f_model sites (1 + r) / (1 - r))`.
+    /// the index: the noise averages down over the sites, a misfit common to them does not
+    /// (a rig's or a sample's departure from the model, the same at every site, pulls the
+    /// index the same way). With the misfit's correlation `q` between sites (the residuals'
+    /// [`Residual::site_correlation`] over the misfit's share), the sites are
+    /// `sites / (1 + (sites - 1) q)` independent ones, so the misfit's share counts
+    /// `1 + (sites - 1) q` times more: `sqrt(f_noise + f_model (1 + (sites - 1) q) (1 + r) /
+    /// (1 - r))`.
     pub fn shared_factor(&self, sites: usize) -> f64 {
         let own = self.correlation_factor();
         let (total, model) = (self.rms * self.rms, self.model_rms * self.model_rms);
-        if !(total > 0.0 && model > 0.0) {
+        if !(total > 0.0 && model > 0.0) || !self.site_correlation.is_finite() {
             return own;
         }
         let share = (model / total).min(1.0);
+        let q = (self.site_correlation * total / model).clamp(0.0, 1.0);
         let correlated = (own * own - (1.0 - share)).max(0.0);
-        libm::sqrt(1.0 - share + correlated * sites.max(1) as f64)
+        let many = 1.0 + sites.saturating_sub(1) as f64 * q;
+        libm::sqrt(1.0 - share + correlated * many)
     }
 }
 
@@ -586,6 +594,7 @@ impl SampleFit {
             noise_rms: f64::NAN,
             model_rms: f64::NAN,
             band_correlation: f64::NAN,
+            site_correlation: f64::NAN,
             blue_rms: f64::NAN,
             red_rms: f64::NAN,
             per_angle: heapless::Vec::new(),
@@ -2016,7 +2025,9 @@ impl Problem<'_> {
     /// one, an index standard error within [`MAX_INDEX_SIGMA`]. Weighed with a model error,
     /// the index's standard error is widened by the residual's correlation along the band and
     /// across the sites ([`Residual::shared_factor`]): a smooth misfit common to the sites is
-    /// fewer independent samples.
+    /// fewer independent samples. The gate takes the sites' own standard error (the band's
+    /// widening only): whether the spectra determine the index, not how far a misfit common
+    /// to the sites may pull it.
     fn settle(&self, mut fit: SampleFit, mut c: Candidate, tt: &[f64; MAX_SITES]) -> SampleFit {
         for (k, slot) in fit.thickness_nm.iter_mut().enumerate() {
             *slot = if k < self.usable.len() && self.usable[k] {
@@ -2035,7 +2046,11 @@ impl Problem<'_> {
                 c.n550_sigma = s * libm::sqrt(c.chi2_nu.max(1.0));
             }
         }
+        // Whether the spectra determine the index at all is the sites' own precision; what a
+        // misfit common to them adds is the index's accuracy, reported, not a refusal.
+        let mut determined = c.n550_sigma;
         if fit.model_error > 0.0 {
+            determined *= fit.residual.correlation_factor();
             c.n550_sigma *= fit.residual.shared_factor(fit.sites_used);
         }
         fit.best = Some(c);
@@ -2043,7 +2058,7 @@ impl Problem<'_> {
         let misfit = fit.model_error > 0.0 && !within;
         fit.failure = if c.chi2_nu > GATE_CHI2_NU || misfit {
             Some(Failure::NoFit)
-        } else if c.n550_sigma > MAX_INDEX_SIGMA {
+        } else if determined > MAX_INDEX_SIGMA {
             Some(Failure::Underdetermined)
         } else {
             None
@@ -2062,6 +2077,9 @@ impl Problem<'_> {
         let mut out = Residual::default();
         let (mut n, mut r2, mut s2, mut lag, mut lag_r2) = (0usize, 0.0, 0.0, 0.0, 0.0);
         let (mut blue2, mut nblue, mut red2, mut nred) = (0.0, 0usize, 0.0, 0usize);
+        // Products of different sites' residuals at the same band and angle, and their
+        // squares' share of them: the residuals' correlation between sites.
+        let (mut cross, mut cross_r2) = (0.0, 0.0);
         // chi2[j]: the residual in units of the noise plus a model error MODEL_ERROR_GRID[j].
         let mut chi2 = [0.0; MODEL_ERROR_STEPS + 1];
         let grid2: [f64; MODEL_ERROR_STEPS + 1] = core::array::from_fn(|j| {
@@ -2074,6 +2092,7 @@ impl Problem<'_> {
             for b in 0..nb {
                 let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
                 let l = self.geo.bands_nm[b];
+                let (mut sum, mut sum2, mut ns) = (0.0, 0.0, 0usize);
                 for k in (0..sites).filter(|&k| self.usable[k]) {
                     let y = self.measured(nb, k, a, b);
                     if !y.is_finite() {
@@ -2082,6 +2101,7 @@ impl Problem<'_> {
                     }
                     let m = self.site_model(&nodes[..count], t[k]).m;
                     let r = y - m;
+                    (sum, sum2, ns) = (sum + r, sum2 + r * r, ns + 1);
                     let v = self.noise.noise2(k, a, b);
                     (an, ar, ar2, as2) = (an + 1, ar + r, ar2 + r * r, as2 + 1.0 / v);
                     let r2 = r * r;
@@ -2098,6 +2118,10 @@ impl Problem<'_> {
                     } else if l >= red {
                         (red2, nred) = (red2 + r * r, nred + 1);
                     }
+                }
+                if ns > 1 {
+                    cross += sum * sum - sum2;
+                    cross_r2 += (ns - 1) as f64 * sum2;
                 }
             }
             (n, r2, s2) = (n + an, r2 + ar2, s2 + as2);
@@ -2119,6 +2143,11 @@ impl Problem<'_> {
         out.noise_rms = libm::sqrt(n as f64 / s2.max(f64::MIN_POSITIVE));
         out.model_rms = model_error_for(&chi2, dof);
         out.band_correlation = if lag_r2 > 0.0 { lag / lag_r2 } else { 0.0 };
+        out.site_correlation = if cross_r2 > 0.0 {
+            cross / cross_r2
+        } else {
+            0.0
+        };
         out.blue_rms = libm::sqrt(blue2 / nblue.max(1) as f64);
         out.red_rms = libm::sqrt(red2 / nred.max(1) as f64);
         Some(out)
