@@ -567,7 +567,7 @@ impl Residual {
     pub fn shared_factor(&self, sites: usize) -> f64 {
         let own = self.correlation_factor();
         let (total, model) = (self.rms * self.rms, self.model_rms * self.model_rms);
-        if !(total > 0.0 && model > 0.0) || !self.site_correlation.is_finite() {
+        if !(total > 0.0 && model > 0.0 && self.site_correlation.is_finite()) {
             return own;
         }
         let share = (model / total).min(1.0);
