@@ -844,3 +844,58 @@ fn device_errors_are_logged_and_three_in_a_row_stop() {
     assert!(samples(&out).is_empty());
     assert!(folders(&out).is_empty(), "no half-written folder left");
 }
+
+/// `inspect --reference` measures the recipe's certified sample first: within tolerance a
+/// `reference` record with its drift; certified 20 nm off, the same plus an alarm.
+#[test]
+fn a_reference_check_records_its_drift_and_alarms_beyond_tolerance() {
+    let dir = tempdir();
+    for (certified, within) in [(620.0, true), (600.0, false)] {
+        let rec = recipe(dir.path(), None, "");
+        let mut text = std::fs::read_to_string(&rec).expect("recipe");
+        text.push_str(&format!(
+            "\n[reference]\nname = \"REF-620\"\nthickness_nm = {certified:?}\nindex = 2.1\ntolerance_nm = 3.0\ntolerance_index = 0.01\n"
+        ));
+        std::fs::write(&rec, text).expect("recipe");
+        let out = dir.path().join(format!("line-{certified}"));
+        let run = inspect(&rec, &out, &["--samples", "1", "--reference"])
+            .output()
+            .expect("run");
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let all = records(&out);
+        let r = all
+            .iter()
+            .find(|r| r["kind"] == "reference")
+            .expect("a reference record");
+        assert_eq!(r["within"], within, "{r}");
+        let drift = r["drift"]["thickness_nm"].as_f64().expect("drift");
+        assert!((drift - (620.0 - certified)).abs() < 3.0, "{r}");
+        assert!(r["drift"]["index"].as_f64().expect("index drift").abs() < 0.01);
+        assert!(out
+            .join(r["folder"].as_str().expect("folder"))
+            .join("summary.json")
+            .is_file());
+        let alarm = all.iter().any(|a| a["rule"] == "reference_drift");
+        assert_eq!(alarm, !within, "{all:?}");
+        assert_eq!(samples(&out).len(), 1);
+    }
+    // Without a [reference] table the flag is one line naming the recipe.
+    let rec = recipe(dir.path(), None, "");
+    let run = inspect(
+        &rec,
+        &dir.path().join("none"),
+        &["--samples", "1", "--reference"],
+    )
+    .output()
+    .expect("run");
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("recipe.toml: --reference needs a [reference] table"),
+        "{err}"
+    );
+}

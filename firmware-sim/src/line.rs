@@ -86,6 +86,14 @@ impl SampleSequence {
         }
     }
 
+    /// The reference sample: the base scene itself, without drift, scatter or defect (its
+    /// truth is the scene file's).
+    pub fn reference(&self) -> Scene {
+        let mut s = self.base.clone();
+        s.name = format!("{}-reference", self.base.name);
+        s
+    }
+
     /// Sample `k`'s scene.
     pub fn scene(&self, k: u64) -> (Scene, SampleKind) {
         let mut rng = Rng::from_words(&[self.seed, k, 0x11e5]);

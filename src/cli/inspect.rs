@@ -34,6 +34,8 @@ pub struct Args<'a> {
     pub lot: Option<String>,
     /// The operator every record names, instead of the recipe's.
     pub operator: Option<String>,
+    /// Measure the recipe's reference sample first.
+    pub reference: bool,
 }
 
 /// Runs `filmscope inspect` until `samples` are done or SIGINT/SIGTERM (the sample under
@@ -74,6 +76,25 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
     }
     if let Some(addr) = line.modbus_addr() {
         eprintln!("modbus: listening on {addr}");
+    }
+    if a.reference {
+        let r = line.check_reference().map_err(|e| anyhow!(e))?;
+        let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+        if !a.json {
+            println!(
+                "reference {}: thickness {:.2} nm (drift {:+.2}), n={:.4} (drift {:+.4}): {}",
+                r["reference"].as_str().unwrap_or(""),
+                f(&r["measured"]["thickness_nm"]),
+                f(&r["drift"]["thickness_nm"]),
+                f(&r["measured"]["index"]),
+                f(&r["drift"]["index"]),
+                if r["within"] == true {
+                    "within tolerance"
+                } else {
+                    "BEYOND tolerance (alarm)"
+                }
+            );
+        }
     }
     let trigger = line.waits_for_trigger();
     let mut errors_in_a_row = 0;

@@ -208,6 +208,10 @@ enum Command {
         /// The operator every record names (instead of the recipe's `operator`).
         #[arg(long)]
         operator: Option<String>,
+        /// Measure the recipe's `[reference]` sample first (the start of a shift): its drift
+        /// from the certified thickness and index is recorded, and alarmed beyond tolerance.
+        #[arg(long)]
+        reference: bool,
     },
     /// The line's results log (OUT/results.jsonl and its rotated files, oldest first) as a
     /// spreadsheet opens it: one CSV row per sample on stdout.
@@ -472,6 +476,7 @@ pub fn main() -> std::process::ExitCode {
             json,
             lot,
             operator,
+            reference,
         } => inspect::inspect(&inspect::Args {
             rig: rig.as_deref(),
             recipe: &recipe,
@@ -484,6 +489,7 @@ pub fn main() -> std::process::ExitCode {
             json,
             lot,
             operator,
+            reference,
         }),
         Command::Results {
             out,

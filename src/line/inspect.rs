@@ -762,6 +762,106 @@ impl Line {
         }
     }
 
+    /// Measures the recipe's reference sample (`inspect --reference`, at the start of a
+    /// shift): its maps into `references/<id>/`, a `reference` record (certified, measured,
+    /// drift, within tolerance) to `results.jsonl`, MQTT (`<prefix>/reference`) and the
+    /// status page, and an alarm when the drift is beyond tolerance. The reference is solved
+    /// over the rig's whole index range, not held to the line's.
+    pub fn check_reference(&mut self) -> Result<Value, InspectError> {
+        let spec = self.opts.recipe.reference.clone().ok_or_else(|| {
+            InspectError(format!(
+                "{}: --reference needs a [reference] table (name, thickness_nm, index, tolerance_nm, tolerance_index)",
+                self.opts.recipe_path.display()
+            ))
+        })?;
+        self.check_free_space()?;
+        let t = SystemTime::now();
+        let stamp = sample_id(0, t);
+        let id = format!("R{}", stamp.split_once('-').map_or("", |s| s.1));
+        let dir = self.opts.out.join("references");
+        let tmp = dir.join(format!(".tmp-{id}"));
+        let _ = std::fs::remove_dir_all(&tmp);
+        std::fs::create_dir_all(&tmp).map_err(|e| ie(&tmp.display().to_string())(&e))?;
+        let (run, _, _, _, _) = self.sweep(None, &tmp).inspect_err(|e| {
+            let _ = std::fs::remove_dir_all(&tmp);
+            self.say(&format!("device error: reference {}: {e}", spec.name));
+        })?;
+        write_outputs_into(&tmp, &run, &format!("inspect reference {}", spec.name))
+            .map_err(|e| InspectError(e.to_string()))?;
+        let _ = std::fs::remove_dir_all(tmp.join("capture"));
+        let folder = dir.join(&id);
+        let _ = std::fs::remove_dir_all(&folder);
+        std::fs::rename(&tmp, &folder).map_err(|e| ie(&folder.display().to_string())(&e))?;
+        let valid: Vec<f64> = run
+            .result
+            .thickness_nm
+            .iter()
+            .filter(|v| v.is_finite())
+            .map(|&v| f64::from(v))
+            .collect();
+        let mean = valid.iter().sum::<f64>() / valid.len().max(1) as f64;
+        let mean = if valid.is_empty() { f64::NAN } else { mean };
+        let index = run.result.index.at(550.0);
+        let (dd, dn) = (mean - spec.thickness_nm, index - spec.index);
+        let within = dd.abs() <= spec.tolerance_nm && dn.abs() <= spec.tolerance_index;
+        let recipe = &self.opts.recipe;
+        let mut record = json!({
+            "kind": "reference",
+            "reference": spec.name,
+            "reference_id": id,
+            "timestamp": utc_iso(t),
+            "lot": recipe.lot,
+            "operator": recipe.operator,
+            "certified": {"thickness_nm": spec.thickness_nm, "index": spec.index},
+            "measured": {
+                "thickness_nm": finite(mean),
+                "index": finite(index),
+                "valid_fraction": valid.len() as f64 / run.result.thickness_nm.len().max(1) as f64,
+            },
+            "drift": {"thickness_nm": finite(dd), "index": finite(dn)},
+            "tolerance": {"thickness_nm": spec.tolerance_nm, "index": spec.tolerance_index},
+            "within": within,
+            "folder": format!("references/{id}"),
+            "version": env!("CARGO_PKG_VERSION"),
+        });
+        self.append_record(&mut record)?;
+        self.publish(&record);
+        if let Some(st) = &self.status {
+            st.publish_reference(&record);
+        }
+        self.say(&format!(
+            "reference {}: thickness {mean:.2} nm (certified {}, drift {dd:+.2}), index {index:.4} (certified {}, drift {dn:+.4}): {}",
+            spec.name,
+            spec.thickness_nm,
+            spec.index,
+            if within { "within tolerance" } else { "BEYOND tolerance" }
+        ));
+        if !within {
+            let text = format!(
+                "reference {} drifted beyond tolerance: thickness {dd:+.2} nm (tolerance {}), index {dn:+.4} (tolerance {})",
+                spec.name, spec.tolerance_nm, spec.tolerance_index
+            );
+            let mut alarm = json!({
+                "kind": "alarm",
+                "sample_id": Value::Null,
+                "counter": self.counter,
+                "timestamp": utc_iso(SystemTime::now()),
+                "variable": "reference",
+                "rule": "reference_drift",
+                "text": text,
+                "value": finite(dd),
+                "index_drift": finite(dn),
+            });
+            self.say(&format!("alarm {text}"));
+            self.append_record(&mut alarm)?;
+            self.publish(&alarm);
+            if let Some(st) = &self.status {
+                st.publish_alarm(&alarm);
+            }
+        }
+        Ok(record)
+    }
+
     fn measure_one(&mut self) -> Result<SampleOutcome, InspectError> {
         self.counter += 1;
         let counter = self.counter;
@@ -771,7 +871,7 @@ impl Line {
         let tmp = self.samples_dir.join(format!(".tmp-{id}"));
         let _ = std::fs::remove_dir_all(&tmp);
         std::fs::create_dir_all(&tmp).map_err(|e| ie(&tmp.display().to_string())(&e))?;
-        let result = self.sweep(counter, &tmp);
+        let result = self.sweep(Some(counter), &tmp);
         let (run, last_row, acq_log, resolved, sim_kind) = match result {
             Ok(x) => x,
             Err(e) => {
@@ -961,12 +1061,13 @@ impl Line {
         }
     }
 
-    /// The sweep of sample `counter` into `tmp/capture`, estimated as it streams, with a
-    /// re-solve over the whole index range when the held index disagrees.
+    /// The sweep of sample `counter` (`None`: the recipe's reference) into `tmp/capture`,
+    /// estimated as it streams, with a re-solve over the whole index range when the held
+    /// index disagrees (the reference is solved over the whole range at once).
     #[allow(clippy::type_complexity)]
     fn sweep(
         &mut self,
-        counter: u64,
+        counter: Option<u64>,
         tmp: &Path,
     ) -> Result<(Run, Instant, Value, bool, Option<&'static str>), InspectError> {
         let mut cfg = self.opts.rig.clone();
@@ -976,10 +1077,10 @@ impl Line {
             .as_ref()
             .and_then(|s| s.index_range)
             .unwrap_or(DEFAULT_INDEX_RANGE);
-        let centre = match ix.mode {
-            IndexMode::Hold => Some(ix.nominal),
-            IndexMode::Carry => Some(self.last_index.unwrap_or(ix.nominal)),
-            IndexMode::Solve => None,
+        let centre = match (ix.mode, counter) {
+            (_, None) | (IndexMode::Solve, _) => None,
+            (IndexMode::Hold, _) => Some(ix.nominal),
+            (IndexMode::Carry, _) => Some(self.last_index.unwrap_or(ix.nominal)),
         };
         if let Some(c) = centre {
             let lo = (c - ix.resolve_above).max(full[0]);
@@ -995,8 +1096,14 @@ impl Line {
         let mut sim_kind = None;
         let mut _sim = None;
         let rig = if let Some(seq) = &self.sequence {
-            let (scene, kind) = seq.scene(counter - 1);
-            sim_kind = Some(kind.name());
+            let (scene, kind) = match counter {
+                Some(c) => {
+                    let (scene, kind) = seq.scene(c - 1);
+                    (scene, kind.name())
+                }
+                None => (seq.reference(), "reference"),
+            };
+            sim_kind = Some(kind);
             let sim = cfg
                 .sim
                 .clone()

@@ -53,6 +53,9 @@ pub struct Recipe {
     /// The PLC's Modbus TCP server (none: not served).
     #[serde(default)]
     pub modbus: Option<ModbusSpec>,
+    /// The reference sample `inspect --reference` measures (none: no reference check).
+    #[serde(default)]
+    pub reference: Option<ReferenceSpec>,
     /// The simulated line (`--sim` only).
     #[serde(default)]
     pub sim: SimSpec,
@@ -390,6 +393,23 @@ fn status_port() -> u16 {
     8088
 }
 
+/// `[reference]`: a certified sample measured at the start of a shift (`inspect
+/// --reference`), its drift recorded and alarmed beyond tolerance.
+#[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceSpec {
+    /// The reference's name (its certificate's id).
+    pub name: String,
+    /// Certified mean thickness, nm.
+    pub thickness_nm: f64,
+    /// Certified index at 550 nm.
+    pub index: f64,
+    /// Largest tolerated |measured - certified| mean thickness, nm.
+    pub tolerance_nm: f64,
+    /// Largest tolerated |measured - certified| index.
+    pub tolerance_index: f64,
+}
+
 /// `[sim]`: the simulated line behind `--sim`.
 #[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -563,6 +583,23 @@ impl Recipe {
         }
         let usize_in = |key: &str, v: usize, lo: u64, hi: u64| int_in(key, v as u64, lo, hi);
         text("film", &self.film, MAX_NAME)?;
+        if let Some(r) = &self.reference {
+            text("reference.name", &r.name, MAX_NAME)?;
+            num_in(
+                "reference.thickness_nm",
+                r.thickness_nm,
+                0.0,
+                MAX_THICKNESS_NM,
+            )?;
+            num_in("reference.index", r.index, 1.0, 6.0)?;
+            num_in(
+                "reference.tolerance_nm",
+                r.tolerance_nm,
+                0.0,
+                MAX_THICKNESS_NM,
+            )?;
+            num_in("reference.tolerance_index", r.tolerance_index, 0.0, 1.0)?;
+        }
         for (key, v) in [("lot", &self.lot), ("operator", &self.operator)] {
             if let Some(v) = v {
                 text(key, v, MAX_NAME)?;

@@ -65,6 +65,8 @@ pub struct StatusState {
     pub page_hits: u64,
     /// The film, for the title.
     pub film: String,
+    /// The last reference check's record.
+    pub reference: Option<Value>,
 }
 
 /// Counters for `/metrics`.
@@ -153,6 +155,14 @@ impl StatusServer {
         while s.alarms.len() > RECENT_ALARMS {
             s.alarms.pop_front();
         }
+    }
+
+    /// Shows a reference check's record (its age on the page counts from its timestamp).
+    pub fn publish_reference(&self, record: &Value) {
+        self.state
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .reference = Some(record.clone());
     }
 
     /// Replaces `/api/history`'s body.
@@ -260,6 +270,7 @@ fn latest(s: &StatusState) -> Value {
         "sample": s.latest,
         "alarms": s.alarms.iter().rev().take(10).collect::<Vec<_>>(),
         "counts": s.counts,
+        "reference": s.reference,
     })
 }
 
@@ -392,6 +403,7 @@ td,th{padding:.1em .6em;text-align:left}#alarms li{color:#b71c1c}
 <h2>Trend: mean thickness (nm), control limits</h2>
 <div id="trend"></div>
 <p id="capability"></p>
+<p id="reference">Reference check: none since start</p>
 <h2>Alarms</h2><ul id="alarms"></ul>
 <script>
 let polls = 0, shown = null;
@@ -435,6 +447,13 @@ async function tick() {
         `<tr><th>min / max</th><td>${fmt(t.min, 1)} / ${fmt(t.max, 1)} nm</td></tr>` +
         `<tr><th>valid</th><td>${fmt(100 * r.valid_fraction, 1)} %</td></tr><tr><th>latency</th><td>${fmt(r.latency_ms, 0)} ms</td></tr>`;
       drawTrend(await (await fetch('/api/history', {cache: 'no-store'})).json());
+    }
+    const ref = j.reference;
+    if (ref) {
+      const age = (Date.now() - Date.parse(ref.timestamp)) / 3600e3;
+      const d = ref.drift || {};
+      $('reference').textContent = `Reference check (${ref.reference}): ${fmt(age, 1)} h ago, ` +
+        `drift ${fmt(d.thickness_nm, 2)} nm, index ${fmt(d.index, 4)}: ${ref.within ? 'within tolerance' : 'BEYOND TOLERANCE'}`;
     }
     $('alarms').innerHTML = (j.alarms || []).map(a => `<li>${a.sample_id}: ${a.variable} rule ${a.rule} (${a.text}), value ${fmt(a.value, 3)}</li>`).join('');
   } catch (e) { document.body.dataset.error = String(e); }

@@ -615,10 +615,10 @@ impl MqttPublisher {
         let Some(seq) = record["seq"].as_u64() else {
             return;
         };
-        let kind = if record["kind"] == "sample" {
-            "sample"
-        } else {
-            "alarm"
+        let kind = match record["kind"].as_str() {
+            Some("sample") => "sample",
+            Some("reference") => "reference",
+            _ => "alarm",
         };
         let mut s = Spool::lock(&self.spool);
         if seq <= s.acked_seq || s.entries.back().is_some_and(|e| e.seq >= seq) {
