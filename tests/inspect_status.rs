@@ -60,9 +60,11 @@ fn history(means: &[f64]) -> Value {
         .map(|(i, m)| json!({"sample_id": format!("S{:06}", i + 1), "index": 2.1, "thickness_mean": m, "thickness_std": 3.0, "pass": true}))
         .collect();
     json!({"points": points,
-           "limits": {"thickness_mean_nm": {"center": 620.0, "ucl": 626.0, "lcl": 614.0, "sigma": 2.0, "mr_bar": 2.256, "n": 8}},
-           "capability": {"thickness_mean_nm": {"cpk": 1.5, "ppk": 1.4, "mean": 620.0, "sigma_within": 2.0, "sigma_overall": 2.1}},
-           "spec": {"lsl": 570.0, "usl": 670.0}})
+           "limits": {"thickness_mean_nm": {"center": 620.0, "ucl": 626.0, "lcl": 614.0, "sigma": 2.0, "mr_bar": 2.256, "n": 8},
+                      "refractive_index": {"center": 2.1, "ucl": 2.106, "lcl": 2.094, "sigma": 0.002, "mr_bar": 0.0023, "n": 8}},
+           "capability": {"thickness_mean_nm": {"cpk": 1.5, "ppk": 1.4, "mean": 620.0, "sigma_within": 2.0, "sigma_overall": 2.1},
+                          "refractive_index": {"cpk": 2.25, "ppk": 2.0, "mean": 2.1, "sigma_within": 0.002, "sigma_overall": 0.0022}},
+           "spec": {"lsl": 570.0, "usl": 670.0, "index_lsl": 2.07, "index_usl": 2.13}})
 }
 
 #[test]
@@ -183,6 +185,14 @@ fn status_page_shows_a_new_sample_without_reload_in_chromium() {
         );
     }
     assert!(dom.contains("Cpk 1.50"), "capability shown");
+    assert!(dom.contains("id=\"trend-index-svg\""), "index trend drawn");
+    assert!(dom.contains("Cpk 2.25"), "index capability shown");
+    assert!(
+        dom.contains("2 samples since start: 1 passed, 1 failed"),
+        "counts shown"
+    );
+    // The records are a day old: the page says the line has stopped.
+    assert!(dom.contains("STALE: no sample for"), "stale banner:\n{dom}");
     let polls: u32 = dom
         .split("data-polls=\"")
         .nth(1)

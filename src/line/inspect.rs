@@ -26,7 +26,7 @@ use super::plc::{self, LineState, PlcServer};
 use super::recipe::{IndexMode, Recipe};
 use super::retention;
 use super::spc::{self, History, Point, Variable};
-use super::status::StatusServer;
+use super::status::{StatusServer, DEFAULT_STALE_AFTER_S};
 use super::stream::{AckState, MqttPublisher, ResultsLog, Unsent};
 use super::verdict::{self, Verdict};
 use crate::estimate::{run_method, write_outputs_into, Run, RunConfig};
@@ -313,14 +313,15 @@ impl Line {
             }
         }
         let status = match (&line.opts.recipe.status, line.opts.status_port) {
-            (Some(s), p) => Some((s.bind.clone(), p.unwrap_or(s.port))),
-            (None, Some(p)) => Some(("127.0.0.1".to_owned(), p)),
+            (Some(s), p) => Some((s.bind.clone(), p.unwrap_or(s.port), s.stale_after_s)),
+            (None, Some(p)) => Some(("127.0.0.1".to_owned(), p, DEFAULT_STALE_AFTER_S)),
             (None, None) => None,
         };
         go_on()?;
-        if let Some((bind, port)) = status {
+        if let Some((bind, port, stale_after_s)) = status {
             match StatusServer::start(&bind, port, &line.opts.recipe.film) {
                 Ok(server) => {
+                    server.set_stale_after(stale_after_s);
                     line.say(&format!("status page: {}", server.url()));
                     line.status = Some(server);
                     line.refresh_status_history();

@@ -387,10 +387,17 @@ pub struct StatusSpec {
     /// Port (default 8088; 0: any free one, printed).
     #[serde(default = "status_port")]
     pub port: u16,
+    /// Seconds without a new sample after which the page shows STALE (default 600).
+    #[serde(default = "stale_after_default")]
+    pub stale_after_s: f64,
 }
 
 fn status_port() -> u16 {
     8088
+}
+
+fn stale_after_default() -> f64 {
+    600.0
 }
 
 /// `[reference]`: a certified sample measured at the start of a shift (`inspect
@@ -583,6 +590,9 @@ impl Recipe {
         }
         let usize_in = |key: &str, v: usize, lo: u64, hi: u64| int_in(key, v as u64, lo, hi);
         text("film", &self.film, MAX_NAME)?;
+        if let Some(st) = &self.status {
+            num_in("status.stale_after_s", st.stale_after_s, 1.0, 86_400.0)?;
+        }
         if let Some(r) = &self.reference {
             text("reference.name", &r.name, MAX_NAME)?;
             num_in(

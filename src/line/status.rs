@@ -35,6 +35,10 @@ pub const HEAD_TIMEOUT: Duration = Duration::from_secs(5);
 /// Longest a connection is kept open, whatever the client does.
 pub const CONNECTION_TIMEOUT: Duration = Duration::from_secs(20);
 
+/// Seconds without a new sample after which the page shows STALE, unless the recipe's
+/// `[status] stale_after_s` says otherwise.
+pub const DEFAULT_STALE_AFTER_S: f64 = 600.0;
+
 /// Alarms the page and `/api/latest` show.
 pub const RECENT_ALARMS: usize = 50;
 
@@ -67,6 +71,8 @@ pub struct StatusState {
     pub film: String,
     /// The last reference check's record.
     pub reference: Option<Value>,
+    /// Seconds without a new sample after which the page shows STALE.
+    pub stale_after_s: f64,
 }
 
 /// Counters for `/metrics`.
@@ -95,6 +101,7 @@ impl StatusServer {
         let state = Arc::new(Mutex::new(StatusState {
             history: json!({"points": [], "limits": {}, "capability": {}}),
             film: film.to_owned(),
+            stale_after_s: DEFAULT_STALE_AFTER_S,
             ..StatusState::default()
         }));
         let st = state.clone();
@@ -155,6 +162,11 @@ impl StatusServer {
         while s.alarms.len() > RECENT_ALARMS {
             s.alarms.pop_front();
         }
+    }
+
+    /// Seconds without a new sample after which the page shows STALE.
+    pub fn set_stale_after(&self, seconds: f64) {
+        self.state.lock().unwrap_or_else(|p| p.into_inner()).stale_after_s = seconds;
     }
 
     /// Shows a reference check's record (its age on the page counts from its timestamp).
@@ -271,6 +283,7 @@ fn latest(s: &StatusState) -> Value {
         "alarms": s.alarms.iter().rev().take(10).collect::<Vec<_>>(),
         "counts": s.counts,
         "reference": s.reference,
+        "stale_after_s": s.stale_after_s,
     })
 }
 
@@ -389,51 +402,71 @@ const PAGE: &str = r##"<!doctype html>
 body{font-family:sans-serif;margin:1em;background:#fafafa;color:#222}
 .v{font-size:2em;font-weight:bold;padding:.1em .4em;border-radius:.2em}
 .PASS{background:#2e7d32;color:#fff}.FAIL{background:#c62828;color:#fff}
-#row{display:flex;gap:2em;flex-wrap:wrap}img{image-rendering:pixelated;width:320px;border:1px solid #ccc}
-td,th{padding:.1em .6em;text-align:left}#alarms li{color:#b71c1c}
+#stale{background:#ff6f00;color:#fff;font-size:1.6em;font-weight:bold;padding:.3em .6em}
+#row,#trends{display:flex;gap:2em;flex-wrap:wrap}img{image-rendering:pixelated;width:320px;border:1px solid #ccc}
+td,th{padding:.1em .6em;text-align:left}#alarms li{color:#b71c1c}.legend{font-size:.85em;color:#555}
 </style></head>
 <body data-polls="0">
+<div id="stale" hidden></div>
 <h1>{FILM}</h1>
 <p>Sample <b id="sample-id">{SAMPLE_ID}</b> <span id="verdict" class="v">&ndash;</span> <span id="time"></span></p>
+<p id="counts"></p>
 <ul id="reasons"></ul>
 <div id="row">
 <div><h2>Thickness, out of tolerance marked</h2><img id="map" alt="latest thickness map" src="/latest.png"></div>
 <div><h2>Latest</h2><table id="stats"></table></div>
 </div>
-<h2>Trend: mean thickness (nm), control limits</h2>
-<div id="trend"></div>
-<p id="capability"></p>
+<div id="trends">
+<div><h2>Trend: mean thickness (nm)</h2><div id="trend"></div><p id="capability"></p></div>
+<div><h2>Trend: index at 550 nm</h2><div id="trend-index"></div><p id="capability-index"></p></div>
+</div>
+<p class="legend">Points: green passed, red failed, oldest left (sample times under the axis). CL centre line and UCL/LCL
+control limits (dashed) from the history; USL/LSL the recipe's tolerance.</p>
 <p id="reference">Reference check: none since start</p>
 <h2>Alarms</h2><ul id="alarms"></ul>
 <script>
 let polls = 0, shown = null;
 const $ = (id) => document.getElementById(id);
 function fmt(v, d) { return (typeof v === 'number') ? v.toFixed(d) : '-'; }
-function drawTrend(h) {
-  const pts = (h.points || []).slice(-100), W = 640, H = 220, P = 40;
-  if (pts.length === 0) { $('trend').innerHTML = '<p>no samples yet</p>'; return; }
-  const ys = pts.map(p => p.thickness_mean).filter(v => typeof v === 'number');
-  const lim = (h.limits || {}).thickness_mean_nm, spec = h.spec || {};
-  const all = ys.concat(lim ? [lim.ucl, lim.lcl] : []).concat([spec.lsl, spec.usl].filter(v => typeof v === 'number'));
+function when(id) {
+  const m = /(\d{4})(\d{2})(\d{2})T(\d{2})(\d{2})(\d{2})Z/.exec(id || '');
+  return m ? `${m[4]}:${m[5]}:${m[6]}` : '';
+}
+function drawTrend(h, o) {
+  const pts = (h.points || []).slice(-100).filter(p => typeof p[o.key] === 'number'), W = 520, H = 220, P = 44;
+  if (pts.length === 0) { $(o.el).innerHTML = '<p>no samples yet</p>'; return; }
+  const ys = pts.map(p => p[o.key]);
+  const lim = (h.limits || {})[o.lim], spec = h.spec || {};
+  const lsl = spec[o.lsl], usl = spec[o.usl];
+  const all = ys.concat(lim ? [lim.ucl, lim.lcl] : []).concat([lsl, usl].filter(v => typeof v === 'number'));
   let lo = Math.min(...all), hi = Math.max(...all); if (hi - lo < 1e-9) { lo -= 1; hi += 1; }
   const x = (i) => P + i * (W - 2 * P) / Math.max(1, pts.length - 1);
-  const y = (v) => H - P / 2 - (v - lo) * (H - P) / (hi - lo);
-  let s = `<svg id="trend-svg" xmlns="http://www.w3.org/2000/svg" width="${W}" height="${H}" style="background:#fff;border:1px solid #ccc">`;
+  const y = (v) => H - P / 2 - 10 - (v - lo) * (H - P - 10) / (hi - lo);
+  let s = `<svg id="${o.svg}" xmlns="http://www.w3.org/2000/svg" width="${W}" height="${H}" style="background:#fff;border:1px solid #ccc">`;
   const line = (v, c, t, dash) => { s += `<line x1="${P}" x2="${W - P}" y1="${y(v)}" y2="${y(v)}" stroke="${c}" ${dash ? 'stroke-dasharray="4 3"' : ''}/><text x="${W - P + 2}" y="${y(v) + 4}" font-size="10" fill="${c}">${t}</text>`; };
   if (lim) { line(lim.center, '#1565c0', 'CL', false); line(lim.ucl, '#e65100', 'UCL', true); line(lim.lcl, '#e65100', 'LCL', true); }
-  if (typeof spec.usl === 'number') { line(spec.usl, '#c62828', 'USL', false); line(spec.lsl, '#c62828', 'LSL', false); }
-  s += '<polyline fill="none" stroke="#333" points="' + pts.map((p, i) => `${x(i)},${y(p.thickness_mean)}`).join(' ') + '"/>';
-  pts.forEach((p, i) => { s += `<circle cx="${x(i)}" cy="${y(p.thickness_mean)}" r="3" fill="${p.pass ? '#2e7d32' : '#c62828'}"><title>${p.sample_id}</title></circle>`; });
-  s += `<text x="4" y="12" font-size="10">${fmt(hi, 1)}</text><text x="4" y="${H - 4}" font-size="10">${fmt(lo, 1)}</text></svg>`;
-  $('trend').innerHTML = s;
-  const c = (h.capability || {}).thickness_mean_nm;
-  $('capability').textContent = c ? `Cpk ${fmt(c.cpk, 2)}, Ppk ${fmt(c.ppk, 2)} over ${pts.length} samples` : '';
+  if (typeof usl === 'number' && typeof lsl === 'number') { line(usl, '#c62828', 'USL', false); line(lsl, '#c62828', 'LSL', false); }
+  s += '<polyline fill="none" stroke="#333" points="' + pts.map((p, i) => `${x(i)},${y(p[o.key])}`).join(' ') + '"/>';
+  pts.forEach((p, i) => { s += `<circle cx="${x(i)}" cy="${y(p[o.key])}" r="3" fill="${p.pass ? '#2e7d32' : '#c62828'}"><title>${p.sample_id}</title></circle>`; });
+  s += `<text x="2" y="12" font-size="10">${fmt(hi, o.d)}</text><text x="2" y="${H - P / 2 - 8}" font-size="10">${fmt(lo, o.d)}</text>`;
+  s += `<line x1="${P}" x2="${W - P}" y1="${H - P / 2}" y2="${H - P / 2}" stroke="#999"/>`;
+  s += `<text x="${P}" y="${H - 6}" font-size="10">${when(pts[0].sample_id)}</text>`;
+  s += `<text x="${W - P}" y="${H - 6}" font-size="10" text-anchor="end">${when(pts[pts.length - 1].sample_id)}</text>`;
+  s += `<text x="${W / 2}" y="${H - 6}" font-size="10" text-anchor="middle">${pts.length} samples (UTC)</text></svg>`;
+  $(o.el).innerHTML = s;
+  const c = (h.capability || {})[o.lim];
+  $(o.cap).textContent = c ? `Cpk ${fmt(c.cpk, 2)}, Ppk ${fmt(c.ppk, 2)} over ${pts.length} samples` : '';
 }
 async function tick() {
   try {
     const j = await (await fetch('/api/latest', {cache: 'no-store'})).json();
     polls += 1; document.body.dataset.polls = String(polls);
-    const r = j.sample;
+    const r = j.sample, c = j.counts || {};
+    $('counts').textContent = `${c.samples || 0} samples since start: ${c.passed || 0} passed, ${c.failed || 0} failed; ${c.alarms || 0} alarms`;
+    const age = r ? (Date.now() - Date.parse(r.timestamp)) / 1000 : NaN;
+    const stale = r && age > j.stale_after_s;
+    $('stale').hidden = !stale;
+    if (stale) { $('stale').textContent = `STALE: no sample for ${fmt(age / 60, 0)} min (the last at ${r.timestamp})`; }
     if (r && r.sample_id !== shown) {
       shown = r.sample_id;
       $('sample-id').textContent = r.sample_id;
@@ -446,13 +479,15 @@ async function tick() {
         `<tr><th>thickness mean</th><td>${fmt(t.mean, 1)} nm</td></tr><tr><th>std</th><td>${fmt(t.std, 2)} nm</td></tr>` +
         `<tr><th>min / max</th><td>${fmt(t.min, 1)} / ${fmt(t.max, 1)} nm</td></tr>` +
         `<tr><th>valid</th><td>${fmt(100 * r.valid_fraction, 1)} %</td></tr><tr><th>latency</th><td>${fmt(r.latency_ms, 0)} ms</td></tr>`;
-      drawTrend(await (await fetch('/api/history', {cache: 'no-store'})).json());
+      const h = await (await fetch('/api/history', {cache: 'no-store'})).json();
+      drawTrend(h, {key: 'thickness_mean', lim: 'thickness_mean_nm', lsl: 'lsl', usl: 'usl', el: 'trend', svg: 'trend-svg', cap: 'capability', d: 1});
+      drawTrend(h, {key: 'index', lim: 'refractive_index', lsl: 'index_lsl', usl: 'index_usl', el: 'trend-index', svg: 'trend-index-svg', cap: 'capability-index', d: 4});
     }
     const ref = j.reference;
     if (ref) {
-      const age = (Date.now() - Date.parse(ref.timestamp)) / 3600e3;
+      const hours = (Date.now() - Date.parse(ref.timestamp)) / 3600e3;
       const d = ref.drift || {};
-      $('reference').textContent = `Reference check (${ref.reference}): ${fmt(age, 1)} h ago, ` +
+      $('reference').textContent = `Reference check (${ref.reference}): ${fmt(hours, 1)} h ago, ` +
         `drift ${fmt(d.thickness_nm, 2)} nm, index ${fmt(d.index, 4)}: ${ref.within ? 'within tolerance' : 'BEYOND TOLERANCE'}`;
     }
     $('alarms').innerHTML = (j.alarms || []).map(a => `<li>${a.sample_id}: ${a.variable} rule ${a.rule} (${a.text}), value ${fmt(a.value, 3)}</li>`).join('');
