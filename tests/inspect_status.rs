@@ -84,18 +84,34 @@ fn api_and_metrics_answer_over_http() {
     assert_eq!(v["alarms"][0]["rule"], 1);
     let h: Value = serde_json::from_str(&get(server.addr(), "/api/history").1).expect("json");
     assert_eq!(h["points"].as_array().map(Vec::len), Some(1));
+    server.set_labels("line7", "zns \"ar\".toml");
     let (_, m) = get(server.addr(), "/metrics");
+    let labels = r#"{line="line7",recipe="zns \"ar\".toml"}"#;
     for line in [
-        "filmscope_samples_total 1",
-        "filmscope_samples_failed_total 1",
-        "filmscope_alarms_total 1",
-        "filmscope_last_pass 0",
-        "filmscope_last_thickness_mean_nm 640",
-        "filmscope_thickness_cpk 1.5",
-        "# TYPE filmscope_samples_total counter",
+        format!("filmscope_samples_total{labels} 1"),
+        format!("filmscope_samples_failed_total{labels} 1"),
+        format!("filmscope_alarms_total{labels} 1"),
+        format!("filmscope_last_pass{labels} 0"),
+        format!("filmscope_last_thickness_mean_nm{labels} 640"),
+        format!("filmscope_thickness_cpk{labels} 1.5"),
+        "# TYPE filmscope_samples_total counter".to_owned(),
+        "# TYPE filmscope_latency_seconds histogram".to_owned(),
+        // 12.5 ms: in the 0.025 s bucket and every one above.
+        r#"filmscope_latency_seconds_bucket{line="line7",recipe="zns \"ar\".toml",le="0.01"} 0"#
+            .to_owned(),
+        r#"filmscope_latency_seconds_bucket{line="line7",recipe="zns \"ar\".toml",le="0.025"} 1"#
+            .to_owned(),
+        r#"filmscope_latency_seconds_bucket{line="line7",recipe="zns \"ar\".toml",le="+Inf"} 1"#
+            .to_owned(),
+        format!("filmscope_latency_seconds_count{labels} 1"),
     ] {
         assert!(m.lines().any(|l| l == line), "{line} in\n{m}");
     }
+    assert!(
+        m.lines()
+            .any(|l| l.starts_with("filmscope_last_sample_timestamp_seconds{")),
+        "{m}"
+    );
     let (head, _) = get(server.addr(), "/nothing");
     assert!(head.contains("404"), "{head}");
 }
@@ -385,4 +401,44 @@ fn a_status_page_that_cannot_listen_is_an_error_at_start() {
         err.contains(&format!("status page on 127.0.0.1:{port}: cannot listen")),
         "{err}"
     );
+}
+
+/// The Grafana dashboard shipped in `docs/grafana/` asks only for metrics `/metrics`
+/// exposes, each with the `line` and `recipe` labels it filters on.
+#[test]
+fn the_grafana_dashboard_queries_metrics_the_server_exposes() {
+    let path = format!(
+        "{}/docs/grafana/filmscope-inspect.json",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let dash: Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).expect("dashboard")).expect("json");
+    let server = StatusServer::start("127.0.0.1", 0, "test film").expect("server");
+    server.set_labels("line1", "demo.toml");
+    server.publish_sample(
+        &record("S000001-A", "PASS", 620.0),
+        None,
+        history(&[620.0]),
+        &[],
+    );
+    let (_, m) = get(server.addr(), "/metrics");
+    let mut asked = 0;
+    for panel in dash["panels"].as_array().expect("panels") {
+        for target in panel["targets"].as_array().expect("targets") {
+            let expr = target["expr"].as_str().expect("expr");
+            for name in expr
+                .split(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+                .filter(|w| w.starts_with("filmscope_"))
+            {
+                asked += 1;
+                let wanted = format!("{name}{{line=\"line1\",recipe=\"demo.toml\"");
+                assert!(
+                    m.contains(&wanted),
+                    "{name} (panel {}) not in\n{m}",
+                    panel["title"]
+                );
+            }
+        }
+    }
+    assert!(asked >= 10, "{asked} metrics asked for");
 }

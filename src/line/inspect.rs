@@ -322,6 +322,12 @@ impl Line {
             match StatusServer::start(&bind, port, &line.opts.recipe.film) {
                 Ok(server) => {
                     server.set_stale_after(stale_after_s);
+                    let recipe_file = line
+                        .opts
+                        .recipe_path
+                        .file_name()
+                        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+                    server.set_labels(&line.opts.recipe.line, &recipe_file);
                     line.say(&format!("status page: {}", server.url()));
                     line.status = Some(server);
                     line.refresh_status_history();

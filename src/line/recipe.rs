@@ -22,6 +22,9 @@ pub struct RecipeError {
 pub struct Recipe {
     /// The film's name (e.g. "ZnS AR coat").
     pub film: String,
+    /// The production line's name, the `line` label of every metric (default `line1`).
+    #[serde(default = "line_default")]
+    pub line: String,
     /// The production lot every record names (`inspect --lot` overrides it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lot: Option<String>,
@@ -396,6 +399,10 @@ fn status_port() -> u16 {
     8088
 }
 
+fn line_default() -> String {
+    "line1".into()
+}
+
 fn stale_after_default() -> f64 {
     600.0
 }
@@ -590,6 +597,7 @@ impl Recipe {
         }
         let usize_in = |key: &str, v: usize, lo: u64, hi: u64| int_in(key, v as u64, lo, hi);
         text("film", &self.film, MAX_NAME)?;
+        text("line", &self.line, MAX_NAME)?;
         if let Some(st) = &self.status {
             num_in("status.stale_after_s", st.stale_after_s, 1.0, 86_400.0)?;
         }

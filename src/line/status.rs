@@ -73,7 +73,17 @@ pub struct StatusState {
     pub reference: Option<Value>,
     /// Seconds without a new sample after which the page shows STALE.
     pub stale_after_s: f64,
+    /// The metrics' labels: the line's name and the recipe's file name.
+    pub labels: (String, String),
+    /// When the latest sample was shown.
+    pub latest_at: Option<std::time::SystemTime>,
+    /// Latency (last row to verdict published) histogram: counts per
+    /// [`LATENCY_BUCKETS_S`] bucket (cumulative when written), their sum in seconds.
+    pub latency: ([u64; LATENCY_BUCKETS_S.len()], f64),
 }
+
+/// Upper bounds of the latency histogram's buckets, seconds (`+Inf` besides).
+pub const LATENCY_BUCKETS_S: [f64; 10] = [0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0];
 
 /// Counters for `/metrics`.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
@@ -141,6 +151,14 @@ impl StatusServer {
             s.counts.failed += 1;
         }
         s.latest = Some(record.clone());
+        s.latest_at = Some(std::time::SystemTime::now());
+        if let Some(ms) = record["latency_ms"].as_f64() {
+            let sec = ms / 1000.0;
+            if let Some(b) = LATENCY_BUCKETS_S.iter().position(|&le| sec <= le) {
+                s.latency.0[b] += 1;
+            }
+            s.latency.1 += sec;
+        }
         if png.is_some() {
             s.latest_png = png;
         }
@@ -164,9 +182,18 @@ impl StatusServer {
         }
     }
 
+    /// The metrics' labels: `line` (the recipe's `line`) and `recipe` (its file name).
+    pub fn set_labels(&self, line: &str, recipe: &str) {
+        self.state.lock().unwrap_or_else(|p| p.into_inner()).labels =
+            (line.to_owned(), recipe.to_owned());
+    }
+
     /// Seconds without a new sample after which the page shows STALE.
     pub fn set_stale_after(&self, seconds: f64) {
-        self.state.lock().unwrap_or_else(|p| p.into_inner()).stale_after_s = seconds;
+        self.state
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .stale_after_s = seconds;
     }
 
     /// Shows a reference check's record (its age on the page counts from its timestamp).
@@ -290,11 +317,46 @@ fn latest(s: &StatusState) -> Value {
 /// Prometheus text exposition of the counters and the latest sample.
 fn metrics(s: &StatusState) -> String {
     let mut m = String::new();
+    let label = |v: &str| {
+        v.replace('\\', "\\\\")
+            .replace('"', "\\\"")
+            .replace('\n', "\\n")
+    };
+    let labels = format!(
+        "line=\"{}\",recipe=\"{}\"",
+        label(&s.labels.0),
+        label(&s.labels.1)
+    );
+    // The latency histogram: cumulative buckets, +Inf, sum and count.
+    let (buckets, sum) = s.latency;
+    let count = s.counts.samples.max(buckets.iter().sum());
+    m.push_str("# HELP filmscope_latency_seconds Last row of the sweep to the verdict published.\n# TYPE filmscope_latency_seconds histogram\n");
+    let mut cumulative = 0;
+    for (le, n) in LATENCY_BUCKETS_S.iter().zip(buckets) {
+        cumulative += n;
+        m.push_str(&format!(
+            "filmscope_latency_seconds_bucket{{{labels},le=\"{le}\"}} {cumulative}\n"
+        ));
+    }
+    m.push_str(&format!(
+        "filmscope_latency_seconds_bucket{{{labels},le=\"+Inf\"}} {count}\nfilmscope_latency_seconds_sum{{{labels}}} {sum}\nfilmscope_latency_seconds_count{{{labels}}} {count}\n"
+    ));
     let mut put = |name: &str, kind: &str, help: &str, v: f64| {
         m.push_str(&format!(
-            "# HELP {name} {help}\n# TYPE {name} {kind}\n{name} {v}\n"
+            "# HELP {name} {help}\n# TYPE {name} {kind}\n{name}{{{labels}}} {v}\n"
         ));
     };
+    if let Some(t) = s.latest_at {
+        let secs = t
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(f64::NAN, |d| d.as_secs_f64());
+        put(
+            "filmscope_last_sample_timestamp_seconds",
+            "gauge",
+            "When the latest sample's verdict was published, Unix time.",
+            secs,
+        );
+    }
     let c = s.counts;
     put(
         "filmscope_samples_total",
