@@ -278,8 +278,9 @@ impl FilmAtAngle {
     /// n cos theta2))` for an extinction coefficient `k` well below `n`: `r23` becomes
     /// `a r23`; the interfaces' own change, of order `k / n`, is left out), with `d R / d c` and
     /// `d R / d a`; averaged over the polarisations as [`FilmAtAngle::reflectance_at_cos`]. A
-    /// back face's return is added as for a lossless film (the film's loss on the way back,
-    /// of order `k / n` of it, is left out).
+    /// back face's return is added as for a lossless film: the film's loss on the way
+    /// through and back is left out (with it, a real film's fit traded absorption against
+    /// its index), so an absorbing film over a bare back face misfits by that loss.
     #[inline]
     pub fn absorbing_at_cos(&self, c: f64, a: f64) -> (f64, f64, f64) {
         let (mut r, mut dc, mut da) = (0.0, 0.0, 0.0);

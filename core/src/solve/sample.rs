@@ -60,6 +60,11 @@ pub const MODEL_PENALTY: f64 = 25.0;
 pub const GATE_CHI2_NU: f64 = 1.5;
 /// An index whose standard error at 550 nm exceeds this is reported as under-determined.
 pub const MAX_INDEX_SIGMA: f64 = 0.01;
+/// The largest standard error of the index at 550 nm, the misfit common to the sites
+/// included ([`Residual::shared_factor`]), with which an index is still given: beyond it a
+/// systematic misfit (a thin film's level traded with a rig's stray light) may pull the
+/// index further than the sites' own precision says.
+pub const MAX_INDEX_ACCURACY: f64 = 0.02;
 /// A model whose refined fit leaves a reduced chi-square above this has its sites seated
 /// again under it and is refined once more.
 pub const RESEAT_CHI2_NU: f64 = 1.2;
@@ -363,7 +368,8 @@ pub enum Failure {
     TooLittleData,
     /// No model fits the spectra within the noise, even from a second start.
     NoFit,
-    /// The index is under-determined (its standard error exceeds [`MAX_INDEX_SIGMA`]).
+    /// The index is under-determined (its standard error exceeds [`MAX_INDEX_SIGMA`], or
+    /// [`MAX_INDEX_ACCURACY`] with the common misfit's share).
     Underdetermined,
     /// The given index ([`hold_index`]) does not fit the spectra within the noise.
     GivenIndexMisfit,
@@ -375,7 +381,7 @@ impl Failure {
         match self {
             Self::TooLittleData => "too few usable sampled pixels or angles to fit an index",
             Self::NoFit => "no index model fits the sampled spectra within their noise and the tolerated model error ([fit] model_error): wrong metadata (angles, polarisation, substrate, back face), an undeclared bare back face or a second layer, or a film the single-layer model cannot describe",
-            Self::Underdetermined => "the sampled spectra do not determine the index (its standard error at 550 nm exceeds 0.01): a film too thin or too close to its substrate's index",
+            Self::Underdetermined => "the sampled spectra do not determine the index (its standard error at 550 nm exceeds 0.01, or 0.02 with the model's misfit common to the sites): a film too thin or too close to its substrate's index, or a misfit the single-layer model trades with the index",
             Self::GivenIndexMisfit => "the given film index does not fit the sampled spectra within their noise and the tolerated model error: not this film's index (fit it instead: leave out --film-index), or wrong metadata (angles, polarisation, substrate)",
         }
     }
@@ -2058,7 +2064,7 @@ impl Problem<'_> {
         let misfit = fit.model_error > 0.0 && !within;
         fit.failure = if c.chi2_nu > GATE_CHI2_NU || misfit {
             Some(Failure::NoFit)
-        } else if determined > MAX_INDEX_SIGMA {
+        } else if determined > MAX_INDEX_SIGMA || c.n550_sigma > MAX_INDEX_ACCURACY {
             Some(Failure::Underdetermined)
         } else {
             None
@@ -2301,7 +2307,8 @@ impl Problem<'_> {
     /// thicknesses `t` (both updated), by turns: the terms by weighted least squares of the
     /// measured spectra on the model, then the index and thicknesses under them. The terms
     /// when the capture has the angle leverage to tell them from the index and their
-    /// chi-square gain exceeds their BIC penalty (`ln n` a parameter), else `None` (`best`
+    /// chi-square gain exceeds their BIC penalty (`ln n` a parameter) and none sits at the
+    /// end of its range ([`TERM_SCALE`], the top of [`TERM_OFFSET`]), else `None` (`best`
     /// and `t` as they were).
     fn with_terms(&self, best: &mut Candidate, t: &mut [f64; MAX_SITES]) -> Option<Terms> {
         let angles = self.geo.angles_deg;
@@ -2322,8 +2329,14 @@ impl Problem<'_> {
             trial.terms = self.terms_for(cand.kind, &cand.params, &tt)?;
             cand = trial.refine(cand.kind, cand.params, &mut tt, MAX_STEPS)?;
         }
+        // A scale at either end of its range, or an offset at its top, is the terms mopping
+        // up a misfit of another cause ([`Problem::with_nuisance`]): not taken.
+        let at_bound = (0..na.min(NOISE_ANGLES)).any(|a| {
+            let (s, o) = (trial.terms.scale[a], trial.terms.offset[a]);
+            s <= TERM_SCALE[0] || s >= TERM_SCALE[1] || o >= TERM_OFFSET[1]
+        });
         let penalty = 2.0 * na as f64 * libm::log(n.max(2) as f64);
-        if cand.chi2 + penalty < before {
+        if !at_bound && cand.chi2 + penalty < before {
             *best = cand;
             *t = tt;
             Some(trial.terms)
