@@ -96,6 +96,17 @@ fn inspect(recipe: &Path, out: &Path, extra: &[&str]) -> Command {
     c
 }
 
+/// [`inspect`] run to its end, which must succeed (its stderr shown otherwise).
+fn inspect_ok(recipe: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let run = inspect(recipe, out, extra).output().expect("run inspect");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    run
+}
+
 // ---------------------------------------------------------------- the broker
 
 struct Broker {
@@ -208,7 +219,7 @@ fn three_simulated_samples_judged_written_and_published() {
     let got = port.map(|p| subscribe(p, "filmscope/line1/+"));
     let rec = recipe(dir.path(), port, "");
     let out = dir.path().join("line");
-    let run = inspect(
+    let run = inspect_ok(
         &rec,
         &out,
         &[
@@ -220,13 +231,6 @@ fn three_simulated_samples_judged_written_and_published() {
             "--operator",
             "Ann, B.",
         ],
-    )
-    .output()
-    .expect("run");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
     );
     let summary: Value =
         serde_json::from_slice(run.stdout.split(|&b| b == b'\n').next().expect("line"))
@@ -410,14 +414,7 @@ fn restart_after_kill_9_continues_numbering() {
     f.write_all(b"{\"kind\":\"sample\",\"sample_id\":\"S9")
         .expect("torn");
     drop(f);
-    let run = inspect(&rec, &out, &["--samples", "2"])
-        .output()
-        .expect("restart");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    inspect_ok(&rec, &out, &["--samples", "2"]);
     let recs = samples(&out);
     assert!(recs.len() >= before + 2, "{} then {}", before, recs.len());
     let counters: Vec<u64> = recs.iter().filter_map(|r| r["counter"].as_u64()).collect();
@@ -660,14 +657,7 @@ fn a_disagreeing_held_index_is_re_solved() {
     )
     .expect("write");
     let out = dir.path().join("hold");
-    let run = inspect(&hold, &out, &["--samples", "1"])
-        .output()
-        .expect("run");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    inspect_ok(&hold, &out, &["--samples", "1"]);
     let r = &samples(&out)[0];
     assert_eq!(r["index_resolved"], true, "{r}");
     let n = r["refractive_index"].as_f64().expect("index");
@@ -679,14 +669,7 @@ fn a_disagreeing_held_index_is_re_solved() {
     let solve = dir.path().join("solve.toml");
     std::fs::write(&solve, text.replace("mode = \"carry\"", "mode = \"solve\"")).expect("write");
     let out = dir.path().join("solve");
-    let run = inspect(&solve, &out, &["--samples", "1"])
-        .output()
-        .expect("run");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    inspect_ok(&solve, &out, &["--samples", "1"]);
     let r = &samples(&out)[0];
     assert_eq!(r["index_resolved"], false);
     assert_eq!(r["verdict"], "PASS", "{r}");
@@ -699,26 +682,12 @@ fn a_folder_without_its_line_gets_it_on_restart() {
     let dir = tempdir();
     let rec = recipe(dir.path(), None, "");
     let out = dir.path().join("line");
-    let run = inspect(&rec, &out, &["--samples", "2"])
-        .output()
-        .expect("run");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    inspect_ok(&rec, &out, &["--samples", "2"]);
     let text = std::fs::read_to_string(out.join("results.jsonl")).expect("results");
     let first_line = text.lines().next().expect("line");
     let lost: Value = serde_json::from_str(text.lines().last().expect("last")).expect("json");
     std::fs::write(out.join("results.jsonl"), format!("{first_line}\n")).expect("cut");
-    let run = inspect(&rec, &out, &["--samples", "1"])
-        .output()
-        .expect("restart");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    inspect_ok(&rec, &out, &["--samples", "1"]);
     let recs = samples(&out);
     let counters: Vec<u64> = recs.iter().filter_map(|r| r["counter"].as_u64()).collect();
     assert_eq!(counters, vec![1, 2, 3]);
@@ -735,14 +704,7 @@ fn a_record_missing_below_the_last_counter_is_reconciled_on_restart() {
     let dir = tempdir();
     let rec = recipe(dir.path(), None, "");
     let out = dir.path().join("line");
-    let run = inspect(&rec, &out, &["--samples", "3"])
-        .output()
-        .expect("run");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    inspect_ok(&rec, &out, &["--samples", "3"]);
     let text = std::fs::read_to_string(out.join("results.jsonl")).expect("results");
     let (lost, kept): (Vec<&str>, Vec<&str>) = text
         .lines()
@@ -750,14 +712,7 @@ fn a_record_missing_below_the_last_counter_is_reconciled_on_restart() {
     assert_eq!(lost.len(), 1, "{text}");
     let lost: Value = serde_json::from_str(lost[0]).expect("json");
     std::fs::write(out.join("results.jsonl"), kept.join("\n") + "\n").expect("cut");
-    let run = inspect(&rec, &out, &["--samples", "1"])
-        .output()
-        .expect("restart");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    inspect_ok(&rec, &out, &["--samples", "1"]);
     let recs = samples(&out);
     let mut counters: Vec<u64> = recs.iter().filter_map(|r| r["counter"].as_u64()).collect();
     assert_eq!(
@@ -858,14 +813,7 @@ fn a_reference_check_records_its_drift_and_alarms_beyond_tolerance() {
         ));
         std::fs::write(&rec, text).expect("recipe");
         let out = dir.path().join(format!("line-{certified}"));
-        let run = inspect(&rec, &out, &["--samples", "1", "--reference"])
-            .output()
-            .expect("run");
-        assert!(
-            run.status.success(),
-            "{}",
-            String::from_utf8_lossy(&run.stderr)
-        );
+        inspect_ok(&rec, &out, &["--samples", "1", "--reference"]);
         let all = records(&out);
         let r = all
             .iter()
