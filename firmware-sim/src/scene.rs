@@ -487,12 +487,13 @@ impl Scene {
         let mut imperfections = match f.imperfections {
             None => crate::imperfect::Imperfections::default(),
             Some(m) => {
-                let bare = match m.back_face.as_deref() {
-                    None | Some("none") => false,
-                    Some("bare") => true,
-                    Some(other) => {
+                let bare = match m.back_face.as_deref().map(BackFace::from_name) {
+                    None => false,
+                    Some(Some(b)) => b == BackFace::Bare,
+                    Some(None) => {
                         return Err(format!(
-                            "[imperfections] back_face = {other:?}: \"none\" or \"bare\""
+                            "[imperfections] back_face = {:?}: \"none\" or \"bare\"",
+                            m.back_face.unwrap_or_default()
                         ))
                     }
                 };

@@ -2221,13 +2221,12 @@ impl Problem<'_> {
             // Over a bare back face the model takes the return through the film as lossless
             // ([`FilmAtAngle::absorbing_at_cos`]): an absorption term there would trade the
             // loss it misses against the index, so it is not offered.
-            let absorption = self.geo.back_face == BackFace::None;
-            if let Some(k) = absorption
-                .then(|| {
-                    kept.with_nuisance(&mut best, &mut tt, &ABSORPTION_GRID, |p, v| p.film_k = v)
-                })
-                .flatten()
-            {
+            let k = if self.geo.back_face == BackFace::None {
+                kept.with_nuisance(&mut best, &mut tt, &ABSORPTION_GRID, |p, v| p.film_k = v)
+            } else {
+                None
+            };
+            if let Some(k) = k {
                 kept.film_k = k.value;
                 found[0] = k;
             }
