@@ -6,9 +6,11 @@
 //! refractiveindex.info's formulas (lambda in um): formula 1, `n^2 - 1 = C1 + sum_i
 //! C_{2i} l^2 / (l^2 - C_{2i+1}^2)`; formula 2, the same with `C_{2i+1}` in place of
 //! `C_{2i+1}^2`; formula 5, `n = C1 + sum_i C_{2i} l^C_{2i+1}` (Cauchy with exponents -2 and
-//! -4); `tabulated n`, rows `wavelength_um n`. A table is read as the three-term Cauchy
-//! fitted to it by least squares ([`Dispersion`] holds formulas, not tables); a formula this
-//! module cannot hold exactly is refused with the reason.
+//! -4); `tabulated n` and `tabulated nk`, rows `wavelength_um n [k]`, held as the table
+//! ([`Dispersion::Table`], interpolated); a formula with a `tabulated k` entry beside it
+//! (absorbing: k above [`CLEAR_K`] somewhere over the visible) as a table of the formula's n
+//! and the table's k at every nm. A formula this module cannot hold exactly is refused with
+//! the reason.
 
 use std::path::Path;
 
@@ -18,7 +20,8 @@ use serde::{Deserialize, Serialize};
 /// The dispersion described by `value`: a number (a constant index), a library name or a
 /// path to a refractiveindex.info YAML file (a string), or an object with `model` =
 /// `constant` (`n`), `cauchy` (`a`, `b_um2`, optional `c_um4`), `sellmeier` (optional `a`,
-/// default 1; lists `b` and `c_um` of up to three terms) or `material` (`name`). Other keys
+/// default 1; lists `b` and `c_um` of up to three terms), `table` (`rows`, each
+/// `[wavelength_um, n, k]`) or `material` (`name`). Other keys
 /// (`n_550`, `n_table`, `formula`) are ignored, so `summary.json`'s `dispersion` reads back.
 pub fn dispersion_from_json(value: &serde_json::Value) -> Result<Dispersion, String> {
     use serde_json::Value;
@@ -58,6 +61,11 @@ pub fn dispersion_from_json(value: &serde_json::Value) -> Result<Dispersion, Str
                     let a = if o.contains_key("a") { num("a")? } else { 1.0 };
                     sellmeier(a, &list("b")?, &list("c_um")?)?
                 }
+                Some("table") => {
+                    let record: DispersionRecord = serde_json::from_value(value.clone())
+                        .map_err(|e| format!("dispersion: table: {e}"))?;
+                    record.dispersion()?
+                }
                 Some("material") => {
                     let name = o
                         .get("name")
@@ -67,7 +75,7 @@ pub fn dispersion_from_json(value: &serde_json::Value) -> Result<Dispersion, Str
                 }
                 Some(other) => {
                     return Err(format!(
-                        "dispersion: model {other:?}: expected \"constant\", \"cauchy\", \"sellmeier\" or \"material\""
+                        "dispersion: model {other:?}: expected \"constant\", \"cauchy\", \"sellmeier\", \"table\" or \"material\""
                     ))
                 }
                 None => return Err("dispersion: needs a `model`".into()),
@@ -201,7 +209,7 @@ pub fn to_csv(d: &Dispersion, wavelengths_nm: &[f64]) -> String {
 
 /// The model as a refractiveindex.info YAML entry valid over `range_nm`: formula 1 for a
 /// Sellmeier model, formula 5 for a Cauchy one, `tabulated n` (two rows, the range's ends)
-/// for a constant. `comment` goes into the entry's `COMMENTS`.
+/// for a constant, `tabulated nk` (every row) for a table. `comment` goes into the entry's `COMMENTS`.
 pub fn to_rii_yaml(d: &Dispersion, range_nm: [f64; 2], comment: &str) -> String {
     let range = format!("{} {}", range_nm[0] * 1e-3, range_nm[1] * 1e-3);
     let mut s = String::from("# refractiveindex.info database entry, written by filmscope\n");
@@ -230,6 +238,12 @@ pub fn to_rii_yaml(d: &Dispersion, range_nm: [f64; 2], comment: &str) -> String 
                 }
             }
             s.push_str(&format!("    coefficients: {}\n", c.join(" ")));
+        }
+        Dispersion::Table { rows } => {
+            s.push_str("  - type: tabulated nk\n    data: |\n");
+            for r in rows {
+                s.push_str(&format!("        {} {} {}\n", r[0], r[1], r[2]));
+            }
         }
     }
     s
@@ -299,6 +313,86 @@ pub fn from_rii_yaml(text: &str) -> Result<Dispersion, String> {
         .iter()
         .find(|e| e.kind != "tabulated k")
         .ok_or("no DATA entry with n (expected `DATA:` with `- type: ...`)")?;
+    let n = entry_dispersion(entry)?;
+    match entries.iter().find(|e| e.kind == "tabulated k") {
+        Some(k) if !matches!(n, Dispersion::Table { .. }) => with_extinction(n, k),
+        _ => Ok(n),
+    }
+}
+
+/// A clear material's extinction coefficient: below this over the whole visible a
+/// `tabulated k` beside a formula is left out (a glass's 1e-8, light absorbed over metres).
+pub const CLEAR_K: f64 = 1e-5;
+
+/// The formula `n` with the `tabulated k` entry `k` beside it: `n` itself when `k` stays under
+/// [`CLEAR_K`] over the visible, else a table of both at every nm of the visible.
+fn with_extinction(n: Dispersion, k: &Entry) -> Result<Dispersion, String> {
+    let rows = table_rows(k, 2)?;
+    let k_rows: Vec<[f64; 3]> = rows.iter().map(|r| [r[0], 0.0, r[1]]).collect();
+    let k_of = Dispersion::Table {
+        rows: intern(k_rows),
+    };
+    let grid = || (380..=780).map(f64::from);
+    if grid().all(|l| k_of.extinction_at(l) < CLEAR_K) {
+        return Ok(n);
+    }
+    let table: Vec<[f64; 3]> = grid()
+        .map(|l| [l * 1e-3, n.index_at(l), k_of.extinction_at(l)])
+        .collect();
+    Ok(Dispersion::Table {
+        rows: intern(table),
+    })
+}
+
+/// The rows of a tabulated entry, `cols` numbers each (`wavelength_um n`, `wavelength_um k` or
+/// `wavelength_um n k`): wavelengths positive and increasing, every value finite, n positive
+/// and k not negative.
+fn table_rows(entry: &Entry, cols: usize) -> Result<Vec<Vec<f64>>, String> {
+    let kind = &entry.kind;
+    let mut rows: Vec<Vec<f64>> = Vec::new();
+    for line in &entry.data {
+        let v = line
+            .split_whitespace()
+            .map(|x| {
+                x.parse::<f64>()
+                    .map_err(|_| format!("{kind}: {x:?} is not a number"))
+            })
+            .collect::<Result<Vec<f64>, String>>()?;
+        if v.len() < cols {
+            return Err(format!("{kind}: row {line:?} needs {cols} numbers"));
+        }
+        if !v.iter().all(|x| x.is_finite()) || v[0] <= 0.0 {
+            return Err(format!(
+                "{kind}: row {line:?} needs a positive wavelength and finite values"
+            ));
+        }
+        if rows.last().is_some_and(|r| r[0] >= v[0]) {
+            return Err(format!("{kind}: row {line:?}: wavelengths must increase"));
+        }
+        rows.push(v[..cols].to_vec());
+    }
+    if rows.is_empty() {
+        return Err(format!("{kind}: no rows"));
+    }
+    Ok(rows)
+}
+
+/// The table `rows` with a `'static` life, as [`Dispersion::Table`] holds it: each distinct
+/// table is kept once for the process (a capture, recipe or scene names a few).
+pub fn intern(rows: Vec<[f64; 3]>) -> &'static [[f64; 3]] {
+    use std::sync::Mutex;
+    static TABLES: Mutex<Vec<&'static [[f64; 3]]>> = Mutex::new(Vec::new());
+    let mut tables = TABLES.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(t) = tables.iter().find(|t| **t == rows.as_slice()) {
+        return t;
+    }
+    let t: &'static [[f64; 3]] = Box::leak(rows.into_boxed_slice());
+    tables.push(t);
+    t
+}
+
+/// The dispersion of one `DATA` entry with n (a formula or a table).
+fn entry_dispersion(entry: &Entry) -> Result<Dispersion, String> {
     let numbers = |s: &str| -> Result<Vec<f64>, String> {
         s.split_whitespace()
             .map(|x| {
@@ -429,21 +523,22 @@ pub fn from_rii_yaml(text: &str) -> Result<Dispersion, String> {
             held_within(&rows, "formula 4")
         }
         "tabulated n" | "tabulated nk" => {
-            let mut rows = Vec::new();
-            for line in &entry.data {
-                let v = numbers(line)?;
-                if v.len() < 2 {
-                    return Err(format!(
-                        "{}: row {line:?} needs wavelength and n",
-                        entry.kind
-                    ));
-                }
-                rows.push((v[0], v[1]));
+            let cols = if entry.kind == "tabulated nk" { 3 } else { 2 };
+            let rows = table_rows(entry, cols)?;
+            if let Some(r) = rows.iter().find(|r| r[1] <= 0.0 || r.get(2) < Some(&0.0)) {
+                return Err(format!(
+                    "{}: at {} um n must be positive and k not negative",
+                    entry.kind, r[0]
+                ));
             }
-            cauchy_fit(&rows)
+            let rows = rows
+                .iter()
+                .map(|r| [r[0], r[1], r.get(2).copied().unwrap_or(0.0)])
+                .collect();
+            Ok(Dispersion::Table { rows: intern(rows) })
         }
         other => Err(format!(
-            "DATA type {other:?}: filmscope reads formula 1, 2, 4 and 5 and tabulated n"
+            "DATA type {other:?}: filmscope reads formula 1, 2, 4 and 5, tabulated n and nk (and tabulated k beside a formula)"
         )),
     }
 }
@@ -598,6 +693,11 @@ pub enum DispersionRecord {
         /// The terms' resonances, um.
         c_um: Vec<f64>,
     },
+    /// A measured table, rows `[wavelength_um, n, k]` in increasing wavelength.
+    Table {
+        /// The rows.
+        rows: Vec<[f64; 3]>,
+    },
 }
 
 impl From<Dispersion> for DispersionRecord {
@@ -610,6 +710,9 @@ impl From<Dispersion> for DispersionRecord {
                 let (b, c_um) = terms.map(|(b, c)| (*b, c)).unzip();
                 Self::Sellmeier { a, b, c_um }
             }
+            Dispersion::Table { rows } => Self::Table {
+                rows: rows.to_vec(),
+            },
         }
     }
 }
@@ -631,6 +734,20 @@ impl DispersionRecord {
                 c_um4: *c_um4,
             }),
             Self::Sellmeier { a, b, c_um } => sellmeier(*a, b, c_um),
+            Self::Table { rows } => {
+                let ok = |r: &[f64; 3]| {
+                    r.iter().all(|x| x.is_finite()) && r[0] > 0.0 && r[1] > 0.0 && r[2] >= 0.0
+                };
+                if rows.is_empty()
+                    || !rows.iter().all(ok)
+                    || rows.windows(2).any(|w| w[1][0] <= w[0][0])
+                {
+                    return Err("dispersion: table: `rows` must be [wavelength_um, n, k] with wavelengths positive and increasing, n positive and k not negative".into());
+                }
+                Ok(Dispersion::Table {
+                    rows: intern(rows.clone()),
+                })
+            }
         }
     }
 }

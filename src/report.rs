@@ -157,6 +157,9 @@ fn dispersion_words(d: Option<&DispersionRecord>) -> String {
                 .collect();
             format!("Sellmeier, n² = {a:.4} + {} (λ in µm)", terms.join(" + "))
         }
+        Some(DispersionRecord::Table { rows }) => {
+            format!("a table of n and k, {} rows", rows.len())
+        }
     }
 }
 

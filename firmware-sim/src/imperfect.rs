@@ -284,6 +284,7 @@ mod tests {
                     ambient: 1.0,
                     film: 2.1,
                     substrate: 1.52,
+                    substrate_k: 0.0,
                 };
                 let core = film_reflectance(idx, d, deg, l, pol);
                 assert!(

@@ -9,16 +9,20 @@
 use super::fresnel::{fresnel_r, fresnel_r_real, normal_component, snell_invariant};
 use super::{Complex, Polarization};
 
-/// The three real indices of an ambient / film / substrate stack at one wavelength, and
-/// whether light comes back from the substrate's far side.
+/// The indices of an ambient / film / substrate stack at one wavelength (the substrate's
+/// complex, `substrate + i substrate_k`), and whether light comes back from the substrate's far
+/// side.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Indices {
     /// Ambient medium (air = 1.0).
     pub ambient: f64,
     /// The film.
     pub film: f64,
-    /// The substrate.
+    /// The substrate's (real) index.
     pub substrate: f64,
+    /// The substrate's extinction coefficient: 0 for a clear substrate, above 0 for an
+    /// absorbing one such as silicon (then taken as opaque: no back face returns light).
+    pub substrate_k: f64,
     /// The substrate's back face.
     pub back_face: BackFace,
 }
@@ -55,11 +59,12 @@ impl BackFace {
     }
 }
 
-/// The back face's reflectance `rb` for one pure polarisation (0 without one): the
-/// substrate-to-ambient interface at the substrate's own angle. It is never beyond the
-/// critical angle, the light having entered from the same ambient.
+/// The back face's reflectance `rb` for one pure polarisation (0 without one, and 0 for an
+/// absorbing substrate, which no light crosses): the substrate-to-ambient interface at the
+/// substrate's own angle. It is never beyond the critical angle, the light having entered
+/// from the same ambient.
 fn back_reflectance(idx: Indices, beta: f64, pol: Polarization) -> f64 {
-    if idx.back_face == BackFace::None {
+    if idx.back_face == BackFace::None || idx.substrate_k > 0.0 {
         return 0.0;
     }
     let k3 = idx.substrate * idx.substrate - beta * beta;
@@ -85,6 +90,36 @@ fn with_back(r: f64, rb: f64) -> f64 {
     (r * (1.0 - 2.0 * rb) + rb) / (1.0 - r * rb)
 }
 
+/// The substrate's permittivity `(n + i k)^2` and its normal component `sqrt(eps - beta^2)`:
+/// the branch with a non-negative imaginary part (a wave decaying into the substrate). The
+/// square root through libm, for the same bits in every build.
+fn substrate_wave(idx: Indices, beta: f64) -> (Complex, Complex) {
+    let (n, k) = (idx.substrate, idx.substrate_k);
+    if k == 0.0 {
+        return (Complex::new(n * n, 0.0), normal_component(n, beta));
+    }
+    let eps = Complex::new(n * n - k * k, 2.0 * n * k);
+    let (x, y) = (eps.re - beta * beta, eps.im);
+    let r = libm::hypot(x, y);
+    let re = libm::sqrt(0.5 * (r + x));
+    let im = libm::copysign(libm::sqrt(0.5 * (r - x)), y);
+    (eps, Complex::new(re, im))
+}
+
+/// `r23 = rho e^{i psi}` as a signed real `rho` and a phase `psi` in `(-pi/2, pi/2]`: `(r23, 0)`
+/// exactly for a real `r23`.
+fn signed_polar(r: Complex) -> (f64, f64) {
+    if r.im == 0.0 {
+        return (r.re, 0.0);
+    }
+    let rho = libm::hypot(r.re, r.im);
+    if r.re >= 0.0 {
+        (rho, libm::atan2(r.im, r.re))
+    } else {
+        (-rho, libm::atan2(-r.im, -r.re))
+    }
+}
+
 /// Reflectance of the stack for one pure polarisation (S or P), general case: evanescent waves
 /// (total internal reflection) are handled through complex normal components.
 fn reflectance_pure(
@@ -97,9 +132,11 @@ fn reflectance_pure(
     let beta = snell_invariant(idx.ambient, incidence_deg);
     let kz1 = normal_component(idx.ambient, beta);
     let kz2 = normal_component(idx.film, beta);
-    let kz3 = normal_component(idx.substrate, beta);
-    let r12 = fresnel_r(pol, idx.ambient, idx.film, kz1, kz2);
-    let r23 = fresnel_r(pol, idx.film, idx.substrate, kz2, kz3);
+    let (eps1, eps2) = (idx.ambient * idx.ambient, idx.film * idx.film);
+    let (eps3, kz3) = substrate_wave(idx, beta);
+    let real = |e: f64| Complex::new(e, 0.0);
+    let r12 = fresnel_r(pol, real(eps1), real(eps2), kz1, kz2);
+    let r23 = fresnel_r(pol, real(eps2), eps3, kz2, kz3);
     // i * Delta, with Delta = 4 pi d kz2 / lambda (complex when the film wave is evanescent).
     let k = 4.0 * core::f64::consts::PI * thickness_nm / wavelength_nm;
     // e^{i Delta} through libm (not `Complex::exp`, whose exp, cos and sin are std's or
@@ -146,7 +183,7 @@ pub fn film_reflectance(
 }
 
 /// The interface coefficients of one film at one angle, precomputed for fast evaluation over
-/// many thicknesses and wavelengths (real indices, propagating waves only).
+/// many thicknesses and wavelengths (a real film index, propagating waves only).
 ///
 /// For real `r12`, `r23` the Airy sum reduces to
 /// `R = (r12^2 + r23^2 + 2 r12 r23 cos Delta) / (1 + r12^2 r23^2 + 2 r12 r23 cos Delta)`, a
@@ -155,52 +192,92 @@ pub fn film_reflectance(
 /// `(A + B c) / (E + B c)`, and a bare back face keeps the form: its incoherent return is a
 /// Moebius map of `R` with the same `c` coefficient in numerator and denominator,
 /// `A' = (1 - 2 rb) A + rb E`, `B' = (1 - rb) B`, `E' = E - rb A`.
+///
+/// An absorbing substrate makes `r23 = rho e^{i psi}` complex; `R` is then the same function
+/// of `c = cos(Delta + psi)` with `rho` for `r23`, so every caller evaluates the film at the
+/// phase `Delta + `[`FilmAtAngle::phase_offset`]. Exact for S or P light; for unpolarised
+/// light S and P have their own `psi` and one offset, their fringe-weighted mean, stands for
+/// both (on silicon at 60 degrees they differ by 0.012 rad at 400 nm: 0.3 nm of an oxide's
+/// thickness, 0.09 nm at 550 nm; 0 at normal incidence).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FilmAtAngle {
     /// `n2 cos(theta2)`: the optical path is `phi = 2 d kz_film`.
     pub kz_film: f64,
     /// `(r12, r23, rb)` for S, then P (P used only for unpolarised light): the interfaces'
-    /// amplitude coefficients and the back face's reflectance (0 without one).
+    /// amplitude coefficients (`r23`'s signed modulus when complex) and the back face's
+    /// reflectance (0 without one).
     coeffs: [(f64, f64, f64); 2],
+    /// The phase `psi` of a complex `r23` added to `Delta` (0 on a clear substrate).
+    psi: f64,
     /// 1 for S or P, 2 for unpolarised (mean of both).
     n_pol: usize,
 }
 
 impl FilmAtAngle {
-    /// Precomputes the stack at one angle; `None` when a wave is evanescent in the film or the
-    /// substrate (use [`film_reflectance`] there).
+    /// Precomputes the stack at one angle; `None` when a wave is evanescent in the film or
+    /// (clear) substrate (use [`film_reflectance`] there).
     pub fn new(idx: Indices, incidence_deg: f64, pol: Polarization) -> Option<Self> {
         let beta = snell_invariant(idx.ambient, incidence_deg);
         let k1 = idx.ambient * idx.ambient - beta * beta;
         let k2 = idx.film * idx.film - beta * beta;
         let k3 = idx.substrate * idx.substrate - beta * beta;
-        if k1 <= 0.0 || k2 <= 0.0 || k3 <= 0.0 {
+        if k1 <= 0.0 || k2 <= 0.0 || (k3 <= 0.0 && idx.substrate_k == 0.0) {
             return None;
         }
-        let (kz1, kz2, kz3) = (libm::sqrt(k1), libm::sqrt(k2), libm::sqrt(k3));
-        let pair = |p| {
-            (
-                fresnel_r_real(p, idx.ambient, idx.film, kz1, kz2),
-                fresnel_r_real(p, idx.film, idx.substrate, kz2, kz3),
-            )
+        let (kz1, kz2) = (libm::sqrt(k1), libm::sqrt(k2));
+        let (eps3, kz3) = substrate_wave(idx, beta);
+        let eps2 = idx.film * idx.film;
+        // `r23` and its phase: real (`psi` 0) on a clear substrate.
+        let r23_of = |p| {
+            if idx.substrate_k == 0.0 {
+                (fresnel_r_real(p, idx.film, idx.substrate, kz2, kz3.re), 0.0)
+            } else {
+                let real = |e: f64| Complex::new(e, 0.0);
+                signed_polar(fresnel_r(p, real(eps2), eps3, real(kz2), kz3))
+            }
         };
         let pols = match pol {
             Polarization::Unpolarized => [Polarization::S, Polarization::P],
             p => [p, p],
         };
-        let coeffs = pols.map(|p| {
-            let (r12, r23) = pair(p);
-            (r12, r23, back_reflectance(idx, beta, p))
-        });
+        let mut psi = [0.0; 2];
+        let mut coeffs = [(0.0, 0.0, 0.0); 2];
+        for ((c, ps), p) in coeffs.iter_mut().zip(&mut psi).zip(pols) {
+            let (r23, phase) = r23_of(p);
+            let r12 = fresnel_r_real(p, idx.ambient, idx.film, kz1, kz2);
+            *c = (r12, r23, back_reflectance(idx, beta, p));
+            *ps = phase;
+        }
+        let n_pol = if pol == Polarization::Unpolarized {
+            2
+        } else {
+            1
+        };
+        // One phase for both polarisations: their mean weighted by each fringe's amplitude.
+        let psi = if n_pol == 1 || psi[0] == psi[1] {
+            psi[0]
+        } else {
+            let w = coeffs.map(|(r12, r23, _)| libm::fabs(r12 * r23));
+            if w[0] + w[1] > 0.0 {
+                (w[0] * psi[0] + w[1] * psi[1]) / (w[0] + w[1])
+            } else {
+                0.5 * (psi[0] + psi[1])
+            }
+        };
         Some(Self {
             kz_film: kz2,
             coeffs,
-            n_pol: if pol == Polarization::Unpolarized {
-                2
-            } else {
-                1
-            },
+            psi,
+            n_pol,
         })
+    }
+
+    /// The phase a caller adds to `Delta` before taking `c = cos(Delta + psi)` for
+    /// [`FilmAtAngle::reflectance_at_cos`] and its kin: that of an absorbing substrate's
+    /// `r23`, 0 on a clear one.
+    #[inline]
+    pub fn phase_offset(&self) -> f64 {
+        self.psi
     }
 
     /// `(A, B, E)` of one polarisation's `(r12, r23, rb)`, the back face folded in (the
@@ -225,10 +302,10 @@ impl FilmAtAngle {
         2.0 * thickness_nm * self.kz_film
     }
 
-    /// Reflectance at phase `Delta = 2 pi phi / lambda`.
+    /// Reflectance at phase `Delta = 2 pi phi / lambda` (the substrate's phase added here).
     #[inline]
     pub fn reflectance_at_phase(&self, delta: f64) -> f64 {
-        self.reflectance_at_cos(libm::cos(delta))
+        self.reflectance_at_cos(libm::cos(delta + self.psi))
     }
 
     /// How many polarisations the reflectance averages: 1 (S or P) or 2 (unpolarised).
@@ -351,6 +428,6 @@ impl FilmAtAngle {
     /// Fringe contrast: `R_max - R_min` over a full order (zero when the film is index-matched
     /// to either neighbour: no fringes to find).
     pub fn fringe_contrast(&self) -> f64 {
-        (self.reflectance_at_phase(0.0) - self.reflectance_at_phase(core::f64::consts::PI)).abs()
+        (self.reflectance_at_cos(1.0) - self.reflectance_at_cos(-1.0)).abs()
     }
 }

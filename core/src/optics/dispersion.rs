@@ -1,7 +1,9 @@
 //! Refractive index against wavelength: constant, Cauchy and Sellmeier, in the formula forms
-//! of refractiveindex.info, so a scene is modelled no richer than it needs.
+//! of refractiveindex.info, so a scene is modelled no richer than it needs, and measured
+//! tables of `n` and `k` (silicon) used as tables.
 
-/// A real refractive index as a function of vacuum wavelength.
+/// A refractive index as a function of vacuum wavelength: real, or `n + i k` for a table
+/// with an extinction coefficient.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Dispersion {
     /// The same index at every wavelength.
@@ -28,6 +30,13 @@ pub enum Dispersion {
         b: [f64; 3],
         /// Resonance wavelengths, in um.
         c_um: [f64; 3],
+    },
+    /// A measured table, rows `[wavelength_um, n, k]` in increasing wavelength, interpolated
+    /// linearly (held at its ends): refractiveindex.info's `tabulated nk` (or `tabulated n`,
+    /// `k` 0), used as published rather than refitted.
+    Table {
+        /// The rows.
+        rows: &'static [[f64; 3]],
     },
 }
 
@@ -66,6 +75,17 @@ impl Dispersion {
                 }
                 libm::sqrt(n2)
             }
+            Self::Table { rows } => interpolate(rows, l_um, 1),
+        }
+    }
+
+    /// The extinction coefficient `k` at vacuum wavelength `wavelength_nm`: a table's, 0 for a
+    /// formula (a clear material).
+    #[inline]
+    pub fn extinction_at(&self, wavelength_nm: f64) -> f64 {
+        match *self {
+            Self::Table { rows } => interpolate(rows, wavelength_nm * 1e-3, 2).max(0.0),
+            _ => 0.0,
         }
     }
 
@@ -73,6 +93,24 @@ impl Dispersion {
     pub fn is_constant(&self) -> bool {
         matches!(self, Self::Constant { .. })
     }
+}
+
+/// Column `col` of `rows` (`[wavelength_um, n, k]`, increasing wavelength) at `l_um`, linear
+/// between rows and held at the ends; NaN for no rows.
+fn interpolate(rows: &[[f64; 3]], l_um: f64, col: usize) -> f64 {
+    let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+        return f64::NAN;
+    };
+    if l_um <= first[0] {
+        return first[col];
+    }
+    if l_um >= last[0] {
+        return last[col];
+    }
+    let i = rows.partition_point(|r| r[0] <= l_um);
+    let (a, b) = (rows[i - 1], rows[i]);
+    let t = (l_um - a[0]) / (b[0] - a[0]);
+    a[col] + t * (b[col] - a[col])
 }
 
 /// Published dispersion formulas of coating materials, as listed by refractiveindex.info
@@ -282,13 +320,104 @@ pub mod materials {
         "tio2",
     ];
 
+    /// Crystalline silicon, intrinsic, 300 K: M. A. Green, "Self-consistent optical parameters
+    /// of intrinsic silicon at 300 K including temperature coefficients", Sol. Energ. Mat.
+    /// Sol. Cells 92, 1305-1310 (2008), Table 1, as refractiveindex.info lists it (CC0),
+    /// 0.25-1.0 um at 10 nm and on to 1.1 um: n 4.077, k 0.028 at 550 nm. A table, used as
+    /// one (interpolated linearly).
+    pub const SI_GREEN: Dispersion = Dispersion::Table {
+        rows: &SI_GREEN_ROWS,
+    };
+
+    const SI_GREEN_ROWS: [[f64; 3]; 78] = [
+        [0.25, 1.6650, 3.6650e+00],
+        [0.26, 1.7570, 4.0840e+00],
+        [0.27, 2.0680, 4.6800e+00],
+        [0.28, 2.9590, 5.2870e+00],
+        [0.29, 4.3560, 5.2860e+00],
+        [0.30, 4.9760, 4.2340e+00],
+        [0.31, 5.1210, 3.5980e+00],
+        [0.32, 5.1120, 3.3030e+00],
+        [0.33, 5.1950, 3.1000e+00],
+        [0.34, 5.3010, 2.9770e+00],
+        [0.35, 5.4940, 2.9380e+00],
+        [0.36, 6.0260, 2.9660e+00],
+        [0.37, 6.8910, 2.1710e+00],
+        [0.38, 6.6160, 9.4600e-01],
+        [0.39, 6.0390, 4.4500e-01],
+        [0.40, 5.6130, 2.9600e-01],
+        [0.41, 5.3300, 2.2700e-01],
+        [0.42, 5.1190, 1.7600e-01],
+        [0.43, 4.9490, 1.3800e-01],
+        [0.44, 4.8120, 1.0700e-01],
+        [0.45, 4.6910, 8.6302e-02],
+        [0.46, 4.5870, 7.1381e-02],
+        [0.47, 4.4970, 6.2086e-02],
+        [0.48, 4.4190, 5.5004e-02],
+        [0.49, 4.3500, 4.9131e-02],
+        [0.50, 4.2940, 4.4165e-02],
+        [0.51, 4.2410, 3.9367e-02],
+        [0.52, 4.1930, 3.6415e-02],
+        [0.53, 4.1510, 3.3108e-02],
+        [0.54, 4.1120, 3.0295e-02],
+        [0.55, 4.0770, 2.7968e-02],
+        [0.56, 4.0450, 2.5758e-02],
+        [0.57, 4.0150, 2.4131e-02],
+        [0.58, 3.9880, 2.2524e-02],
+        [0.59, 3.9630, 2.1081e-02],
+        [0.60, 3.9400, 1.9934e-02],
+        [0.61, 3.9180, 1.8446e-02],
+        [0.62, 3.8980, 1.7367e-02],
+        [0.63, 3.8790, 1.6444e-02],
+        [0.64, 3.8610, 1.5432e-02],
+        [0.65, 3.8440, 1.4431e-02],
+        [0.66, 3.8280, 1.3498e-02],
+        [0.67, 3.8130, 1.2743e-02],
+        [0.68, 3.7980, 1.1905e-02],
+        [0.69, 3.7840, 1.1201e-02],
+        [0.70, 3.7720, 1.0528e-02],
+        [0.71, 3.7590, 1.0057e-02],
+        [0.72, 3.7480, 9.6257e-03],
+        [0.73, 3.7370, 8.9461e-03],
+        [0.74, 3.7270, 8.3620e-03],
+        [0.75, 3.7170, 7.8185e-03],
+        [0.76, 3.7080, 7.1970e-03],
+        [0.77, 3.6990, 6.7402e-03],
+        [0.78, 3.6910, 6.3933e-03],
+        [0.79, 3.6830, 5.8340e-03],
+        [0.80, 3.6750, 5.4113e-03],
+        [0.81, 3.6680, 4.9955e-03],
+        [0.82, 3.6610, 4.6134e-03],
+        [0.83, 3.6540, 4.2734e-03],
+        [0.84, 3.6470, 3.9439e-03],
+        [0.85, 3.6410, 3.6120e-03],
+        [0.86, 3.6350, 3.2781e-03],
+        [0.87, 3.6300, 2.9839e-03],
+        [0.88, 3.6240, 2.6821e-03],
+        [0.89, 3.6190, 2.4293e-03],
+        [0.90, 3.6140, 2.1701e-03],
+        [0.91, 3.6090, 1.9625e-03],
+        [0.92, 3.6040, 1.7571e-03],
+        [0.93, 3.6000, 1.5467e-03],
+        [0.94, 3.5950, 1.3689e-03],
+        [0.95, 3.5910, 1.1793e-03],
+        [0.96, 3.5870, 1.0237e-03],
+        [0.97, 3.5830, 8.7225e-04],
+        [0.98, 3.5790, 7.4866e-04],
+        [0.99, 3.5750, 6.2238e-04],
+        [1.00, 3.5720, 5.0930e-04],
+        [1.05, 3.5560, 1.3620e-04],
+        [1.10, 3.5420, 3.0637e-05],
+    ];
+
     /// Every name of the library ([`NAMES`]).
     pub fn names() -> &'static [&'static str] {
         &NAMES
     }
 
     /// The material called `name` (case ignored): one of [`NAMES`], or `zns-debenham`,
-    /// `mgf2-dodge`, `pc` (polycarbonate), or the substrate glass `bk7` (`n-bk7`).
+    /// `mgf2-dodge`, `pc` (polycarbonate), or the substrates `bk7` (`n-bk7`) and `si`
+    /// (`silicon`, absorbing: [`SI_GREEN`]).
     pub fn by_name(name: &str) -> Option<Dispersion> {
         let is = |s: &str| name.eq_ignore_ascii_case(s);
         Some(if is("mgf2") || is("mgf2-dodge") {
@@ -323,6 +452,8 @@ pub mod materials {
             tio2_devore_o()
         } else if is("bk7") || is("n-bk7") {
             bk7_schott()
+        } else if is("si") || is("silicon") {
+            SI_GREEN
         } else {
             return None;
         })

@@ -29,6 +29,7 @@ impl FilmStack {
             ambient: self.ambient_index,
             film: self.film.index_at(wavelength_nm),
             substrate: self.substrate.index_at(wavelength_nm),
+            substrate_k: self.substrate.extinction_at(wavelength_nm),
             back_face: self.back_face,
         }
     }
@@ -120,7 +121,7 @@ impl BandModel {
                 Some(f) => {
                     // Delta = 4 pi d kz / l; R = g(cos Delta); dR/dd = g'(c) (-sin Delta) 4 pi kz / l.
                     let k = 4.0 * core::f64::consts::PI * f.kz_film / l;
-                    let delta = k * thickness_nm;
+                    let delta = k * thickness_nm + f.phase_offset();
                     let (s, c) = (libm::sin(delta), libm::cos(delta));
                     let (r, dr_dc) = f.reflectance_and_slope_at_cos(c);
                     (r, -dr_dc * s * k)

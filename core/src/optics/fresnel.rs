@@ -37,16 +37,23 @@ pub fn normal_component(n: f64, beta: f64) -> Complex {
 }
 
 /// The Fresnel amplitude reflection coefficient for light going from medium `i` to medium `j`
-/// (indices `n_i`, `n_j`, normal components `kz_i`, `kz_j`), for S or P polarisation.
+/// (permittivities `eps_i = n_i^2`, `eps_j = n_j^2`, complex for an absorbing medium; normal
+/// components `kz_i`, `kz_j`), for S or P polarisation.
 ///
 /// S: `(kz_i - kz_j) / (kz_i + kz_j)`, which is eq. 6 of method.md.
 /// P: `(n_j^2 kz_i - n_i^2 kz_j) / (n_j^2 kz_i + n_i^2 kz_j)`, which is eq. 7 multiplied through by
 /// `n_i n_j`. `pol` must be S or P; `Unpolarized` is treated as S (callers average intensities).
-pub fn fresnel_r(pol: Polarization, n_i: f64, n_j: f64, kz_i: Complex, kz_j: Complex) -> Complex {
+pub fn fresnel_r(
+    pol: Polarization,
+    eps_i: Complex,
+    eps_j: Complex,
+    kz_i: Complex,
+    kz_j: Complex,
+) -> Complex {
     match pol {
         Polarization::P => {
-            let a = kz_i * (n_j * n_j);
-            let b = kz_j * (n_i * n_i);
+            let a = kz_i * eps_j;
+            let b = kz_j * eps_i;
             (a - b) / (a + b)
         }
         Polarization::S | Polarization::Unpolarized => (kz_i - kz_j) / (kz_i + kz_j),

@@ -7,6 +7,7 @@ const AIR_PET_MGF2: Indices = Indices {
     ambient: 1.0,
     film: 1.37,
     substrate: 1.65,
+    substrate_k: 0.0,
 };
 
 #[test]
@@ -42,6 +43,7 @@ fn quarter_wave_of_geometric_mean_index_is_antireflective() {
         ambient: 1.0,
         film: n,
         substrate: ns,
+        substrate_k: 0.0,
     };
     let r = film_reflectance(idx, design_nm / (4.0 * n), 0.0, design_nm, Polarization::S);
     assert!(r < 1e-28, "R = {r}");
@@ -62,6 +64,7 @@ fn reflectance_stays_in_unit_interval() {
             ambient: 1.0 + next() * 0.8,
             film: 1.0 + next() * 2.5,
             substrate: 1.0 + next() * 2.0,
+            substrate_k: 0.0,
         };
         let pol = [Polarization::S, Polarization::P, Polarization::Unpolarized]
             [(next() * 3.0) as usize % 3];
@@ -127,6 +130,7 @@ fn total_internal_reflection_reflects_everything() {
         ambient: 1.6,
         film: 1.3,
         substrate: 1.4,
+        substrate_k: 0.0,
     };
     // Beyond the critical angle at the ambient/film interface (asin(1.3/1.6) = 54.3 deg), a
     // thick film lets no light through.

@@ -142,6 +142,7 @@ impl SweepContext {
                 ambient: self.spec.ambient_index,
                 film: index.at(mid),
                 substrate: self.spec.substrate.index_at(mid),
+                substrate_k: self.spec.substrate.extinction_at(mid),
                 back_face: self.spec.back_face,
             },
             incidence_deg,

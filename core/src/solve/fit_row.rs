@@ -1066,6 +1066,7 @@ mod tests {
                 IndexModel::constant(1.9),
                 1.0,
                 1.52,
+                0.0,
                 crate::optics::BackFace::None,
                 Polarization::S,
                 35.0,

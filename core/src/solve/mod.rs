@@ -166,7 +166,7 @@ impl IndexModel {
     }
 
     /// The model of an optics dispersion: constant, Cauchy, or a Sellmeier with one pole
-    /// (`None` for more poles).
+    /// (`None` for more poles or a table).
     pub fn from_dispersion(d: crate::optics::Dispersion) -> Option<Self> {
         use crate::optics::Dispersion as D;
         match d {
@@ -192,6 +192,7 @@ impl IndexModel {
                     }),
                 })
             }
+            D::Table { .. } => None,
         }
     }
 

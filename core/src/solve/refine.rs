@@ -106,12 +106,14 @@ pub fn passband_phase_span(
 struct Node {
     weight: f64,
     phase_per_nm: f64,
+    /// The film's [`FilmAtAngle::phase_offset`] (0 on a clear substrate).
+    phase0: f64,
     film: FilmAtAngle,
 }
 
 impl Node {
     /// The node's weighted reflectance and its weighted thickness derivative, at the phase
-    /// whose cosine and sine are `c` and `s`.
+    /// (its offset included) whose cosine and sine are `c` and `s`.
     #[inline]
     fn model_and_slope(&self, c: f64, s: f64) -> (f64, f64) {
         let (r, dr_dc) = self.film.reflectance_and_slope_at_cos(c);
@@ -129,7 +131,7 @@ impl Node {
     }
 }
 
-/// A phase stepped knot by knot: the cosine and sine of `phase_per_nm * (d0 + h j)` at knot
+/// A phase stepped knot by knot: the cosine and sine of `phase_per_nm * (d0 + h j) + phase0` at knot
 /// `j`, each step a rotation by the knot's phase instead of a sine and a cosine (the
 /// rotation's rounding drifts by about 1e-16 a step: 2e-12 over the most knots a band holds,
 /// far under the knots' f32).
@@ -142,8 +144,8 @@ struct Phasor {
 }
 
 impl Phasor {
-    fn new(phase_per_nm: f64, d0: f64, h: f64) -> Self {
-        let (s, c) = libm::sincos(phase_per_nm * d0);
+    fn new(phase_per_nm: f64, phase0: f64, d0: f64, h: f64) -> Self {
+        let (s, c) = libm::sincos(phase_per_nm * d0 + phase0);
         let (ds, dc) = libm::sincos(phase_per_nm * h);
         Self { c, s, dc, ds }
     }
@@ -330,6 +332,7 @@ impl BandCoef {
         index: IndexModel,
         ambient: f64,
         substrate: f64,
+        substrate_k: f64,
         back_face: BackFace,
         polarization: Polarization,
         incidence_deg: f64,
@@ -343,6 +346,7 @@ impl BandCoef {
                     ambient,
                     film: index.at(l) + dn,
                     substrate,
+                    substrate_k,
                     back_face,
                 },
                 incidence_deg,
@@ -354,6 +358,7 @@ impl BandCoef {
             Some(Node {
                 weight: w,
                 phase_per_nm: 4.0 * core::f64::consts::PI * film.kz_film / l,
+                phase0: film.phase_offset(),
                 film,
             })
         };
@@ -421,10 +426,11 @@ impl BandCoef {
         let nodes = &self.nodes[..self.count];
         let mut at_node = [Phasor::default(); MAX_BAND_NODES];
         for (p, n) in at_node.iter_mut().zip(nodes) {
-            *p = Phasor::new(n.phase_per_nm, d0, h);
+            *p = Phasor::new(n.phase_per_nm, n.phase0, d0, h);
         }
-        let mut centre = Phasor::new(self.centre.phase_per_nm, d0, h);
-        let mut centre_up = Phasor::new(self.centre_up.phase_per_nm, d0, h);
+        let (c, up) = (&self.centre, &self.centre_up);
+        let mut centre = Phasor::new(c.phase_per_nm, c.phase0, d0, h);
+        let mut centre_up = Phasor::new(up.phase_per_nm, up.phase0, d0, h);
         for k in knots.iter_mut() {
             let (mut m, mut slope) = (0.0, 0.0);
             for (p, n) in at_node.iter_mut().zip(nodes) {
@@ -516,7 +522,7 @@ impl BandCoef {
     fn model_and_slope(&self, thickness_nm: f64) -> (f64, f64) {
         let (mut m, mut j) = (0.0, 0.0);
         for n in &self.nodes[..self.count] {
-            let (s, c) = libm::sincos(n.phase_per_nm * thickness_nm);
+            let (s, c) = libm::sincos(n.phase_per_nm * thickness_nm + n.phase0);
             let (r, dr) = n.model_and_slope(c, s);
             m += r;
             j += dr;
@@ -809,6 +815,7 @@ mod tests {
                     index,
                     1.0,
                     1.65,
+                    0.0,
                     BackFace::None,
                     Polarization::P,
                     30.0,
@@ -841,6 +848,7 @@ mod tests {
             IndexModel::constant(1.38),
             1.0,
             1.65,
+            0.0,
             BackFace::None,
             Polarization::S,
             30.0,
@@ -898,6 +906,7 @@ mod tests {
             IndexModel::constant(2.4),
             1.0,
             1.52,
+            0.0,
             BackFace::None,
             Polarization::Unpolarized,
             60.0,
@@ -946,6 +955,7 @@ mod tests {
                 IndexModel::constant(n),
                 1.0,
                 1.52,
+                0.0,
                 BackFace::None,
                 Polarization::S,
                 40.0,
@@ -1011,6 +1021,7 @@ mod tests {
                     IndexModel::constant(n),
                     1.0,
                     1.65,
+                    0.0,
                     BackFace::None,
                     Polarization::S,
                     20.0,

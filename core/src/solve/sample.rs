@@ -1235,6 +1235,10 @@ struct Node {
     phase_per_nm: f64,
     /// The phase per nm one index step up.
     phase_up_per_nm: f64,
+    /// The films' [`FilmAtAngle::phase_offset`]s, at the index and one step up (0 on a clear
+    /// substrate; the other polarisation's film is evaluated at the first).
+    phase0: f64,
+    phase0_up: f64,
     film: FilmAtAngle,
     /// `dR/dn` at the node needs the film one index step up.
     film_up: FilmAtAngle,
@@ -1489,6 +1493,7 @@ impl Problem<'_> {
             ambient: self.geo.ambient_index,
             film,
             substrate: self.geo.substrate.index_at(l_nm),
+            substrate_k: self.geo.substrate.extinction_at(l_nm),
             back_face: self.geo.back_face,
         }
     }
@@ -1530,6 +1535,8 @@ impl Problem<'_> {
                 weight: w,
                 phase_per_nm: 4.0 * core::f64::consts::PI * film.kz_film / l,
                 phase_up_per_nm: 4.0 * core::f64::consts::PI * film_up.kz_film / l,
+                phase0: film.phase_offset(),
+                phase0_up: film_up.phase_offset(),
                 film,
                 film_up,
                 dn_dp,
@@ -1601,7 +1608,7 @@ impl Problem<'_> {
                     let mut jp = [[0.0; BLOCK]; 3];
                     for nd in nodes {
                         for j in 0..BLOCK {
-                            let ph = nd.phase_per_nm * d[j];
+                            let ph = nd.phase_per_nm * d[j] + nd.phase0;
                             let (sn, cs) = sincos_phase(ph);
                             let (r, dr_dc) = nd.film.reflectance_and_slope_at_cos_of::<P>(cs);
                             m[j] += nd.weight * r;
@@ -1609,7 +1616,8 @@ impl Problem<'_> {
                             if INDEX {
                                 // The raised index's phase is a small step `e` away: its
                                 // cosine by the angle sum, `cos e` and `sin e` by their series.
-                                let e = (nd.phase_up_per_nm - nd.phase_per_nm) * d[j];
+                                let e = (nd.phase_up_per_nm - nd.phase_per_nm) * d[j]
+                                    + (nd.phase0_up - nd.phase0);
                                 let (ce, se) = (1.0 - 0.5 * e * e, e - e * e * e / 6.0);
                                 let r_up = nd.film_up.reflectance_at_cos_of::<P>(cs * ce - sn * se);
                                 let dr_dn = (r_up - r) / INDEX_STEP;
@@ -1676,7 +1684,7 @@ impl Problem<'_> {
     fn site_model(&self, nodes: &[Node], d: f64) -> SiteModel {
         let mut out = SiteModel::default();
         for nd in nodes {
-            let ph = nd.phase_per_nm * d;
+            let ph = nd.phase_per_nm * d + nd.phase0;
             let (sn, cs) = (libm::sin(ph), libm::cos(ph));
             let att = self.film_k * nd.absorb_per_nm;
             let a = libm::exp(-att * d);
@@ -1698,7 +1706,7 @@ impl Problem<'_> {
             out.dm_dk += nd.weight * dr_da * -nd.absorb_per_nm * d * a;
             let r_up = nd
                 .film_up
-                .absorbing_at_cos(libm::cos(nd.phase_up_per_nm * d), a)
+                .absorbing_at_cos(libm::cos(nd.phase_up_per_nm * d + nd.phase0_up), a)
                 .0;
             // The index's slope from the measured polarisation alone (the leak is small).
             let dr_dn = (r_up - own) / INDEX_STEP * (1.0 - self.leak);
@@ -2794,7 +2802,7 @@ impl Problem<'_> {
         let model = |f: &(FilmAtAngle, f64, f64), d: f64| -> f64 {
             let ph = f.1 * d;
             let damp = libm::exp(-0.5 * (ph * f.2) * (ph * f.2));
-            f.0.reflectance_at_cos(damp * libm::cos(ph))
+            f.0.reflectance_at_cos(damp * libm::cos(ph + f.0.phase_offset()))
         };
         // The dictionary, row by row of thickness: each column's phase advances by a
         // rotation and its passband damping by a ratio that itself shrinks geometrically,
@@ -2808,8 +2816,9 @@ impl Problem<'_> {
         let mut terms = [[[0.0f64; COLUMNS]; 3]; 2];
         for (j, f) in films.iter().enumerate() {
             let (p0, dp, s2) = (f.1 * t_lo, f.1 * h, f.2 * f.2);
-            st[0][j] = libm::cos(p0);
-            st[1][j] = libm::sin(p0);
+            let psi = f.0.phase_offset();
+            st[0][j] = libm::cos(p0 + psi);
+            st[1][j] = libm::sin(p0 + psi);
             st[2][j] = libm::exp(-0.5 * s2 * p0 * p0);
             st[3][j] = libm::exp(-0.5 * s2 * (2.0 * p0 * dp + dp * dp));
             st[4][j] = libm::exp(-s2 * dp * dp);

@@ -214,6 +214,7 @@ impl SweepSolver {
                     index,
                     self.ctx.spec.ambient_index,
                     self.ctx.spec.substrate.index_at(l),
+                    self.ctx.spec.substrate.extinction_at(l),
                     self.ctx.spec.back_face,
                     self.ctx.spec.polarization,
                     self.ctx.angle_deg,

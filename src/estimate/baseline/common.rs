@@ -193,7 +193,8 @@ pub(crate) fn model_table(
             Some(f) => {
                 for (l, wt) in band.nodes() {
                     let k = 4.0 * core::f64::consts::PI * f.kz_film / l;
-                    let (mut c, mut s) = ((k * d_lo).cos(), (k * d_lo).sin());
+                    let p0 = k * d_lo + f.phase_offset();
+                    let (mut c, mut s) = (p0.cos(), p0.sin());
                     let (cr, sr) = ((k * step).cos(), (k * step).sin());
                     for v in acc.iter_mut() {
                         *v += wt * f.reflectance_at_cos(c);
