@@ -525,7 +525,7 @@ fn entry_dispersion(entry: &Entry) -> Result<Dispersion, String> {
         "tabulated n" | "tabulated nk" => {
             let cols = if entry.kind == "tabulated nk" { 3 } else { 2 };
             let rows = table_rows(entry, cols)?;
-            if let Some(r) = rows.iter().find(|r| r[1] <= 0.0 || r.get(2) < Some(&0.0)) {
+            if let Some(r) = rows.iter().find(|r| r[1] <= 0.0 || r.get(2).is_some_and(|k| *k < 0.0)) {
                 return Err(format!(
                     "{}: at {} um n must be positive and k not negative",
                     entry.kind, r[0]
@@ -801,6 +801,7 @@ mod tests {
             materials::zns_debenham(),
             materials::MGF2_DODGE_O,
             materials::TA2O5_GAO,
+            materials::SI_GREEN,
         ];
         for d in models {
             let yaml = to_rii_yaml(&d, [380.0, 780.0], "test");
@@ -808,12 +809,15 @@ mod tests {
             for l in [380.0, 450.0, 550.0, 650.0, 780.0] {
                 let (a, b) = (d.index_at(l), back.index_at(l));
                 assert!((a - b).abs() < 1e-9, "{d:?} at {l}: {a} vs {b}\n{yaml}");
+                let (a, b) = (d.extinction_at(l), back.extinction_at(l));
+                assert!((a - b).abs() < 1e-12, "{d:?} at {l}: k {a} vs {b}");
             }
         }
     }
 
-    /// A file as the database writes it (formula 2, quoted type, a comment, a k table
-    /// after) and a tabulated one, fitted.
+    /// A file as the database writes it (formula 2, quoted type, a comment, a clear glass's
+    /// k table after), tables held as tables (exact at their rows, linear between), and a
+    /// formula whose k table absorbs held as a table of both.
     #[test]
     fn reads_database_style_entries() {
         let bk7 = "REFERENCES: \"SCHOTT\"\nDATA:\n  - type: formula 2\n    wavelength_range: 0.3 2.5\n    coefficients: 0 1.03961212 0.00600069867 0.231792344 0.0200179144 1.01046945 103.560653\n  - type: tabulated k\n    data: |\n        0.3 1e-6\nSPECS:\n  n_absolute: true\n";
@@ -825,7 +829,22 @@ mod tests {
         );
         let table = "DATA:\n  - type: tabulated n\n    data: |\n        0.4 1.470\n        0.5 1.462\n        0.6 1.458\n        0.7 1.455\n";
         let d = from_rii_yaml(table).expect("table");
-        assert!((d.index_at(500.0) - 1.462).abs() < 1e-3);
+        assert_eq!(d.index_at(500.0), 1.462);
+        assert!((d.index_at(550.0) - 1.460).abs() < 1e-12);
+        assert_eq!(d.extinction_at(550.0), 0.0);
+        let nk = "DATA:\n  - type: tabulated nk\n    data: |\n        0.40 5.613 0.296\n        0.50 4.294 0.044165\n        0.60 3.940 0.019934\n";
+        let d = from_rii_yaml(nk).expect("nk");
+        assert_eq!((d.index_at(500.0), d.extinction_at(500.0)), (4.294, 0.044165));
+        assert!((d.extinction_at(450.0) - 0.5 * (0.296 + 0.044165)).abs() < 1e-12);
+        let absorbing = "DATA:\n  - type: formula 5\n    coefficients: 2.0 0.02 -2\n  - type: tabulated k\n    data: |\n        0.4 0.02\n        0.8 0.0\n";
+        let d = from_rii_yaml(absorbing).expect("formula with k");
+        assert!(matches!(d, Dispersion::Table { .. }), "{d:?}");
+        assert!((d.index_at(500.0) - (2.0 + 0.02 / 0.25)).abs() < 1e-12);
+        assert!((d.extinction_at(600.0) - 0.01).abs() < 1e-12);
+        for bad in ["0.5 1.4\n        0.4 1.5", "0.5 -1.4", "0.5 x"] {
+            let text = format!("DATA:\n  - type: tabulated n\n    data: |\n        {bad}\n");
+            assert!(from_rii_yaml(&text).is_err(), "{bad}");
+        }
         assert!(from_rii_yaml("DATA:\n  - type: formula 3\n    coefficients: 1 2 3\n").is_err());
         // Formula 4, TiO2 (rutile, ordinary; Devore 1951): n^2 = 5.913 + 0.2441 / (l^2 - 0.0803).
         let tio2 = "DATA:\n  - type: formula 4\n    wavelength_range: 0.43 1.53\n    coefficients: 5.913 0.2441 0 0.0803 1\n";

@@ -96,11 +96,12 @@ fn kz(n: C, beta: f64) -> C {
     }
 }
 
-/// `(R, T)` of a film of complex index `n2` and `d_nm` on substrate `n3` from ambient `n1`,
-/// for one pure polarisation (`p`: true for p) at Snell invariant `beta`, wavelength `l_nm`.
-/// `T` is the power into the substrate (lossless film: `1 - R`).
-fn film_rt(n1: f64, n2: C, n3: f64, d_nm: f64, beta: f64, l_nm: f64, p: bool) -> (f64, f64) {
-    let (n1c, n3c) = (C::new(n1, 0.0), C::new(n3, 0.0));
+/// `(R, T)` of a film of complex index `n2` and `d_nm` on substrate `n3c` (complex for an
+/// absorbing substrate) from ambient `n1`, for one pure polarisation (`p`: true for p) at
+/// Snell invariant `beta`, wavelength `l_nm`. `T` is the power into a clear substrate
+/// (lossless film: `1 - R`).
+fn film_rt(n1: f64, n2: C, n3c: C, d_nm: f64, beta: f64, l_nm: f64, p: bool) -> (f64, f64) {
+    let (n1c, n3) = (C::new(n1, 0.0), n3c.re);
     let (k1, k2, k3) = (kz(n1c, beta), kz(n2, beta), kz(n3c, beta));
     let r = |na: C, nb: C, ka: C, kb: C| {
         if p {
@@ -160,9 +161,10 @@ pub fn band_reflectance(
     let beta = stack.ambient_index * deg.to_radians().sin();
     let at = |l: f64, p: bool| -> f64 {
         let n2 = C::new(stack.film.index_at(l), -imp.k_at(l));
-        let n3 = stack.substrate.index_at(l);
-        let (r, t) = film_rt(stack.ambient_index, n2, n3, d_nm, beta, l, p);
-        if imp.bare_back_face {
+        let (n3, k3) = (stack.substrate.index_at(l), stack.substrate.extinction_at(l));
+        let (r, t) = film_rt(stack.ambient_index, n2, C::new(n3, -k3), d_nm, beta, l, p);
+        // An absorbing substrate is opaque: no back face returns light.
+        if imp.bare_back_face && k3 == 0.0 {
             // The film seen from the substrate reflects as from the front when lossless;
             // an absorbing film's small difference is left out.
             let rb = back_face_r(n3, beta, p);

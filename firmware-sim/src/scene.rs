@@ -314,6 +314,11 @@ impl Scene {
             (Some(_), Some(_)) => return Err("[film] gives both `index` and `dispersion`".into()),
             (None, None) => return Err("[film] needs `index` or `dispersion`".into()),
         };
+        if film.extinction_at(550.0) > 0.0 || film.extinction_at(400.0) > 0.0 {
+            return Err(
+                "[film.dispersion] an absorbing material (k above 0): the film's absorption is `[imperfections] film_k`".into(),
+            );
+        }
         let polarization = match f.polarization.as_deref() {
             None => Polarization::S,
             Some(p) => Polarization::from_name(p).ok_or_else(|| {
@@ -569,7 +574,7 @@ fn dispersion(d: DispersionFile, what: &str) -> Result<Dispersion, String> {
         }
         DispersionFile::Material { name } => materials::by_name(&name).ok_or_else(|| {
             format!(
-                "{what} unknown material {name:?} (known: {}, and zns-debenham, mgf2-dodge, bk7)",
+                "{what} unknown material {name:?} (known: {}, and zns-debenham, mgf2-dodge, bk7, si)",
                 materials::names().join(", ")
             )
         })?,
