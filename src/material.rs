@@ -834,7 +834,10 @@ mod tests {
         assert_eq!(d.extinction_at(550.0), 0.0);
         let nk = "DATA:\n  - type: tabulated nk\n    data: |\n        0.40 5.613 0.296\n        0.50 4.294 0.044165\n        0.60 3.940 0.019934\n";
         let d = from_rii_yaml(nk).expect("nk");
-        assert_eq!((d.index_at(500.0), d.extinction_at(500.0)), (4.294, 0.044165));
+        assert_eq!(
+            (d.index_at(500.0), d.extinction_at(500.0)),
+            (4.294, 0.044165)
+        );
         assert!((d.extinction_at(450.0) - 0.5 * (0.296 + 0.044165)).abs() < 1e-12);
         let absorbing = "DATA:\n  - type: formula 5\n    coefficients: 2.0 0.02 -2\n  - type: tabulated k\n    data: |\n        0.4 0.02\n        0.8 0.0\n";
         let d = from_rii_yaml(absorbing).expect("formula with k");

@@ -358,3 +358,45 @@ fn an_index_below_the_ambient_anywhere_in_the_band_is_refused() {
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(err.contains("[film] n(420.0 nm) = -1.2"), "{err}");
 }
+
+/// A film material that absorbs (a `tabulated nk` entry: amorphous-silicon-like k) given as
+/// `--film-index` is refused with one line naming the file and the absorption, nothing
+/// written: the film model is a clear film's, and the thickness would be wrong.
+#[test]
+fn an_absorbing_film_material_is_refused() {
+    let dir = tempdir();
+    let cap = dir.path().join("cap");
+    filmscope::simulate::write_capture(
+        &common::tiny_scene(),
+        &cap,
+        filmscope::simulate::SimulateOptions::default(),
+        &|_| {},
+    )
+    .expect("capture");
+    let yml = dir.path().join("a-si.yml");
+    std::fs::write(
+        &yml,
+        "DATA:\n  - type: tabulated nk\n    data: |\n        0.40 4.6 1.9\n        0.55 4.4 0.60\n        0.80 3.9 0.05\n",
+    )
+    .expect("yml");
+    let out = dir.path().join("est");
+    let run = filmscope()
+        .args([
+            "estimate",
+            s(&cap),
+            "--out",
+            s(&out),
+            "--film-index",
+            s(&yml),
+        ])
+        .output()
+        .expect("run");
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("--film-index") && err.contains("absorbs (k"),
+        "{err}"
+    );
+    assert!(!out.exists(), "nothing written");
+}

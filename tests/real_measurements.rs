@@ -426,8 +426,20 @@ fn thermal_oxide_on_silicon() {
             r.valid_fraction,
             run.result.notes.join("; ")
         );
-        assert!(r.index_error.abs() <= 0.005, "{base_nm}: index error {}", r.index_error);
-        assert!(r.thickness_mae_nm <= 1.0, "{base_nm}: MAE {}", r.thickness_mae_nm);
-        assert!(r.valid_fraction >= 0.99, "{base_nm}: valid {}", r.valid_fraction);
+        assert!(
+            r.index_error.abs() <= 0.005,
+            "{base_nm}: index error {}",
+            r.index_error
+        );
+        assert!(
+            r.thickness_mae_nm <= 1.0,
+            "{base_nm}: MAE {}",
+            r.thickness_mae_nm
+        );
+        assert!(
+            r.valid_fraction >= 0.99,
+            "{base_nm}: valid {}",
+            r.valid_fraction
+        );
     }
 }

@@ -180,3 +180,49 @@ def test_a_declared_bare_back_face_from_tmm_spectra():
     assert plain.summary["valid_fraction"] == 0.0 or abs(plain.n_550 - 1.38) < 0.01, plain
     with pytest.raises(filmscope.FilmscopeError, match="back_face"):
         filmscope.estimate(*args, fwhm_nm=0.5, substrate=1.52, back_face="frosted")
+
+
+# Crystalline silicon at 300 K, M. A. Green, Sol. Energ. Mat. Sol. Cells 92, 1305 (2008),
+# Table 1 (as refractiveindex.info lists it): wavelength nm, n, k.
+GREEN_SI = np.array([
+    (390, 6.039, 0.445), (400, 5.613, 0.296), (410, 5.330, 0.227), (420, 5.119, 0.176),
+    (430, 4.949, 0.138), (440, 4.812, 0.107), (450, 4.691, 0.0863), (460, 4.587, 0.0714),
+    (470, 4.497, 0.0621), (480, 4.419, 0.0550), (490, 4.350, 0.0491), (500, 4.294, 0.0442),
+    (510, 4.241, 0.0394), (520, 4.193, 0.0364), (530, 4.151, 0.0331), (540, 4.112, 0.0303),
+    (550, 4.077, 0.0280), (560, 4.045, 0.0258), (570, 4.015, 0.0241), (580, 3.988, 0.0225),
+    (590, 3.963, 0.0211), (600, 3.940, 0.0199), (610, 3.918, 0.0184), (620, 3.898, 0.0174),
+    (630, 3.879, 0.0164), (640, 3.861, 0.0154), (650, 3.844, 0.0144), (660, 3.828, 0.0135),
+    (670, 3.813, 0.0127), (680, 3.798, 0.0119), (690, 3.784, 0.0112), (700, 3.772, 0.0105),
+    (710, 3.759, 0.0101), (720, 3.748, 0.0096), (730, 3.737, 0.0089),
+])
+
+
+def test_an_oxide_on_silicon_from_tmm_spectra():
+    """Spectra of a 1.46 film on silicon made by tmm (complex substrate index, not filmscope's
+    model): with substrate="si" the index and thickness come back; taken as a clear
+    substrate of silicon's index at 550 nm, the estimate is refused or worse."""
+    tmm = pytest.importorskip("tmm")
+    import math
+
+    wl = np.arange(400.0, 721.0, 4.0)
+    angles = np.array([10.0, 35.0, 60.0])
+    thick = np.linspace(560.0, 640.0, 12)
+    n_si = np.interp(wl, GREEN_SI[:, 0], GREEN_SI[:, 1])
+    k_si = np.interp(wl, GREEN_SI[:, 0], GREEN_SI[:, 2])
+
+    def r(d, a, i):
+        stack = [1.0, 1.46, n_si[i] + 1j * k_si[i]]
+        return tmm.coh_tmm("s", stack, [np.inf, d, np.inf], math.radians(a), wl[i])["R"]
+
+    cols = np.array([[[r(d, a, i) for i in range(len(wl))] for d in thick] for a in angles])
+    rng = np.random.default_rng(5)
+    cube = np.repeat(cols[:, None, :, :], 8, axis=1) + rng.normal(0.0, 2e-4, (3, 8, 12, len(wl)))
+    got = filmscope.estimate(cube, wl, angles, fwhm_nm=0.5, substrate="si")
+    assert abs(got.n_550 - 1.46) < 0.003, got
+    valid = np.isfinite(got.thickness_nm)
+    assert valid.mean() > 0.95
+    err = np.abs(got.thickness_nm - thick[None, :])[valid]
+    assert err.mean() < 1.0, err.mean()
+    clear = filmscope.estimate(cube, wl, angles, fwhm_nm=0.5, substrate=4.077)
+    worse = np.nanmean(np.abs(clear.thickness_nm - thick[None, :])) if np.isfinite(clear.thickness_nm).any() else np.inf
+    assert clear.summary["valid_fraction"] == 0.0 or worse > err.mean(), clear

@@ -220,6 +220,8 @@ pub fn estimate(
     if let Some((name, d)) = &film {
         crate::material::check_over_band(d, &bands, ambient)
             .map_err(|e| anyhow!("--film-index {name:?}: {e}"))?;
+        crate::estimate::known_index::index_model_of(d, &bands)
+            .map_err(|e| anyhow!("--film-index {name:?}: {e}"))?;
     }
     if let Some(s) = &substrate {
         crate::material::check_over_band(&s.dispersion, &bands, ambient)

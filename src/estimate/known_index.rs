@@ -21,8 +21,20 @@ use crate::pipeline::{run_sweep, PipelineError, Prior, PriorUpdate};
 use crate::source::Source;
 
 /// The index model that holds `film` over `bands_nm`: itself when the model can hold it,
-/// else its least-squares three-term Cauchy over the bands.
+/// else its least-squares three-term Cauchy over the bands. A material that absorbs over the
+/// bands (k of [`crate::material::CLEAR_K`] or more: a tabulated nk entry) is refused: the
+/// film model is a clear film's, and its thickness would be wrong.
 pub fn index_model_of(film: &Dispersion, bands_nm: &[f64]) -> Result<IndexModel, String> {
+    if let Some((l, k)) = bands_nm
+        .iter()
+        .map(|&l| (l, film.extinction_at(l)))
+        .find(|&(_, k)| k >= crate::material::CLEAR_K)
+    {
+        return Err(format!(
+            "the film's material absorbs (k {k:.2e} at {l:.0} nm): filmscope measures clear films, whose k is below {:.0e} over the band",
+            crate::material::CLEAR_K
+        ));
+    }
     if let Some(m) = IndexModel::from_dispersion(*film) {
         return Ok(m);
     }
