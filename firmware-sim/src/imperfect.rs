@@ -161,7 +161,10 @@ pub fn band_reflectance(
     let beta = stack.ambient_index * deg.to_radians().sin();
     let at = |l: f64, p: bool| -> f64 {
         let n2 = C::new(stack.film.index_at(l), -imp.k_at(l));
-        let (n3, k3) = (stack.substrate.index_at(l), stack.substrate.extinction_at(l));
+        let (n3, k3) = (
+            stack.substrate.index_at(l),
+            stack.substrate.extinction_at(l),
+        );
         let (r, t) = film_rt(stack.ambient_index, n2, C::new(n3, -k3), d_nm, beta, l, p);
         // An absorbing substrate is opaque: no back face returns light.
         if imp.bare_back_face && k3 == 0.0 {
@@ -303,9 +306,25 @@ mod tests {
     #[test]
     fn power_is_conserved_and_the_back_face_adds_its_reflection() {
         for p in [false, true] {
-            let (r, t) = film_rt(1.0, C::new(2.1, 0.0), 1.52, 333.0, 0.6, 555.0, p);
+            let (r, t) = film_rt(
+                1.0,
+                C::new(2.1, 0.0),
+                C::new(1.52, 0.0),
+                333.0,
+                0.6,
+                555.0,
+                p,
+            );
             assert!((r + t - 1.0).abs() < 1e-12, "{r} + {t}");
-            let (r, t) = film_rt(1.0, C::new(2.1, -0.05), 1.52, 333.0, 0.6, 555.0, p);
+            let (r, t) = film_rt(
+                1.0,
+                C::new(2.1, -0.05),
+                C::new(1.52, 0.0),
+                333.0,
+                0.6,
+                555.0,
+                p,
+            );
             assert!(r + t < 0.99, "{r} + {t}");
         }
         let bare = FilmStack {
