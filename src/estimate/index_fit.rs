@@ -452,6 +452,7 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
             "polariser_leak": term_json(fit.polariser_leak),
             "stage_offset_deg": term_json(fit.stage_offset_deg),
             "wavelength_shift_nm": term_json(fit.wavelength_shift_nm),
+            "flare": term_json(fit.flare),
             "reflectance_terms": fit
                 .reflectance_terms
                 .iter()

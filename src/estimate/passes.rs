@@ -439,8 +439,8 @@ fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
     }
 }
 
-/// What the sample fit found every pixel's data off by (its stage offset, wavelength shift
-/// and each angle's reflectance scale and offset), for the per-pixel passes to take out.
+/// What the sample fit found every pixel's data off by (its stage offset, wavelength shift,
+/// flare and each angle's reflectance scale and offset), for the per-pixel passes to take out.
 fn correction_of(fit: &SampleFit) -> Correction {
     Correction {
         angle_offset_deg: fit.stage_offset_deg.value,
@@ -450,6 +450,7 @@ fn correction_of(fit: &SampleFit) -> Correction {
             .iter()
             .map(|&(s, o)| (s as f32, o as f32))
             .collect(),
+        flare: fit.flare.value as f32,
     }
 }
 

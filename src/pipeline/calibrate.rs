@@ -75,7 +75,10 @@ pub(super) fn calibrate_stage(
                     );
                 }
                 // The solver's data corrected as the sample fit found (the tap keeps them raw).
-                if let Some(&(scale, offset)) = angle.and_then(|a| correction.terms.get(a)) {
+                let terms = angle.and_then(|a| correction.terms.get(a)).copied();
+                if terms.is_some() || correction.flare != 0.0 {
+                    let (scale, offset) = terms.unwrap_or((1.0, 0.0));
+                    let offset = offset + correction.flare;
                     for v in &mut values {
                         *v = (*v - offset) / scale;
                     }

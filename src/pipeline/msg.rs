@@ -79,8 +79,8 @@ pub trait Tap {
 }
 
 /// The sample fit's nuisance terms that apply to every pixel alike: a stage angle offset, a
-/// wavelength shift and each angle's reflectance scale and offset
-/// (`measured = scale x film + offset`).
+/// wavelength shift, a flare and each angle's reflectance scale and offset
+/// (`measured = scale x film + offset + flare`).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Correction {
     /// Added to every measured angle, degrees.
@@ -90,4 +90,6 @@ pub struct Correction {
     /// Each angle's `(scale, offset)` in streaming order (empty: none; an angle past the end
     /// is left as measured).
     pub terms: Vec<(f32, f32)>,
+    /// Subtracted from every measured reflectance (stray light), before the angle's terms.
+    pub flare: f32,
 }

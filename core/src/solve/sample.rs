@@ -124,6 +124,10 @@ const LEAK_GRID: [f64; 5] = [0.0025, 0.005, 0.01, 0.02, 0.04];
 /// Stage angle offsets the search tries first, degrees.
 const STAGE_GRID: [f64; 6] = [-0.8, -0.4, -0.15, 0.15, 0.4, 0.8];
 
+/// Flare (a reflectance offset shared by every angle and band) the search tries first: up to
+/// 0.8 % of the white, the outermost beyond what a rig has ([`Problem::with_nuisance`]).
+const FLARE_GRID: [f64; 6] = [0.0005, 0.001, 0.002, 0.004, 0.006, 0.008];
+
 /// Wavelength shifts the search tries first, nm.
 const SHIFT_GRID: [f64; 6] = [-1.0, -0.5, -0.2, 0.2, 0.5, 1.0];
 
@@ -447,6 +451,10 @@ pub struct SampleFit {
     /// The filter's wavelength calibration shift, nm (added to every band's centre), when the
     /// evidence asked for it (0: none).
     pub wavelength_shift_nm: Term,
+    /// Flare: one reflectance offset at every angle and band (stray light), when the evidence
+    /// asked for it (0: none); each angle's own offset in
+    /// [`SampleFit::reflectance_terms`] comes on top.
+    pub flare: Term,
 }
 
 /// A nuisance term's value and its 1-sigma (from the chi-square's curvature over the term,
@@ -613,6 +621,7 @@ impl SampleFit {
         polariser_leak: Term::NONE,
         stage_offset_deg: Term::NONE,
         wavelength_shift_nm: Term::NONE,
+        flare: Term::NONE,
     };
 
     /// The chosen index model, unless the fit failed.
@@ -862,6 +871,7 @@ fn on_weighed_sites(
         leak: 0.0,
         stage_deg: 0.0,
         shift_nm: 0.0,
+        flare: 0.0,
         par,
     };
     body(&problem, fit, scratch)
@@ -991,6 +1001,7 @@ pub fn seat_pixels(
         leak: 0.0,
         stage_deg: 0.0,
         shift_nm: 0.0,
+        flare: 0.0,
         par,
     };
     let Some((t, sums, margin)) = problem.seat(kind, &params, scratch) else {
@@ -1399,6 +1410,9 @@ struct Problem<'a> {
     /// The filter's wavelength shift, nm, added to every band's centre, when the evidence
     /// asked for it.
     shift_nm: f64,
+    /// Flare: stray light, one reflectance offset at every angle and band, taken out of the
+    /// measured spectra before each angle's terms, when the evidence asked for it.
+    flare: f64,
     /// Where the two halves of the sites' sums run.
     par: &'a dyn Parallel,
 }
@@ -1474,8 +1488,9 @@ impl Terms {
 
 /// Most angles whose reflectance terms are fitted (the marginal covariance's size).
 pub const TERM_MAX_ANGLES: usize = 12;
-/// Index parameters, two terms an angle, the film's absorption and the polariser's leak.
-const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + 2;
+/// Index parameters, two terms an angle, the film's absorption, the polariser's leak and the
+/// flare.
+const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + 3;
 
 impl Problem<'_> {
     /// Site `k`'s measured value at angle `a`, band `b`, its angle's scale and offset taken
@@ -1484,7 +1499,7 @@ impl Problem<'_> {
     fn measured(&self, bands: usize, k: usize, a: usize, b: usize) -> f64 {
         let y = f64::from(self.spectra.centre_at(bands, k, a, b));
         let a = a.min(NOISE_ANGLES - 1);
-        (y - self.terms.offset[a]) / self.terms.scale[a]
+        (y - self.flare - self.terms.offset[a]) / self.terms.scale[a]
     }
 
     /// The indices at vacuum wavelength `l_nm`, the film's being `film`.
@@ -2224,42 +2239,53 @@ impl Problem<'_> {
             retry: true,
             ..*self
         };
-        let mut found = [Term::NONE; 4];
+        // Forward stepwise: each round every term not yet taken is fitted with the index and
+        // thicknesses, and the one whose chi-square falls furthest is taken (when it pays its
+        // BIC penalty, [`Problem::with_nuisance`]); a fixed order let the first term mop up
+        // another's misfit and bend the index. The terms, as [`SampleFit`] reports them:
+        // film absorption, polariser leak, stage offset, wavelength shift, flare.
+        let mut found = [Term::NONE; 5];
         if held.is_none() {
-            // Over a bare back face the model takes the return through the film as lossless
-            // ([`FilmAtAngle::absorbing_at_cos`]): an absorption term there would trade the
-            // loss it misses against the index, so it is not offered.
-            let k = if self.geo.back_face == BackFace::None {
-                kept.with_nuisance(&mut best, &mut tt, &ABSORPTION_GRID, |p, v| p.film_k = v)
-            } else {
-                None
+            let offered = |t: usize| match t {
+                // Over a bare back face the model takes the return through the film as
+                // lossless ([`FilmAtAngle::absorbing_at_cos`]): an absorption term there would
+                // trade the loss it misses against the index.
+                0 => self.geo.back_face == BackFace::None,
+                1 => self.geo.polarization != Polarization::Unpolarized,
+                // One angle cannot tell an angle offset or a flare from the index.
+                2 | 4 => self.geo.angles_deg.len() > 1,
+                _ => true,
             };
-            if let Some(k) = k {
-                kept.film_k = k.value;
-                found[0] = k;
-            }
-            if self.geo.polarization != Polarization::Unpolarized {
-                if let Some(e) =
-                    kept.with_nuisance(&mut best, &mut tt, &LEAK_GRID, |p, v| p.leak = v)
-                {
-                    kept.leak = e.value;
-                    found[1] = e;
+            let mut remaining: heapless::Vec<usize, 5> = (0..5).filter(|&t| offered(t)).collect();
+            loop {
+                let mut pick: Option<(usize, Candidate, [f64; MAX_SITES], Term)> = None;
+                for (i, &t) in remaining.iter().enumerate() {
+                    let (mut b, mut d) = (best, tt);
+                    let (b_, d_) = (&mut b, &mut d);
+                    let got = match t {
+                        0 => kept.with_nuisance(b_, d_, &ABSORPTION_GRID, |p, v| p.film_k = v),
+                        1 => kept.with_nuisance(b_, d_, &LEAK_GRID, |p, v| p.leak = v),
+                        2 => kept.with_nuisance(b_, d_, &STAGE_GRID, |p, v| p.stage_deg = v),
+                        3 => kept.with_nuisance(b_, d_, &SHIFT_GRID, |p, v| p.shift_nm = v),
+                        _ => kept.with_nuisance(b_, d_, &FLARE_GRID, |p, v| p.flare = v),
+                    };
+                    if let Some(term) = got {
+                        if pick.as_ref().is_none_or(|p| b.chi2 < p.1.chi2) {
+                            pick = Some((i, b, d, term));
+                        }
+                    }
                 }
-            }
-            // One angle cannot tell an angle offset from the index.
-            if self.geo.angles_deg.len() > 1 {
-                if let Some(o) =
-                    kept.with_nuisance(&mut best, &mut tt, &STAGE_GRID, |p, v| p.stage_deg = v)
-                {
-                    kept.stage_deg = o.value;
-                    found[2] = o;
+                let Some((i, b, d, term)) = pick else { break };
+                let t = remaining.remove(i);
+                match t {
+                    0 => kept.film_k = term.value,
+                    1 => kept.leak = term.value,
+                    2 => kept.stage_deg = term.value,
+                    3 => kept.shift_nm = term.value,
+                    _ => kept.flare = term.value,
                 }
-            }
-            if let Some(w) =
-                kept.with_nuisance(&mut best, &mut tt, &SHIFT_GRID, |p, v| p.shift_nm = v)
-            {
-                kept.shift_nm = w.value;
-                found[3] = w;
+                found[t] = term;
+                (best, tt) = (b, d);
             }
         }
         let fitted_terms = if held.is_none() {
@@ -2310,6 +2336,7 @@ impl Problem<'_> {
             again.polariser_leak,
             again.stage_offset_deg,
             again.wavelength_shift_nm,
+            again.flare,
         ] = found;
         again.set_aside = aside;
         again.starts = fit.starts;
@@ -2380,7 +2407,7 @@ impl Problem<'_> {
         let sites = self.usable.len();
         let d_max = self.thickest(t);
         let np = kind.params();
-        let (k_slot, leak_slot) = (MARGINAL - 2, MARGINAL - 1);
+        let (k_slot, leak_slot, flare_slot) = (MARGINAL - 3, MARGINAL - 2, MARGINAL - 1);
         let mut h = M::zeros();
         let mut reduce = M::zeros();
         for k in (0..sites).filter(|&k| self.usable[k]) {
@@ -2404,6 +2431,7 @@ impl Problem<'_> {
                     }
                     u[k_slot] = g * fit.dm_dk;
                     u[leak_slot] = g * fit.dm_dleak;
+                    u[flare_slot] = 1.0;
                     h += u * u.transpose() * w;
                     jdd += w * g * g * fit.dm_dd * fit.dm_dd;
                     cross += u * (w * g * fit.dm_dd);
@@ -2427,6 +2455,10 @@ impl Problem<'_> {
         }
         if self.leak > 0.0 {
             let _ = keep.push(leak_slot);
+        }
+        // Each angle's offset holds the flare's share when fitted.
+        if self.flare > 0.0 && !terms {
+            let _ = keep.push(flare_slot);
         }
         let mut sub = M::identity();
         for (i, &ki) in keep.iter().enumerate() {
@@ -2535,7 +2567,7 @@ impl Problem<'_> {
             for b in 0..nb {
                 let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
                 for k in (0..sites).filter(|&k| self.usable[k]) {
-                    let y = f64::from(self.spectra.centre_at(nb, k, a, b));
+                    let y = f64::from(self.spectra.centre_at(nb, k, a, b)) - self.flare;
                     if !y.is_finite() {
                         continue;
                     }
