@@ -316,6 +316,16 @@ fn recipe(dir: &std::path::Path) -> PathBuf {
 }
 
 fn inspect(recipe: &std::path::Path, out: &std::path::Path, port: &str) -> Command {
+    inspect_n(recipe, out, port, "4")
+}
+
+/// `inspect --sim` of `samples` samples with its status page on `port`.
+fn inspect_n(
+    recipe: &std::path::Path,
+    out: &std::path::Path,
+    port: &str,
+    samples: &str,
+) -> Command {
     let mut c = common::filmscope();
     c.args([
         "inspect",
@@ -327,7 +337,7 @@ fn inspect(recipe: &std::path::Path, out: &std::path::Path, port: &str) -> Comma
         "--out",
         common::s(out),
         "--samples",
-        "4",
+        samples,
         "--status-port",
         port,
     ]);
@@ -441,4 +451,190 @@ fn the_grafana_dashboard_queries_metrics_the_server_exposes() {
         }
     }
     assert!(asked >= 10, "{asked} metrics asked for");
+}
+
+/// The sample records of `out`'s results log.
+fn sample_records(out: &std::path::Path) -> Vec<Value> {
+    std::fs::read_to_string(out.join("results.jsonl"))
+        .expect("results")
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter(|r| r["kind"] == "sample")
+        .collect()
+}
+
+/// `filmscope status OUT` on any free port: the child and its address.
+struct StatusChild {
+    child: std::process::Child,
+    addr: std::net::SocketAddr,
+    /// Its standard error, kept open while it runs.
+    _err: std::io::BufReader<std::process::ChildStderr>,
+}
+
+impl Drop for StatusChild {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn serve_status(out: &std::path::Path) -> StatusChild {
+    let mut child = common::filmscope()
+        .args(["status", common::s(out), "--listen", "127.0.0.1:0"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("status");
+    let mut err = std::io::BufReader::new(child.stderr.take().expect("stderr"));
+    let mut first = String::new();
+    std::io::BufRead::read_line(&mut err, &mut first).expect("read");
+    let addr = first
+        .trim()
+        .strip_prefix("status page: http://")
+        .and_then(|u| u.strip_suffix('/'))
+        .and_then(|u| u.parse().ok())
+        .unwrap_or_else(|| panic!("{first}"));
+    StatusChild {
+        child,
+        addr,
+        _err: err,
+    }
+}
+
+/// The body of `GET path` as bytes, with the response head.
+fn get_bytes(addr: std::net::SocketAddr, path: &str) -> (String, Vec<u8>) {
+    let mut s = std::net::TcpStream::connect(addr).expect("connect");
+    s.set_read_timeout(Some(Duration::from_secs(60)))
+        .expect("timeout");
+    write!(s, "GET {path} HTTP/1.0\r\nHost: x\r\n\r\n").expect("send");
+    let mut all = Vec::new();
+    s.read_to_end(&mut all).expect("answer");
+    let at = all.windows(4).position(|w| w == b"\r\n\r\n").expect("http");
+    (
+        String::from_utf8_lossy(&all[..at]).into_owned(),
+        all[at + 4..].to_vec(),
+    )
+}
+
+/// Once `inspect` has stopped, `filmscope status OUT` serves the page, `/api/latest`,
+/// `/api/history`, `/latest.png` and `/metrics` as the line left them; `inspect` leaves
+/// its snapshot whole (no temporary beside it).
+#[test]
+fn the_page_keeps_the_last_state_after_inspect_stops() {
+    let dir = common::tempdir();
+    let rec = recipe(dir.path());
+    let out = dir.path().join("line");
+    let run = inspect(&rec, &out, "0").output().expect("inspect");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let recs = sample_records(&out);
+    assert_eq!(recs.len(), 4);
+    let last = recs[3]["sample_id"].as_str().expect("id").to_owned();
+    let names: Vec<String> = std::fs::read_dir(&out)
+        .expect("out")
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(names.iter().any(|n| n == "status.json"), "{names:?}");
+    assert!(!names.iter().any(|n| n.starts_with('.')), "{names:?}");
+
+    let served = serve_status(&out);
+    let (head, body) = get(served.addr, "/api/latest");
+    assert!(head.contains(" 200 "), "{head}");
+    let latest: Value = serde_json::from_str(&body).expect("json");
+    assert_eq!(latest["sample"]["sample_id"], last.as_str(), "{latest}");
+    assert_eq!(latest["sample"], recs[3], "the record as logged");
+    assert_eq!(latest["counts"]["samples"], 4, "{latest}");
+    let (_, page) = get(served.addr, "/");
+    assert!(page.contains(&last) && page.contains("ZnS-like"), "{page}");
+    let (_, history) = get(served.addr, "/api/history");
+    let history: Value = serde_json::from_str(&history).expect("json");
+    assert_eq!(history["points"].as_array().map(Vec::len), Some(4));
+    assert!(history["spec"]["lsl"].is_number(), "{history}");
+    let (head, png) = get_bytes(served.addr, "/latest.png");
+    assert!(
+        head.contains(" 200 ") && head.contains("image/png"),
+        "{head}"
+    );
+    let on_disk = std::fs::read(out.join("samples").join(&last).join("overlay.png")).expect("png");
+    assert_eq!(png, on_disk, "the latest sample's overlay");
+    let (_, m) = get(served.addr, "/metrics");
+    assert!(
+        m.contains("filmscope_samples_total{line=\"line1\",recipe=\"recipe.toml\"} 4"),
+        "{m}"
+    );
+}
+
+/// A snapshot older than the log (a stop between a record and the snapshot) is brought
+/// up to date from the log; a folder without a snapshot is shown from its log alone.
+#[test]
+fn the_status_command_catches_up_with_the_results_log() {
+    let dir = common::tempdir();
+    let rec = recipe(dir.path());
+    let out = dir.path().join("line");
+    let run = inspect_n(&rec, &out, "0", "2").output().expect("inspect");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let older = std::fs::read(out.join("status.json")).expect("snapshot");
+    let run = inspect_n(&rec, &out, "0", "1")
+        .output()
+        .expect("inspect again");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let recs = sample_records(&out);
+    assert_eq!(recs.len(), 3);
+    std::fs::write(out.join("status.json"), older).expect("older snapshot back");
+    let latest = |out: &std::path::Path| -> Value {
+        let served = serve_status(out);
+        serde_json::from_str(&get(served.addr, "/api/latest").1).expect("json")
+    };
+    let l = latest(&out);
+    assert_eq!(l["sample"], recs[2], "{l}");
+    assert_eq!(
+        l["counts"]["samples"], 3,
+        "2 in the snapshot, 1 from the log: {l}"
+    );
+    std::fs::remove_file(out.join("status.json")).expect("rm");
+    let l = latest(&out);
+    assert_eq!(l["sample"], recs[2], "{l}");
+    assert_eq!(l["counts"]["samples"], 3, "{l}");
+}
+
+/// A folder that is not an `inspect` output, a snapshot that is not one and an address
+/// that is not one: one line each, no page.
+#[test]
+fn the_status_command_refuses_bad_input_with_one_line() {
+    let dir = common::tempdir();
+    let garbage = dir.path().join("garbage");
+    std::fs::create_dir_all(&garbage).expect("mkdir");
+    std::fs::write(garbage.join("status.json"), "{\"counts\": 7").expect("write");
+    for (args, says) in [
+        (
+            vec!["status", common::s(dir.path())],
+            "not a `filmscope inspect --out` folder",
+        ),
+        (vec!["status", common::s(&garbage)], "status.json: "),
+        (
+            vec!["status", common::s(&garbage), "--listen", "8088"],
+            "expected ADDR:PORT",
+        ),
+    ] {
+        let run = common::filmscope().args(&args).output().expect("run");
+        assert!(!run.status.success(), "{args:?}");
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(
+            err.contains(says) && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+    }
 }
