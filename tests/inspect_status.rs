@@ -874,3 +874,42 @@ fn under_a_task_limit_half_open_connections_stop_nothing() {
         cgroup.as_ref().map_or("-".into(), |c| c.refused().to_string())
     );
 }
+
+/// A restart that cannot measure (its disk below the floor) leaves the last sample measured
+/// on the page it leaves behind, with the disk alarm.
+#[test]
+fn a_restart_below_the_floor_keeps_the_last_sample_on_the_page() {
+    let dir = common::tempdir();
+    let rec = recipe(dir.path());
+    let out = dir.path().join("line");
+    let run = inspect_n(&rec, &out, "0", "2").output().expect("inspect");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let text = std::fs::read_to_string(&rec).expect("recipe");
+    let full = dir.path().join("full.toml");
+    let floored: String = text
+        .lines()
+        .map(|l| {
+            if l.starts_with("min_free_bytes") {
+                "min_free_bytes = 1_000_000_000_000_000\n".to_owned()
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    assert_ne!(floored, text);
+    std::fs::write(&full, floored).expect("recipe");
+    let run = inspect_n(&full, &out, "0", "1").output().expect("inspect");
+    assert!(!run.status.success());
+    let recs = sample_records(&out);
+    assert_eq!(recs.len(), 2);
+    let served = serve_status(&out);
+    let l: Value = serde_json::from_str(&get(served.addr, "/api/latest").1).expect("json");
+    assert_eq!(l["sample"], recs[1], "{l}");
+    assert_eq!(l["alarms"][0]["variable"], "disk_free_bytes", "{l}");
+    let (head, _) = get_bytes(served.addr, "/latest.png");
+    assert!(head.contains(" 200 "), "{head}");
+}

@@ -280,6 +280,10 @@ impl Line {
                 line.push_history(r);
             }
         }
+        // The page (and its snapshot) shows the last sample measured until a new one comes.
+        if let Some(last) = records.iter().rev().find(|r| r["kind"] == "sample") {
+            line.board.show_last(last, &out);
+        }
         if line.opts.sim {
             let sim =
                 line.opts.rig.sim.clone().ok_or_else(|| {

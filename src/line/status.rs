@@ -179,6 +179,20 @@ impl StatusBoard {
         }
     }
 
+    /// Shows `record`, a sample measured before this start, as the latest (not counted):
+    /// its overlay PNG and time from its folder under `dir`.
+    pub fn show_last(&self, record: &Value, dir: &Path) {
+        let mut s = self.lock();
+        s.latest = Some(record.clone());
+        if let Some(f) = record_folder(record) {
+            let f = dir.join(f);
+            s.latest_png = std::fs::read(f.join("overlay.png")).ok();
+            s.latest_at = std::fs::metadata(f.join("record.json"))
+                .and_then(|m| m.modified())
+                .ok();
+        }
+    }
+
     /// Shows an alarm that belongs to no sample (the disk below its free-space floor).
     pub fn publish_alarm(&self, alarm: &Value) {
         let mut s = self.lock();
@@ -287,17 +301,7 @@ impl StatusState {
             state.catch_up(r);
         }
         let caught_up_sample = newer.iter().any(|r| r["kind"] == "sample");
-        // The folder a record names, taken only as a path inside `dir`.
-        let folder = state
-            .latest
-            .as_ref()
-            .and_then(|l| l["folder"].as_str())
-            .map(Path::new)
-            .filter(|f| {
-                f.components()
-                    .all(|c| matches!(c, std::path::Component::Normal(_)))
-            });
-        if let Some(f) = folder {
+        if let Some(f) = state.latest.as_ref().and_then(record_folder) {
             let f = dir.join(f);
             state.latest_png = std::fs::read(f.join("overlay.png")).ok();
             if caught_up_sample {
@@ -347,6 +351,15 @@ impl StatusState {
             _ => {}
         }
     }
+}
+
+/// The folder a record names (`folder`), taken only as a relative path that stays inside
+/// the output folder.
+fn record_folder(record: &Value) -> Option<&Path> {
+    record["folder"].as_str().map(Path::new).filter(|f| {
+        f.components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)))
+    })
 }
 
 /// A running status server; stops when dropped. It shows a [`StatusBoard`] (its methods
