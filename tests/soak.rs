@@ -578,6 +578,14 @@ fn soak_broker_restart_disk_floor_slowloris() {
         "no record received that was not logged"
     );
     let duplicates = got.len() - by_seq.len();
+    for r in &got {
+        let seq = r["seq"].as_u64().expect("seq");
+        assert_eq!(
+            Some(&r),
+            logged.get(&seq),
+            "a record received is the one logged"
+        );
+    }
 
     // Flat memory, each run.
     for (run, a, b) in [(1, rss1, rss1_end), (2, rss2, rss2_end)] {
