@@ -63,10 +63,12 @@ fn records(out: &Path) -> Vec<Value> {
         .collect()
 }
 
+/// Sample records in `out`'s log (counted by their text: this is polled).
 fn samples_in(out: &Path) -> u64 {
-    records(out)
-        .iter()
-        .filter(|r| r["kind"] == "sample")
+    std::fs::read_to_string(out.join("results.jsonl"))
+        .unwrap_or_default()
+        .lines()
+        .filter(|l| l.contains("\"kind\":\"sample\""))
         .count() as u64
 }
 
@@ -349,6 +351,23 @@ impl Run {
         }
     }
 
+    /// Waits (bounded by `limit`) until `out` holds `n` sample records; fails at once,
+    /// with its stderr, if `inspect` exits before.
+    fn until(&mut self, what: &str, limit: Duration, out: &Path, n: u64) {
+        let t0 = Instant::now();
+        while samples_in(out) < n {
+            if let Some(st) = self.child.try_wait().expect("wait") {
+                std::thread::sleep(Duration::from_millis(200));
+                panic!(
+                    "inspect exited ({st}) before {what}:\n{}",
+                    self.err.lock().expect("lock").join("\n")
+                );
+            }
+            assert!(t0.elapsed() < limit, "never: {what}");
+            std::thread::sleep(Duration::from_millis(250));
+        }
+    }
+
     /// Resident memory, MB.
     fn rss_mb(&self) -> f64 {
         let status =
@@ -429,26 +448,23 @@ fn soak_broker_restart_disk_floor_slowloris() {
     std::fs::create_dir_all(&broker_dir).expect("broker dir");
     let broker = Broker::start(&bin, &broker_dir, port);
     let sub = subscribe(port);
-    // Room for the run (a sample folder is about 45 kB) above the floor.
-    let disk = Disk::new(dir.path().join("disk"), FLOOR + (32 << 20) + n * (64 << 10));
+    // Room for the run above the floor: a sample takes about 72 KiB of a tmpfs (its files
+    // in whole pages, its records).
+    let disk = Disk::new(dir.path().join("disk"), FLOOR + (32 << 20) + n * (96 << 10));
     let out = disk.dir.join("line");
     let rec = recipe(dir.path(), "recipe.toml", port, FLOOR);
     let long = Duration::from_secs(60 + 5 * n);
 
     // Run 1: the broker restarted a quarter in, the disk filled to its floor half-way.
-    let run = Run::start(&rec, &out, None);
+    let mut run = Run::start(&rec, &out, None);
     let slow = Slowloris::attach(run.page);
     let warm = 3.min(n / 4);
-    wait_until("the first samples", long, || samples_in(&out) >= warm);
+    run.until("the first samples", long, &out, warm);
     let rss1 = run.rss_mb();
-    wait_until("a quarter of the samples", long, || {
-        samples_in(&out) >= n / 4
-    });
+    run.until("a quarter of the samples", long, &out, n / 4);
     broker.stop();
     let k = samples_in(&out);
-    wait_until("2 samples while the broker is down", long, || {
-        samples_in(&out) >= k + 2
-    });
+    run.until("2 samples while the broker is down", long, &out, k + 2);
     let answer = get(run.page, "/api/latest");
     assert!(
         answer.starts_with("HTTP/1.") && answer.contains(" 200 OK"),
@@ -459,7 +475,7 @@ fn soak_broker_restart_disk_floor_slowloris() {
     wait_until("the collector subscribed again", long, || {
         sub.subscribed.load(Ordering::SeqCst) > subs
     });
-    wait_until("half the samples", long, || samples_in(&out) >= n / 2);
+    run.until("half the samples", long, &out, n / 2);
     let rss1_end = run.rss_mb();
     let ballast = disk.dir.join("ballast");
     let stopped_at;
@@ -514,15 +530,16 @@ fn soak_broker_restart_disk_floor_slowloris() {
 
     // Freed: run 2 measures the rest.
     let _ = std::fs::remove_file(&ballast);
-    let run = Run::start(&rec, &out, Some(n - stopped_at));
+    let mut run = Run::start(&rec, &out, Some(n - stopped_at));
     let slow = Slowloris::attach(run.page);
-    wait_until("run 2's first samples", long, || {
-        samples_in(&out) >= stopped_at + warm.min(n - stopped_at)
-    });
+    run.until(
+        "run 2's first samples",
+        long,
+        &out,
+        stopped_at + warm.min(n - stopped_at),
+    );
     let rss2 = run.rss_mb();
-    wait_until("all samples but the last", long, || {
-        samples_in(&out) + 1 >= n
-    });
+    run.until("all samples but the last", long, &out, n - 1);
     let rss2_end = run.rss_mb();
     let (ok, err) = run.wait(long);
     assert!(ok, "{err}");
