@@ -1,6 +1,8 @@
 //! The status page of `filmscope inspect` in headless Chromium: the page, loaded once, shows
 //! a sample published after it loaded (it polls `/api/latest`), with the trend's control
-//! limits; the JSON API and Prometheus `/metrics` over plain HTTP.
+//! limits; the JSON API and Prometheus `/metrics` over plain HTTP; hostile clients, also
+//! under a task limit (a pids cgroup, or RLIMIT_NPROC when not root); `filmscope status`
+//! serving the last state once `inspect` has stopped.
 //!
 //! Chromium is `FILMSCOPE_CHROMIUM` if set, else `chromium` or `chromium-browser` on the
 //! PATH; with `FILMSCOPE_REQUIRE_CHROMIUM=1` a missing browser is a failure.
@@ -316,6 +318,16 @@ fn recipe(dir: &std::path::Path) -> PathBuf {
 }
 
 fn inspect(recipe: &std::path::Path, out: &std::path::Path, port: &str) -> Command {
+    inspect_n(recipe, out, port, "4")
+}
+
+/// `inspect --sim` of `samples` samples with its status page on `port`.
+fn inspect_n(
+    recipe: &std::path::Path,
+    out: &std::path::Path,
+    port: &str,
+    samples: &str,
+) -> Command {
     let mut c = common::filmscope();
     c.args([
         "inspect",
@@ -327,7 +339,7 @@ fn inspect(recipe: &std::path::Path, out: &std::path::Path, port: &str) -> Comma
         "--out",
         common::s(out),
         "--samples",
-        "4",
+        samples,
         "--status-port",
         port,
     ]);
@@ -441,4 +453,463 @@ fn the_grafana_dashboard_queries_metrics_the_server_exposes() {
         }
     }
     assert!(asked >= 10, "{asked} metrics asked for");
+}
+
+/// The sample records of `out`'s results log.
+fn sample_records(out: &std::path::Path) -> Vec<Value> {
+    std::fs::read_to_string(out.join("results.jsonl"))
+        .expect("results")
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter(|r| r["kind"] == "sample")
+        .collect()
+}
+
+/// `filmscope status OUT` on any free port: the child and its address.
+struct StatusChild {
+    child: std::process::Child,
+    addr: std::net::SocketAddr,
+    /// Its standard error, kept open while it runs.
+    _err: std::io::BufReader<std::process::ChildStderr>,
+}
+
+impl Drop for StatusChild {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn serve_status(out: &std::path::Path) -> StatusChild {
+    let mut child = common::filmscope()
+        .args(["status", common::s(out), "--listen", "127.0.0.1:0"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("status");
+    let mut err = std::io::BufReader::new(child.stderr.take().expect("stderr"));
+    let mut first = String::new();
+    std::io::BufRead::read_line(&mut err, &mut first).expect("read");
+    let addr = first
+        .trim()
+        .strip_prefix("status page: http://")
+        .and_then(|u| u.strip_suffix('/'))
+        .and_then(|u| u.parse().ok())
+        .unwrap_or_else(|| panic!("{first}"));
+    StatusChild {
+        child,
+        addr,
+        _err: err,
+    }
+}
+
+/// The body of `GET path` as bytes, with the response head.
+fn get_bytes(addr: std::net::SocketAddr, path: &str) -> (String, Vec<u8>) {
+    let mut s = std::net::TcpStream::connect(addr).expect("connect");
+    s.set_read_timeout(Some(Duration::from_secs(60)))
+        .expect("timeout");
+    write!(s, "GET {path} HTTP/1.0\r\nHost: x\r\n\r\n").expect("send");
+    let mut all = Vec::new();
+    s.read_to_end(&mut all).expect("answer");
+    let at = all.windows(4).position(|w| w == b"\r\n\r\n").expect("http");
+    (
+        String::from_utf8_lossy(&all[..at]).into_owned(),
+        all[at + 4..].to_vec(),
+    )
+}
+
+/// Once `inspect` has stopped, `filmscope status OUT` serves the page, `/api/latest`,
+/// `/api/history`, `/latest.png` and `/metrics` as the line left them; `inspect` leaves
+/// its snapshot whole (no temporary beside it).
+#[test]
+fn the_page_keeps_the_last_state_after_inspect_stops() {
+    let dir = common::tempdir();
+    let rec = recipe(dir.path());
+    let out = dir.path().join("line");
+    let run = inspect(&rec, &out, "0").output().expect("inspect");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let recs = sample_records(&out);
+    assert_eq!(recs.len(), 4);
+    let last = recs[3]["sample_id"].as_str().expect("id").to_owned();
+    let names: Vec<String> = std::fs::read_dir(&out)
+        .expect("out")
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(names.iter().any(|n| n == "status.json"), "{names:?}");
+    assert!(!names.iter().any(|n| n.starts_with('.')), "{names:?}");
+
+    let served = serve_status(&out);
+    let (head, body) = get(served.addr, "/api/latest");
+    assert!(head.contains(" 200 "), "{head}");
+    let latest: Value = serde_json::from_str(&body).expect("json");
+    assert_eq!(latest["sample"]["sample_id"], last.as_str(), "{latest}");
+    assert_eq!(latest["sample"], recs[3], "the record as logged");
+    assert_eq!(latest["counts"]["samples"], 4, "{latest}");
+    let (_, page) = get(served.addr, "/");
+    assert!(page.contains(&last) && page.contains("ZnS-like"), "{page}");
+    let (_, history) = get(served.addr, "/api/history");
+    let history: Value = serde_json::from_str(&history).expect("json");
+    assert_eq!(history["points"].as_array().map(Vec::len), Some(4));
+    assert!(history["spec"]["lsl"].is_number(), "{history}");
+    let (head, png) = get_bytes(served.addr, "/latest.png");
+    assert!(
+        head.contains(" 200 ") && head.contains("image/png"),
+        "{head}"
+    );
+    let on_disk = std::fs::read(out.join("samples").join(&last).join("overlay.png")).expect("png");
+    assert_eq!(png, on_disk, "the latest sample's overlay");
+    let (_, m) = get(served.addr, "/metrics");
+    assert!(
+        m.contains("filmscope_samples_total{line=\"line1\",recipe=\"recipe.toml\"} 4"),
+        "{m}"
+    );
+}
+
+/// A snapshot older than the log (a stop between a record and the snapshot) is brought
+/// up to date from the log; a folder without a snapshot is shown from its log alone.
+#[test]
+fn the_status_command_catches_up_with_the_results_log() {
+    let dir = common::tempdir();
+    let rec = recipe(dir.path());
+    let out = dir.path().join("line");
+    let run = inspect_n(&rec, &out, "0", "2").output().expect("inspect");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let older = std::fs::read(out.join("status.json")).expect("snapshot");
+    let run = inspect_n(&rec, &out, "0", "1")
+        .output()
+        .expect("inspect again");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let recs = sample_records(&out);
+    assert_eq!(recs.len(), 3);
+    std::fs::write(out.join("status.json"), older).expect("older snapshot back");
+    let latest = |out: &std::path::Path| -> Value {
+        let served = serve_status(out);
+        serde_json::from_str(&get(served.addr, "/api/latest").1).expect("json")
+    };
+    let l = latest(&out);
+    assert_eq!(l["sample"], recs[2], "{l}");
+    assert_eq!(
+        l["counts"]["samples"], 3,
+        "2 in the snapshot, 1 from the log: {l}"
+    );
+    std::fs::remove_file(out.join("status.json")).expect("rm");
+    let l = latest(&out);
+    assert_eq!(l["sample"], recs[2], "{l}");
+    assert_eq!(l["counts"]["samples"], 3, "{l}");
+}
+
+/// A folder that is not an `inspect` output, a snapshot that is not one and an address
+/// that is not one: one line each, no page.
+#[test]
+fn the_status_command_refuses_bad_input_with_one_line() {
+    let dir = common::tempdir();
+    let garbage = dir.path().join("garbage");
+    std::fs::create_dir_all(&garbage).expect("mkdir");
+    std::fs::write(garbage.join("status.json"), "{\"counts\": 7").expect("write");
+    for (args, says) in [
+        (
+            vec!["status", common::s(dir.path())],
+            "not a `filmscope inspect --out` folder",
+        ),
+        (vec!["status", common::s(&garbage)], "status.json: "),
+        (
+            vec!["status", common::s(&garbage), "--listen", "8088"],
+            "expected ADDR:PORT",
+        ),
+    ] {
+        let run = common::filmscope().args(&args).output().expect("run");
+        assert!(!run.status.success(), "{args:?}");
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(
+            err.contains(says) && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+    }
+}
+
+/// Tasks (threads) `inspect` may have under the task limit: its own peak is about a dozen,
+/// so a server with a thread a connection could not serve [`HALF_OPEN`] of them.
+const TASKS_MAX: u64 = 64;
+/// Half-open connections held against the page under the task limit.
+const HALF_OPEN: usize = 600;
+
+/// A pids cgroup (what systemd's `TasksMax` sets) limited to [`TASKS_MAX`], removed when
+/// dropped: cgroup v1's `pids` hierarchy or cgroup v2's root, where they can be written.
+struct PidsCgroup(PathBuf);
+
+impl PidsCgroup {
+    fn new() -> Result<Self, String> {
+        let name = format!("filmscope-test-{}", std::process::id());
+        let v1 = PathBuf::from("/sys/fs/cgroup/pids");
+        let v2 = PathBuf::from("/sys/fs/cgroup");
+        let parent = if v1.join("cgroup.procs").exists() {
+            v1
+        } else if std::fs::read_to_string(v2.join("cgroup.controllers"))
+            .is_ok_and(|c| c.split_whitespace().any(|w| w == "pids"))
+        {
+            let _ = std::fs::write(v2.join("cgroup.subtree_control"), "+pids");
+            v2
+        } else {
+            return Err("no pids cgroup controller under /sys/fs/cgroup".into());
+        };
+        let dir = parent.join(name);
+        std::fs::create_dir(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let cg = Self(dir);
+        std::fs::write(cg.0.join("pids.max"), TASKS_MAX.to_string())
+            .map_err(|e| format!("{}/pids.max: {e}", cg.0.display()))?;
+        Ok(cg)
+    }
+
+    /// Times a task could not start for the limit (`pids.events`' `max`).
+    fn refused(&self) -> u64 {
+        std::fs::read_to_string(self.0.join("pids.events"))
+            .unwrap_or_default()
+            .lines()
+            .find_map(|l| l.strip_prefix("max "))
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or(0)
+    }
+}
+
+impl Drop for PidsCgroup {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir(&self.0);
+    }
+}
+
+/// The real user id of this process and the tasks (threads) that user runs: what
+/// RLIMIT_NPROC counts.
+fn user_tasks() -> (u32, u64) {
+    let uid_of = |status: &str| -> Option<u32> {
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix("Uid:"))
+            .and_then(|v| v.split_whitespace().next())
+            .and_then(|v| v.parse().ok())
+    };
+    let me = uid_of(&std::fs::read_to_string("/proc/self/status").unwrap_or_default()).unwrap_or(0);
+    let mut tasks = 0;
+    for p in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+        for t in std::fs::read_dir(p.path().join("task"))
+            .into_iter()
+            .flatten()
+            .flatten()
+        {
+            let status = std::fs::read_to_string(t.path().join("status")).unwrap_or_default();
+            if uid_of(&status) == Some(me) {
+                tasks += 1;
+            }
+        }
+    }
+    (me, tasks)
+}
+
+/// `cmd` run under a task limit: in a pids cgroup where one can be made, else (not root,
+/// which RLIMIT_NPROC does not bind) under `prlimit --nproc`; the cgroup to keep while it
+/// runs and how the limit is set, or why none can be.
+fn under_task_limit(cmd: &Command) -> Result<(Command, Option<PidsCgroup>, String), String> {
+    let program = cmd.get_program().to_owned();
+    let args: Vec<_> = cmd.get_args().map(ToOwned::to_owned).collect();
+    match PidsCgroup::new() {
+        Ok(cg) => {
+            let procs = cg.0.join("cgroup.procs");
+            let mut c = Command::new("sh");
+            c.arg("-c")
+                .arg(format!(
+                    "echo $$ > '{}' && exec \"$0\" \"$@\"",
+                    procs.display()
+                ))
+                .arg(program)
+                .args(args);
+            let how = format!("pids.max = {TASKS_MAX} in {}", cg.0.display());
+            Ok((c, Some(cg), how))
+        }
+        Err(why) => {
+            let (uid, tasks) = user_tasks();
+            if uid == 0 {
+                return Err(format!(
+                    "{why}, and RLIMIT_NPROC does not bind root (no mechanism to limit tasks here)"
+                ));
+            }
+            let limit = tasks + TASKS_MAX;
+            let mut c = Command::new("prlimit");
+            c.arg(format!("--nproc={limit}:{limit}"))
+                .arg("--")
+                .arg(program)
+                .args(args);
+            Ok((
+                c,
+                None,
+                format!("prlimit --nproc={limit} (the user runs {tasks} tasks; {why})"),
+            ))
+        }
+    }
+}
+
+/// Threads of process `pid`.
+fn threads_of(pid: u32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix("Threads:"))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or(0)
+}
+
+/// Under a task limit (systemd's `TasksMax`, as a pids cgroup or RLIMIT_NPROC), 600
+/// half-open connections to the status page neither stop the page nor the estimator:
+/// `inspect` measures every sample and exits 0, and the page answers once they are gone.
+#[test]
+fn under_a_task_limit_half_open_connections_stop_nothing() {
+    let dir = common::tempdir();
+    let rec = recipe(dir.path());
+    let out = dir.path().join("line");
+    let (mut cmd, cgroup, how) = match under_task_limit(&inspect_n(&rec, &out, "0", "12")) {
+        Ok(x) => x,
+        Err(why) => {
+            eprintln!("skipped: {why}");
+            return;
+        }
+    };
+    let mut child = cmd
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("inspect");
+    let mut err = std::io::BufReader::new(child.stderr.take().expect("stderr"));
+    let mut first = String::new();
+    std::io::BufRead::read_line(&mut err, &mut first).expect("read");
+    let addr: std::net::SocketAddr = first
+        .trim()
+        .strip_prefix("status page: http://")
+        .and_then(|u| u.strip_suffix('/'))
+        .and_then(|u| u.parse().ok())
+        .unwrap_or_else(|| panic!("{first}"));
+    let samples = || {
+        std::fs::read_to_string(out.join("results.jsonl"))
+            .unwrap_or_default()
+            .lines()
+            .filter(|l| l.contains("\"kind\":\"sample\""))
+            .count()
+    };
+    let wait_for = |what: &str, n: usize| {
+        let t0 = Instant::now();
+        while samples() < n {
+            assert!(t0.elapsed() < Duration::from_secs(300), "never: {what}");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    };
+    wait_for("the first sample", 1);
+    let mut held = Vec::new();
+    for _ in 0..HALF_OPEN {
+        // Past the server's bound a connection is closed as it comes: counted, not fatal.
+        if let Ok(mut s) = std::net::TcpStream::connect_timeout(&addr, Duration::from_secs(2)) {
+            if s.write_all(b"GET / HTTP/1.1\r\nHost: x\r\nX-Slow: ")
+                .is_ok()
+            {
+                held.push(s);
+            }
+        }
+    }
+    let threads = threads_of(child.id());
+    let k = samples();
+    wait_for("2 samples while the connections are held", k + 2);
+    drop(held);
+    // The server sees them close at once; a bounded retry covers the moment it takes.
+    let t0 = Instant::now();
+    let answer = loop {
+        let got = std::net::TcpStream::connect(addr).ok().and_then(|mut s| {
+            s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+            write!(s, "GET /api/latest HTTP/1.0\r\nHost: x\r\n\r\n").ok()?;
+            let mut a = String::new();
+            s.read_to_string(&mut a).ok()?;
+            Some(a)
+        });
+        match got {
+            Some(a) if a.contains(" 200 OK") => break a,
+            _ if t0.elapsed() < Duration::from_secs(30) => {
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            other => panic!("the page after the half-open connections: {other:?}"),
+        }
+    };
+    let body = answer.split_once("\r\n\r\n").map_or("", |x| x.1);
+    let latest: Value = serde_json::from_str(body).expect("json");
+    assert!(
+        latest["counts"]["samples"].as_u64() >= Some(k as u64 + 2),
+        "{latest}"
+    );
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(st) = child.try_wait().expect("wait") {
+            break st;
+        }
+        if t0.elapsed() > Duration::from_secs(300) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("inspect did not finish under the task limit");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let mut rest = String::new();
+    let _ = err.read_to_string(&mut rest);
+    assert!(status.success(), "{rest}");
+    assert_eq!(samples(), 12, "every sample measured and recorded");
+    eprintln!(
+        "task limit ({how}): {HALF_OPEN} half-open connections, inspect at {threads} threads with them held, {} task start(s) refused by the limit; 12 samples, exit 0",
+        cgroup.as_ref().map_or("-".into(), |c| c.refused().to_string())
+    );
+}
+
+/// A restart that cannot measure (its disk below the floor) leaves the last sample measured
+/// on the page it leaves behind, with the disk alarm.
+#[test]
+fn a_restart_below_the_floor_keeps_the_last_sample_on_the_page() {
+    let dir = common::tempdir();
+    let rec = recipe(dir.path());
+    let out = dir.path().join("line");
+    let run = inspect_n(&rec, &out, "0", "2").output().expect("inspect");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let text = std::fs::read_to_string(&rec).expect("recipe");
+    let full = dir.path().join("full.toml");
+    let floored: String = text
+        .lines()
+        .map(|l| {
+            if l.starts_with("min_free_bytes") {
+                "min_free_bytes = 1_000_000_000_000_000\n".to_owned()
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    assert_ne!(floored, text);
+    std::fs::write(&full, floored).expect("recipe");
+    let run = inspect_n(&full, &out, "0", "1").output().expect("inspect");
+    assert!(!run.status.success());
+    let recs = sample_records(&out);
+    assert_eq!(recs.len(), 2);
+    let served = serve_status(&out);
+    let l: Value = serde_json::from_str(&get(served.addr, "/api/latest").1).expect("json");
+    assert_eq!(l["sample"], recs[1], "{l}");
+    assert_eq!(l["alarms"][0]["variable"], "disk_free_bytes", "{l}");
+    let (head, _) = get_bytes(served.addr, "/latest.png");
+    assert!(head.contains(" 200 "), "{head}");
 }

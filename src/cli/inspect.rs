@@ -1,5 +1,6 @@
 //! `filmscope inspect`: the command-line glue around [`crate::line::inspect::Line`].
 
+use std::io::Write;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -9,6 +10,7 @@ use anyhow::{anyhow, Context, Result};
 
 use crate::line::inspect::{InspectOptions, Line};
 use crate::line::recipe::Recipe;
+use crate::line::status::{StatusBoard, StatusServer, StatusState, SNAPSHOT_FILE};
 
 /// What `inspect` is told on the command line.
 pub struct Args<'a> {
@@ -198,6 +200,80 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
         );
         line.say(&format!("stop: {text}"));
         return Err(anyhow!(text));
+    }
+    Ok(())
+}
+
+/// `ADDR:PORT` (an IPv6 address in brackets) as the address and the port.
+fn host_port(listen: &str) -> Result<(String, u16)> {
+    let bad =
+        || anyhow!("--listen {listen:?}: expected ADDR:PORT, e.g. 127.0.0.1:8088 or [::1]:8088");
+    let (host, port) = listen.rsplit_once(':').ok_or_else(bad)?;
+    let host = host
+        .strip_prefix('[')
+        .and_then(|h| h.strip_suffix(']'))
+        .unwrap_or(host);
+    if host.is_empty() || host.contains(char::is_whitespace) {
+        return Err(bad());
+    }
+    Ok((host.to_owned(), port.parse().map_err(|_| bad())?))
+}
+
+/// What tells a folder changed: the snapshot's and the results log's length and time.
+fn folder_stamp(out: &Path) -> Vec<Option<(u64, std::time::SystemTime)>> {
+    [SNAPSHOT_FILE, "results.jsonl"]
+        .iter()
+        .map(|n| {
+            let m = std::fs::metadata(out.join(n)).ok()?;
+            Some((m.len(), m.modified().ok()?))
+        })
+        .collect()
+}
+
+/// Runs `filmscope status OUT --listen ADDR:PORT` until SIGINT/SIGTERM: the page of the
+/// state `inspect` left in `out`, read again whenever the folder changes.
+pub fn status(out: &Path, listen: &str) -> Result<()> {
+    let (host, port) = host_port(listen)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, stop.clone()).context("signal handler")?;
+    }
+    let mut stamp = folder_stamp(out);
+    let state = StatusState::load(out).map_err(|e| anyhow!(e))?;
+    let server = StatusServer::serve(&host, port, StatusBoard::from_state(state))?;
+    // What follows the start is said only to whoever still listens: a closed standard
+    // error must not stop the page.
+    let say = |text: &str| {
+        let _ = writeln!(std::io::stderr(), "{text}");
+    };
+    say(&format!("status page: {}", server.url()));
+    say(&format!(
+        "showing {} of {}",
+        server.latest_id().unwrap_or_else(|| "no sample yet".into()),
+        out.display()
+    ));
+    let mut failing = false;
+    while !stop.load(Ordering::SeqCst) {
+        std::thread::sleep(Duration::from_millis(250));
+        let now = folder_stamp(out);
+        if now == stamp {
+            continue;
+        }
+        match StatusState::load(out) {
+            Ok(state) => {
+                stamp = now;
+                server.show(state);
+                failing = false;
+            }
+            // Said once; the last state read stays on the page.
+            Err(e) if !failing => {
+                say(&format!(
+                    "filmscope: {e} (the page shows the last state read)"
+                ));
+                failing = true;
+            }
+            Err(_) => {}
+        }
     }
     Ok(())
 }

@@ -213,6 +213,18 @@ enum Command {
         #[arg(long)]
         reference: bool,
     },
+    /// The status page of an `inspect --out` folder as the line left it (its status.json,
+    /// and the records of results.jsonl after it), served by the same bounded server as
+    /// `inspect`'s: the page, /api/latest, /api/history, /latest.png and /metrics keep
+    /// answering once `inspect` has stopped. Follows the folder while it changes; runs
+    /// until SIGINT/SIGTERM.
+    Status {
+        /// The `inspect --out` folder.
+        out: PathBuf,
+        /// Where to listen (port 0: any free one, printed).
+        #[arg(long, value_name = "ADDR:PORT", default_value = "127.0.0.1:8088")]
+        listen: String,
+    },
     /// The line's results log (OUT/results.jsonl and its rotated files, oldest first) as a
     /// spreadsheet opens it: one CSV row per sample on stdout.
     Results {
@@ -491,6 +503,7 @@ pub fn main() -> std::process::ExitCode {
             operator,
             reference,
         }),
+        Command::Status { out, listen } => inspect::status(&out, &listen),
         Command::Results {
             out,
             csv: _,

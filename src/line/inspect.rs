@@ -2,6 +2,7 @@
 //! estimate while it streams, judge against the recipe, write the sample's folder (to a
 //! temporary name, renamed when whole), append its record to `results.jsonl`, publish it
 //! (MQTT, status page), update the trends and raise alarms, then apply the retention policy.
+//! What the status page shows is left in `DIR/status.json` after every sample.
 //!
 //! `DIR` after a crash: folders still under a temporary name are deleted; a folder renamed
 //! into place whose record is missing from the records read back (the newest
@@ -26,7 +27,7 @@ use super::plc::{self, LineState, PlcServer};
 use super::recipe::{IndexMode, Recipe};
 use super::retention;
 use super::spc::{self, History, Point, Variable};
-use super::status::{StatusServer, DEFAULT_STALE_AFTER_S};
+use super::status::{StatusBoard, StatusServer, DEFAULT_STALE_AFTER_S, SNAPSHOT_FILE};
 use super::stream::{AckState, MqttPublisher, ResultsLog, Unsent};
 use super::verdict::{self, Verdict};
 use crate::estimate::{run_method, write_outputs_into, Run, RunConfig};
@@ -121,6 +122,9 @@ pub struct Line {
     last_index: Option<f64>,
     mqtt: Option<MqttPublisher>,
     status: Option<StatusServer>,
+    /// What the status page shows, served or not; left in `DIR/status.json` after every
+    /// sample.
+    board: StatusBoard,
     sequence: Option<SampleSequence>,
     mqtt_down: bool,
     /// An alarm was raised for records the connected broker does not acknowledge.
@@ -235,6 +239,7 @@ impl Line {
             last_index: None,
             mqtt: None,
             status: None,
+            board: StatusBoard::new(&opts.recipe.film),
             sequence: None,
             mqtt_down: false,
             mqtt_stalled: false,
@@ -274,6 +279,10 @@ impl Line {
             if r["kind"] == "sample" {
                 line.push_history(r);
             }
+        }
+        // The page (and its snapshot) shows the last sample measured until a new one comes.
+        if let Some(last) = records.iter().rev().find(|r| r["kind"] == "sample") {
+            line.board.show_last(last, &out);
         }
         if line.opts.sim {
             let sim =
@@ -318,19 +327,20 @@ impl Line {
             (None, None) => None,
         };
         go_on()?;
-        if let Some((bind, port, stale_after_s)) = status {
-            match StatusServer::start(&bind, port, &line.opts.recipe.film) {
+        let stale_after_s = status.as_ref().map_or(DEFAULT_STALE_AFTER_S, |s| s.2);
+        line.board.set_stale_after(stale_after_s);
+        let recipe_file = line
+            .opts
+            .recipe_path
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+        line.board.set_labels(&line.opts.recipe.line, &recipe_file);
+        line.refresh_status_history();
+        if let Some((bind, port, _)) = status {
+            match StatusServer::serve(&bind, port, line.board.clone()) {
                 Ok(server) => {
-                    server.set_stale_after(stale_after_s);
-                    let recipe_file = line
-                        .opts
-                        .recipe_path
-                        .file_name()
-                        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-                    server.set_labels(&line.opts.recipe.line, &recipe_file);
                     line.say(&format!("status page: {}", server.url()));
                     line.status = Some(server);
-                    line.refresh_status_history();
                 }
                 // A page the recipe asks for and nobody could reach would go unnoticed.
                 Err(e) => {
@@ -501,8 +511,15 @@ impl Line {
         if self.log_append(&mut alarm).is_ok() {
             self.publish(&alarm);
         }
-        if let Some(st) = &self.status {
-            st.publish_alarm(&alarm);
+        self.board.publish_alarm(&alarm);
+        self.write_snapshot();
+    }
+
+    /// Leaves what the status page shows in `DIR/status.json` (for `filmscope status` once
+    /// this process is gone); a failure is logged, not fatal to the sample.
+    fn write_snapshot(&mut self) {
+        if let Err(e) = self.board.write_snapshot(&self.opts.out) {
+            self.say(&format!("status: {SNAPSHOT_FILE} not written: {e}"));
         }
     }
 
@@ -624,9 +641,7 @@ impl Line {
 
     fn refresh_status_history(&mut self) {
         let h = self.history_json();
-        if let Some(s) = &self.status {
-            s.set_history(h);
-        }
+        self.board.set_history(h);
     }
 
     /// Measures the next sample. Fails without measuring when the disk is below the
@@ -712,9 +727,8 @@ impl Line {
         if self.log_append(&mut alarm).is_ok() {
             self.publish(&alarm);
         }
-        if let Some(st) = &self.status {
-            st.publish_alarm(&alarm);
-        }
+        self.board.publish_alarm(&alarm);
+        self.write_snapshot();
         Err(InspectError(text))
     }
 
@@ -833,9 +847,7 @@ impl Line {
         });
         self.append_record(&mut record)?;
         self.publish(&record);
-        if let Some(st) = &self.status {
-            st.publish_reference(&record);
-        }
+        self.board.publish_reference(&record);
         self.say(&format!(
             "reference {}: thickness {mean:.2} nm (certified {}, drift {dd:+.2}), index {index:.4} (certified {}, drift {dn:+.4}): {}",
             spec.name,
@@ -862,10 +874,9 @@ impl Line {
             self.say(&format!("alarm {text}"));
             self.append_record(&mut alarm)?;
             self.publish(&alarm);
-            if let Some(st) = &self.status {
-                st.publish_alarm(&alarm);
-            }
+            self.board.publish_alarm(&alarm);
         }
+        self.write_snapshot();
         Ok(record)
     }
 
@@ -987,14 +998,14 @@ impl Line {
             alarms.push(rec);
         }
         let history = self.history_json();
-        if let Some(st) = &self.status {
-            st.publish_sample(&record, Some(png), history, &alarms);
-        }
+        self.board
+            .publish_sample(&record, Some(png), history, &alarms);
         let published_ms = last_row.elapsed().as_secs_f64() * 1e3;
         self.latencies_ms.push(published_ms);
         self.measured += 1;
         self.passed += u64::from(v.pass);
         self.alarms_raised += alarms.len() as u64;
+        self.write_snapshot();
         self.say(&format!(
             "sample {id} {} n={} thickness mean {:.1} std {:.2} min {:.1} max {:.1} nm valid {:.1}% latency {:.1} ms (verdict {:.1} ms){}{}",
             v.word(),

@@ -11,10 +11,15 @@
 //! (else 431 and the connection is closed); a request body is never read, whatever its
 //! `Content-Length`; every connection is closed after its response, and after
 //! [`CONNECTION_TIMEOUT`] whatever it does. Only `GET` and `HEAD` are answered.
+//!
+//! What the page shows is a [`StatusBoard`]; `inspect` leaves it in its output folder
+//! ([`SNAPSHOT_FILE`]) after every sample, and `filmscope status` serves it from there
+//! ([`StatusState::load`]) once `inspect` has stopped.
 
 use std::collections::VecDeque;
 use std::convert::Infallible;
 use std::net::SocketAddr;
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -52,12 +57,16 @@ pub struct StatusError {
     pub problem: String,
 }
 
-/// What the page shows.
-#[derive(Debug, Default)]
+/// What the page shows; also what `inspect` leaves in its output folder
+/// ([`SNAPSHOT_FILE`]) after every sample, for `filmscope status` to serve when it has
+/// stopped.
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct StatusState {
     /// The latest sample record.
     pub latest: Option<Value>,
-    /// Its overlay PNG.
+    /// Its overlay PNG (not in the snapshot: read from the sample's folder).
+    #[serde(skip)]
     pub latest_png: Option<Vec<u8>>,
     /// `/api/history`'s body.
     pub history: Value,
@@ -66,6 +75,7 @@ pub struct StatusState {
     /// Samples, passed, failed and alarms since start.
     pub counts: Counts,
     /// Pages served (`/`).
+    #[serde(skip)]
     pub page_hits: u64,
     /// The film, for the title.
     pub film: String,
@@ -86,7 +96,7 @@ pub struct StatusState {
 pub const LATENCY_BUCKETS_S: [f64; 10] = [0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0];
 
 /// Counters for `/metrics`.
-#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct Counts {
     /// Samples.
     pub samples: u64,
@@ -98,41 +108,38 @@ pub struct Counts {
     pub alarms: u64,
 }
 
-/// A running status server; stops when dropped.
-pub struct StatusServer {
+/// The file of an output folder that holds the page's state after every sample.
+pub const SNAPSHOT_FILE: &str = "status.json";
+
+/// Most records of the results log shown beyond the snapshot (all of them when there is
+/// none).
+pub const CATCH_UP_RECORDS: usize = 10_000;
+
+/// Most bytes of a [`SNAPSHOT_FILE`] read back (the history's points at the recipe's most).
+pub const MAX_SNAPSHOT_BYTES: u64 = 64 << 20;
+
+/// The page's state, shared between whoever publishes to it and the server that shows it
+/// (cloning shares it).
+#[derive(Clone, Debug)]
+pub struct StatusBoard {
     state: Arc<Mutex<StatusState>>,
-    server: ServerThread,
 }
 
-impl StatusServer {
-    /// Listens on `bind:port` (port 0: any free one). Fails, naming the address, when it
-    /// cannot listen there (the port in use, an address not of this machine).
-    pub fn start(bind: &str, port: u16, film: &str) -> Result<Self, StatusError> {
-        let state = Arc::new(Mutex::new(StatusState {
-            history: json!({"points": [], "limits": {}, "capability": {}}),
-            film: film.to_owned(),
-            stale_after_s: DEFAULT_STALE_AFTER_S,
-            ..StatusState::default()
-        }));
-        let st = state.clone();
-        let server = ServerThread::start((bind, port), "status", move |listener, stopped| {
-            serve(listener, st, stopped)
-        })
-        .map_err(|problem| StatusError {
-            addr: format!("{bind}:{port}"),
-            problem,
-        })?;
-        Ok(Self { state, server })
+impl StatusBoard {
+    /// An empty board: no sample yet, for `film`.
+    pub fn new(film: &str) -> Self {
+        Self::from_state(StatusState::empty(film))
     }
 
-    /// Where it listens.
-    pub fn addr(&self) -> SocketAddr {
-        self.server.addr()
+    /// A board showing `state`.
+    pub fn from_state(state: StatusState) -> Self {
+        Self {
+            state: Arc::new(Mutex::new(state)),
+        }
     }
 
-    /// The page's URL.
-    pub fn url(&self) -> String {
-        format!("http://{}/", self.server.addr())
+    fn lock(&self) -> std::sync::MutexGuard<'_, StatusState> {
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     /// Shows a new sample: its record, overlay PNG, the history body and its alarms.
@@ -143,7 +150,7 @@ impl StatusServer {
         history: Value,
         alarms: &[Value],
     ) {
-        let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        let mut s = self.lock();
         s.counts.samples += 1;
         if record["verdict"] == "PASS" {
             s.counts.passed += 1;
@@ -172,9 +179,23 @@ impl StatusServer {
         }
     }
 
+    /// Shows `record`, a sample measured before this start, as the latest (not counted):
+    /// its overlay PNG and time from its folder under `dir`.
+    pub fn show_last(&self, record: &Value, dir: &Path) {
+        let mut s = self.lock();
+        s.latest = Some(record.clone());
+        if let Some(f) = record_folder(record) {
+            let f = dir.join(f);
+            s.latest_png = std::fs::read(f.join("overlay.png")).ok();
+            s.latest_at = std::fs::metadata(f.join("record.json"))
+                .and_then(|m| m.modified())
+                .ok();
+        }
+    }
+
     /// Shows an alarm that belongs to no sample (the disk below its free-space floor).
     pub fn publish_alarm(&self, alarm: &Value) {
-        let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        let mut s = self.lock();
         s.counts.alarms += 1;
         s.alarms.push_back(alarm.clone());
         while s.alarms.len() > RECENT_ALARMS {
@@ -184,37 +205,215 @@ impl StatusServer {
 
     /// The metrics' labels: `line` (the recipe's `line`) and `recipe` (its file name).
     pub fn set_labels(&self, line: &str, recipe: &str) {
-        self.state.lock().unwrap_or_else(|p| p.into_inner()).labels =
-            (line.to_owned(), recipe.to_owned());
+        self.lock().labels = (line.to_owned(), recipe.to_owned());
     }
 
     /// Seconds without a new sample after which the page shows STALE.
     pub fn set_stale_after(&self, seconds: f64) {
-        self.state
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .stale_after_s = seconds;
+        self.lock().stale_after_s = seconds;
     }
 
     /// Shows a reference check's record (its age on the page counts from its timestamp).
     pub fn publish_reference(&self, record: &Value) {
-        self.state
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .reference = Some(record.clone());
+        self.lock().reference = Some(record.clone());
     }
 
     /// Replaces `/api/history`'s body.
     pub fn set_history(&self, history: Value) {
-        self.state.lock().unwrap_or_else(|p| p.into_inner()).history = history;
+        self.lock().history = history;
     }
 
     /// Pages served so far.
     pub fn page_hits(&self) -> u64 {
-        self.state
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .page_hits
+        self.lock().page_hits
+    }
+
+    /// The latest sample's id, if any.
+    pub fn latest_id(&self) -> Option<String> {
+        self.lock()
+            .latest
+            .as_ref()
+            .and_then(|l| l["sample_id"].as_str())
+            .map(str::to_owned)
+    }
+
+    /// Writes the state (all but the PNG, which stays in the sample's folder) to
+    /// `dir/`[`SNAPSHOT_FILE`]: to a temporary file, renamed over the old one.
+    pub fn write_snapshot(&self, dir: &Path) -> std::io::Result<()> {
+        let bytes = serde_json::to_vec(&*self.lock()).map_err(std::io::Error::other)?;
+        crate::io::write_atomic(&dir.join(SNAPSHOT_FILE), &bytes)
+    }
+}
+
+impl StatusState {
+    /// No sample yet, for `film`.
+    pub fn empty(film: &str) -> Self {
+        Self {
+            history: json!({"points": [], "limits": {}, "capability": {}}),
+            film: film.to_owned(),
+            stale_after_s: DEFAULT_STALE_AFTER_S,
+            ..Self::default()
+        }
+    }
+
+    /// The state `inspect` left in `dir` ([`SNAPSHOT_FILE`]), brought up to date with the
+    /// records of its results log that came after it (a stop between a record and the
+    /// snapshot; a folder without a snapshot shows its newest [`CATCH_UP_RECORDS`]), and
+    /// the latest sample's overlay PNG read from its folder. The problem in one line when
+    /// `dir` has neither a snapshot nor a results log, or they cannot be read.
+    pub fn load(dir: &Path) -> Result<Self, String> {
+        let path = dir.join(SNAPSHOT_FILE);
+        let e = |x: &dyn std::fmt::Display| format!("{}: {x}", path.display());
+        let mut state = match std::fs::File::open(&path) {
+            Ok(file) => {
+                let len = file.metadata().map_err(|x| e(&x))?.len();
+                if len > MAX_SNAPSHOT_BYTES {
+                    return Err(e(&format!(
+                        "{len} bytes, more than a snapshot holds ({MAX_SNAPSHOT_BYTES})"
+                    )));
+                }
+                serde_json::from_reader(std::io::BufReader::new(file)).map_err(|x| e(&x))?
+            }
+            Err(x) if x.kind() == std::io::ErrorKind::NotFound => {
+                let log = super::stream::ResultsLog::path_in(dir);
+                if !log.is_file() {
+                    return Err(format!(
+                        "{}: no {SNAPSHOT_FILE} nor results.jsonl (not a `filmscope inspect --out` folder)",
+                        dir.display()
+                    ));
+                }
+                StatusState::empty("")
+            }
+            Err(x) => return Err(e(&x)),
+        };
+        let seen = state
+            .latest
+            .iter()
+            .chain(state.alarms.iter())
+            .chain(state.reference.iter())
+            .filter_map(|r| r["seq"].as_u64())
+            .max()
+            .unwrap_or(0);
+        let keep = usize::try_from(super::recipe::MAX_RESULTS_KEEP).unwrap_or(usize::MAX);
+        let (newer, _) = super::stream::records_after(dir, keep, seen, CATCH_UP_RECORDS)
+            .map_err(|x| x.to_string())?;
+        for r in &newer {
+            state.catch_up(r);
+        }
+        let caught_up_sample = newer.iter().any(|r| r["kind"] == "sample");
+        if let Some(f) = state.latest.as_ref().and_then(record_folder) {
+            let f = dir.join(f);
+            state.latest_png = std::fs::read(f.join("overlay.png")).ok();
+            if caught_up_sample {
+                // Its record was written when it was published.
+                state.latest_at = std::fs::metadata(f.join("record.json"))
+                    .and_then(|m| m.modified())
+                    .ok();
+            }
+        }
+        Ok(state)
+    }
+
+    /// Shows a record of the results log the snapshot does not hold: a sample (counted,
+    /// the latest, a point of the history), an alarm or a reference check.
+    fn catch_up(&mut self, r: &Value) {
+        match r["kind"].as_str() {
+            Some("sample") => {
+                self.counts.samples += 1;
+                if r["verdict"] == "PASS" {
+                    self.counts.passed += 1;
+                } else {
+                    self.counts.failed += 1;
+                }
+                if self.film.is_empty() {
+                    self.film = r["film"].as_str().unwrap_or_default().to_owned();
+                }
+                let point = json!({
+                    "sample_id": r["sample_id"],
+                    "index": r["refractive_index"],
+                    "thickness_mean": r["thickness_nm"]["mean"],
+                    "thickness_std": r["thickness_nm"]["std"],
+                    "pass": r["verdict"] == "PASS",
+                });
+                if let Some(p) = self.history["points"].as_array_mut() {
+                    p.push(point);
+                }
+                self.latest = Some(r.clone());
+            }
+            Some("alarm") => {
+                self.counts.alarms += 1;
+                self.alarms.push_back(r.clone());
+                while self.alarms.len() > RECENT_ALARMS {
+                    self.alarms.pop_front();
+                }
+            }
+            Some("reference") => self.reference = Some(r.clone()),
+            _ => {}
+        }
+    }
+}
+
+/// The folder a record names (`folder`), taken only as a relative path that stays inside
+/// the output folder.
+fn record_folder(record: &Value) -> Option<&Path> {
+    record["folder"].as_str().map(Path::new).filter(|f| {
+        f.components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)))
+    })
+}
+
+/// A running status server; stops when dropped. It shows a [`StatusBoard`] (its methods
+/// are the board's).
+pub struct StatusServer {
+    board: StatusBoard,
+    server: ServerThread,
+}
+
+impl std::ops::Deref for StatusServer {
+    type Target = StatusBoard;
+    fn deref(&self) -> &StatusBoard {
+        &self.board
+    }
+}
+
+impl StatusServer {
+    /// Listens on `bind:port` (port 0: any free one) with an empty board for `film`. Fails,
+    /// naming the address, when it cannot listen there (the port in use, an address not of
+    /// this machine).
+    pub fn start(bind: &str, port: u16, film: &str) -> Result<Self, StatusError> {
+        Self::serve(bind, port, StatusBoard::new(film))
+    }
+
+    /// Listens on `bind:port` (port 0: any free one) and shows `board`. Fails as
+    /// [`start`](Self::start) does.
+    pub fn serve(bind: &str, port: u16, board: StatusBoard) -> Result<Self, StatusError> {
+        let st = board.state.clone();
+        let server = ServerThread::start((bind, port), "status", move |listener, stopped| {
+            serve(listener, st, stopped)
+        })
+        .map_err(|problem| StatusError {
+            addr: format!("{bind}:{port}"),
+            problem,
+        })?;
+        Ok(Self { board, server })
+    }
+
+    /// Where it listens.
+    pub fn addr(&self) -> SocketAddr {
+        self.server.addr()
+    }
+
+    /// The page's URL.
+    pub fn url(&self) -> String {
+        format!("http://{}/", self.server.addr())
+    }
+
+    /// Shows `state` instead of what it showed (the pages served still counted).
+    pub fn show(&self, state: StatusState) {
+        let mut s = self.board.lock();
+        let hits = s.page_hits;
+        *s = state;
+        s.page_hits = hits;
     }
 }
 
