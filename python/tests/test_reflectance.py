@@ -84,3 +84,29 @@ def test_bad_inputs_raise_one_line():
         filmscope.reflectance(1.4, 100.0, 95.0, WL)
     with pytest.raises(ValueError, match="b_um2"):
         filmscope.reflectance({"model": "cauchy", "a": 1.4}, 100.0, 10.0, WL)
+
+
+# Crystalline silicon at 300 K (Green 2008, Table 1): wavelength nm, n, k at table rows.
+SILICON_ROWS = [(400, 5.613, 0.296), (450, 4.691, 0.086302), (500, 4.294, 0.044165),
+                (550, 4.077, 0.027968), (600, 3.940, 0.019934), (650, 3.844, 0.014431),
+                (700, 3.772, 0.010528)]
+
+
+@pytest.mark.parametrize("pol", ["s", "p", "unpolarized"])
+def test_silicon_matches_tmm_with_its_complex_index(pol):
+    """substrate="si" is silicon's n + i k (tmm's sign: k > 0 absorbs), at the table's rows."""
+    tmm = pytest.importorskip("tmm")
+    wl = np.array([r[0] for r in SILICON_ROWS], dtype=float)
+    got = filmscope.reflectance(1.46, THICK[:, None], ANGLES[None, :], wl, substrate="si",
+                                polarization=pol)
+
+    def r(p, d, a, i):
+        _, n, k = SILICON_ROWS[i]
+        return tmm.coh_tmm(p, [1.0, 1.46, n + 1j * k], [np.inf, d, np.inf],
+                           math.radians(a), wl[i])["R"]
+
+    def one(d, a, i):
+        return 0.5 * (r("s", d, a, i) + r("p", d, a, i)) if pol == "unpolarized" else r(pol, d, a, i)
+
+    want = np.array([[[one(d, a, i) for i in range(len(wl))] for a in ANGLES] for d in THICK])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
