@@ -495,11 +495,20 @@ impl Line {
         }
     }
 
-    /// An alarm record of no sample: to `results.jsonl`, MQTT, the status page and the log.
-    fn raise_alarm(&mut self, variable: &str, rule: &str, text: &str, value: Value) {
+    /// An alarm record: of sample `sample_id` (null: of none) at the current counter, its
+    /// `variable`, `rule`, `text` and `value`, then the `extra` fields of its rule.
+    fn alarm_record(
+        &self,
+        sample_id: Value,
+        variable: &str,
+        rule: Value,
+        text: &str,
+        value: Value,
+        extra: &[(&str, Value)],
+    ) -> Value {
         let mut alarm = json!({
             "kind": "alarm",
-            "sample_id": Value::Null,
+            "sample_id": sample_id,
             "counter": self.counter,
             "timestamp": utc_iso(SystemTime::now()),
             "variable": variable,
@@ -507,6 +516,15 @@ impl Line {
             "text": text,
             "value": value,
         });
+        for (k, v) in extra {
+            alarm[*k] = v.clone();
+        }
+        alarm
+    }
+
+    /// An alarm record of no sample: to `results.jsonl`, MQTT, the status page and the log.
+    fn raise_alarm(&mut self, variable: &str, rule: &str, text: &str, value: Value) {
+        let mut alarm = self.alarm_record(Value::Null, variable, json!(rule), text, value, &[]);
         self.say(&format!("alarm {text}"));
         if self.log_append(&mut alarm).is_ok() {
             self.publish(&alarm);
@@ -708,17 +726,14 @@ impl Line {
             "{DISK_FULL}: {} has {free} bytes free, below retention.min_free_bytes = {floor}; measuring stopped (free space, then restart)",
             self.opts.out.display()
         );
-        let mut alarm = json!({
-            "kind": "alarm",
-            "sample_id": Value::Null,
-            "counter": self.counter,
-            "timestamp": utc_iso(SystemTime::now()),
-            "variable": "disk_free_bytes",
-            "rule": "free_space_floor",
-            "text": text,
-            "value": free,
-            "floor": floor,
-        });
+        let mut alarm = self.alarm_record(
+            Value::Null,
+            "disk_free_bytes",
+            json!("free_space_floor"),
+            &text,
+            json!(free),
+            &[("floor", json!(floor))],
+        );
         self.say(&format!("alarm {text}"));
         self.plc_update(|s| {
             s.alarm_bits |= plc::alarm_bit::DISK_FLOOR;
@@ -860,17 +875,14 @@ impl Line {
                 "reference {} drifted beyond tolerance: thickness {dd:+.2} nm (tolerance {}), index {dn:+.4} (tolerance {})",
                 spec.name, spec.tolerance_nm, spec.tolerance_index
             );
-            let mut alarm = json!({
-                "kind": "alarm",
-                "sample_id": Value::Null,
-                "counter": self.counter,
-                "timestamp": utc_iso(SystemTime::now()),
-                "variable": "reference",
-                "rule": "reference_drift",
-                "text": text,
-                "value": finite(dd),
-                "index_drift": finite(dn),
-            });
+            let mut alarm = self.alarm_record(
+                Value::Null,
+                "reference",
+                json!("reference_drift"),
+                &text,
+                json!(finite(dd)),
+                &[("index_drift", json!(finite(dn)))],
+            );
             self.say(&format!("alarm {text}"));
             self.append_record(&mut alarm)?;
             self.publish(&alarm);
@@ -980,19 +992,18 @@ impl Line {
         let s = &self.opts.recipe.spc;
         let mut alarms = Vec::new();
         for a in spc::alarms(&self.history, s.baseline, s.min_points) {
-            let mut rec = json!({
-                "kind": "alarm",
-                "sample_id": id,
-                "counter": counter,
-                "timestamp": utc_iso(SystemTime::now()),
-                "variable": a.variable.name(),
-                "rule": a.rule.number(),
-                "text": a.rule.text(),
-                "value": finite(a.value),
-                "center": a.limits.center,
-                "ucl": a.limits.ucl,
-                "lcl": a.limits.lcl,
-            });
+            let mut rec = self.alarm_record(
+                json!(id),
+                a.variable.name(),
+                json!(a.rule.number()),
+                a.rule.text(),
+                json!(finite(a.value)),
+                &[
+                    ("center", json!(a.limits.center)),
+                    ("ucl", json!(a.limits.ucl)),
+                    ("lcl", json!(a.limits.lcl)),
+                ],
+            );
             self.append_record(&mut rec)?;
             self.publish(&rec);
             alarms.push(rec);
