@@ -304,32 +304,11 @@ fn a_given_film_index_is_held() {
 #[test]
 fn an_index_below_the_ambient_anywhere_in_the_band_is_refused() {
     let dir = tempdir();
-    let cap = dir.path().join("cap");
-    filmscope::simulate::write_capture(
-        &common::tiny_scene(),
-        &cap,
-        filmscope::simulate::SimulateOptions::default(),
-        &|_| {},
-    )
-    .expect("capture");
-    let yml = dir.path().join("sinking.yml");
-    std::fs::write(
-        &yml,
+    let (out, run) = estimate_with_film_file(
+        dir.path(),
+        "sinking.yml",
         "REFERENCES: made up\nDATA:\n  - type: formula 5\n    wavelength_range: 0.3 1.0\n    coefficients: 3.806 -0.1561 -4\n",
-    )
-    .expect("yml");
-    let out = dir.path().join("est");
-    let run = filmscope()
-        .args([
-            "estimate",
-            s(&cap),
-            "--out",
-            s(&out),
-            "--film-index",
-            s(&yml),
-        ])
-        .output()
-        .expect("run");
+    );
     assert!(!run.status.success());
     let err = String::from_utf8_lossy(&run.stderr);
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
@@ -365,7 +344,29 @@ fn an_index_below_the_ambient_anywhere_in_the_band_is_refused() {
 #[test]
 fn an_absorbing_film_material_is_refused() {
     let dir = tempdir();
-    let cap = dir.path().join("cap");
+    let (out, run) = estimate_with_film_file(
+        dir.path(),
+        "a-si.yml",
+        "DATA:\n  - type: tabulated nk\n    data: |\n        0.40 4.6 1.9\n        0.55 4.4 0.60\n        0.80 3.9 0.05\n",
+    );
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("--film-index") && err.contains("absorbs (k"),
+        "{err}"
+    );
+    assert!(!out.exists(), "nothing written");
+}
+
+/// `estimate` of a tiny capture in `dir` with `--film-index` a file `name` holding `yaml`:
+/// the output folder and the run.
+fn estimate_with_film_file(
+    dir: &std::path::Path,
+    name: &str,
+    yaml: &str,
+) -> (std::path::PathBuf, std::process::Output) {
+    let cap = dir.join("cap");
     filmscope::simulate::write_capture(
         &common::tiny_scene(),
         &cap,
@@ -373,13 +374,9 @@ fn an_absorbing_film_material_is_refused() {
         &|_| {},
     )
     .expect("capture");
-    let yml = dir.path().join("a-si.yml");
-    std::fs::write(
-        &yml,
-        "DATA:\n  - type: tabulated nk\n    data: |\n        0.40 4.6 1.9\n        0.55 4.4 0.60\n        0.80 3.9 0.05\n",
-    )
-    .expect("yml");
-    let out = dir.path().join("est");
+    let yml = dir.join(name);
+    std::fs::write(&yml, yaml).expect("yml");
+    let out = dir.join("est");
     let run = filmscope()
         .args([
             "estimate",
@@ -391,12 +388,5 @@ fn an_absorbing_film_material_is_refused() {
         ])
         .output()
         .expect("run");
-    assert!(!run.status.success());
-    let err = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
-    assert!(
-        err.contains("--film-index") && err.contains("absorbs (k"),
-        "{err}"
-    );
-    assert!(!out.exists(), "nothing written");
+    (out, run)
 }
