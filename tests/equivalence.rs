@@ -369,7 +369,7 @@ fn seeded_under_held_index(
     let truth = filmscope::cli::eval::Truth::of_scene(scene);
     let seed: Arc<Vec<f32>> = Arc::new(truth.thickness_nm.iter().map(|d| d + 1.5).collect());
     let index =
-        filmscope::estimate::known_index::index_model_of(&scene.stack.film, &frames.spec.bands_nm)
+        filmscope::estimate::known_index::held_index(&scene.stack.film, &frames.spec.bands_nm)
             .expect("index");
     (frames, seed, index)
 }

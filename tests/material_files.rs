@@ -339,24 +339,30 @@ fn an_index_below_the_ambient_anywhere_in_the_band_is_refused() {
 }
 
 /// A film material that absorbs (a `tabulated nk` entry: amorphous-silicon-like k) given as
-/// `--film-index` is refused with one line naming the file and the absorption, nothing
-/// written: the film model is a clear film's, and the thickness would be wrong.
+/// `--film-index` is measured with its n and k; given for a clear film it explains none of
+/// the spectra: every pixel NaN and flagged, a note naming the given film and the misfit.
 #[test]
-fn an_absorbing_film_material_is_refused() {
+fn an_absorbing_film_material_given_for_a_clear_film_is_a_misfit() {
     let dir = tempdir();
     let (out, run) = estimate_with_film_file(
         dir.path(),
         "a-si.yml",
         "DATA:\n  - type: tabulated nk\n    data: |\n        0.40 4.6 1.9\n        0.55 4.4 0.60\n        0.80 3.9 0.05\n",
     );
-    assert!(!run.status.success());
     let err = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(run.status.success(), "{err}");
     assert!(
-        err.contains("--film-index") && err.contains("absorbs (k"),
+        err.contains("does not explain the spectra") && err.contains("a-si.yml"),
         "{err}"
     );
-    assert!(!out.exists(), "nothing written");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary"))
+            .expect("json");
+    assert_eq!(summary["valid_fraction"], 0.0, "{summary}");
+    assert_eq!(
+        summary["index_model_choice"]["absorbing"], true,
+        "{summary}"
+    );
 }
 
 /// `estimate` of a tiny capture in `dir` with `--film-index` a file `name` holding `yaml`:

@@ -182,3 +182,52 @@ fn an_absorbing_substrate_matches_tmm_to_1e9() {
         rows.len()
     );
 }
+
+/// A weakly absorbing film (k to 0.02, an oxide's or a polymer's in the blue), its back
+/// face black or bare: [`LossyFilm`], the form the sample fit uses for film absorption,
+/// matches tmm's coherent and incoherent stacks to 1e-9; the lossless form with the round
+/// trip's amplitude alone on `r23` misses by far more.
+#[test]
+fn an_absorbing_film_matches_tmm_with_and_without_a_back_face() {
+    use filmscope::optics::{BackFace, LossyFilm};
+    let rows = rows("tmm_absorbing_film.csv");
+    assert!(rows.len() >= 240, "fixture has {} rows", rows.len());
+    let (mut worst, mut amplitude_only) = (0.0f64, 0.0f64);
+    for r in &rows {
+        let (n, k, ns) = (num(&r[0]), num(&r[1]), num(&r[2]));
+        let (d, deg, l, p) = (num(&r[3]), num(&r[4]), num(&r[5]), pol(&r[6]));
+        let back_face = match r[7].as_str() {
+            "bare" => BackFace::Bare,
+            _ => BackFace::None,
+        };
+        let want = num(&r[8]);
+        let idx = Indices {
+            ambient: 1.0,
+            film: n,
+            substrate: ns,
+            substrate_k: 0.0,
+            back_face,
+        };
+        let film = LossyFilm::new(idx, k, deg, p, l).expect("propagating");
+        let (phase, a) = film.round_trip(d);
+        let (got, _, _) = film.reflectance(phase.cos(), phase.sin(), a);
+        let err = (got - want).abs();
+        worst = worst.max(err);
+        assert!(err < 1e-9, "row {r:?}: got {got}, tmm {want}");
+        if back_face == BackFace::None {
+            // The film's loss as the round trip's amplitude alone, its interfaces clear.
+            let clear = LossyFilm::new(idx, 0.0, deg, p, l).expect("propagating");
+            let (phase, _) = clear.round_trip(d);
+            let approx = clear.reflectance(phase.cos(), phase.sin(), a).0;
+            amplitude_only = amplitude_only.max((approx - want).abs());
+        }
+    }
+    assert!(
+        amplitude_only > 1e-3,
+        "amplitude alone misses by {amplitude_only}"
+    );
+    eprintln!(
+        "worst |R - R_tmm| over {} rows: {worst:.3e}; the amplitude alone on r23 misses by up to {amplitude_only:.2e}",
+        rows.len()
+    );
+}

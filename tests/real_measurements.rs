@@ -443,3 +443,72 @@ fn thermal_oxide_on_silicon() {
         );
     }
 }
+
+/// A film that absorbs, measured with its n and k given (`--film-index` with a tabulated nk
+/// entry): silicon films on glass (thin-film transistors, solar cells), k 0.02-0.4 over the
+/// band, their back face black or bare, rendered by the software camera's own complex-index
+/// optics. Every pixel valid, MAE within 1 nm.
+#[test]
+fn a_film_of_given_nk() {
+    let si = filmscope_core::optics::materials::by_name("si").expect("library");
+    for (base_nm, pol, back_face) in [
+        (45.0, "s", "none"),
+        (160.0, "unpolarized", "bare"),
+        (420.0, "p", "none"),
+    ] {
+        let text = format!(
+            r#"
+name = "si-film-{base_nm}"
+seed = 23
+polarization = "{pol}"
+[film.dispersion]
+model = "material"
+name = "si"
+[film.thickness]
+base_nm = {base_nm}
+gradient_nm = [{}, {}]
+[substrate]
+index = 1.52
+back_face = "{back_face}"
+[rig]
+angles_deg = [10.0, 40.0, 60.0]
+bands_nm = [420.0, 720.0, 5.0]
+fwhm_nm = 6.0
+[sensor]
+width = 32
+height = 24
+reflectance_noise_percent = 0.05
+"#,
+            -0.05 * base_nm,
+            0.03 * base_nm
+        );
+        let scene = Scene::from_toml(&text, "si-film").expect("scene");
+        let truth = Truth::of_scene(&scene);
+        let mut source = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
+        let run = filmscope::estimate::known_index::run_with_index(
+            &mut source,
+            &RunConfig::default(),
+            &si,
+            "si",
+            &|_| {},
+        )
+        .expect("run");
+        let r = evaluate("si-film", &truth, &run);
+        eprintln!(
+            "Si {base_nm} nm on glass ({pol}, back face {back_face}): MAE {:.2} nm, valid {:.3}; {}",
+            r.thickness_mae_nm,
+            r.valid_fraction,
+            run.result.notes.join("; ")
+        );
+        assert!(
+            r.thickness_mae_nm <= 1.0,
+            "{base_nm}: MAE {}",
+            r.thickness_mae_nm
+        );
+        assert!(
+            r.valid_fraction >= 0.99,
+            "{base_nm}: valid {}",
+            r.valid_fraction
+        );
+    }
+}

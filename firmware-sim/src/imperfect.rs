@@ -11,7 +11,7 @@
 
 use num_complex::Complex64 as C;
 
-use filmscope_core::optics::{FilmStack, Passband, Polarization};
+use filmscope_core::optics::{FilmStack, Passband, Polarization, HALF_WIDTH_FWHM};
 
 /// Where the film's extinction coefficient is quoted, nm.
 pub const K_REFERENCE_NM: f64 = 450.0;
@@ -19,8 +19,17 @@ pub const K_REFERENCE_NM: f64 = 450.0;
 /// How much wider the filter's side lobes are than its main passband.
 pub const SIDE_LOBE_WIDTH: f64 = 10.0;
 
-/// Quadrature nodes of the main passband (the side lobes take the default's).
+/// Quadrature nodes of the main passband.
 pub const BAND_NODES: usize = 17;
+
+/// The wavelengths a rig's optics pass, nm: the light of the filter's side lobes outside them
+/// never reaches the sensor (the filter's own polarisers and a hot mirror before a silicon
+/// sensor cut the ultraviolet and the infrared). Inside them every material's formula holds:
+/// beyond, a high-index film's (TiO2's at 283 nm) runs through its pole.
+pub const OPTICS_RANGE_NM: [f64; 2] = [380.0, 780.0];
+
+/// Phase, radians, the film may turn by between two nodes of the side lobes' sum.
+const SIDE_LOBE_NODE_PHASE: f64 = 0.25;
 
 /// Grid nodes per shortest fringe period of a [`ImperfectTable`].
 const POINTS_PER_FRINGE: f64 = 48.0;
@@ -44,11 +53,14 @@ pub struct Imperfections {
     /// p light only).
     pub polariser_leak: f64,
     /// The filter's side lobes: this fraction of the light comes through a passband
-    /// [`SIDE_LOBE_WIDTH`] times wider than the main one.
+    /// [`SIDE_LOBE_WIDTH`] times wider than the main one (within [`OPTICS_RANGE_NM`]).
     pub side_lobes: f64,
     /// The substrate's back face is bare (glass, a PET web without a black backing): its
     /// reflection adds incoherently.
     pub bare_back_face: bool,
+    /// The film's material absorbs (a tabulated nk entry): its own `k` adds to
+    /// [`Imperfections::film_k`]'s.
+    pub film_material_k: bool,
 }
 
 impl Imperfections {
@@ -96,11 +108,12 @@ fn kz(n: C, beta: f64) -> C {
     }
 }
 
-/// `(R, T)` of a film of complex index `n2` and `d_nm` on substrate `n3c` (complex for an
-/// absorbing substrate) from ambient `n1`, for one pure polarisation (`p`: true for p) at
+/// `(R, T, R')` of a film of complex index `n2` and `d_nm` on substrate `n3c` (complex for
+/// an absorbing substrate) from ambient `n1`, for one pure polarisation (`p`: true for p) at
 /// Snell invariant `beta`, wavelength `l_nm`. `T` is the power into a clear substrate
-/// (lossless film: `1 - R`).
-fn film_rt(n1: f64, n2: C, n3c: C, d_nm: f64, beta: f64, l_nm: f64, p: bool) -> (f64, f64) {
+/// (lossless film: `1 - R`), the same either way through; `R'` the film's reflectance seen
+/// from the substrate (`R` for a lossless film).
+fn film_rt(n1: f64, n2: C, n3c: C, d_nm: f64, beta: f64, l_nm: f64, p: bool) -> (f64, f64, f64) {
     let (n1c, n3) = (C::new(n1, 0.0), n3c.re);
     let (k1, k2, k3) = (kz(n1c, beta), kz(n2, beta), kz(n3c, beta));
     let r = |na: C, nb: C, ka: C, kb: C| {
@@ -132,7 +145,8 @@ fn film_rt(n1: f64, n2: C, n3c: C, d_nm: f64, beta: f64, l_nm: f64, p: bool) -> 
     } else {
         k3.re / k1.re
     };
-    (rr.norm_sqr(), tt.norm_sqr() * ratio)
+    let inside = (r23 + r12 * two_way) / denom;
+    (rr.norm_sqr(), tt.norm_sqr() * ratio, inside.norm_sqr())
 }
 
 /// The Fresnel reflectance of the substrate's bare back face, from inside the substrate
@@ -160,18 +174,19 @@ pub fn band_reflectance(
     let deg = incidence_deg + imp.stage_offset_deg;
     let beta = stack.ambient_index * deg.to_radians().sin();
     let at = |l: f64, p: bool| -> f64 {
-        let n2 = C::new(stack.film.index_at(l), -imp.k_at(l));
+        let n2 = C::new(
+            stack.film.index_at(l),
+            -(imp.k_at(l) + stack.film.extinction_at(l)),
+        );
         let (n3, k3) = (
             stack.substrate.index_at(l),
             stack.substrate.extinction_at(l),
         );
-        let (r, t) = film_rt(stack.ambient_index, n2, C::new(n3, -k3), d_nm, beta, l, p);
+        let (r, t, r_inside) = film_rt(stack.ambient_index, n2, C::new(n3, -k3), d_nm, beta, l, p);
         // An absorbing substrate is opaque: no back face returns light.
         if imp.bare_back_face && k3 == 0.0 {
-            // The film seen from the substrate reflects as from the front when lossless;
-            // an absorbing film's small difference is left out.
             let rb = back_face_r(n3, beta, p);
-            r + t * t * rb / (1.0 - r * rb)
+            r + t * t * rb / (1.0 - r_inside * rb)
         } else {
             r
         }
@@ -195,10 +210,46 @@ pub fn band_reflectance(
     let main = Passband::gaussian_with_nodes(band.center_nm, band.fwhm_nm, BAND_NODES);
     let mut r = mean(&main);
     if imp.side_lobes > 0.0 {
-        let wide = Passband::gaussian(band.center_nm, SIDE_LOBE_WIDTH * band.fwhm_nm);
-        r = (1.0 - imp.side_lobes) * r + imp.side_lobes * mean(&wide);
+        let wide = side_lobe_mean(stack, d_nm, band, |l| light(l + imp.wavelength_shift_nm));
+        r = (1.0 - imp.side_lobes) * r + imp.side_lobes * wide;
     }
     r + imp.flare
+}
+
+/// The mean of `light` over the side lobes' band: a Gaussian [`SIDE_LOBE_WIDTH`] times the
+/// main band's FWHM, truncated at [`HALF_WIDTH_FWHM`] and to [`OPTICS_RANGE_NM`], summed by
+/// trapezoids at most [`SIDE_LOBE_NODE_PHASE`] of the film's phase apart (a film microns
+/// thick turns through dozens of fringes across it).
+fn side_lobe_mean(
+    stack: &FilmStack,
+    d_nm: f64,
+    band: &Passband,
+    light: impl Fn(f64) -> f64,
+) -> f64 {
+    let fwhm = SIDE_LOBE_WIDTH * band.fwhm_nm;
+    let half = HALF_WIDTH_FWHM * fwhm;
+    let lo = (band.center_nm - half).max(OPTICS_RANGE_NM[0]);
+    let hi = (band.center_nm + half).min(OPTICS_RANGE_NM[1]);
+    if fwhm.is_nan() || fwhm <= 0.0 || hi <= lo {
+        return light(band.center_nm);
+    }
+    let n_max = stack
+        .film
+        .index_at(lo)
+        .max(stack.film.index_at(hi))
+        .max(1.0);
+    let span = 4.0 * std::f64::consts::PI * n_max * d_nm * (1.0 / lo - 1.0 / hi);
+    let count = ((span / SIDE_LOBE_NODE_PHASE).ceil() as usize).clamp(32, 4096);
+    let sigma = fwhm / (8.0 * std::f64::consts::LN_2).sqrt();
+    let (mut sum, mut wsum) = (0.0, 0.0);
+    for i in 0..=count {
+        let l = lo + (hi - lo) * i as f64 / count as f64;
+        let end = if i == 0 || i == count { 0.5 } else { 1.0 };
+        let w = end * (-0.5 * ((l - band.center_nm) / sigma).powi(2)).exp();
+        sum += w * light(l);
+        wsum += w;
+    }
+    sum / wsum
 }
 
 /// One `(angle, band)`'s measured reflectance over a thickness range, sampled at
@@ -306,7 +357,7 @@ mod tests {
     #[test]
     fn power_is_conserved_and_the_back_face_adds_its_reflection() {
         for p in [false, true] {
-            let (r, t) = film_rt(
+            let (r, t, inside) = film_rt(
                 1.0,
                 C::new(2.1, 0.0),
                 C::new(1.52, 0.0),
@@ -316,7 +367,8 @@ mod tests {
                 p,
             );
             assert!((r + t - 1.0).abs() < 1e-12, "{r} + {t}");
-            let (r, t) = film_rt(
+            assert!((inside - r).abs() < 1e-12, "{inside} vs {r}");
+            let (r, t, inside) = film_rt(
                 1.0,
                 C::new(2.1, -0.05),
                 C::new(1.52, 0.0),
@@ -326,6 +378,7 @@ mod tests {
                 p,
             );
             assert!(r + t < 0.99, "{r} + {t}");
+            assert!((inside - r).abs() > 1e-3, "{inside} vs {r}");
         }
         let bare = FilmStack {
             film: Dispersion::constant(1.52),

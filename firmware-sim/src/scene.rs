@@ -314,11 +314,6 @@ impl Scene {
             (Some(_), Some(_)) => return Err("[film] gives both `index` and `dispersion`".into()),
             (None, None) => return Err("[film] needs `index` or `dispersion`".into()),
         };
-        if film.extinction_at(550.0) > 0.0 || film.extinction_at(400.0) > 0.0 {
-            return Err(
-                "[film.dispersion] an absorbing material (k above 0): the film's absorption is `[imperfections] film_k`".into(),
-            );
-        }
         let polarization = match f.polarization.as_deref() {
             None => Polarization::S,
             Some(p) => Polarization::from_name(p).ok_or_else(|| {
@@ -511,6 +506,7 @@ impl Scene {
                     polariser_leak: m.polariser_leak.unwrap_or(0.0),
                     side_lobes: m.side_lobes.unwrap_or(0.0),
                     bare_back_face: bare,
+                    film_material_k: false,
                 };
                 imp.check()?;
                 imp
@@ -519,9 +515,11 @@ impl Scene {
         // A declared back face is rendered as an undeclared one is, by the rig model's own
         // optics ([`crate::imperfect`]), not by the estimator's.
         imperfections.bare_back_face |= back_face == BackFace::Bare;
+        // An absorbing film material (a tabulated nk entry) is rendered the same way.
+        imperfections.film_material_k = bands_nm.iter().any(|&l| film.extinction_at(l) > 0.0);
         if imperfections.any() && field_of_view.is_some() {
             return Err(
-                "[imperfections] and a bare back face cannot go with [rig] horizontal_fov_deg"
+                "[imperfections], a bare back face and an absorbing film cannot go with [rig] horizontal_fov_deg"
                     .to_string(),
             );
         }

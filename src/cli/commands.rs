@@ -220,7 +220,7 @@ pub fn estimate(
     if let Some((name, d)) = &film {
         crate::material::check_over_band(d, &bands, ambient)
             .map_err(|e| anyhow!("--film-index {name:?}: {e}"))?;
-        crate::estimate::known_index::index_model_of(d, &bands)
+        crate::estimate::known_index::held_index(d, &bands)
             .map_err(|e| anyhow!("--film-index {name:?}: {e}"))?;
     }
     if let Some(s) = &substrate {

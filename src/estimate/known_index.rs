@@ -5,7 +5,8 @@
 //! The estimator's index model holds a constant, a Cauchy of up to three terms or a
 //! one-pole Sellmeier; a material given in another form (a Sellmeier of two or three
 //! terms) is held as the three-term Cauchy fitted to it over the capture's bands by least
-//! squares, and `summary.json` reports that model.
+//! squares, and `summary.json` reports that model. A material that absorbs over the band
+//! is measured by [`crate::estimate::absorbing`] with its n and k as given.
 
 use std::time::Instant;
 
@@ -20,21 +21,9 @@ use crate::estimate::run::{Run, RunConfig};
 use crate::pipeline::{run_sweep, PipelineError, Prior, PriorUpdate};
 use crate::source::Source;
 
-/// The index model that holds `film` over `bands_nm`: itself when the model can hold it,
-/// else its least-squares three-term Cauchy over the bands. A material that absorbs over the
-/// bands (k of [`crate::material::CLEAR_K`] or more: a tabulated nk entry) is refused: the
-/// film model is a clear film's, and its thickness would be wrong.
-pub fn index_model_of(film: &Dispersion, bands_nm: &[f64]) -> Result<IndexModel, String> {
-    if let Some((l, k)) = bands_nm
-        .iter()
-        .map(|&l| (l, film.extinction_at(l)))
-        .find(|&(_, k)| k >= crate::material::CLEAR_K)
-    {
-        return Err(format!(
-            "the film's material absorbs (k {k:.2e} at {l:.0} nm): filmscope measures clear films, whose k is below {:.0e} over the band",
-            crate::material::CLEAR_K
-        ));
-    }
+/// The index model that holds `film`'s real index over `bands_nm`: itself when the model
+/// can hold it, else its least-squares three-term Cauchy over the bands.
+pub fn held_index(film: &Dispersion, bands_nm: &[f64]) -> Result<IndexModel, String> {
     if let Some(m) = IndexModel::from_dispersion(*film) {
         return Ok(m);
     }
@@ -61,8 +50,11 @@ pub fn run_with_index(
 ) -> Result<Run, PipelineError> {
     let spec = config.fitted_spec(source.spec());
     let angles_deg = source.angles_deg();
+    if crate::estimate::absorbing::absorbs(film, &spec.bands_nm) {
+        return crate::estimate::absorbing::run_absorbing(source, config, film, name);
+    }
     let t0 = Instant::now();
-    let index = index_model_of(film, &spec.bands_nm).map_err(PipelineError)?;
+    let index = held_index(film, &spec.bands_nm).map_err(PipelineError)?;
     let mut sample = None;
     if source.replayable() && !config.one_pass {
         let mut tap = SampleTap::new(&spec, config.sample_sites, angles_deg.len());

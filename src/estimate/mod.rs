@@ -7,6 +7,7 @@
 //! [`passes`], [`field`] and [`known_index`], then this file's dispatch; [`output`] reads a
 //! finished [`Run`].
 
+pub mod absorbing;
 pub mod baseline;
 pub mod field;
 pub mod index_fit;

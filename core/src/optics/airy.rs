@@ -6,7 +6,7 @@
 //! half-order peaks, `(m + 1/2) lambda = phi`, by construction: nothing here assumes where the
 //! peaks sit.
 
-use super::fresnel::{fresnel_r, fresnel_r_real, normal_component, snell_invariant};
+use super::fresnel::{fresnel_r, fresnel_r_real, medium_wave, normal_component, snell_invariant};
 use super::{Complex, Polarization};
 
 /// The indices of an ambient / film / substrate stack at one wavelength (the substrate's
@@ -63,7 +63,7 @@ impl BackFace {
 /// absorbing substrate, which no light crosses): the substrate-to-ambient interface at the
 /// substrate's own angle. It is never beyond the critical angle, the light having entered
 /// from the same ambient.
-fn back_reflectance(idx: Indices, beta: f64, pol: Polarization) -> f64 {
+pub(super) fn back_reflectance(idx: Indices, beta: f64, pol: Polarization) -> f64 {
     if idx.back_face == BackFace::None || idx.substrate_k > 0.0 {
         return 0.0;
     }
@@ -90,20 +90,9 @@ fn with_back(r: f64, rb: f64) -> f64 {
     (r * (1.0 - 2.0 * rb) + rb) / (1.0 - r * rb)
 }
 
-/// The substrate's permittivity `(n + i k)^2` and its normal component `sqrt(eps - beta^2)`:
-/// the branch with a non-negative imaginary part (a wave decaying into the substrate). The
-/// square root through libm, for the same bits in every build.
+/// The substrate's permittivity and normal component ([`medium_wave`]).
 fn substrate_wave(idx: Indices, beta: f64) -> (Complex, Complex) {
-    let (n, k) = (idx.substrate, idx.substrate_k);
-    if k == 0.0 {
-        return (Complex::new(n * n, 0.0), normal_component(n, beta));
-    }
-    let eps = Complex::new(n * n - k * k, 2.0 * n * k);
-    let (x, y) = (eps.re - beta * beta, eps.im);
-    let r = libm::hypot(x, y);
-    let re = libm::sqrt(0.5 * (r + x));
-    let im = libm::copysign(libm::sqrt(0.5 * (r - x)), y);
-    (eps, Complex::new(re, im))
+    medium_wave(idx.substrate, idx.substrate_k, beta)
 }
 
 /// `r23 = rho e^{i psi}` as a signed real `rho` and a phase `psi` in `(-pi/2, pi/2]`: `(r23, 0)`
@@ -348,38 +337,6 @@ impl FilmAtAngle {
         }
         let k = 1.0 / P as f64;
         (r * k, slope * k)
-    }
-
-    /// Reflectance of the film made weakly absorbing, as a function of `c = cos(Delta)` and
-    /// the amplitude `a` a wave keeps over the film's round trip (`exp(-4 pi d n k / (lambda
-    /// n cos theta2))` for an extinction coefficient `k` well below `n`: `r23` becomes
-    /// `a r23`; the interfaces' own change, of order `k / n`, is left out), with `d R / d c` and
-    /// `d R / d a`; averaged over the polarisations as [`FilmAtAngle::reflectance_at_cos`]. A
-    /// back face's return is added as for a lossless film: the film's loss on the way
-    /// through and back is left out (with it, a real film's fit traded absorption against
-    /// its index), so an absorbing film over a bare back face misfits by that loss.
-    #[inline]
-    pub fn absorbing_at_cos(&self, c: f64, a: f64) -> (f64, f64, f64) {
-        let (mut r, mut dc, mut da) = (0.0, 0.0, 0.0);
-        for &(r12, r23, rb) in &self.coeffs[..self.n_pol] {
-            let q = a * r23;
-            let num = r12 * r12 + q * q + 2.0 * r12 * q * c;
-            let den = 1.0 + r12 * r12 * q * q + 2.0 * r12 * q * c;
-            let inv = 1.0 / den;
-            let film = num * inv;
-            // The back face's return, and its slope `(1 - rb)^2 / (1 - R rb)^2` as a factor.
-            let back = 1.0 / (1.0 - film * rb);
-            let chain = (1.0 - rb) * (1.0 - rb) * back * back;
-            r += with_back(film, rb);
-            // d/dq of num/den, then times dq/da = r23; d/dc likewise.
-            let dnum_dq = 2.0 * q + 2.0 * r12 * c;
-            let dden_dq = 2.0 * r12 * r12 * q + 2.0 * r12 * c;
-            da += (dnum_dq * den - num * dden_dq) * inv * inv * r23 * chain;
-            let (dnum_dc, dden_dc) = (2.0 * r12 * q, 2.0 * r12 * q);
-            dc += (dnum_dc * den - num * dden_dc) * inv * inv * chain;
-        }
-        let k = 1.0 / self.n_pol as f64;
-        (r * k, dc * k, da * k)
     }
 
     /// Reflectance as a function of `c = cos(Delta)` (or of a passband-damped `D cos(Delta)`).

@@ -36,6 +36,22 @@ pub fn normal_component(n: f64, beta: f64) -> Complex {
     }
 }
 
+/// A medium of complex index `n + i k`: its permittivity `(n + i k)^2` and normal component
+/// `sqrt(eps - beta^2)` on the branch with a non-negative imaginary part (a wave decaying
+/// into it; evanescent beyond the critical angle when `k` is 0). The square root through
+/// libm, for the same bits in every build.
+pub fn medium_wave(n: f64, k: f64, beta: f64) -> (Complex, Complex) {
+    if k == 0.0 {
+        return (Complex::new(n * n, 0.0), normal_component(n, beta));
+    }
+    let eps = Complex::new(n * n - k * k, 2.0 * n * k);
+    let (x, y) = (eps.re - beta * beta, eps.im);
+    let r = libm::hypot(x, y);
+    let re = libm::sqrt(0.5 * (r + x));
+    let im = libm::copysign(libm::sqrt(0.5 * (r - x)), y);
+    (eps, Complex::new(re, im))
+}
+
 /// The Fresnel amplitude reflection coefficient for light going from medium `i` to medium `j`
 /// (permittivities `eps_i = n_i^2`, `eps_j = n_j^2`, complex for an absorbing medium; normal
 /// components `kz_i`, `kz_j`), for S or P polarisation.

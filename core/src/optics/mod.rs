@@ -11,13 +11,17 @@ mod dispersion;
 mod field;
 mod film;
 mod fresnel;
+mod lossy;
 mod passband;
 
 pub use airy::{film_reflectance, BackFace, FilmAtAngle, Indices};
 pub use dispersion::{materials, Dispersion};
 pub use field::FieldOfView;
 pub use film::{BandModel, FilmStack};
-pub use fresnel::{fresnel_r, fresnel_r_real, normal_component, refraction_deg, snell_invariant};
+pub use fresnel::{
+    fresnel_r, fresnel_r_real, medium_wave, normal_component, refraction_deg, snell_invariant,
+};
+pub use lossy::LossyFilm;
 /// The complex numbers of the Airy sum and the Fresnel coefficients.
 pub use num_complex::Complex64 as Complex;
 pub use passband::{Passband, DEFAULT_NODES, HALF_WIDTH_FWHM, MAX_NODES};

@@ -33,7 +33,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::refine::{passband_phase_span, passband_rule, MAX_BAND_NODES};
 use super::IndexModel;
-use crate::optics::{BackFace, Dispersion, FilmAtAngle, Indices, Polarization};
+use crate::optics::{BackFace, Dispersion, FilmAtAngle, Indices, LossyFilm, Polarization};
 
 /// Pixels a site keeps: its centre and two neighbours each side along the row.
 pub const RUN: usize = 5;
@@ -1257,11 +1257,13 @@ struct Node {
     film_up: FilmAtAngle,
     dn_dp: [f64; 3],
     /// The round trip's attenuation exponent per nm of thickness and unit of
-    /// [`Problem::film_k`]: `a = exp(-film_k absorb_per_nm d)` ([`ABSORPTION_TAIL_NM`]).
+    /// [`Problem::film_k`] (`a = exp(-film_k absorb_per_nm d)` to first order,
+    /// [`ABSORPTION_TAIL_NM`]): the film's absorption's slope.
     absorb_per_nm: f64,
-    /// The film in the other polarisation (s for p light, p for s; unpolarised light's own),
-    /// which a leaking polariser mixes in ([`Problem::leak`]).
-    film_other: FilmAtAngle,
+    /// With film absorption or a polariser's leak ([`Problem::site_model`]): the film as it
+    /// absorbs, exactly, at the index, one index step up, and in the other polarisation (s
+    /// for p light, p for s; unpolarised light's own), which a leaking polariser mixes in.
+    lossy: [LossyFilm; 3],
 }
 
 /// Columns of [`Problem::score_point`]'s dictionary at most: angles times bands.
@@ -1547,7 +1549,16 @@ impl Problem<'_> {
                 Polarization::P => Polarization::S,
                 Polarization::Unpolarized => Polarization::Unpolarized,
             };
-            let film_other = FilmAtAngle::new(self.indices(n, l), deg, other)?;
+            let lossy = if self.film_k > 0.0 || self.leak > 0.0 {
+                let k = self.film_k * absorption_shape(l);
+                [
+                    LossyFilm::new(self.indices(n, l), k, deg, pol, l)?,
+                    LossyFilm::new(self.indices(n + INDEX_STEP, l), k, deg, pol, l)?,
+                    LossyFilm::new(self.indices(n, l), k, deg, other, l)?,
+                ]
+            } else {
+                [LossyFilm::default(); 3]
+            };
             Some(Node {
                 weight: w,
                 phase_per_nm: 4.0 * core::f64::consts::PI * film.kz_film / l,
@@ -1559,7 +1570,7 @@ impl Problem<'_> {
                 dn_dp,
                 absorb_per_nm: 4.0 * core::f64::consts::PI * n * absorption_shape(l)
                     / (l * film.kz_film),
-                film_other,
+                lossy,
             })
         };
         let first = node(rule[0])?;
@@ -1697,33 +1708,49 @@ impl Problem<'_> {
     }
 
     /// A site's band reflectance at thickness `d` over a band's passband `nodes`, with its
-    /// derivatives, the film absorbing as [`Problem::film_k`] says.
+    /// derivatives, the film absorbing as [`Problem::film_k`] says and the polariser leaking
+    /// as [`Problem::leak`] says ([`LossyFilm`]).
     fn site_model(&self, nodes: &[Node], d: f64) -> SiteModel {
         let mut out = SiteModel::default();
+        if self.film_k == 0.0 && self.leak == 0.0 {
+            for nd in nodes {
+                let ph = nd.phase_per_nm * d + nd.phase0;
+                let (r, dr_dc) = nd.film.reflectance_and_slope_at_cos(libm::cos(ph));
+                out.m += nd.weight * r;
+                out.dm_dd += nd.weight * dr_dc * -libm::sin(ph) * nd.phase_per_nm;
+                let r_up = nd
+                    .film_up
+                    .reflectance_at_cos(libm::cos(nd.phase_up_per_nm * d + nd.phase0_up));
+                for (q, j) in out.dm_dp.iter_mut().enumerate() {
+                    *j += nd.weight * (r_up - r) / INDEX_STEP * nd.dn_dp[q];
+                }
+            }
+            return out;
+        }
         for nd in nodes {
-            let ph = nd.phase_per_nm * d + nd.phase0;
-            let (sn, cs) = (libm::sin(ph), libm::cos(ph));
-            let att = self.film_k * nd.absorb_per_nm;
-            let a = libm::exp(-att * d);
-            let (own, own_dc, own_da) = nd.film.absorbing_at_cos(cs, a);
-            let (r, dr_dc, dr_da) = if self.leak > 0.0 {
-                let (o, o_dc, o_da) = nd.film_other.absorbing_at_cos(cs, a);
+            let [film, up, other] = &nd.lossy;
+            let (delta, a) = film.round_trip(d);
+            let (sn, cs) = (libm::sin(delta), libm::cos(delta));
+            let (own, own_dd, own_da) = film.reflectance(cs, sn, a);
+            let (r, dr_ddelta, dr_da) = if self.leak > 0.0 {
+                // The same film in the other polarisation: the same round trip.
+                let (o, o_dd, o_da) = other.reflectance(cs, sn, a);
                 out.dm_dleak += nd.weight * (o - own);
                 let e = self.leak;
                 (
                     (1.0 - e) * own + e * o,
-                    (1.0 - e) * own_dc + e * o_dc,
+                    (1.0 - e) * own_dd + e * o_dd,
                     (1.0 - e) * own_da + e * o_da,
                 )
             } else {
-                (own, own_dc, own_da)
+                (own, own_dd, own_da)
             };
             out.m += nd.weight * r;
-            out.dm_dd += nd.weight * (dr_dc * -sn * nd.phase_per_nm - dr_da * att * a);
+            out.dm_dd += nd.weight * (dr_ddelta * film.phase_per_nm - dr_da * film.loss_per_nm * a);
             out.dm_dk += nd.weight * dr_da * -nd.absorb_per_nm * d * a;
-            let r_up = nd
-                .film_up
-                .absorbing_at_cos(libm::cos(nd.phase_up_per_nm * d + nd.phase0_up), a)
+            let (delta_up, a_up) = up.round_trip(d);
+            let r_up = up
+                .reflectance(libm::cos(delta_up), libm::sin(delta_up), a_up)
                 .0;
             // The index's slope from the measured polarisation alone (the leak is small).
             let dr_dn = (r_up - own) / INDEX_STEP * (1.0 - self.leak);
@@ -2249,10 +2276,10 @@ impl Problem<'_> {
         let mut found = [Term::NONE; 5];
         if held.is_none() {
             let offered = |t: usize| match t {
-                // Over a bare back face the model takes the return through the film as
-                // lossless ([`FilmAtAngle::absorbing_at_cos`]): an absorption term there would
-                // trade the loss it misses against the index.
-                0 => self.geo.back_face == BackFace::None,
+                // At one angle the film's loss, which dims the back face's return twice over,
+                // trades with the index's reflectance level (a measured HfO2 film over its
+                // back face took k 0.016 and an index 0.014 high).
+                0 => self.geo.back_face == BackFace::None || self.geo.angles_deg.len() > 1,
                 1 => self.geo.polarization != Polarization::Unpolarized,
                 // One angle cannot tell an angle offset or a flare from the index.
                 2 | 4 => self.geo.angles_deg.len() > 1,
