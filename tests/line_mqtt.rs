@@ -377,6 +377,74 @@ fn a_wrong_password_is_refused_with_one_line() {
     );
 }
 
+/// The password in a file of its own (`mqtt.password_file`, owner-only): the line connects,
+/// and no sample's summary (which records the recipe's settings) holds the secret; a file
+/// others may read is refused at start with one line naming it.
+#[test]
+fn a_password_file_keeps_the_secret_out_of_the_recipe_and_the_records() {
+    use std::os::unix::fs::PermissionsExt as _;
+    let Some(bin) = mosquitto_bin() else { return };
+    let dir = tempdir();
+    let pki = pki(dir.path());
+    let b = broker(&pki, &bin, None);
+    let secret = dir.path().join("mqtt.pass");
+    std::fs::write(&secret, "s3cret-line1\n").expect("password file");
+    std::fs::set_permissions(&secret, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    let table =
+        mqtt_table(b.port, "", "").replace("password = \"\"\n", "password_file = \"mqtt.pass\"\n");
+    let rec = recipe(dir.path(), &table);
+    let out = dir.path().join("line");
+    let (ok, err) = stderr_of(
+        inspect(&rec, &out, &["--samples", "1"])
+            .spawn()
+            .expect("run"),
+    );
+    assert!(ok, "{err}");
+    let log = std::fs::read_to_string(out.join("inspect.log")).expect("log");
+    assert!(log.contains("over TLS under plant/line1/"), "{log}");
+    let mut summaries = 0;
+    for entry in walk(&out) {
+        if entry.file_name().is_some_and(|n| n == "summary.json") {
+            let text = std::fs::read_to_string(&entry).expect("summary");
+            assert!(!text.contains("s3cret"), "{}: {text}", entry.display());
+            summaries += 1;
+        }
+    }
+    assert!(summaries >= 1, "no sample summary under {}", out.display());
+
+    std::fs::set_permissions(&secret, std::fs::Permissions::from_mode(0o644)).expect("chmod");
+    let (ok, err) = stderr_of(
+        inspect(&rec, &dir.path().join("line2"), &["--samples", "1"])
+            .spawn()
+            .expect("run"),
+    );
+    assert!(!ok, "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("mqtt.password_file")
+            && err.contains("mqtt.pass")
+            && err.contains("chmod 600"),
+        "{err}"
+    );
+}
+
+/// Every file under `dir`.
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut todo = vec![dir.to_path_buf()];
+    while let Some(d) = todo.pop() {
+        for e in std::fs::read_dir(&d).into_iter().flatten().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                todo.push(p);
+            } else {
+                out.push(p);
+            }
+        }
+    }
+    out
+}
+
 #[test]
 fn tls_retained_last_result_online_offline_and_the_last_will() {
     let Some(bin) = mosquitto_bin() else { return };

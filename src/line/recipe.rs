@@ -310,9 +310,14 @@ pub struct MqttSpec {
     /// User name (none: anonymous).
     #[serde(default)]
     pub username: Option<String>,
-    /// Password of `username`.
-    #[serde(default)]
+    /// Password of `username`, written in the recipe; `password_file` keeps it out. Never
+    /// written back (each sample's `summary.json` records the recipe's settings).
+    #[serde(default, skip_serializing)]
     pub password: Option<String>,
+    /// File whose first line is the password of `username` (relative to the recipe's
+    /// folder), readable by its owner only: the recipe can then be shared and versioned.
+    #[serde(default)]
+    pub password_file: Option<PathBuf>,
     /// PEM file of the certificate authority the broker's certificate is checked against;
     /// given, the connection is TLS (relative to the recipe's folder).
     #[serde(default)]
@@ -487,6 +492,35 @@ pub const MAX_SPOOL: u64 = 100_000;
 /// Most characters of an MQTT client id.
 pub const MAX_CLIENT_ID: usize = 128;
 
+/// The password in `path`'s first line (`mqtt.password_file`): the file readable by its
+/// owner only (on Unix), the line at most [`MAX_CREDENTIAL`] characters.
+fn read_password(path: &Path) -> Result<String, String> {
+    let key = format!("mqtt.password_file = {:?}", path.display().to_string());
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt as _;
+        let mode = std::fs::metadata(path)
+            .map_err(|e| format!("{key}: cannot read: {e}"))?
+            .permissions()
+            .mode();
+        if mode & 0o077 != 0 {
+            return Err(format!(
+                "{key}: readable by others (mode {:o}): `chmod 600` it",
+                mode & 0o777
+            ));
+        }
+    }
+    let text = crate::limits::read_small(path, 4 * MAX_CREDENTIAL as u64 + 2)
+        .map_err(|e| format!("{key}: cannot read: {e}"))?;
+    let line = text.lines().next().unwrap_or_default();
+    if line.is_empty() || line.chars().count() > MAX_CREDENTIAL {
+        return Err(format!(
+            "{key}: expected the password on its first line, 1 to {MAX_CREDENTIAL} characters"
+        ));
+    }
+    Ok(line.to_owned())
+}
+
 impl Recipe {
     /// Reads and checks a recipe file.
     pub fn load(path: &Path) -> Result<Self, RecipeError> {
@@ -518,6 +552,12 @@ impl Recipe {
                 if f.is_relative() {
                     *f = dir.join(&*f);
                 }
+            }
+            if let Some(f) = &mut m.password_file {
+                if f.is_relative() {
+                    *f = dir.join(&*f);
+                }
+                m.password = Some(read_password(f)?);
             }
             if let Some(ca) = &m.ca_file {
                 let client = m
@@ -799,6 +839,14 @@ impl Recipe {
             if m.username.is_none() && m.password.is_some() {
                 return Err("mqtt.password: given without mqtt.username".into());
             }
+            if m.password_file.is_some() {
+                if m.password.is_some() {
+                    return Err("mqtt.password, mqtt.password_file: give one, not both".into());
+                }
+                if m.username.is_none() {
+                    return Err("mqtt.password_file: given without mqtt.username".into());
+                }
+            }
             if m.client_cert_file.is_some() != m.client_key_file.is_some() {
                 return Err(
                     "mqtt.client_cert_file, mqtt.client_key_file: give both or neither".into(),
@@ -937,6 +985,14 @@ mod tests {
             (
                 "[mqtt]\nclient_cert_file = \"c.pem\"\n",
                 "r.toml: mqtt.client_cert_file, mqtt.client_key_file: give both or neither",
+            ),
+            (
+                "[mqtt]\nusername = \"u\"\npassword = \"x\"\npassword_file = \"p\"\n",
+                "r.toml: mqtt.password, mqtt.password_file: give one, not both",
+            ),
+            (
+                "[mqtt]\npassword_file = \"p\"\n",
+                "r.toml: mqtt.password_file: given without mqtt.username",
             ),
             (
                 "[modbus]\nbind = \"127.0.0.1\"\n",
