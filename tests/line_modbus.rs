@@ -273,3 +273,48 @@ fn a_modbus_port_in_use_stops_inspect_at_start_with_one_line() {
         format!("filmscope: modbus server on {addr}: cannot listen: Address already in use (os error 98)")
     );
 }
+
+/// Sixteen clients at once are served; a seventeenth is closed as it comes, the sixteen keep
+/// their answers, and a slot freed by one leaving serves the next client.
+#[test]
+fn sixteen_clients_are_served_and_the_seventeenth_is_closed() {
+    use tokio_modbus::prelude::*;
+    let dir = tempdir();
+    let (child, addr, _out) = start(dir.path());
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    rt.block_on(async {
+        let mut clients = Vec::new();
+        for _ in 0..filmscope::line::plc::MAX_CONNECTIONS {
+            let mut c = tcp::connect(addr).await.expect("connect");
+            let r = c.read_holding_registers(0, 2).await.expect("io");
+            assert!(r.is_ok(), "{r:?}");
+            clients.push(c);
+        }
+        let mut extra = tcp::connect(addr).await.expect("tcp accepts");
+        let r = tokio::time::timeout(Duration::from_secs(5), extra.read_holding_registers(0, 2))
+            .await
+            .expect("answered or closed within 5 s");
+        assert!(r.is_err(), "the seventeenth is closed: {r:?}");
+        for c in &mut clients {
+            let r = c.read_holding_registers(0, 2).await.expect("io");
+            assert!(r.is_ok(), "{r:?}");
+        }
+        drop(clients.pop());
+        let r = async {
+            for _ in 0..100 {
+                let mut c = tcp::connect(addr).await.expect("connect");
+                if let Ok(Ok(r)) = c.read_holding_registers(0, 2).await {
+                    return Some(r);
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            None
+        }
+        .await;
+        assert!(r.is_some(), "a freed slot serves the next client");
+    });
+    sigterm_and_wait(child);
+}
