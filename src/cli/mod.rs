@@ -147,7 +147,8 @@ enum Command {
         max_memory: Option<String>,
         /// The film's index, known beforehand and held instead of fitted: a number, a
         /// library material name or a refractiveindex.info YAML file (filmscope method;
-        /// one field model per frame).
+        /// one field model per frame). A material that absorbs (`si`, a `tabulated nk`
+        /// file) is measured with its n and k, the sweep held in memory.
         #[arg(long, value_name = "MATERIAL")]
         film_index: Option<String>,
     },
