@@ -19,7 +19,7 @@ use std::time::Instant;
 
 use filmscope_core::optics::{Dispersion, Indices, LossyFilm};
 use filmscope_core::solve::refine::{passband_phase_span, passband_rule, MAX_BAND_NODES};
-use filmscope_core::solve::{flags, SweepSpec};
+use filmscope_core::solve::{flags, IndexModel, SweepSpec};
 use serde_json::json;
 
 use crate::estimate::method::{Method, MethodResult};
@@ -239,11 +239,13 @@ fn noise_of(cube: &SweepCube, fits: &[PixelFit], columns: &[Column]) -> f64 {
 }
 
 /// Measures the thickness map of `film` (given n and k, named `name`) from `source`'s
-/// sweep: the whole sweep held in memory, each pixel fitted alone ([`fit_pixel`]).
+/// sweep: the whole sweep held in memory, each pixel fitted alone ([`fit_pixel`]); the
+/// result reports `index`, the model that holds the film's real index over the bands.
 pub fn run_absorbing(
     source: &mut dyn Source,
     config: &RunConfig,
     film: &Dispersion,
+    index: IndexModel,
     name: &str,
 ) -> Result<Run, PipelineError> {
     let t0 = Instant::now();
@@ -318,8 +320,7 @@ pub fn run_absorbing(
     let mismatch = typical.is_nan() || typical > tolerated;
     let mut result = MethodResult {
         method: Method::Filmscope,
-        index: crate::estimate::known_index::held_index(film, &spec.bands_nm)
-            .map_err(PipelineError)?,
+        index,
         index_sigma: None,
         thickness_nm: Vec::with_capacity(w * h),
         confidence: Vec::with_capacity(w * h),

@@ -50,11 +50,11 @@ pub fn run_with_index(
 ) -> Result<Run, PipelineError> {
     let spec = config.fitted_spec(source.spec());
     let angles_deg = source.angles_deg();
+    let index = held_index(film, &spec.bands_nm).map_err(PipelineError)?;
     if crate::estimate::absorbing::absorbs(film, &spec.bands_nm) {
-        return crate::estimate::absorbing::run_absorbing(source, config, film, name);
+        return crate::estimate::absorbing::run_absorbing(source, config, film, index, name);
     }
     let t0 = Instant::now();
-    let index = held_index(film, &spec.bands_nm).map_err(PipelineError)?;
     let mut sample = None;
     if source.replayable() && !config.one_pass {
         let mut tap = SampleTap::new(&spec, config.sample_sites, angles_deg.len());
