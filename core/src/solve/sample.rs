@@ -1260,9 +1260,11 @@ struct Node {
     /// [`Problem::film_k`] (`a = exp(-film_k absorb_per_nm d)` to first order,
     /// [`ABSORPTION_TAIL_NM`]): the film's absorption's slope.
     absorb_per_nm: f64,
-    /// With film absorption or a polariser's leak ([`Problem::site_model`]): the film as it
-    /// absorbs, exactly, at the index, one index step up, and in the other polarisation (s
-    /// for p light, p for s; unpolarised light's own), which a leaking polariser mixes in.
+    /// With a polariser's leak and a clear film: the film in the other polarisation (s for p
+    /// light, p for s; unpolarised light's own), which a leaking polariser mixes in.
+    film_other: FilmAtAngle,
+    /// With film absorption ([`Problem::site_model`]): the film as it absorbs, exactly, at
+    /// the index, one index step up, and in the other polarisation.
     lossy: [LossyFilm; 3],
 }
 
@@ -1549,7 +1551,12 @@ impl Problem<'_> {
                 Polarization::P => Polarization::S,
                 Polarization::Unpolarized => Polarization::Unpolarized,
             };
-            let lossy = if self.film_k > 0.0 || self.leak > 0.0 {
+            let film_other = if self.leak > 0.0 && self.film_k == 0.0 {
+                FilmAtAngle::new(self.indices(n, l), deg, other)?
+            } else {
+                film
+            };
+            let lossy = if self.film_k > 0.0 {
                 let k = self.film_k * absorption_shape(l);
                 [
                     LossyFilm::new(self.indices(n, l), k, deg, pol, l)?,
@@ -1570,6 +1577,7 @@ impl Problem<'_> {
                 dn_dp,
                 absorb_per_nm: 4.0 * core::f64::consts::PI * n * absorption_shape(l)
                     / (l * film.kz_film),
+                film_other,
                 lossy,
             })
         };
@@ -1708,21 +1716,33 @@ impl Problem<'_> {
     }
 
     /// A site's band reflectance at thickness `d` over a band's passband `nodes`, with its
-    /// derivatives, the film absorbing as [`Problem::film_k`] says and the polariser leaking
-    /// as [`Problem::leak`] says ([`LossyFilm`]).
+    /// derivatives, the film absorbing as [`Problem::film_k`] says ([`LossyFilm`]) and the
+    /// polariser leaking as [`Problem::leak`] says.
     fn site_model(&self, nodes: &[Node], d: f64) -> SiteModel {
         let mut out = SiteModel::default();
-        if self.film_k == 0.0 && self.leak == 0.0 {
+        if self.film_k == 0.0 {
+            // A clear film: the lossless form, exact, and the other polarisation's for a leak.
+            let e = self.leak;
             for nd in nodes {
                 let ph = nd.phase_per_nm * d + nd.phase0;
-                let (r, dr_dc) = nd.film.reflectance_and_slope_at_cos(libm::cos(ph));
+                let (own, own_dc) = nd.film.reflectance_and_slope_at_cos(libm::cos(ph));
+                let mut dr_dd = own_dc * -libm::sin(ph) * nd.phase_per_nm;
+                let mut r = own;
+                if e > 0.0 {
+                    let ph_o = nd.phase_per_nm * d + nd.film_other.phase_offset();
+                    let (o, o_dc) = nd.film_other.reflectance_and_slope_at_cos(libm::cos(ph_o));
+                    out.dm_dleak += nd.weight * (o - own);
+                    r = (1.0 - e) * own + e * o;
+                    dr_dd = (1.0 - e) * dr_dd + e * o_dc * -libm::sin(ph_o) * nd.phase_per_nm;
+                }
                 out.m += nd.weight * r;
-                out.dm_dd += nd.weight * dr_dc * -libm::sin(ph) * nd.phase_per_nm;
+                out.dm_dd += nd.weight * dr_dd;
                 let r_up = nd
                     .film_up
                     .reflectance_at_cos(libm::cos(nd.phase_up_per_nm * d + nd.phase0_up));
+                // The index's slope from the measured polarisation alone (the leak is small).
                 for (q, j) in out.dm_dp.iter_mut().enumerate() {
-                    *j += nd.weight * (r_up - r) / INDEX_STEP * nd.dn_dp[q];
+                    *j += nd.weight * (r_up - own) / INDEX_STEP * (1.0 - e) * nd.dn_dp[q];
                 }
             }
             return out;
