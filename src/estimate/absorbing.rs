@@ -22,6 +22,7 @@ use filmscope_core::solve::refine::{passband_phase_span, passband_rule, MAX_BAND
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
 use serde_json::json;
 
+use crate::estimate::baseline::defect_flags;
 use crate::estimate::method::{Method, MethodResult};
 use crate::estimate::run::{Run, RunConfig};
 use crate::pipeline::{collect_sweep, PipelineError};
@@ -107,6 +108,16 @@ struct PixelFit {
     flags: u16,
 }
 
+impl PixelFit {
+    /// No fit.
+    const NONE: Self = Self {
+        d: f64::NAN,
+        sigma: f64::NAN,
+        rms: f64::NAN,
+        flags: 0,
+    };
+}
+
 /// Fits one pixel's samples `y` (NaN: missing) over the grid `table` (`grid.len()` rows of
 /// `columns.len()` values), then by Gauss-Newton on the exact model.
 fn fit_pixel(
@@ -118,21 +129,11 @@ fn fit_pixel(
 ) -> PixelFit {
     let nc = columns.len();
     let used = y.iter().filter(|v| v.is_finite()).count();
-    let bad = PixelFit {
-        d: f64::NAN,
-        sigma: f64::NAN,
-        rms: f64::NAN,
-        flags: 0,
-    };
-    if used * 10 < nc * 9 || used < 2 {
-        let saturated = y.iter().filter(|v| v.is_infinite()).count();
+    let defects = defect_flags(y);
+    if defects != 0 || used < 2 {
         return PixelFit {
-            flags: if saturated * 2 > nc - used {
-                flags::SATURATED
-            } else {
-                flags::DEAD
-            },
-            ..bad
+            flags: defects | if used < 2 { flags::DEAD } else { 0 },
+            ..PixelFit::NONE
         };
     }
     let sse_at = |g: usize| -> f64 {
@@ -148,7 +149,7 @@ fn fit_pixel(
     };
     let sses: Vec<f64> = (0..grid.len()).map(sse_at).collect();
     let Some((best, &best_sse)) = sses.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)) else {
-        return bad;
+        return PixelFit::NONE;
     };
     let rival = sses
         .iter()
@@ -281,15 +282,7 @@ pub fn run_absorbing(
     let (w, h, nb) = (cube.width, cube.height, cube.bands_nm.len());
     let workers = config.pipeline.workers.max(1);
     let rows_per = h.div_ceil(workers).max(1);
-    let mut fits = vec![
-        PixelFit {
-            d: f64::NAN,
-            sigma: f64::NAN,
-            rms: f64::NAN,
-            flags: 0
-        };
-        w * h
-    ];
+    let mut fits = vec![PixelFit::NONE; w * h];
     std::thread::scope(|scope| {
         for (chunk_index, chunk) in fits.chunks_mut(rows_per * w).enumerate() {
             let (cube, grid, table, columns) = (&cube, &grid, &table, &columns);

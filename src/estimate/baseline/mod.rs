@@ -9,6 +9,8 @@
 
 mod brute;
 mod common;
+
+pub(crate) use common::defect_flags;
 mod paper;
 
 pub use brute::{brute, BruteGrid, DEFAULT_INDEX_STEP};
