@@ -36,7 +36,7 @@ use filmscope::calibrate::calibrate_row;
 use filmscope::optics::Polarization;
 use filmscope::pipeline::{BandModels, ShardState};
 use filmscope::solve::fit_row::{self, FitLanes, IndexLanes, IndexSampling};
-use filmscope::solve::refine::{BandCoef, GnSums, Knot};
+use filmscope::solve::refine::{BandCoef, FilmTerms, GnSums, Knot};
 use filmscope::solve::sweep::SolverOptions;
 use filmscope::solve::{IndexModel, SweepSolver};
 use filmscope::source::calibrate_block;
@@ -96,6 +96,7 @@ fn band_coefs() -> Vec<BandCoef> {
         .map(|b| {
             BandCoef::new(
                 IndexModel::constant(N_FILM),
+                FilmTerms::NONE,
                 1.0,
                 1.65,
                 0.0,
@@ -289,6 +290,7 @@ fn bench_refine(c: &mut Criterion) {
             for b in 0..BANDS {
                 black_box(BandCoef::new(
                     IndexModel::constant(black_box(N_FILM)),
+                    FilmTerms::NONE,
                     1.0,
                     1.65,
                     0.0,

@@ -2,11 +2,12 @@
 //! held as the rows stream past, fitted when an angle or the sweep completes, and turned
 //! into the solver's index model, a thickness seed map and `summary.json`'s evidence.
 
+use filmscope_core::solve::refine::ABSORPTION_TAIL_NM;
 use filmscope_core::solve::sample::{
     fit_index, hold_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len,
-    Failure, Geometry, ModelKind, Parallel, Residual, SampleFit, Seat, Spectra, Start, Term,
-    ABSORPTION_TAIL_NM, CENTRE, CONSTANT_PREFERENCE, GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY,
-    OUTLIER_SITE_RATIO, RUN,
+    Failure, Geometry, ModelKind, Nuisance, Parallel, Residual, SampleFit, Seat, Spectra, Start,
+    Term, CENTRE, CONSTANT_PREFERENCE, GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY, OUTLIER_SITE_RATIO,
+    RUN,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
 use serde_json::{json, Value};
@@ -185,8 +186,8 @@ impl PixelTap {
         &self.pixels
     }
 
-    /// Each held pixel's thickness under the index `(kind, params)`, the image's noise and
-    /// the model's error (the sample fit's).
+    /// Each held pixel's thickness under the index `(kind, params)`, the image's noise, the
+    /// model's error and the nuisance terms (the sample fit's).
     pub fn seat(
         &self,
         spec: &SweepSpec,
@@ -194,6 +195,7 @@ impl PixelTap {
         params: [f64; 3],
         noise_sigma: f64,
         model_error: f64,
+        nuisance: &Nuisance,
     ) -> Vec<Seat> {
         let angles = self.angles_deg.len().min(self.angle_stride);
         let geo = geometry(spec, &self.angles_deg[..angles]);
@@ -215,6 +217,7 @@ impl PixelTap {
                 params,
                 noise_sigma,
                 model_error,
+                nuisance,
                 &mut scratch,
                 seats,
                 &Threads,

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use filmscope_core::optics::BackFace;
+use filmscope_core::solve::refine::FilmTerms;
 use filmscope_core::solve::sample::{Failure, SampleFit};
 use filmscope_core::solve::shard::MAX_THICKNESS_SIGMA_NM;
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
@@ -31,6 +32,10 @@ pub const SITE_AGREEMENT_NM: f32 = 20.0;
 
 /// Share of disagreeing sites above which the per-pixel pass is not trusted.
 pub const MAX_DISAGREEING_SITES: f64 = 0.1;
+
+/// Share of pixels flagged imprecise above which the per-pixel pass runs again from the
+/// sample's map.
+const MAX_IMPRECISE_SHARE: f64 = 0.1;
 
 /// What the estimator's passes over one sweep ended with.
 pub struct Passes {
@@ -175,9 +180,13 @@ pub fn passes_under(
     let mut passes = 2;
     // The per-pixel pass must agree with the sample's own thicknesses; where it does not
     // (orders from extrema gone wrong, or left unsolved), every pixel starts from the
-    // sample's map instead.
+    // sample's map instead. So too where many pixels came out imprecise: orders the
+    // extrema settle only at the last angle leave sums of that angle's samples alone (an
+    // angle near Brewster's for p light pins little); from the map every angle adds.
     if let (Some(i), false) = (index, seeded) {
-        if sites_disagree(tap, &fit, &out, true) > MAX_DISAGREEING_SITES {
+        if sites_disagree(tap, &fit, &out, true) > MAX_DISAGREEING_SITES
+            || imprecise_share(&out, &fit) > MAX_IMPRECISE_SHARE
+        {
             if let Some(map) = tap.seed_map(&fit, spec.width, spec.height) {
                 let prior = Prior::new(i, PriorUpdate::Hold, Some(Arc::new(map)))
                     .with_noise(fit.noise_sigma)
@@ -301,6 +310,7 @@ fn repair(
         best.params,
         fit.noise_sigma,
         fit.model_error,
+        &fit.nuisance(),
     );
     let [d_lo, d_hi] = spec.thickness_range_nm;
     let chi2_limit = SEARCH_CHI2_NU * best.chi2_nu.max(1.0);
@@ -321,6 +331,31 @@ fn repair(
         solved += 1;
     }
     Ok(Some((tap.pixels().len(), solved)))
+}
+
+/// Share of the pixels imprecise, flagged so or to be once the sample fit's share is added
+/// ([`with_sample_share`]).
+fn imprecise_share(out: &SweepOutput, fit: &SampleFit) -> f64 {
+    let own = own_factor(fit);
+    let n = out
+        .results
+        .iter()
+        .filter(|r| {
+            r.flags & flags::IMPRECISE != 0
+                || f64::from(r.thickness_sigma_nm) * own > MAX_THICKNESS_SIGMA_NM
+        })
+        .count();
+    n as f64 / out.results.len().max(1) as f64
+}
+
+/// The factor a pixel's own thickness sigma is widened by: the sample fit's residual's
+/// correlation along the band, when the fit carries a model error.
+fn own_factor(fit: &SampleFit) -> f64 {
+    if fit.model_error > 0.0 {
+        fit.residual.correlation_factor()
+    } else {
+        1.0
+    }
 }
 
 /// Share of the sampled sites, among those the sample fit solves, whose thickness in the
@@ -414,11 +449,7 @@ fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
             / angles.len() as f64
     };
     let slope = n550 / (n550 * n550 - sin2).max(1e-6);
-    let own = if fit.model_error > 0.0 {
-        fit.residual.correlation_factor()
-    } else {
-        1.0
-    };
+    let own = own_factor(fit);
     let index_sigma = fit.best.map_or(0.0, |c| c.n550_sigma);
     for r in &mut out.results {
         let d = f64::from(r.thickness_nm);
@@ -440,7 +471,8 @@ fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
 }
 
 /// What the sample fit found every pixel's data off by (its stage offset, wavelength shift,
-/// flare and each angle's reflectance scale and offset), for the per-pixel passes to take out.
+/// flare and each angle's reflectance scale and offset), for the per-pixel passes to take
+/// out, and the film's absorption and the polariser's leak, for their model to carry.
 fn correction_of(fit: &SampleFit) -> Correction {
     Correction {
         angle_offset_deg: fit.stage_offset_deg.value,
@@ -451,6 +483,10 @@ fn correction_of(fit: &SampleFit) -> Correction {
             .map(|&(s, o)| (s as f32, o as f32))
             .collect(),
         flare: fit.flare.value as f32,
+        film: FilmTerms {
+            film_k: fit.film_k.value,
+            leak: fit.polariser_leak.value,
+        },
     }
 }
 

@@ -5,6 +5,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use filmscope_core::solve::refine::FilmTerms;
 use filmscope_core::solve::SweepContext;
 
 use super::state::{BandModels, ShardState, ShardTally};
@@ -80,7 +81,8 @@ pub trait Tap {
 
 /// The sample fit's nuisance terms that apply to every pixel alike: a stage angle offset, a
 /// wavelength shift, a flare and each angle's reflectance scale and offset
-/// (`measured = scale x film + offset + flare`).
+/// (`measured = scale x film + offset + flare`), taken out of the data; the film's
+/// absorption and the polariser's leak, put into the pixels' model.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Correction {
     /// Added to every measured angle, degrees.
@@ -92,4 +94,6 @@ pub struct Correction {
     pub terms: Vec<(f32, f32)>,
     /// Subtracted from every measured reflectance (stray light), before the angle's terms.
     pub flare: f32,
+    /// The film's absorption and the polariser's leak.
+    pub film: FilmTerms,
 }

@@ -286,7 +286,8 @@ fn sweep(
     let workers = strips.workers();
     let cap = config.channel_capacity.max(1);
     let start = Instant::now();
-    let mut solver = SweepSolver::new(spec.clone(), prior.as_ref().map(|p| p.index));
+    let mut solver = SweepSolver::new(spec.clone(), prior.as_ref().map(|p| p.index))
+        .with_film_terms(correction.film);
     match prior.as_ref().map(|p| p.update) {
         Some(PriorUpdate::FullSpectra) => solver = solver.with_spectral_index(),
         Some(PriorUpdate::Hold) => solver = solver.with_held_index(),

@@ -45,6 +45,10 @@ pub struct LossyFilm {
     /// `-ln a` per nm of thickness: `4 pi Im(kz2) / lambda`.
     pub loss_per_nm: f64,
     coeffs: [Coefficients; 2],
+    /// Each coefficient set's share of the light (S or P: `[1, 0]`; unpolarised: halves;
+    /// a leaking polariser: `[1 - e, e]`).
+    weights: [f64; 2],
+    /// Coefficient sets with a share (1 or 2).
     n_pol: usize,
 }
 
@@ -59,18 +63,38 @@ impl LossyFilm {
         pol: Polarization,
         wavelength_nm: f64,
     ) -> Option<Self> {
+        Self::with_leak(idx, film_k, incidence_deg, pol, wavelength_nm, 0.0)
+    }
+
+    /// [`LossyFilm::new`] in S or P light with the share `leak` of the other polarisation
+    /// (a polariser's finite extinction; ignored for unpolarised light): both cross the same
+    /// film, each with its own coefficients.
+    pub fn with_leak(
+        idx: Indices,
+        film_k: f64,
+        incidence_deg: f64,
+        pol: Polarization,
+        wavelength_nm: f64,
+        leak: f64,
+    ) -> Option<Self> {
         let beta = snell_invariant(idx.ambient, incidence_deg);
         let k1 = idx.ambient * idx.ambient - beta * beta;
         let k3 = idx.substrate * idx.substrate - beta * beta;
-        if k1 <= 0.0 || (k3 <= 0.0 && idx.substrate_k == 0.0) || film_k.is_nan() || film_k < 0.0 {
+        if k1 <= 0.0
+            || (k3 <= 0.0 && idx.substrate_k == 0.0)
+            || film_k.is_nan()
+            || film_k < 0.0
+            || !(0.0..=1.0).contains(&leak)
+        {
             return None;
         }
         let (eps1, kz1) = medium_wave(idx.ambient, 0.0, beta);
         let (eps2, kz2) = medium_wave(idx.film, film_k, beta);
         let (eps3, kz3) = medium_wave(idx.substrate, idx.substrate_k, beta);
-        let pols = match pol {
-            Polarization::Unpolarized => [Polarization::S, Polarization::P],
-            p => [p, p],
+        let (pols, weights) = match pol {
+            Polarization::Unpolarized => ([Polarization::S, Polarization::P], [0.5, 0.5]),
+            Polarization::S => ([Polarization::S, Polarization::P], [1.0 - leak, leak]),
+            Polarization::P => ([Polarization::P, Polarization::S], [1.0 - leak, leak]),
         };
         let mut coeffs = [Coefficients::default(); 2];
         for (c, p) in coeffs.iter_mut().zip(pols) {
@@ -108,11 +132,8 @@ impl LossyFilm {
             phase_per_nm: per_nm * kz2.re,
             loss_per_nm: per_nm * kz2.im,
             coeffs,
-            n_pol: if pol == Polarization::Unpolarized {
-                2
-            } else {
-                1
-            },
+            weights,
+            n_pol: if weights[1] > 0.0 { 2 } else { 1 },
         })
     }
 
@@ -130,7 +151,7 @@ impl LossyFilm {
     #[inline]
     pub fn reflectance(&self, c: f64, s: f64, a: f64) -> (f64, f64, f64) {
         let (mut r, mut d_delta, mut d_a) = (0.0, 0.0, 0.0);
-        for k in &self.coeffs[..self.n_pol] {
+        for (k, &w) in self.coeffs[..self.n_pol].iter().zip(&self.weights) {
             let g = 2.0 * k.rho12 * k.rho23;
             let (r12s, r23s) = (k.rho12 * k.rho12, k.rho23 * k.rho23);
             // cos and sin of Delta shifted by a phase.
@@ -169,12 +190,11 @@ impl LossyFilm {
                 slope_d += ret(t_d, back_d);
                 slope_a += ret(t_a, back_a);
             }
-            r += value;
-            d_delta += slope_d;
-            d_a += slope_a;
+            r += w * value;
+            d_delta += w * slope_d;
+            d_a += w * slope_a;
         }
-        let w = 1.0 / self.n_pol as f64;
-        (r * w, d_delta * w, d_a * w)
+        (r, d_delta, d_a)
     }
 }
 

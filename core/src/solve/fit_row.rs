@@ -1064,6 +1064,7 @@ mod tests {
             let l = 450.0 + 110.0 * b as f64;
             let mut coef = BandCoef::new(
                 IndexModel::constant(1.9),
+                crate::solve::refine::FilmTerms::NONE,
                 1.0,
                 1.52,
                 0.0,

@@ -13,7 +13,9 @@
 //! Gauss-Hermite quadrature, dispersion followed node by node. Two more sums score the
 //! thicknesses one order either side, so a wrong order is caught on the full spectrum.
 
-use crate::optics::{BackFace, FilmAtAngle, Indices, Passband, Polarization, HALF_WIDTH_FWHM};
+use crate::optics::{
+    BackFace, FilmAtAngle, Indices, LossyFilm, Passband, Polarization, HALF_WIDTH_FWHM,
+};
 
 use super::IndexModel;
 
@@ -101,33 +103,104 @@ pub fn passband_phase_span(
     }
 }
 
+/// The film's extinction coefficient's Urbach tail, nm: `k(l) = k450 exp((450 - l) / tail)`
+/// ([`FilmTerms::film_k`] is `k` at 450 nm).
+pub const ABSORPTION_TAIL_NM: f64 = 90.0;
+
+/// `k(l) / k(450 nm)` ([`ABSORPTION_TAIL_NM`]).
+pub(crate) fn absorption_shape(l_nm: f64) -> f64 {
+    libm::exp((450.0 - l_nm) / ABSORPTION_TAIL_NM)
+}
+
+/// What the sample fit found the film and the light to be beyond a clear film in one
+/// polarisation, for the per-pixel model to carry: without them a pixel's thickness is fitted
+/// to a model the sample has shown wrong (an absorbing film's return from a bare back face,
+/// lost on a thick pixel's way through it, picks the wrong order).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FilmTerms {
+    /// The film's extinction coefficient at 450 nm, its tail to the blue
+    /// [`ABSORPTION_TAIL_NM`] (0: a clear film).
+    pub film_k: f64,
+    /// The share of the other polarisation a leaking polariser lets through (0: none).
+    pub leak: f64,
+}
+
+impl FilmTerms {
+    /// A clear film in the light's own polarisation.
+    pub const NONE: Self = Self {
+        film_k: 0.0,
+        leak: 0.0,
+    };
+
+    /// Whether the model needs more than the clear film's one polarisation.
+    fn any(self) -> bool {
+        self.film_k > 0.0 || self.leak > 0.0
+    }
+}
+
 /// One quadrature node of a band: the stack at the node's wavelength.
 #[derive(Clone, Copy, Debug)]
 struct Node {
     weight: f64,
     phase_per_nm: f64,
-    /// The film's [`FilmAtAngle::phase_offset`] (0 on a clear substrate).
+    /// The film's [`FilmAtAngle::phase_offset`] (0 on a clear substrate; with
+    /// [`FilmTerms`], in the film's coefficients).
     phase0: f64,
-    film: FilmAtAngle,
+    film: NodeFilm,
+}
+
+/// A node's film.
+#[derive(Clone, Copy, Debug)]
+enum NodeFilm {
+    /// A clear film in the light's own polarisation.
+    Clear(FilmAtAngle),
+    /// With the sample's [`FilmTerms`]: the film absorbing, the other polarisation leaking in.
+    Terms(LossyFilm),
 }
 
 impl Node {
-    /// The node's weighted reflectance and its weighted thickness derivative, at the phase
-    /// (its offset included) whose cosine and sine are `c` and `s`.
+    /// The node's weighted reflectance and its weighted thickness derivative for the clear
+    /// film `f` (its own), at the phase (its offset included) whose cosine and sine are `c`
+    /// and `s`.
     #[inline]
-    fn model_and_slope(&self, c: f64, s: f64) -> (f64, f64) {
-        let (r, dr_dc) = self.film.reflectance_and_slope_at_cos(c);
+    fn clear_model_and_slope(&self, f: &FilmAtAngle, c: f64, s: f64) -> (f64, f64) {
+        let (r, dr_dc) = f.reflectance_and_slope_at_cos(c);
         (
             self.weight * r,
             -self.weight * dr_dc * s * self.phase_per_nm,
         )
     }
 
+    /// The node's weighted reflectance and its weighted thickness derivative for a film of
+    /// `thickness_nm`.
+    #[inline]
+    fn model_and_slope(&self, thickness_nm: f64) -> (f64, f64) {
+        match &self.film {
+            NodeFilm::Clear(f) => {
+                let (s, c) = libm::sincos(self.phase_per_nm * thickness_nm + self.phase0);
+                self.clear_model_and_slope(f, c, s)
+            }
+            NodeFilm::Terms(f) => {
+                let (delta, a) = f.round_trip(thickness_nm);
+                let (s, c) = libm::sincos(delta);
+                let (r, dr_dd, dr_da) = f.reflectance(c, s, a);
+                let slope = dr_dd * f.phase_per_nm - dr_da * f.loss_per_nm * a;
+                (self.weight * r, self.weight * slope)
+            }
+        }
+    }
+
     /// The node's reflectance for a film of `thickness_nm`.
     #[inline]
     fn at(&self, thickness_nm: f64) -> f64 {
-        self.film
-            .reflectance_at_phase(self.phase_per_nm * thickness_nm)
+        match &self.film {
+            NodeFilm::Clear(f) => f.reflectance_at_phase(self.phase_per_nm * thickness_nm),
+            NodeFilm::Terms(f) => {
+                let (delta, a) = f.round_trip(thickness_nm);
+                let (s, c) = libm::sincos(delta);
+                f.reflectance(c, s, a).0
+            }
+        }
     }
 }
 
@@ -174,6 +247,9 @@ pub struct BandCoef {
     count: usize,
     /// Where the band's tabulated model sits in the angle's knots, if tabulated.
     table: Option<TableSpan>,
+    /// Whether the nodes carry [`FilmTerms`] (their model computed from the thickness, not
+    /// stepped by a rotation of the clear film's phase).
+    terms: bool,
 }
 
 /// The tabulated model of one band at one thickness knot and the next: at each, the
@@ -191,6 +267,18 @@ pub struct Knot {
     pub(crate) m: [f32; 2],
     pub(crate) slope_h: [f32; 2],
     pub(crate) j_n: [f32; 2],
+}
+
+impl Knot {
+    /// A knot's own values (the next knot's filled in by [`BandCoef::tabulate`]).
+    fn of(m: f64, slope_h: f64, j_n: f64) -> Self {
+        let (m, slope_h, j_n) = (m as f32, slope_h as f32, j_n as f32);
+        Self {
+            m: [m; 2],
+            slope_h: [slope_h; 2],
+            j_n: [j_n; 2],
+        }
+    }
 }
 
 /// Where one band's knots sit in the angle's table.
@@ -326,10 +414,12 @@ pub struct BandEval {
 
 impl BandCoef {
     /// Builds the coefficients for films up to `d_max_nm` thick (which sets the passband's
-    /// quadrature: [`passband_rule`]), or `None` where the model has no propagating wave.
+    /// quadrature: [`passband_rule`]), the film absorbing and the polariser leaking as
+    /// `terms` says, or `None` where the model has no propagating wave.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         index: IndexModel,
+        terms: FilmTerms,
         ambient: f64,
         substrate: f64,
         substrate_k: f64,
@@ -355,11 +445,29 @@ impl BandCoef {
         };
         let node = |(l, w): (f64, f64), dn: f64| -> Option<Node> {
             let film = film_at(l, dn)?;
+            if !terms.any() {
+                return Some(Node {
+                    weight: w,
+                    phase_per_nm: 4.0 * core::f64::consts::PI * film.kz_film / l,
+                    phase0: film.phase_offset(),
+                    film: NodeFilm::Clear(film),
+                });
+            }
+            let indices = Indices {
+                ambient,
+                film: index.at(l) + dn,
+                substrate,
+                substrate_k,
+                back_face,
+            };
+            let k = terms.film_k * absorption_shape(l);
+            let lossy =
+                LossyFilm::with_leak(indices, k, incidence_deg, polarization, l, terms.leak)?;
             Some(Node {
                 weight: w,
-                phase_per_nm: 4.0 * core::f64::consts::PI * film.kz_film / l,
-                phase0: film.phase_offset(),
-                film,
+                phase_per_nm: lossy.phase_per_nm,
+                phase0: 0.0,
+                film: NodeFilm::Terms(lossy),
             })
         };
         let span = passband_phase_span(wavelength_nm, fwhm_nm, d_max_nm, |l| {
@@ -378,6 +486,7 @@ impl BandCoef {
             centre_up: node((wavelength_nm, 1.0), INDEX_STEP)?,
             count,
             table: None,
+            terms: terms.any(),
         })
     }
 
@@ -411,8 +520,8 @@ impl BandCoef {
     /// Tabulates the band's model over thicknesses `range_nm` into `knots` (which must hold
     /// [`BandCoef::knots_for`]'s count), `first` being the knots' offset in the angle's table.
     /// Each knot costs the model's quadrature with its thickness derivative and two
-    /// band-centre evaluations for the index derivative, once per angle; the phases step
-    /// from knot to knot by a rotation, no sine or cosine per knot.
+    /// band-centre evaluations for the index derivative, once per angle (a clear film's
+    /// phases stepped by a rotation: [`BandCoef::tabulate_clear`]).
     pub fn tabulate(&mut self, range_nm: [f64; 2], first: usize, knots: &mut [Knot]) {
         let Some((h, count)) = self.knots_for(range_nm) else {
             self.table = None;
@@ -423,33 +532,15 @@ impl BandCoef {
             return;
         };
         let d0 = range_nm[0];
-        let nodes = &self.nodes[..self.count];
-        let mut at_node = [Phasor::default(); MAX_BAND_NODES];
-        for (p, n) in at_node.iter_mut().zip(nodes) {
-            *p = Phasor::new(n.phase_per_nm, n.phase0, d0, h);
-        }
-        let (c, up) = (&self.centre, &self.centre_up);
-        let mut centre = Phasor::new(c.phase_per_nm, c.phase0, d0, h);
-        let mut centre_up = Phasor::new(up.phase_per_nm, up.phase0, d0, h);
-        for k in knots.iter_mut() {
-            let (mut m, mut slope) = (0.0, 0.0);
-            for (p, n) in at_node.iter_mut().zip(nodes) {
-                let (r, dr) = n.model_and_slope(p.c, p.s);
-                m += r;
-                slope += dr;
-                p.step();
+        if self.terms {
+            for (j, k) in knots.iter_mut().enumerate() {
+                let d = d0 + h * j as f64;
+                let (m, slope) = self.model_and_slope(d);
+                let j_n = (self.centre_up.at(d) - self.centre.at(d)) / INDEX_STEP;
+                *k = Knot::of(m, slope * h, j_n);
             }
-            let j_n = (self.centre_up.film.reflectance_at_cos(centre_up.c)
-                - self.centre.film.reflectance_at_cos(centre.c))
-                / INDEX_STEP;
-            centre.step();
-            centre_up.step();
-            let (m, slope_h, j_n) = (m as f32, (slope * h) as f32, j_n as f32);
-            *k = Knot {
-                m: [m; 2],
-                slope_h: [slope_h; 2],
-                j_n: [j_n; 2],
-            };
+        } else {
+            self.tabulate_clear(d0, h, knots);
         }
         // Each record's next knot: the following record's own.
         for j in 1..knots.len() {
@@ -465,6 +556,41 @@ impl BandCoef {
             d0: d0 as f32,
             inv_h: (1.0 / h) as f32,
         });
+    }
+
+    /// [`BandCoef::tabulate`]'s knots for a clear film in one polarisation (every node
+    /// [`NodeFilm::Clear`]), from `d0` at `h` nm: the phases step from knot to knot by a
+    /// rotation, no sine or cosine per knot.
+    fn tabulate_clear(&self, d0: f64, h: f64, knots: &mut [Knot]) {
+        let nodes = &self.nodes[..self.count];
+        let mut at_node = [Phasor::default(); MAX_BAND_NODES];
+        for (p, n) in at_node.iter_mut().zip(nodes) {
+            *p = Phasor::new(n.phase_per_nm, n.phase0, d0, h);
+        }
+        let (c, up) = (&self.centre, &self.centre_up);
+        let mut centre = Phasor::new(c.phase_per_nm, c.phase0, d0, h);
+        let mut centre_up = Phasor::new(up.phase_per_nm, up.phase0, d0, h);
+        for k in knots.iter_mut() {
+            let (mut m, mut slope) = (0.0, 0.0);
+            for (p, n) in at_node.iter_mut().zip(nodes) {
+                if let NodeFilm::Clear(f) = &n.film {
+                    let (r, dr) = n.clear_model_and_slope(f, p.c, p.s);
+                    m += r;
+                    slope += dr;
+                }
+                p.step();
+            }
+            let j_n = match (&self.centre_up.film, &self.centre.film) {
+                (NodeFilm::Clear(up), NodeFilm::Clear(own)) => {
+                    (up.reflectance_at_cos(centre_up.c) - own.reflectance_at_cos(centre.c))
+                        / INDEX_STEP
+                }
+                _ => f64::NAN,
+            };
+            centre.step();
+            centre_up.step();
+            *k = Knot::of(m, slope * h, j_n);
+        }
     }
 
     /// Whether the band is tabulated.
@@ -522,8 +648,7 @@ impl BandCoef {
     fn model_and_slope(&self, thickness_nm: f64) -> (f64, f64) {
         let (mut m, mut j) = (0.0, 0.0);
         for n in &self.nodes[..self.count] {
-            let (s, c) = libm::sincos(n.phase_per_nm * thickness_nm + n.phase0);
-            let (r, dr) = n.model_and_slope(c, s);
+            let (r, dr) = n.model_and_slope(thickness_nm);
             m += r;
             j += dr;
         }
@@ -813,6 +938,7 @@ mod tests {
             for l in [400.0, 420.0, 550.0, 720.0] {
                 let c = BandCoef::new(
                     index,
+                    FilmTerms::NONE,
                     1.0,
                     1.65,
                     0.0,
@@ -846,6 +972,7 @@ mod tests {
         let full = [-310.0, 2360.0];
         let mut whole = BandCoef::new(
             IndexModel::constant(1.38),
+            FilmTerms::NONE,
             1.0,
             1.65,
             0.0,
@@ -904,6 +1031,7 @@ mod tests {
     fn stepped_knots_match_the_computed_model_to_the_table_end() {
         let mut c = BandCoef::new(
             IndexModel::constant(2.4),
+            FilmTerms::NONE,
             1.0,
             1.52,
             0.0,
@@ -953,6 +1081,7 @@ mod tests {
         for (n, l, fwhm) in [(1.38, 420.0, 4.0), (2.8, 420.0, 1.0), (2.35, 700.0, 10.0)] {
             let mut c = BandCoef::new(
                 IndexModel::constant(n),
+                FilmTerms::NONE,
                 1.0,
                 1.52,
                 0.0,
@@ -1015,10 +1144,11 @@ mod tests {
     fn one_step_recovers_a_small_thickness_error() {
         let n = 1.37;
         let truth = 400.0;
-        let coefs: heapless::Vec<BandCoef, 256> = (0..151)
+        let coefs: Vec<BandCoef> = (0..151)
             .map(|b| {
                 BandCoef::new(
                     IndexModel::constant(n),
+                    FilmTerms::NONE,
                     1.0,
                     1.65,
                     0.0,
@@ -1040,5 +1170,79 @@ mod tests {
         let step = f64::from(gn.g_d) / f64::from(gn.h_dd);
         assert!((start + step - truth).abs() < 0.3, "{}", start + step);
         assert!(gn.sse_minus > gn.sse && gn.sse_plus > gn.sse);
+    }
+
+    /// With the film absorbing and the polariser leaking, the band model is the mix of the two
+    /// polarisations' reflectances through the absorbing film (leak alone: the clear film's
+    /// in each polarisation, computed apart), its thickness slope the model's own, and the
+    /// table follows the computed model as it does for a clear film.
+    #[test]
+    fn film_terms_enter_the_band_model() {
+        let band = |terms: FilmTerms, fwhm: f64| {
+            BandCoef::new(
+                IndexModel::constant(2.1),
+                terms,
+                1.0,
+                1.52,
+                0.0,
+                BackFace::Bare,
+                Polarization::S,
+                45.0,
+                430.0,
+                fwhm,
+                2500.0,
+            )
+            .expect("propagating")
+        };
+        let film = |pol| {
+            let idx = Indices {
+                ambient: 1.0,
+                film: 2.1,
+                substrate: 1.52,
+                substrate_k: 0.0,
+                back_face: BackFace::Bare,
+            };
+            FilmAtAngle::new(idx, 45.0, pol).expect("propagating")
+        };
+        let (s, p) = (film(Polarization::S), film(Polarization::P));
+        let leaky = band(
+            FilmTerms {
+                film_k: 0.0,
+                leak: 0.03,
+            },
+            1e-3,
+        );
+        for d in [120.0, 640.0, 1890.0] {
+            let want = 0.97 * s.reflectance(d, 430.0) + 0.03 * p.reflectance(d, 430.0);
+            assert!(
+                (leaky.model(d) - want).abs() < 1e-7,
+                "d {d}: {} vs {want}",
+                leaky.model(d)
+            );
+        }
+        let terms = FilmTerms {
+            film_k: 0.006,
+            leak: 0.02,
+        };
+        let clear = band(FilmTerms::NONE, 3.0);
+        let mut c = band(terms, 3.0);
+        let range = [-300.0, 2500.0];
+        let (_, count) = c.knots_for(range).expect("a table");
+        let mut knots = vec![Knot::default(); count];
+        c.tabulate(range, 0, &mut knots);
+        let step = 430.0 / 4.2;
+        let mut lost = 0.0f64;
+        for i in 0..300 {
+            let d = 20.0 + 7.77 * f64::from(i);
+            let (m, j_d) = c.model_and_slope(d);
+            let h = 1e-4;
+            let numeric = (c.model(d + h) - c.model(d - h)) / (2.0 * h);
+            assert!((j_d - numeric).abs() < 1e-6, "d {d}: {j_d} vs {numeric}");
+            let t = c.eval(&knots, d, step);
+            assert!((t.m - m).abs() < 5e-5, "d {d}: {} vs {m}", t.m);
+            lost = lost.max(clear.model(d) - m);
+        }
+        // The absorbing film returns less from the back face at 430 nm (k 0.0073 there).
+        assert!(lost > 1e-3, "{lost}");
     }
 }

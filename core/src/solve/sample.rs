@@ -31,7 +31,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::refine::{passband_phase_span, passband_rule, MAX_BAND_NODES};
+use super::refine::{absorption_shape, passband_phase_span, passband_rule, MAX_BAND_NODES};
 use super::IndexModel;
 use crate::optics::{BackFace, Dispersion, FilmAtAngle, Indices, LossyFilm, Polarization};
 
@@ -112,9 +112,6 @@ const TERM_ROUNDS: usize = 4;
 pub const TERM_SCALE: [f64; 2] = [0.95, 1.05];
 /// The range a reflectance offset may take: flare and side lobes only add light.
 pub const TERM_OFFSET: [f64; 2] = [0.0, 0.02];
-/// The film's extinction coefficient's Urbach tail, nm: `k(l) = film_k exp((450 - l) / tail)`
-/// ([`Problem::film_k`] is `k` at 450 nm).
-pub const ABSORPTION_TAIL_NM: f64 = 90.0;
 /// Extinction coefficients at 450 nm the absorption search tries first.
 const ABSORPTION_GRID: [f64; 6] = [0.001, 0.002, 0.004, 0.008, 0.016, 0.032];
 
@@ -132,11 +129,6 @@ const FLARE_GRID: [f64; 6] = [0.0005, 0.001, 0.002, 0.003, 0.0045, 0.006];
 
 /// Wavelength shifts the search tries first, nm.
 const SHIFT_GRID: [f64; 6] = [-1.0, -0.5, -0.2, 0.2, 0.5, 1.0];
-
-/// `k(l) / k(450 nm)` ([`ABSORPTION_TAIL_NM`]).
-fn absorption_shape(l_nm: f64) -> f64 {
-    libm::exp((450.0 - l_nm) / ABSORPTION_TAIL_NM)
-}
 
 /// Most angles the noise model tells apart (more share the last one's factor).
 pub const NOISE_ANGLES: usize = 256;
@@ -626,6 +618,18 @@ impl SampleFit {
         flare: Term::NONE,
     };
 
+    /// What the fit found beyond the index, for pixels seated under it ([`seat_pixels`]).
+    pub fn nuisance(&self) -> Nuisance {
+        Nuisance {
+            film_k: self.film_k.value,
+            leak: self.polariser_leak.value,
+            stage_deg: self.stage_offset_deg.value,
+            shift_nm: self.wavelength_shift_nm.value,
+            flare: self.flare.value,
+            terms: self.reflectance_terms.clone(),
+        }
+    }
+
     /// The chosen index model, unless the fit failed.
     pub fn index(&self) -> Option<Dispersion> {
         match (self.failure, self.best) {
@@ -937,6 +941,24 @@ fn hold_weighed(
     fit
 }
 
+/// A [`SampleFit`]'s nuisance terms ([`SampleFit::nuisance`]): the model and data of every
+/// pixel are what the sample's were.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Nuisance {
+    /// The film's extinction coefficient at 450 nm ([`SampleFit::film_k`]).
+    pub film_k: f64,
+    /// The polariser's leak ([`SampleFit::polariser_leak`]).
+    pub leak: f64,
+    /// The stage's angle offset, degrees ([`SampleFit::stage_offset_deg`]).
+    pub stage_deg: f64,
+    /// The wavelength shift, nm ([`SampleFit::wavelength_shift_nm`]).
+    pub shift_nm: f64,
+    /// Flare ([`SampleFit::flare`]).
+    pub flare: f64,
+    /// Each angle's reflectance `(scale, offset)` ([`SampleFit::reflectance_terms`]).
+    pub terms: heapless::Vec<(f64, f64), RESIDUAL_ANGLES>,
+}
+
 /// One pixel's thickness under a given index ([`seat_pixels`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Seat {
@@ -957,7 +979,8 @@ pub struct Seat {
 /// the passband quadrature): for pixels whose order the streaming pass could not settle.
 /// `spectra` holds one pixel per site (`run` 1); `noise_sigma` is the image's and
 /// `model_error` the model's (the sample fit's: [`SampleFit::noise_sigma`],
-/// [`SampleFit::model_error`]), the chi-squares in units of both. `scratch` holds at least [`workspace_len`] values; `out` one entry per site.
+/// [`SampleFit::model_error`]), the chi-squares in units of both; `nuisance` the terms the
+/// sample's fit took ([`SampleFit::nuisance`]). `scratch` holds at least [`workspace_len`] values; `out` one entry per site.
 #[allow(clippy::too_many_arguments)]
 pub fn seat_pixels(
     geo: &Geometry<'_>,
@@ -966,6 +989,7 @@ pub fn seat_pixels(
     params: [f64; 3],
     noise_sigma: f64,
     model_error: f64,
+    nuisance: &Nuisance,
     scratch: &mut [f32],
     out: &mut [Seat],
     par: &dyn Parallel,
@@ -989,6 +1013,10 @@ pub fn seat_pixels(
         return;
     }
     let usable = complete_sites(spectra, sites, na, nb);
+    let mut terms = Terms::NONE;
+    for (a, &(scale, offset)) in nuisance.terms.iter().enumerate().take(NOISE_ANGLES) {
+        (terms.scale[a], terms.offset[a]) = (scale, offset);
+    }
     let problem = Problem {
         geo,
         spectra,
@@ -997,13 +1025,13 @@ pub fn seat_pixels(
             model2: model_error * model_error,
             ..Noise::uniform(noise_sigma)
         },
-        terms: Terms::NONE,
+        terms,
         retry: false,
-        film_k: 0.0,
-        leak: 0.0,
-        stage_deg: 0.0,
-        shift_nm: 0.0,
-        flare: 0.0,
+        film_k: nuisance.film_k,
+        leak: nuisance.leak,
+        stage_deg: nuisance.stage_deg,
+        shift_nm: nuisance.shift_nm,
+        flare: nuisance.flare,
         par,
     };
     let Some((t, sums, margin)) = problem.seat(kind, &params, scratch) else {
@@ -3424,6 +3452,7 @@ mod tests {
             [a, b, c],
             noise,
             0.0,
+            &Nuisance::default(),
             &mut scratch,
             &mut out,
             &Serial,
@@ -3441,6 +3470,7 @@ mod tests {
             [a + 0.02, b, c],
             noise,
             0.0,
+            &Nuisance::default(),
             &mut scratch,
             &mut out,
             &Serial,

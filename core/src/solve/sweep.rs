@@ -21,7 +21,7 @@ use super::index::{
     combine, fit_index, fit_slope_at, pair_estimate, IndexFit, PairBins, PairEstimate,
     PairGeometry, RatioHistogram, RatioSums,
 };
-use super::refine::{BandCoef, Knot};
+use super::refine::{BandCoef, FilmTerms, Knot};
 use super::shard::Shard;
 pub use super::spec::{SolverOptions, SweepSpec, MAX_BANDS};
 pub use super::sums::{FitStats, RmsHistogram, SchurSums};
@@ -99,6 +99,9 @@ pub struct SweepSolver {
     spectral_candidate: Option<IndexModel>,
     /// The thicknesses the pixels' models are read at this angle ([`SweepSolver::set_table_span`]).
     table_span: Option<[f64; 2]>,
+    /// The film's absorption and the polariser's leak the pixels' models carry
+    /// ([`SweepSolver::with_film_terms`]).
+    film_terms: FilmTerms,
 }
 
 impl core::ops::Deref for SweepSolver {
@@ -128,6 +131,7 @@ impl SweepSolver {
             spectral_gains: [f64::NAN; 3],
             spectral_candidate: None,
             table_span: None,
+            film_terms: FilmTerms::NONE,
         }
     }
 
@@ -176,6 +180,14 @@ impl SweepSolver {
         self
     }
 
+    /// The pixels' models with the film absorbing and the polariser leaking as `terms` says
+    /// (the sample fit's, [`super::sample::SampleFit::film_k`] and
+    /// [`super::sample::SampleFit::polariser_leak`]).
+    pub fn with_film_terms(mut self, terms: FilmTerms) -> Self {
+        self.film_terms = terms;
+        self
+    }
+
     /// Whether the index comes from the full spectra.
     pub fn spectral_index(&self) -> bool {
         self.spectral_index
@@ -212,6 +224,7 @@ impl SweepSolver {
             *o = match (self.ctx.index, self.ctx.spec.bands_nm.get(i)) {
                 (Some(index), Some(&l)) => BandCoef::new(
                     index,
+                    self.film_terms,
                     self.ctx.spec.ambient_index,
                     self.ctx.spec.substrate.index_at(l),
                     self.ctx.spec.substrate.extinction_at(l),
