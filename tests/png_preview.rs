@@ -1,15 +1,12 @@
 //! PNG previews: the rendered bytes are decoded again with the `image` crate and checked
 //! pixel by pixel (map colours, no-data grey, legend, sizes), and bad input must fail
 //! with a one-line error instead of panicking.
-//!
-//! `sample_previews_for_inspection` also leaves four PNGs in the system temp directory
-//! (`filmscope-preview-sample*.png`) for a person to look at.
 
 #![cfg(feature = "std")]
 
 use std::collections::HashSet;
 use std::error::Error;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use filmscope::export::colormap::{viridis, NO_DATA};
 use filmscope::export::png::{
@@ -377,72 +374,5 @@ fn writers_are_atomic_and_name_the_path_on_failure() -> TestResult {
         msg.contains("cannot write PNG") && !msg.contains('\n'),
         "{msg}"
     );
-    Ok(())
-}
-
-/// Leaves sample previews in the temp directory for a person to look at.
-#[test]
-fn sample_previews_for_inspection() -> TestResult {
-    // A tilted, slightly curved film with a dead corner and a scratch without estimates.
-    let (w, h) = (64usize, 48usize);
-    let mut values = Vec::with_capacity(w * h);
-    for y in 0..h {
-        for x in 0..w {
-            let (fx, fy) = (x as f32 / w as f32, y as f32 / h as f32);
-            let mut v = 395.0 + 30.0 * fx + 12.0 * fy - 20.0 * (fx - 0.5).powi(2);
-            if (x + 3 * y) % 97 == 0 || (x > 52 && y > 38) || (y == 20 && (10..30).contains(&x)) {
-                v = f32::NAN;
-            }
-            values.push(v);
-        }
-    }
-    let p = MapPreview {
-        width: w,
-        height: h,
-        values: &values,
-        title: "Thickness, sample 3 (45°)",
-        unit: "nm",
-        range: None,
-    };
-    let path = std::env::temp_dir().join("filmscope-preview-sample.png");
-    write_map_png(&path, &p)?;
-    assert!(Path::new(&path).exists());
-
-    let index: Vec<f32> = values.iter().map(|v| 1.38 + (v - 395.0) / 1000.0).collect();
-    let p = MapPreview {
-        values: &index,
-        title: "Refractive index n at 550 nm",
-        unit: "",
-        ..p
-    };
-    write_map_png(
-        &std::env::temp_dir().join("filmscope-preview-sample-index.png"),
-        &p,
-    )?;
-
-    let nan = vec![f32::NAN; 20 * 15];
-    let p = MapPreview {
-        width: 20,
-        height: 15,
-        values: &nan,
-        title: "Thickness (µm)",
-        unit: "µm",
-        range: None,
-    };
-    write_map_png(
-        &std::env::temp_dir().join("filmscope-preview-sample-nan.png"),
-        &p,
-    )?;
-
-    // A 3x close-up of the thickness preview's legend, to judge the small text.
-    let img = decode(&std::fs::read(&path)?)?;
-    let (x0, y0) = (img.width() as usize - 190, img.height() as usize - 110);
-    let crop: Vec<[u8; 3]> = (y0..img.height() as usize)
-        .flat_map(|y| (x0..img.width() as usize).map(move |x| (x, y)))
-        .map(|(x, y)| px(&img, x, y))
-        .collect();
-    let (cw, ch) = (img.width() as usize - x0, img.height() as usize - y0);
-    let zoom = std::env::temp_dir().join("filmscope-preview-sample-legend-3x.png");
-    write_rgb_png(&zoom, cw, ch, &crop, 3)?;
     Ok(())
 }
