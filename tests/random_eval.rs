@@ -177,6 +177,7 @@ fn every_drawn_scene_simulates_and_estimates() {
         &RunConfig::default(),
         dir.path(),
         Draw::Plain,
+        None,
         &mut |_| seen += 1,
     );
     assert_eq!(seen, count);

@@ -366,9 +366,22 @@ fn ablated(list: &[super::Ablation]) -> (SolverOptions, FieldConfig) {
 }
 
 /// `filmscope eval`.
+/// `eval --random`'s set: its size, seed, where to save the drawn scenes, and the rows to
+/// run (all when `None`).
+pub struct RandomSet {
+    /// Scenes in the set.
+    pub count: usize,
+    /// The set's seed.
+    pub seed: u64,
+    /// Where the drawn scene files go.
+    pub save_scenes: Option<PathBuf>,
+    /// The rows to run.
+    pub rows: Option<Vec<usize>>,
+}
+
 pub fn eval(
     inputs: &[PathBuf],
-    random: Option<(usize, u64, Option<PathBuf>)>,
+    random: Option<RandomSet>,
     kind: Draw,
     seed: Option<u64>,
     method: &super::MethodArgs,
@@ -396,8 +409,16 @@ pub fn eval(
         ..PipelineConfig::default()
     };
     let config = method.run_config(pipeline, wide)?;
-    if let Some((count, seed, save)) = random {
-        return eval_random(count, seed, &config, json, save.as_deref(), kind);
+    if let Some(r) = random {
+        return eval_random(
+            r.count,
+            r.seed,
+            &config,
+            json,
+            r.save_scenes.as_deref(),
+            kind,
+            r.rows.as_deref(),
+        );
     }
     if !json {
         println!(
@@ -475,6 +496,7 @@ fn eval_random(
     json: bool,
     save_scenes: Option<&Path>,
     kind: Draw,
+    rows: Option<&[usize]>,
 ) -> Result<()> {
     if let Some(dir) = save_scenes {
         std::fs::create_dir_all(dir)
@@ -494,7 +516,7 @@ fn eval_random(
         println!("{}", crate::cli::eval::RandomRow::table_header());
     }
     let result =
-        crate::cli::eval::random_eval(count, seed, config, work.path(), kind, &mut |row| {
+        crate::cli::eval::random_eval(count, seed, config, work.path(), kind, rows, &mut |row| {
             if !json {
                 println!("{}", row.table_row());
             }

@@ -820,19 +820,24 @@ fn simulate_and_estimate(
     Ok(evaluate(&scene.name, &Truth::of_scene(scene), &run))
 }
 
-/// Runs scenes `0..count` of random set `seed` one after another ([`random_scene`]), with
-/// captures in `work_dir`; `on_row` is given every row as it is done.
+/// Runs scenes `0..count` of random set `seed` one after another ([`random_scene`]), or
+/// only those of `only` below `count`, with captures in `work_dir`; `on_row` is given every
+/// row as it is done.
 pub fn random_eval(
     count: usize,
     seed: u64,
     config: &RunConfig,
     work_dir: &Path,
     kind: Draw,
+    only: Option<&[usize]>,
     on_row: &mut dyn FnMut(&RandomRow),
 ) -> RandomEval {
     let t0 = std::time::Instant::now();
     let mut rows = Vec::with_capacity(count);
-    for i in 0..count {
+    let chosen: Vec<usize> = (0..count)
+        .filter(|i| only.is_none_or(|o| o.contains(i)))
+        .collect();
+    for &i in &chosen {
         let row = random_scene(seed, i, config, work_dir, kind);
         on_row(&row);
         rows.push(row);
@@ -844,7 +849,7 @@ pub fn random_eval(
     let index_within: Vec<bool> = rows.iter().filter_map(|r| r.index_within_sigma).collect();
     RandomEval {
         seed,
-        count,
+        count: chosen.len(),
         kind,
         passed: rows.iter().filter(|r| r.passed).count(),
         index_silently_wrong: rows.iter().filter(|r| r.index_silently_wrong).count(),

@@ -256,6 +256,15 @@ enum Command {
         /// (`random-SEED-I.toml`), so a row can be run again with `eval FILE`.
         #[arg(long, value_name = "DIR", requires = "random")]
         save_scenes: Option<PathBuf>,
+        /// With --random: only these rows of the set (0-based, comma-separated), each drawn
+        /// and captured as in the whole set: a row run again exactly.
+        #[arg(
+            long,
+            value_name = "I,J,...",
+            requires = "random",
+            value_delimiter = ','
+        )]
+        rows: Option<Vec<usize>>,
         /// With --random: scenes as real samples on a real rig measure them (a good
         /// camera's low noise, film absorption, stage and wavelength errors, flare,
         /// polariser leak, side lobes, some with an undeclared bare back face), judged by
@@ -515,6 +524,7 @@ pub fn main() -> std::process::ExitCode {
             random,
             seed,
             save_scenes,
+            rows,
             realistic,
             thick,
             method,
@@ -522,7 +532,12 @@ pub fn main() -> std::process::ExitCode {
             ablate,
         } => commands::eval(
             &inputs,
-            random.map(|n| (n, seed.unwrap_or(1), save_scenes)),
+            random.map(|count| commands::RandomSet {
+                count,
+                seed: seed.unwrap_or(1),
+                save_scenes,
+                rows,
+            }),
             match (realistic, thick) {
                 (true, _) => firmware_sim::random::Draw::Realistic,
                 (_, true) => firmware_sim::random::Draw::Thick,

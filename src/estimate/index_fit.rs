@@ -456,6 +456,8 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
             "stage_offset_deg": term_json(fit.stage_offset_deg),
             "wavelength_shift_nm": term_json(fit.wavelength_shift_nm),
             "flare": term_json(fit.flare),
+            "side_lobes": term_json(fit.side_lobes),
+            "side_lobe_width_fwhm": filmscope_core::solve::sample::SIDE_LOBE_WIDTH,
             "reflectance_terms": fit
                 .reflectance_terms
                 .iter()

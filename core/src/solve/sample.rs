@@ -115,6 +115,15 @@ pub const TERM_OFFSET: [f64; 2] = [0.0, 0.02];
 /// Extinction coefficients at 450 nm the absorption search tries first.
 const ABSORPTION_GRID: [f64; 6] = [0.001, 0.002, 0.004, 0.008, 0.016, 0.032];
 
+/// Shares of the light the filter's side lobes pass that the search tries first: a
+/// liquid-crystal filter keeps them to a few per cent, so the outermost, 8 %, is more than
+/// one has ([`Problem::with_nuisance`]).
+const SIDE_LOBE_GRID: [f64; 6] = [0.0025, 0.005, 0.01, 0.02, 0.04, 0.08];
+
+/// How much wider than a band's FWHM the band its side lobes pass light from is: a
+/// Gaussian of this many FWHM, truncated at 1.5 of its own FWHM either side.
+pub const SIDE_LOBE_WIDTH: f64 = 10.0;
+
 /// Shares of the other polarisation the leak search tries first.
 const LEAK_GRID: [f64; 5] = [0.0025, 0.005, 0.01, 0.02, 0.04];
 
@@ -449,6 +458,9 @@ pub struct SampleFit {
     /// asked for it (0: none); each angle's own offset in
     /// [`SampleFit::reflectance_terms`] comes on top.
     pub flare: Term,
+    /// The share of the light the filter's side lobes pass from a band
+    /// [`SIDE_LOBE_WIDTH`] times wider, when the evidence asked for it (0: none).
+    pub side_lobes: Term,
 }
 
 /// A nuisance term's value and its 1-sigma (from the chi-square's curvature over the term,
@@ -616,6 +628,7 @@ impl SampleFit {
         stage_offset_deg: Term::NONE,
         wavelength_shift_nm: Term::NONE,
         flare: Term::NONE,
+        side_lobes: Term::NONE,
     };
 
     /// What the fit found beyond the index, for pixels seated under it ([`seat_pixels`]).
@@ -626,6 +639,7 @@ impl SampleFit {
             stage_deg: self.stage_offset_deg.value,
             shift_nm: self.wavelength_shift_nm.value,
             flare: self.flare.value,
+            side_lobes: self.side_lobes.value,
             terms: self.reflectance_terms.clone(),
         }
     }
@@ -645,7 +659,8 @@ pub fn workspace_len(sites: usize, angles: usize, bands: usize) -> usize {
     let noise = sites.min(MAX_SITES) * angles * bands;
     // Two dictionaries: the search scores its grid in two halves.
     let dictionary = 2 * MAX_DICTIONARY * angles.min(SEARCH_ANGLES) * SEAT_BANDS.min(bands);
-    noise.max(dictionary)
+    // And the sites' spectra over the side lobes' band ([`Problem::wide`]).
+    noise.max(dictionary) + noise
 }
 
 /// Whether a `width x height` image's runs go down its columns (an image narrower than a
@@ -878,6 +893,8 @@ fn on_weighed_sites(
         stage_deg: 0.0,
         shift_nm: 0.0,
         flare: 0.0,
+        side_lobes: 0.0,
+        wide: &[],
         par,
     };
     body(&problem, fit, scratch)
@@ -955,6 +972,8 @@ pub struct Nuisance {
     pub shift_nm: f64,
     /// Flare ([`SampleFit::flare`]).
     pub flare: f64,
+    /// The filter's side lobes ([`SampleFit::side_lobes`]).
+    pub side_lobes: f64,
     /// Each angle's reflectance `(scale, offset)` ([`SampleFit::reflectance_terms`]).
     pub terms: heapless::Vec<(f64, f64), RESIDUAL_ANGLES>,
 }
@@ -1032,6 +1051,8 @@ pub fn seat_pixels(
         stage_deg: nuisance.stage_deg,
         shift_nm: nuisance.shift_nm,
         flare: nuisance.flare,
+        side_lobes: nuisance.side_lobes,
+        wide: &[],
         par,
     };
     let Some((t, sums, margin)) = problem.seat(kind, &params, scratch) else {
@@ -1447,6 +1468,12 @@ struct Problem<'a> {
     /// Flare: stray light, one reflectance offset at every angle and band, taken out of the
     /// measured spectra before each angle's terms, when the evidence asked for it.
     flare: f64,
+    /// The share of the light the filter's side lobes pass, taken out of the measured
+    /// spectra first ([`Problem::measured`]), when the evidence asked for it.
+    side_lobes: f64,
+    /// Each site's measured reflectance over the side lobes' band ([`Problem::wide_at`]),
+    /// `[site][angle][band]` (empty: computed when asked).
+    wide: &'a [f32],
     /// Where the two halves of the sites' sums run.
     par: &'a dyn Parallel,
 }
@@ -1522,18 +1549,68 @@ impl Terms {
 
 /// Most angles whose reflectance terms are fitted (the marginal covariance's size).
 pub const TERM_MAX_ANGLES: usize = 12;
-/// Index parameters, two terms an angle, the film's absorption, the polariser's leak and the
-/// flare.
-const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + 3;
+/// Index parameters, two terms an angle, the film's absorption, the polariser's leak, the
+/// flare and the side lobes.
+const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + 4;
 
 impl Problem<'_> {
-    /// Site `k`'s measured value at angle `a`, band `b`, its angle's scale and offset taken
-    /// out (NaN: none).
+    /// Site `k`'s measured value at angle `a`, band `b`: the side lobes' light, the flare and
+    /// its angle's scale and offset taken out (NaN: none). The side lobes pass the share `s`
+    /// of the light from a wide band, whose reflectance the measured neighbouring bands give
+    /// ([`Problem::wide_at`]): `y = (1 - s) R + s wide(R)`, so `R = (y - s wide(y)) / (1 - s)`
+    /// to first order in `s` (the flare, in both, comes out the same).
     #[inline]
     fn measured(&self, bands: usize, k: usize, a: usize, b: usize) -> f64 {
-        let y = f64::from(self.spectra.centre_at(bands, k, a, b));
+        let mut y = f64::from(self.spectra.centre_at(bands, k, a, b));
+        if self.side_lobes > 0.0 {
+            let s = self.side_lobes;
+            let wide = match self
+                .wide
+                .get((k * self.geo.angles_deg.len() + a) * bands + b)
+            {
+                Some(&w) => f64::from(w),
+                None => self.wide_at(bands, k, a, b),
+            };
+            y = (y - s * wide) / (1.0 - s);
+        }
         let a = a.min(NOISE_ANGLES - 1);
         (y - self.flare - self.terms.offset[a]) / self.terms.scale[a]
+    }
+
+    /// Every site's [`Problem::wide_at`] into `out` (`[site][angle][band]`, at least
+    /// sites x angles x bands long), which [`Problem::wide`] may then hold.
+    fn fill_wide(&self, out: &mut [f32]) {
+        let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        for k in 0..self.usable.len() {
+            for a in 0..na {
+                for b in 0..nb {
+                    out[(k * na + a) * nb + b] = self.wide_at(nb, k, a, b) as f32;
+                }
+            }
+        }
+    }
+
+    /// Site `k`'s measured reflectance at angle `a` averaged over the side lobes' band around
+    /// band `b` (a Gaussian [`SIDE_LOBE_WIDTH`] times the band's FWHM, truncated at 1.5 of
+    /// its FWHM), over the bands measured there.
+    fn wide_at(&self, bands: usize, k: usize, a: usize, b: usize) -> f64 {
+        let l0 = self.geo.bands_nm[b];
+        let fwhm = SIDE_LOBE_WIDTH * self.geo.fwhm_nm[b];
+        let inv_2s2 = 4.0 * core::f64::consts::LN_2 / (fwhm * fwhm);
+        let (mut sum, mut weight) = (0.0, 0.0);
+        for (j, &l) in self.geo.bands_nm.iter().enumerate() {
+            let x = l - l0;
+            if libm::fabs(x) > 1.5 * fwhm {
+                continue;
+            }
+            let v = f64::from(self.spectra.centre_at(bands, k, a, j));
+            if v.is_finite() {
+                let w = libm::exp(-x * x * inv_2s2);
+                sum += w * v;
+                weight += w;
+            }
+        }
+        sum / weight
     }
 
     /// The indices at vacuum wavelength `l_nm`, the film's being `film`.
@@ -2310,18 +2387,29 @@ impl Problem<'_> {
         for k in 0..sites {
             usable[k] = self.usable[k] && !aside[k];
         }
+        // The sites' spectra over the side lobes' band, once, at the workspace's end.
+        let wide_len = sites * self.geo.angles_deg.len() * self.geo.bands_nm.len();
+        let split = scratch.len().saturating_sub(wide_len);
+        let (scratch, wide) = scratch.split_at_mut(split);
+        let wide: &[f32] = if wide.len() == wide_len {
+            self.fill_wide(wide);
+            wide
+        } else {
+            &[]
+        };
         let mut kept = Problem {
             usable: &usable[..sites],
             noise: self.noise.clone(),
             retry: true,
+            wide,
             ..*self
         };
         // Forward stepwise: each round every term not yet taken is fitted with the index and
         // thicknesses, and the one whose chi-square falls furthest is taken (when it pays its
         // BIC penalty, [`Problem::with_nuisance`]); a fixed order let the first term mop up
         // another's misfit and bend the index. The terms, as [`SampleFit`] reports them:
-        // film absorption, polariser leak, stage offset, wavelength shift, flare.
-        let mut found = [Term::NONE; 5];
+        // film absorption, polariser leak, stage offset, wavelength shift, flare, side lobes.
+        let mut found = [Term::NONE; 6];
         if held.is_none() {
             let offered = |t: usize| match t {
                 // At one angle the film's loss, which dims the back face's return twice over,
@@ -2333,7 +2421,7 @@ impl Problem<'_> {
                 2 | 4 => self.geo.angles_deg.len() > 1,
                 _ => true,
             };
-            let mut remaining: heapless::Vec<usize, 5> = (0..5).filter(|&t| offered(t)).collect();
+            let mut remaining: heapless::Vec<usize, 6> = (0..6).filter(|&t| offered(t)).collect();
             loop {
                 let mut pick: Option<(usize, Candidate, [f64; MAX_SITES], Term)> = None;
                 for (i, &t) in remaining.iter().enumerate() {
@@ -2344,7 +2432,8 @@ impl Problem<'_> {
                         1 => kept.with_nuisance(b_, d_, &LEAK_GRID, |p, v| p.leak = v),
                         2 => kept.with_nuisance(b_, d_, &STAGE_GRID, |p, v| p.stage_deg = v),
                         3 => kept.with_nuisance(b_, d_, &SHIFT_GRID, |p, v| p.shift_nm = v),
-                        _ => kept.with_nuisance(b_, d_, &FLARE_GRID, |p, v| p.flare = v),
+                        4 => kept.with_nuisance(b_, d_, &FLARE_GRID, |p, v| p.flare = v),
+                        _ => kept.with_nuisance(b_, d_, &SIDE_LOBE_GRID, |p, v| p.side_lobes = v),
                     };
                     if let Some(term) = got {
                         if pick.as_ref().is_none_or(|p| b.chi2 < p.1.chi2) {
@@ -2359,7 +2448,8 @@ impl Problem<'_> {
                     1 => kept.leak = term.value,
                     2 => kept.stage_deg = term.value,
                     3 => kept.shift_nm = term.value,
-                    _ => kept.flare = term.value,
+                    4 => kept.flare = term.value,
+                    _ => kept.side_lobes = term.value,
                 }
                 found[t] = term;
                 (best, tt) = (b, d);
@@ -2414,6 +2504,7 @@ impl Problem<'_> {
             again.stage_offset_deg,
             again.wavelength_shift_nm,
             again.flare,
+            again.side_lobes,
         ] = found;
         again.set_aside = aside;
         again.starts = fit.starts;
@@ -2484,7 +2575,8 @@ impl Problem<'_> {
         let sites = self.usable.len();
         let d_max = self.thickest(t);
         let np = kind.params();
-        let (k_slot, leak_slot, flare_slot) = (MARGINAL - 3, MARGINAL - 2, MARGINAL - 1);
+        let (k_slot, leak_slot, flare_slot, side_slot) =
+            (MARGINAL - 4, MARGINAL - 3, MARGINAL - 2, MARGINAL - 1);
         let mut h = M::zeros();
         let mut reduce = M::zeros();
         for k in (0..sites).filter(|&k| self.usable[k]) {
@@ -2509,6 +2601,13 @@ impl Problem<'_> {
                     u[k_slot] = g * fit.dm_dk;
                     u[leak_slot] = g * fit.dm_dleak;
                     u[flare_slot] = 1.0;
+                    if self.side_lobes > 0.0 {
+                        // The measured value's slope along the side lobes' share, as the
+                        // model's the other way.
+                        let y = f64::from(self.spectra.centre_at(nb, k, a, b));
+                        let s = self.side_lobes;
+                        u[side_slot] = (self.wide_at(nb, k, a, b) - y) / ((1.0 - s) * (1.0 - s));
+                    }
                     h += u * u.transpose() * w;
                     jdd += w * g * g * fit.dm_dd * fit.dm_dd;
                     cross += u * (w * g * fit.dm_dd);
@@ -2536,6 +2635,9 @@ impl Problem<'_> {
         // Each angle's offset holds the flare's share when fitted.
         if self.flare > 0.0 && !terms {
             let _ = keep.push(flare_slot);
+        }
+        if self.side_lobes > 0.0 {
+            let _ = keep.push(side_slot);
         }
         let mut sub = M::identity();
         for (i, &ki) in keep.iter().enumerate() {
