@@ -247,9 +247,6 @@ pub struct BandCoef {
     count: usize,
     /// Where the band's tabulated model sits in the angle's knots, if tabulated.
     table: Option<TableSpan>,
-    /// Whether the nodes carry [`FilmTerms`] (their model computed from the thickness, not
-    /// stepped by a rotation of the clear film's phase).
-    terms: bool,
 }
 
 /// The tabulated model of one band at one thickness knot and the next: at each, the
@@ -430,19 +427,15 @@ impl BandCoef {
         fwhm_nm: f64,
         d_max_nm: f64,
     ) -> Option<Self> {
-        let film_at = |l: f64, dn: f64| {
-            FilmAtAngle::new(
-                Indices {
-                    ambient,
-                    film: index.at(l) + dn,
-                    substrate,
-                    substrate_k,
-                    back_face,
-                },
-                incidence_deg,
-                polarization,
-            )
+        let indices = |l: f64, dn: f64| Indices {
+            ambient,
+            film: index.at(l) + dn,
+            substrate,
+            substrate_k,
+            back_face,
         };
+        let film_at =
+            |l: f64, dn: f64| FilmAtAngle::new(indices(l, dn), incidence_deg, polarization);
         let node = |(l, w): (f64, f64), dn: f64| -> Option<Node> {
             let film = film_at(l, dn)?;
             if !terms.any() {
@@ -453,16 +446,15 @@ impl BandCoef {
                     film: NodeFilm::Clear(film),
                 });
             }
-            let indices = Indices {
-                ambient,
-                film: index.at(l) + dn,
-                substrate,
-                substrate_k,
-                back_face,
-            };
             let k = terms.film_k * absorption_shape(l);
-            let lossy =
-                LossyFilm::with_leak(indices, k, incidence_deg, polarization, l, terms.leak)?;
+            let lossy = LossyFilm::with_leak(
+                indices(l, dn),
+                k,
+                incidence_deg,
+                polarization,
+                l,
+                terms.leak,
+            )?;
             Some(Node {
                 weight: w,
                 phase_per_nm: lossy.phase_per_nm,
@@ -486,7 +478,6 @@ impl BandCoef {
             centre_up: node((wavelength_nm, 1.0), INDEX_STEP)?,
             count,
             table: None,
-            terms: terms.any(),
         })
     }
 
@@ -532,7 +523,9 @@ impl BandCoef {
             return;
         };
         let d0 = range_nm[0];
-        if self.terms {
+        // Nodes with [`FilmTerms`] are computed from the thickness, not stepped by a rotation
+        // of the clear film's phase (every node of a band is of one kind).
+        if matches!(self.centre.film, NodeFilm::Terms(_)) {
             for (j, k) in knots.iter_mut().enumerate() {
                 let d = d0 + h * j as f64;
                 let (m, slope) = self.model_and_slope(d);
