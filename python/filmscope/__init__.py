@@ -203,6 +203,7 @@ def estimate(
     field: str = "auto",
     film_index: Optional[Material] = None,
     model_error: Optional[float] = None,
+    rig_tolerance: Optional[float] = None,
 ) -> EstimateResult:
     """Estimates the film's refractive index and a per-pixel thickness map.
 
@@ -235,6 +236,10 @@ def estimate(
         model_error: the model error the index fit tolerates, RMS reflectance, as
             ``estimate --model-error`` (default: the capture's ``[fit] model_error``, else
             0.003; 0 judges the fit against the noise alone).
+        rig_tolerance: how far the index sigma carries the nuisance terms a real rig
+            keeps, as a multiple of the typical rig's, as ``estimate --rig-tolerance``
+            (default: the capture's ``[fit] rig_tolerance``, else 1; 0: the statistical
+            sigma under the terms the fit took). Changes the sigmas only.
 
     Returns:
         An :class:`EstimateResult`.
@@ -249,10 +254,11 @@ def estimate(
     out_s = None if out is None else os.fspath(out)
     fi = None if film_index is None else _material_json(film_index, "film_index")
     me = None if model_error is None else float(model_error)
+    rt = None if rig_tolerance is None else float(rig_tolerance)
     if isinstance(path_or_array, (str, os.PathLike)):
         path = os.fspath(path_or_array)
         raw = n.estimate_capture(
-            path, out_s, method, int(workers), int(channel_capacity), ip, ss, bool(one_pass), field, fi, me
+            path, out_s, method, int(workers), int(channel_capacity), ip, ss, bool(one_pass), field, fi, me, rt
         )
         return EstimateResult(raw, path, ("capture", path))
     arr = np.asarray(path_or_array)
@@ -295,6 +301,7 @@ def estimate(
         bool(one_pass),
         fi,
         me,
+        rt,
     )
     fw_list = fw if fw is not None else _band_spacing(wl)
     return EstimateResult(raw, None, ("array", cube, wl, ang, fw_list, sub_json, float(ambient_index), polarization, back_face))

@@ -50,6 +50,7 @@ struct Options<'a> {
     one_pass: bool,
     field: &'a str,
     model_error: Option<f64>,
+    rig_tolerance: Option<f64>,
 }
 
 impl Options<'_> {
@@ -64,6 +65,14 @@ impl Options<'_> {
             if !(0.0..=max).contains(&m) {
                 return Err(format!(
                     "model_error {m}: outside 0 to {max} (RMS reflectance)"
+                ));
+            }
+        }
+        if let Some(t) = self.rig_tolerance {
+            let max = filmscope::io::capture::MAX_RIG_TOLERANCE;
+            if !(0.0..=max).contains(&t) {
+                return Err(format!(
+                    "rig_tolerance {t}: outside 0 to {max} (a multiple of the typical rig's terms)"
                 ));
             }
         }
@@ -99,6 +108,7 @@ impl Options<'_> {
             sample_sites: self.sample_sites,
             one_pass: self.one_pass,
             model_error: self.model_error,
+            rig_tolerance: self.rig_tolerance,
         })
     }
 }
@@ -171,7 +181,7 @@ fn result_dict<'py>(py: Python<'py>, run: &Run, summary: &Summary) -> PyResult<B
 /// Runs the estimator on the capture at `path` (a folder or its capture.toml), as
 /// `filmscope estimate` does; writes the outputs into `out` when given.
 #[pyfunction]
-#[pyo3(signature = (path, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, field, film_index, model_error))]
+#[pyo3(signature = (path, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, field, film_index, model_error, rig_tolerance))]
 #[allow(clippy::too_many_arguments)]
 fn estimate_capture<'py>(
     py: Python<'py>,
@@ -186,6 +196,7 @@ fn estimate_capture<'py>(
     field: &str,
     film_index: Option<&str>,
     model_error: Option<f64>,
+    rig_tolerance: Option<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let opts = Options {
         method,
@@ -196,6 +207,7 @@ fn estimate_capture<'py>(
         one_pass,
         field,
         model_error,
+        rig_tolerance,
     };
     let config = opts.config().map_err(fail)?;
     let film = given_index(film_index, &config)?;
@@ -305,7 +317,7 @@ fn back_face(name: &str) -> Result<BackFace, String> {
 /// Runs the estimator on a reflectance array: `data` the native-endian `float32` bytes of
 /// a C-ordered `(angles, lines, samples, bands)` array.
 #[pyfunction]
-#[pyo3(signature = (data, shape, wavelengths_nm, angles_deg, fwhm_nm, ambient_index, substrate, polarization_name, back_face_name, index_range, thickness_range_nm, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, film_index, model_error))]
+#[pyo3(signature = (data, shape, wavelengths_nm, angles_deg, fwhm_nm, ambient_index, substrate, polarization_name, back_face_name, index_range, thickness_range_nm, out, method, workers, channel_capacity, index_pixels, sample_sites, one_pass, film_index, model_error, rig_tolerance))]
 #[allow(clippy::too_many_arguments)]
 fn estimate_array<'py>(
     py: Python<'py>,
@@ -329,6 +341,7 @@ fn estimate_array<'py>(
     one_pass: bool,
     film_index: Option<&str>,
     model_error: Option<f64>,
+    rig_tolerance: Option<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let opts = Options {
         method,
@@ -339,6 +352,7 @@ fn estimate_array<'py>(
         one_pass,
         field: "narrow",
         model_error,
+        rig_tolerance,
     };
     let config = opts.config().map_err(fail)?;
     let film = given_index(film_index, &config)?;

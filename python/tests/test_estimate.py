@@ -135,7 +135,7 @@ def _hfo2_film_side_reflectance():
 def test_a_measured_spectrum_at_one_angle():
     """One angle from Python: the measured HfO2 film gets every pixel, its index and
     thickness within the published fits' spread, and no index when judged against the noise
-    alone (model_error=0)."""
+    alone (model_error=0); the rig's terms (rig_tolerance) widen the index sigma only."""
     wl, r = _hfo2_film_side_reflectance()
     rng = np.random.default_rng(3)
     cube = r[None, None, None, :] + 2.8e-4 * rng.standard_normal((1, 12, 16, len(wl)))
@@ -148,6 +148,13 @@ def test_a_measured_spectrum_at_one_angle():
     assert not np.isfinite(strict.thickness_nm).any()
     with pytest.raises(filmscope.FilmscopeError, match="model_error"):
         filmscope.estimate(cube, wl, [0.0], model_error=0.5, **kw)
+    # The rig's terms widen the index sigma and change nothing else.
+    stat = filmscope.estimate(cube, wl, [0.0], rig_tolerance=0.0, **kw)
+    assert stat.summary["refractive_index"] == res.summary["refractive_index"]
+    assert np.array_equal(stat.thickness_nm, res.thickness_nm, equal_nan=True)
+    assert res.summary["refractive_index_sigma"] > stat.summary["refractive_index_sigma"]
+    with pytest.raises(filmscope.FilmscopeError, match="rig_tolerance"):
+        filmscope.estimate(cube, wl, [0.0], rig_tolerance=-1.0, **kw)
 
 
 def test_a_declared_bare_back_face_from_tmm_spectra():

@@ -63,6 +63,14 @@ impl super::MethodArgs {
                 );
             }
         }
+        if let Some(t) = self.index.rig_tolerance {
+            if !(0.0..=crate::io::capture::MAX_RIG_TOLERANCE).contains(&t) {
+                bail!(
+                    "--rig-tolerance {t}: outside 0 to {} (a multiple of the typical rig's terms)",
+                    crate::io::capture::MAX_RIG_TOLERANCE
+                );
+            }
+        }
         crate::limits::check_cli(
             pipeline.workers,
             pipeline.channel_capacity,
@@ -74,6 +82,7 @@ impl super::MethodArgs {
         Ok(RunConfig {
             method: self.method,
             model_error: self.index.model_error,
+            rig_tolerance: self.index.rig_tolerance,
             pipeline: PipelineConfig {
                 solver: SolverOptions {
                     index_pixels: self.index_pixels,

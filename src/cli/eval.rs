@@ -138,6 +138,10 @@ pub struct EvalReport {
     /// Share of valid pixels whose thickness error is within their reported 1-sigma (NaN
     /// without any).
     pub thickness_within_sigma: f64,
+    /// The factor the reported thickness sigmas would need to cover 68.3 % of the valid
+    /// pixels' errors (the 68.3rd percentile of |error| / sigma; 1 when they are right, NaN
+    /// without valid pixels).
+    pub thickness_sigma_scale_68: f64,
     /// The reported 1-sigma of the index at 550 nm (NaN: none reported).
     pub index_sigma: f64,
     /// The run's notes (why there is no index, clipped references, ...).
@@ -273,15 +277,23 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
     };
     let n_true = truth.film.index_at(550.0);
     let n_est = r.index.at(550.0);
-    let within = valid_px
+    // Each valid pixel's error in units of its reported sigma.
+    let mut z: Vec<f64> = valid_px
         .iter()
-        .filter(|&&i| {
+        .map(|&i| {
             let err = f64::from(r.thickness_nm[i]) - f64::from(truth.thickness_nm[i]);
             r.thickness_sigma_nm
                 .get(i)
-                .is_some_and(|&s| err.abs() <= f64::from(s))
+                .map_or(f64::INFINITY, |&s| err.abs() / f64::from(s))
         })
-        .count();
+        .collect();
+    let within = z.iter().filter(|&&z| z <= 1.0).count();
+    z.sort_by(f64::total_cmp);
+    let z68 = z
+        .get((z.len() as f64 * 0.6827) as usize)
+        .or(z.last())
+        .copied()
+        .unwrap_or(f64::NAN);
     EvalReport {
         scene: scene.to_owned(),
         method: r.method.name().to_owned(),
@@ -298,6 +310,7 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
         } else {
             within as f64 / valid_px.len() as f64
         },
+        thickness_sigma_scale_68: z68,
         index_sigma: r.index_sigma.unwrap_or(f64::NAN),
         notes: r.notes.clone(),
         spectral_rmse: mean(&rmse_all),
@@ -503,6 +516,10 @@ pub struct RandomRow {
     pub thickness_within_sigma: Option<f64>,
     /// Whether the index error was within its reported 1-sigma (absent: no index).
     pub index_within_sigma: Option<bool>,
+    /// The index error at 550 nm over its reported 1-sigma (absent: no index or sigma).
+    pub index_error_over_sigma: Option<f64>,
+    /// [`EvalReport::thickness_sigma_scale_68`] (absent: no valid pixel).
+    pub thickness_sigma_scale_68: Option<f64>,
 }
 
 impl RandomRow {
@@ -716,6 +733,8 @@ pub fn random_scene(
         imperfections: describe_imperfections(&scene.imperfections, scene.stack.back_face),
         thickness_within_sigma: None,
         index_within_sigma: None,
+        index_error_over_sigma: None,
+        thickness_sigma_scale_68: None,
     };
     match attempt {
         Ok(Ok(report)) => {
@@ -734,6 +753,13 @@ pub fn random_scene(
             row.index_within_sigma = (report.index_estimated.is_finite()
                 && report.index_sigma.is_finite())
             .then(|| report.index_error.abs() <= report.index_sigma);
+            row.index_error_over_sigma = row
+                .index_within_sigma
+                .map(|_| report.index_error / report.index_sigma);
+            row.thickness_sigma_scale_68 = report
+                .thickness_sigma_scale_68
+                .is_finite()
+                .then_some(report.thickness_sigma_scale_68);
             // An undeclared back face is outside the model: refused with a note is right.
             let refused = score.valid_fraction == 0.0 && !report.notes.is_empty();
             let undeclared =

@@ -34,6 +34,12 @@ pub struct IndexArgs {
     /// noise and this gives no index. 0 judges against the noise alone.
     #[arg(long, value_name = "RMS")]
     pub model_error: Option<f64>,
+    /// How far the index sigma carries the nuisance terms a real rig keeps (a white
+    /// reference's error, absorption, leak, stage offset, wavelength shift, flare, side
+    /// lobes), as a multiple of the typical rig's (overrides the capture's `[fit]
+    /// rig_tolerance`; default 1; 0: the statistical sigma under the terms the fit took).
+    #[arg(long, value_name = "X")]
+    pub rig_tolerance: Option<f64>,
 }
 
 /// The method and its settings, as `estimate` and `eval` take them.

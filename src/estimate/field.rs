@@ -623,8 +623,11 @@ pub fn run_wide(
         workers: 1,
         ..config.pipeline
     };
+    // Strips are combined by their statistical sigmas: the rig's terms are common to them
+    // (the combined index's floor, [`STRIP_INDEX_FLOOR`], stands for its accuracy).
     let strip_config = RunConfig {
         pipeline,
+        rig_tolerance: Some(0.0),
         ..*config
     };
     let views: Vec<(SweepSpec, Vec<f64>)> = strips

@@ -7,7 +7,7 @@ use filmscope_core::solve::sample::{
     fit_index, hold_index, run_pixel, runs_along_columns, seat_pixels, site_grid, workspace_len,
     Failure, Geometry, ModelKind, Nuisance, Parallel, Residual, SampleFit, Seat, Spectra, Start,
     Term, CENTRE, CONSTANT_PREFERENCE, GATE_CHI2_NU, MAX_SITES, MODEL_PENALTY, OUTLIER_SITE_RATIO,
-    RUN,
+    RUN, TOLERANCE,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
 use serde_json::{json, Value};
@@ -53,6 +53,7 @@ fn geometry<'a>(spec: &'a SweepSpec, angles_deg: &'a [f64]) -> Geometry<'a> {
         index_range: spec.index_range,
         thickness_range_nm: spec.thickness_range_nm,
         model_error: spec.model_error,
+        rig_tolerance: spec.rig_tolerance,
     }
 }
 
@@ -483,6 +484,19 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
             "lowest chi2 + {MODEL_PENALTY} x parameters (a constant index counted as two, the Cauchy model with its slope held at zero, preferred unless the slope gains {CONSTANT_PREFERENCE}) among physical models (index inside the search range and falling with wavelength, a Sellmeier pole below the band), chi2 in units of the noise measured from each site's run of {RUN} pixels (per site, band and angle) plus the model error; a fit that misses the noise alone is fitted again with its misfit beyond the noise as the model error (sites fitting {OUTLIER_SITE_RATIO}x worse than the median set aside) and fails when that misfit exceeds the tolerated model error (model_error_tolerated) or its reduced chi-square exceeds {GATE_CHI2_NU}"
         ),
         "model_error_tolerated": fit.tolerated_model_error,
+        "rig_tolerance": {
+            "multiple": finite(fit.rig_tolerance),
+            "one_sigma": {
+                "reflectance_scale": TOLERANCE.scale,
+                "reflectance_offset": TOLERANCE.offset,
+                "film_k_450nm": TOLERANCE.terms[0],
+                "polariser_leak": TOLERANCE.terms[1],
+                "stage_offset_deg": TOLERANCE.terms[2],
+                "wavelength_shift_nm": TOLERANCE.terms[3],
+                "flare": TOLERANCE.terms[4],
+                "side_lobes": TOLERANCE.terms[5],
+            },
+        },
         "models": ModelKind::ALL.iter().map(|k| k.name()).collect::<Vec<_>>(),
     })
 }

@@ -348,14 +348,10 @@ fn imprecise_share(out: &SweepOutput, fit: &SampleFit) -> f64 {
     n as f64 / out.results.len().max(1) as f64
 }
 
-/// The factor a pixel's own thickness sigma is widened by: the sample fit's residual's
-/// correlation along the band, when the fit carries a model error.
+/// The factor a pixel's own thickness sigma is widened by: the sample fit's misfit beyond
+/// the noise, correlated along the band (1 when the fit is within the noise).
 fn own_factor(fit: &SampleFit) -> f64 {
-    if fit.model_error > 0.0 {
-        fit.residual.correlation_factor()
-    } else {
-        1.0
-    }
+    fit.residual.correlation_factor()
 }
 
 /// Share of the sampled sites, among those the sample fit solves, whose thickness in the
@@ -434,8 +430,8 @@ fn finish(
 /// Each solved pixel's thickness sigma with the sample fit's share added: the index's
 /// standard error carried to the thickness (the fringes pin the optical path
 /// `d sqrt(n^2 - sin^2 theta)`, so `dd/dn = -d n / (n^2 - sin^2 theta)`, over the angles'
-/// mean `sin^2 theta`) and, when the fit carries a model error, the pixel's own share widened
-/// by the residual's correlation along the band (`Residual::correlation_factor`). A pixel
+/// mean `sin^2 theta`) and the pixel's own share widened by the sample's misfit beyond the
+/// noise, correlated along the band (`Residual::correlation_factor`). A pixel
 /// whose own share exceeds [`MAX_THICKNESS_SIGMA_NM`] is flagged `imprecise`.
 fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
     let angles = &out.angles;

@@ -28,14 +28,21 @@ pub struct RunConfig {
     /// The model error the index fit tolerates, RMS reflectance, over the capture's own
     /// (`[fit] model_error`) when given.
     pub model_error: Option<f64>,
+    /// The rig's nuisance terms in the index sigma, over the capture's own
+    /// (`[fit] rig_tolerance`) when given.
+    pub rig_tolerance: Option<f64>,
 }
 
 impl RunConfig {
-    /// `spec` as this run fits it: its tolerated model error replaced when the run gives one.
+    /// `spec` as this run fits it: its tolerated model error and rig tolerance replaced when
+    /// the run gives them.
     pub fn fitted_spec(&self, spec: &SweepSpec) -> SweepSpec {
         let mut spec = spec.clone();
         if let Some(m) = self.model_error {
             spec.model_error = m;
+        }
+        if let Some(t) = self.rig_tolerance {
+            spec.rig_tolerance = t;
         }
         spec
     }
@@ -51,6 +58,7 @@ impl Default for RunConfig {
             sample_sites: crate::estimate::index_fit::DEFAULT_SITES,
             one_pass: false,
             model_error: None,
+            rig_tolerance: None,
         }
     }
 }

@@ -16,6 +16,7 @@
 //!
 //! [fit]                      # optional, a filmscope extension of the contract
 //! model_error = 0.003        # RMS reflectance the model may miss by beyond the noise
+//! rig_tolerance = 1.0        # the rig's nuisance terms in the index sigma, x the typical rig's
 //!
 //! [lens]                     # optional, a filmscope extension of the contract
 //! horizontal_fov_deg = 30.0  # the lens's horizontal field of view, in (0, 180)
@@ -120,6 +121,11 @@ pub struct Fit {
     /// default, [`crate::solve::sample::DEFAULT_MODEL_ERROR`]; 0: judged against the noise
     /// alone).
     pub model_error: Option<f64>,
+    /// How far the reported index sigma carries the nuisance terms a real rig keeps (a white
+    /// reference's error, film absorption, polariser leak, stage offset, wavelength shift,
+    /// flare, side lobes), as a multiple of the typical rig's, in `[0, 10]` (`None`: 1; 0:
+    /// the statistical sigma under the terms the fit took).
+    pub rig_tolerance: Option<f64>,
 }
 
 /// The optional `[lens]` table (a filmscope extension of the capture contract).
@@ -405,6 +411,8 @@ struct RawCapture {
 struct RawFit {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     model_error: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    rig_tolerance: Option<f64>,
 }
 
 #[derive(Deserialize, Serialize)]
@@ -463,9 +471,11 @@ const SAMPLE_KEYS: &[&str] = &[
     "back_face",
 ];
 const SEARCH_KEYS: &[&str] = &["index_range", "thickness_range_nm"];
-const FIT_KEYS: &[&str] = &["model_error"];
+const FIT_KEYS: &[&str] = &["model_error", "rig_tolerance"];
 /// The largest `fit.model_error` a capture may give, RMS reflectance.
 pub const MAX_MODEL_ERROR: f64 = 0.05;
+/// The largest `fit.rig_tolerance` a capture may give.
+pub const MAX_RIG_TOLERANCE: f64 = 10.0;
 const LENS_KEYS: &[&str] = &["horizontal_fov_deg"];
 const ANGLE_KEYS: &[&str] = &[
     "incidence_deg",
@@ -606,7 +616,8 @@ impl Capture {
                 horizontal_fov_deg: raw.lens.and_then(|l| l.horizontal_fov_deg),
             },
             fit: Fit {
-                model_error: raw.fit.and_then(|f| f.model_error),
+                model_error: raw.fit.as_ref().and_then(|f| f.model_error),
+                rig_tolerance: raw.fit.as_ref().and_then(|f| f.rig_tolerance),
             },
             angles,
             unknown_keys,
@@ -636,6 +647,13 @@ impl Capture {
             if !(0.0..=MAX_MODEL_ERROR).contains(&value) {
                 return Err(bad(format!(
                     "fit.model_error = {value}: outside 0 to {MAX_MODEL_ERROR} (RMS reflectance)"
+                )));
+            }
+        }
+        if let Some(value) = self.fit.rig_tolerance {
+            if !(0.0..=MAX_RIG_TOLERANCE).contains(&value) {
+                return Err(bad(format!(
+                    "fit.rig_tolerance = {value}: outside 0 to {MAX_RIG_TOLERANCE} (a multiple of the typical rig's terms)"
                 )));
             }
         }
@@ -832,8 +850,9 @@ impl Capture {
         let lens = self.lens.horizontal_fov_deg.map(|f| RawLens {
             horizontal_fov_deg: Some(f),
         });
-        let fit = self.fit.model_error.map(|m| RawFit {
-            model_error: Some(m),
+        let fit = (self.fit != Fit::default()).then_some(RawFit {
+            model_error: self.fit.model_error,
+            rig_tolerance: self.fit.rig_tolerance,
         });
         let raw = RawCapture {
             sample: RawSample {

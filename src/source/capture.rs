@@ -115,6 +115,9 @@ impl CaptureSource {
         if let Some(m) = capture.fit.model_error {
             spec.model_error = m;
         }
+        if let Some(t) = capture.fit.rig_tolerance {
+            spec.rig_tolerance = t;
+        }
         // Raw counts saturate at the ADC's full scale: the header's `saturation counts` (a
         // filmscope extension of ENVI) when given, else the u16 maximum.
         let first = EnviReader::open(&capture.angles[0].cube).map_err(|e| e.to_string())?;

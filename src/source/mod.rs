@@ -114,6 +114,7 @@ pub fn sweep_spec(
         index_range,
         thickness_range_nm,
         model_error: filmscope_core::solve::sample::DEFAULT_MODEL_ERROR,
+        rig_tolerance: 1.0,
         options: Default::default(),
     })
 }

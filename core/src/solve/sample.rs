@@ -319,6 +319,9 @@ pub struct Geometry<'a> {
     /// than their noise passes the gate when its misfit beyond the noise is within this
     /// ([`DEFAULT_MODEL_ERROR`]; 0: judged against the noise alone).
     pub model_error: f64,
+    /// The [`TOLERANCE`]'s multiple the reported index sigma carries (1; 0: the statistical
+    /// sigma under the terms the fit took).
+    pub rig_tolerance: f64,
 }
 
 /// The sampled spectra: site `k`, run pixel `j`, angle `a`, band `b` at
@@ -438,6 +441,8 @@ pub struct SampleFit {
     pub set_aside: [bool; MAX_SITES],
     /// The model error tolerated ([`Geometry::model_error`]).
     pub tolerated_model_error: f64,
+    /// The [`TOLERANCE`]'s multiple the index sigma carries ([`Geometry::rig_tolerance`]).
+    pub rig_tolerance: f64,
     /// Each angle's reflectance `(scale, offset)` when the evidence asked for them
     /// (`measured = scale x film + offset`: a white standard's error, flare, the filter's side
     /// lobes), in streaming order; empty when not fitted.
@@ -622,6 +627,7 @@ impl SampleFit {
         model_error: 0.0,
         set_aside: [false; MAX_SITES],
         tolerated_model_error: f64::NAN,
+        rig_tolerance: f64::NAN,
         reflectance_terms: heapless::Vec::new(),
         film_k: Term::NONE,
         polariser_leak: Term::NONE,
@@ -862,6 +868,7 @@ fn on_weighed_sites(
 ) -> SampleFit {
     let mut fit = SampleFit::EMPTY;
     fit.tolerated_model_error = geo.model_error;
+    fit.rig_tolerance = geo.rig_tolerance;
     let (na, nb) = (geo.angles_deg.len(), geo.bands_nm.len());
     let sites = spectra.sites.min(MAX_SITES);
     if na < 1
@@ -1305,10 +1312,6 @@ struct Node {
     /// `dR/dn` at the node needs the film one index step up.
     film_up: FilmAtAngle,
     dn_dp: [f64; 3],
-    /// The round trip's attenuation exponent per nm of thickness and unit of
-    /// [`Problem::film_k`] (`a = exp(-film_k absorb_per_nm d)` to first order,
-    /// [`ABSORPTION_TAIL_NM`]): the film's absorption's slope.
-    absorb_per_nm: f64,
     /// With a polariser's leak and a clear film: the film in the other polarisation (s for p
     /// light, p for s; unpolarised light's own), which a leaking polariser mixes in.
     film_other: FilmAtAngle,
@@ -1511,10 +1514,6 @@ struct SiteModel {
     m: f64,
     dm_dd: f64,
     dm_dp: [f64; 3],
-    /// With respect to [`Problem::film_k`].
-    dm_dk: f64,
-    /// With respect to [`Problem::leak`].
-    dm_dleak: f64,
 }
 
 /// Per-site normal-equation sums of one iteration.
@@ -1549,9 +1548,35 @@ impl Terms {
 
 /// Most angles whose reflectance terms are fitted (the marginal covariance's size).
 pub const TERM_MAX_ANGLES: usize = 12;
-/// Index parameters, two terms an angle, the film's absorption, the polariser's leak, the
-/// flare and the side lobes.
-const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + 4;
+/// The nuisance terms besides each angle's scale and offset: the film's absorption, the
+/// polariser's leak, the stage offset, the wavelength shift, the flare and the side lobes.
+const TERMS: usize = 6;
+/// Index parameters, two terms an angle and the [`TERMS`].
+const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + TERMS;
+/// The steps over which [`Problem::marginal_n550_sigma`] takes the model's slope along the
+/// absorption (k at 450 nm), the leak, the stage offset (degrees) and the shift (nm).
+const TERM_STEPS: [f64; 4] = [1e-3, 1e-3, 0.01, 0.02];
+
+/// What a real rig and sample keep of each nuisance term without its showing in the fit
+/// (1-sigma), with which the reported index sigma carries every term, taken or not
+/// ([`Problem::marginal_n550_sigma`]): a white reference's error of 1 % at each angle and an
+/// offset of 1e-3, k 0.004 at 450 nm, a leak of 1 %, a stage offset of 0.25 degrees, a
+/// wavelength shift of 0.3 nm, a flare of 0.2 % and side lobes of 2 %.
+pub struct Tolerance {
+    /// Each angle's reflectance scale.
+    pub scale: f64,
+    /// Each angle's reflectance offset.
+    pub offset: f64,
+    /// The [`TERMS`] in their order.
+    pub terms: [f64; TERMS],
+}
+
+/// The tolerance every capture's index sigma is reported with.
+pub const TOLERANCE: Tolerance = Tolerance {
+    scale: 0.01,
+    offset: 1e-3,
+    terms: [0.004, 0.01, 0.25, 0.3, 0.002, 0.02],
+};
 
 impl Problem<'_> {
     /// Site `k`'s measured value at angle `a`, band `b`: the side lobes' light, the flare and
@@ -1680,8 +1705,6 @@ impl Problem<'_> {
                 film,
                 film_up,
                 dn_dp,
-                absorb_per_nm: 4.0 * core::f64::consts::PI * n * absorption_shape(l)
-                    / (l * film.kz_film),
                 film_other,
                 lossy,
             })
@@ -1836,7 +1859,6 @@ impl Problem<'_> {
                 if e > 0.0 {
                     let ph_o = nd.phase_per_nm * d + nd.film_other.phase_offset();
                     let (o, o_dc) = nd.film_other.reflectance_and_slope_at_cos(libm::cos(ph_o));
-                    out.dm_dleak += nd.weight * (o - own);
                     r = (1.0 - e) * own + e * o;
                     dr_dd = (1.0 - e) * dr_dd + e * o_dc * -libm::sin(ph_o) * nd.phase_per_nm;
                 }
@@ -1860,7 +1882,6 @@ impl Problem<'_> {
             let (r, dr_ddelta, dr_da) = if self.leak > 0.0 {
                 // The same film in the other polarisation: the same round trip.
                 let (o, o_dd, o_da) = other.reflectance(cs, sn, a);
-                out.dm_dleak += nd.weight * (o - own);
                 let e = self.leak;
                 (
                     (1.0 - e) * own + e * o,
@@ -1872,7 +1893,6 @@ impl Problem<'_> {
             };
             out.m += nd.weight * r;
             out.dm_dd += nd.weight * (dr_ddelta * film.phase_per_nm - dr_da * film.loss_per_nm * a);
-            out.dm_dk += nd.weight * dr_da * -nd.absorb_per_nm * d * a;
             let (delta_up, a_up) = up.round_trip(d);
             let r_up = up
                 .reflectance(libm::cos(delta_up), libm::sin(delta_up), a_up)
@@ -2210,7 +2230,8 @@ impl Problem<'_> {
     /// across the sites ([`Residual::shared_factor`]): a smooth misfit common to the sites is
     /// fewer independent samples. The gate takes the sites' own standard error (the band's
     /// widening only): whether the spectra determine the index, not how far a misfit common
-    /// to the sites may pull it.
+    /// to the sites may pull it. The sigma reported carries every nuisance term within its
+    /// [`TOLERANCE`] and the misfit beyond the noise.
     fn settle(&self, mut fit: SampleFit, mut c: Candidate, tt: &[f64; MAX_SITES]) -> SampleFit {
         for (k, slot) in fit.thickness_nm.iter_mut().enumerate() {
             *slot = if k < self.usable.len() && self.usable[k] {
@@ -2223,17 +2244,30 @@ impl Problem<'_> {
             fit.residual = r;
         }
         fit.model_error = libm::sqrt(self.noise.model2);
+        let scale = libm::sqrt(c.chi2_nu.max(1.0));
         if self.terms.fitted() || self.film_k > 0.0 || self.leak > 0.0 {
             // The terms trade with the index: its sigma with them free, not held.
-            if let Some(s) = self.marginal_n550_sigma(c.kind, &c.params, tt) {
-                c.n550_sigma = s * libm::sqrt(c.chi2_nu.max(1.0));
+            if let Some(s) = self.marginal_n550_sigma(c.kind, &c.params, tt, false) {
+                c.n550_sigma = s * scale;
             }
         }
         // Whether the spectra determine the index at all is the sites' own precision; what a
-        // misfit common to them adds is the index's accuracy, reported, not a refusal.
-        let mut determined = c.n550_sigma;
+        // misfit common to them adds is the index's accuracy, refused beyond
+        // [`MAX_INDEX_ACCURACY`].
+        let (mut determined, mut accuracy) = (c.n550_sigma, c.n550_sigma);
         if fit.model_error > 0.0 {
             determined *= fit.residual.correlation_factor();
+            accuracy *= fit.residual.shared_factor(fit.sites_used);
+        }
+        // The sigma reported: every nuisance term free within what a rig keeps, and the
+        // misfit beyond the noise as the model's share, whether or not the gate needed a
+        // model error to pass the fit. A given index (held: sigma 0) keeps none.
+        if c.n550_sigma > 0.0 {
+            if self.geo.rig_tolerance > 0.0 {
+                if let Some(s) = self.marginal_n550_sigma(c.kind, &c.params, tt, true) {
+                    c.n550_sigma = s * scale;
+                }
+            }
             c.n550_sigma *= fit.residual.shared_factor(fit.sites_used);
         }
         fit.best = Some(c);
@@ -2241,7 +2275,7 @@ impl Problem<'_> {
         let misfit = fit.model_error > 0.0 && !within;
         fit.failure = if c.chi2_nu > GATE_CHI2_NU || misfit {
             Some(Failure::NoFit)
-        } else if determined > MAX_INDEX_SIGMA || c.n550_sigma > MAX_INDEX_ACCURACY {
+        } else if determined > MAX_INDEX_SIGMA || accuracy > MAX_INDEX_ACCURACY {
             Some(Failure::Underdetermined)
         } else {
             None
@@ -2555,94 +2589,143 @@ impl Problem<'_> {
     }
 
     /// The standard error of the index at 550 nm of `(kind, p)` at the sites' thicknesses
-    /// `t` with the nuisance terms in play free (each angle's reflectance scale and offset
-    /// when fitted, the film's absorption when fitted): the information matrix over the
-    /// index parameters, those terms and the thicknesses, the thicknesses and the terms
-    /// eliminated; before any scaling by the fit's reduced chi-square.
+    /// `t` with the nuisance terms free: the information matrix over the index parameters,
+    /// the terms and the thicknesses, the thicknesses and the terms eliminated; before any
+    /// scaling by the fit's reduced chi-square. Without `tolerance`, the terms the fit took
+    /// but the stage offset and the wavelength shift (each angle's reflectance scale and
+    /// offset, the film's absorption, the polariser's leak, the flare, the side lobes); with it,
+    /// every term, each also held to what a rig keeps without it showing ([`TOLERANCE`] times
+    /// [`Geometry::rig_tolerance`]):
+    /// the index's accuracy on a real rig, not its precision under the terms the evidence
+    /// took. The absorption, leak, stage offset and shift enter by their model's slope over
+    /// a small step ([`TERM_STEPS`]).
     fn marginal_n550_sigma(
         &self,
         kind: ModelKind,
         p: &[f64; 3],
         t: &[f64; MAX_SITES],
+        tolerance: bool,
     ) -> Option<f64> {
         type M = nalgebra::SMatrix<f64, MARGINAL, MARGINAL>;
         type V = nalgebra::SVector<f64, MARGINAL>;
         let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
-        let terms = self.terms.fitted();
-        if terms && na > TERM_MAX_ANGLES {
+        let fitted = self.terms.fitted();
+        let per_angle = (fitted || tolerance) && na <= TERM_MAX_ANGLES;
+        if fitted && !per_angle {
             return None;
         }
         let sites = self.usable.len();
         let d_max = self.thickest(t);
         let np = kind.params();
-        let (k_slot, leak_slot, flare_slot, side_slot) =
-            (MARGINAL - 4, MARGINAL - 3, MARGINAL - 2, MARGINAL - 1);
+        let slot = |term: usize| MARGINAL - TERMS + term;
+        let polarised = self.geo.polarization != Polarization::Unpolarized;
+        // Which of the six terms are in play (absorption, leak, stage, shift, flare, side
+        // lobes); the flare's share is each angle's offset when those are.
+        let taken = [
+            self.film_k > 0.0,
+            self.leak > 0.0,
+            false,
+            false,
+            self.flare > 0.0,
+            self.side_lobes > 0.0,
+        ];
+        // The stage offset and the shift, whose profiled sigmas gauge them, enter with the
+        // tolerance only: the precision the gate judges is under the others.
+        let on: [bool; TERMS] = core::array::from_fn(|i| match i {
+            1 => polarised && (taken[1] || tolerance),
+            2 | 3 => tolerance,
+            4 => !per_angle && (taken[4] || tolerance),
+            _ => taken[i] || tolerance,
+        });
+        // The problem a step along each stepped term (absorption, leak, stage, shift).
+        let stepped: [Option<Problem<'_>>; 4] = core::array::from_fn(|i| {
+            on[i].then(|| {
+                let mut q = Problem {
+                    noise: self.noise.clone(),
+                    ..*self
+                };
+                match i {
+                    0 => q.film_k += TERM_STEPS[0],
+                    1 => q.leak += TERM_STEPS[1],
+                    2 => q.stage_deg += TERM_STEPS[2],
+                    _ => q.shift_nm += TERM_STEPS[3],
+                }
+                q
+            })
+        });
         let mut h = M::zeros();
-        let mut reduce = M::zeros();
-        for k in (0..sites).filter(|&k| self.usable[k]) {
-            let (mut jdd, mut cross) = (0.0, V::zeros());
-            for a in 0..na {
-                for b in 0..nb {
+        let mut jdd = [0.0; MAX_SITES];
+        let mut cross = [V::zeros(); MAX_SITES];
+        for a in 0..na {
+            let g = self.terms.scale[a.min(NOISE_ANGLES - 1)];
+            for b in 0..nb {
+                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
+                let mut stepped_nodes = [None; 4];
+                for (out, q) in stepped_nodes.iter_mut().zip(&stepped) {
+                    if let Some(q) = q {
+                        *out = Some(q.nodes(kind, p, a, b, d_max)?);
+                    }
+                }
+                for k in (0..sites).filter(|&k| self.usable[k]) {
                     if !self.spectra.centre_at(nb, k, a, b).is_finite() {
                         continue;
                     }
-                    let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
                     let fit = self.site_model(&nodes[..count], t[k]);
-                    let g = self.terms.scale[a.min(NOISE_ANGLES - 1)];
                     let w = self.noise.weight(k, a, b);
                     let mut u = V::zeros();
                     for q in 0..np {
                         u[q] = g * fit.dm_dp[q];
                     }
-                    if terms {
+                    if per_angle {
                         u[3 + 2 * a] = fit.m;
                         u[3 + 2 * a + 1] = 1.0;
                     }
-                    u[k_slot] = g * fit.dm_dk;
-                    u[leak_slot] = g * fit.dm_dleak;
-                    u[flare_slot] = 1.0;
-                    if self.side_lobes > 0.0 {
+                    for i in 0..4 {
+                        if let (Some(q), Some((n, c))) = (&stepped[i], &stepped_nodes[i]) {
+                            let m = q.site_model(&n[..*c], t[k]).m;
+                            u[slot(i)] = g * (m - fit.m) / TERM_STEPS[i];
+                        }
+                    }
+                    u[slot(4)] = 1.0;
+                    if on[5] {
                         // The measured value's slope along the side lobes' share, as the
                         // model's the other way.
                         let y = f64::from(self.spectra.centre_at(nb, k, a, b));
                         let s = self.side_lobes;
-                        u[side_slot] = (self.wide_at(nb, k, a, b) - y) / ((1.0 - s) * (1.0 - s));
+                        u[slot(5)] = (self.wide_at(nb, k, a, b) - y) / ((1.0 - s) * (1.0 - s));
                     }
                     h += u * u.transpose() * w;
-                    jdd += w * g * g * fit.dm_dd * fit.dm_dd;
-                    cross += u * (w * g * fit.dm_dd);
+                    jdd[k] += w * g * g * fit.dm_dd * fit.dm_dd;
+                    cross[k] += u * (w * g * fit.dm_dd);
                 }
             }
-            if jdd > 0.0 {
-                reduce += cross * cross.transpose() / jdd;
+        }
+        for k in 0..sites {
+            if jdd[k] > 0.0 {
+                h -= cross[k] * cross[k].transpose() / jdd[k];
             }
         }
-        h -= reduce;
-        // Only the parameters in play.
-        let mut keep: heapless::Vec<usize, MARGINAL> = (0..np).collect();
-        if terms {
+        // Only the parameters in play, each term held to its tolerance when asked.
+        let mut keep: heapless::Vec<(usize, f64), MARGINAL> = (0..np).map(|q| (q, 0.0)).collect();
+        if per_angle {
             for a in 0..na {
-                let _ = keep.push(3 + 2 * a);
-                let _ = keep.push(3 + 2 * a + 1);
+                let _ = keep.push((3 + 2 * a, TOLERANCE.scale));
+                let _ = keep.push((3 + 2 * a + 1, TOLERANCE.offset));
             }
         }
-        if self.film_k > 0.0 {
-            let _ = keep.push(k_slot);
-        }
-        if self.leak > 0.0 {
-            let _ = keep.push(leak_slot);
-        }
-        // Each angle's offset holds the flare's share when fitted.
-        if self.flare > 0.0 && !terms {
-            let _ = keep.push(flare_slot);
-        }
-        if self.side_lobes > 0.0 {
-            let _ = keep.push(side_slot);
+        for (i, &on) in on.iter().enumerate() {
+            if on {
+                let _ = keep.push((slot(i), TOLERANCE.terms[i]));
+            }
         }
         let mut sub = M::identity();
-        for (i, &ki) in keep.iter().enumerate() {
-            for (j, &kj) in keep.iter().enumerate() {
+        for (i, &(ki, held)) in keep.iter().enumerate() {
+            for (j, &(kj, _)) in keep.iter().enumerate() {
                 sub[(i, j)] = h[(ki, kj)];
+            }
+            let held = held * self.geo.rig_tolerance;
+            if tolerance && held > 0.0 {
+                sub[(i, i)] += 1.0 / (held * held);
             }
         }
         let inv = sub.try_inverse()?;
@@ -3411,6 +3494,7 @@ mod tests {
             index_range: [1.2, 3.0],
             thickness_range_nm: [10.0, 3000.0],
             model_error,
+            rig_tolerance: 1.0,
         };
         let spectra = Spectra {
             values: &values,
@@ -3538,6 +3622,7 @@ mod tests {
             index_range: [1.2, 3.0],
             thickness_range_nm: [50.0, 2000.0],
             model_error: 0.0,
+            rig_tolerance: 1.0,
         };
         let spectra = Spectra {
             values: &values,

@@ -36,6 +36,10 @@ pub struct SweepSpec {
     /// The model error the index fit tolerates, RMS reflectance
     /// ([`super::sample::DEFAULT_MODEL_ERROR`]; `[fit] model_error` in a capture).
     pub model_error: f64,
+    /// How far the reported index sigma carries the nuisance terms a rig keeps, as a
+    /// multiple of [`super::sample::TOLERANCE`] (1; `[fit] rig_tolerance` in a capture; 0:
+    /// the statistical sigma under the terms the fit took).
+    pub rig_tolerance: f64,
     /// What the solver may use (all on by default; off only to measure what each is worth).
     pub options: SolverOptions,
 }
@@ -161,6 +165,7 @@ pub(crate) fn paper_rig_spec(width: usize, height: usize) -> SweepSpec {
         index_range: [1.2, 2.8],
         thickness_range_nm: [30.0, 2000.0],
         model_error: super::sample::DEFAULT_MODEL_ERROR,
+        rig_tolerance: 1.0,
         options: SolverOptions::default(),
     };
     for b in 0..151 {
