@@ -1553,6 +1553,8 @@ pub const TERM_MAX_ANGLES: usize = 12;
 const TERMS: usize = 6;
 /// Index parameters, two terms an angle and the [`TERMS`].
 const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + TERMS;
+/// Most sites the index sigma's tolerance marginal is made on ([`Problem::marginal_n550_sigma`]).
+const TOLERANCE_SITES: usize = 16;
 /// The steps over which [`Problem::marginal_n550_sigma`] takes the model's slope along the
 /// absorption (k at 450 nm), the leak, the stage offset (degrees) and the shift (nm).
 const TERM_STEPS: [f64; 4] = [1e-3, 1e-3, 0.01, 0.02];
@@ -2607,7 +2609,6 @@ impl Problem<'_> {
         tolerance: bool,
     ) -> Option<f64> {
         type M = nalgebra::SMatrix<f64, MARGINAL, MARGINAL>;
-        type V = nalgebra::SVector<f64, MARGINAL>;
         let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
         let fitted = self.terms.fitted();
         let per_angle = (fitted || tolerance) && na <= TERM_MAX_ANGLES;
@@ -2653,59 +2654,8 @@ impl Problem<'_> {
                 q
             })
         });
-        let mut h = M::zeros();
-        let mut jdd = [0.0; MAX_SITES];
-        let mut cross = [V::zeros(); MAX_SITES];
-        for a in 0..na {
-            let g = self.terms.scale[a.min(NOISE_ANGLES - 1)];
-            for b in 0..nb {
-                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
-                let mut stepped_nodes = [None; 4];
-                for (out, q) in stepped_nodes.iter_mut().zip(&stepped) {
-                    if let Some(q) = q {
-                        *out = Some(q.nodes(kind, p, a, b, d_max)?);
-                    }
-                }
-                for k in (0..sites).filter(|&k| self.usable[k]) {
-                    if !self.spectra.centre_at(nb, k, a, b).is_finite() {
-                        continue;
-                    }
-                    let fit = self.site_model(&nodes[..count], t[k]);
-                    let w = self.noise.weight(k, a, b);
-                    let mut u = V::zeros();
-                    for q in 0..np {
-                        u[q] = g * fit.dm_dp[q];
-                    }
-                    if per_angle {
-                        u[3 + 2 * a] = fit.m;
-                        u[3 + 2 * a + 1] = 1.0;
-                    }
-                    for i in 0..4 {
-                        if let (Some(q), Some((n, c))) = (&stepped[i], &stepped_nodes[i]) {
-                            let m = q.site_model(&n[..*c], t[k]).m;
-                            u[slot(i)] = g * (m - fit.m) / TERM_STEPS[i];
-                        }
-                    }
-                    u[slot(4)] = 1.0;
-                    if on[5] {
-                        // The measured value's slope along the side lobes' share, as the
-                        // model's the other way.
-                        let y = f64::from(self.spectra.centre_at(nb, k, a, b));
-                        let s = self.side_lobes;
-                        u[slot(5)] = (self.wide_at(nb, k, a, b) - y) / ((1.0 - s) * (1.0 - s));
-                    }
-                    h += u * u.transpose() * w;
-                    jdd[k] += w * g * g * fit.dm_dd * fit.dm_dd;
-                    cross[k] += u * (w * g * fit.dm_dd);
-                }
-            }
-        }
-        for k in 0..sites {
-            if jdd[k] > 0.0 {
-                h -= cross[k] * cross[k].transpose() / jdd[k];
-            }
-        }
-        // Only the parameters in play, each term held to its tolerance when asked.
+        // Only the parameters in play, each term held to its tolerance when asked; `pos`
+        // maps a slot to its place among them.
         let mut keep: heapless::Vec<(usize, f64), MARGINAL> = (0..np).map(|q| (q, 0.0)).collect();
         if per_angle {
             for a in 0..na {
@@ -2718,12 +2668,103 @@ impl Problem<'_> {
                 let _ = keep.push((slot(i), TOLERANCE.terms[i]));
             }
         }
-        let mut sub = M::identity();
-        for (i, &(ki, held)) in keep.iter().enumerate() {
-            for (j, &(kj, _)) in keep.iter().enumerate() {
-                sub[(i, j)] = h[(ki, kj)];
+        let mut pos = [usize::MAX; MARGINAL];
+        for (i, &(k, _)) in keep.iter().enumerate() {
+            pos[k] = i;
+        }
+        // The information over the kept parameters (upper triangle), each site's thickness
+        // row, accumulated over each sample's few nonzero slopes (an angle's reflectance
+        // terms touch its own samples only).
+        // With the tolerance, every `stride`-th usable site (at most [`TOLERANCE_SITES`]),
+        // its information scaled up to all of them: the sites are alike, and the term
+        // slopes cost five site models a sample.
+        let usable: heapless::Vec<usize, MAX_SITES> =
+            (0..sites).filter(|&k| self.usable[k]).collect();
+        let stride = if tolerance {
+            usable.len().div_ceil(TOLERANCE_SITES).max(1)
+        } else {
+            1
+        };
+        let chosen: heapless::Vec<usize, MAX_SITES> =
+            usable.iter().copied().step_by(stride).collect();
+        let up = usable.len() as f64 / chosen.len().max(1) as f64;
+        let mut h = [[0.0f64; MARGINAL]; MARGINAL];
+        let mut jdd = [0.0; MAX_SITES];
+        let mut cross = [[0.0f64; MARGINAL]; MAX_SITES];
+        for a in 0..na {
+            let g = self.terms.scale[a.min(NOISE_ANGLES - 1)];
+            for b in 0..nb {
+                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
+                let mut stepped_nodes = [None; 4];
+                for (out, q) in stepped_nodes.iter_mut().zip(&stepped) {
+                    if let Some(q) = q {
+                        *out = Some(q.nodes(kind, p, a, b, d_max)?);
+                    }
+                }
+                for &k in &chosen {
+                    if !self.spectra.centre_at(nb, k, a, b).is_finite() {
+                        continue;
+                    }
+                    let fit = self.site_model(&nodes[..count], t[k]);
+                    let w = self.noise.weight(k, a, b);
+                    // (place among the kept, slope), in slot order.
+                    let mut u: heapless::Vec<(usize, f64), { 3 + 2 + TERMS }> =
+                        heapless::Vec::new();
+                    let mut put = |s: usize, v: f64| {
+                        if pos[s] != usize::MAX {
+                            let _ = u.push((pos[s], v));
+                        }
+                    };
+                    for q in 0..np {
+                        put(q, g * fit.dm_dp[q]);
+                    }
+                    if per_angle {
+                        put(3 + 2 * a, fit.m);
+                        put(3 + 2 * a + 1, 1.0);
+                    }
+                    for i in 0..4 {
+                        if let (Some(q), Some((n, c))) = (&stepped[i], &stepped_nodes[i]) {
+                            let m = q.site_model(&n[..*c], t[k]).m;
+                            put(slot(i), g * (m - fit.m) / TERM_STEPS[i]);
+                        }
+                    }
+                    put(slot(4), 1.0);
+                    if on[5] {
+                        // The measured value's slope along the side lobes' share, as the
+                        // model's the other way.
+                        let y = f64::from(self.spectra.centre_at(nb, k, a, b));
+                        let s = self.side_lobes;
+                        put(
+                            slot(5),
+                            (self.wide_at(nb, k, a, b) - y) / ((1.0 - s) * (1.0 - s)),
+                        );
+                    }
+                    let wd = w * g * fit.dm_dd;
+                    for (x, &(i, ui)) in u.iter().enumerate() {
+                        let wi = w * ui;
+                        for &(j, uj) in &u[x..] {
+                            h[i][j] += wi * uj;
+                        }
+                        cross[k][i] += wd * ui;
+                    }
+                    jdd[k] += wd * g * fit.dm_dd;
+                }
             }
-            let held = held * self.geo.rig_tolerance;
+        }
+        let dim = keep.len();
+        let mut sub = M::identity();
+        for i in 0..dim {
+            for j in i..dim {
+                let mut v = h[i][j];
+                for &k in &chosen {
+                    if jdd[k] > 0.0 {
+                        v -= cross[k][i] * cross[k][j] / jdd[k];
+                    }
+                }
+                sub[(i, j)] = v * up;
+                sub[(j, i)] = v * up;
+            }
+            let held = keep[i].1 * self.geo.rig_tolerance;
             if tolerance && held > 0.0 {
                 sub[(i, i)] += 1.0 / (held * held);
             }
