@@ -1554,7 +1554,9 @@ const TERMS: usize = 6;
 /// Index parameters, two terms an angle and the [`TERMS`].
 const MARGINAL: usize = 3 + 2 * TERM_MAX_ANGLES + TERMS;
 /// Most sites the index sigma's tolerance marginal is made on ([`Problem::marginal_n550_sigma`]).
-const TOLERANCE_SITES: usize = 16;
+const TOLERANCE_SITES: usize = 8;
+/// Most bands it is made on.
+const TOLERANCE_BANDS: usize = 48;
 /// The steps over which [`Problem::marginal_n550_sigma`] takes the model's slope along the
 /// absorption (k at 450 nm), the leak, the stage offset (degrees) and the shift (nm).
 const TERM_STEPS: [f64; 4] = [1e-3, 1e-3, 0.01, 0.02];
@@ -2675,9 +2677,10 @@ impl Problem<'_> {
         // The information over the kept parameters (upper triangle), each site's thickness
         // row, accumulated over each sample's few nonzero slopes (an angle's reflectance
         // terms touch its own samples only).
-        // With the tolerance, every `stride`-th usable site (at most [`TOLERANCE_SITES`]),
-        // its information scaled up to all of them: the sites are alike, and the term
-        // slopes cost five site models a sample.
+        // With the tolerance, every `stride`-th usable site and `band_stride`-th band (at
+        // most [`TOLERANCE_SITES`] and [`TOLERANCE_BANDS`]), the information scaled up to all
+        // of them: sites and neighbouring bands are alike, and the term slopes cost five site
+        // models a sample.
         let usable: heapless::Vec<usize, MAX_SITES> =
             (0..sites).filter(|&k| self.usable[k]).collect();
         let stride = if tolerance {
@@ -2687,13 +2690,19 @@ impl Problem<'_> {
         };
         let chosen: heapless::Vec<usize, MAX_SITES> =
             usable.iter().copied().step_by(stride).collect();
-        let up = usable.len() as f64 / chosen.len().max(1) as f64;
+        let band_stride = if tolerance {
+            nb.div_ceil(TOLERANCE_BANDS).max(1)
+        } else {
+            1
+        };
+        let up = usable.len() as f64 / chosen.len().max(1) as f64 * nb as f64
+            / nb.div_ceil(band_stride) as f64;
         let mut h = [[0.0f64; MARGINAL]; MARGINAL];
         let mut jdd = [0.0; MAX_SITES];
         let mut cross = [[0.0f64; MARGINAL]; MAX_SITES];
         for a in 0..na {
             let g = self.terms.scale[a.min(NOISE_ANGLES - 1)];
-            for b in 0..nb {
+            for b in (0..nb).step_by(band_stride) {
                 let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
                 let mut stepped_nodes = [None; 4];
                 for (out, q) in stepped_nodes.iter_mut().zip(&stepped) {
