@@ -21,11 +21,13 @@
 //! 4. **Judged against what a measurement can promise**: a fit whose reduced chi-square stays
 //!    above [`GATE_CHI2_NU`] after its starts sets aside the sites that fit far worse than
 //!    the rest, lets in the nuisance terms the evidence pays for (film absorption, a
-//!    polariser's leak, each angle's reflectance scale and offset; BIC), takes the misfit
-//!    still beyond the noise as the model's error and is fitted again in those units. It is
-//!    reported as failed (no index rather than a confident wrong one) when that misfit
-//!    exceeds the tolerated [`Geometry::model_error`]; the index's sigma is marginal over
-//!    the terms and widened by the misfit's correlation along the band.
+//!    polariser's leak, stage offset, wavelength shift, flare, side lobes, each angle's
+//!    reflectance scale and offset; BIC), takes the misfit still beyond the noise as the
+//!    model's error and is fitted again in those units. It is reported as failed (no index
+//!    rather than a confident wrong one) when that misfit exceeds the tolerated
+//!    [`Geometry::model_error`]. The index's sigma reported is marginal over every term,
+//!    each within a real rig's [`TOLERANCE`], and widened by the misfit's correlation along
+//!    the band and across the sites.
 //!
 //! Everything works on caller-owned buffers ([`workspace_len`]): nothing allocates.
 
