@@ -61,19 +61,13 @@ impl Options<'_> {
         let choice = FieldChoice::from_name(self.field)
             .ok_or_else(|| format!("field {:?}: use auto, narrow or wide", self.field))?;
         if let Some(m) = self.model_error {
-            let max = filmscope::io::capture::MAX_MODEL_ERROR;
-            if !(0.0..=max).contains(&m) {
-                return Err(format!(
-                    "model_error {m}: outside 0 to {max} (RMS reflectance)"
-                ));
+            if let Some(p) = filmscope::io::capture::model_error_problem(m) {
+                return Err(format!("model_error {m}: {p}"));
             }
         }
         if let Some(t) = self.rig_tolerance {
-            let max = filmscope::io::capture::MAX_RIG_TOLERANCE;
-            if !(0.0..=max).contains(&t) {
-                return Err(format!(
-                    "rig_tolerance {t}: outside 0 to {max} (a multiple of the typical rig's terms)"
-                ));
+            if let Some(p) = filmscope::io::capture::rig_tolerance_problem(t) {
+                return Err(format!("rig_tolerance {t}: {p}"));
             }
         }
         let max = filmscope_core::solve::sample::MAX_SITES;

@@ -56,19 +56,13 @@ impl super::MethodArgs {
     fn run_config(&self, pipeline: PipelineConfig, wide: FieldConfig) -> Result<RunConfig> {
         check_index_args(self.index)?;
         if let Some(m) = self.index.model_error {
-            if !(0.0..=crate::io::capture::MAX_MODEL_ERROR).contains(&m) {
-                bail!(
-                    "--model-error {m}: outside 0 to {} (RMS reflectance)",
-                    crate::io::capture::MAX_MODEL_ERROR
-                );
+            if let Some(p) = crate::io::capture::model_error_problem(m) {
+                bail!("--model-error {m}: {p}");
             }
         }
         if let Some(t) = self.index.rig_tolerance {
-            if !(0.0..=crate::io::capture::MAX_RIG_TOLERANCE).contains(&t) {
-                bail!(
-                    "--rig-tolerance {t}: outside 0 to {} (a multiple of the typical rig's terms)",
-                    crate::io::capture::MAX_RIG_TOLERANCE
-                );
+            if let Some(p) = crate::io::capture::rig_tolerance_problem(t) {
+                bail!("--rig-tolerance {t}: {p}");
             }
         }
         crate::limits::check_cli(

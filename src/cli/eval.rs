@@ -291,7 +291,6 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
     z.sort_by(f64::total_cmp);
     let z68 = z
         .get((z.len() as f64 * 0.6827) as usize)
-        .or(z.last())
         .copied()
         .unwrap_or(f64::NAN);
     EvalReport {

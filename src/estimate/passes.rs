@@ -336,7 +336,7 @@ fn repair(
 /// Share of the pixels imprecise, flagged so or to be once the sample fit's share is added
 /// ([`with_sample_share`]).
 fn imprecise_share(out: &SweepOutput, fit: &SampleFit) -> f64 {
-    let own = own_factor(fit);
+    let own = fit.residual.correlation_factor();
     let n = out
         .results
         .iter()
@@ -346,12 +346,6 @@ fn imprecise_share(out: &SweepOutput, fit: &SampleFit) -> f64 {
         })
         .count();
     n as f64 / out.results.len().max(1) as f64
-}
-
-/// The factor a pixel's own thickness sigma is widened by: the sample fit's misfit beyond
-/// the noise, correlated along the band (1 when the fit is within the noise).
-fn own_factor(fit: &SampleFit) -> f64 {
-    fit.residual.correlation_factor()
 }
 
 /// Share of the sampled sites, among those the sample fit solves, whose thickness in the
@@ -445,7 +439,7 @@ fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
             / angles.len() as f64
     };
     let slope = n550 / (n550 * n550 - sin2).max(1e-6);
-    let own = own_factor(fit);
+    let own = fit.residual.correlation_factor();
     let index_sigma = fit.best.map_or(0.0, |c| c.n550_sigma);
     for r in &mut out.results {
         let d = f64::from(r.thickness_nm);

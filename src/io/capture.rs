@@ -476,6 +476,21 @@ const FIT_KEYS: &[&str] = &["model_error", "rig_tolerance"];
 pub const MAX_MODEL_ERROR: f64 = 0.05;
 /// The largest `fit.rig_tolerance` a capture may give.
 pub const MAX_RIG_TOLERANCE: f64 = 10.0;
+
+/// What is wrong with a tolerated model error (`fit.model_error`, `--model-error`), for a
+/// message that names where it came from; `None` when it is in range.
+pub fn model_error_problem(value: f64) -> Option<String> {
+    (!(0.0..=MAX_MODEL_ERROR).contains(&value))
+        .then(|| format!("outside 0 to {MAX_MODEL_ERROR} (RMS reflectance)"))
+}
+
+/// What is wrong with a rig tolerance (`fit.rig_tolerance`, `--rig-tolerance`), as
+/// [`model_error_problem`].
+pub fn rig_tolerance_problem(value: f64) -> Option<String> {
+    (!(0.0..=MAX_RIG_TOLERANCE).contains(&value)).then(|| {
+        format!("outside 0 to {MAX_RIG_TOLERANCE} (a multiple of the typical rig's terms)")
+    })
+}
 const LENS_KEYS: &[&str] = &["horizontal_fov_deg"];
 const ANGLE_KEYS: &[&str] = &[
     "incidence_deg",
@@ -644,17 +659,13 @@ impl Capture {
             crate::limits::check_thickness_range("search.thickness_range_nm", r).map_err(bad)?;
         }
         if let Some(value) = self.fit.model_error {
-            if !(0.0..=MAX_MODEL_ERROR).contains(&value) {
-                return Err(bad(format!(
-                    "fit.model_error = {value}: outside 0 to {MAX_MODEL_ERROR} (RMS reflectance)"
-                )));
+            if let Some(p) = model_error_problem(value) {
+                return Err(bad(format!("fit.model_error = {value}: {p}")));
             }
         }
         if let Some(value) = self.fit.rig_tolerance {
-            if !(0.0..=MAX_RIG_TOLERANCE).contains(&value) {
-                return Err(bad(format!(
-                    "fit.rig_tolerance = {value}: outside 0 to {MAX_RIG_TOLERANCE} (a multiple of the typical rig's terms)"
-                )));
+            if let Some(p) = rig_tolerance_problem(value) {
+                return Err(bad(format!("fit.rig_tolerance = {value}: {p}")));
             }
         }
         if let Some(value) = self.lens.horizontal_fov_deg {

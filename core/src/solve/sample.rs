@@ -2676,9 +2676,6 @@ impl Problem<'_> {
         for (i, &(k, _)) in keep.iter().enumerate() {
             pos[k] = i;
         }
-        // The information over the kept parameters (upper triangle), each site's thickness
-        // row, accumulated over each sample's few nonzero slopes (an angle's reflectance
-        // terms touch its own samples only).
         // With the tolerance, every `stride`-th usable site and `band_stride`-th band (at
         // most [`TOLERANCE_SITES`] and [`TOLERANCE_BANDS`]), the information scaled up to all
         // of them: sites and neighbouring bands are alike, and the term slopes cost five site
@@ -2699,6 +2696,9 @@ impl Problem<'_> {
         };
         let up = usable.len() as f64 / chosen.len().max(1) as f64 * nb as f64
             / nb.div_ceil(band_stride) as f64;
+        // The information over the kept parameters (upper triangle) and each site's
+        // thickness row, accumulated over each sample's few nonzero slopes (an angle's
+        // reflectance terms touch its own samples only).
         let mut h = [[0.0f64; MARGINAL]; MARGINAL];
         let mut jdd = [0.0; MAX_SITES];
         let mut cross = [[0.0f64; MARGINAL]; MAX_SITES];
