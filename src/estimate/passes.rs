@@ -421,12 +421,14 @@ fn finish(
     (out, fit, choice)
 }
 
-/// Each solved pixel's thickness sigma with the sample fit's share added: the index's
-/// standard error carried to the thickness (the fringes pin the optical path
-/// `d sqrt(n^2 - sin^2 theta)`, so `dd/dn = -d n / (n^2 - sin^2 theta)`, over the angles'
-/// mean `sin^2 theta`) and the pixel's own share widened by the sample's misfit beyond the
-/// noise, correlated along the band (`Residual::correlation_factor`). A pixel
-/// whose own share exceeds [`MAX_THICKNESS_SIGMA_NM`] is flagged `imprecise`.
+/// Each solved pixel's thickness sigma with the sample fit's share added: the share common
+/// to the map in proportion to the thickness ([`SampleFit::thickness_share`]: the index and
+/// every nuisance term within the rig's tolerance; where not computed, the index's standard
+/// error alone, carried by the fringes' optical path `d sqrt(n^2 - sin^2 theta)`, so
+/// `dd/dn = -d n / (n^2 - sin^2 theta)` over the angles' mean `sin^2 theta`) and the
+/// pixel's own share widened by the sample's misfit beyond the noise, correlated along the
+/// band (`Residual::correlation_factor`). A pixel whose own share exceeds
+/// [`MAX_THICKNESS_SIGMA_NM`] is flagged `imprecise`.
 fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
     let angles = &out.angles;
     let sin2 = if angles.is_empty() {
@@ -440,18 +442,21 @@ fn with_sample_share(out: &mut SweepOutput, fit: &SampleFit, n550: f64) {
     };
     let slope = n550 / (n550 * n550 - sin2).max(1e-6);
     let own = fit.residual.correlation_factor();
-    let index_sigma = fit.best.map_or(0.0, |c| c.n550_sigma);
+    let common = if fit.thickness_share.is_finite() {
+        fit.thickness_share
+    } else {
+        slope * fit.best.map_or(0.0, |c| c.n550_sigma)
+    };
     for r in &mut out.results {
         let d = f64::from(r.thickness_nm);
         let s = f64::from(r.thickness_sigma_nm);
         if !(d.is_finite() && s.is_finite()) {
             continue;
         }
-        let from_index = d * slope * index_sigma;
-        let sigma = ((s * own).powi(2) + from_index * from_index).sqrt();
+        let sigma = (s * own).hypot(d * common);
         r.thickness_sigma_nm = sigma as f32;
-        // The index's share is common to every pixel (the whole map's scale, reported with
-        // the index): a pixel is imprecise by its own share.
+        // The common share is the whole map's (its scale, reported with the index): a pixel
+        // is imprecise by its own share.
         if s * own > MAX_THICKNESS_SIGMA_NM {
             r.flags |= flags::IMPRECISE;
             r.thickness_nm = f32::NAN;

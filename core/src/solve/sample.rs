@@ -445,6 +445,12 @@ pub struct SampleFit {
     pub tolerated_model_error: f64,
     /// The [`TOLERANCE`]'s multiple the index sigma carries ([`Geometry::rig_tolerance`]).
     pub rig_tolerance: f64,
+    /// The part of a thickness's standard error common to the whole map, relative to the
+    /// thickness: what the index and every nuisance term within its tolerance leave the
+    /// sites' thicknesses free to move together (the median site's), carried to the pixels
+    /// in proportion to their thickness. NaN where not computed (the rig's tolerance 0, an
+    /// index held or not fitted).
+    pub thickness_share: f64,
     /// Each angle's reflectance `(scale, offset)` when the evidence asked for them
     /// (`measured = scale x film + offset`: a white standard's error, flare, the filter's side
     /// lobes), in streaming order; empty when not fitted.
@@ -605,6 +611,64 @@ impl Residual {
     }
 }
 
+/// What [`Problem::marginal_n550_sigma`] finds: the index's standard error at 550 nm and
+/// the sites' thickness share ([`SampleFit::thickness_share`]), both before scaling by the
+/// fit's reduced chi-square.
+#[derive(Clone, Copy, Debug)]
+struct Marginal {
+    n550_sigma: f64,
+    thickness_share: f64,
+}
+
+/// [`Residual`]'s sums over some of the angles ([`Problem::residual_sums`]), added in
+/// angle order.
+#[derive(Clone, Debug, Default)]
+struct ResidualSums {
+    /// Samples, and their residuals' squares and inverse noise variances summed.
+    n: usize,
+    r2: f64,
+    s2: f64,
+    /// Products of each site's residuals at neighbouring bands, and their squares' mean.
+    lag: f64,
+    lag_r2: f64,
+    /// Squares and counts over the band's blue and red thirds.
+    blue2: f64,
+    nblue: usize,
+    red2: f64,
+    nred: usize,
+    /// Products of different sites' residuals at the same band and angle, and their
+    /// squares' share of them: the residuals' correlation between sites.
+    cross: f64,
+    cross_r2: f64,
+    /// `chi2[j]`: the residual in units of the noise plus a model error
+    /// [`model_error_step`]`(j)`.
+    chi2: [f64; MODEL_ERROR_STEPS + 1],
+    per_angle: heapless::Vec<AngleResidual, RESIDUAL_ANGLES>,
+}
+
+impl ResidualSums {
+    /// `other`'s sums (of the angles after these) added.
+    fn add(&mut self, other: &Self) {
+        self.n += other.n;
+        self.r2 += other.r2;
+        self.s2 += other.s2;
+        self.lag += other.lag;
+        self.lag_r2 += other.lag_r2;
+        self.blue2 += other.blue2;
+        self.nblue += other.nblue;
+        self.red2 += other.red2;
+        self.nred += other.nred;
+        self.cross += other.cross;
+        self.cross_r2 += other.cross_r2;
+        for (c, o) in self.chi2.iter_mut().zip(&other.chi2) {
+            *c += o;
+        }
+        for &r in &other.per_angle {
+            let _ = self.per_angle.push(r);
+        }
+    }
+}
+
 impl SampleFit {
     /// No fit yet: too little data until the sites are weighed.
     const EMPTY: Self = Self {
@@ -630,6 +694,7 @@ impl SampleFit {
         set_aside: [false; MAX_SITES],
         tolerated_model_error: f64::NAN,
         rig_tolerance: f64::NAN,
+        thickness_share: f64::NAN,
         reflectance_terms: heapless::Vec::new(),
         film_k: Term::NONE,
         polariser_leak: Term::NONE,
@@ -1299,6 +1364,9 @@ fn normalise(v: &mut [f64]) {
 /// Starting points of the refinement: the search's scores and Cauchy parameters, best first.
 type Starts = heapless::Vec<(f64, [f64; 3]), 3>;
 
+/// A band's quadrature nodes ([`Problem::nodes`]).
+type Nodes = heapless::Vec<Node, NODES>;
+
 /// The stack at one quadrature node: its weight, wavelength and film.
 #[derive(Clone, Copy)]
 struct Node {
@@ -1656,15 +1724,18 @@ impl Problem<'_> {
     }
 
     /// The passband quadrature nodes of band `b` at angle `a` under model `(kind, p)` for
-    /// films up to `d_max` ([`passband_rule`]); `None` where a wave does not propagate.
-    fn nodes(
+    /// films up to `d_max` ([`passband_rule`]), made in `out` (a caller's buffer: the nodes
+    /// are large, and returned by value their copies cost more than the models they serve);
+    /// `None` where a wave does not propagate.
+    fn nodes<'n>(
         &self,
         kind: ModelKind,
         p: &[f64; 3],
         a: usize,
         b: usize,
         d_max: f64,
-    ) -> Option<([Node; NODES], usize)> {
+        out: &'n mut Nodes,
+    ) -> Option<&'n [Node]> {
         let (l0, fwhm) = (self.geo.bands_nm[b] + self.shift_nm, self.geo.fwhm_nm[b]);
         let deg = self.geo.angles_deg[a] + self.stage_deg;
         let pol = self.geo.polarization;
@@ -1715,12 +1786,11 @@ impl Problem<'_> {
                 lossy,
             })
         };
-        let first = node(rule[0])?;
-        let mut nodes = [first; NODES];
-        for (slot, &r) in nodes.iter_mut().zip(&rule).take(count).skip(1) {
-            *slot = node(r)?;
+        out.clear();
+        for &r in &rule[..count] {
+            let _ = out.push(node(r)?);
         }
-        Some((nodes, count))
+        Some(out)
     }
 
     /// [`Problem::normal`]'s sums over sites `first..first + sites.len()` at `at`: theirs
@@ -1764,10 +1834,10 @@ impl Problem<'_> {
             return Some((hpp, gp));
         }
         let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        let mut buf = Nodes::new();
         for a in 0..na {
             for b in 0..nb {
-                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
-                let nodes = &nodes[..count];
+                let nodes = self.nodes(kind, p, a, b, d_max, &mut buf)?;
                 for (blk, block) in sites.chunks_mut(BLOCK).enumerate() {
                     let base = first + blk * BLOCK;
                     let mut d = [0.0; BLOCK];
@@ -1827,9 +1897,10 @@ impl Problem<'_> {
         let mut hpp = Matrix3::zeros();
         let mut gp = Vector3::zeros();
         let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        let mut buf = Nodes::new();
         for a in 0..na {
             for b in 0..nb {
-                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
+                let nodes = self.nodes(kind, p, a, b, d_max, &mut buf)?;
                 for (j, s) in sites.iter_mut().enumerate() {
                     let k = first + j;
                     if !self.usable[k] {
@@ -1839,7 +1910,7 @@ impl Problem<'_> {
                     if !y.is_finite() {
                         continue;
                     }
-                    let fit = self.site_model(&nodes[..count], t[k]);
+                    let fit = self.site_model(nodes, t[k]);
                     let w = self.noise.weight(k, a, b);
                     let jp = Vector3::from(fit.dm_dp);
                     s.add::<INDEX>(w, y - fit.m, fit.dm_dd, jp, (&mut hpp, &mut gp));
@@ -1847,6 +1918,38 @@ impl Problem<'_> {
             }
         }
         Some((hpp, gp))
+    }
+
+    /// A site's band reflectance at thickness `d` over a band's passband `nodes`, without
+    /// the derivatives [`Problem::site_model`] adds (half its cost, where only the value is
+    /// read: residuals, reflectance terms, the slopes taken by a step).
+    fn site_value(&self, nodes: &[Node], d: f64) -> f64 {
+        let e = self.leak;
+        let mut m = 0.0;
+        if self.film_k == 0.0 {
+            for nd in nodes {
+                let mut r = nd
+                    .film
+                    .reflectance_at_cos(libm::cos(nd.phase_per_nm * d + nd.phase0));
+                if e > 0.0 {
+                    let ph_o = nd.phase_per_nm * d + nd.film_other.phase_offset();
+                    r = (1.0 - e) * r + e * nd.film_other.reflectance_at_cos(libm::cos(ph_o));
+                }
+                m += nd.weight * r;
+            }
+            return m;
+        }
+        for nd in nodes {
+            let [film, _, other] = &nd.lossy;
+            let (delta, a) = film.round_trip(d);
+            let (sn, cs) = (libm::sin(delta), libm::cos(delta));
+            let mut r = film.reflectance(cs, sn, a).0;
+            if e > 0.0 {
+                r = (1.0 - e) * r + e * other.reflectance(cs, sn, a).0;
+            }
+            m += nd.weight * r;
+        }
+        m
     }
 
     /// A site's band reflectance at thickness `d` over a band's passband `nodes`, with its
@@ -2253,8 +2356,8 @@ impl Problem<'_> {
         let scale = libm::sqrt(c.chi2_nu.max(1.0));
         if self.terms.fitted() || self.film_k > 0.0 || self.leak > 0.0 {
             // The terms trade with the index: its sigma with them free, not held.
-            if let Some(s) = self.marginal_n550_sigma(c.kind, &c.params, tt, false) {
-                c.n550_sigma = s * scale;
+            if let Some(m) = self.marginal_n550_sigma(c.kind, &c.params, tt, false) {
+                c.n550_sigma = m.n550_sigma * scale;
             }
         }
         // Whether the spectra determine the index at all is the sites' own precision; what a
@@ -2269,12 +2372,15 @@ impl Problem<'_> {
         // misfit beyond the noise as the model's share, whether or not the gate needed a
         // model error to pass the fit. A given index (held: sigma 0) keeps none.
         if c.n550_sigma > 0.0 {
+            let shared = fit.residual.shared_factor(fit.sites_used);
+            fit.thickness_share = f64::NAN;
             if self.geo.rig_tolerance > 0.0 {
-                if let Some(s) = self.marginal_n550_sigma(c.kind, &c.params, tt, true) {
-                    c.n550_sigma = s * scale;
+                if let Some(m) = self.marginal_n550_sigma(c.kind, &c.params, tt, true) {
+                    c.n550_sigma = m.n550_sigma * scale;
+                    fit.thickness_share = m.thickness_share * scale * shared;
                 }
             }
-            c.n550_sigma *= fit.residual.shared_factor(fit.sites_used);
+            c.n550_sigma *= shared;
         }
         fit.best = Some(c);
         let within = fit.residual.model_rms <= self.geo.model_error;
@@ -2290,30 +2396,81 @@ impl Problem<'_> {
     }
 
     /// What `(kind, p)` at the sites' thicknesses `t` leaves on their own pixels (`None`
-    /// when the model cannot be evaluated).
+    /// when the model cannot be evaluated): the angles in two halves, each summed on its own
+    /// ([`Problem::residual_sums`], run by [`Problem::par`]) and added in angle order.
     fn residual(&self, kind: ModelKind, p: &[f64; 3], t: &[f64; MAX_SITES]) -> Option<Residual> {
-        let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        let na = self.geo.angles_deg.len();
+        let mid = na.div_ceil(2);
+        let (mut first, mut second) = (None, None);
+        {
+            let mut a = || first = self.residual_sums(kind, p, t, 0..mid);
+            let mut b = || second = self.residual_sums(kind, p, t, mid..na);
+            self.par.run(&mut [&mut a, &mut b]);
+        }
+        let mut sums = first?;
+        sums.add(&second?);
+        let ResidualSums {
+            n,
+            r2,
+            s2,
+            lag,
+            lag_r2,
+            blue2,
+            nblue,
+            red2,
+            nred,
+            cross,
+            cross_r2,
+            chi2,
+            per_angle,
+        } = sums;
+        if n == 0 {
+            return None;
+        }
+        // The fit's own parameters absorb a little of the noise: the residual's mean square
+        // over the degrees of freedom.
+        let used = self.usable.iter().filter(|&&u| u).count();
+        let dof = n.saturating_sub(used + kind.params()).max(1) as f64;
+        Some(Residual {
+            rms: libm::sqrt(r2 / dof),
+            noise_rms: libm::sqrt(n as f64 / s2.max(f64::MIN_POSITIVE)),
+            model_rms: model_error_for(&chi2, dof),
+            band_correlation: if lag_r2 > 0.0 { lag / lag_r2 } else { 0.0 },
+            site_correlation: if cross_r2 > 0.0 {
+                cross / cross_r2
+            } else {
+                0.0
+            },
+            blue_rms: libm::sqrt(blue2 / nblue.max(1) as f64),
+            red_rms: libm::sqrt(red2 / nred.max(1) as f64),
+            per_angle,
+        })
+    }
+
+    /// [`Problem::residual`]'s sums over the angles `angles`.
+    fn residual_sums(
+        &self,
+        kind: ModelKind,
+        p: &[f64; 3],
+        t: &[f64; MAX_SITES],
+        angles: core::ops::Range<usize>,
+    ) -> Option<ResidualSums> {
+        let nb = self.geo.bands_nm.len();
         let sites = self.usable.len();
         let d_max = self.thickest(t);
         let (lo, hi) = self.band_span();
         let (blue, red) = (lo + (hi - lo) / 3.0, hi - (hi - lo) / 3.0);
-        let mut out = Residual::default();
-        let (mut n, mut r2, mut s2, mut lag, mut lag_r2) = (0usize, 0.0, 0.0, 0.0, 0.0);
-        let (mut blue2, mut nblue, mut red2, mut nred) = (0.0, 0usize, 0.0, 0usize);
-        // Products of different sites' residuals at the same band and angle, and their
-        // squares' share of them: the residuals' correlation between sites.
-        let (mut cross, mut cross_r2) = (0.0, 0.0);
-        // chi2[j]: the residual in units of the noise plus a model error MODEL_ERROR_GRID[j].
-        let mut chi2 = [0.0; MODEL_ERROR_STEPS + 1];
+        let mut out = ResidualSums::default();
         let grid2: [f64; MODEL_ERROR_STEPS + 1] = core::array::from_fn(|j| {
             let m = model_error_step(j);
             m * m
         });
-        for a in 0..na {
+        let mut buf = Nodes::new();
+        for a in angles {
             let mut prev = [f64::NAN; MAX_SITES];
             let (mut an, mut ar, mut ar2, mut as2) = (0usize, 0.0, 0.0, 0.0);
             for b in 0..nb {
-                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
+                let nodes = self.nodes(kind, p, a, b, d_max, &mut buf)?;
                 let l = self.geo.bands_nm[b];
                 let (mut sum, mut sum2, mut ns) = (0.0, 0.0, 0usize);
                 for k in (0..sites).filter(|&k| self.usable[k]) {
@@ -2322,32 +2479,31 @@ impl Problem<'_> {
                         prev[k] = f64::NAN;
                         continue;
                     }
-                    let m = self.site_model(&nodes[..count], t[k]).m;
-                    let r = y - m;
-                    (sum, sum2, ns) = (sum + r, sum2 + r * r, ns + 1);
-                    let v = self.noise.noise2(k, a, b);
-                    (an, ar, ar2, as2) = (an + 1, ar + r, ar2 + r * r, as2 + 1.0 / v);
+                    let r = y - self.site_value(nodes, t[k]);
                     let r2 = r * r;
-                    for (c, m2) in chi2.iter_mut().zip(&grid2) {
+                    (sum, sum2, ns) = (sum + r, sum2 + r2, ns + 1);
+                    let v = self.noise.noise2(k, a, b);
+                    (an, ar, ar2, as2) = (an + 1, ar + r, ar2 + r2, as2 + 1.0 / v);
+                    for (c, m2) in out.chi2.iter_mut().zip(&grid2) {
                         *c += r2 / (v + m2);
                     }
                     if prev[k].is_finite() {
-                        lag += prev[k] * r;
-                        lag_r2 += 0.5 * (prev[k] * prev[k] + r * r);
+                        out.lag += prev[k] * r;
+                        out.lag_r2 += 0.5 * (prev[k] * prev[k] + r2);
                     }
                     prev[k] = r;
                     if l <= blue {
-                        (blue2, nblue) = (blue2 + r * r, nblue + 1);
+                        (out.blue2, out.nblue) = (out.blue2 + r2, out.nblue + 1);
                     } else if l >= red {
-                        (red2, nred) = (red2 + r * r, nred + 1);
+                        (out.red2, out.nred) = (out.red2 + r2, out.nred + 1);
                     }
                 }
                 if ns > 1 {
-                    cross += sum * sum - sum2;
-                    cross_r2 += (ns - 1) as f64 * sum2;
+                    out.cross += sum * sum - sum2;
+                    out.cross_r2 += (ns - 1) as f64 * sum2;
                 }
             }
-            (n, r2, s2) = (n + an, r2 + ar2, s2 + as2);
+            (out.n, out.r2, out.s2) = (out.n + an, out.r2 + ar2, out.s2 + as2);
             let per = an.max(1) as f64;
             let _ = out.per_angle.push(AngleResidual {
                 rms: libm::sqrt(ar2 / per),
@@ -2355,24 +2511,6 @@ impl Problem<'_> {
                 noise_rms: libm::sqrt(per / as2.max(f64::MIN_POSITIVE)),
             });
         }
-        if n == 0 {
-            return None;
-        }
-        // The fit's own parameters absorb a little of the noise: the residual's mean square
-        // over the degrees of freedom.
-        let used = self.usable.iter().filter(|&&u| u).count();
-        let dof = n.saturating_sub(used + kind.params()).max(1) as f64;
-        out.rms = libm::sqrt(r2 / dof);
-        out.noise_rms = libm::sqrt(n as f64 / s2.max(f64::MIN_POSITIVE));
-        out.model_rms = model_error_for(&chi2, dof);
-        out.band_correlation = if lag_r2 > 0.0 { lag / lag_r2 } else { 0.0 };
-        out.site_correlation = if cross_r2 > 0.0 {
-            cross / cross_r2
-        } else {
-            0.0
-        };
-        out.blue_rms = libm::sqrt(blue2 / nblue.max(1) as f64);
-        out.red_rms = libm::sqrt(red2 / nred.max(1) as f64);
         Some(out)
     }
 
@@ -2611,7 +2749,7 @@ impl Problem<'_> {
         p: &[f64; 3],
         t: &[f64; MAX_SITES],
         tolerance: bool,
-    ) -> Option<f64> {
+    ) -> Option<Marginal> {
         type M = nalgebra::SMatrix<f64, MARGINAL, MARGINAL>;
         let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
         let fitted = self.terms.fitted();
@@ -2702,21 +2840,22 @@ impl Problem<'_> {
         let mut h = [[0.0f64; MARGINAL]; MARGINAL];
         let mut jdd = [0.0; MAX_SITES];
         let mut cross = [[0.0f64; MARGINAL]; MAX_SITES];
+        let mut buf = Nodes::new();
+        let mut stepped_nodes: [Nodes; 4] = Default::default();
         for a in 0..na {
             let g = self.terms.scale[a.min(NOISE_ANGLES - 1)];
             for b in (0..nb).step_by(band_stride) {
-                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
-                let mut stepped_nodes = [None; 4];
+                let nodes = self.nodes(kind, p, a, b, d_max, &mut buf)?;
                 for (out, q) in stepped_nodes.iter_mut().zip(&stepped) {
                     if let Some(q) = q {
-                        *out = Some(q.nodes(kind, p, a, b, d_max)?);
+                        q.nodes(kind, p, a, b, d_max, out)?;
                     }
                 }
                 for &k in &chosen {
                     if !self.spectra.centre_at(nb, k, a, b).is_finite() {
                         continue;
                     }
-                    let fit = self.site_model(&nodes[..count], t[k]);
+                    let fit = self.site_model(nodes, t[k]);
                     let w = self.noise.weight(k, a, b);
                     // (place among the kept, slope), in slot order.
                     let mut u: heapless::Vec<(usize, f64), { 3 + 2 + TERMS }> =
@@ -2734,8 +2873,8 @@ impl Problem<'_> {
                         put(3 + 2 * a + 1, 1.0);
                     }
                     for i in 0..4 {
-                        if let (Some(q), Some((n, c))) = (&stepped[i], &stepped_nodes[i]) {
-                            let m = q.site_model(&n[..*c], t[k]).m;
+                        if let Some(q) = &stepped[i] {
+                            let m = q.site_value(&stepped_nodes[i], t[k]);
                             put(slot(i), g * (m - fit.m) / TERM_STEPS[i]);
                         }
                     }
@@ -2788,7 +2927,29 @@ impl Problem<'_> {
                 var += g550[i] * inv[(i, j)] * g550[j];
             }
         }
-        (var > 0.0).then(|| libm::sqrt(var))
+        // A site's thickness moves with the parameters by `-cross / jdd` each: its variance
+        // from them (a ratio the bands' subsampling leaves alone), relative to the thickness.
+        let mut shares: heapless::Vec<f32, MAX_SITES> = heapless::Vec::new();
+        for &k in &chosen {
+            if jdd[k] > 0.0 && t[k] > 0.0 {
+                let mut v = 0.0;
+                for i in 0..dim {
+                    for j in 0..dim {
+                        v += cross[k][i] * inv[(i, j)] * cross[k][j];
+                    }
+                }
+                let _ = shares.push((libm::sqrt(v.max(0.0)) / jdd[k] / t[k]) as f32);
+            }
+        }
+        let share = if shares.is_empty() {
+            f64::NAN
+        } else {
+            median(&mut shares)
+        };
+        (var > 0.0).then(|| Marginal {
+            n550_sigma: libm::sqrt(var),
+            thickness_share: share,
+        })
     }
 
     /// One nuisance parameter (set on a copy of the problem by `apply`) fitted with the
@@ -2876,16 +3037,17 @@ impl Problem<'_> {
         let sites = self.usable.len();
         let d_max = self.thickest(t);
         let mut terms = Terms::NONE;
+        let mut buf = Nodes::new();
         for a in 0..na.min(NOISE_ANGLES) {
             let (mut sw, mut sm, mut smm, mut sy, mut smy) = (0.0, 0.0, 0.0, 0.0, 0.0);
             for b in 0..nb {
-                let (nodes, count) = self.nodes(kind, p, a, b, d_max)?;
+                let nodes = self.nodes(kind, p, a, b, d_max, &mut buf)?;
                 for k in (0..sites).filter(|&k| self.usable[k]) {
                     let y = f64::from(self.spectra.centre_at(nb, k, a, b)) - self.flare;
                     if !y.is_finite() {
                         continue;
                     }
-                    let m = self.site_model(&nodes[..count], t[k]).m;
+                    let m = self.site_value(nodes, t[k]);
                     let w = self.noise.weight(k, a, b);
                     (sw, sm, smm, sy, smy) = (
                         sw + w,
