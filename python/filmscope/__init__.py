@@ -93,9 +93,10 @@ class EstimateResult:
     """What :func:`estimate` returns.
 
     Attributes:
-        refractive_index: the index model, ``summary["dispersion"]``: ``model`` (constant,
+        dispersion: the index model, ``summary["dispersion"]``: ``model`` (constant,
             cauchy or sellmeier), its coefficients, ``n_550`` and ``n_table``
-            (``wavelength_nm`` and ``n`` lists over the bands).
+            (``wavelength_nm`` and ``n`` lists over the bands); the index at 550 nm alone
+            is :attr:`n_550` (``summary["refractive_index"]``).
         thickness_nm: film thickness per pixel, ``float32`` ``(lines, samples)``; NaN where
             no reliable estimate exists.
         confidence: confidence of the thickness, 0..1, ``float32``.
@@ -112,7 +113,7 @@ class EstimateResult:
         self.sigma_nm = np.frombuffer(raw["sigma_nm"], dtype=np.float32).reshape(h, w).copy()
         self.flags = np.frombuffer(raw["flags"], dtype=np.uint16).reshape(h, w).copy()
         self.summary: Dict[str, Any] = json.loads(raw["summary"])
-        self.refractive_index: Optional[Dict[str, Any]] = self.summary.get("dispersion")
+        self.dispersion: Optional[Dict[str, Any]] = self.summary.get("dispersion")
         self.source = source
         self._pixel_input = pixel_input
 
@@ -141,12 +142,12 @@ class EstimateResult:
             measured = cube[order, y, x, :].astype(np.float64)
         else:
             raise FilmscopeError("pixel_fit: this result keeps no input to fit")
-        if self.refractive_index is None:
+        if self.dispersion is None:
             raise FilmscopeError("pixel_fit: the estimate found no index")
         d = float(self.thickness_nm[y, x])
         med = self.summary.get("thickness_nm", {}).get("median")
         raw = _native.pixel_fit(
-            json.dumps(self.refractive_index), substrate, float(ambient), pol, back,
+            json.dumps(self.dispersion), substrate, float(ambient), pol, back,
             [float(v) for v in wl], [float(v) for v in fw], [float(a) for a in angles],
             np.ascontiguousarray(measured, dtype=np.float64).tobytes(),
             d, float("nan") if med is None else float(med), x, y,
@@ -168,9 +169,9 @@ class EstimateResult:
     def n(self, wavelengths_nm: Any) -> np.ndarray:
         """The estimated index at ``wavelengths_nm`` (array-like, nm)."""
         wl = np.asarray(wavelengths_nm, dtype=np.float64)
-        if self.refractive_index is None:
+        if self.dispersion is None:
             return np.full(wl.shape, np.nan)
-        return index(self.refractive_index, wl)
+        return index(self.dispersion, wl)
 
     def __repr__(self) -> str:
         h, w = self.thickness_nm.shape

@@ -39,7 +39,7 @@ class PixelFit:
 class EstimateResult:
     """What :func:`estimate` returns."""
 
-    refractive_index: Optional[Dict[str, Any]]
+    dispersion: Optional[Dict[str, Any]]
     """``summary["dispersion"]``: ``model``, its coefficients, ``n_550``, ``n_table``."""
     thickness_nm: npt.NDArray[np.float32]
     """Thickness per pixel, nm, ``(lines, samples)``; NaN where no reliable estimate."""

@@ -50,7 +50,7 @@ def test_capture_estimate_equals_cli_bit_for_bit(capture, tmp_path, cli):
     summary = json.loads((out / "summary.json").read_text())
     assert r.summary["refractive_index"] == summary["refractive_index"]
     assert r.summary["dispersion"] == summary["dispersion"]
-    assert r.refractive_index["n_table"]["n"] == summary["dispersion"]["n_table"]["n"]
+    assert r.dispersion["n_table"]["n"] == summary["dispersion"]["n_table"]["n"]
     # And it is a real estimate: the truth is 1.38 and 390-450 nm.
     truth = read_envi_map(capture / "truth" / "thickness_nm.hdr")
     assert abs(r.n_550 - 1.38) < 0.01

@@ -54,7 +54,7 @@ def estimate_dir(tmp_path_factory):
 def test_estimate_writes_csv_and_yaml_that_read_back(estimate_dir):
     est, r = estimate_dir
     assert r.summary["files"]["index_yml"] == "index.yml"
-    model = r.refractive_index
+    model = r.dispersion
     assert model["model"] != "constant", model
     yml, csv_path = est / "index.yml", est / "index.csv"
     want = r.n(WL)
