@@ -66,7 +66,8 @@ class PixelFit:
         x, y: the pixel (column, row).
         wavelengths_nm: band centres, ``(bands,)``.
         angles_deg: incidence angles, increasing, ``(angles,)``.
-        measured: measured band reflectance, ``(angles, bands)`` (NaN where unusable).
+        measured: measured band reflectance, ``(angles, bands)`` (NaN where unusable), with
+            the sample fit's reflectance terms and flare taken out as the maps' passes did.
         model: the model at the estimated thickness, same shape (NaN without one).
         residual: ``measured - model``.
         thickness_nm: the pixel's estimated thickness (NaN: none).
@@ -137,6 +138,7 @@ class EstimateResult:
             back = sp["back_face"]
         elif kind == "array":
             _, cube, wl, angles, fw, substrate, ambient, pol, back = self._pixel_input
+            # An array streams its angles increasing: the sample terms' order.
             order = np.argsort(angles, kind="stable")
             angles = [angles[i] for i in order]
             measured = cube[order, y, x, :].astype(np.float64)
@@ -151,10 +153,12 @@ class EstimateResult:
             [float(v) for v in wl], [float(v) for v in fw], [float(a) for a in angles],
             np.ascontiguousarray(measured, dtype=np.float64).tobytes(),
             d, float("nan") if med is None else float(med), x, y,
+            json.dumps(self.summary.get("index_model_choice", {}).get("nuisance_terms")),
         )
         shape = measured.shape
-        return PixelFit(x, y, np.asarray(wl, dtype=np.float64), np.asarray(angles, dtype=np.float64),
-                        np.asarray(measured, dtype=np.float64),
+        return PixelFit(x, y, np.asarray(wl, dtype=np.float64),
+                        np.asarray(raw["angles_deg"], dtype=np.float64),
+                        np.frombuffer(raw["measured"], dtype=np.float64).reshape(shape).copy(),
                         np.frombuffer(raw["model"], dtype=np.float64).reshape(shape).copy(), d,
                         [{"thickness_nm": c["thickness_nm"], "rms": c["rms"],
                           "model": np.frombuffer(c["model"], dtype=np.float64).reshape(shape).copy()}

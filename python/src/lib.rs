@@ -704,10 +704,13 @@ fn capture_spectra<'py>(
 }
 
 /// The fit of a film (JSON) at `thickness_nm` (NaN: none; the candidates' scan centres on
-/// `fallback_nm`) to one pixel's `measured` spectra (`float64` bytes, `[angle][band]`): a
-/// dict of `model` (bytes as `measured`) and `candidates` (`thickness_nm`, `rms`, `model`).
+/// `fallback_nm`) to one pixel's `measured` spectra (`float64` bytes, `[angle][band]`,
+/// angles in streaming order), with the sample fit's `nuisance_terms` (`summary.json`'s,
+/// as JSON; `null`: none) applied as the per-pixel passes apply them: a dict of
+/// `angles_deg` (increasing), `measured` (corrected) and `model` (bytes, `[angle][band]`)
+/// and `candidates` (`thickness_nm`, `rms`, `model`).
 #[pyfunction]
-#[pyo3(signature = (film, substrate, ambient_index, polarization_name, back_face_name, wavelengths_nm, fwhm_nm, angles_deg, measured, thickness_nm, fallback_nm, x, y))]
+#[pyo3(signature = (film, substrate, ambient_index, polarization_name, back_face_name, wavelengths_nm, fwhm_nm, angles_deg, measured, thickness_nm, fallback_nm, x, y, nuisance_terms))]
 #[allow(clippy::too_many_arguments)]
 fn pixel_fit<'py>(
     py: Python<'py>,
@@ -724,7 +727,11 @@ fn pixel_fit<'py>(
     fallback_nm: f64,
     x: usize,
     y: usize,
+    nuisance_terms: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let terms: serde_json::Value = serde_json::from_str(nuisance_terms)
+        .map_err(|e| fail(format!("pixel_fit: nuisance_terms: {e}")))?;
+    let correction = filmscope::estimate::index_fit::correction_from_json(&terms);
     let stack = FilmStack {
         back_face: back_face(back_face_name).map_err(fail)?,
         ambient_index,
@@ -759,11 +766,14 @@ fn pixel_fit<'py>(
             rows,
             thickness_nm,
             fallback_nm,
+            &correction,
         )
     });
     let bytes =
         |m: &[Vec<f64>]| -> Vec<u8> { m.iter().flatten().flat_map(|v| v.to_ne_bytes()).collect() };
     let d = PyDict::new(py);
+    d.set_item("angles_deg", fit.angles_deg.clone())?;
+    d.set_item("measured", PyBytes::new(py, &bytes(&fit.measured)))?;
     d.set_item("model", PyBytes::new(py, &bytes(&fit.model)))?;
     let cands = pyo3::types::PyList::empty(py);
     for c in &fit.candidates {

@@ -4,18 +4,22 @@
 //!
 //! The model is the estimated film (index and dispersion) on the capture's substrate,
 //! averaged over each band's passband, at each frame's incidence angle (as
-//! [`super::compare`] models it). Order candidates are the local minima of the RMS
+//! [`super::compare`] models it), with the sample fit's nuisance terms as the per-pixel
+//! passes applied them ([`crate::pipeline::Correction`]): the measured values with each
+//! angle's reflectance scale and offset and the flare taken out, the model at the stage's
+//! offset angle and the shifted bands, absorbing and leaking as the film terms say. Order candidates are the local minima of the RMS
 //! residual against thickness over two and a half interference orders either side of the
 //! estimate (of the median thickness for a pixel without one), each refined to 0.01 nm:
 //! the estimate should be the deepest, and how much deeper it is says how sure its order is.
 
 use std::fmt::Write as _;
 
-use filmscope_core::optics::{BandModel, FilmStack, Passband};
+use filmscope_core::optics::{BandModel, FilmStack, LossyFilm, Passband};
+use filmscope_core::solve::refine::{absorption_shape, FilmTerms};
 
 use super::AppearanceError;
 use crate::export::plot::{render_scatter_panels_png, Scatter, Series};
-use crate::pipeline::{for_each_calibrated_rows, Calibrated};
+use crate::pipeline::{for_each_calibrated_rows, Calibrated, Correction};
 use crate::source::Source;
 
 /// Most order candidates reported.
@@ -51,7 +55,8 @@ pub struct PixelFit {
     pub wavelengths_nm: Vec<f64>,
     /// Incidence angles, degrees, increasing.
     pub angles_deg: Vec<f64>,
-    /// Measured band reflectance, `[angle][band]` (NaN where unusable).
+    /// Measured band reflectance, `[angle][band]` (NaN where unusable), corrected by the
+    /// sample's reflectance terms and flare.
     pub measured: Vec<Vec<f64>>,
     /// The model at the estimated thickness, `[angle][band]` (NaN without one).
     pub model: Vec<Vec<f64>>,
@@ -252,7 +257,7 @@ fn rms(measured: &[Vec<f64>], model: &[Vec<f64>]) -> f64 {
 }
 
 /// The calibrated band reflectance of pixel `(x, y)` at every angle of `source`,
-/// `(angles_deg, [angle][band])` by increasing angle.
+/// `(angles_deg, [angle][band])` in streaming order.
 pub fn measured_spectra(
     source: &mut dyn Source,
     x: usize,
@@ -288,13 +293,61 @@ pub fn measured_spectra(
         }
     })
     .map_err(|e| AppearanceError(e.to_string()))?;
-    angles.sort_by(|a, b| a.0.total_cmp(&b.0));
     Ok(angles.into_iter().unzip())
+}
+
+/// A band's model at one angle: the clear film's, or with the sample's film terms.
+enum PixelBand {
+    Clear(Box<BandModel>),
+    /// Each passband node's weight and absorbing, leaking film.
+    Terms(Vec<(f64, Option<LossyFilm>)>),
+}
+
+impl PixelBand {
+    fn new(stack: &FilmStack, incidence_deg: f64, band: Passband, film: FilmTerms) -> Self {
+        if !film.any() {
+            return Self::Clear(Box::new(BandModel::new(*stack, incidence_deg, band)));
+        }
+        Self::Terms(
+            band.nodes()
+                .map(|(l, w)| {
+                    let k = film.film_k * absorption_shape(l);
+                    let f = LossyFilm::with_leak(
+                        stack.indices_at(l),
+                        k,
+                        incidence_deg,
+                        stack.polarization,
+                        l,
+                        film.leak,
+                    );
+                    (w, f)
+                })
+                .collect(),
+        )
+    }
+
+    /// The band's reflectance at thickness `d` (NaN where a wave does not propagate).
+    fn reflectance(&self, d: f64) -> f64 {
+        match self {
+            Self::Clear(m) => m.reflectance(d),
+            Self::Terms(nodes) => nodes
+                .iter()
+                .map(|(w, f)| {
+                    f.map_or(f64::NAN, |f| {
+                        let (delta, a) = f.round_trip(d);
+                        w * f.reflectance(delta.cos(), delta.sin(), a).0
+                    })
+                })
+                .sum(),
+        }
+    }
 }
 
 /// The fit of `stack` at thickness `thickness_nm` (NaN: none; the scan then centres on
 /// `fallback_nm`) to one pixel's `measured` spectra (`[angle][band]`, angles as
-/// `angles_deg`, bands as `bands`).
+/// `angles_deg` in streaming order, bands as `bands`), the sample's nuisance terms
+/// `correction` applied as the per-pixel passes apply them; the fit's angles increasing.
+#[allow(clippy::too_many_arguments)]
 pub fn fit_pixel(
     (x, y): (usize, usize),
     stack: &FilmStack,
@@ -303,13 +356,38 @@ pub fn fit_pixel(
     measured: Vec<Vec<f64>>,
     thickness_nm: f64,
     fallback_nm: f64,
+    correction: &Correction,
 ) -> PixelFit {
-    let models: Vec<Vec<BandModel>> = angles_deg
+    let mut rows: Vec<(f64, Vec<f64>)> = angles_deg
+        .iter()
+        .zip(measured)
+        .enumerate()
+        .map(|(a, (&deg, row))| {
+            let (scale, offset) = correction
+                .terms
+                .get(a)
+                .map_or((1.0, 0.0), |&(s, o)| (f64::from(s), f64::from(o)));
+            let offset = offset + f64::from(correction.flare);
+            (deg, row.into_iter().map(|v| (v - offset) / scale).collect())
+        })
+        .collect();
+    rows.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (angles_deg, measured): (Vec<f64>, Vec<Vec<f64>>) = rows.into_iter().unzip();
+    let models: Vec<Vec<PixelBand>> = angles_deg
         .iter()
         .map(|&a| {
             bands
                 .iter()
-                .map(|&b| BandModel::new(*stack, a, b))
+                .map(|b| {
+                    let band =
+                        Passband::gaussian(b.center_nm + correction.band_shift_nm, b.fwhm_nm);
+                    PixelBand::new(
+                        stack,
+                        a + correction.angle_offset_deg,
+                        band,
+                        correction.film,
+                    )
+                })
                 .collect()
         })
         .collect();
@@ -367,7 +445,7 @@ pub fn fit_pixel(
         y,
         thickness_nm,
         wavelengths_nm: bands.iter().map(|b| b.center_nm).collect(),
-        angles_deg: angles_deg.to_vec(),
+        angles_deg,
         measured,
         model,
         candidates,
@@ -427,6 +505,9 @@ pub fn pixel_fit(
     let (angles, measured) = measured_spectra(source, x, y)?;
     let d = film.thickness_at(y * film.width + x).unwrap_or(f64::NAN);
     let fallback = film.median_thickness_nm().unwrap_or(f64::NAN);
+    let correction = crate::estimate::index_fit::correction_from_json(
+        &film.summary.index_model_choice["nuisance_terms"],
+    );
     Ok(fit_pixel(
         (x, y),
         &film.stack,
@@ -435,6 +516,7 @@ pub fn pixel_fit(
         measured,
         d,
         fallback,
+        &correction,
     ))
 }
 
@@ -468,7 +550,17 @@ mod tests {
                     .collect()
             })
             .collect();
-        let fit = fit_pixel((3, 4), &stack, &bands, &angles, measured, truth, f64::NAN);
+        let none = Correction::default();
+        let fit = fit_pixel(
+            (3, 4),
+            &stack,
+            &bands,
+            &angles,
+            measured,
+            truth,
+            f64::NAN,
+            &none,
+        );
         assert!(fit.rms_at(0) < 1e-9, "{}", fit.rms_at(0));
         let best = &fit.candidates[0];
         assert!(
@@ -482,8 +574,108 @@ mod tests {
         assert_eq!(fit.to_csv().lines().count(), 1 + 3 * 151);
         // Without an estimate the scan centres on the fallback and still finds it.
         let m = fit.measured.clone();
-        let none = fit_pixel((3, 4), &stack, &bands, &angles, m, f64::NAN, 650.0);
-        assert!((none.candidates[0].thickness_nm - truth).abs() < 0.05);
-        assert!(none.model[0][0].is_nan());
+        let blind = fit_pixel((3, 4), &stack, &bands, &angles, m, f64::NAN, 650.0, &none);
+        assert!((blind.candidates[0].thickness_nm - truth).abs() < 0.05);
+        assert!(blind.model[0][0].is_nan());
+    }
+
+    /// Spectra a rig with a stage offset, a wavelength shift, flare and each angle's own
+    /// white-reference error measured, given in streaming order (not increasing): with the
+    /// sample's correction the model meets them exactly at the true thickness; without it
+    /// the residual is at the terms' size.
+    #[test]
+    fn the_sample_terms_are_applied_as_the_passes_apply_them() {
+        let stack = FilmStack {
+            back_face: BackFace::None,
+            ambient_index: 1.0,
+            film: Dispersion::constant(2.05),
+            substrate: Dispersion::constant(1.52),
+            polarization: Polarization::P,
+        };
+        let bands: Vec<Passband> = (0..101)
+            .map(|i| Passband::gaussian(420.0 + 3.0 * f64::from(i), 5.0))
+            .collect();
+        let angles = [40.0, 10.0, 25.0];
+        let correction = Correction {
+            angle_offset_deg: 0.3,
+            band_shift_nm: -0.4,
+            terms: vec![(1.02, 0.001), (0.99, -0.002), (1.01, 0.0)],
+            flare: 0.002,
+            film: FilmTerms::NONE,
+        };
+        let truth = 488.0;
+        let measured: Vec<Vec<f64>> = angles
+            .iter()
+            .zip(&correction.terms)
+            .map(|(&a, &(scale, offset))| {
+                bands
+                    .iter()
+                    .map(|b| {
+                        let shifted = Passband::gaussian(b.center_nm - 0.4, b.fwhm_nm);
+                        let r = stack.band_reflectance(truth, a + 0.3, &shifted);
+                        f64::from(scale) * r + f64::from(offset) + 0.002
+                    })
+                    .collect()
+            })
+            .collect();
+        let fit = fit_pixel(
+            (0, 0),
+            &stack,
+            &bands,
+            &angles,
+            measured.clone(),
+            truth,
+            f64::NAN,
+            &correction,
+        );
+        assert_eq!(fit.angles_deg, vec![10.0, 25.0, 40.0]);
+        for a in 0..3 {
+            assert!(fit.rms_at(a) < 1e-6, "angle {a}: {}", fit.table());
+        }
+        assert!(
+            (fit.candidates[0].thickness_nm - truth).abs() < 0.05,
+            "{}",
+            fit.table()
+        );
+        let plain = fit_pixel(
+            (0, 0),
+            &stack,
+            &bands,
+            &angles,
+            measured,
+            truth,
+            f64::NAN,
+            &Correction::default(),
+        );
+        assert!(plain.rms_at(0) > 1e-3, "{}", plain.table());
+    }
+
+    /// The absorbing, leaking film's model (the lossy film's own coefficients) meets the
+    /// clear film's Airy sum as its extinction and leak go to nothing.
+    #[test]
+    fn the_film_terms_model_meets_the_clear_film_at_no_absorption() {
+        let stack = FilmStack {
+            back_face: BackFace::None,
+            ambient_index: 1.0,
+            film: Dispersion::constant(1.62),
+            substrate: Dispersion::constant(1.45),
+            polarization: Polarization::S,
+        };
+        let band = Passband::gaussian(530.0, 6.0);
+        let clear = PixelBand::new(&stack, 35.0, band, FilmTerms::NONE);
+        let faint = PixelBand::new(
+            &stack,
+            35.0,
+            band,
+            FilmTerms {
+                film_k: 1e-12,
+                leak: 0.0,
+            },
+        );
+        assert!(matches!(faint, PixelBand::Terms(_)));
+        for d in [50.0, 333.0, 1200.0] {
+            let (c, f) = (clear.reflectance(d), faint.reflectance(d));
+            assert!((c - f).abs() < 1e-9, "{d} nm: clear {c}, lossy {f}");
+        }
     }
 }

@@ -501,6 +501,35 @@ pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_jso
     })
 }
 
+/// The correction the per-pixel passes applied, read back from `summary.json`'s
+/// `index_model_choice.nuisance_terms` ([`choice_json`] writes it): the stage offset, the
+/// wavelength shift, the flare, each angle's reflectance scale and offset, the film's
+/// absorption and the polariser's leak. Null or absent terms are none; the side lobes, which
+/// the passes do not take out, are not read.
+pub fn correction_from_json(terms: &Value) -> crate::pipeline::Correction {
+    let value = |key: &str| terms[key]["value"].as_f64().unwrap_or(0.0);
+    crate::pipeline::Correction {
+        angle_offset_deg: value("stage_offset_deg"),
+        band_shift_nm: value("wavelength_shift_nm"),
+        terms: terms["reflectance_terms"]
+            .as_array()
+            .map(|list| {
+                list.iter()
+                    .map(|t| {
+                        let (s, o) = (t["scale"].as_f64(), t["offset"].as_f64());
+                        (s.unwrap_or(1.0) as f32, o.unwrap_or(0.0) as f32)
+                    })
+                    .collect()
+            })
+            .unwrap_or_default(),
+        flare: value("flare") as f32,
+        film: filmscope_core::solve::refine::FilmTerms {
+            film_k: value("film_k_450nm"),
+            leak: value("polariser_leak"),
+        },
+    }
+}
+
 /// A nuisance term as `summary.json` gives it: `{"value", "sigma"}`, null when not taken.
 fn term_json(t: Term) -> Value {
     if t.taken() {

@@ -108,7 +108,7 @@ pub fn passband_phase_span(
 pub const ABSORPTION_TAIL_NM: f64 = 90.0;
 
 /// `k(l) / k(450 nm)` ([`ABSORPTION_TAIL_NM`]).
-pub(crate) fn absorption_shape(l_nm: f64) -> f64 {
+pub fn absorption_shape(l_nm: f64) -> f64 {
     libm::exp((450.0 - l_nm) / ABSORPTION_TAIL_NM)
 }
 
@@ -133,7 +133,7 @@ impl FilmTerms {
     };
 
     /// Whether the model needs more than the clear film's one polarisation.
-    fn any(self) -> bool {
+    pub fn any(self) -> bool {
         self.film_k > 0.0 || self.leak > 0.0
     }
 }
