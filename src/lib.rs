@@ -21,8 +21,11 @@
 //!   reproduced, glTF), and [`report`], one HTML page of it all;
 //! - [`rig`]: the devices of a real rig and the acquisition; [`line`](mod@line): inspection on a
 //!   production line;
-//! - [`cli`]: the `filmscope` command line with the measurement commands (`eval`, `bench`,
-//!   `chart`, `stability`).
+//! - [`lab`]: the measuring lab: accuracy against the truth, speed and memory, speed against
+//!   accuracy, stability maps, the Python peers;
+//! - [`cli`]: the `filmscope` command line: arguments, printing and progress, calling into
+//!   the modules above (`eval`, `bench`, `chart` and `stability` print what [`lab`]
+//!   measures). No module imports it; only it imports [`lab`].
 #![cfg_attr(not(feature = "std"), no_std)]
 
 pub use filmscope_core::*;
@@ -37,6 +40,8 @@ pub mod estimate;
 pub mod export;
 #[cfg(feature = "std")]
 pub mod io;
+#[cfg(feature = "std")]
+pub mod lab;
 #[cfg(feature = "std")]
 pub mod limits;
 #[cfg(feature = "std")]

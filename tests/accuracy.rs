@@ -9,9 +9,9 @@ mod common;
 
 use common::run_scene;
 
-use filmscope::cli::eval::{EvalReport, Truth};
 use filmscope::estimate::method::Method;
 use filmscope::estimate::{index_model_name, run_method, Run, RunConfig};
+use filmscope::lab::eval::{EvalReport, Truth};
 use filmscope::pipeline::{run_sweep, PipelineConfig, Prior, PriorUpdate};
 use filmscope::source::SimSource;
 use filmscope_core::solve::flags;
@@ -276,7 +276,7 @@ fn the_index_model_is_no_richer_than_the_scene_needs() {
 #[test]
 fn a_thin_film_keeps_a_constant_index_and_its_accuracy() {
     for seed in [7, 10, 11] {
-        let grid = filmscope::cli::chart::GridScene {
+        let grid = filmscope::lab::chart::GridScene {
             index: 1.6,
             thickness_nm: 50.0,
             seed,
@@ -304,7 +304,7 @@ fn a_thin_film_keeps_a_constant_index_and_its_accuracy() {
 #[test]
 fn a_thick_high_index_film_is_not_taken_for_one_without_fringe_pairs() {
     for index in [2.6, 2.8] {
-        let grid = filmscope::cli::chart::GridScene {
+        let grid = filmscope::lab::chart::GridScene {
             index,
             thickness_nm: 2000.0,
             seed: 7,
@@ -439,7 +439,7 @@ fn the_thickness_sigma_follows_the_noise() {
     };
     let mut medians = Vec::new();
     for noise in [0.5, 2.0] {
-        let grid = filmscope::cli::chart::GridScene {
+        let grid = filmscope::lab::chart::GridScene {
             noise_percent: Some(noise),
             ..Default::default()
         };

@@ -366,7 +366,7 @@ fn seeded_under_held_index(
     use filmscope::source::Frames;
     use std::sync::Arc;
     let frames = Arc::new(Frames::render(scene, scene.sensor.height).expect("frames"));
-    let truth = filmscope::cli::eval::Truth::of_scene(scene);
+    let truth = filmscope::lab::eval::Truth::of_scene(scene);
     let seed: Arc<Vec<f32>> = Arc::new(truth.thickness_nm.iter().map(|d| d + 1.5).collect());
     let index =
         filmscope::estimate::known_index::held_index(&scene.stack.film, &frames.spec.bands_nm)

@@ -11,9 +11,9 @@
 
 use std::path::PathBuf;
 
-use filmscope::cli::eval::{evaluate, EvalReport, Truth};
 use filmscope::estimate::{flag_counts, run_method, RunConfig};
 use filmscope::io::Capture;
+use filmscope::lab::eval::{evaluate, EvalReport, Truth};
 use filmscope::source::CaptureSource;
 
 fn dir(name: &str) -> PathBuf {

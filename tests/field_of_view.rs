@@ -6,10 +6,10 @@
 mod common;
 
 use common::{filmscope, run_ok, s, tempdir};
-use filmscope::cli::eval::{evaluate, EvalReport, Truth};
 use filmscope::estimate::FieldModel;
 use filmscope::estimate::{run_method_in_field, RunConfig};
 use filmscope::io::Capture;
+use filmscope::lab::eval::{evaluate, EvalReport, Truth};
 use filmscope::optics::{BandModel, FieldOfView};
 use filmscope::simulate::{write_capture, SimulateOptions};
 use filmscope::source::SimSource;

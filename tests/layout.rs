@@ -1,5 +1,7 @@
 //! The crates' module layout: imports point one way, no file imports another that imports
-//! it back (directly or round a longer loop), in the std crate and in the core.
+//! it back (directly or round a longer loop), in the std crate and in the core; and in the
+//! std crate the command line (`cli`) is imported by no other module, the lab (`lab`) by
+//! none but the command line.
 //!
 //! A file's imports are the `crate::`, `super::` and `self::` paths in its code (test
 //! modules and comments left out), each resolved to the deepest file module it names.
@@ -268,6 +270,29 @@ fn graph(root: &Path) -> BTreeMap<Vec<String>, BTreeSet<Vec<String>>> {
     edges
 }
 
+/// Top-level modules of the std crate and the only other top-level modules that may import
+/// them: nothing imports the command line (`main.rs` calls it by the library's name), and
+/// only the command line imports the lab.
+const ONLY_IMPORTED_BY: [(&str, &[&str]); 2] = [("cli", &[]), ("lab", &["cli"])];
+
+/// Each import in `edges` of a module of [`ONLY_IMPORTED_BY`] by a file outside it and
+/// outside the modules allowed to, as `importer -> imported`.
+fn forbidden(edges: &BTreeMap<Vec<String>, BTreeSet<Vec<String>>>) -> Vec<String> {
+    let top = |m: &[String]| m.first().cloned().unwrap_or_default();
+    let mut out = Vec::new();
+    for (from, targets) in edges {
+        for to in targets {
+            let Some((_, allowed)) = ONLY_IMPORTED_BY.iter().find(|(g, _)| *g == top(to)) else {
+                continue;
+            };
+            if top(from) != top(to) && !allowed.contains(&top(from).as_str()) {
+                out.push(format!("{} -> {}", from.join("::"), to.join("::")));
+            }
+        }
+    }
+    out
+}
+
 fn check(crate_dir: &str) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join(crate_dir);
     let edges = graph(&root);
@@ -288,6 +313,25 @@ fn check(crate_dir: &str) {
 #[test]
 fn the_std_crate_has_no_import_cycle() {
     check("src");
+}
+
+#[test]
+fn only_the_command_line_imports_the_command_line_and_the_lab() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let edges = graph(&root);
+    for (module, _) in ONLY_IMPORTED_BY {
+        assert!(
+            edges.keys().any(|m| m.first().is_some_and(|t| t == module)),
+            "{}: no module {module}",
+            root.display()
+        );
+    }
+    let found = forbidden(&edges);
+    assert!(
+        found.is_empty(),
+        "{}: imports of cli outside cli, or of lab outside cli and lab: {found:?}",
+        root.display()
+    );
 }
 
 #[test]
@@ -320,5 +364,32 @@ fn a_cycle_is_found() {
     assert_eq!(
         cycles(&edges),
         vec![vec!["a".to_owned(), "b".into(), "c".into()]]
+    );
+}
+
+/// The checker names an import of the command line or the lab from where it is not allowed,
+/// and lets the command line import the lab and each module import its own files.
+#[test]
+fn a_forbidden_import_is_found() {
+    let p = |s: &str| s.split("::").map(str::to_owned).collect::<Vec<_>>();
+    let mut edges = BTreeMap::new();
+    edges.insert(
+        p("cli::commands"),
+        BTreeSet::from([p("cli"), p("lab::eval")]),
+    );
+    edges.insert(
+        p("lab::bench"),
+        BTreeSet::from([p("lab::chart"), p("line::inspect")]),
+    );
+    edges.insert(p("estimate"), BTreeSet::from([p("lab::eval"), p("io")]));
+    edges.insert(p("line::inspect"), BTreeSet::from([p("cli")]));
+    edges.insert(p("lab"), BTreeSet::from([p("cli::progress")]));
+    assert_eq!(
+        forbidden(&edges),
+        vec![
+            "estimate -> lab::eval".to_owned(),
+            "lab -> cli::progress".into(),
+            "line::inspect -> cli".into(),
+        ]
     );
 }

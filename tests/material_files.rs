@@ -8,8 +8,8 @@ mod common;
 use std::path::Path;
 
 use common::{filmscope, s, tempdir};
-use filmscope::cli::eval::{evaluate, Truth};
 use filmscope::io::{read_cube, Capture};
+use filmscope::lab::eval::{evaluate, Truth};
 use filmscope::material;
 use filmscope::source::CaptureSource;
 

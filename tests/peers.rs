@@ -6,8 +6,8 @@
 
 use std::path::Path;
 
-use filmscope::cli::bench::scene_with;
-use filmscope::cli::peers::{run_script, unavailable};
+use filmscope::lab::peers::{run_script, unavailable};
+use filmscope::lab::scene::scene_with;
 use filmscope::simulate::{write_capture, SimulateOptions};
 
 #[test]

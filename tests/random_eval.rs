@@ -5,11 +5,11 @@
 
 mod common;
 
-use filmscope::cli::eval::{
-    evaluate, random_eval, thickness_errors, Score, Truth, RANDOM_CRITERIA, SILENT_FAILURE_NM,
-};
 use filmscope::estimate::{run_method, RunConfig};
 use filmscope::io::Capture;
+use filmscope::lab::eval::{
+    evaluate, random_eval, thickness_errors, Score, Truth, RANDOM_CRITERIA, SILENT_FAILURE_NM,
+};
 use filmscope::simulate::{write_capture, SimulateOptions};
 use filmscope::source::CaptureSource;
 use filmscope_core::optics::Dispersion;
@@ -231,7 +231,7 @@ fn every_drawn_scene_simulates_and_estimates() {
 fn thick_high_index_films_with_a_step_have_every_pixel_solved() {
     let dir = common::tempdir();
     for i in [3, 49] {
-        let row = filmscope::cli::eval::random_scene(
+        let row = filmscope::lab::eval::random_scene(
             2,
             i,
             &RunConfig::default(),
@@ -255,7 +255,7 @@ fn thick_and_thin_films_are_reached_without_a_range() {
     for i in [24, 27, 68] {
         let drawn = firmware_sim::random::draw_thick(3, i);
         assert!(!drawn.toml.contains("thickness_range_nm"), "{}", drawn.toml);
-        let row = filmscope::cli::eval::random_scene(
+        let row = filmscope::lab::eval::random_scene(
             3,
             i,
             &RunConfig::default(),

@@ -6,8 +6,8 @@ mod common;
 use std::path::Path;
 
 use common::{filmscope, run_ok, s};
-use filmscope::cli::eval::{evaluate, Truth};
 use filmscope::estimate::RunConfig;
+use filmscope::lab::eval::{evaluate, Truth};
 use filmscope::source::SimSource;
 use firmware_sim::{Scene, SoftwareCamera};
 

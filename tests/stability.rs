@@ -8,7 +8,7 @@
 //! measured before the software camera's noise was made independent (it repeated across
 //! rows, bands and angles); the tolerances hold with independent noise.
 
-use filmscope::cli::chart::{
+use filmscope::lab::chart::{
     cell_scene, run_map, settings, stability_maps, Axis, Cell, GridScene, MapSpec,
 };
 

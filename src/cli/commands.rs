@@ -14,12 +14,12 @@ use crate::appearance::{
     render::{render_png, RenderOptions},
     SampleFilm,
 };
-use crate::cli::eval::{evaluate, EvalReport, Truth};
 use crate::estimate::baseline::BruteGrid;
 use crate::estimate::method::Method;
 use crate::estimate::FieldConfig;
 use crate::estimate::{run_method_in_field, write_outputs, Run, RunConfig};
 use crate::io::{write_atomic, ByteOrder, Capture, Interleave};
+use crate::lab::eval::{evaluate, Ablation, Truth};
 use crate::pipeline::PipelineConfig;
 use crate::simulate::{write_capture, SimulateOptions};
 use crate::source::{CaptureSource, SimSource, Source};
@@ -288,87 +288,6 @@ fn field_line(run: &Run) -> Option<String> {
     ))
 }
 
-enum Input {
-    Scene(Box<Scene>),
-    Capture(PathBuf),
-}
-
-/// Whether `path` names a scene file (`Some(true)`), a capture (`Some(false)`) or neither.
-fn input_kind(path: &Path) -> Option<bool> {
-    if path.is_dir() || path.file_name().is_some_and(|n| n == "capture.toml") {
-        Some(false)
-    } else if path.extension().is_some_and(|e| e == "toml") {
-        Some(true)
-    } else {
-        None
-    }
-}
-
-/// A scene file (its seed replaced by `seed` when given) or a capture directory.
-fn input(path: &Path, seed: Option<u64>) -> Result<Input> {
-    if path.is_dir() {
-        Ok(Input::Capture(path.to_owned()))
-    } else if path.extension().is_some_and(|e| e == "toml")
-        && path.file_name().is_some_and(|n| n != "capture.toml")
-    {
-        Ok(Input::Scene(Box::new(Scene::load_seeded(path, seed)?)))
-    } else if path.file_name().is_some_and(|n| n == "capture.toml") {
-        Ok(Input::Capture(
-            path.parent().unwrap_or(Path::new(".")).to_owned(),
-        ))
-    } else {
-        bail!(
-            "{}: neither a scene file (.toml) nor a capture directory",
-            path.display()
-        )
-    }
-}
-
-fn eval_one(path: &Path, config: &RunConfig, seed: Option<u64>) -> Result<(EvalReport, Run)> {
-    match input(path, seed)? {
-        Input::Scene(scene) => {
-            let truth = Truth::of_scene(&scene);
-            let name = scene.name.clone();
-            let fov = scene.field_of_view;
-            let mut source = SimSource::new(SoftwareCamera::new(*scene), false, 1)
-                .map_err(|e| anyhow!("{}: {e}", path.display()))?;
-            let run = run_in_field_with_bar(&mut source, config, fov, &name)?;
-            Ok((evaluate(&name, &truth, &run), run))
-        }
-        Input::Capture(dir) => {
-            let truth = Truth::of_capture_dir(&dir).map_err(|e| anyhow!(e))?;
-            let cap = Capture::load(&dir)?;
-            check_capture_memory(&cap, config.method, None)?;
-            let fov = cap.lens.field_of_view();
-            let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
-            let name = dir.display().to_string();
-            let run = run_in_field_with_bar(&mut source, config, fov, &name)?;
-            Ok((evaluate(&name, &truth, &run), run))
-        }
-    }
-}
-
-/// Solver options and the wide field model's settings with the named improvements switched
-/// off.
-fn ablated(list: &[super::Ablation]) -> (SolverOptions, FieldConfig) {
-    use super::Ablation as A;
-    let mut o = SolverOptions::default();
-    let mut f = FieldConfig::default();
-    for a in list {
-        match a {
-            A::Refine => o.refine = false,
-            A::HalfOrder => o.half_order = false,
-            A::Neighbours => o.neighbours = false,
-            A::Subband => o.subband = false,
-            A::WideSimd => o.wide_simd = false,
-            A::ColumnMap => f.column_map = false,
-            A::SharedIndex => f.shared_rounds = false,
-        }
-    }
-    (o, f)
-}
-
-/// `filmscope eval`.
 /// `eval --random`'s set: its size, seed, where to save the drawn scenes, and the rows to
 /// run (all when `None`).
 pub struct RandomSet {
@@ -382,6 +301,7 @@ pub struct RandomSet {
     pub rows: Option<Vec<usize>>,
 }
 
+/// `filmscope eval`.
 pub fn eval(
     inputs: &[PathBuf],
     random: Option<RandomSet>,
@@ -389,7 +309,7 @@ pub fn eval(
     seed: Option<u64>,
     method: &super::MethodArgs,
     json: bool,
-    ablate: &[super::Ablation],
+    ablate: &[Ablation],
 ) -> Result<()> {
     match (inputs.is_empty(), &random) {
         (true, None) => {
@@ -399,14 +319,17 @@ pub fn eval(
         _ => {}
     }
     if let (Some(s), None) = (seed, &random) {
-        if let Some(cap) = inputs.iter().find(|p| !matches!(input_kind(p), Some(true))) {
+        if let Some(cap) = inputs
+            .iter()
+            .find(|p| !matches!(crate::lab::eval::input_kind(p), Some(true)))
+        {
             bail!(
                 "--seed {s}: {} is not a scene file (a capture's noise is recorded; --seed applies to scene files)",
                 cap.display()
             );
         }
     }
-    let (solver, wide) = ablated(ablate);
+    let (solver, wide) = crate::lab::eval::ablated(ablate);
     let pipeline = PipelineConfig {
         solver,
         ..PipelineConfig::default()
@@ -454,7 +377,8 @@ pub fn eval(
         }
     };
     for path in inputs {
-        let (r, run) = eval_one(path, &config, seed).with_context(|| path.display().to_string())?;
+        let (r, run) = crate::lab::eval::eval_one(path, &config, seed, &run_in_field_with_bar)
+            .with_context(|| path.display().to_string())?;
         if json {
             println!("{}", serde_json::to_string(&r)?);
         } else {
@@ -502,24 +426,14 @@ fn eval_random(
     rows: Option<&[usize]>,
 ) -> Result<()> {
     if let Some(dir) = save_scenes {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("{}: cannot create", dir.display()))?;
-        for i in 0..count {
-            let drawn = firmware_sim::random::draw_kind(kind, seed, i);
-            let path = dir.join(format!("{}.toml", drawn.scene.name));
-            write_atomic(&path, drawn.toml.as_bytes())
-                .with_context(|| format!("{}: cannot write", path.display()))?;
-        }
+        crate::lab::eval::save_random_scenes(dir, count, seed, kind)?;
     }
-    let work = tempfile::Builder::new()
-        .prefix(&format!("filmscope-random-{seed}-"))
-        .tempdir()
-        .context("cannot create a temporary folder")?;
+    let work = crate::lab::eval::random_work_dir(seed)?;
     if !json {
-        println!("{}", crate::cli::eval::RandomRow::table_header());
+        println!("{}", crate::lab::eval::RandomRow::table_header());
     }
     let result =
-        crate::cli::eval::random_eval(count, seed, config, work.path(), kind, rows, &mut |row| {
+        crate::lab::eval::random_eval(count, seed, config, work.path(), kind, rows, &mut |row| {
             if !json {
                 println!("{}", row.table_row());
             }
@@ -677,12 +591,12 @@ pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
 
 /// `filmscope bench`.
 pub fn bench(scene: &Path, quick: bool, json: bool, out: Option<&Path>) -> Result<()> {
-    let report = crate::cli::bench::run_bench(scene, quick, &|what| {
+    let report = crate::lab::bench::run_bench(scene, quick, &|what| {
         if !json {
             eprintln!("bench: {what}");
         }
     })?;
-    let table = crate::cli::bench::format_table(&report);
+    let table = crate::lab::bench::format_table(&report);
     let text = serde_json::to_string(&report)?;
     if json {
         println!("{text}");
@@ -690,21 +604,7 @@ pub fn bench(scene: &Path, quick: bool, json: bool, out: Option<&Path>) -> Resul
         print!("{table}");
     }
     if let Some(dir) = out {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("{}: cannot create", dir.display()))?;
-        let date = crate::cli::bench::utc_date(std::time::SystemTime::now());
-        let md = dir.join(format!("{date}.md"));
-        let what = if quick {
-            "filmscope bench --quick"
-        } else {
-            "filmscope bench"
-        };
-        let body = format!("# {what}, {date}\n\n```text\n{table}```\n");
-        crate::io::write_atomic(&md, body.as_bytes())
-            .with_context(|| format!("{}: cannot write", md.display()))?;
-        let js = dir.join(format!("{date}.json"));
-        crate::io::write_atomic(&js, format!("{text}\n").as_bytes())
-            .with_context(|| format!("{}: cannot write", js.display()))?;
+        let (md, js) = crate::lab::bench::write_dated(dir, quick, &table, &text)?;
         eprintln!("bench: wrote {} and {}", md.display(), js.display());
     }
     Ok(())
@@ -712,9 +612,9 @@ pub fn bench(scene: &Path, quick: bool, json: bool, out: Option<&Path>) -> Resul
 
 /// `filmscope soak`: prints one line per tenth sweep and a last line of figures.
 pub fn soak(scene: &Path, sweeps: usize) -> Result<()> {
-    let scene = crate::cli::bench::scene_with(scene, 32, 24, Some([420.0, 720.0, 3.0]))?;
+    let scene = crate::lab::bench::soak_scene(scene)?;
     let t0 = std::time::Instant::now();
-    let points = crate::cli::bench::soak(
+    let points = crate::lab::bench::soak(
         &scene,
         sweeps,
         10,
@@ -743,92 +643,47 @@ pub fn soak(scene: &Path, sweeps: usize) -> Result<()> {
 
 /// `filmscope chart`.
 pub fn chart(scene: &Path, out: &Path, quick: bool) -> Result<()> {
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    // The bench's methods sweep: large enough that a setting's time per megapixel is its
-    // own, not its fixed costs.
-    let size = if quick { [48, 32] } else { [128, 96] };
-    let scene = crate::cli::bench::scene_with(scene, size[0], size[1], None)?;
-    let points = crate::cli::chart::measure(&scene, &crate::cli::chart::settings(quick))?;
-    for p in &points {
-        println!(
-            "{:<10} {:<12} {:>12.2} s/Mpix  MAE {:>8.2} nm  |n err| {:.4}  valid {:>5.1}%",
-            p.method,
-            p.label,
-            p.seconds_per_mpix,
-            p.thickness_mae_nm,
-            p.index_error_abs,
-            100.0 * p.valid_fraction
-        );
-    }
-    let png = out.join("speed-accuracy.png");
-    let title = format!(
-        "{} ({}x{} px): speed against accuracy",
-        scene.name, size[0], size[1]
-    );
-    crate::cli::chart::write_speed_chart(&png, &title, &points)?;
-    crate::io::write_atomic(
-        &out.join("speed-accuracy.json"),
-        serde_json::to_string_pretty(&points)?.as_bytes(),
-    )?;
+    let png = crate::lab::chart::speed_accuracy(scene, out, quick, &mut |points| {
+        for p in points {
+            println!(
+                "{:<10} {:<12} {:>12.2} s/Mpix  MAE {:>8.2} nm  |n err| {:.4}  valid {:>5.1}%",
+                p.method,
+                p.label,
+                p.seconds_per_mpix,
+                p.thickness_mae_nm,
+                p.index_error_abs,
+                100.0 * p.valid_fraction
+            );
+        }
+    })?;
     println!("wrote {}", png.display());
     Ok(())
 }
 
 /// `filmscope stability`.
 pub fn stability(out: &Path, quick: bool, only: &[String]) -> Result<()> {
-    let maps = crate::cli::chart::stability_maps(quick);
-    if let Some(unknown) = only.iter().find(|n| !maps.iter().any(|m| &m.name == *n)) {
-        let names: Vec<&str> = maps.iter().map(|m| m.name.as_str()).collect();
-        bail!(
-            "--map {unknown:?}: no such map (maps: {})",
-            names.join(", ")
-        );
-    }
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    let settings: Vec<_> = crate::cli::chart::settings(true)
-        .into_iter()
-        .filter(|s| matches!(s.label.as_str(), "filmscope" | "paper" | "19n/8nm"))
-        .collect();
-    let t0 = std::time::Instant::now();
-    let mut runs = Vec::new();
-    for spec in maps
-        .into_iter()
-        .filter(|m| only.is_empty() || only.contains(&m.name))
-    {
-        let run = crate::cli::chart::run_map(&spec, &settings, &|_| {})?;
-        print!("{}", crate::cli::chart::summary(&run));
-        for p in crate::cli::chart::write_stability_maps(out, &run)? {
-            println!("wrote {}", p.display());
-        }
-        runs.push(run);
-    }
-    let json = if only.is_empty() {
-        "stability.json".to_owned()
-    } else {
-        format!("stability-{}.json", only.join("-"))
-    };
-    crate::io::write_atomic(
-        &out.join(json),
-        serde_json::to_string_pretty(&runs)?.as_bytes(),
-    )?;
-    let cells: usize = runs.iter().map(|r| r.cells.len() / settings.len()).sum();
+    use crate::lab::chart::StabilityStep;
+    let done = crate::lab::chart::stability(out, quick, only, &mut |step| match step {
+        StabilityStep::Measured(run) => print!("{}", crate::lab::chart::summary(run)),
+        StabilityStep::Wrote(p) => println!("wrote {}", p.display()),
+    })?;
+    let cells: usize = done
+        .runs
+        .iter()
+        .map(|r| r.cells.len() / done.settings)
+        .sum();
     println!(
         "{} maps, {cells} cells x {} settings in {:.0} s",
-        runs.len(),
-        settings.len(),
-        t0.elapsed().as_secs_f64()
+        done.runs.len(),
+        done.settings,
+        done.seconds
     );
     Ok(())
 }
 
 /// `filmscope stability --cell MAP:X:Y`: the cell's scene file, written into `out`.
 pub fn stability_cell(out: &Path, quick: bool, cell: &str, seed: Option<u64>) -> Result<()> {
-    let maps = crate::cli::chart::stability_maps(quick);
-    let scene = crate::cli::chart::cell_scene(&maps, cell, seed)?;
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    let name = format!("cell-{}-s{}.toml", cell.replace(':', "-"), scene.seed);
-    let path = out.join(name);
-    crate::io::write_atomic(&path, scene.toml().as_bytes())?;
+    let (path, scene) = crate::lab::chart::write_cell_scene(out, quick, cell, seed)?;
     println!("wrote {} ({})", path.display(), scene.describe(&[]));
     Ok(())
 }

@@ -1,11 +1,9 @@
-//! The command line: argument parsing and the commands. `main.rs` only calls [`main`].
+//! The command line: argument parsing, the commands' printing and progress bars, and the
+//! calls into the library ([`crate::estimate`], [`crate::lab`], ...). `main.rs` only calls
+//! [`main`].
 
-pub mod bench;
-pub mod chart;
 mod commands;
-pub mod eval;
 mod inspect;
-pub mod peers;
 mod progress;
 
 use std::path::PathBuf;
@@ -17,6 +15,7 @@ use filmscope_core::optics::Polarization;
 use crate::estimate::method::Method;
 use crate::estimate::FieldChoice;
 use crate::io::{ByteOrder, Interleave};
+use crate::lab::eval::Ablation;
 
 /// How the streaming method gets the shared index.
 #[derive(Clone, Copy, Debug, Args)]
@@ -71,25 +70,6 @@ pub struct MethodArgs {
     /// How the streaming method gets the shared index.
     #[command(flatten)]
     pub index: IndexArgs,
-}
-
-/// An improvement `eval --ablate` switches off.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Ablation {
-    /// The full-spectrum refinement.
-    Refine,
-    /// The half-order reflection phase.
-    HalfOrder,
-    /// Orders from resolved neighbours.
-    Neighbours,
-    /// Sub-band extremum location.
-    Subband,
-    /// AVX2 kernels (speed only).
-    WideSimd,
-    /// The wide field model's per-column thickness map.
-    ColumnMap,
-    /// The wide field model's shared index across strips.
-    SharedIndex,
 }
 
 /// filmscope: thin-film index and thickness maps from hyperspectral angle sweeps.
@@ -619,7 +599,7 @@ pub fn main() -> std::process::ExitCode {
             width,
             height,
             angles,
-        } => crate::cli::bench::rss_child(&scene, width, height, angles),
+        } => crate::lab::bench::rss_child(&scene, width, height, angles),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -179,10 +179,10 @@ pub fn run_scene(
     name: &str,
     scene: Scene,
     config: &filmscope::estimate::RunConfig,
-) -> (filmscope::cli::eval::EvalReport, filmscope::estimate::Run) {
-    let truth = filmscope::cli::eval::Truth::of_scene(&scene);
+) -> (filmscope::lab::eval::EvalReport, filmscope::estimate::Run) {
+    let truth = filmscope::lab::eval::Truth::of_scene(&scene);
     let camera = firmware_sim::SoftwareCamera::new(scene);
     let mut source = filmscope::source::SimSource::new(camera, false, 1).expect("source");
     let run = filmscope::estimate::run_method(&mut source, config, &|_| {}).expect("run");
-    (filmscope::cli::eval::evaluate(name, &truth, &run), run)
+    (filmscope::lab::eval::evaluate(name, &truth, &run), run)
 }

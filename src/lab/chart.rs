@@ -10,23 +10,24 @@
 //! setting in every cell ([`run_map`]); [`summary`] prints where each setting works
 //! ([`Verdict`]) and [`write_stability_maps`] draws one heat-map figure per setting.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use filmscope_core::optics::materials;
 use filmscope_core::solve::sweep::SolverOptions;
 use firmware_sim::Scene;
 use serde::Serialize;
 
-use crate::cli::eval::{evaluate, EvalReport, Truth};
 use crate::estimate::baseline::BruteGrid;
 use crate::estimate::method::Method;
 use crate::estimate::{run_method, RunConfig};
 use crate::export::plot::{
     write_heatmap_panels_png, write_scatter_panels_png, HeatMap, Scatter, Series,
 };
+use crate::lab::eval::{evaluate, EvalReport, Truth};
+use crate::lab::scene::scene_with;
 use crate::source::{Frames, ReplaySource};
 
 /// One method with one setting of its knobs.
@@ -967,4 +968,123 @@ pub fn write_stability_maps(dir: &Path, run: &MapRun) -> Result<Vec<std::path::P
         written.push(path);
     }
     Ok(written)
+}
+
+/// `filmscope chart`: every setting of [`settings`] on `scene` resized to 128 x 96 pixels
+/// (48 x 32 with `quick`: as the bench's methods sweep, large enough that a setting's time
+/// per megapixel is its own, not its fixed costs). `out` is created first; `on_points` is
+/// given the points once measured, then the chart and the points are written as
+/// `out/speed-accuracy.png` and `.json`. Returns the PNG's path.
+pub fn speed_accuracy(
+    scene: &Path,
+    out: &Path,
+    quick: bool,
+    on_points: &mut dyn FnMut(&[Point]),
+) -> Result<PathBuf> {
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let size = if quick { [48, 32] } else { [128, 96] };
+    let scene = scene_with(scene, size[0], size[1], None)?;
+    let points = measure(&scene, &settings(quick))?;
+    on_points(&points);
+    let png = out.join("speed-accuracy.png");
+    let title = format!(
+        "{} ({}x{} px): speed against accuracy",
+        scene.name, size[0], size[1]
+    );
+    write_speed_chart(&png, &title, &points)?;
+    crate::io::write_atomic(
+        &out.join("speed-accuracy.json"),
+        serde_json::to_string_pretty(&points)?.as_bytes(),
+    )?;
+    Ok(png)
+}
+
+/// What [`stability`] measured.
+#[derive(Clone, Debug)]
+pub struct Stability {
+    /// Every map run.
+    pub runs: Vec<MapRun>,
+    /// Settings run in each cell.
+    pub settings: usize,
+    /// Wall seconds of all the maps.
+    pub seconds: f64,
+}
+
+/// What [`stability`] reports as it goes.
+pub enum StabilityStep<'a> {
+    /// A map measured, before its figures are drawn.
+    Measured(&'a MapRun),
+    /// A file written.
+    Wrote(&'a Path),
+}
+
+/// `filmscope stability`: the maps of [`stability_maps`] named in `only` (every one when
+/// empty; an unknown name fails before any work), each run with filmscope, the paper's
+/// method and the 19n/8nm setting and drawn into `out` ([`write_stability_maps`]), then
+/// every map's figures written as `out/stability.json` (`stability-NAME-....json` with
+/// `only`). `on_step` hears of each map measured and each figure written.
+pub fn stability(
+    out: &Path,
+    quick: bool,
+    only: &[String],
+    on_step: &mut dyn FnMut(StabilityStep<'_>),
+) -> Result<Stability> {
+    let maps = stability_maps(quick);
+    if let Some(unknown) = only.iter().find(|n| !maps.iter().any(|m| &m.name == *n)) {
+        let names: Vec<&str> = maps.iter().map(|m| m.name.as_str()).collect();
+        bail!(
+            "--map {unknown:?}: no such map (maps: {})",
+            names.join(", ")
+        );
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let settings: Vec<_> = settings(true)
+        .into_iter()
+        .filter(|s| matches!(s.label.as_str(), "filmscope" | "paper" | "19n/8nm"))
+        .collect();
+    let t0 = Instant::now();
+    let mut runs = Vec::new();
+    for spec in maps
+        .into_iter()
+        .filter(|m| only.is_empty() || only.contains(&m.name))
+    {
+        let run = run_map(&spec, &settings, &|_| {})?;
+        on_step(StabilityStep::Measured(&run));
+        for p in write_stability_maps(out, &run)? {
+            on_step(StabilityStep::Wrote(&p));
+        }
+        runs.push(run);
+    }
+    let json = if only.is_empty() {
+        "stability.json".to_owned()
+    } else {
+        format!("stability-{}.json", only.join("-"))
+    };
+    crate::io::write_atomic(
+        &out.join(json),
+        serde_json::to_string_pretty(&runs)?.as_bytes(),
+    )?;
+    Ok(Stability {
+        runs,
+        settings: settings.len(),
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// `filmscope stability --cell MAP:X:Y`: the cell's scene ([`cell_scene`] of the maps,
+/// coarser with `quick`) written into `out` as `cell-MAP-X-Y-sSEED.toml`; returns its path
+/// and the scene.
+pub fn write_cell_scene(
+    out: &Path,
+    quick: bool,
+    cell: &str,
+    seed: Option<u64>,
+) -> Result<(PathBuf, GridScene)> {
+    let maps = stability_maps(quick);
+    let scene = cell_scene(&maps, cell, seed)?;
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let name = format!("cell-{}-s{}.toml", cell.replace(':', "-"), scene.seed);
+    let path = out.join(name);
+    crate::io::write_atomic(&path, scene.toml().as_bytes())?;
+    Ok((path, scene))
 }

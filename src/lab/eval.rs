@@ -5,20 +5,27 @@
 //! CIE 1931 2 deg, with [`FilmColour`], the model the renders use): the true film (true index with its dispersion, true thickness) against
 //! the estimated one, pixel by pixel, at each angle of the sweep. The spectral RMSE (method.md
 //! eq. 16) compares the two band-averaged spectra over the capture's own bands.
+//!
+//! [`eval_one`] judges a scene file or a capture directory, [`random_eval`] a set of random
+//! scenes; [`ablated`] switches improvements off to measure their worth.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
+use anyhow::{anyhow, bail, Context as _};
 use filmscope_core::colour::{
     delta_e2000, delta_e76, spectral_rmse, Colorimetry, Illuminant, D65_WHITE_XYZ,
 };
-use filmscope_core::optics::{BackFace, Dispersion, FilmStack, Polarization};
+use filmscope_core::optics::{BackFace, Dispersion, FieldOfView, FilmStack, Polarization};
+use filmscope_core::solve::sweep::SolverOptions;
 use firmware_sim::random::Draw;
+use firmware_sim::{Scene, SoftwareCamera};
 use serde::Serialize;
 
 use crate::appearance::spectral::{capture_passbands, BandSpectrum, FilmColour};
-use crate::estimate::{Run, RunConfig};
-use crate::io::read_cube;
+use crate::estimate::{FieldConfig, Run, RunConfig};
+use crate::io::{read_cube, Capture};
 use crate::material::DispersionRecord;
+use crate::source::{CaptureSource, SimSource, Source};
 
 /// Thickness errors above this are failures (nm).
 pub const SILENT_FAILURE_NM: f64 = 20.0;
@@ -823,7 +830,7 @@ fn simulate_and_estimate(
     config: &RunConfig,
     dir: &Path,
 ) -> Result<EvalReport, String> {
-    use crate::io::{ByteOrder, Capture, Interleave};
+    use crate::io::{ByteOrder, Interleave};
     let scene = &drawn.scene;
     let opts = crate::simulate::SimulateOptions {
         noise_free: false,
@@ -887,4 +894,143 @@ pub fn random_eval(
         }),
         rows,
     }
+}
+
+/// An improvement `eval --ablate` switches off.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Ablation {
+    /// The full-spectrum refinement.
+    Refine,
+    /// The half-order reflection phase.
+    HalfOrder,
+    /// Orders from resolved neighbours.
+    Neighbours,
+    /// Sub-band extremum location.
+    Subband,
+    /// AVX2 kernels (speed only).
+    WideSimd,
+    /// The wide field model's per-column thickness map.
+    ColumnMap,
+    /// The wide field model's shared index across strips.
+    SharedIndex,
+}
+
+/// Solver options and the wide field model's settings with the named improvements switched
+/// off.
+pub fn ablated(list: &[Ablation]) -> (SolverOptions, FieldConfig) {
+    use Ablation as A;
+    let mut o = SolverOptions::default();
+    let mut f = FieldConfig::default();
+    for a in list {
+        match a {
+            A::Refine => o.refine = false,
+            A::HalfOrder => o.half_order = false,
+            A::Neighbours => o.neighbours = false,
+            A::Subband => o.subband = false,
+            A::WideSimd => o.wide_simd = false,
+            A::ColumnMap => f.column_map = false,
+            A::SharedIndex => f.shared_rounds = false,
+        }
+    }
+    (o, f)
+}
+
+/// What `eval` is given: a scene file (loaded) or a capture directory with truth.
+pub enum Input {
+    /// A scene, simulated on the software camera.
+    Scene(Box<Scene>),
+    /// A capture directory.
+    Capture(PathBuf),
+}
+
+/// Whether `path` names a scene file (`Some(true)`), a capture (`Some(false)`) or neither.
+pub fn input_kind(path: &Path) -> Option<bool> {
+    if path.is_dir() || path.file_name().is_some_and(|n| n == "capture.toml") {
+        Some(false)
+    } else if path.extension().is_some_and(|e| e == "toml") {
+        Some(true)
+    } else {
+        None
+    }
+}
+
+/// A scene file (its seed replaced by `seed` when given) or a capture directory.
+pub fn input(path: &Path, seed: Option<u64>) -> anyhow::Result<Input> {
+    if path.is_dir() {
+        Ok(Input::Capture(path.to_owned()))
+    } else if path.extension().is_some_and(|e| e == "toml")
+        && path.file_name().is_some_and(|n| n != "capture.toml")
+    {
+        Ok(Input::Scene(Box::new(Scene::load_seeded(path, seed)?)))
+    } else if path.file_name().is_some_and(|n| n == "capture.toml") {
+        Ok(Input::Capture(
+            path.parent().unwrap_or(Path::new(".")).to_owned(),
+        ))
+    } else {
+        bail!(
+            "{}: neither a scene file (.toml) nor a capture directory",
+            path.display()
+        )
+    }
+}
+
+/// How [`eval_one`] runs the method on a source: the caller's choice of progress display
+/// around [`crate::estimate::run_method_in_field`] (source, configuration, the lens's field
+/// of view, the run's label).
+pub type Runner<'a> =
+    &'a dyn Fn(&mut dyn Source, &RunConfig, Option<FieldOfView>, &str) -> anyhow::Result<Run>;
+
+/// Evaluates one input of `eval`: a scene file (seed replaced by `seed` when given) on the
+/// software camera, or a capture directory read from disk (its memory checked first),
+/// each run by `run` and judged against its truth.
+pub fn eval_one(
+    path: &Path,
+    config: &RunConfig,
+    seed: Option<u64>,
+    run: Runner<'_>,
+) -> anyhow::Result<(EvalReport, Run)> {
+    match input(path, seed)? {
+        Input::Scene(scene) => {
+            let truth = Truth::of_scene(&scene);
+            let name = scene.name.clone();
+            let fov = scene.field_of_view;
+            let mut source = SimSource::new(SoftwareCamera::new(*scene), false, 1)
+                .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+            let run = run(&mut source, config, fov, &name)?;
+            Ok((evaluate(&name, &truth, &run), run))
+        }
+        Input::Capture(dir) => {
+            let truth = Truth::of_capture_dir(&dir).map_err(|e| anyhow!(e))?;
+            let cap = Capture::load(&dir)?;
+            crate::estimate::check_capture_memory(&cap, config.method, None)
+                .map_err(|e| anyhow!(e))?;
+            let fov = cap.lens.field_of_view();
+            let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
+            let name = dir.display().to_string();
+            let run = run(&mut source, config, fov, &name)?;
+            Ok((evaluate(&name, &truth, &run), run))
+        }
+    }
+}
+
+/// Writes each of random set `seed`'s first `count` scenes of draw `kind` into `dir` as
+/// `random-SEED-I.toml`, so a row can be run again with `eval FILE`.
+pub fn save_random_scenes(dir: &Path, count: usize, seed: u64, kind: Draw) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    for i in 0..count {
+        let drawn = firmware_sim::random::draw_kind(kind, seed, i);
+        let path = dir.join(format!("{}.toml", drawn.scene.name));
+        crate::io::write_atomic(&path, drawn.toml.as_bytes())
+            .with_context(|| format!("{}: cannot write", path.display()))?;
+    }
+    Ok(())
+}
+
+/// A temporary folder for random set `seed`'s captures ([`random_eval`]'s `work_dir`),
+/// removed when dropped.
+pub fn random_work_dir(seed: u64) -> anyhow::Result<tempfile::TempDir> {
+    tempfile::Builder::new()
+        .prefix(&format!("filmscope-random-{seed}-"))
+        .tempdir()
+        .context("cannot create a temporary folder")
 }

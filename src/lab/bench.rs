@@ -27,9 +27,14 @@
 //!   memory (`VmHWM`).
 //! - `end to end`: `filmscope estimate` run as a child process on a raw ENVI capture written
 //!   to disk ([`end_to_end`]), the streaming method and the paper's, wall seconds.
+//! - `inspect`: the production line's latency from a sample's last row to its verdict
+//!   published ([`inspect_latency`]), on firmware-sim.
+//!
+//! [`soak`] is the reliability check beside them: the resident memory over many sweeps.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -42,44 +47,15 @@ use filmscope_core::track::ExtremaHead;
 use firmware_sim::{Scene, SoftwareCamera};
 use serde::Serialize;
 
-use crate::cli::chart::{measure, Point, Setting};
 use crate::estimate::method::Method;
 use crate::estimate::RunConfig;
+use crate::lab::chart::{measure, Point, Setting};
+use crate::lab::scene::scene_with;
+use crate::line::inspect::{InspectError, InspectOptions, Line};
+use crate::line::recipe::Recipe;
 use crate::pipeline::{run_sweep, BandModels, PipelineConfig, Prior, PriorUpdate, ShardState};
+use crate::rig::RigConfig;
 use crate::source::{Frames, ReplaySource, SimSource};
-
-/// `scene_path` with its sensor resized (the thickness map is regenerated at the new size)
-/// and, if given, its bands replaced by `[first, last, step]` nm.
-pub fn scene_with(
-    scene_path: &Path,
-    width: usize,
-    height: usize,
-    bands: Option<[f64; 3]>,
-) -> Result<Scene> {
-    let text = std::fs::read_to_string(scene_path)
-        .with_context(|| format!("{}: cannot read", scene_path.display()))?;
-    let mut doc: toml::Table = text
-        .parse()
-        .with_context(|| format!("{}: not TOML", scene_path.display()))?;
-    let sensor = doc
-        .entry("sensor")
-        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-    if let Some(t) = sensor.as_table_mut() {
-        t.insert("width".into(), toml::Value::Integer(width as i64));
-        t.insert("height".into(), toml::Value::Integer(height as i64));
-    }
-    if let (Some(b), Some(rig)) = (bands, doc.get_mut("rig").and_then(|r| r.as_table_mut())) {
-        rig.insert(
-            "bands_nm".into(),
-            toml::Value::Array(b.iter().map(|&x| toml::Value::Float(x)).collect()),
-        );
-    }
-    let name = scene_path
-        .file_stem()
-        .map_or_else(|| "scene".into(), |s| s.to_string_lossy().into_owned());
-    Scene::from_toml(&doc.to_string(), &name)
-        .map_err(|e| anyhow!("{}: {}", scene_path.display(), e.problem))
-}
 
 /// Runs `f` repeatedly until at least `min` has passed; returns (calls, elapsed).
 fn repeat_for(min: Duration, mut f: impl FnMut()) -> (u64, Duration) {
@@ -209,6 +185,12 @@ pub struct SoakPoint {
     pub peak_rss_mb: f64,
 }
 
+/// The scene `filmscope soak` runs: `scene_path` resized to 32 x 24 pixels, its bands
+/// 420-720 nm every 3 nm (101 bands).
+pub fn soak_scene(scene_path: &Path) -> Result<Scene> {
+    scene_with(scene_path, 32, 24, Some([420.0, 720.0, 3.0]))
+}
+
 /// Runs `sweeps` consecutive sweeps of `scene` on the software camera through
 /// [`run_sweep`], each starting from the last one's index as on a production line, and
 /// reports the resident memory after every `every`th sweep (and the first): a long run
@@ -279,7 +261,7 @@ pub fn rss_child(scene_path: &Path, width: usize, height: usize, angles: usize) 
 /// one to the next).
 pub fn measure_index_given(scene: &Scene) -> Result<Point> {
     let frames = Arc::new(Frames::render(scene, scene.sensor.height).map_err(|e| anyhow!(e))?);
-    let truth = crate::cli::eval::Truth::of_scene(scene);
+    let truth = crate::lab::eval::Truth::of_scene(scene);
     let mpix = (scene.sensor.width * scene.sensor.height) as f64 / 1e6;
     let once = || -> Result<Point> {
         let mut source = ReplaySource::new(frames.clone(), scene.sensor.height, 8);
@@ -293,7 +275,7 @@ pub fn measure_index_given(scene: &Scene) -> Result<Point> {
         )
         .map_err(|e| anyhow!("{e}"))?;
         let secs = t0.elapsed().as_secs_f64();
-        let r = crate::cli::eval::evaluate(&scene.name, &truth, &run);
+        let r = crate::lab::eval::evaluate(&scene.name, &truth, &run);
         Ok(Point::of(
             Method::Filmscope,
             "filmscope (n given)",
@@ -399,6 +381,45 @@ fn end_to_end_in(scene: &Scene, dir: &Path) -> Result<EndToEnd> {
         paper_index_error: paper.map(|p| p.1),
         paper_error,
     })
+}
+
+/// Per-sample latencies, ms (last row to verdict published), of `samples` samples of the
+/// demo recipe (`config/recipes/demo.toml`, built in, without MQTT or status page) on
+/// firmware-sim behind the rig file `rig`, through the line's own [`Line`], in a temporary
+/// folder removed afterwards: the figure `filmscope bench` reports.
+pub fn inspect_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectError> {
+    let path = Path::new("config/recipes/demo.toml");
+    let mut recipe = Recipe::parse(include_str!("../../config/recipes/demo.toml"), path)
+        .map_err(|e| InspectError(e.to_string()))?;
+    recipe.mqtt = None;
+    recipe.status = None;
+    recipe.modbus = None;
+    let rig = RigConfig::load(rig).map_err(|e| InspectError(e.to_string()))?;
+    let tmp = tempfile::Builder::new()
+        .prefix("filmscope-bench-inspect-")
+        .tempdir()
+        .map_err(|e| InspectError(format!("cannot create a temporary folder: {e}")))?;
+    let out = tmp.path().join("out");
+    let result = (|| {
+        let mut line = Line::open(InspectOptions {
+            rig,
+            recipe,
+            recipe_path: path.to_owned(),
+            out: out.clone(),
+            sim: true,
+            status_port: None,
+            mqtt_port: None,
+            modbus: None,
+            stop: Arc::new(AtomicBool::new(false)),
+        })?;
+        let mut l = Vec::new();
+        for _ in 0..samples {
+            l.push(line.measure()?.published_ms);
+        }
+        Ok(l)
+    })();
+    drop(tmp);
+    result
 }
 
 fn rss_in_child(
@@ -512,8 +533,8 @@ pub struct BenchReport {
     pub speedup_vs_numpy_lut_index_fitted: Option<f64>,
     /// The same for the per-pixel SciPy `least_squares` fit.
     pub speedup_vs_scipy: Option<f64>,
-    /// The Python peers' figures ([`crate::cli::peers`]).
-    pub peers: crate::cli::peers::Peers,
+    /// The Python peers' figures ([`crate::lab::peers`]).
+    pub peers: crate::lab::peers::Peers,
     /// `filmscope inspect` on firmware-sim (config/rig.toml, demo recipe): last row to
     /// verdict published, ms, per sample.
     pub inspect_latency_ms: Option<Vec<f64>>,
@@ -642,16 +663,16 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     };
 
     progress("peers: NumPy look-up table and SciPy least_squares (Python)");
-    let peers = crate::cli::peers::run(&m_scene, if quick { 100 } else { 1000 });
+    let peers = crate::lab::peers::run(&m_scene, if quick { 100 } else { 1000 });
     // The peers are given the index: so is filmscope for their ratios.
     progress("filmscope with the index given, on the peers' sweep");
     let given = measure_index_given(&m_scene)?;
     let given_s = given.seconds_per_mpix;
     let filmscope_s = time("filmscope");
-    let speedup_vs_numpy_lut = crate::cli::peers::speedup(peers.numpy_lut.as_ref(), given_s);
-    let speedup_vs_scipy = crate::cli::peers::speedup(peers.scipy.as_ref(), given_s);
+    let speedup_vs_numpy_lut = crate::lab::peers::speedup(peers.numpy_lut.as_ref(), given_s);
+    let speedup_vs_scipy = crate::lab::peers::speedup(peers.scipy.as_ref(), given_s);
     let speedup_vs_numpy_lut_index_fitted =
-        crate::cli::peers::speedup(peers.numpy_lut.as_ref(), filmscope_s);
+        crate::lab::peers::speedup(peers.numpy_lut.as_ref(), filmscope_s);
 
     progress("peak memory (child process)");
     let (rw, rh, ra) = if quick {
@@ -691,13 +712,11 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     );
     methods.push(given);
     progress("inspect: last row to verdict published (firmware-sim, demo recipe)");
-    let (inspect_latency_ms, inspect_latency_error) = match crate::line::inspect::bench_latency(
-        Path::new("config/rig.toml"),
-        if quick { 3 } else { 10 },
-    ) {
-        Ok(l) => (Some(l), None),
-        Err(e) => (None, Some(e.to_string())),
-    };
+    let (inspect_latency_ms, inspect_latency_error) =
+        match inspect_latency(Path::new("config/rig.toml"), if quick { 3 } else { 10 }) {
+            Ok(l) => (Some(l), None),
+            Err(e) => (None, Some(e.to_string())),
+        };
     Ok(BenchReport {
         quick,
         scene: kernel_scene.name.clone(),
@@ -945,11 +964,31 @@ pub fn format_table(r: &BenchReport) -> String {
             format!("{w}x{h}")
         ));
     }
-    s.push_str(&crate::cli::peers::table_rows(&r.peers));
+    s.push_str(&crate::lab::peers::table_rows(&r.peers));
     for n in &r.notes {
         s.push_str(&format!("note: {n}\n"));
     }
     s
+}
+
+/// Writes a bench run's table and JSON as `dir/YYYY-MM-DD.md` and `.json` (today's UTC
+/// date; the Markdown titled by the command, `quick` or not); returns both paths.
+pub fn write_dated(dir: &Path, quick: bool, table: &str, json: &str) -> Result<(PathBuf, PathBuf)> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    let date = utc_date(std::time::SystemTime::now());
+    let md = dir.join(format!("{date}.md"));
+    let what = if quick {
+        "filmscope bench --quick"
+    } else {
+        "filmscope bench"
+    };
+    let body = format!("# {what}, {date}\n\n```text\n{table}```\n");
+    crate::io::write_atomic(&md, body.as_bytes())
+        .with_context(|| format!("{}: cannot write", md.display()))?;
+    let js = dir.join(format!("{date}.json"));
+    crate::io::write_atomic(&js, format!("{json}\n").as_bytes())
+        .with_context(|| format!("{}: cannot write", js.display()))?;
+    Ok((md, js))
 }
 
 /// `YYYY-MM-DD` of `t` in UTC (the proleptic Gregorian calendar; days from the civil-from-days
