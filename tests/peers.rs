@@ -4,10 +4,8 @@
 //! SciPy, unless `FILMSCOPE_REQUIRE_PEERS` is set (`.ci/run` sets it once it has installed
 //! them).
 
-use std::path::Path;
-
 use filmscope::lab::peers::{run_script, unavailable};
-use filmscope::lab::scene::scene_with;
+use filmscope::lab::scene::{scene_with, SceneFile};
 use filmscope::simulate::{write_capture, SimulateOptions};
 
 #[test]
@@ -24,7 +22,7 @@ fn python_peers_measure_a_tiny_capture() {
         env!("CARGO_MANIFEST_DIR"),
         "/config/scenes/paper-sample1.toml"
     );
-    let scene = scene_with(Path::new(path), 32, 24, None).expect("scene");
+    let scene = scene_with(&SceneFile::Path(path.into()), 32, 24, None).expect("scene");
     let dir = tempfile::tempdir().expect("temp dir");
     write_capture(&scene, dir.path(), SimulateOptions::default(), &|_| {}).expect("capture");
     let lut = run_script("numpy_lut.py", dir.path(), &[]).expect("numpy_lut.py");

@@ -20,28 +20,13 @@ use crate::estimate::FieldConfig;
 use crate::estimate::{run_method_in_field, write_outputs, Run, RunConfig};
 use crate::io::{write_atomic, ByteOrder, Capture, Interleave};
 use crate::lab::eval::{evaluate, Ablation, Truth};
+use crate::lab::scene::{SceneFile, PAPER_SCENES};
 use crate::pipeline::PipelineConfig;
 use crate::simulate::{write_capture, SimulateOptions};
 use crate::source::{CaptureSource, SimSource, Source};
 use filmscope_core::colour::Illuminant;
 use filmscope_core::optics::{FieldOfView, Polarization};
 use filmscope_core::solve::sweep::SolverOptions;
-
-/// The paper's samples, built in so `demo` runs from anywhere.
-const PAPER_SCENES: [(&str, &str); 3] = [
-    (
-        "paper-sample1",
-        include_str!("../../config/scenes/paper-sample1.toml"),
-    ),
-    (
-        "paper-sample2",
-        include_str!("../../config/scenes/paper-sample2.toml"),
-    ),
-    (
-        "paper-sample3",
-        include_str!("../../config/scenes/paper-sample3.toml"),
-    ),
-];
 
 /// The paper's Table 1: estimated index, thickness error (nm), mean dE*ab, RMSE.
 const PAPER_TABLE: [(f64, f64, f64, f64); 3] = [
@@ -590,7 +575,7 @@ pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
 }
 
 /// `filmscope bench`.
-pub fn bench(scene: &Path, quick: bool, json: bool, out: Option<&Path>) -> Result<()> {
+pub fn bench(scene: &SceneFile, quick: bool, json: bool, out: Option<&Path>) -> Result<()> {
     let report = crate::lab::bench::run_bench(scene, quick, &|what| {
         if !json {
             eprintln!("bench: {what}");
@@ -642,7 +627,7 @@ pub fn soak(scene: &Path, sweeps: usize) -> Result<()> {
 }
 
 /// `filmscope chart`.
-pub fn chart(scene: &Path, out: &Path, quick: bool) -> Result<()> {
+pub fn chart(scene: &SceneFile, out: &Path, quick: bool) -> Result<()> {
     let png = crate::lab::chart::speed_accuracy(scene, out, quick, &mut |points| {
         for p in points {
             println!(

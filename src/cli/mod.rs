@@ -16,6 +16,7 @@ use crate::estimate::method::Method;
 use crate::estimate::FieldChoice;
 use crate::io::{ByteOrder, Interleave};
 use crate::lab::eval::Ablation;
+use crate::lab::scene::SceneFile;
 
 /// How the streaming method gets the shared index.
 #[derive(Clone, Copy, Debug, Args)]
@@ -281,9 +282,10 @@ enum Command {
         /// One JSON object on stdout instead of the table.
         #[arg(long)]
         json: bool,
-        /// The scene whose spectra are measured.
-        #[arg(long, default_value = "config/scenes/paper-sample1.toml")]
-        scene: PathBuf,
+        /// The scene whose spectra are measured (default: config/scenes/paper-sample1.toml,
+        /// built into the binary).
+        #[arg(long)]
+        scene: Option<PathBuf>,
         /// Also write the table and the JSON as OUT/YYYY-MM-DD.md and .json (today's UTC
         /// date), e.g. `--out docs/bench`.
         #[arg(long)]
@@ -294,9 +296,9 @@ enum Command {
     ///
     /// The committed figure is regenerated with `filmscope chart --out docs`.
     Chart {
-        /// The scene.
-        #[arg(long, default_value = "config/scenes/paper-sample1.toml")]
-        scene: PathBuf,
+        /// The scene (default: config/scenes/paper-sample1.toml, built into the binary).
+        #[arg(long)]
+        scene: Option<PathBuf>,
         /// Output folder (speed-accuracy.png and .json); `docs` replaces the committed
         /// figure.
         #[arg(long, default_value = "out")]
@@ -422,7 +424,9 @@ enum Command {
     /// (internal) One sweep in a fresh process, for `bench`'s peak-memory figure.
     #[command(hide = true)]
     BenchRssChild {
-        scene: PathBuf,
+        /// The scene file (default: the built-in paper-sample1).
+        #[arg(long)]
+        scene: Option<PathBuf>,
         width: usize,
         height: usize,
         angles: usize,
@@ -539,9 +543,11 @@ pub fn main() -> std::process::ExitCode {
             json,
             scene,
             out,
-        } => commands::bench(&scene, quick, json, out.as_deref()),
+        } => commands::bench(&SceneFile::from_arg(scene), quick, json, out.as_deref()),
         Command::Soak { sweeps, scene } => commands::soak(&scene, sweeps),
-        Command::Chart { scene, out, quick } => commands::chart(&scene, &out, quick),
+        Command::Chart { scene, out, quick } => {
+            commands::chart(&SceneFile::from_arg(scene), &out, quick)
+        }
         Command::Stability {
             out,
             quick,
@@ -599,7 +605,7 @@ pub fn main() -> std::process::ExitCode {
             width,
             height,
             angles,
-        } => crate::lab::bench::rss_child(&scene, width, height, angles),
+        } => crate::lab::bench::rss_child(&SceneFile::from_arg(scene), width, height, angles),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

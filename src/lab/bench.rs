@@ -50,7 +50,7 @@ use serde::Serialize;
 use crate::estimate::method::Method;
 use crate::estimate::RunConfig;
 use crate::lab::chart::{measure, Point, Setting};
-use crate::lab::scene::scene_with;
+use crate::lab::scene::{scene_with, SceneFile};
 use crate::line::inspect::{InspectError, InspectOptions, Line};
 use crate::line::recipe::Recipe;
 use crate::pipeline::{run_sweep, BandModels, PipelineConfig, Prior, PriorUpdate, ShardState};
@@ -188,7 +188,12 @@ pub struct SoakPoint {
 /// The scene `filmscope soak` runs: `scene_path` resized to 32 x 24 pixels, its bands
 /// 420-720 nm every 3 nm (101 bands).
 pub fn soak_scene(scene_path: &Path) -> Result<Scene> {
-    scene_with(scene_path, 32, 24, Some([420.0, 720.0, 3.0]))
+    scene_with(
+        &SceneFile::Path(scene_path.to_owned()),
+        32,
+        24,
+        Some([420.0, 720.0, 3.0]),
+    )
 }
 
 /// Runs `sweeps` consecutive sweeps of `scene` on the software camera through
@@ -227,10 +232,10 @@ pub fn soak(
     Ok(points)
 }
 
-/// The child's side of the RSS measurement: one sweep of `scene_path` resized, printed as
+/// The child's side of the RSS measurement: one sweep of `scene_file` resized, printed as
 /// JSON on stdout.
-pub fn rss_child(scene_path: &Path, width: usize, height: usize, angles: usize) -> Result<()> {
-    let mut scene = scene_with(scene_path, width, 1, Some([400.0, 720.0, 2.0]))?;
+pub fn rss_child(scene_file: &SceneFile, width: usize, height: usize, angles: usize) -> Result<()> {
+    let mut scene = scene_with(scene_file, width, 1, Some([400.0, 720.0, 2.0]))?;
     scene.angles_deg.truncate(angles.max(1));
     let frames = Arc::new(Frames::render(&scene, 1).map_err(|e| anyhow!(e))?);
     let before = status_mb("VmRSS:").unwrap_or(f64::NAN);
@@ -311,13 +316,13 @@ pub struct EndToEnd {
     pub paper_error: Option<String>,
 }
 
-/// Writes `scene_path` resized to `width x height` as a raw capture (BIL u16 counts with
+/// Writes `scene_file` resized to `width x height` as a raw capture (BIL u16 counts with
 /// white and dark references, as `filmscope simulate` writes it) into a temporary folder,
 /// runs `filmscope estimate` on it in a child process (this executable: the command line's
 /// own code path, reading included) for the streaming method and the paper's, timing each
 /// wall to wall, and removes the folder.
-pub fn end_to_end(scene_path: &Path, width: usize, height: usize) -> Result<EndToEnd> {
-    let scene = scene_with(scene_path, width, height, None)?;
+pub fn end_to_end(scene_file: &SceneFile, width: usize, height: usize) -> Result<EndToEnd> {
+    let scene = scene_with(scene_file, width, height, None)?;
     let dir = std::env::temp_dir().join(format!("filmscope-bench-capture-{}", std::process::id()));
     let result = end_to_end_in(&scene, &dir);
     let _ = std::fs::remove_dir_all(&dir);
@@ -423,14 +428,18 @@ pub fn inspect_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectErro
 }
 
 fn rss_in_child(
-    scene_path: &Path,
+    scene_file: &SceneFile,
     width: usize,
     height: usize,
     angles: usize,
 ) -> Result<RssFigures> {
     let exe = std::env::current_exe().context("cannot find the filmscope executable")?;
-    let out = Command::new(exe)
-        .args(["bench-rss-child", &scene_path.to_string_lossy()])
+    let mut child = Command::new(exe);
+    child.arg("bench-rss-child");
+    if let SceneFile::Path(p) = scene_file {
+        child.arg("--scene").arg(p);
+    }
+    let out = child
         .args([width.to_string(), height.to_string(), angles.to_string()])
         .output()
         .context("cannot start the memory-measuring child")?;
@@ -553,12 +562,16 @@ fn median_of_three<T>(
     Ok(runs.swap_remove(1))
 }
 
-/// Runs every measurement. `scene_path` gives the spectra (the paper's MgF2 sample by default).
-pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Result<BenchReport> {
+/// Runs every measurement. `scene_file` gives the spectra (the paper's MgF2 sample by default).
+pub fn run_bench(
+    scene_file: &SceneFile,
+    quick: bool,
+    progress: &dyn Fn(&str),
+) -> Result<BenchReport> {
     let min = Duration::from_millis(if quick { 300 } else { 1500 });
     // Kernels: 256 x 32 pixels, every band and angle.
     progress("rendering spectra");
-    let kernel_scene = scene_with(scene_path, 256, 32, None)?;
+    let kernel_scene = scene_with(scene_file, 256, 32, None)?;
     let kernel = Frames::render(&kernel_scene, 32).map_err(|e| anyhow!(e))?;
     progress("tracker");
     let tracker = tracker_rate(&kernel, min, true);
@@ -575,7 +588,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     // Pipeline: a wide sensor, rows replayed.
     let (pw, ph) = if quick { (512, 256) } else { (1024, 1024) };
     progress("pipeline");
-    let pipe_scene = scene_with(scene_path, pw, 16, None)?;
+    let pipe_scene = scene_with(scene_file, pw, 16, None)?;
     let frames = Arc::new(Frames::render(&pipe_scene, 16).map_err(|e| anyhow!(e))?);
     // One sweep's rate moved by 20 % from run to run on this 2-core machine.
     let pipeline = median_of_three(
@@ -613,7 +626,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     let latency_parts = [lp.drain, lp.tally, lp.results, lp.sums, lp.update, lp.ties].map(per_mpix);
 
     progress("pipeline from the software camera");
-    let cam_scene = scene_with(scene_path, 128, if quick { 32 } else { 96 }, None)?;
+    let cam_scene = scene_with(scene_file, 128, if quick { 32 } else { 96 }, None)?;
     let mut sim =
         SimSource::new(SoftwareCamera::new(cam_scene), false, 8).map_err(|e| anyhow!("{e}"))?;
     let cam = run_sweep(&mut sim, PipelineConfig::default(), None, &|_| {})
@@ -622,7 +635,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     progress("software camera alone");
     let (sim_w, sim_h) = if quick { (512, 32) } else { (1024, 64) };
     let simulate =
-        crate::simulate::camera_samples_per_s(&scene_with(scene_path, sim_w, sim_h, None)?, sim_h);
+        crate::simulate::camera_samples_per_s(&scene_with(scene_file, sim_w, sim_h, None)?, sim_h);
 
     progress("methods");
     // Large enough that per-megapixel times are the methods' own, not their fixed costs (the
@@ -631,7 +644,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     let (mw, mh) = if quick { (64, 48) } else { (256, 192) };
     let (bw, bh) = if quick { (48, 32) } else { (128, 96) };
     let methods_scene = |w: usize, h: usize| -> Result<Scene> {
-        let mut m_scene = scene_with(scene_path, w, h, None)?;
+        let mut m_scene = scene_with(scene_file, w, h, None)?;
         // A constant index half a brute-force grid step off the grid (paper-sample1's 1.37
         // sits on it, which would give brute force the exact index for free).
         if m_scene.stack.film.is_constant() {
@@ -680,7 +693,7 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
     } else {
         (2048, 2048, 5)
     };
-    let (rss, rss_error) = match rss_in_child(scene_path, rw, rh, ra) {
+    let (rss, rss_error) = match rss_in_child(scene_file, rw, rh, ra) {
         Ok(r) => (Some(r), None),
         Err(e) => (None, Some(e.to_string())),
     };
@@ -688,14 +701,14 @@ pub fn run_bench(scene_path: &Path, quick: bool, progress: &dyn Fn(&str)) -> Res
         (None, None)
     } else {
         progress("peak memory of a 12 MP sweep (child process)");
-        match rss_in_child(scene_path, 4096, 3000, 5) {
+        match rss_in_child(scene_file, 4096, 3000, 5) {
             Ok(r) => (Some(r), None),
             Err(e) => (None, Some(e.to_string())),
         }
     };
     let (ew, eh) = if quick { (256, 256) } else { (1024, 1024) };
     progress("end to end: filmscope estimate on a raw capture on disk (child processes)");
-    let (end_to_end, end_to_end_error) = match end_to_end(scene_path, ew, eh) {
+    let (end_to_end, end_to_end_error) = match end_to_end(scene_file, ew, eh) {
         Ok(e) => (Some(e), None),
         Err(e) => (None, Some(e.to_string())),
     };

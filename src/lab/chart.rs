@@ -27,7 +27,7 @@ use crate::export::plot::{
     write_heatmap_panels_png, write_scatter_panels_png, HeatMap, Scatter, Series,
 };
 use crate::lab::eval::{evaluate, EvalReport, Truth};
-use crate::lab::scene::scene_with;
+use crate::lab::scene::{scene_with, SceneFile};
 use crate::source::{Frames, ReplaySource};
 
 /// One method with one setting of its knobs.
@@ -976,7 +976,7 @@ pub fn write_stability_maps(dir: &Path, run: &MapRun) -> Result<Vec<std::path::P
 /// given the points once measured, then the chart and the points are written as
 /// `out/speed-accuracy.png` and `.json`. Returns the PNG's path.
 pub fn speed_accuracy(
-    scene: &Path,
+    scene: &SceneFile,
     out: &Path,
     quick: bool,
     on_points: &mut dyn FnMut(&[Point]),

@@ -1,23 +1,86 @@
-//! The scenes lab measurements run on.
+//! The scenes lab measurements run on: a scene file, or the paper's first sample built into
+//! the binary so `bench` and `chart` run from any folder; resized as a measurement needs.
 
-use std::path::Path;
+use std::borrow::Cow;
+use std::path::PathBuf;
 
 use anyhow::{anyhow, Context, Result};
 use firmware_sim::Scene;
 
-/// `scene_path` with its sensor resized (the thickness map is regenerated at the new size)
-/// and, if given, its bands replaced by `[first, last, step]` nm.
+/// The paper's samples (name, scene file text), built in so `demo`, `bench` and `chart` run
+/// from anywhere.
+pub const PAPER_SCENES: [(&str, &str); 3] = [
+    (
+        "paper-sample1",
+        include_str!("../../config/scenes/paper-sample1.toml"),
+    ),
+    (
+        "paper-sample2",
+        include_str!("../../config/scenes/paper-sample2.toml"),
+    ),
+    (
+        "paper-sample3",
+        include_str!("../../config/scenes/paper-sample3.toml"),
+    ),
+];
+
+/// A scene as `bench` and `chart` take it: a file (`--scene PATH`), or the paper's first
+/// sample as built in.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum SceneFile {
+    /// `config/scenes/paper-sample1.toml` as built in ([`PAPER_SCENES`]).
+    Builtin,
+    /// A scene file, read when the scene is made.
+    Path(PathBuf),
+}
+
+impl SceneFile {
+    /// `--scene`'s value: the file given, else the built-in scene.
+    pub fn from_arg(path: Option<PathBuf>) -> Self {
+        path.map_or(Self::Builtin, Self::Path)
+    }
+
+    /// The scene's name, as a file's stem gives it (`paper-sample1` for the built-in one).
+    pub fn name(&self) -> String {
+        match self {
+            Self::Builtin => PAPER_SCENES[0].0.to_owned(),
+            Self::Path(p) => p
+                .file_stem()
+                .map_or_else(|| "scene".into(), |s| s.to_string_lossy().into_owned()),
+        }
+    }
+
+    /// How messages name it: the file's path, or `built-in config/scenes/paper-sample1.toml`.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Builtin => format!("built-in config/scenes/{}.toml", PAPER_SCENES[0].0),
+            Self::Path(p) => p.display().to_string(),
+        }
+    }
+
+    /// Its TOML text.
+    pub fn text(&self) -> std::io::Result<Cow<'static, str>> {
+        match self {
+            Self::Builtin => Ok(Cow::Borrowed(PAPER_SCENES[0].1)),
+            Self::Path(p) => std::fs::read_to_string(p).map(Cow::Owned),
+        }
+    }
+}
+
+/// `scene` with its sensor resized (the thickness map is regenerated at the new size) and,
+/// if given, its bands replaced by `[first, last, step]` nm.
 pub fn scene_with(
-    scene_path: &Path,
+    scene: &SceneFile,
     width: usize,
     height: usize,
     bands: Option<[f64; 3]>,
 ) -> Result<Scene> {
-    let text = std::fs::read_to_string(scene_path)
-        .with_context(|| format!("{}: cannot read", scene_path.display()))?;
+    let text = scene
+        .text()
+        .with_context(|| format!("{}: cannot read", scene.describe()))?;
     let mut doc: toml::Table = text
         .parse()
-        .with_context(|| format!("{}: not TOML", scene_path.display()))?;
+        .with_context(|| format!("{}: not TOML", scene.describe()))?;
     let sensor = doc
         .entry("sensor")
         .or_insert_with(|| toml::Value::Table(toml::Table::new()));
@@ -31,9 +94,31 @@ pub fn scene_with(
             toml::Value::Array(b.iter().map(|&x| toml::Value::Float(x)).collect()),
         );
     }
-    let name = scene_path
-        .file_stem()
-        .map_or_else(|| "scene".into(), |s| s.to_string_lossy().into_owned());
-    Scene::from_toml(&doc.to_string(), &name)
-        .map_err(|e| anyhow!("{}: {}", scene_path.display(), e.problem))
+    Scene::from_toml(&doc.to_string(), &scene.name())
+        .map_err(|e| anyhow!("{}: {}", scene.describe(), e.problem))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{scene_with, SceneFile, PAPER_SCENES};
+
+    /// The built-in scene is the repository's file, made the same way.
+    #[test]
+    fn the_builtin_scene_is_the_file() {
+        let file = SceneFile::Path(
+            concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/config/scenes/paper-sample1.toml"
+            )
+            .into(),
+        );
+        assert_eq!(file.name(), SceneFile::Builtin.name());
+        assert_eq!(SceneFile::from_arg(None), SceneFile::Builtin);
+        for bands in [None, Some([420.0, 720.0, 3.0])] {
+            let a = scene_with(&SceneFile::Builtin, 40, 30, bands).expect("built-in");
+            let b = scene_with(&file, 40, 30, bands).expect("file");
+            assert_eq!(format!("{a:?}"), format!("{b:?}"));
+            assert_eq!((a.name.as_str(), a.sensor.width), (PAPER_SCENES[0].0, 40));
+        }
+    }
 }
