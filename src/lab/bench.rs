@@ -390,16 +390,17 @@ fn end_to_end_in(scene: &Scene, dir: &Path) -> Result<EndToEnd> {
 
 /// Per-sample latencies, ms (last row to verdict published), of `samples` samples of the
 /// demo recipe (`config/recipes/demo.toml`, built in, without MQTT or status page) on
-/// firmware-sim behind the rig file `rig`, through the line's own [`Line`], in a temporary
-/// folder removed afterwards: the figure `filmscope bench` reports.
-pub fn inspect_latency(rig: &Path, samples: u64) -> Result<Vec<f64>, InspectError> {
+/// firmware-sim behind the rig file `rig` (default: `config/rig.toml` where it exists, else
+/// the same rig built in, as `inspect` takes it), through the line's own [`Line`], in a
+/// temporary folder removed afterwards: the figure `filmscope bench` reports.
+pub fn inspect_latency(rig: Option<&Path>, samples: u64) -> Result<Vec<f64>, InspectError> {
     let path = Path::new("config/recipes/demo.toml");
     let mut recipe = Recipe::parse(include_str!("../../config/recipes/demo.toml"), path)
         .map_err(|e| InspectError(e.to_string()))?;
     recipe.mqtt = None;
     recipe.status = None;
     recipe.modbus = None;
-    let rig = RigConfig::load(rig).map_err(|e| InspectError(e.to_string()))?;
+    let rig = RigConfig::load_or_builtin(rig).map_err(|e| InspectError(e.to_string()))?;
     let tmp = tempfile::Builder::new()
         .prefix("filmscope-bench-inspect-")
         .tempdir()
@@ -726,7 +727,7 @@ pub fn run_bench(
     methods.push(given);
     progress("inspect: last row to verdict published (firmware-sim, demo recipe)");
     let (inspect_latency_ms, inspect_latency_error) =
-        match inspect_latency(Path::new("config/rig.toml"), if quick { 3 } else { 10 }) {
+        match inspect_latency(None, if quick { 3 } else { 10 }) {
             Ok(l) => (Some(l), None),
             Err(e) => (None, Some(e.to_string())),
         };
