@@ -2371,9 +2371,9 @@ impl Problem<'_> {
         // The sigma reported: every nuisance term free within what a rig keeps, and the
         // misfit beyond the noise as the model's share, whether or not the gate needed a
         // model error to pass the fit. A given index (held: sigma 0) keeps none.
+        fit.thickness_share = f64::NAN;
         if c.n550_sigma > 0.0 {
             let shared = fit.residual.shared_factor(fit.sites_used);
-            fit.thickness_share = f64::NAN;
             if self.geo.rig_tolerance > 0.0 {
                 if let Some(m) = self.marginal_n550_sigma(c.kind, &c.params, tt, true) {
                     c.n550_sigma = m.n550_sigma * scale;
