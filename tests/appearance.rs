@@ -10,6 +10,7 @@ use filmscope::appearance::render::{display_rgb, FLAG_COLOUR};
 use filmscope::appearance::spectral::FilmColour;
 use filmscope::colour::{srgb_to_u8, xyz_to_srgb_balanced, Colorimetry, Illuminant};
 use filmscope::optics::{Dispersion, FilmStack, Polarization};
+use filmscope::solve::refine::FilmTerms;
 
 fn num(s: &str) -> f64 {
     s.parse().expect("number")
@@ -78,7 +79,7 @@ fn spectra_under_d65_a_d50_match_colour_science() {
         // The film spectra were computed by the generator's own Airy sum: the render's
         // model (FilmColour) must give the same XYZ.
         if let Some((stack, d, deg)) = film_of(name) {
-            let model = FilmColour::new(stack, deg, c).xyz(d);
+            let model = FilmColour::new(stack, deg, c, FilmTerms::NONE).xyz(d);
             for (got, want) in [model.x, model.y, model.z].into_iter().zip(&v[0..3]) {
                 assert!(
                     (got - want).abs() <= 1e-9 * want.abs() + 1e-12,
@@ -153,6 +154,31 @@ fn noisy_capture_within_a_unit_and_a_wrong_index_is_seen() {
         bad_mean > 1.5 && bad_mean > 3.0 * mean && bad_p95 > 2.0 * p95,
         "wrong index: mean {bad_mean}, p95 {bad_p95}"
     );
+}
+
+/// The absorption the sample fit reports is the film's: a clear film's maps told that it
+/// absorbs (k 0.03 at 450 nm) reproduce its measured colours far worse (measured: mean
+/// CIEDE2000 0.0007 -> 2.24), and the render's
+/// caption names the absorption.
+#[test]
+fn the_reported_absorption_enters_the_reproduced_colour() {
+    let dir = tempdir();
+    let (_, est) = estimated_tiny(dir.path(), true);
+    let (mean, _) = overall(&compare_json(&est));
+    let path = est.join("summary.json");
+    let mut summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
+    summary["index_model_choice"]["nuisance_terms"]["film_k_450nm"] =
+        serde_json::json!({"value": 0.03, "sigma": 0.001});
+    std::fs::write(&path, summary.to_string()).expect("write");
+    let (absorbing, _) = overall(&compare_json(&est));
+    assert!(
+        absorbing > 0.5 && absorbing > 10.0 * mean,
+        "clear {mean}, told it absorbs {absorbing}"
+    );
+    let out = run_ok(&["render", s(&est), "--out", s(&dir.path().join("r.png"))]);
+    let out = String::from_utf8_lossy(&out.stdout);
+    assert!(out.contains("k(450 nm) = 0.0300"), "{out}");
 }
 
 /// `compare --envi`: per angle, measured and reproduced CIELAB and the CIEDE2000 as ENVI

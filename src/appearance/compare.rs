@@ -220,7 +220,7 @@ pub fn compare_stream(
                         let name =
                             |what: &str| dir.join(format!("{what}-{incidence_deg:02.0}.hdr"));
                         writers = Some((
-                            BandSpectrum::new(stack, incidence_deg, &bands),
+                            BandSpectrum::new(stack, incidence_deg, &bands, film.terms),
                             EnviWriter::create(name("model"), &cube_header("model", incidence_deg))
                                 .map_err(envi)?,
                             EnviWriter::create(
@@ -341,7 +341,7 @@ fn finish_angle(
     trace: Option<usize>,
 ) -> (AngleComparison, (Vec<f64>, Option<Vec<f64>>)) {
     let white = colorimetry.white();
-    let model = BandSpectrum::new(stack, acc.incidence_deg, bands);
+    let model = BandSpectrum::new(stack, acc.incidence_deg, bands, film.terms);
     let n = film.width * film.height;
     let (mut measured, mut reproduced) = (vec![Xyz::NAN; n], vec![Xyz::NAN; n]);
     let mut de = vec![f32::NAN; n];

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use filmscope_core::optics::{BackFace, Dispersion, FilmStack, Polarization};
 use filmscope_core::solve::flags;
+use filmscope_core::solve::refine::FilmTerms;
 
 use super::AppearanceError;
 use crate::io::{read_cube, Capture};
@@ -26,6 +27,10 @@ pub struct SampleFilm {
     /// Ambient, film (the estimated index and dispersion) and substrate, and the
     /// polarisation the capture measured.
     pub stack: FilmStack,
+    /// The film's absorption beyond its dispersion's own `k`, as the sample fit found it
+    /// (`film_k_450nm` of the summary's nuisance terms; no polariser leak: that is the
+    /// rig's, not the film's).
+    pub terms: FilmTerms,
     /// The capture the maps were estimated from, when it can still be found.
     pub capture: Option<PathBuf>,
     /// `summary.json` as written.
@@ -123,6 +128,13 @@ impl SampleFilm {
                 )
             }
         };
+        let found = crate::estimate::index_fit::correction_from_json(
+            &summary.index_model_choice["nuisance_terms"],
+        );
+        let terms = FilmTerms {
+            film_k: found.film.film_k,
+            leak: 0.0,
+        };
         Ok(Self {
             maps_dir: maps_dir.to_path_buf(),
             width,
@@ -136,6 +148,7 @@ impl SampleFilm {
                 substrate,
                 polarization,
             },
+            terms,
             capture: capture_path,
             summary,
         })
@@ -171,7 +184,8 @@ impl SampleFilm {
         Some(v[v.len() / 2])
     }
 
-    /// One line describing the model, for captions: index, dispersion, substrate.
+    /// One line describing the model, for captions: index, dispersion, absorption,
+    /// substrate.
     pub fn describe(&self) -> String {
         let disp = match self.stack.film {
             Dispersion::Cauchy { b_um2, .. } if b_um2 != 0.0 => {
@@ -184,8 +198,14 @@ impl SampleFilm {
             Polarization::P => "P-polarised",
             Polarization::Unpolarized => "unpolarised",
         };
+        let k = self.stack.film.extinction_at(450.0) + self.terms.film_k;
+        let k = if k > 0.0 {
+            format!(", k(450 nm) = {k:.4}")
+        } else {
+            String::new()
+        };
         format!(
-            "n = {:.4}{disp} on n = {:.3}, {light}",
+            "n = {:.4}{disp}{k} on n = {:.3}, {light}",
             self.index_550(),
             self.substrate_550(),
         )

@@ -14,9 +14,9 @@
 
 use std::fmt::Write as _;
 
-use filmscope_core::optics::{BandModel, FilmStack, LossyFilm, Passband};
-use filmscope_core::solve::refine::{absorption_shape, FilmTerms};
+use filmscope_core::optics::{FilmStack, Passband};
 
+use super::spectral::BandReflectance;
 use super::AppearanceError;
 use crate::export::plot::{render_scatter_panels_png, Scatter, Series};
 use crate::pipeline::{for_each_calibrated_rows, Calibrated, Correction};
@@ -296,53 +296,6 @@ pub fn measured_spectra(
     Ok(angles.into_iter().unzip())
 }
 
-/// A band's model at one angle: the clear film's, or with the sample's film terms.
-enum PixelBand {
-    Clear(Box<BandModel>),
-    /// Each passband node's weight and absorbing, leaking film.
-    Terms(Vec<(f64, Option<LossyFilm>)>),
-}
-
-impl PixelBand {
-    fn new(stack: &FilmStack, incidence_deg: f64, band: Passband, film: FilmTerms) -> Self {
-        if !film.any() {
-            return Self::Clear(Box::new(BandModel::new(*stack, incidence_deg, band)));
-        }
-        Self::Terms(
-            band.nodes()
-                .map(|(l, w)| {
-                    let k = film.film_k * absorption_shape(l);
-                    let f = LossyFilm::with_leak(
-                        stack.indices_at(l),
-                        k,
-                        incidence_deg,
-                        stack.polarization,
-                        l,
-                        film.leak,
-                    );
-                    (w, f)
-                })
-                .collect(),
-        )
-    }
-
-    /// The band's reflectance at thickness `d` (NaN where a wave does not propagate).
-    fn reflectance(&self, d: f64) -> f64 {
-        match self {
-            Self::Clear(m) => m.reflectance(d),
-            Self::Terms(nodes) => nodes
-                .iter()
-                .map(|(w, f)| {
-                    f.map_or(f64::NAN, |f| {
-                        let (delta, a) = f.round_trip(d);
-                        w * f.reflectance(delta.cos(), delta.sin(), a).0
-                    })
-                })
-                .sum(),
-        }
-    }
-}
-
 /// The fit of `stack` at thickness `thickness_nm` (NaN: none; the scan then centres on
 /// `fallback_nm`) to one pixel's `measured` spectra (`[angle][band]`, angles as
 /// `angles_deg` in streaming order, bands as `bands`), the sample's nuisance terms
@@ -373,7 +326,7 @@ pub fn fit_pixel(
         .collect();
     rows.sort_by(|a, b| a.0.total_cmp(&b.0));
     let (angles_deg, measured): (Vec<f64>, Vec<Vec<f64>>) = rows.into_iter().unzip();
-    let models: Vec<Vec<PixelBand>> = angles_deg
+    let models: Vec<Vec<BandReflectance>> = angles_deg
         .iter()
         .map(|&a| {
             bands
@@ -381,7 +334,7 @@ pub fn fit_pixel(
                 .map(|b| {
                     let band =
                         Passband::gaussian(b.center_nm + correction.band_shift_nm, b.fwhm_nm);
-                    PixelBand::new(
+                    BandReflectance::new(
                         stack,
                         a + correction.angle_offset_deg,
                         band,
@@ -524,6 +477,7 @@ pub fn pixel_fit(
 mod tests {
     use super::*;
     use filmscope_core::optics::{BackFace, Dispersion, Polarization};
+    use filmscope_core::solve::refine::FilmTerms;
 
     /// Noise-free spectra of a known film: the estimate is the best candidate, its
     /// residual is nil, and the neighbouring orders fit worse.
@@ -648,34 +602,5 @@ mod tests {
             &Correction::default(),
         );
         assert!(plain.rms_at(0) > 1e-3, "{}", plain.table());
-    }
-
-    /// The absorbing, leaking film's model (the lossy film's own coefficients) meets the
-    /// clear film's Airy sum as its extinction and leak go to nothing.
-    #[test]
-    fn the_film_terms_model_meets_the_clear_film_at_no_absorption() {
-        let stack = FilmStack {
-            back_face: BackFace::None,
-            ambient_index: 1.0,
-            film: Dispersion::constant(1.62),
-            substrate: Dispersion::constant(1.45),
-            polarization: Polarization::S,
-        };
-        let band = Passband::gaussian(530.0, 6.0);
-        let clear = PixelBand::new(&stack, 35.0, band, FilmTerms::NONE);
-        let faint = PixelBand::new(
-            &stack,
-            35.0,
-            band,
-            FilmTerms {
-                film_k: 1e-12,
-                leak: 0.0,
-            },
-        );
-        assert!(matches!(faint, PixelBand::Terms(_)));
-        for d in [50.0, 333.0, 1200.0] {
-            let (c, f) = (clear.reflectance(d), faint.reflectance(d));
-            assert!((c - f).abs() < 1e-9, "{d} nm: clear {c}, lossy {f}");
-        }
     }
 }

@@ -65,7 +65,7 @@ pub fn film_xyz(
     colorimetry: Colorimetry,
     pixels: &[usize],
 ) -> Vec<Xyz> {
-    let colour = FilmColour::new(film.stack, incidence_deg, colorimetry);
+    let colour = FilmColour::new(film.stack, incidence_deg, colorimetry, film.terms);
     pixels
         .iter()
         .map(|&i| film.thickness_at(i).map_or(Xyz::NAN, |d| colour.xyz(d)))
@@ -198,7 +198,7 @@ pub fn render_png(
         .map(|k| {
             let deg = k as f64 * BAND_STEP_DEG;
             let xyz = median.map_or(Xyz::NAN, |d| {
-                FilmColour::new(film.stack, deg, colorimetry).xyz(d)
+                FilmColour::new(film.stack, deg, colorimetry, film.terms).xyz(d)
             });
             display_rgb(xyz, white, exposure)
         })

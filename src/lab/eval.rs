@@ -16,6 +16,7 @@ use filmscope_core::colour::{
     delta_e2000, delta_e76, spectral_rmse, Colorimetry, Illuminant, D65_WHITE_XYZ,
 };
 use filmscope_core::optics::{BackFace, Dispersion, FieldOfView, FilmStack, Polarization};
+use filmscope_core::solve::refine::FilmTerms;
 use filmscope_core::solve::sweep::SolverOptions;
 use firmware_sim::random::Draw;
 use firmware_sim::{Scene, SoftwareCamera};
@@ -237,7 +238,9 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
     let valid_px: Vec<usize> = (0..n_px)
         .filter(|&i| r.thickness_nm[i].is_finite())
         .collect();
-    // Colour and spectra on at most ~4000 valid pixels (evenly strided) per angle.
+    // Colour and spectra on at most ~4000 valid pixels (evenly strided) per angle: the
+    // error that index and thickness make (a scene's absorption left out on both sides; a
+    // tabulated film's own k kept on both).
     let stride = (valid_px.len() / 4000).max(1);
     let sample: Vec<usize> = valid_px.iter().copied().step_by(stride).collect();
     let bands = capture_passbands(&run.spec.bands_nm, &run.spec.fwhm_nm);
@@ -247,12 +250,12 @@ pub fn evaluate(scene: &str, truth: &Truth, run: &Run) -> EvalReport {
     let (mut r_true, mut r_est) = (vec![0.0; bands.len()], vec![0.0; bands.len()]);
     for &deg in &run.angles_deg {
         let (true_bands, est_bands) = (
-            BandSpectrum::new(true_stack, deg, &bands),
-            BandSpectrum::new(est_stack, deg, &bands),
+            BandSpectrum::new(true_stack, deg, &bands, FilmTerms::NONE),
+            BandSpectrum::new(est_stack, deg, &bands, FilmTerms::NONE),
         );
         let (true_colour, est_colour) = (
-            FilmColour::new(true_stack, deg, visible),
-            FilmColour::new(est_stack, deg, visible),
+            FilmColour::new(true_stack, deg, visible, FilmTerms::NONE),
+            FilmColour::new(est_stack, deg, visible, FilmTerms::NONE),
         );
         let (mut s76, mut s00) = (0.0, 0.0);
         for &i in &sample {
