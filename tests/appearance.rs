@@ -158,8 +158,7 @@ fn noisy_capture_within_a_unit_and_a_wrong_index_is_seen() {
 
 /// The absorption the sample fit reports is the film's: a clear film's maps told that it
 /// absorbs (k 0.03 at 450 nm) reproduce its measured colours far worse (measured: mean
-/// CIEDE2000 0.0007 -> 2.24), and the render's
-/// caption names the absorption.
+/// CIEDE2000 0.0007 -> 2.24), and the render's caption names the absorption.
 #[test]
 fn the_reported_absorption_enters_the_reproduced_colour() {
     let dir = tempdir();
