@@ -336,3 +336,51 @@ fn estimate_into_a_results_folder_keeps_the_users_files() {
         "left over: {left:?}"
     );
 }
+
+/// Shell completions and manual pages come from the command line's own definition: every
+/// public command is in them (the hidden ones have no page); and the lab commands that need a
+/// scene (`soak`) run from any folder on the scene built in.
+#[test]
+fn completions_man_pages_and_built_in_scenes_work_from_any_folder() {
+    let dir = tempdir();
+    let run = filmscope()
+        .args(["completions", "bash"])
+        .current_dir(dir.path())
+        .output()
+        .expect("run");
+    assert!(run.status.success());
+    let bash = String::from_utf8_lossy(&run.stdout);
+    for cmd in ["estimate", "inspect", "export-gltf", "completions"] {
+        assert!(bash.contains(cmd), "{cmd} not in the bash completions");
+    }
+    let man = dir.path().join("man");
+    let run = filmscope()
+        .args(["man", "--out", s(&man)])
+        .output()
+        .expect("run");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let page = std::fs::read_to_string(man.join("filmscope-estimate.1")).expect("page");
+    assert!(
+        page.starts_with(".ie") || page.contains(".TH filmscope-estimate"),
+        "{page}"
+    );
+    assert!(
+        page.contains("film\\-index"),
+        "--film-index not in the page"
+    );
+    assert!(man.join("filmscope.1").exists() && !man.join("filmscope-soak.1").exists());
+    let run = filmscope()
+        .args(["soak", "--sweeps", "1"])
+        .current_dir(dir.path())
+        .output()
+        .expect("run");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+}

@@ -153,7 +153,6 @@ fn check_capture_memory(cap: &Capture, method: Method, budget: Option<u64>) -> R
     crate::estimate::check_capture_memory(cap, method, budget).map_err(|e| anyhow!(e))
 }
 
-/// `filmscope estimate`.
 /// The `--max-memory` budget, if given.
 fn memory_budget(max_memory: Option<&str>) -> Result<Option<u64>> {
     max_memory
@@ -595,9 +594,21 @@ pub fn bench(scene: &SceneFile, quick: bool, json: bool, out: Option<&Path>) -> 
     Ok(())
 }
 
+/// `filmscope man`: the manual pages, `filmscope.1` and `filmscope-COMMAND.1` for each
+/// command, generated from the command line's own definition into `out`.
+pub fn man(out: &Path) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let cmd = <super::Cli as clap::CommandFactory>::command();
+    clap_mangen::generate_to(cmd, out)
+        .with_context(|| format!("{}: cannot write", out.display()))?;
+    println!("man: pages in {}", out.display());
+    Ok(())
+}
+
 /// `filmscope soak`: prints one line per tenth sweep and a last line of figures.
-pub fn soak(scene: &Path, sweeps: usize) -> Result<()> {
-    let scene = crate::lab::bench::soak_scene(scene)?;
+pub fn soak(scene: Option<PathBuf>, sweeps: usize) -> Result<()> {
+    let scene = scene.map_or(SceneFile::RIG_TINY, SceneFile::Path);
+    let scene = crate::lab::bench::soak_scene(&scene)?;
     let t0 = std::time::Instant::now();
     let points = crate::lab::bench::soak(
         &scene,

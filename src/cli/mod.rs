@@ -410,6 +410,18 @@ enum Command {
         #[arg(long, value_name = "X,Y")]
         pixel: Option<String>,
     },
+    /// Shell completions on stdout, e.g. `filmscope completions bash >
+    /// /etc/bash_completion.d/filmscope`
+    Completions {
+        /// The shell.
+        shell: clap_complete::Shell,
+    },
+    /// The manual pages (roff): filmscope.1 and filmscope-COMMAND.1 for each command
+    Man {
+        /// Output directory (view with `man -l DIR/filmscope.1`).
+        #[arg(long, default_value = "man")]
+        out: PathBuf,
+    },
     /// (reliability) Consecutive sweeps of a small scene through the pipeline, printing the
     /// resident memory every tenth sweep: memory must stay flat over a long run.
     #[command(hide = true)]
@@ -417,9 +429,10 @@ enum Command {
         /// Sweeps to run.
         #[arg(long, default_value_t = 200)]
         sweeps: usize,
-        /// The scene (resized to 32 x 24 pixels, 101 bands).
-        #[arg(long, default_value = "config/scenes/rig-tiny.toml")]
-        scene: PathBuf,
+        /// The scene (resized to 32 x 24 pixels, 101 bands; default: config/scenes/rig-tiny.toml
+        /// as built in).
+        #[arg(long)]
+        scene: Option<PathBuf>,
     },
     /// (internal) One sweep in a fresh process, for `bench`'s peak-memory figure.
     #[command(hide = true)]
@@ -544,7 +557,13 @@ pub fn main() -> std::process::ExitCode {
             scene,
             out,
         } => commands::bench(&SceneFile::from_arg(scene), quick, json, out.as_deref()),
-        Command::Soak { sweeps, scene } => commands::soak(&scene, sweeps),
+        Command::Soak { sweeps, scene } => commands::soak(scene, sweeps),
+        Command::Completions { shell } => {
+            let mut cmd = <Cli as clap::CommandFactory>::command();
+            clap_complete::generate(shell, &mut cmd, "filmscope", &mut std::io::stdout());
+            Ok(())
+        }
+        Command::Man { out } => commands::man(&out),
         Command::Chart { scene, out, quick } => {
             commands::chart(&SceneFile::from_arg(scene), &out, quick)
         }

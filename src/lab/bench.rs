@@ -185,15 +185,10 @@ pub struct SoakPoint {
     pub peak_rss_mb: f64,
 }
 
-/// The scene `filmscope soak` runs: `scene_path` resized to 32 x 24 pixels, its bands
-/// 420-720 nm every 3 nm (101 bands).
-pub fn soak_scene(scene_path: &Path) -> Result<Scene> {
-    scene_with(
-        &SceneFile::Path(scene_path.to_owned()),
-        32,
-        24,
-        Some([420.0, 720.0, 3.0]),
-    )
+/// The scene `filmscope soak` runs: `scene` resized to 32 x 24 pixels, its bands 420-720
+/// nm every 3 nm (101 bands).
+pub fn soak_scene(scene: &SceneFile) -> Result<Scene> {
+    scene_with(scene, 32, 24, Some([420.0, 720.0, 3.0]))
 }
 
 /// Runs `sweeps` consecutive sweeps of `scene` on the software camera through

@@ -24,36 +24,45 @@ pub const PAPER_SCENES: [(&str, &str); 3] = [
     ),
 ];
 
-/// A scene as `bench` and `chart` take it: a file (`--scene PATH`), or the paper's first
-/// sample as built in.
+/// A scene as `bench`, `chart` and `soak` take it: a file (`--scene PATH`), or one built in.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum SceneFile {
-    /// `config/scenes/paper-sample1.toml` as built in ([`PAPER_SCENES`]).
-    Builtin,
+    /// A scene of `config/scenes/` built into the binary: its name and TOML text.
+    Builtin(&'static str, &'static str),
     /// A scene file, read when the scene is made.
     Path(PathBuf),
 }
 
 impl SceneFile {
-    /// `--scene`'s value: the file given, else the built-in scene.
+    /// `config/scenes/paper-sample1.toml` as built in ([`PAPER_SCENES`]).
+    pub const PAPER_SAMPLE1: Self = Self::Builtin(PAPER_SCENES[0].0, PAPER_SCENES[0].1);
+
+    /// `config/scenes/rig-tiny.toml` as built in: the demo rig's small scene.
+    pub const RIG_TINY: Self = Self::Builtin(
+        "rig-tiny",
+        include_str!("../../config/scenes/rig-tiny.toml"),
+    );
+
+    /// `--scene`'s value for `bench` and `chart`: the file given, else the paper's first
+    /// sample as built in.
     pub fn from_arg(path: Option<PathBuf>) -> Self {
-        path.map_or(Self::Builtin, Self::Path)
+        path.map_or(Self::PAPER_SAMPLE1, Self::Path)
     }
 
     /// The scene's name, as a file's stem gives it (`paper-sample1` for the built-in one).
     pub fn name(&self) -> String {
         match self {
-            Self::Builtin => PAPER_SCENES[0].0.to_owned(),
+            Self::Builtin(name, _) => (*name).to_owned(),
             Self::Path(p) => p
                 .file_stem()
                 .map_or_else(|| "scene".into(), |s| s.to_string_lossy().into_owned()),
         }
     }
 
-    /// How messages name it: the file's path, or `built-in config/scenes/paper-sample1.toml`.
+    /// How messages name it: the file's path, or `built-in config/scenes/NAME.toml`.
     pub fn describe(&self) -> String {
         match self {
-            Self::Builtin => format!("built-in config/scenes/{}.toml", PAPER_SCENES[0].0),
+            Self::Builtin(name, _) => format!("built-in config/scenes/{name}.toml"),
             Self::Path(p) => p.display().to_string(),
         }
     }
@@ -61,7 +70,7 @@ impl SceneFile {
     /// Its TOML text.
     pub fn text(&self) -> std::io::Result<Cow<'static, str>> {
         match self {
-            Self::Builtin => Ok(Cow::Borrowed(PAPER_SCENES[0].1)),
+            Self::Builtin(_, text) => Ok(Cow::Borrowed(text)),
             Self::Path(p) => std::fs::read_to_string(p).map(Cow::Owned),
         }
     }
@@ -112,10 +121,10 @@ mod tests {
             )
             .into(),
         );
-        assert_eq!(file.name(), SceneFile::Builtin.name());
-        assert_eq!(SceneFile::from_arg(None), SceneFile::Builtin);
+        assert_eq!(file.name(), SceneFile::PAPER_SAMPLE1.name());
+        assert_eq!(SceneFile::from_arg(None), SceneFile::PAPER_SAMPLE1);
         for bands in [None, Some([420.0, 720.0, 3.0])] {
-            let a = scene_with(&SceneFile::Builtin, 40, 30, bands).expect("built-in");
+            let a = scene_with(&SceneFile::PAPER_SAMPLE1, 40, 30, bands).expect("built-in");
             let b = scene_with(&file, 40, 30, bands).expect("file");
             assert_eq!(format!("{a:?}"), format!("{b:?}"));
             assert_eq!((a.name.as_str(), a.sensor.width), (PAPER_SCENES[0].0, 40));
