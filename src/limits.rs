@@ -36,14 +36,75 @@ pub const MAX_WORKERS: usize = 256;
 /// Largest pipeline channel capacity, messages.
 pub const MAX_CHANNEL_CAPACITY: usize = 1 << 16;
 
-/// `key = value: expected what` as one line.
-fn bad(key: &str, value: impl std::fmt::Display, expected: &str) -> String {
-    format!("{key} = {value}: expected {expected}")
+/// An input outside its bounds, or a run that would not fit in memory: one line each,
+/// naming the key and its value (the caller adds the file).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum LimitError {
+    /// A value outside its bounds: `key = value: expected what`.
+    #[error("{key} = {value}: expected {expected}")]
+    OutOfRange {
+        /// The key or option, as the user wrote it (`search.index_range`, `--workers`).
+        key: String,
+        /// The value given, as written back.
+        value: String,
+        /// What is accepted.
+        expected: String,
+    },
+    /// The ambient medium denser than the substrate.
+    #[error("{ambient_key} = {ambient:?} is above {substrate_key} = {substrate:?}: the light must come from the lower-index side")]
+    AmbientAboveSubstrate {
+        /// The ambient index's key.
+        ambient_key: String,
+        /// The ambient index.
+        ambient: f64,
+        /// The substrate index's key.
+        substrate_key: String,
+        /// The substrate index.
+        substrate: f64,
+    },
+    /// Band widths whose count is not the bands'.
+    #[error("{key}: {given} values for {bands} bands")]
+    WidthCount {
+        /// The widths' key.
+        key: String,
+        /// Widths given.
+        given: usize,
+        /// Bands.
+        bands: usize,
+    },
+    /// A run needing more memory than it may take.
+    #[error("{what}: needs about {} of memory, more than {whose} of {}", gib(*needed), gib(*limit))]
+    Memory {
+        /// What the figure is for.
+        what: String,
+        /// Bytes needed.
+        needed: u64,
+        /// Bytes it may take.
+        limit: u64,
+        /// Whose limit: the `--max-memory` budget or the memory available.
+        whose: &'static str,
+    },
+}
+
+/// Callers whose own errors are still one line of text take a limit's line as it is.
+impl From<LimitError> for String {
+    fn from(e: LimitError) -> Self {
+        e.to_string()
+    }
+}
+
+/// `key = value: expected what`.
+fn bad(key: &str, value: impl std::fmt::Display, expected: &str) -> LimitError {
+    LimitError::OutOfRange {
+        key: key.to_owned(),
+        value: value.to_string(),
+        expected: expected.to_owned(),
+    }
 }
 
 /// A film refractive index range `[low, high]` inside `[MIN_INDEX, MAX_INDEX]`, low below
 /// high.
-pub fn check_index_range(key: &str, [lo, hi]: [f64; 2]) -> Result<(), String> {
+pub fn check_index_range(key: &str, [lo, hi]: [f64; 2]) -> Result<(), LimitError> {
     if !(lo.is_finite() && hi.is_finite() && MIN_INDEX <= lo && lo < hi && hi <= MAX_INDEX) {
         return Err(bad(
             key,
@@ -55,7 +116,7 @@ pub fn check_index_range(key: &str, [lo, hi]: [f64; 2]) -> Result<(), String> {
 }
 
 /// A thickness range `[low, high]` in nm, `0 < low < high <= MAX_THICKNESS_NM`.
-pub fn check_thickness_range(key: &str, [lo, hi]: [f64; 2]) -> Result<(), String> {
+pub fn check_thickness_range(key: &str, [lo, hi]: [f64; 2]) -> Result<(), LimitError> {
     if !(lo.is_finite() && hi.is_finite() && 0.0 < lo && lo < hi && hi <= MAX_THICKNESS_NM) {
         return Err(bad(
             key,
@@ -73,7 +134,7 @@ pub fn check_sample(
     ambient: f64,
     substrate_key: &str,
     substrate: f64,
-) -> Result<(), String> {
+) -> Result<(), LimitError> {
     if !(substrate.is_finite() && (MIN_INDEX..=MAX_INDEX).contains(&substrate)) {
         return Err(bad(
             substrate_key,
@@ -89,9 +150,12 @@ pub fn check_sample(
         ));
     }
     if ambient > substrate {
-        return Err(format!(
-            "{ambient_key} = {ambient:?} is above {substrate_key} = {substrate:?}: the light must come from the lower-index side"
-        ));
+        return Err(LimitError::AmbientAboveSubstrate {
+            ambient_key: ambient_key.to_owned(),
+            ambient,
+            substrate_key: substrate_key.to_owned(),
+            substrate,
+        });
     }
     Ok(())
 }
@@ -103,7 +167,7 @@ pub fn check_bands(
     bands_nm: &[f64],
     fwhm_key: &str,
     fwhm_nm: Option<&[f64]>,
-) -> Result<(), String> {
+) -> Result<(), LimitError> {
     for (i, &w) in bands_nm.iter().enumerate() {
         if !(w.is_finite() && (MIN_WAVELENGTH_NM..=MAX_WAVELENGTH_NM).contains(&w)) {
             return Err(bad(
@@ -125,11 +189,11 @@ pub fn check_bands(
     }
     if let Some(f) = fwhm_nm {
         if f.len() != bands_nm.len() {
-            return Err(format!(
-                "{fwhm_key}: {} values for {} bands",
-                f.len(),
-                bands_nm.len()
-            ));
+            return Err(LimitError::WidthCount {
+                key: fwhm_key.to_owned(),
+                given: f.len(),
+                bands: bands_nm.len(),
+            });
         }
         for (i, &w) in f.iter().enumerate() {
             if !(w.is_finite() && w > 0.0 && w <= MAX_FWHM_NM) {
@@ -145,7 +209,7 @@ pub fn check_bands(
 }
 
 /// An angle count in `[1, MAX_ANGLES]`.
-pub fn check_angle_count(key: &str, n: usize) -> Result<(), String> {
+pub fn check_angle_count(key: &str, n: usize) -> Result<(), LimitError> {
     if !(1..=MAX_ANGLES).contains(&n) {
         return Err(bad(
             key,
@@ -163,7 +227,7 @@ pub fn check_cli(
     index_pixels: usize,
     brute_index_steps: usize,
     brute_thickness_step_nm: f64,
-) -> Result<(), String> {
+) -> Result<(), LimitError> {
     if !(1..=MAX_WORKERS).contains(&workers) {
         return Err(bad("--workers", workers, &format!("1 to {MAX_WORKERS}")));
     }
@@ -231,7 +295,7 @@ fn parse_meminfo(text: &str) -> Option<u64> {
 
 /// Parses a memory budget: bytes, or a number with `K`, `M`, `G` or `T` (powers of 1024,
 /// `B`/`iB` suffixes accepted).
-pub fn parse_bytes(text: &str) -> Result<u64, String> {
+pub fn parse_bytes(text: &str) -> Result<u64, LimitError> {
     let t = text.trim();
     let t = t
         .strip_suffix("iB")
@@ -267,17 +331,18 @@ fn gib(bytes: u64) -> String {
 /// Refuses a run needing `needed` bytes when it exceeds `budget` (the `--max-memory`
 /// given) or, without one, the machine's available memory. `what` says what the figure is
 /// for (`thickness_nm.hdr: 100000 x 100000 px, 16 bands, 5 angles`).
-pub fn check_memory(what: &str, needed: u64, budget: Option<u64>) -> Result<(), String> {
+pub fn check_memory(what: &str, needed: u64, budget: Option<u64>) -> Result<(), LimitError> {
     let (limit, whose) = match budget {
         Some(b) => (Some(b), "the --max-memory budget"),
         None => (available_memory(), "the memory available (MemAvailable)"),
     };
     match limit {
-        Some(limit) if needed > limit => Err(format!(
-            "{what}: needs about {} of memory, more than {whose} of {}",
-            gib(needed),
-            gib(limit)
-        )),
+        Some(limit) if needed > limit => Err(LimitError::Memory {
+            what: what.to_owned(),
+            needed,
+            limit,
+            whose,
+        }),
         _ => Ok(()),
     }
 }

@@ -237,7 +237,8 @@ pub fn check_capture_memory(
             method != Method::Filmscope,
         ),
         budget,
-    )
+    )?;
+    Ok(())
 }
 
 /// Streams the image rows `tap` reads from `source` once into it.

@@ -292,8 +292,10 @@ pub enum CaptureErrorKind {
         /// The angle.
         incidence_deg: f64,
     },
-    /// A value outside its bounds (see [`crate::limits`]): the key, the value and what is
-    /// expected, in one line.
+    /// A value outside the bounds [`crate::limits`] states.
+    #[error(transparent)]
+    Limit(#[from] crate::limits::LimitError),
+    /// A value outside its bounds: the key, the value and what is expected, in one line.
     #[error("{message}")]
     BadValue {
         /// `key = value: expected ...`.
@@ -645,18 +647,19 @@ impl Capture {
     pub fn check_values(&self) -> Result<(), CaptureError> {
         let err = |kind| CaptureError::new(&self.path, kind);
         let bad = |message: String| err(CaptureErrorKind::BadValue { message });
+        let limit = |e: crate::limits::LimitError| err(e.into());
         crate::limits::check_sample(
             "sample.ambient_index",
             self.sample.ambient_index,
             "sample.substrate_index",
             self.sample.substrate_index,
         )
-        .map_err(bad)?;
+        .map_err(limit)?;
         if let Some(r) = self.search.index_range {
-            crate::limits::check_index_range("search.index_range", r).map_err(bad)?;
+            crate::limits::check_index_range("search.index_range", r).map_err(limit)?;
         }
         if let Some(r) = self.search.thickness_range_nm {
-            crate::limits::check_thickness_range("search.thickness_range_nm", r).map_err(bad)?;
+            crate::limits::check_thickness_range("search.thickness_range_nm", r).map_err(limit)?;
         }
         if let Some(value) = self.fit.model_error {
             if let Some(p) = model_error_problem(value) {
@@ -678,7 +681,7 @@ impl Capture {
                 found: self.angles.len(),
             }));
         }
-        crate::limits::check_angle_count("[[angle]]", self.angles.len()).map_err(bad)?;
+        crate::limits::check_angle_count("[[angle]]", self.angles.len()).map_err(limit)?;
         for (i, angle) in self.angles.iter().enumerate() {
             let index = i + 1;
             let deg = angle.incidence_deg;
@@ -770,12 +773,7 @@ impl Capture {
         if let Some((h, _)) = &first {
             if let Some(bands) = &h.wavelength_nm {
                 crate::limits::check_bands("wavelength", bands, "fwhm", h.fwhm_nm.as_deref())
-                    .map_err(|message| {
-                        CaptureError::new(
-                            &self.angles[0].cube,
-                            CaptureErrorKind::BadValue { message },
-                        )
-                    })?;
+                    .map_err(|e| CaptureError::new(&self.angles[0].cube, e.into()))?;
             }
         }
         match first {
