@@ -454,7 +454,7 @@ mod tests {
             r#"{"model":"sellmeier","a":1,"b":[1,1,1,1],"c_um":[0.1,0.1,0.1,0.1]}"#,
         )
         .expect("parses");
-        let e = r.dispersion().expect_err("four terms");
+        let e = r.dispersion().expect_err("four terms").to_string();
         assert!(e.contains("`b` as `c_um`"), "{e}");
     }
 }

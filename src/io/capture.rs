@@ -583,7 +583,10 @@ impl Capture {
                 };
                 let dispersion = crate::material::resolve(&target).map_err(|e| {
                     err(CaptureErrorKind::BadValue {
-                        message: format!("sample.substrate = {name:?}: {}", one_line(&e)),
+                        message: format!(
+                            "sample.substrate = {name:?}: {}",
+                            one_line(&e.to_string())
+                        ),
                     })
                 })?;
                 Some(SubstrateMaterial {
