@@ -108,7 +108,7 @@ pub struct Comparison {
 /// Opens a capture (`capture.toml` or its directory) as a stream of calibrated rows.
 pub fn open_capture(capture: &Path) -> Result<CaptureSource, AppearanceError> {
     let cap = Capture::load(capture).map_err(|e| AppearanceError(e.to_string()))?;
-    CaptureSource::new(cap).map_err(AppearanceError)
+    CaptureSource::new(cap).map_err(|e| AppearanceError(e.to_string()))
 }
 
 /// One pixel's band reflectance at one angle, measured and modelled: `(nm, R)` pairs.

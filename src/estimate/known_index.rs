@@ -23,7 +23,10 @@ use crate::source::Source;
 
 /// The index model that holds `film`'s real index over `bands_nm`: itself when the model
 /// can hold it, else its least-squares three-term Cauchy over the bands.
-pub fn held_index(film: &Dispersion, bands_nm: &[f64]) -> Result<IndexModel, String> {
+pub fn held_index(
+    film: &Dispersion,
+    bands_nm: &[f64],
+) -> Result<IndexModel, crate::material::MaterialError> {
     if let Some(m) = IndexModel::from_dispersion(*film) {
         return Ok(m);
     }
@@ -32,7 +35,9 @@ pub fn held_index(film: &Dispersion, bands_nm: &[f64]) -> Result<IndexModel, Str
         .map(|&l| (l * 1e-3, film.index_at(l)))
         .collect();
     let fitted = crate::material::cauchy_fit(&rows)?;
-    IndexModel::from_dispersion(fitted).ok_or_else(|| "no index model holds the fit".into())
+    IndexModel::from_dispersion(fitted).ok_or_else(|| {
+        crate::material::MaterialError::Entry("no index model holds its Cauchy fit".into())
+    })
 }
 
 /// Runs the streaming estimator on `source` with the film's index held at `film` (named
@@ -50,7 +55,7 @@ pub fn run_with_index(
 ) -> Result<Run, PipelineError> {
     let spec = config.fitted_spec(source.spec());
     let angles_deg = source.angles_deg();
-    let index = held_index(film, &spec.bands_nm).map_err(PipelineError)?;
+    let index = held_index(film, &spec.bands_nm).map_err(|e| PipelineError(e.to_string()))?;
     if crate::estimate::absorbing::absorbs(film, &spec.bands_nm) {
         return crate::estimate::absorbing::run_absorbing(source, config, film, index, name);
     }

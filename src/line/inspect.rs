@@ -1200,7 +1200,7 @@ impl Line {
         }
         let mut cap = Capture::load(&capture_dir).map_err(|e| InspectError(e.to_string()))?;
         cap.search.index_range = Some(full);
-        let mut src = CaptureSource::new(cap).map_err(InspectError)?;
+        let mut src = CaptureSource::new(cap).map_err(|e| InspectError(e.to_string()))?;
         let run2 = run_method(&mut src, &RunConfig::default(), &|_| {})
             .map_err(|e| InspectError(format!("re-solve: {e}")))?;
         Ok((run2, last, acq_log, true, sim_kind))

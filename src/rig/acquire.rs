@@ -466,7 +466,7 @@ impl Source for Acquisition {
             // Later passes replay what was recorded.
             let replay = Capture::load(self.capture_path())
                 .map_err(|x| x.to_string())
-                .and_then(CaptureSource::new);
+                .and_then(|c| CaptureSource::new(c).map_err(String::from));
             match replay {
                 Ok(mut src) => src.stream(tx),
                 Err(x) => {

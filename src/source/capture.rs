@@ -6,7 +6,8 @@ use crossbeam_channel::Sender;
 use filmscope_core::solve::SweepSpec;
 
 use super::{
-    row_runs, sweep_spec, RowBlock, RowOrder, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
+    row_runs, sweep_spec, RowBlock, RowOrder, Samples, Source, SourceError, StreamMsg,
+    DEFAULT_INDEX_RANGE,
 };
 use crate::io::{Capture, EnviReader};
 use filmscope_core::calibrate::{calibrate_row, clipped};
@@ -85,17 +86,15 @@ impl CaptureSource {
     /// streamed by increasing incidence, whatever their order in capture.toml: the streaming
     /// solver's result depends on the order angles arrive in, and a capture's maps must not
     /// depend on how its file lists them.
-    pub fn new(mut capture: Capture) -> Result<Self, String> {
-        let info = capture.check().map_err(|e| e.to_string())?;
+    pub fn new(mut capture: Capture) -> Result<Self, SourceError> {
+        let info = capture.check()?;
         capture
             .angles
             .sort_by(|a, b| a.incidence_deg.total_cmp(&b.incidence_deg));
-        let bands = info.wavelength_nm.clone().ok_or_else(|| {
-            format!(
-                "{}: the cubes have no `wavelength` list; filmscope needs each band's wavelength",
-                capture.angles[0].cube.display()
-            )
-        })?;
+        let bands = info
+            .wavelength_nm
+            .clone()
+            .ok_or_else(|| SourceError::NoWavelengths(capture.angles[0].cube.clone()))?;
         let range_i = capture.search.index_range.unwrap_or(DEFAULT_INDEX_RANGE);
         let range_d = capture.search.thickness_range_nm;
         let mut spec = sweep_spec(
@@ -109,7 +108,7 @@ impl CaptureSource {
             range_i,
             range_d,
         )
-        .map_err(|e| format!("{}: {e}", capture.path.display()))?
+        .map_err(|e| e.of(capture.path.display()))?
         .with_substrate(capture.sample.substrate_dispersion())
         .with_back_face(capture.sample.back_face);
         if let Some(m) = capture.fit.model_error {
@@ -120,7 +119,7 @@ impl CaptureSource {
         }
         // Raw counts saturate at the ADC's full scale: the header's `saturation counts` (a
         // filmscope extension of ENVI) when given, else the u16 maximum.
-        let first = EnviReader::open(&capture.angles[0].cube).map_err(|e| e.to_string())?;
+        let first = EnviReader::open(&capture.angles[0].cube)?;
         let declared = first
             .header()
             .extra

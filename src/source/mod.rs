@@ -13,8 +13,80 @@ pub use msg::{calibrate_block, RowBlock, Samples, StreamMsg};
 pub use replay::{Frames, ReplaySource};
 pub use sim::SimSource;
 
+use std::path::PathBuf;
+
 use crossbeam_channel::Sender;
 use filmscope_core::solve::SweepSpec;
+
+/// Why a source cannot stream a sweep: one line, naming the file or scene at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    /// The capture's files or values (see [`crate::io::CaptureError`]).
+    #[error(transparent)]
+    Capture(#[from] crate::io::CaptureError),
+    /// A cube that cannot be read.
+    #[error(transparent)]
+    Envi(#[from] crate::io::EnviError),
+    /// A value outside the bounds [`crate::limits`] states.
+    #[error(transparent)]
+    Limit(#[from] crate::limits::LimitError),
+    /// Too few bands to find fringes.
+    #[error("{bands} bands: at least {MIN_BANDS} are needed to find fringes")]
+    TooFewBands {
+        /// Bands given.
+        bands: usize,
+    },
+    /// More bands than the solver's fixed state holds.
+    #[error(
+        "{bands} bands: at most {} are supported",
+        filmscope_core::solve::sweep::MAX_BANDS
+    )]
+    TooManyBands {
+        /// Bands given.
+        bands: usize,
+    },
+    /// Cubes without the wavelength of each band.
+    #[error("{}: the cubes have no `wavelength` list; filmscope needs each band's wavelength", .0.display())]
+    NoWavelengths(PathBuf),
+    /// A cube whose size is not the sweep's.
+    #[error("{}: not {samples} samples x {bands} bands", path.display())]
+    CubeSize {
+        /// The cube.
+        path: PathBuf,
+        /// Samples per line expected.
+        samples: usize,
+        /// Bands expected.
+        bands: usize,
+    },
+    /// The problem of a named capture or scene.
+    #[error("{name}: {problem}")]
+    In {
+        /// The capture's path or the scene's name.
+        name: String,
+        /// What is wrong with it.
+        problem: Box<SourceError>,
+    },
+}
+
+impl SourceError {
+    /// This problem as one of the capture or scene `name`.
+    pub fn of(self, name: impl std::fmt::Display) -> Self {
+        Self::In {
+            name: name.to_string(),
+            problem: Box::new(self),
+        }
+    }
+}
+
+/// Callers whose own errors are still one line of text take a source's line as it is.
+impl From<SourceError> for String {
+    fn from(e: SourceError) -> Self {
+        e.to_string()
+    }
+}
+
+/// Fewest bands in which fringes can be found.
+pub const MIN_BANDS: usize = 16;
 
 /// A producer of one sweep's stream. `stream` runs on its own thread and must end the stream
 /// with `SweepEnd` or `Abort`; a send error means the pipeline stopped listening.
@@ -64,23 +136,18 @@ pub fn sweep_spec(
     polarization: filmscope_core::optics::Polarization,
     index_range: [f64; 2],
     thickness_range_nm: Option<[f64; 2]>,
-) -> Result<SweepSpec, String> {
+) -> Result<SweepSpec, SourceError> {
     // Every source passes here: bounded ranges keep the search finite in time and memory.
     crate::limits::check_index_range("search.index_range", index_range)?;
     crate::limits::check_bands("wavelength", bands_nm, "fwhm", fwhm_nm)?;
-    if bands_nm.len() < 16 {
-        return Err(format!(
-            "{} bands: at least 16 are needed to find fringes",
-            bands_nm.len()
-        ));
+    if bands_nm.len() < MIN_BANDS {
+        return Err(SourceError::TooFewBands {
+            bands: bands_nm.len(),
+        });
     }
     let bands: heapless::Vec<f64, { filmscope_core::solve::sweep::MAX_BANDS }> =
-        heapless::Vec::from_slice(bands_nm).map_err(|()| {
-            format!(
-                "{} bands: at most {} are supported",
-                bands_nm.len(),
-                filmscope_core::solve::sweep::MAX_BANDS
-            )
+        heapless::Vec::from_slice(bands_nm).map_err(|()| SourceError::TooManyBands {
+            bands: bands_nm.len(),
         })?;
     let mut fwhm = heapless::Vec::new();
     for i in 0..bands.len() {

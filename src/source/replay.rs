@@ -8,7 +8,9 @@ use crossbeam_channel::Sender;
 use filmscope_core::solve::SweepSpec;
 use firmware_sim::{Scene, SoftwareCamera};
 
-use super::{calibrate_block, row_runs, stream_runs, Samples, SimSource, Source, StreamMsg};
+use super::{
+    calibrate_block, row_runs, stream_runs, Samples, SimSource, Source, SourceError, StreamMsg,
+};
 
 /// Calibrated reflectance frames of the first `rows` rows of a scene, every angle and band,
 /// held in memory to be replayed.
@@ -26,9 +28,9 @@ pub struct Frames {
 impl Frames {
     /// Renders the first `rows` rows of `scene` through the software camera (raw counts with
     /// noise, white and dark references) and calibrates them.
-    pub fn render(scene: &Scene, rows: usize) -> Result<Self, String> {
+    pub fn render(scene: &Scene, rows: usize) -> Result<Self, SourceError> {
         let source = SimSource::new(SoftwareCamera::new(scene.clone()), false, 1)
-            .map_err(|e| format!("{}: {e}", scene.name))?;
+            .map_err(|e| e.of(&scene.name))?;
         let spec = source.spec().clone();
         let w = spec.width;
         let rows = rows.clamp(1, spec.height);

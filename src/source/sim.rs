@@ -5,8 +5,8 @@ use filmscope_core::solve::SweepSpec;
 use firmware_sim::SoftwareCamera;
 
 use super::{
-    row_runs, stream_band_sequential, stream_runs, sweep_spec, Samples, Source, StreamMsg,
-    DEFAULT_INDEX_RANGE,
+    row_runs, stream_band_sequential, stream_runs, sweep_spec, Samples, Source, SourceError,
+    StreamMsg, DEFAULT_INDEX_RANGE,
 };
 
 /// The software camera as a source: raw counts with references, or noise-free reflectance.
@@ -23,7 +23,7 @@ impl SimSource {
         camera: SoftwareCamera,
         noise_free: bool,
         rows_per_block: usize,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, SourceError> {
         let scene = camera.scene();
         let spec = sweep_spec(
             camera.width(),
