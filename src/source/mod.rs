@@ -48,16 +48,6 @@ pub enum SourceError {
     /// Cubes without the wavelength of each band.
     #[error("{}: the cubes have no `wavelength` list; filmscope needs each band's wavelength", .0.display())]
     NoWavelengths(PathBuf),
-    /// A cube whose size is not the sweep's.
-    #[error("{}: not {samples} samples x {bands} bands", path.display())]
-    CubeSize {
-        /// The cube.
-        path: PathBuf,
-        /// Samples per line expected.
-        samples: usize,
-        /// Bands expected.
-        bands: usize,
-    },
     /// The problem of a named capture or scene.
     #[error("{name}: {problem}")]
     In {
