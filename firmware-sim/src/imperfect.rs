@@ -63,6 +63,20 @@ pub struct Imperfections {
     pub film_material_k: bool,
 }
 
+/// An imperfection outside the range the software camera models.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("[imperfections] {key} = {value} is outside {lo}..{hi}")]
+pub struct ImperfectionError {
+    /// The scene key.
+    pub key: &'static str,
+    /// The value given.
+    pub value: f64,
+    /// The least accepted.
+    pub lo: f64,
+    /// The most accepted.
+    pub hi: f64,
+}
+
 impl Imperfections {
     /// Whether any departure is set.
     pub fn any(&self) -> bool {
@@ -70,12 +84,12 @@ impl Imperfections {
     }
 
     /// Checks the values' ranges; one line naming the key otherwise.
-    pub fn check(&self) -> Result<(), String> {
-        let within = |key: &str, v: f64, lo: f64, hi: f64| {
-            if v.is_finite() && (lo..=hi).contains(&v) {
+    pub fn check(&self) -> Result<(), ImperfectionError> {
+        let within = |key: &'static str, value: f64, lo: f64, hi: f64| {
+            if value.is_finite() && (lo..=hi).contains(&value) {
                 Ok(())
             } else {
-                Err(format!("[imperfections] {key} = {v} is outside {lo}..{hi}"))
+                Err(ImperfectionError { key, value, lo, hi })
             }
         };
         within("film_k", self.film_k, 0.0, 0.5)?;

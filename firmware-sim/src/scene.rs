@@ -508,7 +508,7 @@ impl Scene {
                     bare_back_face: bare,
                     film_material_k: false,
                 };
-                imp.check()?;
+                imp.check().map_err(|e| e.to_string())?;
                 imp
             }
         };

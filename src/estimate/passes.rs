@@ -219,8 +219,8 @@ pub fn check_capture_memory(
     cap: &crate::io::Capture,
     method: Method,
     budget: Option<u64>,
-) -> Result<(), String> {
-    let info = cap.check().map_err(|e| e.to_string())?;
+) -> Result<(), crate::source::SourceError> {
+    let info = cap.check()?;
     crate::limits::check_memory(
         &format!(
             "{}: {} x {} px, {} bands, {} angles",
