@@ -384,3 +384,95 @@ fn completions_man_pages_and_built_in_scenes_work_from_any_folder() {
         String::from_utf8_lossy(&run.stderr)
     );
 }
+
+/// `summary.json` of `dir` without what differs from one run to the next (its timings,
+/// at any depth) and the name of its source.
+fn summary_of_run(dir: &Path) -> serde_json::Value {
+    fn strip(v: &mut serde_json::Value) {
+        match v {
+            serde_json::Value::Object(o) => {
+                o.retain(|k, _| !matches!(k.as_str(), "timing" | "seconds" | "fit_seconds"));
+                o.values_mut().for_each(strip);
+            }
+            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json");
+    let mut v: serde_json::Value = serde_json::from_str(&text).expect("summary JSON");
+    v.as_object_mut().expect("an object").remove("source");
+    strip(&mut v);
+    v
+}
+
+/// One estimate path: `filmscope estimate`, the job the Python package runs
+/// (`jobs::estimate::estimate_capture`) and `eval` (on the capture, and on the software
+/// camera's stream of its scene) give byte-identical maps and equal summaries on each of
+/// the paper's scenes.
+#[test]
+fn every_application_estimates_through_one_path() {
+    use filmscope::jobs::{self, EstimateRequest, Quiet, Settings};
+    for name in ["paper-sample1", "paper-sample2", "paper-sample3"] {
+        let dir = tempdir();
+        let cap = dir.path().join("cap");
+        let scene = common::scene(name);
+        write_capture(&scene, &cap, SimulateOptions::default(), &|_| {}).expect("capture");
+        let cli = dir.path().join("cli");
+        common::run_ok(&["estimate", s(&cap), "--out", s(&cli)]);
+        let job = dir.path().join("job");
+        jobs::estimate::estimate_capture(
+            &EstimateRequest {
+                capture: cap.clone(),
+                out: job.clone(),
+                out_option: "out",
+                film_option: "film_index",
+                settings: Settings::default(),
+                memory_budget: None,
+            },
+            &Quiet,
+        )
+        .expect("the job");
+        let config = filmscope::estimate::RunConfig::default();
+        let scene_file = format!("{}/config/scenes/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+        // Written under the CLI's name for the source: the index files name it.
+        let summary: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(cli.join("summary.json")).expect("summary.json"),
+        )
+        .expect("summary JSON");
+        let label = summary["source"].as_str().expect("the source's name");
+        let mut evals = Vec::new();
+        for (what, input) in [
+            ("eval-capture", cap.clone()),
+            ("eval-stream", scene_file.into()),
+        ] {
+            let (_, run) =
+                filmscope::lab::eval::eval_one(&input, &config, None, &Quiet).expect("eval");
+            let out = dir.path().join(what);
+            jobs::estimate::write(&out, &run, label).expect("eval's maps");
+            evals.push(out);
+        }
+        let mut files: Vec<_> = std::fs::read_dir(&cli)
+            .expect("the CLI's folder")
+            .map(|e| e.expect("entry").file_name())
+            .filter(|f| f != "summary.json")
+            .collect();
+        files.sort();
+        assert!(files.len() >= 9, "{files:?}");
+        for other in [&job].into_iter().chain(&evals) {
+            for file in &files {
+                let (a, b) = (cli.join(file), other.join(file));
+                assert!(
+                    std::fs::read(&a).expect("map") == std::fs::read(&b).expect("map"),
+                    "{name}: {} differs from {}",
+                    b.display(),
+                    a.display()
+                );
+            }
+            assert!(
+                summary_of_run(&cli) == summary_of_run(other),
+                "{name}: {}'s summary differs from the CLI's",
+                other.display()
+            );
+        }
+    }
+}

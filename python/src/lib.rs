@@ -10,9 +10,10 @@ use std::path::{Path, PathBuf};
 
 use crossbeam_channel::Sender;
 use filmscope::estimate::method::Method;
-use filmscope::estimate::{run_method_in_field, write_outputs, Run, RunConfig};
 use filmscope::estimate::{FieldChoice, FieldConfig};
+use filmscope::estimate::{Run, RunConfig};
 use filmscope::io::{ByteOrder, Capture, Interleave};
+use filmscope::jobs::{self, GivenIndex, Quiet, Settings};
 use filmscope::pipeline::PipelineConfig;
 use filmscope::simulate::{write_capture, SimulateOptions};
 use filmscope::source::{
@@ -136,13 +137,14 @@ impl Drop for Scratch {
 
 /// Writes the run's outputs into `out` (or a scratch folder) and returns the summary.
 fn outputs(run: &Run, out: Option<&Path>, label: &str) -> Result<Summary, String> {
-    match out {
-        Some(dir) => write_outputs(dir, run, label).map_err(|e| e.to_string()),
+    let written = match out {
+        Some(dir) => jobs::estimate::write(dir, run, label),
         None => {
             let scratch = Scratch::new()?;
-            write_outputs(&scratch.0.join("estimate"), run, label).map_err(|e| e.to_string())
+            jobs::estimate::write(&scratch.0.join("estimate"), run, label)
         }
-    }
+    };
+    written.map_err(|e| e.to_string())
 }
 
 fn f32_bytes(v: &[f32]) -> Vec<u8> {
@@ -207,20 +209,25 @@ fn estimate_capture<'py>(
     let film = given_index(film_index, &config)?;
     let (run, summary) = py
         .detach(|| -> Result<(Run, Summary), String> {
-            let cap = Capture::load(&path).map_err(|e| e.to_string())?;
-            filmscope::estimate::check_capture_memory(&cap, config.method, None)?;
-            if let Some(out) = &out {
-                cap.check_output_outside("out", out)
-                    .map_err(|e| e.to_string())?;
-            }
-            let label = cap.path.display().to_string();
-            let fov = cap.lens.field_of_view();
-            let mut source = CaptureSource::new(cap)?;
-            let mut run = run(&mut source, &config, fov, film.as_ref())
-                .map_err(|e| format!("{label}: {e}"))?;
-            run.result.notes.extend(source.clipped_references());
-            let summary = outputs(&run, out.as_deref(), &label)?;
-            Ok((run, summary))
+            // Outputs nobody asked to keep go to a scratch folder, removed on return.
+            let (out, _scratch) = match out {
+                Some(out) => (out, None),
+                None => {
+                    let scratch = Scratch::new()?;
+                    (scratch.0.join("estimate"), Some(scratch))
+                }
+            };
+            let request = jobs::EstimateRequest {
+                capture: path,
+                out,
+                out_option: "out",
+                film_option: "film_index",
+                settings: Settings { config, film },
+                memory_budget: None,
+            };
+            let outcome =
+                jobs::estimate::estimate_capture(&request, &Quiet).map_err(|e| e.to_string())?;
+            Ok((outcome.run, outcome.summary))
         })
         .map_err(fail)?;
     result_dict(py, &run, &summary)
@@ -228,10 +235,7 @@ fn estimate_capture<'py>(
 
 /// The film's given index (`film_index`, JSON text as [`dispersion`] reads it), refused
 /// with a method other than filmscope.
-fn given_index(
-    film_index: Option<&str>,
-    config: &RunConfig,
-) -> PyResult<Option<(String, Dispersion)>> {
+fn given_index(film_index: Option<&str>, config: &RunConfig) -> PyResult<Option<GivenIndex>> {
     let Some(text) = film_index else {
         return Ok(None);
     };
@@ -240,23 +244,11 @@ fn given_index(
             "film_index: only the filmscope method takes a given index",
         ));
     }
-    let d = dispersion(text, "film_index").map_err(fail)?;
-    Ok(Some((text.trim_matches('"').to_owned(), d)))
-}
-
-/// The estimator on `source`: its index fitted, or held at `film` when given.
-fn run(
-    source: &mut dyn Source,
-    config: &RunConfig,
-    fov: Option<filmscope_core::optics::FieldOfView>,
-    film: Option<&(String, Dispersion)>,
-) -> Result<Run, filmscope::pipeline::PipelineError> {
-    match film {
-        None => run_method_in_field(source, config, fov, &|_| {}),
-        Some((name, d)) => {
-            filmscope::estimate::known_index::run_with_index(source, config, d, name, &|_| {})
-        }
-    }
+    let dispersion = dispersion(text, "film_index").map_err(fail)?;
+    Ok(Some(GivenIndex {
+        name: text.trim_matches('"').to_owned(),
+        dispersion,
+    }))
 }
 
 /// A sweep of calibrated reflectance held in memory, `(angles, lines, samples, bands)` in
@@ -432,8 +424,9 @@ fn estimate_array<'py>(
     };
     let (run, summary) = py
         .detach(|| -> Result<(Run, Summary), String> {
-            let run = run(&mut source, &config, None, film.as_ref())
-                .map_err(|e| format!("array: {e}"))?;
+            let settings = Settings { config, film };
+            let run = jobs::estimate::run(&mut source, &settings, None, "array", &Quiet)
+                .map_err(|e| e.to_string())?;
             let summary = outputs(&run, out.as_deref(), "array")?;
             Ok((run, summary))
         })

@@ -7,7 +7,7 @@ use clap::ValueEnum as _;
 use firmware_sim::random::Draw;
 use firmware_sim::{Scene, SoftwareCamera};
 
-use super::progress::rows_bar;
+use super::progress::{rows_bar, Progress};
 use crate::appearance::gltf;
 use crate::appearance::{
     compare::{compare_stream, open_capture},
@@ -17,13 +17,14 @@ use crate::appearance::{
 use crate::estimate::baseline::BruteGrid;
 use crate::estimate::method::Method;
 use crate::estimate::FieldConfig;
-use crate::estimate::{run_method_in_field, write_outputs, Run, RunConfig};
-use crate::io::{write_atomic, ByteOrder, Capture, Interleave};
+use crate::estimate::{Run, RunConfig};
+use crate::io::{write_atomic, ByteOrder, Interleave};
+use crate::jobs;
 use crate::lab::eval::{evaluate, Ablation, Truth};
 use crate::lab::scene::{SceneFile, PAPER_SCENES};
 use crate::pipeline::PipelineConfig;
 use crate::simulate::{write_capture, SimulateOptions};
-use crate::source::{CaptureSource, SimSource, Source};
+use crate::source::{SimSource, Source};
 use filmscope_core::colour::Illuminant;
 use filmscope_core::optics::{FieldOfView, Polarization};
 use filmscope_core::solve::sweep::SolverOptions;
@@ -84,10 +85,6 @@ impl super::MethodArgs {
     }
 }
 
-fn rows_of(spec: &filmscope_core::solve::SweepSpec, angles: usize) -> u64 {
-    (spec.height * spec.bands_nm.len() * angles) as u64
-}
-
 fn run_with_bar(source: &mut dyn Source, config: &RunConfig, label: &str) -> Result<Run> {
     run_in_field_with_bar(source, config, None, label)
 }
@@ -98,11 +95,17 @@ fn run_in_field_with_bar(
     field_of_view: Option<FieldOfView>,
     label: &str,
 ) -> Result<Run> {
-    let bar = rows_bar(rows_of(source.spec(), source.angles_deg().len()), label);
-    let run = run_method_in_field(source, config, field_of_view, &|n| bar.inc(n))
-        .map_err(|e| anyhow!("{label}: {e}"))?;
-    bar.finish_and_clear();
-    Ok(run)
+    let settings = jobs::Settings {
+        config: *config,
+        film: None,
+    };
+    Ok(jobs::estimate::run(
+        source,
+        &settings,
+        field_of_view,
+        label,
+        &Progress::new(),
+    )?)
 }
 
 /// `filmscope simulate`.
@@ -148,11 +151,6 @@ fn check_index_args(index: super::IndexArgs) -> Result<()> {
     Ok(())
 }
 
-/// [`crate::estimate::check_capture_memory`], as an error of this binary.
-fn check_capture_memory(cap: &Capture, method: Method, budget: Option<u64>) -> Result<()> {
-    crate::estimate::check_capture_memory(cap, method, budget).map_err(|e| anyhow!(e))
-}
-
 /// The `--max-memory` budget, if given.
 fn memory_budget(max_memory: Option<&str>) -> Result<Option<u64>> {
     max_memory
@@ -161,9 +159,7 @@ fn memory_budget(max_memory: Option<&str>) -> Result<Option<u64>> {
         .map_err(|e| anyhow!(e))
 }
 
-/// `filmscope estimate`: every value checked, the output folder checked against the inputs
-/// and locked, and the memory needed compared with the budget, before any computation; the
-/// result swapped in whole.
+/// `filmscope estimate` ([`jobs::estimate::estimate_capture`]) with a bar and its lines.
 pub fn estimate(
     capture: &Path,
     out: &Path,
@@ -181,61 +177,23 @@ pub fn estimate(
     let film = film_index
         .map(|m| {
             crate::material::from_arg(m)
-                .map(|d| (m, d))
+                .map(|dispersion| jobs::GivenIndex {
+                    name: m.to_owned(),
+                    dispersion,
+                })
                 .map_err(|e| anyhow!("--film-index {m:?}: {e}"))
         })
         .transpose()?;
-    let budget = memory_budget(max_memory)?;
-    let cap = Capture::load(capture)?;
-    for key in &cap.unknown_keys {
-        eprintln!(
-            "filmscope: warning: {}: unknown key {} (ignored)",
-            cap.path.display(),
-            crate::limits::printable(key)
-        );
-    }
-    cap.check_output_outside("--out", out)?;
-    check_capture_memory(&cap, config.method, budget)?;
-    let out_dir = crate::io::OutputDir::begin(out)?;
-    let label = cap.path.display().to_string();
-    let fov = cap.lens.field_of_view();
-    let ambient = cap.sample.ambient_index;
-    let substrate = cap.sample.substrate.clone();
-    let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
-    // Materials hold over the whole captured band, not only at 550 nm.
-    let bands = source.spec().bands_nm.clone();
-    if let Some((name, d)) = &film {
-        crate::material::check_over_band(d, &bands, ambient)
-            .map_err(|e| anyhow!("--film-index {name:?}: {e}"))?;
-        crate::estimate::known_index::held_index(d, &bands)
-            .map_err(|e| anyhow!("--film-index {name:?}: {e}"))?;
-    }
-    if let Some(s) = &substrate {
-        crate::material::check_over_band(&s.dispersion, &bands, ambient)
-            .map_err(|e| anyhow!("{label}: sample.substrate = {:?}: {e}", s.name))?;
-    }
-    let mut run = match film {
-        None => run_in_field_with_bar(&mut source, &config, fov, &label)?,
-        Some((name, d)) => {
-            if config.method != Method::Filmscope {
-                bail!("--film-index: only the filmscope method takes a given index");
-            }
-            let bar = rows_bar(rows_of(source.spec(), source.angles_deg().len()), &label);
-            let run = crate::estimate::known_index::run_with_index(
-                &mut source,
-                &config,
-                &d,
-                name,
-                &|n| bar.inc(n),
-            )
-            .map_err(|e| anyhow!("{label}: {e}"))?;
-            bar.finish_and_clear();
-            run
-        }
+    let request = jobs::EstimateRequest {
+        capture: capture.to_path_buf(),
+        out: out.to_path_buf(),
+        out_option: "--out",
+        film_option: "--film-index",
+        settings: jobs::Settings { config, film },
+        memory_budget: memory_budget(max_memory)?,
     };
-    run.result.notes.extend(source.clipped_references());
-    let summary = crate::estimate::write_outputs_into(out_dir.path(), &run, &label)?;
-    out_dir.commit()?;
+    let jobs::Outcome { run, summary } =
+        jobs::estimate::estimate_capture(&request, &Progress::new())?;
     for note in &run.result.notes {
         eprintln!("filmscope: note: {note}");
     }
@@ -244,7 +202,7 @@ pub fn estimate(
     }
     println!(
         "{}: n = {:.4}, thickness median {} nm, valid {:.1} %, {:.2} s; maps in {}",
-        config.method.name(),
+        request.settings.config.method.name(),
         run.result.index.at(550.0),
         summary
             .thickness_nm
@@ -361,7 +319,7 @@ pub fn eval(
         }
     };
     for path in inputs {
-        let (r, run) = crate::lab::eval::eval_one(path, &config, seed, &run_in_field_with_bar)
+        let (r, run) = crate::lab::eval::eval_one(path, &config, seed, &Progress::new())
             .with_context(|| path.display().to_string())?;
         if json {
             println!("{}", serde_json::to_string(&r)?);
@@ -502,7 +460,7 @@ pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
             SimSource::new(SoftwareCamera::new(scene.clone()), false, 1).map_err(|e| anyhow!(e))?;
         let run = run_with_bar(&mut source, &RunConfig::default(), name)?;
         let dir = out.join(name);
-        write_outputs(&dir, &run, &format!("software camera, scene {name}"))?;
+        jobs::estimate::write(&dir, &run, &format!("software camera, scene {name}"))?;
         let ours = evaluate(name, &truth, &run);
         let theirs = if with_paper {
             let mut source = SimSource::new(SoftwareCamera::new(scene.clone()), false, 1)
@@ -512,7 +470,7 @@ pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
                 ..RunConfig::default()
             };
             let run = run_with_bar(&mut source, &cfg, &format!("{name} (paper)"))?;
-            write_outputs(
+            jobs::estimate::write(
                 &out.join(format!("{name}-paper")),
                 &run,
                 &format!("software camera, scene {name}"),

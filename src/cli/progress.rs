@@ -19,3 +19,35 @@ pub fn rows_bar(total: u64, what: &str) -> ProgressBar {
     bar.set_message(what.to_owned());
     bar
 }
+
+/// A job's observer for the terminal: a bar of the rows streamed (when stderr is one) and
+/// its warnings on stderr.
+pub struct Progress(ProgressBar);
+
+impl Progress {
+    /// A bar not yet started.
+    pub fn new() -> Self {
+        Self(rows_bar(0, ""))
+    }
+}
+
+impl crate::jobs::Observer for Progress {
+    fn begin(&self, label: &str, rows: u64) {
+        self.0.reset();
+        self.0.set_length(rows);
+        self.0.set_message(label.to_owned());
+    }
+
+    fn rows(&self, n: u64) {
+        self.0.inc(n);
+    }
+
+    fn end(&self) {
+        self.0.finish_and_clear();
+    }
+
+    fn warning(&self, message: &str) {
+        self.0
+            .suspend(|| eprintln!("filmscope: warning: {message}"));
+    }
+}

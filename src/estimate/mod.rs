@@ -17,7 +17,7 @@ pub mod output;
 pub mod passes;
 pub mod run;
 
-pub use output::{flag_counts, write_outputs, write_outputs_into, OutputError};
+pub use output::{flag_counts, write_outputs_into, OutputError};
 pub use passes::{
     angle_reports, check_capture_memory, filmscope_passes, index_model_name, result_from_sweep,
     Passes, MAX_DISAGREEING_SITES, SEARCH_CHI2_NU, SEARCH_MARGIN_CHI2, SITE_AGREEMENT_NM,

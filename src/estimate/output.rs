@@ -53,18 +53,9 @@ pub fn flag_counts(map: &[u16]) -> BTreeMap<String, u64> {
 #[error("{0}")]
 pub struct OutputError(pub String);
 
-/// Writes the maps, the preview and `summary.json` as one unit into the folder `dir`
-/// ([`crate::io::OutputDir`]: written beside it, then swapped in whole, one writer at a
-/// time). Returns the summary.
-pub fn write_outputs(dir: &Path, run: &Run, source_label: &str) -> Result<Summary, OutputError> {
-    let out = crate::io::OutputDir::begin(dir).map_err(|e| OutputError(e.to_string()))?;
-    let summary = write_outputs_into(out.path(), run, source_label)?;
-    out.commit().map_err(|e| OutputError(e.to_string()))?;
-    Ok(summary)
-}
-
 /// Writes the maps, the preview and `summary.json` into the existing folder `dir` (a
-/// staging folder of [`crate::io::OutputDir`]). Returns the summary.
+/// staging folder of [`crate::io::OutputDir`], opened by a job: [`crate::jobs`]). Returns
+/// the summary.
 pub fn write_outputs_into(
     dir: &Path,
     run: &Run,

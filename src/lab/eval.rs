@@ -15,7 +15,7 @@ use anyhow::{anyhow, bail, Context as _};
 use filmscope_core::colour::{
     delta_e2000, delta_e76, spectral_rmse, Colorimetry, Illuminant, D65_WHITE_XYZ,
 };
-use filmscope_core::optics::{BackFace, Dispersion, FieldOfView, FilmStack, Polarization};
+use filmscope_core::optics::{BackFace, Dispersion, FilmStack, Polarization};
 use filmscope_core::solve::refine::FilmTerms;
 use filmscope_core::solve::sweep::SolverOptions;
 use firmware_sim::random::Draw;
@@ -25,8 +25,9 @@ use serde::Serialize;
 use crate::appearance::spectral::{capture_passbands, BandSpectrum, FilmColour};
 use crate::estimate::{FieldConfig, Run, RunConfig};
 use crate::io::{read_cube, Capture};
+use crate::jobs::{Observer, Quiet, Settings};
 use crate::material::DispersionRecord;
-use crate::source::{CaptureSource, SimSource, Source};
+use crate::source::{CaptureSource, SimSource};
 
 /// Thickness errors above this are failures (nm).
 pub const SILENT_FAILURE_NM: f64 = 20.0;
@@ -850,7 +851,11 @@ fn simulate_and_estimate(
     let cap = Capture::load(&toml).map_err(|e| format!("read: {e}"))?;
     let fov = cap.lens.field_of_view();
     let mut source = crate::source::CaptureSource::new(cap).map_err(|e| format!("read: {e}"))?;
-    let run = crate::estimate::run_method_in_field(&mut source, config, fov, &|_| {})
+    let settings = Settings {
+        config: *config,
+        film: None,
+    };
+    let run = crate::jobs::estimate::run(&mut source, &settings, fov, &scene.name, &Quiet)
         .map_err(|e| format!("estimate: {e}"))?;
     Ok(evaluate(&scene.name, &Truth::of_scene(scene), &run))
 }
@@ -977,21 +982,20 @@ pub fn input(path: &Path, seed: Option<u64>) -> anyhow::Result<Input> {
     }
 }
 
-/// How [`eval_one`] runs the method on a source: the caller's choice of progress display
-/// around [`crate::estimate::run_method_in_field`] (source, configuration, the lens's field
-/// of view, the run's label).
-pub type Runner<'a> =
-    &'a dyn Fn(&mut dyn Source, &RunConfig, Option<FieldOfView>, &str) -> anyhow::Result<Run>;
-
 /// Evaluates one input of `eval`: a scene file (seed replaced by `seed` when given) on the
 /// software camera, or a capture directory read from disk (its memory checked first),
-/// each run by `run` and judged against its truth.
+/// each estimated ([`crate::jobs::estimate::run`], telling `observer`) and judged against
+/// its truth.
 pub fn eval_one(
     path: &Path,
     config: &RunConfig,
     seed: Option<u64>,
-    run: Runner<'_>,
+    observer: &dyn Observer,
 ) -> anyhow::Result<(EvalReport, Run)> {
+    let settings = Settings {
+        config: *config,
+        film: None,
+    };
     match input(path, seed)? {
         Input::Scene(scene) => {
             let truth = Truth::of_scene(&scene);
@@ -999,7 +1003,7 @@ pub fn eval_one(
             let fov = scene.field_of_view;
             let mut source = SimSource::new(SoftwareCamera::new(*scene), false, 1)
                 .map_err(|e| anyhow!("{}: {e}", path.display()))?;
-            let run = run(&mut source, config, fov, &name)?;
+            let run = crate::jobs::estimate::run(&mut source, &settings, fov, &name, observer)?;
             Ok((evaluate(&name, &truth, &run), run))
         }
         Input::Capture(dir) => {
@@ -1010,7 +1014,7 @@ pub fn eval_one(
             let fov = cap.lens.field_of_view();
             let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
             let name = dir.display().to_string();
-            let run = run(&mut source, config, fov, &name)?;
+            let run = crate::jobs::estimate::run(&mut source, &settings, fov, &name, observer)?;
             Ok((evaluate(&name, &truth, &run), run))
         }
     }

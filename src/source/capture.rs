@@ -310,7 +310,7 @@ impl CaptureSource {
     /// full scale, its true level unknown, where the sample's count was not): its file, how
     /// many samples, in which bands. Those samples had no usable reference (they count among
     /// the pixels' dead samples).
-    pub fn clipped_references(&self) -> Vec<String> {
+    fn clipped_references(&self) -> Vec<String> {
         let mut lines = Vec::new();
         for (angle, clipped) in self.capture.angles.iter().zip(&self.clipped) {
             let refs = [("white", &angle.white), ("dark", &angle.dark)];
@@ -358,5 +358,9 @@ impl Source for CaptureSource {
 
     fn row_order(&self) -> RowOrder {
         self.row_order
+    }
+
+    fn notes(&self) -> Vec<String> {
+        self.clipped_references()
     }
 }

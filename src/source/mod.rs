@@ -103,6 +103,12 @@ pub trait Source: Send {
     fn row_order(&self) -> RowOrder {
         RowOrder::BandMajor
     }
+    /// What the caller should know about the data streamed so far, one line each (a
+    /// reference clipped at full scale, say): read after the sweep, added to the result's
+    /// notes.
+    fn notes(&self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// The order of a stream's blocks of rows within an angle.
