@@ -13,6 +13,7 @@ use filmscope_core::optics::Dispersion;
 use serde::{Deserialize, Serialize};
 
 pub use crate::material::DispersionRecord;
+use crate::record::acquisition::AcquisitionLog;
 
 /// The file name.
 pub const FILE: &str = "summary.json";
@@ -69,8 +70,12 @@ pub struct Summary {
     /// The files beside this one.
     pub files: Files,
     /// The rig's acquisition log (`filmscope acquire`, `inspect`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub acquisition: Option<serde_json::Value>,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        serialize_with = "crate::record::sorted"
+    )]
+    pub acquisition: Option<AcquisitionLog>,
     /// When the sample was measured, UTC ISO 8601 (`acquire`, `inspect`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timestamp: Option<String>,

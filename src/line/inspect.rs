@@ -33,6 +33,7 @@ use super::verdict::{self, Verdict};
 use crate::estimate::{run_method, write_outputs_into, Run, RunConfig};
 use crate::io::{counter_of, sample_id, utc_iso};
 use crate::io::{write_atomic, Capture};
+use crate::record::acquisition::AcquisitionLog;
 use crate::rig::acquire::{open_sim_with, sim_options, Acquisition};
 use crate::rig::config::SearchConfig;
 use crate::rig::RigConfig;
@@ -1111,7 +1112,7 @@ impl Line {
         &mut self,
         counter: Option<u64>,
         tmp: &Path,
-    ) -> Result<(Run, Instant, Value, bool, Option<&'static str>), InspectError> {
+    ) -> Result<(Run, Instant, AcquisitionLog, bool, Option<&'static str>), InspectError> {
         let mut cfg = self.opts.rig.clone();
         let ix = &self.opts.recipe.index;
         let full = cfg
@@ -1190,7 +1191,7 @@ impl Line {
             .into_inner()
             .unwrap_or_else(|p| p.into_inner())
             .unwrap_or_else(Instant::now);
-        let acq_log = serde_json::to_value(&acq.log).unwrap_or_default();
+        let acq_log = acq.log.clone();
         drop(acq);
         let n = run.result.index.at(550.0);
         let disagree =
