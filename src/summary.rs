@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 
 pub use crate::material::DispersionRecord;
 use crate::record::acquisition::AcquisitionLog;
+use crate::record::line::{RecipeRecord, VerdictRecord};
 
 /// The file name.
 pub const FILE: &str = "summary.json";
@@ -419,9 +420,11 @@ pub struct LineRecord {
     /// The sample's id.
     pub sample_id: String,
     /// The recipe file, film and settings.
-    pub recipe: serde_json::Value,
-    /// The verdict and its reasons.
-    pub verdict: serde_json::Value,
+    #[serde(serialize_with = "crate::record::sorted")]
+    pub recipe: RecipeRecord,
+    /// The verdict, its reasons and regions.
+    #[serde(serialize_with = "crate::record::sorted")]
+    pub verdict: VerdictRecord,
 }
 
 #[cfg(test)]

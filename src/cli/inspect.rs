@@ -8,9 +8,10 @@ use std::time::Duration;
 
 use anyhow::{anyhow, Context, Result};
 
-use crate::line::inspect::{InspectOptions, Line};
+use crate::line::inspect::{InspectOptions, Line, SampleOutcome};
 use crate::line::recipe::Recipe;
 use crate::line::status::{StatusBoard, StatusServer, StatusState, SNAPSHOT_FILE};
+use crate::record::line::LineSummary;
 
 /// What `inspect` is told on the command line.
 pub struct Args<'a> {
@@ -81,16 +82,16 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
     }
     if a.reference {
         let r = line.check_reference().map_err(|e| anyhow!(e))?;
-        let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+        let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
         if !a.json {
             println!(
                 "reference {}: thickness {:.2} nm (drift {:+.2}), n={:.4} (drift {:+.4}): {}",
-                r["reference"].as_str().unwrap_or(""),
-                f(&r["measured"]["thickness_nm"]),
-                f(&r["drift"]["thickness_nm"]),
-                f(&r["measured"]["index"]),
-                f(&r["drift"]["index"]),
-                if r["within"] == true {
+                r.reference,
+                f(r.measured.thickness_nm),
+                f(r.drift.thickness_nm),
+                f(r.measured.index),
+                f(r.drift.index),
+                if r.within {
                     "within tolerance"
                 } else {
                     "BEYOND tolerance (alarm)"
@@ -114,37 +115,8 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
         match line.measure() {
             Ok(o) => {
                 errors_in_a_row = 0;
-                let r = &o.record;
-                let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
                 if !a.json {
-                    println!(
-                        "{} {} n={:.4} thickness {:.1} +- {:.2} nm [{:.1}..{:.1}] valid {:.1}% latency {:.1} ms{}",
-                        r["sample_id"].as_str().unwrap_or(""),
-                        r["verdict"].as_str().unwrap_or(""),
-                        f(&r["refractive_index"]),
-                        f(&r["thickness_nm"]["mean"]),
-                        f(&r["thickness_nm"]["std"]),
-                        f(&r["thickness_nm"]["min"]),
-                        f(&r["thickness_nm"]["max"]),
-                        100.0 * f(&r["valid_fraction"]),
-                        o.published_ms,
-                        r["reasons"]
-                            .as_array()
-                            .filter(|v| !v.is_empty())
-                            .map(|v| format!(
-                                ": {}",
-                                v.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join("; ")
-                            ))
-                            .unwrap_or_default()
-                    );
-                    for al in &o.alarms {
-                        println!(
-                            "  alarm: {} rule {} ({})",
-                            al["variable"].as_str().unwrap_or(""),
-                            al["rule"],
-                            al["text"].as_str().unwrap_or("")
-                        );
-                    }
+                    print_sample(&o);
                 }
             }
             Err(e) if e.is_disk_full() => {
@@ -165,19 +137,23 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
     }
     line.stopped();
     let unsent = line.flush();
-    let mut summary = line.summary();
-    summary["mqtt_unacknowledged"] = serde_json::json!(unsent.as_ref().map(|u| u.records));
-    summary["stopped_by_signal"] = serde_json::json!(stop.load(Ordering::SeqCst));
-    line.say(&format!("stop: {summary}"));
+    let summary = LineSummary {
+        mqtt_unacknowledged: unsent.as_ref().map(|u| u.records),
+        stopped_by_signal: stop.load(Ordering::SeqCst),
+        ..line.summary()
+    };
+    let json = crate::record::to_json(&summary)?;
+    line.say(&format!("stop: {json}"));
     if a.json {
-        println!("{summary}");
+        println!("{json}");
     } else {
-        let l = &summary["latency_ms"];
+        let l = &summary.latency_ms;
+        let ms = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.1}"));
         println!(
             "{} sample(s): {} passed, {} failed, {} alarm(s); latency (last row to verdict published) median {} ms, max {} ms; results in {}",
-            summary["samples"], summary["passed"], summary["failed"], summary["alarms"],
-            l["median"].as_f64().map_or("-".into(), |v| format!("{v:.1}")),
-            l["max"].as_f64().map_or("-".into(), |v| format!("{v:.1}")),
+            summary.samples, summary.passed, summary.failed, summary.alarms,
+            ms(l.median),
+            ms(l.max),
             a.out.join("results.jsonl").display()
         );
     }
@@ -202,6 +178,38 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
         return Err(anyhow!(text));
     }
     Ok(())
+}
+
+/// A measured sample's line on standard output, and one line for each alarm it raised.
+fn print_sample(o: &SampleOutcome) {
+    let r = &o.record;
+    let t = &r.thickness_nm;
+    let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
+    println!(
+        "{} {} n={:.4} thickness {:.1} +- {:.2} nm [{:.1}..{:.1}] valid {:.1}% latency {:.1} ms{}",
+        r.sample_id,
+        r.verdict,
+        f(r.refractive_index),
+        f(t.mean),
+        f(t.std),
+        f(t.min),
+        f(t.max),
+        100.0 * r.valid_fraction,
+        o.published_ms,
+        if r.reasons.is_empty() {
+            String::new()
+        } else {
+            format!(": {}", r.reasons.join("; "))
+        }
+    );
+    for al in &o.alarms {
+        println!(
+            "  alarm: {} rule {} ({})",
+            al.variable.name(),
+            al.rule,
+            al.text
+        );
+    }
 }
 
 /// `ADDR:PORT` (an IPv6 address in brackets) as the address and the port.
