@@ -11,7 +11,7 @@ use anyhow::{anyhow, Context, Result};
 use crate::line::inspect::{InspectOptions, Line, SampleOutcome};
 use crate::line::recipe::Recipe;
 use crate::line::status::{StatusBoard, StatusServer, StatusState, SNAPSHOT_FILE};
-use crate::record::line::LineSummary;
+use crate::record::line::{LineSummary, ReferenceRecord};
 
 /// What `inspect` is told on the command line.
 pub struct Args<'a> {
@@ -51,6 +51,28 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
             .context("signal handler")?;
         signal_hook::flag::register(sig, stop.clone()).context("signal handler")?;
     }
+    let Some(mut line) = open_line(a, &stop)? else {
+        return Ok(());
+    };
+    if let Some(url) = line.status_url() {
+        eprintln!("status page: {url}");
+    }
+    if let Some(addr) = line.modbus_addr() {
+        eprintln!("modbus: listening on {addr}");
+    }
+    if a.reference {
+        let r = line.check_reference().map_err(|e| anyhow!(e))?;
+        if !a.json {
+            print_reference(&r);
+        }
+    }
+    measure_until_stopped(a, &mut line, &stop)?;
+    line.stopped();
+    close(a, &mut line, &stop)
+}
+
+/// The line of `a`'s rig, recipe and folder; none when a signal stopped its start-up.
+fn open_line(a: &Args<'_>, stop: &Arc<AtomicBool>) -> Result<Option<Line>> {
     let rig = crate::rig::RigConfig::load_or_builtin(a.rig)?;
     let recipe = Recipe::load(a.recipe)?
         .with_labels(a.lot.clone(), a.operator.clone())
@@ -66,39 +88,20 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
         modbus: a.modbus.clone(),
         stop: stop.clone(),
     });
-    let mut line = match line {
-        Ok(line) => line,
+    match line {
+        Ok(line) => Ok(Some(line)),
         Err(e) if e.is_interrupted() => {
             eprintln!("filmscope: {e}");
-            return Ok(());
+            Ok(None)
         }
-        Err(e) => return Err(anyhow!(e)),
-    };
-    if let Some(url) = line.status_url() {
-        eprintln!("status page: {url}");
+        Err(e) => Err(anyhow!(e)),
     }
-    if let Some(addr) = line.modbus_addr() {
-        eprintln!("modbus: listening on {addr}");
-    }
-    if a.reference {
-        let r = line.check_reference().map_err(|e| anyhow!(e))?;
-        let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
-        if !a.json {
-            println!(
-                "reference {}: thickness {:.2} nm (drift {:+.2}), n={:.4} (drift {:+.4}): {}",
-                r.reference,
-                f(r.measured.thickness_nm),
-                f(r.drift.thickness_nm),
-                f(r.measured.index),
-                f(r.drift.index),
-                if r.within {
-                    "within tolerance"
-                } else {
-                    "BEYOND tolerance (alarm)"
-                }
-            );
-        }
-    }
+}
+
+/// Measures samples (each on the PLC's trigger when it gives them) until `a.samples` are
+/// done or `stop` is set. A broker refusing the login, a full disk or three device errors
+/// in a row stop it with an error.
+fn measure_until_stopped(a: &Args<'_>, line: &mut Line, stop: &AtomicBool) -> Result<()> {
     let trigger = line.waits_for_trigger();
     let mut errors_in_a_row = 0;
     while a.samples.is_none_or(|n| line.measured < n) && !stop.load(Ordering::SeqCst) {
@@ -109,7 +112,7 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
                 a.recipe.display()
             ));
         }
-        if trigger && !line.wait_for_trigger(&stop) {
+        if trigger && !line.wait_for_trigger(stop) {
             break;
         }
         match line.measure() {
@@ -135,7 +138,12 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
             }
         }
     }
-    line.stopped();
+    Ok(())
+}
+
+/// Waits for the broker's acknowledgements, logs and prints the run's summary (one JSON
+/// line with `--json`), and fails naming the records the broker left unacknowledged.
+fn close(a: &Args<'_>, line: &mut Line, stop: &AtomicBool) -> Result<()> {
     let unsent = line.flush();
     let summary = LineSummary {
         mqtt_unacknowledged: unsent.as_ref().map(|u| u.records),
@@ -157,27 +165,45 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
             a.out.join("results.jsonl").display()
         );
     }
-    if let Some(u) = unsent {
-        let why = match line.mqtt_refused() {
-            Some(r) => format!(
-                "{r}; check mqtt.username and mqtt.password in {}",
-                a.recipe.display()
-            ),
-            None if u.connected => {
-                "the broker accepted the connection but did not acknowledge them".into()
-            }
-            None => "the broker was not reachable".into(),
-        };
-        let text = format!(
-            "mqtt: {} record(s) not acknowledged (from seq {}): {why}; they stay in {} and are sent after the next start",
-            u.records,
-            u.first_seq,
-            a.out.join("results.jsonl").display()
-        );
-        line.say(&format!("stop: {text}"));
-        return Err(anyhow!(text));
-    }
-    Ok(())
+    let Some(u) = unsent else {
+        return Ok(());
+    };
+    let why = match line.mqtt_refused() {
+        Some(r) => format!(
+            "{r}; check mqtt.username and mqtt.password in {}",
+            a.recipe.display()
+        ),
+        None if u.connected => {
+            "the broker accepted the connection but did not acknowledge them".into()
+        }
+        None => "the broker was not reachable".into(),
+    };
+    let text = format!(
+        "mqtt: {} record(s) not acknowledged (from seq {}): {why}; they stay in {} and are sent after the next start",
+        u.records,
+        u.first_seq,
+        a.out.join("results.jsonl").display()
+    );
+    line.say(&format!("stop: {text}"));
+    Err(anyhow!(text))
+}
+
+/// A reference check's line on standard output.
+fn print_reference(r: &ReferenceRecord) {
+    let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
+    println!(
+        "reference {}: thickness {:.2} nm (drift {:+.2}), n={:.4} (drift {:+.4}): {}",
+        r.reference,
+        f(r.measured.thickness_nm),
+        f(r.drift.thickness_nm),
+        f(r.measured.index),
+        f(r.drift.index),
+        if r.within {
+            "within tolerance"
+        } else {
+            "BEYOND tolerance (alarm)"
+        }
+    );
 }
 
 /// A measured sample's line on standard output, and one line for each alarm it raised.
