@@ -1137,7 +1137,7 @@ impl Line {
         }
         let mut cap = Capture::load(&capture_dir).map_err(|e| InspectError(e.to_string()))?;
         cap.search.index_range = Some(full);
-        let mut src = CaptureSource::new(cap).map_err(InspectError)?;
+        let mut src = CaptureSource::new(cap).map_err(|e| InspectError(e.to_string()))?;
         swept.run = run_method(&mut src, &RunConfig::default(), &|_| {})
             .map_err(|e| InspectError(format!("re-solve: {e}")))?;
         swept.resolved = true;
