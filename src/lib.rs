@@ -7,7 +7,9 @@
 //!
 //! - [`limits`], [`material`] (index models by name, JSON, refractiveindex.info YAML),
 //!   [`io`] (ENVI cubes streamed row by row in any interleave, `capture.toml`, atomic
-//!   writes, output folders, wall-clock stamps) and [`summary`] (`summary.json`, one type);
+//!   writes, output folders, wall-clock stamps), [`record`] (the types of every record
+//!   written to disk or sent to the line: `results.jsonl`, `truth.json`, `acquisition.json`)
+//!   and [`summary`] (`summary.json`, one type);
 //! - [`source`]: where band frames come from (the software camera, a capture on disk, a
 //!   replayed set of frames), the messages they stream and a whole sweep in memory;
 //! - [`simulate`]: a scene written as a capture with its truth;
@@ -52,6 +54,8 @@ pub mod line;
 pub mod material;
 #[cfg(feature = "std")]
 pub mod pipeline;
+#[cfg(feature = "std")]
+pub mod record;
 #[cfg(feature = "std")]
 pub mod report;
 #[cfg(feature = "std")]

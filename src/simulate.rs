@@ -12,14 +12,15 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+use filmscope_core::optics::BackFace;
 use firmware_sim::{Scene, SoftwareCamera};
-use serde_json::json;
 
 use crate::io::{
     write_atomic, write_f32_map, Angle, ByteOrder, Capture, DataType, EnviHeader, EnviWriter,
     Interleave, Lens, Sample, Search,
 };
 use crate::material::DispersionRecord;
+use crate::record::truth::TruthRecord;
 
 /// A capture that could not be written, with the file at fault.
 #[derive(Debug, thiserror::Error)]
@@ -541,33 +542,31 @@ pub fn write_capture(
     capture
         .write_toml(&toml_path)
         .map_err(|e| SimulateError(e.to_string()))?;
-    let truth = json!({
-        "scene": scene.name,
-        "description": scene.description,
-        "refractive_index": scene.stack.film.index_at(550.0),
-        "dispersion": DispersionRecord::dispersive(&scene.stack.film),
-        "substrate_index": scene.stack.substrate.index_at(550.0),
-        "substrate_dispersion": DispersionRecord::dispersive(&scene.stack.substrate),
-        "ambient_index": scene.stack.ambient_index,
-        "polarization": scene.stack.polarization.name(),
-        "back_face": if scene.imperfections.bare_back_face { "bare" } else { "none" },
-        "angles_deg": scene.angles_deg,
-        "noise_free": opts.noise_free,
-        "thickness_map": "truth/thickness_nm.hdr",
-        "width": w,
-        "height": h,
-    });
-    // Only a scene with a lens says so: other truths stay as they were.
-    let truth = match (truth, scene.field_of_view) {
-        (serde_json::Value::Object(mut o), Some(fov)) => {
-            o.insert("horizontal_fov_deg".into(), json!(fov.horizontal_deg()));
-            serde_json::Value::Object(o)
+    TruthRecord {
+        scene: scene.name.clone(),
+        description: scene.description.clone(),
+        refractive_index: scene.stack.film.index_at(550.0),
+        dispersion: DispersionRecord::dispersive(&scene.stack.film),
+        substrate_index: scene.stack.substrate.index_at(550.0),
+        substrate_dispersion: DispersionRecord::dispersive(&scene.stack.substrate),
+        ambient_index: scene.stack.ambient_index,
+        polarization: scene.stack.polarization.into(),
+        back_face: if scene.imperfections.bare_back_face {
+            BackFace::Bare
+        } else {
+            BackFace::None
         }
-        (t, _) => t,
-    };
-    let truth_path = out_dir.join("truth.json");
-    let text = serde_json::to_string_pretty(&truth).map_err(|e| path_err(&truth_path, &e))?;
-    write_atomic(&truth_path, text.as_bytes()).map_err(|e| path_err(&truth_path, &e))?;
+        .into(),
+        angles_deg: scene.angles_deg.clone(),
+        noise_free: opts.noise_free,
+        thickness_map: "truth/thickness_nm.hdr".into(),
+        width: w,
+        height: h,
+        // Only a scene with a lens says so.
+        horizontal_fov_deg: scene.field_of_view.map(|f| f.horizontal_deg()),
+    }
+    .write(out_dir)
+    .map_err(SimulateError)?;
     Ok(toml_path)
 }
 

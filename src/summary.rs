@@ -13,6 +13,8 @@ use filmscope_core::optics::Dispersion;
 use serde::{Deserialize, Serialize};
 
 pub use crate::material::DispersionRecord;
+use crate::record::acquisition::AcquisitionLog;
+use crate::record::line::{RecipeRecord, VerdictRecord};
 
 /// The file name.
 pub const FILE: &str = "summary.json";
@@ -69,8 +71,12 @@ pub struct Summary {
     /// The files beside this one.
     pub files: Files,
     /// The rig's acquisition log (`filmscope acquire`, `inspect`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub acquisition: Option<serde_json::Value>,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        serialize_with = "crate::record::sorted"
+    )]
+    pub acquisition: Option<AcquisitionLog>,
     /// When the sample was measured, UTC ISO 8601 (`acquire`, `inspect`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timestamp: Option<String>,
@@ -414,9 +420,11 @@ pub struct LineRecord {
     /// The sample's id.
     pub sample_id: String,
     /// The recipe file, film and settings.
-    pub recipe: serde_json::Value,
-    /// The verdict and its reasons.
-    pub verdict: serde_json::Value,
+    #[serde(serialize_with = "crate::record::sorted")]
+    pub recipe: RecipeRecord,
+    /// The verdict, its reasons and regions.
+    #[serde(serialize_with = "crate::record::sorted")]
+    pub verdict: VerdictRecord,
 }
 
 #[cfg(test)]

@@ -16,7 +16,10 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::{filmscope, s, tempdir};
-use serde_json::Value;
+use filmscope::record::line::{
+    AlarmRule, AlarmVariable, LineFault, LineSummary, PassFail, Record, SampleRecord,
+};
+use filmscope::summary::Summary;
 
 const DEMO: &str = include_str!("../config/recipes/demo.toml");
 
@@ -55,18 +58,21 @@ fn recipe(dir: &Path, mqtt_port: Option<u16>, retention: &str) -> PathBuf {
     p
 }
 
-fn records(out: &Path) -> Vec<Value> {
+fn records(out: &Path) -> Vec<Record> {
     std::fs::read_to_string(out.join("results.jsonl"))
         .unwrap_or_default()
         .lines()
-        .map(|l| serde_json::from_str(l).expect("a whole JSON line"))
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: not a record: {l}")))
         .collect()
 }
 
-fn samples(out: &Path) -> Vec<Value> {
+fn samples(out: &Path) -> Vec<SampleRecord> {
     records(out)
         .into_iter()
-        .filter(|r| r["kind"] == "sample")
+        .filter_map(|r| match r {
+            Record::Sample(s) => Some(*s),
+            _ => None,
+        })
         .collect()
 }
 
@@ -232,11 +238,11 @@ fn three_simulated_samples_judged_written_and_published() {
             "Ann, B.",
         ],
     );
-    let summary: Value =
+    let summary: LineSummary =
         serde_json::from_slice(run.stdout.split(|&b| b == b'\n').next().expect("line"))
             .expect("summary json");
-    assert_eq!(summary["samples"], 3);
-    assert!(summary["latency_ms"]["max"].as_f64().expect("latency") > 0.0);
+    assert_eq!(summary.samples, 3);
+    assert!(summary.latency_ms.max.expect("latency") > 0.0);
 
     let recs = samples(&out);
     assert_eq!(recs.len(), 3);
@@ -251,55 +257,39 @@ fn three_simulated_samples_judged_written_and_published() {
     assert_eq!(rows.len(), 4, "{csv}");
     assert!(rows[0].starts_with("counter,sample_id,timestamp,lot,operator,recipe,film,verdict"));
     for (r, rec) in rows[1..].iter().zip(&recs) {
-        let id = rec["sample_id"].as_str().expect("id");
-        assert!(r.contains(&format!(",{id},")), "{r}");
+        assert!(r.contains(&format!(",{},", rec.sample_id)), "{r}");
         assert!(r.contains(",L-42,\"Ann, B.\","), "{r}");
     }
     for r in &recs {
-        for key in [
-            "sample_id",
-            "timestamp",
-            "verdict",
-            "reasons",
-            "refractive_index",
-            "valid_fraction",
-        ] {
-            assert!(!r[key].is_null(), "{key} in {r}");
-        }
-        for k in ["mean", "std", "min", "max"] {
-            assert!(r["thickness_nm"][k].is_f64(), "thickness_nm.{k}");
-        }
+        assert!(!r.sample_id.is_empty() && !r.timestamp.is_empty(), "{r:?}");
+        assert!(r.refractive_index.is_some(), "{r:?}");
+        let t = r.thickness_nm;
+        assert!(
+            [t.mean, t.std, t.min, t.max].iter().all(Option::is_some),
+            "{t:?}"
+        );
         assert_eq!(
-            (r["lot"].as_str(), r["operator"].as_str()),
+            (r.lot.as_deref(), r.operator.as_deref()),
             (Some("L-42"), Some("Ann, B."))
         );
-        assert_eq!(
-            r["reasons"].as_array().map(Vec::is_empty),
-            Some(r["verdict"] == "PASS")
-        );
+        assert_eq!(r.reasons.is_empty(), r.verdict.passed());
     }
-    let verdicts: Vec<&str> = recs.iter().filter_map(|r| r["verdict"].as_str()).collect();
+    let verdicts: Vec<PassFail> = recs.iter().map(|r| r.verdict).collect();
     assert!(
-        verdicts.contains(&"PASS") && verdicts.contains(&"FAIL"),
+        verdicts.contains(&PassFail::Pass) && verdicts.contains(&PassFail::Fail),
         "{verdicts:?}"
     );
     // The second is firmware-sim's defect: an 8 x 8 patch 150 nm too thick.
     let fail = &recs[1];
-    assert_eq!(fail["verdict"], "FAIL");
-    assert_eq!(fail["regions"][0]["area_px"], 64);
-    assert_eq!(fail["regions"][0]["width"], 8);
-    assert_eq!(
-        fail["raw_kept"], true,
-        "failed samples keep their raw sweep"
-    );
-    assert_eq!(recs[0]["raw_kept"], false);
+    assert_eq!(fail.verdict, PassFail::Fail);
+    assert_eq!(fail.regions[0].area_px, 64);
+    assert_eq!(fail.regions[0].width, 8);
+    assert!(fail.raw_kept, "failed samples keep their raw sweep");
+    assert!(!recs[0].raw_kept);
 
     let names = folders(&out);
     assert_eq!(names.len(), 3, "{names:?}");
-    let ids: Vec<&str> = recs
-        .iter()
-        .filter_map(|r| r["sample_id"].as_str())
-        .collect();
+    let ids: Vec<&str> = recs.iter().map(|r| r.sample_id.as_str()).collect();
     assert_eq!(names, ids, "one folder per record, named by its id");
     for (i, id) in ids.iter().enumerate() {
         let f = out.join("samples").join(id);
@@ -314,18 +304,17 @@ fn three_simulated_samples_judged_written_and_published() {
         ] {
             assert!(f.join(file).exists(), "{id}/{file}");
         }
-        let sum: Value = serde_json::from_str(
-            &std::fs::read_to_string(f.join("summary.json")).expect("summary"),
-        )
-        .expect("json");
-        assert_eq!(sum["sample_id"], *id);
-        assert_eq!(sum["timestamp"], recs[i]["timestamp"]);
-        assert!(sum["version"].is_string() && sum["recipe"]["film"].is_string());
-        assert_eq!(sum["verdict"]["verdict"], recs[i]["verdict"]);
+        let sum = Summary::read(&f).expect("summary");
+        let line = sum.line.as_ref().expect("the line's record");
+        assert_eq!(line.sample_id, *id);
+        assert_eq!(sum.timestamp.as_ref(), Some(&recs[i].timestamp));
+        assert!(sum.version.is_some() && !line.recipe.film.is_empty());
+        assert_eq!(line.verdict.verdict, recs[i].verdict);
+        assert!(sum.acquisition.as_ref().is_some_and(|a| a.complete));
         let mask = std::fs::read(f.join("oot_mask.img")).expect("mask");
         assert_eq!(mask.len(), 32 * 24);
         let out_px = mask.iter().filter(|&&m| m == 1).count();
-        assert_eq!(Some(out_px as u64), recs[i]["out_of_tolerance_px"].as_u64());
+        assert_eq!(out_px, recs[i].out_of_tolerance_px);
         let hdr = std::fs::read_to_string(f.join("oot_mask.hdr")).expect("hdr");
         assert!(hdr.contains("data type = 1"));
     }
@@ -340,13 +329,13 @@ fn three_simulated_samples_judged_written_and_published() {
     );
 
     if let Some(got) = got {
-        // Records as JSON objects; `online`/`offline` on the status topic aside.
-        let on_wire = || -> Vec<Value> {
+        // Records; `online`/`offline` on the status topic aside.
+        let on_wire = || -> Vec<Record> {
             got.lock()
                 .expect("lock")
                 .iter()
-                .filter_map(|p| serde_json::from_str::<Value>(p).ok())
-                .filter(Value::is_object)
+                .filter(|p| p.starts_with('{'))
+                .map(|p| serde_json::from_str::<Record>(p).expect("a record"))
                 .collect()
         };
         let t0 = Instant::now();
@@ -366,8 +355,8 @@ fn samples_so_far(out: &Path) -> usize {
     std::fs::read_to_string(out.join("results.jsonl"))
         .unwrap_or_default()
         .lines()
-        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
-        .filter(|r| r["kind"] == "sample")
+        .filter_map(|l| serde_json::from_str::<Record>(l).ok())
+        .filter(|r| r.as_sample().is_some())
         .count()
 }
 
@@ -417,12 +406,9 @@ fn restart_after_kill_9_continues_numbering() {
     inspect_ok(&rec, &out, &["--samples", "2"]);
     let recs = samples(&out);
     assert!(recs.len() >= before + 2, "{} then {}", before, recs.len());
-    let counters: Vec<u64> = recs.iter().filter_map(|r| r["counter"].as_u64()).collect();
+    let counters: Vec<u64> = recs.iter().map(|r| r.counter).collect();
     assert!(counters.windows(2).all(|w| w[1] > w[0]), "{counters:?}");
-    let ids: Vec<&str> = recs
-        .iter()
-        .filter_map(|r| r["sample_id"].as_str())
-        .collect();
+    let ids: Vec<&str> = recs.iter().map(|r| r.sample_id.as_str()).collect();
     let names = folders(&out);
     assert!(names.iter().all(|n| !n.starts_with(".tmp")), "{names:?}");
     assert_eq!(names, ids, "every folder has its record, once");
@@ -659,20 +645,18 @@ fn a_disagreeing_held_index_is_re_solved() {
     let out = dir.path().join("hold");
     inspect_ok(&hold, &out, &["--samples", "1"]);
     let r = &samples(&out)[0];
-    assert_eq!(r["index_resolved"], true, "{r}");
-    let n = r["refractive_index"].as_f64().expect("index");
+    assert!(r.index_resolved, "{r:?}");
+    let n = r.refractive_index.expect("index");
     assert!((n - 2.10).abs() < 0.01, "re-solved index {n}");
-    assert_eq!(r["verdict"], "FAIL");
-    assert!(r["reasons"][0]
-        .as_str()
-        .is_some_and(|t| t.starts_with("index 2.1")));
+    assert_eq!(r.verdict, PassFail::Fail);
+    assert!(r.reasons[0].starts_with("index 2.1"), "{r:?}");
     let solve = dir.path().join("solve.toml");
     std::fs::write(&solve, text.replace("mode = \"carry\"", "mode = \"solve\"")).expect("write");
     let out = dir.path().join("solve");
     inspect_ok(&solve, &out, &["--samples", "1"]);
     let r = &samples(&out)[0];
-    assert_eq!(r["index_resolved"], false);
-    assert_eq!(r["verdict"], "PASS", "{r}");
+    assert!(!r.index_resolved);
+    assert_eq!(r.verdict, PassFail::Pass, "{r:?}");
 }
 
 /// A crash after a sample's folder was renamed into place but before its line was
@@ -685,11 +669,12 @@ fn a_folder_without_its_line_gets_it_on_restart() {
     inspect_ok(&rec, &out, &["--samples", "2"]);
     let text = std::fs::read_to_string(out.join("results.jsonl")).expect("results");
     let first_line = text.lines().next().expect("line");
-    let lost: Value = serde_json::from_str(text.lines().last().expect("last")).expect("json");
+    let lost: SampleRecord =
+        serde_json::from_str(text.lines().last().expect("last")).expect("a sample record");
     std::fs::write(out.join("results.jsonl"), format!("{first_line}\n")).expect("cut");
     inspect_ok(&rec, &out, &["--samples", "1"]);
     let recs = samples(&out);
-    let counters: Vec<u64> = recs.iter().filter_map(|r| r["counter"].as_u64()).collect();
+    let counters: Vec<u64> = recs.iter().map(|r| r.counter).collect();
     assert_eq!(counters, vec![1, 2, 3]);
     assert_eq!(recs[1], lost, "the record came back as it was");
     let log = std::fs::read_to_string(out.join("inspect.log")).expect("log");
@@ -710,11 +695,11 @@ fn a_record_missing_below_the_last_counter_is_reconciled_on_restart() {
         .lines()
         .partition(|l| l.contains("\"counter\":2,") && l.contains("\"kind\":\"sample\""));
     assert_eq!(lost.len(), 1, "{text}");
-    let lost: Value = serde_json::from_str(lost[0]).expect("json");
+    let lost: SampleRecord = serde_json::from_str(lost[0]).expect("a sample record");
     std::fs::write(out.join("results.jsonl"), kept.join("\n") + "\n").expect("cut");
     inspect_ok(&rec, &out, &["--samples", "1"]);
     let recs = samples(&out);
-    let mut counters: Vec<u64> = recs.iter().filter_map(|r| r["counter"].as_u64()).collect();
+    let mut counters: Vec<u64> = recs.iter().map(|r| r.counter).collect();
     assert_eq!(
         counters,
         vec![1, 3, 2, 4],
@@ -724,10 +709,7 @@ fn a_record_missing_below_the_last_counter_is_reconciled_on_restart() {
     counters.dedup();
     assert_eq!(counters.len(), 4, "each once");
     // As it was but for `seq`, its new place in the log.
-    let strip = |mut v: Value| {
-        v.as_object_mut().map(|o| o.remove("seq"));
-        v
-    };
+    let strip = |v: SampleRecord| SampleRecord { seq: None, ..v };
     assert_eq!(
         strip(recs[2].clone()),
         strip(lost),
@@ -766,8 +748,14 @@ fn below_the_free_space_floor_the_line_stops_with_an_alarm() {
     assert!(!err.contains("rig"), "{err}");
     let recs = records(&out);
     assert_eq!(recs.len(), 1, "{recs:?}");
-    assert_eq!(recs[0]["kind"], "alarm");
-    assert_eq!(recs[0]["variable"], "disk_free_bytes");
+    let Record::Alarm(alarm) = &recs[0] else {
+        panic!("not an alarm: {recs:?}");
+    };
+    assert_eq!(alarm.variable, AlarmVariable::DiskFreeBytes);
+    assert!(
+        alarm.sample_id.is_none() && alarm.floor.is_some(),
+        "{alarm:?}"
+    );
     assert!(folders(&out).is_empty(), "nothing measured");
 }
 
@@ -817,17 +805,19 @@ fn a_reference_check_records_its_drift_and_alarms_beyond_tolerance() {
         let all = records(&out);
         let r = all
             .iter()
-            .find(|r| r["kind"] == "reference")
+            .find_map(|r| match r {
+                Record::Reference(r) => Some(r),
+                _ => None,
+            })
             .expect("a reference record");
-        assert_eq!(r["within"], within, "{r}");
-        let drift = r["drift"]["thickness_nm"].as_f64().expect("drift");
-        assert!((drift - (620.0 - certified)).abs() < 3.0, "{r}");
-        assert!(r["drift"]["index"].as_f64().expect("index drift").abs() < 0.01);
-        assert!(out
-            .join(r["folder"].as_str().expect("folder"))
-            .join("summary.json")
-            .is_file());
-        let alarm = all.iter().any(|a| a["rule"] == "reference_drift");
+        assert_eq!(r.within, within, "{r:?}");
+        let drift = r.drift.thickness_nm.expect("drift");
+        assert!((drift - (620.0 - certified)).abs() < 3.0, "{r:?}");
+        assert!(r.drift.index.expect("index drift").abs() < 0.01);
+        assert!(out.join(&r.folder).join("summary.json").is_file());
+        let alarm = all.iter().any(|a| {
+            matches!(a, Record::Alarm(a) if a.rule == AlarmRule::Fault(LineFault::ReferenceDrift))
+        });
         assert_eq!(alarm, !within, "{all:?}");
         assert_eq!(samples(&out).len(), 1);
     }

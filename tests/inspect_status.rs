@@ -15,6 +15,10 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use filmscope::line::status::StatusServer;
+use filmscope::record::line::{
+    AlarmRecord, AlarmRule, AlarmVariable, IndexMode, PassFail, Reading, SampleRecord,
+    ThicknessSummary,
+};
 use serde_json::{json, Value};
 
 fn chromium() -> Result<PathBuf, String> {
@@ -48,11 +52,59 @@ fn get(addr: std::net::SocketAddr, path: &str) -> (String, String) {
     (head.to_owned(), rest.to_owned())
 }
 
-fn record(id: &str, verdict: &str, mean: f64) -> Value {
-    json!({"kind": "sample", "sample_id": id, "timestamp": "2026-11-25T23:00:00.000Z",
-           "verdict": verdict, "reasons": if verdict == "PASS" { json!([]) } else { json!(["mean thickness out"]) },
-           "refractive_index": 2.1, "thickness_nm": {"mean": mean, "std": 3.0, "min": mean - 9.0, "max": mean + 9.0},
-           "valid_fraction": 0.99, "latency_ms": 12.5})
+fn record(id: &str, verdict: &str, mean: f64) -> SampleRecord {
+    let pass = verdict == "PASS";
+    SampleRecord {
+        seq: None,
+        sample_id: id.into(),
+        counter: 1,
+        timestamp: "2026-11-25T23:00:00.000Z".into(),
+        film: "test film".into(),
+        recipe: "demo.toml".into(),
+        lot: None,
+        operator: None,
+        verdict: PassFail::of(pass),
+        reasons: if pass {
+            Vec::new()
+        } else {
+            vec!["mean thickness out".into()]
+        },
+        refractive_index: Some(2.1),
+        index_mode: IndexMode::Hold,
+        index_resolved: false,
+        thickness_nm: ThicknessSummary {
+            mean: Some(mean),
+            std: Some(3.0),
+            min: Some(mean - 9.0),
+            max: Some(mean + 9.0),
+        },
+        valid_fraction: 0.99,
+        out_of_tolerance_px: 0,
+        regions: Vec::new(),
+        raw_kept: false,
+        folder: format!("samples/{id}"),
+        latency_ms: 12.5,
+        version: "0.1.0".into(),
+        sim_sample: None,
+    }
+}
+
+fn alarm(id: &str, value: f64) -> AlarmRecord {
+    AlarmRecord {
+        seq: None,
+        sample_id: Some(id.into()),
+        counter: 1,
+        timestamp: "2026-11-25T23:00:00.100Z".into(),
+        variable: AlarmVariable::ThicknessMeanNm,
+        rule: AlarmRule::Nelson(1),
+        text: "a point beyond 3 sigma".into(),
+        value: Some(Reading::Real(value)),
+        center: Some(620.0),
+        ucl: Some(626.0),
+        lcl: Some(614.0),
+        floor: None,
+        index_drift: None,
+    }
 }
 
 fn history(means: &[f64]) -> Value {
@@ -80,10 +132,18 @@ fn api_and_metrics_answer_over_http() {
     );
     let v: Value = serde_json::from_str(&body).expect("json");
     assert!(v["sample"].is_null());
-    server.publish_sample(&record("S000001-A", "FAIL", 640.0), None, history(&[640.0]), &[json!({"kind": "alarm", "sample_id": "S000001-A", "variable": "thickness_mean_nm", "rule": 1, "text": "a point beyond 3 sigma", "value": 640.0})]);
+    server.publish_sample(
+        &record("S000001-A", "FAIL", 640.0),
+        None,
+        history(&[640.0]),
+        &[alarm("S000001-A", 640.0)],
+    );
+    // The API's JSON, as the page and other clients read it.
     let v: Value = serde_json::from_str(&get(server.addr(), "/api/latest").1).expect("json");
     assert_eq!(v["sample"]["sample_id"], "S000001-A");
+    assert_eq!(v["sample"]["kind"], "sample");
     assert_eq!(v["alarms"][0]["rule"], 1);
+    assert_eq!(v["alarms"][0]["kind"], "alarm");
     let h: Value = serde_json::from_str(&get(server.addr(), "/api/history").1).expect("json");
     assert_eq!(h["points"].as_array().map(Vec::len), Some(1));
     server.set_labels("line7", "zns \"ar\".toml");

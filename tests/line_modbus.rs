@@ -14,6 +14,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{filmscope, s, tempdir};
+use filmscope::record::line::{PassFail, Record, SampleRecord};
 use serde_json::Value;
 
 const DEMO: &str = include_str!("../config/recipes/demo.toml");
@@ -91,19 +92,24 @@ fn sigterm_and_wait(mut child: Child) {
     assert!(status.success(), "{status}");
 }
 
-fn samples(out: &Path) -> Vec<Value> {
+fn samples(out: &Path) -> Vec<SampleRecord> {
     std::fs::read_to_string(out.join("results.jsonl"))
         .unwrap_or_default()
         .lines()
-        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
-        .filter(|r| r["kind"] == "sample")
+        .filter_map(|l| serde_json::from_str::<Record>(l).ok())
+        .filter_map(|r| r.as_sample().cloned())
         .collect()
+}
+
+fn f32_of(v: Option<f64>) -> f32 {
+    v.map_or(f32::NAN, |x| x as f32)
 }
 
 fn f32_at(r: &[u16], i: usize) -> f32 {
     f32::from_bits((u32::from(r[i]) << 16) | u32::from(r[i + 1]))
 }
 
+/// A number of the pymodbus client's report.
 fn as_f32(v: &Value) -> f32 {
     v.as_f64().map_or(f32::NAN, |x| x as f32)
 }
@@ -168,15 +174,15 @@ fn a_plc_triggers_each_sample_and_reads_its_verdict() {
                 "cleared when the measurement started"
             );
             let rec = samples(&out).pop().expect("a record");
-            assert_eq!(rec["counter"], u64::from(n));
-            let verdict = if rec["verdict"] == "PASS" { 1 } else { 2 };
-            assert_eq!(r[4], verdict, "{rec}");
-            let t = &rec["thickness_nm"];
-            assert_eq!(f32_at(&r, 6), as_f32(&t["mean"]));
-            assert_eq!(f32_at(&r, 8), as_f32(&t["min"]));
-            assert_eq!(f32_at(&r, 10), as_f32(&t["max"]));
-            assert_eq!(f32_at(&r, 12), as_f32(&rec["refractive_index"]));
-            assert_eq!(f32_at(&r, 14), as_f32(&rec["valid_fraction"]));
+            assert_eq!(rec.counter, u64::from(n));
+            let verdict = if rec.verdict.passed() { 1 } else { 2 };
+            assert_eq!(r[4], verdict, "{rec:?}");
+            let t = &rec.thickness_nm;
+            assert_eq!(f32_at(&r, 6), f32_of(t.mean));
+            assert_eq!(f32_at(&r, 8), f32_of(t.min));
+            assert_eq!(f32_at(&r, 10), f32_of(t.max));
+            assert_eq!(f32_at(&r, 12), f32_of(rec.refractive_index));
+            assert_eq!(f32_at(&r, 14), rec.valid_fraction as f32);
             assert_eq!((r[16], r[17]), (0, n), "no error; triggers counted");
             let inputs = plc
                 .read_input_registers(2, 15)
@@ -186,7 +192,7 @@ fn a_plc_triggers_each_sample_and_reads_its_verdict() {
             assert_eq!(inputs, r[2..17], "function 04 reads the same map");
         }
         // The firmware-sim line's second sample is its defect.
-        assert_eq!(samples(&out)[1]["verdict"], "FAIL");
+        assert_eq!(samples(&out)[1].verdict, PassFail::Fail);
         let e = plc.read_holding_registers(10, 9).await.expect("io");
         assert_eq!(e, Err(ExceptionCode::IllegalDataAddress), "past the map");
         let e = plc.write_single_register(1, 5).await.expect("io");
@@ -231,14 +237,11 @@ fn pymodbus_triggers_and_reads_as_a_plc_would() {
     let recs = samples(&out);
     assert_eq!((seen.len(), recs.len()), (2, 2));
     for (p, rec) in seen.iter().zip(&recs) {
-        assert_eq!(p["counter"], rec["counter"]);
-        let verdict = if rec["verdict"] == "PASS" { 1 } else { 2 };
+        assert_eq!(p["counter"], rec.counter);
+        let verdict = if rec.verdict.passed() { 1 } else { 2 };
         assert_eq!(p["verdict"], verdict);
-        assert_eq!(
-            as_f32(&p["thickness_mean"]),
-            as_f32(&rec["thickness_nm"]["mean"])
-        );
-        assert_eq!(as_f32(&p["index"]), as_f32(&rec["refractive_index"]));
+        assert_eq!(as_f32(&p["thickness_mean"]), f32_of(rec.thickness_nm.mean));
+        assert_eq!(as_f32(&p["index"]), f32_of(rec.refractive_index));
         assert_eq!(p["coil_cleared"], true);
         assert_eq!(p["inputs_match"], true);
     }

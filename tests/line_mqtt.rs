@@ -20,8 +20,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::{filmscope, s, tempdir};
+use filmscope::line::stream::AckState;
+use filmscope::record::line::{AlarmRule, AlarmVariable, LineFault, Record, SampleRecord};
 use rumqttc::{Client, Event, MqttOptions, Packet, QoS, TlsConfiguration, Transport};
-use serde_json::{json, Value};
 
 const DEMO: &str = include_str!("../config/recipes/demo.toml");
 /// `mosquitto_passwd -b -c pw line1 s3cret-line1`.
@@ -82,7 +83,7 @@ fn inspect(recipe: &Path, out: &Path, extra: &[&str]) -> Command {
     c
 }
 
-fn records(out: &Path) -> Vec<Value> {
+fn records(out: &Path) -> Vec<Record> {
     std::fs::read_to_string(out.join("results.jsonl"))
         .unwrap_or_default()
         .lines()
@@ -93,7 +94,7 @@ fn records(out: &Path) -> Vec<Value> {
 fn samples_in(out: &Path) -> usize {
     records(out)
         .iter()
-        .filter(|r| r["kind"] == "sample")
+        .filter(|r| r.as_sample().is_some())
         .count()
 }
 
@@ -262,8 +263,8 @@ impl Subscriber {
     }
 
     /// The record payloads received live (not as the retained last result a new
-    /// subscription is handed) on `sample` and `alarm`, as JSON.
-    fn records(&self) -> Vec<Value> {
+    /// subscription is handed) on `sample` and `alarm`.
+    fn records(&self) -> Vec<Record> {
         self.messages()
             .iter()
             .filter(|(t, _, retained)| !t.ends_with("/status") && !retained)
@@ -318,23 +319,19 @@ fn subscribe(pki: &Pki, port: u16, id: &str) -> Subscriber {
 /// Every record of `out`'s log received once after de-duplication by `seq`; the number of
 /// duplicates received.
 fn check_delivered_once(out: &Path, sub: &Subscriber) -> usize {
-    let logged: BTreeMap<u64, Value> = records(out)
+    let logged: BTreeMap<u64, Record> = records(out)
         .into_iter()
-        .filter_map(|r| Some((r["seq"].as_u64()?, r)))
+        .filter_map(|r| Some((r.seq()?, r)))
         .collect();
     wait_until("every logged record received", || {
-        let got: BTreeSet<u64> = sub
-            .records()
-            .iter()
-            .filter_map(|r| r["seq"].as_u64())
-            .collect();
+        let got: BTreeSet<u64> = sub.records().iter().filter_map(Record::seq).collect();
         logged.keys().all(|k| got.contains(k))
     });
     let got = sub.records();
-    let mut by_seq: BTreeMap<u64, Value> = BTreeMap::new();
+    let mut by_seq: BTreeMap<u64, Record> = BTreeMap::new();
     let mut duplicates = 0;
     for r in got {
-        let seq = r["seq"].as_u64().expect("seq");
+        let seq = r.seq().expect("seq");
         if let Some(prev) = by_seq.insert(seq, r.clone()) {
             assert_eq!(prev, r, "a duplicate is the same record");
             duplicates += 1;
@@ -480,7 +477,7 @@ fn tls_retained_last_result_online_offline_and_the_last_will() {
     let msgs = fresh.messages();
     let last_sample = records(&out)
         .into_iter()
-        .rfind(|r| r["kind"] == "sample")
+        .rfind(|r| r.as_sample().is_some())
         .expect("a sample");
     let retained_sample = msgs
         .iter()
@@ -488,7 +485,7 @@ fn tls_retained_last_result_online_offline_and_the_last_will() {
         .expect("retained sample");
     assert!(retained_sample.2, "retained flag");
     assert_eq!(
-        serde_json::from_str::<Value>(&retained_sample.1).expect("json"),
+        serde_json::from_str::<Record>(&retained_sample.1).expect("a record"),
         last_sample
     );
     assert!(msgs.contains(&(format!("{PREFIX}/status"), "offline".into(), true)));
@@ -576,11 +573,11 @@ fn records_of_a_broker_outage_and_of_a_stopped_inspect_arrive_once() {
         err.contains("record(s) not acknowledged") && err.contains("sent after the next start"),
         "{err}"
     );
-    let state: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("mqtt-acked.json")).expect("state"))
-            .expect("json");
-    let acked = state["acked_seq"].as_u64().expect("acked_seq");
-    let last = records(&out).last().and_then(|r| r["seq"].as_u64());
+    let acked = AckState::load(&out)
+        .expect("state")
+        .expect("mqtt-acked.json")
+        .acked_seq;
+    let last = records(&out).last().and_then(Record::seq);
     assert!(Some(acked) < last, "{acked} {last:?}");
 
     let subs = sub.subscribed.load(Ordering::SeqCst);
@@ -646,12 +643,15 @@ fn a_broker_that_never_acknowledges_raises_an_alarm_and_fails_the_exit() {
         err.contains("the broker accepted the connection but did not acknowledge them"),
         "{err}"
     );
-    let alarms: Vec<Value> = records(&out)
+    let alarms: Vec<Record> = records(&out)
         .into_iter()
-        .filter(|r| r["kind"] == "alarm" && r["variable"] == "mqtt")
+        .filter(|r| matches!(r, Record::Alarm(a) if a.variable == AlarmVariable::Mqtt))
         .collect();
     assert_eq!(alarms.len(), 1, "{alarms:?}");
-    assert_eq!(alarms[0]["rule"], "no_acknowledgement");
+    assert!(
+        matches!(&alarms[0], Record::Alarm(a) if a.rule == AlarmRule::Fault(LineFault::NoAcknowledgement)),
+        "{alarms:?}"
+    );
 }
 
 #[test]
@@ -713,15 +713,11 @@ fn a_record_restored_after_a_crash_is_published() {
     // The state as the crash leaves it: the last record neither in the log nor sent.
     let text = std::fs::read_to_string(out.join("results.jsonl")).expect("log");
     let mut lines: Vec<&str> = text.lines().collect();
-    let lost: Value = serde_json::from_str(lines.pop().expect("a line")).expect("json");
-    assert_eq!(lost["kind"], "sample", "{lost}");
+    let lost: SampleRecord =
+        serde_json::from_str(lines.pop().expect("a line")).expect("a sample record");
     std::fs::write(out.join("results.jsonl"), lines.join("\n") + "\n").expect("cut");
-    let seq = lost["seq"].as_u64().expect("seq");
-    std::fs::write(
-        out.join("mqtt-acked.json"),
-        json!({"acked_seq": seq - 1}).to_string(),
-    )
-    .expect("state");
+    let seq = lost.seq.expect("seq");
+    AckState { acked_seq: seq - 1 }.store(&out).expect("state");
     let sub = subscribe(&pki, b.port, "after-crash");
     let (ok, err) = stderr_of(
         inspect(&rec, &out, &["--samples", "1"])
@@ -733,10 +729,11 @@ fn a_record_restored_after_a_crash_is_published() {
         sub.records().len() >= 2
     });
     let got = sub.records();
-    assert_eq!(got[0]["sample_id"], lost["sample_id"], "{got:?}");
-    assert_eq!(got[0]["seq"], seq, "the restored record takes the free seq");
+    assert_eq!(got[0].sample_id(), Some(lost.sample_id.as_str()), "{got:?}");
     assert_eq!(
-        got[1]["counter"],
-        lost["counter"].as_u64().expect("counter") + 1
+        got[0].seq(),
+        Some(seq),
+        "the restored record takes the free seq"
     );
+    assert_eq!(got[1].counter(), Some(lost.counter + 1));
 }

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use filmscope::io::{read_cube, Capture, DataType, EnviReader};
+use filmscope::record::truth::{PolarizationRecord, TruthRecord};
 use filmscope::simulate::{write_capture, SimulateOptions};
 use firmware_sim::Scene;
 
@@ -115,19 +116,28 @@ fn raw_capture_has_counts_references_and_truth() {
             .iter()
             .any(|(k, v)| k.eq_ignore_ascii_case("saturation counts") && v == "4095"));
     }
-    let truth: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.path().join("truth.json")).expect("truth.json"),
-    )
-    .expect("json");
+    // The file names every member, a constant index's model as null.
+    let text = std::fs::read_to_string(dir.path().join("truth.json")).expect("truth.json");
+    let members: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_str(&text).expect("an object");
     for key in [
         "refractive_index",
         "dispersion",
         "substrate_index",
         "polarization",
     ] {
-        assert!(truth.get(key).is_some(), "truth.json lacks {key}");
+        assert!(members.contains_key(key), "truth.json lacks {key}");
     }
-    assert!((truth["refractive_index"].as_f64().expect("n") - 1.45).abs() < 1e-12);
+    let truth = TruthRecord::read(dir.path()).expect("truth.json");
+    assert!((truth.refractive_index - 1.45).abs() < 1e-12);
+    assert_eq!(
+        truth.polarization,
+        PolarizationRecord::from(sc.stack.polarization)
+    );
+    assert_eq!(
+        (truth.width, truth.height),
+        (sc.sensor.width, sc.sensor.height)
+    );
 }
 
 fn filmscope() -> Command {

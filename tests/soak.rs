@@ -25,8 +25,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::{filmscope, s, tempdir};
+use filmscope::record::line::{AlarmVariable, Record, SampleRecord};
 use rumqttc::{Client, Event, MqttOptions, Packet, QoS};
-use serde_json::Value;
 
 /// Samples of the CI run.
 const SHORT_SAMPLES: u64 = 40;
@@ -55,7 +55,7 @@ fn wait_until(what: &str, limit: Duration, mut cond: impl FnMut() -> bool) {
     }
 }
 
-fn records(out: &Path) -> Vec<Value> {
+fn records(out: &Path) -> Vec<Record> {
     std::fs::read_to_string(out.join("results.jsonl"))
         .unwrap_or_default()
         .lines()
@@ -138,7 +138,7 @@ impl Broker {
 
 /// The record payloads received live on `PREFIX/sample` and `PREFIX/alarm`.
 struct Subscriber {
-    got: Arc<Mutex<Vec<Value>>>,
+    got: Arc<Mutex<Vec<Record>>>,
     subscribed: Arc<AtomicUsize>,
     stop: Arc<AtomicBool>,
 }
@@ -526,7 +526,10 @@ fn soak_broker_restart_disk_floor_slowloris() {
     }
     let opened = slow.detach();
     let last = records(&out).pop().expect("a record");
-    assert_eq!(last["variable"], "disk_free_bytes", "{last}");
+    assert!(
+        matches!(&last, Record::Alarm(a) if a.variable == AlarmVariable::DiskFreeBytes),
+        "{last:?}"
+    );
     assert_eq!(
         samples_in(&out),
         stopped_at,
@@ -553,11 +556,8 @@ fn soak_broker_restart_disk_floor_slowloris() {
 
     // Zero lost: counters 1..=n, each once, each with its folder.
     let recs = records(&out);
-    let samples: Vec<&Value> = recs.iter().filter(|r| r["kind"] == "sample").collect();
-    let counters: BTreeSet<u64> = samples
-        .iter()
-        .filter_map(|r| r["counter"].as_u64())
-        .collect();
+    let samples: Vec<&SampleRecord> = recs.iter().filter_map(Record::as_sample).collect();
+    let counters: BTreeSet<u64> = samples.iter().map(|r| r.counter).collect();
     assert_eq!(samples.len() as u64, n, "sample records");
     assert_eq!(counters, (1..=n).collect(), "each counter once");
     let folders = std::fs::read_dir(out.join("samples"))
@@ -569,31 +569,25 @@ fn soak_broker_restart_disk_floor_slowloris() {
 
     // Published: every logged record received (by seq), each sample id once after
     // de-duplication, none that was not logged.
-    let logged: BTreeMap<u64, &Value> = recs
-        .iter()
-        .filter_map(|r| Some((r["seq"].as_u64()?, r)))
-        .collect();
+    let logged: BTreeMap<u64, &Record> = recs.iter().filter_map(|r| Some((r.seq()?, r))).collect();
     wait_until("every logged record received", long, || {
         let got = sub.got.lock().expect("lock");
-        let seqs: BTreeSet<u64> = got.iter().filter_map(|r| r["seq"].as_u64()).collect();
+        let seqs: BTreeSet<u64> = got.iter().filter_map(Record::seq).collect();
         logged.keys().all(|k| seqs.contains(k))
     });
     let got = sub.got.lock().expect("lock").clone();
-    let ids_logged: BTreeSet<&str> = samples
-        .iter()
-        .filter_map(|r| r["sample_id"].as_str())
-        .collect();
+    let ids_logged: BTreeSet<&str> = samples.iter().map(|r| r.sample_id.as_str()).collect();
     let received: Vec<&str> = got
         .iter()
-        .filter(|r| r["kind"] == "sample")
-        .filter_map(|r| r["sample_id"].as_str())
+        .filter_map(Record::as_sample)
+        .map(|r| r.sample_id.as_str())
         .collect();
     let ids_received: BTreeSet<&str> = received.iter().copied().collect();
     assert_eq!(
         ids_received, ids_logged,
         "each sample published, none other"
     );
-    let by_seq: BTreeSet<u64> = got.iter().filter_map(|r| r["seq"].as_u64()).collect();
+    let by_seq: BTreeSet<u64> = got.iter().filter_map(Record::seq).collect();
     let logged_seqs: BTreeSet<u64> = logged.keys().copied().collect();
     assert_eq!(
         by_seq, logged_seqs,
@@ -601,7 +595,7 @@ fn soak_broker_restart_disk_floor_slowloris() {
     );
     let duplicates = got.len() - by_seq.len();
     for r in &got {
-        let seq = r["seq"].as_u64().expect("seq");
+        let seq = r.seq().expect("seq");
         assert_eq!(
             Some(&r),
             logged.get(&seq),

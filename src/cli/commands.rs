@@ -431,11 +431,7 @@ pub fn acquire(rig: Option<&Path>, out: &Path, sim: bool, max_memory: Option<&st
         crate::rig::acquire::run(&config, out, sim, &RunConfig::default(), &|n| bar.inc(n))
             .map_err(|e| anyhow!(e))?;
     bar.finish_and_clear();
-    let lost = summary
-        .acquisition
-        .as_ref()
-        .and_then(|a| a["link"]["rows_lost"].as_u64())
-        .unwrap_or(0);
+    let lost = summary.acquisition.as_ref().map_or(0, |a| a.link.rows_lost);
     println!(
         "acquired {} angles x {} bands into {}: n = {:.4}, thickness median {:.1} nm, valid {:.1}%, {} row(s) lost on the link",
         s.angles_deg.len(),

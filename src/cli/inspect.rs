@@ -8,9 +8,10 @@ use std::time::Duration;
 
 use anyhow::{anyhow, Context, Result};
 
-use crate::line::inspect::{InspectOptions, Line};
+use crate::line::inspect::{InspectOptions, Line, SampleOutcome};
 use crate::line::recipe::Recipe;
 use crate::line::status::{StatusBoard, StatusServer, StatusState, SNAPSHOT_FILE};
+use crate::record::line::{LineSummary, ReferenceRecord};
 
 /// What `inspect` is told on the command line.
 pub struct Args<'a> {
@@ -50,6 +51,28 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
             .context("signal handler")?;
         signal_hook::flag::register(sig, stop.clone()).context("signal handler")?;
     }
+    let Some(mut line) = open_line(a, &stop)? else {
+        return Ok(());
+    };
+    if let Some(url) = line.status_url() {
+        eprintln!("status page: {url}");
+    }
+    if let Some(addr) = line.modbus_addr() {
+        eprintln!("modbus: listening on {addr}");
+    }
+    if a.reference {
+        let r = line.check_reference().map_err(|e| anyhow!(e))?;
+        if !a.json {
+            print_reference(&r);
+        }
+    }
+    measure_until_stopped(a, &mut line, &stop)?;
+    line.stopped();
+    close(a, &mut line, &stop)
+}
+
+/// The line of `a`'s rig, recipe and folder; none when a signal stopped its start-up.
+fn open_line(a: &Args<'_>, stop: &Arc<AtomicBool>) -> Result<Option<Line>> {
     let rig = crate::rig::RigConfig::load_or_builtin(a.rig)?;
     let recipe = Recipe::load(a.recipe)?
         .with_labels(a.lot.clone(), a.operator.clone())
@@ -65,39 +88,20 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
         modbus: a.modbus.clone(),
         stop: stop.clone(),
     });
-    let mut line = match line {
-        Ok(line) => line,
+    match line {
+        Ok(line) => Ok(Some(line)),
         Err(e) if e.is_interrupted() => {
             eprintln!("filmscope: {e}");
-            return Ok(());
+            Ok(None)
         }
-        Err(e) => return Err(anyhow!(e)),
-    };
-    if let Some(url) = line.status_url() {
-        eprintln!("status page: {url}");
+        Err(e) => Err(anyhow!(e)),
     }
-    if let Some(addr) = line.modbus_addr() {
-        eprintln!("modbus: listening on {addr}");
-    }
-    if a.reference {
-        let r = line.check_reference().map_err(|e| anyhow!(e))?;
-        let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
-        if !a.json {
-            println!(
-                "reference {}: thickness {:.2} nm (drift {:+.2}), n={:.4} (drift {:+.4}): {}",
-                r["reference"].as_str().unwrap_or(""),
-                f(&r["measured"]["thickness_nm"]),
-                f(&r["drift"]["thickness_nm"]),
-                f(&r["measured"]["index"]),
-                f(&r["drift"]["index"]),
-                if r["within"] == true {
-                    "within tolerance"
-                } else {
-                    "BEYOND tolerance (alarm)"
-                }
-            );
-        }
-    }
+}
+
+/// Measures samples (each on the PLC's trigger when it gives them) until `a.samples` are
+/// done or `stop` is set. A broker refusing the login, a full disk or three device errors
+/// in a row stop it with an error.
+fn measure_until_stopped(a: &Args<'_>, line: &mut Line, stop: &AtomicBool) -> Result<()> {
     let trigger = line.waits_for_trigger();
     let mut errors_in_a_row = 0;
     while a.samples.is_none_or(|n| line.measured < n) && !stop.load(Ordering::SeqCst) {
@@ -108,43 +112,14 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
                 a.recipe.display()
             ));
         }
-        if trigger && !line.wait_for_trigger(&stop) {
+        if trigger && !line.wait_for_trigger(stop) {
             break;
         }
         match line.measure() {
             Ok(o) => {
                 errors_in_a_row = 0;
-                let r = &o.record;
-                let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
                 if !a.json {
-                    println!(
-                        "{} {} n={:.4} thickness {:.1} +- {:.2} nm [{:.1}..{:.1}] valid {:.1}% latency {:.1} ms{}",
-                        r["sample_id"].as_str().unwrap_or(""),
-                        r["verdict"].as_str().unwrap_or(""),
-                        f(&r["refractive_index"]),
-                        f(&r["thickness_nm"]["mean"]),
-                        f(&r["thickness_nm"]["std"]),
-                        f(&r["thickness_nm"]["min"]),
-                        f(&r["thickness_nm"]["max"]),
-                        100.0 * f(&r["valid_fraction"]),
-                        o.published_ms,
-                        r["reasons"]
-                            .as_array()
-                            .filter(|v| !v.is_empty())
-                            .map(|v| format!(
-                                ": {}",
-                                v.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join("; ")
-                            ))
-                            .unwrap_or_default()
-                    );
-                    for al in &o.alarms {
-                        println!(
-                            "  alarm: {} rule {} ({})",
-                            al["variable"].as_str().unwrap_or(""),
-                            al["rule"],
-                            al["text"].as_str().unwrap_or("")
-                        );
-                    }
+                    print_sample(&o);
                 }
             }
             Err(e) if e.is_disk_full() => {
@@ -163,45 +138,104 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
             }
         }
     }
-    line.stopped();
+    Ok(())
+}
+
+/// Waits for the broker's acknowledgements, logs and prints the run's summary (one JSON
+/// line with `--json`), and fails naming the records the broker left unacknowledged.
+fn close(a: &Args<'_>, line: &mut Line, stop: &AtomicBool) -> Result<()> {
     let unsent = line.flush();
-    let mut summary = line.summary();
-    summary["mqtt_unacknowledged"] = serde_json::json!(unsent.as_ref().map(|u| u.records));
-    summary["stopped_by_signal"] = serde_json::json!(stop.load(Ordering::SeqCst));
-    line.say(&format!("stop: {summary}"));
+    let summary = LineSummary {
+        mqtt_unacknowledged: unsent.as_ref().map(|u| u.records),
+        stopped_by_signal: stop.load(Ordering::SeqCst),
+        ..line.summary()
+    };
+    let json = crate::record::to_json(&summary)?;
+    line.say(&format!("stop: {json}"));
     if a.json {
-        println!("{summary}");
+        println!("{json}");
     } else {
-        let l = &summary["latency_ms"];
+        let l = &summary.latency_ms;
+        let ms = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.1}"));
         println!(
             "{} sample(s): {} passed, {} failed, {} alarm(s); latency (last row to verdict published) median {} ms, max {} ms; results in {}",
-            summary["samples"], summary["passed"], summary["failed"], summary["alarms"],
-            l["median"].as_f64().map_or("-".into(), |v| format!("{v:.1}")),
-            l["max"].as_f64().map_or("-".into(), |v| format!("{v:.1}")),
+            summary.samples, summary.passed, summary.failed, summary.alarms,
+            ms(l.median),
+            ms(l.max),
             a.out.join("results.jsonl").display()
         );
     }
-    if let Some(u) = unsent {
-        let why = match line.mqtt_refused() {
-            Some(r) => format!(
-                "{r}; check mqtt.username and mqtt.password in {}",
-                a.recipe.display()
-            ),
-            None if u.connected => {
-                "the broker accepted the connection but did not acknowledge them".into()
-            }
-            None => "the broker was not reachable".into(),
-        };
-        let text = format!(
-            "mqtt: {} record(s) not acknowledged (from seq {}): {why}; they stay in {} and are sent after the next start",
-            u.records,
-            u.first_seq,
-            a.out.join("results.jsonl").display()
+    let Some(u) = unsent else {
+        return Ok(());
+    };
+    let why = match line.mqtt_refused() {
+        Some(r) => format!(
+            "{r}; check mqtt.username and mqtt.password in {}",
+            a.recipe.display()
+        ),
+        None if u.connected => {
+            "the broker accepted the connection but did not acknowledge them".into()
+        }
+        None => "the broker was not reachable".into(),
+    };
+    let text = format!(
+        "mqtt: {} record(s) not acknowledged (from seq {}): {why}; they stay in {} and are sent after the next start",
+        u.records,
+        u.first_seq,
+        a.out.join("results.jsonl").display()
+    );
+    line.say(&format!("stop: {text}"));
+    Err(anyhow!(text))
+}
+
+/// A reference check's line on standard output.
+fn print_reference(r: &ReferenceRecord) {
+    let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
+    println!(
+        "reference {}: thickness {:.2} nm (drift {:+.2}), n={:.4} (drift {:+.4}): {}",
+        r.reference,
+        f(r.measured.thickness_nm),
+        f(r.drift.thickness_nm),
+        f(r.measured.index),
+        f(r.drift.index),
+        if r.within {
+            "within tolerance"
+        } else {
+            "BEYOND tolerance (alarm)"
+        }
+    );
+}
+
+/// A measured sample's line on standard output, and one line for each alarm it raised.
+fn print_sample(o: &SampleOutcome) {
+    let r = &o.record;
+    let t = &r.thickness_nm;
+    let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
+    println!(
+        "{} {} n={:.4} thickness {:.1} +- {:.2} nm [{:.1}..{:.1}] valid {:.1}% latency {:.1} ms{}",
+        r.sample_id,
+        r.verdict,
+        f(r.refractive_index),
+        f(t.mean),
+        f(t.std),
+        f(t.min),
+        f(t.max),
+        100.0 * r.valid_fraction,
+        o.published_ms,
+        if r.reasons.is_empty() {
+            String::new()
+        } else {
+            format!(": {}", r.reasons.join("; "))
+        }
+    );
+    for al in &o.alarms {
+        println!(
+            "  alarm: {} rule {} ({})",
+            al.variable.name(),
+            al.rule,
+            al.text
         );
-        line.say(&format!("stop: {text}"));
-        return Err(anyhow!(text));
     }
-    Ok(())
 }
 
 /// `ADDR:PORT` (an IPv6 address in brackets) as the address and the port.

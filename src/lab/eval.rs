@@ -27,6 +27,7 @@ use crate::estimate::{FieldConfig, Run, RunConfig};
 use crate::io::{read_cube, Capture};
 use crate::jobs::{Observer, Quiet, Settings};
 use crate::material::DispersionRecord;
+use crate::record::truth::TruthRecord;
 use crate::source::{CaptureSource, SimSource};
 
 /// Thickness errors above this are failures (nm).
@@ -68,57 +69,33 @@ impl Truth {
 
     /// The truth written beside a simulated capture (`truth.json`, `truth/thickness_nm.hdr`).
     pub fn of_capture_dir(dir: &Path) -> Result<Self, String> {
-        let path = dir.join("truth.json");
-        let text =
-            std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-        let v: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
-        let num = |k: &str| v.get(k).and_then(serde_json::Value::as_f64);
-        let bad = |what: &str| format!("{}: {what}", path.display());
-        let n = num("refractive_index").ok_or_else(|| bad("no refractive_index"))?;
-        let film = match v.get("dispersion") {
-            None | Some(serde_json::Value::Null) => Dispersion::constant(n),
-            Some(d) => parse_dispersion(d)
-                .ok_or_else(|| bad("dispersion is neither null, constant, cauchy nor sellmeier"))?,
+        let t = TruthRecord::read(dir)?;
+        let path = dir.join(crate::record::truth::FILE);
+        let model = |d: &Option<DispersionRecord>, n: f64, what: &str| match d {
+            None => Ok(Dispersion::constant(n)),
+            Some(d) => d
+                .dispersion()
+                .map_err(|e| format!("{}: {what}: {e}", path.display())),
         };
-        let pol = v
-            .get("polarization")
-            .and_then(|p| p.as_str())
-            .and_then(Polarization::from_name)
-            .unwrap_or(Polarization::S);
-        let map = dir.join("truth").join("thickness_nm.hdr");
-        let cube = read_cube(&map).map_err(|e| e.to_string())?;
+        let film = model(&t.dispersion, t.refractive_index, "dispersion")?;
         // A dispersive substrate is `substrate_dispersion`; a constant one (null there, or
         // a truth written before the key) `substrate_index`.
-        let substrate = match v.get("substrate_dispersion") {
-            None | Some(serde_json::Value::Null) => Dispersion::constant(
-                num("substrate_index").ok_or_else(|| bad("no substrate_index"))?,
-            ),
-            Some(d) => parse_dispersion(d).ok_or_else(|| {
-                bad("substrate_dispersion is neither null, constant, cauchy nor sellmeier")
-            })?,
-        };
+        let substrate = model(
+            &t.substrate_dispersion,
+            t.substrate_index,
+            "substrate_dispersion",
+        )?;
+        let map = dir.join("truth").join("thickness_nm.hdr");
+        let cube = read_cube(&map).map_err(|e| e.to_string())?;
         Ok(Self {
             film,
             substrate,
-            ambient_index: num("ambient_index").unwrap_or(1.0),
-            polarization: pol,
-            back_face: v
-                .get("back_face")
-                .and_then(|b| b.as_str())
-                .and_then(BackFace::from_name)
-                .unwrap_or_default(),
+            ambient_index: t.ambient_index,
+            polarization: t.polarization.into(),
+            back_face: t.back_face.into(),
             thickness_nm: cube.data,
         })
     }
-}
-
-/// Parses a `dispersion` object of a truth file.
-fn parse_dispersion(d: &serde_json::Value) -> Option<Dispersion> {
-    serde_json::from_value::<DispersionRecord>(d.clone())
-        .ok()?
-        .dispersion()
-        .ok()
 }
 
 /// One scene's accuracy (the `eval --json` object).

@@ -14,6 +14,7 @@
 //! free-space floor (`retention.min_free_bytes`) no sample is measured: an alarm record
 //! says so and [`Line::measure`] fails with an error that [`InspectError::is_disk_full`].
 
+use std::collections::VecDeque;
 use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -21,24 +22,34 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
 
-use serde_json::{json, Value};
-
 use super::plc::{self, LineState, PlcServer};
 use super::recipe::{IndexMode, Recipe};
 use super::retention;
-use super::spc::{self, History, Point, Variable};
-use super::status::{StatusBoard, StatusServer, DEFAULT_STALE_AFTER_S, SNAPSHOT_FILE};
-use super::stream::{AckState, MqttPublisher, ResultsLog, Unsent};
+use super::spc::{self, History, Point};
+use super::status::{HistoryBody, StatusBoard, StatusServer, DEFAULT_STALE_AFTER_S, SNAPSHOT_FILE};
+use super::stream::{AckState, MqttPublisher, Recovered, ResultsLog, Unsent};
 use super::verdict::{self, Verdict};
 use crate::estimate::{run_method, write_outputs_into, Run, RunConfig};
 use crate::io::{counter_of, sample_id, utc_iso};
 use crate::io::{write_atomic, Capture};
+use crate::record::acquisition::AcquisitionLog;
+use crate::record::finite;
+use crate::record::line::{
+    AlarmRecord, AlarmVariable, LineFault, Reading, Record, ReferenceRecord, SampleRecord,
+};
 use crate::rig::acquire::{open_sim_with, sim_options, Acquisition};
 use crate::rig::config::SearchConfig;
 use crate::rig::RigConfig;
 use crate::source::{CaptureSource, DEFAULT_INDEX_RANGE};
-use crate::summary::LineRecord;
-use firmware_sim::line::SampleSequence;
+use firmware_sim::line::{SampleKind, SampleSequence};
+
+mod files;
+mod lock;
+mod records;
+
+pub use files::overlay_png;
+use files::write_mask;
+use lock::{take_lock, DirLock};
 
 /// An inspection that cannot go on: one line.
 #[derive(Debug, thiserror::Error)]
@@ -106,9 +117,9 @@ pub struct InspectOptions {
 #[derive(Clone, Debug)]
 pub struct SampleOutcome {
     /// Its record (the line of `results.jsonl`).
-    pub record: Value,
+    pub record: SampleRecord,
     /// Alarm records it raised.
-    pub alarms: Vec<Value>,
+    pub alarms: Vec<AlarmRecord>,
     /// Last row to verdict published (results.jsonl, MQTT queue, status page), ms.
     pub published_ms: f64,
     /// Its folder.
@@ -137,12 +148,12 @@ pub struct Line {
     seq: u64,
     plc: Option<PlcServer>,
     /// Records not yet appended (the disk was full), oldest first.
-    unlogged: std::collections::VecDeque<Value>,
+    unlogged: VecDeque<Record>,
     /// Samples measured by this process.
     pub measured: u64,
     /// The last [`LATENCY_WINDOW`] samples' latencies, ms, oldest first (a line runs for
     /// months: the median and p95 are the recent ones').
-    latencies_ms: std::collections::VecDeque<f64>,
+    latencies_ms: VecDeque<f64>,
     /// The longest latency since start, ms.
     latency_max_ms: f64,
     alarms_raised: u64,
@@ -150,73 +161,47 @@ pub struct Line {
     _lock: DirLock,
 }
 
-/// `DIR/inspect.lock`, holding the pid of the `inspect` that writes `DIR`; removed when the
-/// line is dropped. A lock whose process is gone (a kill -9) is taken over.
-struct DirLock(PathBuf);
+/// A sample's sweep, estimated.
+struct Swept {
+    run: Run,
+    /// When the sweep's last row arrived.
+    last_row: Instant,
+    /// What the acquisition did.
+    log: AcquisitionLog,
+    /// Whether a held index disagreed and the recorded sweep was solved again.
+    resolved: bool,
+    /// Which of firmware-sim's samples it was (`--sim`; none for the reference).
+    sim: Option<SampleKind>,
+}
 
-impl Drop for DirLock {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.0);
+/// What [`Line::open`] finds and takes in the output folder before anything else.
+struct Opened {
+    samples_dir: PathBuf,
+    lock: DirLock,
+    logfile: File,
+    log: ResultsLog,
+    recovered: Recovered,
+}
+
+/// Fails with the interrupted start-up's error once `stop` is set.
+fn go_on(stop: &AtomicBool) -> Result<(), InspectError> {
+    if stop.load(Ordering::SeqCst) {
+        Err(InspectError(INTERRUPTED.into()))
+    } else {
+        Ok(())
     }
 }
 
-fn take_lock(out: &Path) -> Result<DirLock, InspectError> {
-    let path = out.join("inspect.lock");
-    let me = std::process::id();
-    for _ in 0..2 {
-        match OpenOptions::new().write(true).create_new(true).open(&path) {
-            Ok(mut f) => {
-                let _ = writeln!(f, "{me}");
-                let _ = f.sync_all();
-                return Ok(DirLock(path));
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                let pid = std::fs::read_to_string(&path)
-                    .ok()
-                    .and_then(|t| t.trim().parse::<u32>().ok());
-                let alive = pid.is_some_and(|p| {
-                    p != me
-                        && std::fs::read(format!("/proc/{p}/cmdline"))
-                            .is_ok_and(|c| String::from_utf8_lossy(&c).contains("inspect"))
-                });
-                if alive {
-                    return Err(InspectError(format!(
-                        "{}: another inspect (pid {}) writes this folder",
-                        path.display(),
-                        pid.unwrap_or(0)
-                    )));
-                }
-                // Left by a process that is gone: take it over.
-                let _ = std::fs::remove_file(&path);
-            }
-            Err(e) => return Err(ie(&path.display().to_string())(&e)),
-        }
-    }
-    Err(InspectError(format!(
-        "{}: cannot take the lock",
-        path.display()
-    )))
-}
-
-impl Line {
-    /// Opens `opts.out`, recovering what a crash left, and starts the MQTT client and the
-    /// status page the recipe names.
-    pub fn open(opts: InspectOptions) -> Result<Self, InspectError> {
-        let stop = opts.stop.clone();
-        let go_on = || {
-            if stop.load(Ordering::SeqCst) {
-                Err(InspectError(INTERRUPTED.into()))
-            } else {
-                Ok(())
-            }
-        };
-        go_on()?;
-        let out = opts.out.clone();
+impl Opened {
+    /// Takes `opts.out` (its lock and log) after checking the recipe fits the sensor, and
+    /// reads the results log back from its end until a full history of samples is found.
+    fn take(opts: &InspectOptions) -> Result<Self, InspectError> {
+        let out = &opts.out;
         let samples_dir = out.join("samples");
         std::fs::create_dir_all(&samples_dir)
             .map_err(|e| ie(&samples_dir.display().to_string())(&e))?;
-        let lock = take_lock(&out)?;
-        go_on()?;
+        let lock = take_lock(out)?;
+        go_on(&opts.stop)?;
         let logpath = out.join("inspect.log");
         let logfile = OpenOptions::new()
             .append(true)
@@ -230,18 +215,34 @@ impl Line {
             )
             .map_err(|e| InspectError(format!("{}: {e}", opts.recipe_path.display())))?;
         let r = &opts.recipe.retention;
-        // Read back from the end until a full history of samples is found.
-        let (log, mut rec) = ResultsLog::open(
-            &out,
+        let (log, recovered) = ResultsLog::open(
+            out,
             r.results_rotate_bytes,
             r.results_keep,
             opts.recipe.spc.history,
         )
         .map_err(|e| InspectError(e.to_string()))?;
-        go_on()?;
-        let mut line = Self {
+        Ok(Self {
             samples_dir,
+            lock,
             logfile,
+            log,
+            recovered,
+        })
+    }
+}
+
+impl Line {
+    /// Opens `opts.out`, recovering what a crash left, and starts the MQTT client and the
+    /// status page the recipe names.
+    pub fn open(opts: InspectOptions) -> Result<Self, InspectError> {
+        go_on(&opts.stop)?;
+        let opened = Opened::take(&opts)?;
+        go_on(&opts.stop)?;
+        let mut rec = opened.recovered;
+        let mut line = Self {
+            samples_dir: opened.samples_dir,
+            logfile: opened.logfile,
             history: History::new(opts.recipe.spc.history),
             counter: 0,
             last_index: None,
@@ -253,14 +254,14 @@ impl Line {
             mqtt_stalled: false,
             seq: rec.max_seq,
             plc: None,
-            unlogged: std::collections::VecDeque::new(),
+            unlogged: VecDeque::new(),
             measured: 0,
-            latencies_ms: std::collections::VecDeque::new(),
+            latencies_ms: VecDeque::new(),
             latency_max_ms: f64::NAN,
             alarms_raised: 0,
             passed: 0,
-            log,
-            _lock: lock,
+            log: opened.log,
+            _lock: opened.lock,
             opts,
         };
         line.say(&format!(
@@ -280,85 +281,111 @@ impl Line {
         let mut records = std::mem::take(&mut rec.records);
         line.counter = rec.max_counter;
         line.recover_folders(&mut records, &rec)?;
-        go_on()?;
-        for r in &records {
-            if let Some(c) = r["counter"].as_u64() {
-                line.counter = line.counter.max(c);
-            }
-            if r["kind"] == "sample" {
-                line.push_history(r);
-            }
-        }
-        // The page (and its snapshot) shows the last sample measured until a new one comes.
-        if let Some(last) = records.iter().rev().find(|r| r["kind"] == "sample") {
-            line.board.show_last(last, &out);
-        }
-        if line.opts.sim {
-            let sim =
-                line.opts.rig.sim.clone().ok_or_else(|| {
-                    InspectError("--sim needs a [sim] table in the rig file".into())
-                })?;
-            let o = sim_options(&line.opts.rig, &sim.scene, sim.speed).map_err(InspectError)?;
-            let s = &line.opts.recipe.sim;
-            let mut seq = SampleSequence::new(o.scene, s.seed);
-            seq.drift_nm_per_sample = s.drift_nm_per_sample;
-            seq.defect_every = s.defect_every;
-            line.sequence = Some(seq);
-        }
-        go_on()?;
+        go_on(&line.opts.stop)?;
+        line.replay(&records);
+        line.sequence = line.sim_sequence()?;
+        go_on(&line.opts.stop)?;
         if let Some(mut m) = line.opts.recipe.mqtt.clone() {
             if let Some(p) = line.opts.mqtt_port {
                 m.port = p;
             }
             line.start_mqtt(&m)?;
         }
-        go_on()?;
-        let modbus = match (&line.opts.recipe.modbus, &line.opts.modbus) {
-            (_, Some(b)) => Some(b.clone()),
-            (Some(mb), None) => Some(mb.bind.clone()),
-            (None, None) => None,
-        };
-        if let Some(bind) = modbus {
-            match PlcServer::start(&bind) {
-                Ok(server) => {
-                    line.say(&format!("modbus: listening on {}", server.addr()));
-                    line.plc = Some(server);
-                }
-                Err(e) => {
-                    line.say(&format!("stop: {e}"));
-                    return Err(InspectError(e.to_string()));
-                }
+        go_on(&line.opts.stop)?;
+        line.start_modbus()?;
+        line.start_status()?;
+        Ok(line)
+    }
+
+    /// Takes up the records read back: the counter, the trend history and the index they
+    /// reached; the page (and its snapshot) shows the last sample until a new one comes.
+    fn replay(&mut self, records: &VecDeque<Record>) {
+        for r in records {
+            if let Some(c) = r.counter() {
+                self.counter = self.counter.max(c);
+            }
+            if let Some(s) = r.as_sample() {
+                self.push_history(s);
             }
         }
-        let status = match (&line.opts.recipe.status, line.opts.status_port) {
+        if let Some(last) = records.iter().rev().find_map(Record::as_sample) {
+            self.board.show_last(last, &self.opts.out);
+        }
+    }
+
+    /// firmware-sim's line of samples (`--sim`), from the rig's `[sim]` scene and the
+    /// recipe's `[sim]` settings.
+    fn sim_sequence(&self) -> Result<Option<SampleSequence>, InspectError> {
+        if !self.opts.sim {
+            return Ok(None);
+        }
+        let sim = self
+            .opts
+            .rig
+            .sim
+            .clone()
+            .ok_or_else(|| InspectError("--sim needs a [sim] table in the rig file".into()))?;
+        let o = sim_options(&self.opts.rig, &sim.scene, sim.speed).map_err(InspectError)?;
+        let s = &self.opts.recipe.sim;
+        let mut seq = SampleSequence::new(o.scene, s.seed);
+        seq.drift_nm_per_sample = s.drift_nm_per_sample;
+        seq.defect_every = s.defect_every;
+        Ok(Some(seq))
+    }
+
+    /// Starts the Modbus server (`--modbus`, else the recipe's `[modbus]`), if any.
+    fn start_modbus(&mut self) -> Result<(), InspectError> {
+        let bind = match (&self.opts.recipe.modbus, &self.opts.modbus) {
+            (_, Some(b)) => b.clone(),
+            (Some(mb), None) => mb.bind.clone(),
+            (None, None) => return Ok(()),
+        };
+        match PlcServer::start(&bind) {
+            Ok(server) => {
+                self.say(&format!("modbus: listening on {}", server.addr()));
+                self.plc = Some(server);
+                Ok(())
+            }
+            Err(e) => {
+                self.say(&format!("stop: {e}"));
+                Err(InspectError(e.to_string()))
+            }
+        }
+    }
+
+    /// Labels the board and serves the status page (`--status-port`, else the recipe's
+    /// `[status]`), if any.
+    fn start_status(&mut self) -> Result<(), InspectError> {
+        let status = match (&self.opts.recipe.status, self.opts.status_port) {
             (Some(s), p) => Some((s.bind.clone(), p.unwrap_or(s.port), s.stale_after_s)),
             (None, Some(p)) => Some(("127.0.0.1".to_owned(), p, DEFAULT_STALE_AFTER_S)),
             (None, None) => None,
         };
-        go_on()?;
+        go_on(&self.opts.stop)?;
         let stale_after_s = status.as_ref().map_or(DEFAULT_STALE_AFTER_S, |s| s.2);
-        line.board.set_stale_after(stale_after_s);
-        let recipe_file = line
+        self.board.set_stale_after(stale_after_s);
+        let recipe_file = self
             .opts
             .recipe_path
             .file_name()
             .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-        line.board.set_labels(&line.opts.recipe.line, &recipe_file);
-        line.refresh_status_history();
-        if let Some((bind, port, _)) = status {
-            match StatusServer::serve(&bind, port, line.board.clone()) {
-                Ok(server) => {
-                    line.say(&format!("status page: {}", server.url()));
-                    line.status = Some(server);
-                }
-                // A page the recipe asks for and nobody could reach would go unnoticed.
-                Err(e) => {
-                    line.say(&format!("stop: {e}"));
-                    return Err(InspectError(e.to_string()));
-                }
+        self.board.set_labels(&self.opts.recipe.line, &recipe_file);
+        self.refresh_status_history();
+        let Some((bind, port, _)) = status else {
+            return Ok(());
+        };
+        match StatusServer::serve(&bind, port, self.board.clone()) {
+            Ok(server) => {
+                self.say(&format!("status page: {}", server.url()));
+                self.status = Some(server);
+                Ok(())
+            }
+            // A page the recipe asks for and nobody could reach would go unnoticed.
+            Err(e) => {
+                self.say(&format!("stop: {e}"));
+                Err(InspectError(e.to_string()))
             }
         }
-        Ok(line)
     }
 
     /// The status page's URL, if served.
@@ -439,8 +466,8 @@ impl Line {
             self.say(&format!(
                 "mqtt: {} record(s) not acknowledged before the last stop queued again (seq {} to {}){}",
                 backlog.len(),
-                backlog.front().and_then(|r| r["seq"].as_u64()).unwrap_or(0),
-                backlog.back().and_then(|r| r["seq"].as_u64()).unwrap_or(0),
+                backlog.front().and_then(Record::seq).unwrap_or(0),
+                backlog.back().and_then(Record::seq).unwrap_or(0),
                 if left_out {
                     format!("; older ones beyond mqtt.spool_records = {} are not sent", m.spool_records)
                 } else {
@@ -483,7 +510,13 @@ impl Line {
                 let text = format!(
                     "the broker accepted the connection but has not acknowledged {n} record(s) (the oldest seq {seq}) within mqtt.ack_timeout_s = {timeout} s"
                 );
-                self.raise_alarm("mqtt", "no_acknowledgement", &text, json!(n));
+                let alarm = self.fault_alarm(
+                    AlarmVariable::Mqtt,
+                    LineFault::NoAcknowledgement,
+                    text,
+                    Some(Reading::Count(n as u64)),
+                );
+                self.raise_alarm(alarm);
                 self.plc_update(|s| {
                     s.alarm_bits |= plc::alarm_bit::MQTT_UNACKNOWLEDGED;
                     s.last_error = plc::ErrorCode::MqttUnacknowledged;
@@ -504,41 +537,16 @@ impl Line {
         }
     }
 
-    /// An alarm record: of sample `sample_id` (null: of none) at the current counter, its
-    /// `variable`, `rule`, `text` and `value`, then the `extra` fields of its rule.
-    fn alarm_record(
-        &self,
-        sample_id: Value,
-        variable: &str,
-        rule: Value,
-        text: &str,
-        value: Value,
-        extra: &[(&str, Value)],
-    ) -> Value {
-        let mut alarm = json!({
-            "kind": "alarm",
-            "sample_id": sample_id,
-            "counter": self.counter,
-            "timestamp": utc_iso(SystemTime::now()),
-            "variable": variable,
-            "rule": rule,
-            "text": text,
-            "value": value,
-        });
-        for (k, v) in extra {
-            alarm[*k] = v.clone();
-        }
-        alarm
-    }
-
     /// An alarm record of no sample: to `results.jsonl`, MQTT, the status page and the log.
-    fn raise_alarm(&mut self, variable: &str, rule: &str, text: &str, value: Value) {
-        let mut alarm = self.alarm_record(Value::Null, variable, json!(rule), text, value, &[]);
-        self.say(&format!("alarm {text}"));
-        if self.log_append(&mut alarm).is_ok() {
-            self.publish(&alarm);
+    fn raise_alarm(&mut self, alarm: AlarmRecord) {
+        self.say(&format!("alarm {}", alarm.text));
+        let mut record = Record::Alarm(alarm);
+        if self.log_append(&mut record).is_ok() {
+            self.publish(&record);
         }
-        self.board.publish_alarm(&alarm);
+        if let Record::Alarm(a) = &record {
+            self.board.publish_alarm(a);
+        }
         self.write_snapshot();
     }
 
@@ -551,8 +559,8 @@ impl Line {
     }
 
     /// Appends `record` to `results.jsonl` with the next `seq`.
-    fn log_append(&mut self, record: &mut Value) -> Result<(), super::stream::StreamError> {
-        record["seq"] = json!(self.seq + 1);
+    fn log_append(&mut self, record: &mut Record) -> Result<(), super::stream::StreamError> {
+        record.set_seq(self.seq + 1);
         self.log.append(record)?;
         self.seq += 1;
         Ok(())
@@ -572,7 +580,7 @@ impl Line {
 
     fn recover_folders(
         &mut self,
-        records: &mut std::collections::VecDeque<Value>,
+        records: &mut VecDeque<Record>,
         rec: &super::stream::Recovered,
     ) -> Result<(), InspectError> {
         let mut names: Vec<String> = std::fs::read_dir(&self.samples_dir)
@@ -599,7 +607,7 @@ impl Line {
             }
             match std::fs::read_to_string(p.join("record.json"))
                 .ok()
-                .and_then(|t| serde_json::from_str::<Value>(&t).ok())
+                .and_then(|t| serde_json::from_str::<Record>(&t).ok())
             {
                 Some(mut r) => {
                     self.log_append(&mut r)
@@ -613,57 +621,17 @@ impl Line {
         Ok(())
     }
 
-    fn push_history(&mut self, r: &Value) {
-        let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
-        let index = f(&r["refractive_index"]);
-        if index.is_finite() {
-            self.last_index = Some(index);
+    fn push_history(&mut self, r: &SampleRecord) {
+        let point = Point::of(r);
+        if point.index.is_finite() {
+            self.last_index = Some(point.index);
         }
-        self.history.push(Point {
-            sample_id: r["sample_id"].as_str().unwrap_or("").to_owned(),
-            index,
-            thickness_mean: f(&r["thickness_nm"]["mean"]),
-            thickness_std: f(&r["thickness_nm"]["std"]),
-            pass: r["verdict"] == "PASS",
-        });
+        self.history.push(point);
     }
 
     /// `/api/history`'s body: points, limits, capability, the recipe's limits.
-    pub fn history_json(&self) -> Value {
-        let s = &self.opts.recipe.spc;
-        let [lsl, usl] = self.opts.recipe.thickness.limits();
-        let ix = &self.opts.recipe.index;
-        let mut limits = serde_json::Map::new();
-        let mut cap = serde_json::Map::new();
-        for v in Variable::ALL {
-            limits.insert(
-                v.name().into(),
-                json!(spc::limits_of(&self.history, v, s.baseline, s.min_points)),
-            );
-        }
-        let series = |v| self.history.series(v);
-        cap.insert(
-            Variable::ThicknessMeanNm.name().into(),
-            json!(spc::capability(
-                &series(Variable::ThicknessMeanNm),
-                lsl,
-                usl
-            )),
-        );
-        cap.insert(
-            Variable::RefractiveIndex.name().into(),
-            json!(spc::capability(
-                &series(Variable::RefractiveIndex),
-                ix.nominal - ix.tolerance,
-                ix.nominal + ix.tolerance
-            )),
-        );
-        json!({
-            "points": self.history.points().collect::<Vec<_>>(),
-            "limits": limits,
-            "capability": cap,
-            "spec": {"lsl": lsl, "usl": usl, "index_lsl": ix.nominal - ix.tolerance, "index_usl": ix.nominal + ix.tolerance},
-        })
+    pub fn history_json(&self) -> serde_json::Value {
+        HistoryBody::new(&self.history, &self.opts.recipe).to_value()
     }
 
     fn refresh_status_history(&mut self) {
@@ -684,20 +652,20 @@ impl Line {
         let disk = r.as_ref().err().is_some_and(InspectError::is_disk_full);
         match &r {
             Ok(o) => {
-                let f = |v: &Value| v.as_f64().map_or(f32::NAN, |x| x as f32);
+                let f = |v: Option<f64>| v.map_or(f32::NAN, |x| x as f32);
                 let rec = &o.record;
                 let alarms = !o.alarms.is_empty();
                 self.plc_update(|s| {
                     s.state = LineState::Between;
-                    s.counter = rec["counter"].as_u64().unwrap_or(0) as u32;
-                    s.pass = Some(rec["verdict"] == "PASS");
+                    s.counter = rec.counter as u32;
+                    s.pass = Some(rec.verdict.passed());
                     s.thickness_nm = [
-                        f(&rec["thickness_nm"]["mean"]),
-                        f(&rec["thickness_nm"]["min"]),
-                        f(&rec["thickness_nm"]["max"]),
+                        f(rec.thickness_nm.mean),
+                        f(rec.thickness_nm.min),
+                        f(rec.thickness_nm.max),
                     ];
-                    s.index_550 = f(&rec["refractive_index"]);
-                    s.valid_fraction = f(&rec["valid_fraction"]);
+                    s.index_550 = f(rec.refractive_index);
+                    s.valid_fraction = rec.valid_fraction as f32;
                     s.alarm_bits &= !(plc::alarm_bit::RUN_RULE | plc::alarm_bit::DEVICE_ERROR);
                     if alarms {
                         s.alarm_bits |= plc::alarm_bit::RUN_RULE;
@@ -735,24 +703,20 @@ impl Line {
             "{DISK_FULL}: {} has {free} bytes free, below retention.min_free_bytes = {floor}; measuring stopped (free space, then restart)",
             self.opts.out.display()
         );
-        let mut alarm = self.alarm_record(
-            Value::Null,
-            "disk_free_bytes",
-            json!("free_space_floor"),
-            &text,
-            json!(free),
-            &[("floor", json!(floor))],
-        );
-        self.say(&format!("alarm {text}"));
+        let alarm = AlarmRecord {
+            floor: Some(floor),
+            ..self.fault_alarm(
+                AlarmVariable::DiskFreeBytes,
+                LineFault::FreeSpaceFloor,
+                text.clone(),
+                Some(Reading::Count(free)),
+            )
+        };
         self.plc_update(|s| {
             s.alarm_bits |= plc::alarm_bit::DISK_FLOOR;
             s.last_error = plc::ErrorCode::DiskFull;
         });
-        if self.log_append(&mut alarm).is_ok() {
-            self.publish(&alarm);
-        }
-        self.board.publish_alarm(&alarm);
-        self.write_snapshot();
+        self.raise_alarm(alarm);
         Err(InspectError(text))
     }
 
@@ -764,18 +728,25 @@ impl Line {
             self.unlogged.pop_front();
             self.say(&format!(
                 "recovered: record of {} appended",
-                r["sample_id"].as_str().unwrap_or("?")
+                r.sample_id().unwrap_or("?")
             ));
             self.publish(&r);
-            if r["kind"] == "sample" {
-                self.push_history(&r);
+            if let Some(s) = r.as_sample() {
+                self.push_history(s);
             }
         }
         Ok(())
     }
 
+    /// Appends a record and publishes it; its `seq`.
+    fn append_and_publish(&mut self, mut record: Record) -> Result<Option<u64>, InspectError> {
+        self.append_record(&mut record)?;
+        self.publish(&record);
+        Ok(record.seq())
+    }
+
     /// Appends a record, or keeps it for later (and fails) when it cannot be appended.
-    fn append_record(&mut self, record: &mut Value) -> Result<(), InspectError> {
+    fn append_record(&mut self, record: &mut Record) -> Result<(), InspectError> {
         if !self.unlogged.is_empty() {
             self.unlogged.push_back(record.clone());
             return Err(InspectError(
@@ -812,7 +783,7 @@ impl Line {
     /// drift, within tolerance) to `results.jsonl`, MQTT (`<prefix>/reference`) and the
     /// status page, and an alarm when the drift is beyond tolerance. The reference is solved
     /// over the rig's whole index range, not held to the line's.
-    pub fn check_reference(&mut self) -> Result<Value, InspectError> {
+    pub fn check_reference(&mut self) -> Result<ReferenceRecord, InspectError> {
         let spec = self.opts.recipe.reference.clone().ok_or_else(|| {
             InspectError(format!(
                 "{}: --reference needs a [reference] table (name, thickness_nm, index, tolerance_nm, tolerance_index)",
@@ -827,7 +798,7 @@ impl Line {
         let tmp = dir.join(format!(".tmp-{id}"));
         let _ = std::fs::remove_dir_all(&tmp);
         std::fs::create_dir_all(&tmp).map_err(|e| ie(&tmp.display().to_string())(&e))?;
-        let (run, _, _, _, _) = self.sweep(None, &tmp).inspect_err(|e| {
+        let Swept { run, .. } = self.sweep(None, &tmp).inspect_err(|e| {
             let _ = std::fs::remove_dir_all(&tmp);
             self.say(&format!("device error: reference {}: {e}", spec.name));
         })?;
@@ -848,29 +819,9 @@ impl Line {
         let mean = if valid.is_empty() { f64::NAN } else { mean };
         let index = run.result.index.at(550.0);
         let (dd, dn) = (mean - spec.thickness_nm, index - spec.index);
-        let within = dd.abs() <= spec.tolerance_nm && dn.abs() <= spec.tolerance_index;
-        let recipe = &self.opts.recipe;
-        let mut record = json!({
-            "kind": "reference",
-            "reference": spec.name,
-            "reference_id": id,
-            "timestamp": utc_iso(t),
-            "lot": recipe.lot,
-            "operator": recipe.operator,
-            "certified": {"thickness_nm": spec.thickness_nm, "index": spec.index},
-            "measured": {
-                "thickness_nm": finite(mean),
-                "index": finite(index),
-                "valid_fraction": valid.len() as f64 / run.result.thickness_nm.len().max(1) as f64,
-            },
-            "drift": {"thickness_nm": finite(dd), "index": finite(dn)},
-            "tolerance": {"thickness_nm": spec.tolerance_nm, "index": spec.tolerance_index},
-            "within": within,
-            "folder": format!("references/{id}"),
-            "version": env!("CARGO_PKG_VERSION"),
-        });
-        self.append_record(&mut record)?;
-        self.publish(&record);
+        let mut record = self.reference_record(&spec, id, t, &run, mean, valid.len());
+        let within = record.within;
+        record.seq = self.append_and_publish(Record::Reference(record.clone()))?;
         self.board.publish_reference(&record);
         self.say(&format!(
             "reference {}: thickness {mean:.2} nm (certified {}, drift {dd:+.2}), index {index:.4} (certified {}, drift {dn:+.4}): {}",
@@ -884,17 +835,17 @@ impl Line {
                 "reference {} drifted beyond tolerance: thickness {dd:+.2} nm (tolerance {}), index {dn:+.4} (tolerance {})",
                 spec.name, spec.tolerance_nm, spec.tolerance_index
             );
-            let mut alarm = self.alarm_record(
-                Value::Null,
-                "reference",
-                json!("reference_drift"),
-                &text,
-                json!(finite(dd)),
-                &[("index_drift", json!(finite(dn)))],
-            );
+            let mut alarm = AlarmRecord {
+                index_drift: Some(finite(dn)),
+                ..self.fault_alarm(
+                    AlarmVariable::Reference,
+                    LineFault::ReferenceDrift,
+                    text.clone(),
+                    finite(dd).map(Reading::Real),
+                )
+            };
             self.say(&format!("alarm {text}"));
-            self.append_record(&mut alarm)?;
-            self.publish(&alarm);
+            alarm.seq = self.append_and_publish(Record::Alarm(alarm.clone()))?;
             self.board.publish_alarm(&alarm);
         }
         self.write_snapshot();
@@ -906,12 +857,10 @@ impl Line {
         let counter = self.counter;
         let t = SystemTime::now();
         let id = sample_id(counter, t);
-        let timestamp = utc_iso(t);
         let tmp = self.samples_dir.join(format!(".tmp-{id}"));
         let _ = std::fs::remove_dir_all(&tmp);
         std::fs::create_dir_all(&tmp).map_err(|e| ie(&tmp.display().to_string())(&e))?;
-        let result = self.sweep(Some(counter), &tmp);
-        let (run, last_row, acq_log, resolved, sim_kind) = match result {
+        let swept = match self.sweep(Some(counter), &tmp) {
             Ok(x) => x,
             Err(e) => {
                 let _ = std::fs::remove_dir_all(&tmp);
@@ -919,162 +868,31 @@ impl Line {
                 return Err(e);
             }
         };
-        let recipe = &self.opts.recipe;
-        let (w, h) = (run.spec.width, run.spec.height);
+        let run = &swept.run;
         let index = run.result.index.at(550.0);
-        let v = verdict::judge(recipe, w, h, &run.result.thickness_nm, index);
-        // The sample's folder is staged as a whole (renamed in when complete): the maps go
-        // into it beside the sweep's capture.
-        let mut summary = write_outputs_into(&tmp, &run, &format!("inspect sample {id}"))
-            .map_err(|e| InspectError(e.to_string()))?;
-        write_mask(&tmp, w, h, &v)?;
-        let png = overlay_png(recipe, w, h, &run.result.thickness_nm, &v)?;
-        let png_path = tmp.join("overlay.png");
-        write_atomic(&png_path, &png).map_err(|e| ie(&png_path.display().to_string())(&e))?;
-        let keep = retention::keeps_raw(&recipe.retention, counter, v.pass);
-        let recipe_name = self
-            .opts
-            .recipe_path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let mut record = json!({
-            "kind": "sample",
-            "sample_id": id,
-            "counter": counter,
-            "timestamp": timestamp,
-            "film": recipe.film,
-            "recipe": recipe_name,
-            "lot": recipe.lot,
-            "operator": recipe.operator,
-            "verdict": v.word(),
-            "reasons": v.reasons,
-            "refractive_index": finite(index),
-            "index_mode": recipe.index.mode,
-            "index_resolved": resolved,
-            "thickness_nm": {
-                "mean": finite(v.thickness.mean),
-                "std": finite(v.thickness.std),
-                "min": finite(v.thickness.min),
-                "max": finite(v.thickness.max),
-            },
-            "valid_fraction": v.valid_fraction,
-            "out_of_tolerance_px": v.out_of_tolerance_px,
-            "regions": v.regions.iter().take(20).collect::<Vec<_>>(),
-            "raw_kept": keep,
-            "folder": format!("samples/{id}"),
-            "version": env!("CARGO_PKG_VERSION"),
-        });
-        if let Some(k) = sim_kind {
-            record["sim_sample"] = json!(k);
-        }
-        summary.timestamp = Some(timestamp.clone());
-        summary.version = Some(env!("CARGO_PKG_VERSION").to_owned());
-        summary.line = Some(LineRecord {
-            sample_id: id.clone(),
-            recipe: json!({"file": self.opts.recipe_path.display().to_string(), "film": recipe.film, "settings": recipe}),
-            verdict: json!({"verdict": v.word(), "reasons": v.reasons, "thickness_nm": v.thickness,
-                   "valid_fraction": v.valid_fraction, "judged_px": v.judged_px,
-                   "out_of_tolerance_px": v.out_of_tolerance_px, "regions": v.regions,
-                   "mask": "oot_mask.hdr", "overlay": "overlay.png"}),
-        });
-        summary.acquisition = Some(acq_log);
-        summary.write(&tmp).map_err(InspectError)?;
-        let capture = tmp.join("capture");
-        if keep {
-            retention::references_to_u16(&capture).map_err(InspectError)?;
-        } else {
-            let _ = std::fs::remove_dir_all(&capture);
-        }
-        let latency_ms = last_row.elapsed().as_secs_f64() * 1e3;
-        record["latency_ms"] = json!(latency_ms);
+        let (w, h) = (run.spec.width, run.spec.height);
+        let v = verdict::judge(&self.opts.recipe, w, h, &run.result.thickness_nm, index);
+        let mut record = self.sample_record(&id, counter, t, &v, &swept);
+        let png = self.stage_sample(&tmp, &swept, &v, &record)?;
+        record.latency_ms = swept.last_row.elapsed().as_secs_f64() * 1e3;
         let rp = tmp.join("record.json");
-        write_atomic(&rp, record.to_string().as_bytes())
-            .map_err(|e| ie(&rp.display().to_string())(&e))?;
+        let text = crate::record::to_json(&record).map_err(|e| ie("record.json")(&e))?;
+        write_atomic(&rp, text.as_bytes()).map_err(|e| ie(&rp.display().to_string())(&e))?;
         let folder = self.samples_dir.join(&id);
         std::fs::rename(&tmp, &folder).map_err(|e| ie(&folder.display().to_string())(&e))?;
         sync_dir(&self.samples_dir);
         // The record, then the alarms, on disk and on the wire.
-        self.append_record(&mut record)?;
-        self.publish(&record);
+        record.seq = self.append_and_publish(Record::Sample(Box::new(record.clone())))?;
         self.push_history(&record);
-        let s = &self.opts.recipe.spc;
-        let mut alarms = Vec::new();
-        for a in spc::alarms(&self.history, s.baseline, s.min_points) {
-            let mut rec = self.alarm_record(
-                json!(id),
-                a.variable.name(),
-                json!(a.rule.number()),
-                a.rule.text(),
-                json!(finite(a.value)),
-                &[
-                    ("center", json!(a.limits.center)),
-                    ("ucl", json!(a.limits.ucl)),
-                    ("lcl", json!(a.limits.lcl)),
-                ],
-            );
-            self.append_record(&mut rec)?;
-            self.publish(&rec);
-            alarms.push(rec);
-        }
+        let alarms = self.spc_alarms(&id)?;
         let history = self.history_json();
         self.board
             .publish_sample(&record, Some(png), history, &alarms);
-        let published_ms = last_row.elapsed().as_secs_f64() * 1e3;
-        if self.latencies_ms.len() == LATENCY_WINDOW {
-            self.latencies_ms.pop_front();
-        }
-        self.latencies_ms.push_back(published_ms);
-        self.latency_max_ms = self.latency_max_ms.max(published_ms);
-        self.measured += 1;
-        self.passed += u64::from(v.pass);
-        self.alarms_raised += alarms.len() as u64;
+        let published_ms = swept.last_row.elapsed().as_secs_f64() * 1e3;
+        self.tally(published_ms, v.pass, alarms.len());
         self.write_snapshot();
-        self.say(&format!(
-            "sample {id} {} n={} thickness mean {:.1} std {:.2} min {:.1} max {:.1} nm valid {:.1}% latency {:.1} ms (verdict {:.1} ms){}{}",
-            v.word(),
-            fmt4(index),
-            v.thickness.mean,
-            v.thickness.std,
-            v.thickness.min,
-            v.thickness.max,
-            100.0 * v.valid_fraction,
-            published_ms,
-            latency_ms,
-            if resolved { " index re-solved" } else { "" },
-            if v.reasons.is_empty() {
-                String::new()
-            } else {
-                format!(": {}", v.reasons.join("; "))
-            }
-        ));
-        for a in &alarms {
-            self.say(&format!(
-                "alarm {id} {} rule {}: {} (value {}, centre {:.4}, limits {:.4}..{:.4})",
-                a["variable"].as_str().unwrap_or(""),
-                a["rule"],
-                a["text"].as_str().unwrap_or(""),
-                a["value"],
-                a["center"].as_f64().unwrap_or(f64::NAN),
-                a["lcl"].as_f64().unwrap_or(f64::NAN),
-                a["ucl"].as_f64().unwrap_or(f64::NAN)
-            ));
-        }
-        if self.opts.recipe.retention.raw != super::recipe::RawPolicy::None {
-            match retention::enforce_budget(
-                &self.samples_dir,
-                self.opts.recipe.retention.raw_budget_bytes,
-            ) {
-                Ok(gone) if !gone.is_empty() => {
-                    self.say(&format!(
-                        "retention: raw sweeps of {} deleted (budget)",
-                        gone.join(", ")
-                    ));
-                }
-                Ok(_) => {}
-                Err(e) => self.say(&format!("retention: {e}")),
-            }
-        }
+        self.log_sample(&record, &v, published_ms, &alarms);
+        self.enforce_raw_budget();
         Ok(SampleOutcome {
             record,
             alarms,
@@ -1083,7 +901,124 @@ impl Line {
         })
     }
 
-    fn publish(&mut self, record: &Value) {
+    /// Writes into the sample's staging folder `tmp` (renamed in when complete) its maps
+    /// beside the sweep's capture, its `summary.json` with the line's record of it, the
+    /// verdict's mask and overlay, and keeps its raw sweep (as uint16 references) or
+    /// deletes it; the overlay PNG.
+    fn stage_sample(
+        &self,
+        tmp: &Path,
+        swept: &Swept,
+        v: &Verdict,
+        record: &SampleRecord,
+    ) -> Result<Vec<u8>, InspectError> {
+        let run = &swept.run;
+        let (w, h) = (run.spec.width, run.spec.height);
+        let label = format!("inspect sample {}", record.sample_id);
+        let mut summary =
+            write_outputs_into(tmp, run, &label).map_err(|e| InspectError(e.to_string()))?;
+        write_mask(tmp, w, h, v)?;
+        let png = overlay_png(&self.opts.recipe, w, h, &run.result.thickness_nm, v)?;
+        let png_path = tmp.join("overlay.png");
+        write_atomic(&png_path, &png).map_err(|e| ie(&png_path.display().to_string())(&e))?;
+        self.complete_summary(&mut summary, record, v, swept.log.clone());
+        summary.write(tmp).map_err(InspectError)?;
+        let capture = tmp.join("capture");
+        if record.raw_kept {
+            retention::references_to_u16(&capture).map_err(InspectError)?;
+        } else {
+            let _ = std::fs::remove_dir_all(&capture);
+        }
+        Ok(png)
+    }
+
+    /// The control-chart alarms the newest sample, `id`, raises: appended and published.
+    fn spc_alarms(&mut self, id: &str) -> Result<Vec<AlarmRecord>, InspectError> {
+        let s = &self.opts.recipe.spc;
+        let mut alarms = Vec::new();
+        for a in spc::alarms(&self.history, s.baseline, s.min_points) {
+            let mut alarm = self.spc_alarm_record(id, &a);
+            alarm.seq = self.append_and_publish(Record::Alarm(alarm.clone()))?;
+            alarms.push(alarm);
+        }
+        Ok(alarms)
+    }
+
+    /// Counts a sample published `published_ms` after its last row.
+    fn tally(&mut self, published_ms: f64, pass: bool, alarms: usize) {
+        if self.latencies_ms.len() == LATENCY_WINDOW {
+            self.latencies_ms.pop_front();
+        }
+        self.latencies_ms.push_back(published_ms);
+        self.latency_max_ms = self.latency_max_ms.max(published_ms);
+        self.measured += 1;
+        self.passed += u64::from(pass);
+        self.alarms_raised += alarms as u64;
+    }
+
+    /// The sample's lines in `inspect.log`: its verdict and figures, then its alarms.
+    fn log_sample(
+        &mut self,
+        r: &SampleRecord,
+        v: &Verdict,
+        published_ms: f64,
+        alarms: &[AlarmRecord],
+    ) {
+        let id = &r.sample_id;
+        self.say(&format!(
+            "sample {id} {} n={} thickness mean {:.1} std {:.2} min {:.1} max {:.1} nm valid {:.1}% latency {:.1} ms (verdict {:.1} ms){}{}",
+            v.word(),
+            fmt4(r.refractive_index.unwrap_or(f64::NAN)),
+            v.thickness.mean,
+            v.thickness.std,
+            v.thickness.min,
+            v.thickness.max,
+            100.0 * v.valid_fraction,
+            published_ms,
+            r.latency_ms,
+            if r.index_resolved { " index re-solved" } else { "" },
+            if v.reasons.is_empty() {
+                String::new()
+            } else {
+                format!(": {}", v.reasons.join("; "))
+            }
+        ));
+        for a in alarms {
+            let f = |x: Option<f64>| x.unwrap_or(f64::NAN);
+            self.say(&format!(
+                "alarm {id} {} rule {}: {} (value {}, centre {:.4}, limits {:.4}..{:.4})",
+                a.variable.name(),
+                a.rule,
+                a.text,
+                a.value.map_or_else(|| "null".into(), |x| x.to_string()),
+                f(a.center),
+                f(a.lcl),
+                f(a.ucl)
+            ));
+        }
+    }
+
+    /// Deletes the oldest raw sweeps beyond the recipe's budget (when any are kept).
+    fn enforce_raw_budget(&mut self) {
+        if self.opts.recipe.retention.raw == super::recipe::RawPolicy::None {
+            return;
+        }
+        match retention::enforce_budget(
+            &self.samples_dir,
+            self.opts.recipe.retention.raw_budget_bytes,
+        ) {
+            Ok(gone) if !gone.is_empty() => {
+                self.say(&format!(
+                    "retention: raw sweeps of {} deleted (budget)",
+                    gone.join(", ")
+                ));
+            }
+            Ok(_) => {}
+            Err(e) => self.say(&format!("retention: {e}")),
+        }
+    }
+
+    fn publish(&mut self, record: &Record) {
         let Some(m) = self.mqtt.as_ref() else { return };
         m.publish(record);
         let err = m.take_error();
@@ -1106,12 +1041,7 @@ impl Line {
     /// The sweep of sample `counter` (`None`: the recipe's reference) into `tmp/capture`,
     /// estimated as it streams, with a re-solve over the whole index range when the held
     /// index disagrees (the reference is solved over the whole range at once).
-    #[allow(clippy::type_complexity)]
-    fn sweep(
-        &mut self,
-        counter: Option<u64>,
-        tmp: &Path,
-    ) -> Result<(Run, Instant, Value, bool, Option<&'static str>), InspectError> {
+    fn sweep(&mut self, counter: Option<u64>, tmp: &Path) -> Result<Swept, InspectError> {
         let mut cfg = self.opts.rig.clone();
         let ix = &self.opts.recipe.index;
         let full = cfg
@@ -1138,14 +1068,14 @@ impl Line {
         let mut sim_kind = None;
         let mut _sim = None;
         let rig = if let Some(seq) = &self.sequence {
-            let (scene, kind) = match counter {
+            let scene = match counter {
                 Some(c) => {
                     let (scene, kind) = seq.scene(c - 1);
-                    (scene, kind.name())
+                    sim_kind = Some(kind);
+                    scene
                 }
-                None => (seq.reference(), "reference"),
+                None => seq.reference(),
             };
-            sim_kind = Some(kind);
             let sim = cfg
                 .sim
                 .clone()
@@ -1190,20 +1120,28 @@ impl Line {
             .into_inner()
             .unwrap_or_else(|p| p.into_inner())
             .unwrap_or_else(Instant::now);
-        let acq_log = serde_json::to_value(&acq.log).unwrap_or_default();
+        let log = std::mem::take(&mut acq.log);
         drop(acq);
         let n = run.result.index.at(550.0);
         let disagree =
             centre.is_some_and(|c| !n.is_finite() || (n - c).abs() > ix.resolve_above / 2.0);
+        let mut swept = Swept {
+            run,
+            last_row: last,
+            log,
+            resolved: false,
+            sim: sim_kind,
+        };
         if !disagree {
-            return Ok((run, last, acq_log, false, sim_kind));
+            return Ok(swept);
         }
         let mut cap = Capture::load(&capture_dir).map_err(|e| InspectError(e.to_string()))?;
         cap.search.index_range = Some(full);
         let mut src = CaptureSource::new(cap).map_err(|e| InspectError(e.to_string()))?;
-        let run2 = run_method(&mut src, &RunConfig::default(), &|_| {})
+        swept.run = run_method(&mut src, &RunConfig::default(), &|_| {})
             .map_err(|e| InspectError(format!("re-solve: {e}")))?;
-        Ok((run2, last, acq_log, true, sim_kind))
+        swept.resolved = true;
+        Ok(swept)
     }
 
     /// Waits up to `mqtt.ack_timeout_s` for the broker to acknowledge every record; what
@@ -1221,40 +1159,6 @@ impl Line {
         }
         Some(left)
     }
-
-    /// What this process did, for the closing summary.
-    pub fn summary(&self) -> Value {
-        let mut l: Vec<f64> = self.latencies_ms.iter().copied().collect();
-        l.sort_by(f64::total_cmp);
-        let pct = |p: f64| {
-            if l.is_empty() {
-                Value::Null
-            } else {
-                json!(l[((l.len() - 1) as f64 * p).round() as usize])
-            }
-        };
-        json!({
-            "samples": self.measured,
-            "passed": self.passed,
-            "failed": self.measured - self.passed,
-            "alarms": self.alarms_raised,
-            "last_counter": self.counter,
-            "latency_ms": {"median": pct(0.5), "p95": pct(0.95), "max": finite(self.latency_max_ms),
-                           "over": format!("median and p95 of the last {} samples, max of all", l.len()),
-                           "measured": "last row of the sweep to the verdict published (results.jsonl fsynced, MQTT queued, status page updated)"},
-            "mqtt": self.mqtt.as_ref().map(|m| json!({"sent": m.sent(), "acked": m.acked()})),
-            "status": self.status_url(),
-            "out": self.opts.out.display().to_string(),
-        })
-    }
-}
-
-fn finite(v: f64) -> Value {
-    if v.is_finite() {
-        json!(v)
-    } else {
-        Value::Null
-    }
 }
 
 fn fmt4(v: f64) -> String {
@@ -1269,46 +1173,4 @@ fn sync_dir(dir: &Path) {
     if let Ok(d) = File::open(dir) {
         let _ = d.sync_all();
     }
-}
-
-/// Writes `oot_mask.hdr`/`.img`: ENVI uint8 (data type 1), the verdict's mask.
-fn write_mask(dir: &Path, w: usize, h: usize, v: &Verdict) -> Result<(), InspectError> {
-    let img = dir.join("oot_mask.img");
-    write_atomic(&img, &v.mask).map_err(|e| ie(&img.display().to_string())(&e))?;
-    let hdr = format!(
-        "ENVI\ndescription = {{\n  out-of-tolerance mask: 0=within 1=out of tolerance 2=no thickness 3=outside the regions of interest}}\nsamples = {w}\nlines = {h}\nbands = 1\nheader offset = 0\nfile type = ENVI Standard\ndata type = 1\ninterleave = bsq\nbyte order = 0\n"
-    );
-    let hp = dir.join("oot_mask.hdr");
-    write_atomic(&hp, hdr.as_bytes()).map_err(|e| ie(&hp.display().to_string())(&e))
-}
-
-/// The thickness preview (viridis over the recipe's tolerance band) with out-of-tolerance
-/// pixels in red, pixels without a thickness black and pixels outside the regions of
-/// interest dimmed; 8x enlarged.
-pub fn overlay_png(
-    recipe: &Recipe,
-    w: usize,
-    h: usize,
-    thickness: &[f32],
-    v: &Verdict,
-) -> Result<Vec<u8>, InspectError> {
-    let [lo, hi] = recipe.thickness.limits();
-    let rgb: Vec<[u8; 3]> = (0..w * h)
-        .map(|i| {
-            let t = f64::from(thickness.get(i).copied().unwrap_or(f32::NAN));
-            let base = if t.is_finite() {
-                crate::export::colormap::viridis(((t - lo) / (hi - lo)).clamp(0.0, 1.0))
-            } else {
-                [0, 0, 0]
-            };
-            match v.mask.get(i).copied().unwrap_or(verdict::MASK_IGNORED) {
-                verdict::MASK_OUT => [230, 20, 20],
-                verdict::MASK_IGNORED => base.map(|c| c / 3),
-                _ => base,
-            }
-        })
-        .collect();
-    let scale = (320 / w.max(1)).clamp(1, 16);
-    crate::export::png::render_rgb_png(w, h, &rgb, scale)
-        .map_err(|e| InspectError(format!("overlay: {e}")))
 }

@@ -64,17 +64,7 @@ pub struct Recipe {
     pub sim: SimSpec,
 }
 
-/// How the index is obtained for each sample.
-#[derive(Clone, Copy, Debug, Deserialize, serde::Serialize, PartialEq, Eq)]
-#[serde(rename_all = "lowercase")]
-pub enum IndexMode {
-    /// The search is held around the recipe's nominal index.
-    Hold,
-    /// The search is held around the last sample's index.
-    Carry,
-    /// The index is searched over the rig's whole range every time.
-    Solve,
-}
+pub use crate::record::line::IndexMode;
 
 /// `[index]`.
 #[derive(Clone, Debug, Deserialize, serde::Serialize, PartialEq)]

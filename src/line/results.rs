@@ -9,41 +9,43 @@
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 
-use serde_json::Value;
+use serde::Serialize;
 
-/// The sample rows' columns: a header and the record's key (dotted for a nested one).
-const SAMPLE_COLUMNS: [(&str, &str); 18] = [
-    ("counter", "counter"),
-    ("sample_id", "sample_id"),
-    ("timestamp", "timestamp"),
-    ("lot", "lot"),
-    ("operator", "operator"),
-    ("recipe", "recipe"),
-    ("film", "film"),
-    ("verdict", "verdict"),
-    ("reasons", "reasons"),
-    ("refractive_index", "refractive_index"),
-    ("thickness_mean_nm", "thickness_nm.mean"),
-    ("thickness_std_nm", "thickness_nm.std"),
-    ("thickness_min_nm", "thickness_nm.min"),
-    ("thickness_max_nm", "thickness_nm.max"),
-    ("valid_fraction", "valid_fraction"),
-    ("out_of_tolerance_px", "out_of_tolerance_px"),
-    ("latency_ms", "latency_ms"),
-    ("folder", "folder"),
+use crate::record::line::{AlarmRecord, Record, SampleRecord};
+
+/// The sample rows' columns.
+const SAMPLE_COLUMNS: [&str; 18] = [
+    "counter",
+    "sample_id",
+    "timestamp",
+    "lot",
+    "operator",
+    "recipe",
+    "film",
+    "verdict",
+    "reasons",
+    "refractive_index",
+    "thickness_mean_nm",
+    "thickness_std_nm",
+    "thickness_min_nm",
+    "thickness_max_nm",
+    "valid_fraction",
+    "out_of_tolerance_px",
+    "latency_ms",
+    "folder",
 ];
 
 /// The alarm rows' columns.
-const ALARM_COLUMNS: [(&str, &str); 9] = [
-    ("counter", "counter"),
-    ("sample_id", "sample_id"),
-    ("timestamp", "timestamp"),
-    ("variable", "variable"),
-    ("rule", "rule"),
-    ("text", "text"),
-    ("value", "value"),
-    ("lcl", "lcl"),
-    ("ucl", "ucl"),
+const ALARM_COLUMNS: [&str; 9] = [
+    "counter",
+    "sample_id",
+    "timestamp",
+    "variable",
+    "rule",
+    "text",
+    "value",
+    "lcl",
+    "ucl",
 ];
 
 /// Writes the results log of the `inspect --out` folder `out` as CSV into `w`: the samples'
@@ -70,27 +72,27 @@ pub fn write_csv(out: &Path, alarms: bool, w: &mut dyn Write) -> Result<usize, S
         ));
     }
     let wr = |e: std::io::Error| format!("writing the CSV: {e}");
-    writeln!(w, "{}", header(&SAMPLE_COLUMNS)).map_err(wr)?;
+    writeln!(w, "{}", SAMPLE_COLUMNS.join(",")).map_err(wr)?;
     let mut skipped = 0;
     let mut alarm_rows = Vec::new();
     for f in &files {
         let file = std::fs::File::open(f).map_err(|e| format!("{}: {e}", f.display()))?;
         for line in BufReader::new(file).lines() {
             let line = line.map_err(|e| format!("{}: {e}", f.display()))?;
-            let Ok(record) = serde_json::from_str::<Value>(&line) else {
+            let Ok(record) = serde_json::from_str::<Record>(&line) else {
                 skipped += usize::from(!line.trim().is_empty());
                 continue;
             };
-            match record.get("kind").and_then(Value::as_str) {
-                Some("sample") => writeln!(w, "{}", row(&record, &SAMPLE_COLUMNS)).map_err(wr)?,
-                Some("alarm") if alarms => alarm_rows.push(row(&record, &ALARM_COLUMNS)),
+            match record {
+                Record::Sample(r) => writeln!(w, "{}", sample_row(&r)).map_err(wr)?,
+                Record::Alarm(a) if alarms => alarm_rows.push(alarm_row(&a)),
                 _ => {}
             }
         }
     }
     if alarms {
         writeln!(w).map_err(wr)?;
-        writeln!(w, "{}", header(&ALARM_COLUMNS)).map_err(wr)?;
+        writeln!(w, "{}", ALARM_COLUMNS.join(",")).map_err(wr)?;
         for r in alarm_rows {
             writeln!(w, "{r}").map_err(wr)?;
         }
@@ -98,42 +100,60 @@ pub fn write_csv(out: &Path, alarms: bool, w: &mut dyn Write) -> Result<usize, S
     Ok(skipped)
 }
 
-fn header(columns: &[(&str, &str)]) -> String {
-    columns.iter().map(|c| c.0).collect::<Vec<_>>().join(",")
+/// A sample record's fields in [`SAMPLE_COLUMNS`]' order.
+fn sample_row(r: &SampleRecord) -> String {
+    let t = &r.thickness_nm;
+    [
+        num(Some(r.counter)),
+        text(&r.sample_id),
+        text(&r.timestamp),
+        r.lot.as_deref().map(text).unwrap_or_default(),
+        r.operator.as_deref().map(text).unwrap_or_default(),
+        text(&r.recipe),
+        text(&r.film),
+        text(r.verdict.word()),
+        text(&r.reasons.join("; ")),
+        num(r.refractive_index),
+        num(t.mean),
+        num(t.std),
+        num(t.min),
+        num(t.max),
+        num(Some(r.valid_fraction)),
+        num(Some(r.out_of_tolerance_px)),
+        num(Some(r.latency_ms)),
+        text(&r.folder),
+    ]
+    .join(",")
 }
 
-/// One record's fields in `columns`' order.
-fn row(record: &Value, columns: &[(&str, &str)]) -> String {
-    columns
-        .iter()
-        .map(|&(_, key)| {
-            let v = key.split('.').try_fold(record, |v, k| v.get(k));
-            field(v.unwrap_or(&Value::Null))
-        })
-        .collect::<Vec<_>>()
-        .join(",")
+/// An alarm record's fields in [`ALARM_COLUMNS`]' order.
+fn alarm_row(a: &AlarmRecord) -> String {
+    [
+        num(Some(a.counter)),
+        a.sample_id.as_deref().map(text).unwrap_or_default(),
+        text(&a.timestamp),
+        text(a.variable.name()),
+        text(&a.rule.to_string()),
+        text(&a.text),
+        a.value.map(|v| v.to_string()).unwrap_or_default(),
+        num(a.lcl),
+        num(a.ucl),
+    ]
+    .join(",")
 }
 
-/// One CSV field: empty for null, a number as written, a list joined by "; ", text quoted
-/// when it must be.
-fn field(v: &Value) -> String {
-    let text = match v {
-        Value::Null => return String::new(),
-        Value::String(s) => s.clone(),
-        Value::Array(items) => items
-            .iter()
-            .map(|i| match i {
-                Value::String(s) => s.clone(),
-                other => other.to_string(),
-            })
-            .collect::<Vec<_>>()
-            .join("; "),
-        other => other.to_string(),
-    };
-    if text.contains([',', '"', '\n', '\r']) {
-        format!("\"{}\"", text.replace('"', "\"\""))
+/// A number as the log writes it; empty for none (null).
+fn num<T: Serialize>(v: Option<T>) -> String {
+    v.and_then(|v| serde_json::to_string(&v).ok())
+        .unwrap_or_default()
+}
+
+/// Text, quoted when it must be.
+fn text(t: &str) -> String {
+    if t.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", t.replace('"', "\"\""))
     } else {
-        text
+        t.to_owned()
     }
 }
 
@@ -146,19 +166,33 @@ mod tests {
     fn rows_in_order_with_quoting() {
         let dir = tempfile::tempdir().expect("dir");
         let log = dir.path().join("results.jsonl");
-        let sample = |c: u64, reasons: &str| {
-            format!(
-                r#"{{"kind":"sample","counter":{c},"sample_id":"s{c}","lot":"L7","operator":"Ann, B.","verdict":"FAIL","reasons":[{reasons}],"thickness_nm":{{"mean":601.5,"std":null}},"valid_fraction":0.99}}"#
-            )
+        let sample = |c: u64, reasons: &[&str]| {
+            let mut r = SampleRecord::example(c);
+            r.sample_id = format!("s{c}");
+            r.timestamp = String::new();
+            r.lot = Some("L7".into());
+            r.operator = Some("Ann, B.".into());
+            r.verdict = crate::record::line::PassFail::Fail;
+            r.reasons = reasons.iter().map(|&t| t.to_owned()).collect();
+            r.refractive_index = None;
+            r.thickness_nm.mean = Some(601.5);
+            r.thickness_nm.std = None;
+            r.thickness_nm.min = None;
+            r.thickness_nm.max = None;
+            r.valid_fraction = 0.99;
+            Record::Sample(Box::new(r)).to_line()
         };
-        std::fs::write(format!("{}.1", log.display()), sample(1, "") + "\n").expect("write");
+        let mut alarm = AlarmRecord::example(2);
+        alarm.value = Some(crate::record::line::Reading::Real(7.5));
+        alarm.text = "beyond 3 sigma".into();
+        std::fs::write(format!("{}.1", log.display()), sample(1, &[]) + "\n").expect("write");
         std::fs::write(
             &log,
             format!(
                 "{}\n{{\"kind\":\"sam\n{}\n{}\n",
-                sample(2, r#""thickness \"low\"","mask""#),
-                r#"{"kind":"alarm","counter":2,"rule":1,"text":"beyond 3 sigma","value":7.5}"#,
-                sample(3, "")
+                sample(2, &["thickness \"low\"", "mask"]),
+                Record::Alarm(alarm).to_line(),
+                sample(3, &[])
             ),
         )
         .expect("write");
@@ -177,7 +211,10 @@ mod tests {
         assert!(lines[3].starts_with("3,s3"));
         assert_eq!(lines[4], "");
         assert!(lines[5].starts_with("counter,sample_id,timestamp,variable,rule"));
-        assert_eq!(lines[6], "2,,,,1,beyond 3 sigma,7.5,,");
+        assert_eq!(
+            lines[6],
+            "2,S000002-20261125T225313Z,2026-11-25T22:53:14.000Z,thickness_mean_nm,1,beyond 3 sigma,7.5,614.0,626.0"
+        );
         assert!(write_csv(&dir.path().join("none"), false, &mut Vec::new()).is_err());
     }
 }

@@ -12,6 +12,8 @@ use std::collections::VecDeque;
 
 use serde::Serialize;
 
+use crate::record::line::{AlarmVariable, SampleRecord};
+
 /// d2 for moving ranges of two.
 pub const D2: f64 = 1.128;
 
@@ -28,6 +30,20 @@ pub struct Point {
     pub thickness_std: f64,
     /// Whether it passed.
     pub pass: bool,
+}
+
+impl Point {
+    /// The point of a sample record (NaN where the record has null).
+    pub fn of(r: &SampleRecord) -> Self {
+        let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
+        Self {
+            sample_id: r.sample_id.clone(),
+            index: f(r.refractive_index),
+            thickness_mean: f(r.thickness_nm.mean),
+            thickness_std: f(r.thickness_nm.std),
+            pass: r.verdict.passed(),
+        }
+    }
 }
 
 /// The rolling history, at most `capacity` points, oldest first.
@@ -116,6 +132,16 @@ impl Variable {
             Self::RefractiveIndex => "refractive_index",
             Self::ThicknessMeanNm => "thickness_mean_nm",
             Self::ThicknessStdNm => "thickness_std_nm",
+        }
+    }
+}
+
+impl From<Variable> for AlarmVariable {
+    fn from(v: Variable) -> Self {
+        match v {
+            Variable::RefractiveIndex => Self::RefractiveIndex,
+            Variable::ThicknessMeanNm => Self::ThicknessMeanNm,
+            Variable::ThicknessStdNm => Self::ThicknessStdNm,
         }
     }
 }

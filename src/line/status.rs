@@ -27,9 +27,13 @@ use http_body_util::Full;
 use hyper::body::{Bytes, Incoming};
 use hyper::{Method, Request, Response, StatusCode};
 use hyper_util::rt::{TokioIo, TokioTimer};
-use serde_json::{json, Value};
+use serde::Serialize;
+use serde_json::Value;
 
 use super::listen::ServerThread;
+use super::recipe::Recipe;
+use super::spc::{self, Capability, History, Limits, Point, Variable};
+use crate::record::line::{AlarmRecord, Record, ReferenceRecord, SampleRecord};
 
 /// Most connections served at once (each a task of a few kB, not a thread).
 pub const MAX_CONNECTIONS: usize = 512;
@@ -64,14 +68,17 @@ pub struct StatusError {
 #[serde(default)]
 pub struct StatusState {
     /// The latest sample record.
-    pub latest: Option<Value>,
+    #[serde(serialize_with = "crate::record::sorted")]
+    pub latest: Option<SampleRecord>,
     /// Its overlay PNG (not in the snapshot: read from the sample's folder).
     #[serde(skip)]
     pub latest_png: Option<Vec<u8>>,
-    /// `/api/history`'s body.
+    /// `/api/history`'s body ([`HistoryBody`] as JSON: the page's chart data, its limits
+    /// and capabilities null until there are samples enough).
     pub history: Value,
     /// Recent alarm records, newest last.
-    pub alarms: VecDeque<Value>,
+    #[serde(serialize_with = "crate::record::sorted")]
+    pub alarms: VecDeque<AlarmRecord>,
     /// Samples, passed, failed and alarms since start.
     pub counts: Counts,
     /// Pages served (`/`).
@@ -80,7 +87,8 @@ pub struct StatusState {
     /// The film, for the title.
     pub film: String,
     /// The last reference check's record.
-    pub reference: Option<Value>,
+    #[serde(serialize_with = "crate::record::sorted")]
+    pub reference: Option<ReferenceRecord>,
     /// Seconds without a new sample after which the page shows STALE.
     pub stale_after_s: f64,
     /// The metrics' labels: the line's name and the recipe's file name.
@@ -145,27 +153,25 @@ impl StatusBoard {
     /// Shows a new sample: its record, overlay PNG, the history body and its alarms.
     pub fn publish_sample(
         &self,
-        record: &Value,
+        record: &SampleRecord,
         png: Option<Vec<u8>>,
         history: Value,
-        alarms: &[Value],
+        alarms: &[AlarmRecord],
     ) {
         let mut s = self.lock();
         s.counts.samples += 1;
-        if record["verdict"] == "PASS" {
+        if record.verdict.passed() {
             s.counts.passed += 1;
         } else {
             s.counts.failed += 1;
         }
         s.latest = Some(record.clone());
         s.latest_at = Some(std::time::SystemTime::now());
-        if let Some(ms) = record["latency_ms"].as_f64() {
-            let sec = ms / 1000.0;
-            if let Some(b) = LATENCY_BUCKETS_S.iter().position(|&le| sec <= le) {
-                s.latency.0[b] += 1;
-            }
-            s.latency.1 += sec;
+        let sec = record.latency_ms / 1000.0;
+        if let Some(b) = LATENCY_BUCKETS_S.iter().position(|&le| sec <= le) {
+            s.latency.0[b] += 1;
         }
+        s.latency.1 += sec;
         if png.is_some() {
             s.latest_png = png;
         }
@@ -181,10 +187,10 @@ impl StatusBoard {
 
     /// Shows `record`, a sample measured before this start, as the latest (not counted):
     /// its overlay PNG and time from its folder under `dir`.
-    pub fn show_last(&self, record: &Value, dir: &Path) {
+    pub fn show_last(&self, record: &SampleRecord, dir: &Path) {
         let mut s = self.lock();
         s.latest = Some(record.clone());
-        if let Some(f) = record_folder(record) {
+        if let Some(f) = record_folder(&record.folder) {
             let f = dir.join(f);
             s.latest_png = std::fs::read(f.join("overlay.png")).ok();
             s.latest_at = std::fs::metadata(f.join("record.json"))
@@ -194,7 +200,7 @@ impl StatusBoard {
     }
 
     /// Shows an alarm that belongs to no sample (the disk below its free-space floor).
-    pub fn publish_alarm(&self, alarm: &Value) {
+    pub fn publish_alarm(&self, alarm: &AlarmRecord) {
         let mut s = self.lock();
         s.counts.alarms += 1;
         s.alarms.push_back(alarm.clone());
@@ -214,7 +220,7 @@ impl StatusBoard {
     }
 
     /// Shows a reference check's record (its age on the page counts from its timestamp).
-    pub fn publish_reference(&self, record: &Value) {
+    pub fn publish_reference(&self, record: &ReferenceRecord) {
         self.lock().reference = Some(record.clone());
     }
 
@@ -230,11 +236,7 @@ impl StatusBoard {
 
     /// The latest sample's id, if any.
     pub fn latest_id(&self) -> Option<String> {
-        self.lock()
-            .latest
-            .as_ref()
-            .and_then(|l| l["sample_id"].as_str())
-            .map(str::to_owned)
+        self.lock().latest.as_ref().map(|l| l.sample_id.clone())
     }
 
     /// Writes the state (all but the PNG, which stays in the sample's folder) to
@@ -249,7 +251,7 @@ impl StatusState {
     /// No sample yet, for `film`.
     pub fn empty(film: &str) -> Self {
         Self {
-            history: json!({"points": [], "limits": {}, "capability": {}}),
+            history: HistoryBody::default().to_value(),
             film: film.to_owned(),
             stale_after_s: DEFAULT_STALE_AFTER_S,
             ..Self::default()
@@ -286,22 +288,23 @@ impl StatusState {
             }
             Err(x) => return Err(e(&x)),
         };
-        let seen = state
-            .latest
-            .iter()
-            .chain(state.alarms.iter())
-            .chain(state.reference.iter())
-            .filter_map(|r| r["seq"].as_u64())
-            .max()
-            .unwrap_or(0);
+        let seen = [
+            state.latest.as_ref().and_then(|r| r.seq),
+            state.alarms.iter().filter_map(|r| r.seq).max(),
+            state.reference.as_ref().and_then(|r| r.seq),
+        ]
+        .into_iter()
+        .flatten()
+        .max()
+        .unwrap_or(0);
         let keep = usize::try_from(super::recipe::MAX_RESULTS_KEEP).unwrap_or(usize::MAX);
         let (newer, _) = super::stream::records_after(dir, keep, seen, CATCH_UP_RECORDS)
             .map_err(|x| x.to_string())?;
         for r in &newer {
             state.catch_up(r);
         }
-        let caught_up_sample = newer.iter().any(|r| r["kind"] == "sample");
-        if let Some(f) = state.latest.as_ref().and_then(record_folder) {
+        let caught_up_sample = newer.iter().any(|r| r.as_sample().is_some());
+        if let Some(f) = state.latest.as_ref().and_then(|r| record_folder(&r.folder)) {
             let f = dir.join(f);
             state.latest_png = std::fs::read(f.join("overlay.png")).ok();
             if caught_up_sample {
@@ -316,50 +319,117 @@ impl StatusState {
 
     /// Shows a record of the results log the snapshot does not hold: a sample (counted,
     /// the latest, a point of the history), an alarm or a reference check.
-    fn catch_up(&mut self, r: &Value) {
-        match r["kind"].as_str() {
-            Some("sample") => {
+    fn catch_up(&mut self, r: &Record) {
+        match r {
+            Record::Sample(r) => {
                 self.counts.samples += 1;
-                if r["verdict"] == "PASS" {
+                if r.verdict.passed() {
                     self.counts.passed += 1;
                 } else {
                     self.counts.failed += 1;
                 }
                 if self.film.is_empty() {
-                    self.film = r["film"].as_str().unwrap_or_default().to_owned();
+                    self.film.clone_from(&r.film);
                 }
-                let point = json!({
-                    "sample_id": r["sample_id"],
-                    "index": r["refractive_index"],
-                    "thickness_mean": r["thickness_nm"]["mean"],
-                    "thickness_std": r["thickness_nm"]["std"],
-                    "pass": r["verdict"] == "PASS",
-                });
-                if let Some(p) = self.history["points"].as_array_mut() {
+                let point = Point::of(r);
+                if let (Some(p), Ok(point)) = (
+                    self.history["points"].as_array_mut(),
+                    serde_json::to_value(point),
+                ) {
                     p.push(point);
                 }
-                self.latest = Some(r.clone());
+                self.latest = Some((**r).clone());
             }
-            Some("alarm") => {
+            Record::Alarm(a) => {
                 self.counts.alarms += 1;
-                self.alarms.push_back(r.clone());
+                self.alarms.push_back(a.clone());
                 while self.alarms.len() > RECENT_ALARMS {
                     self.alarms.pop_front();
                 }
             }
-            Some("reference") => self.reference = Some(r.clone()),
-            _ => {}
+            Record::Reference(r) => self.reference = Some(r.clone()),
         }
     }
 }
 
 /// The folder a record names (`folder`), taken only as a relative path that stays inside
 /// the output folder.
-fn record_folder(record: &Value) -> Option<&Path> {
-    record["folder"].as_str().map(Path::new).filter(|f| {
+fn record_folder(folder: &str) -> Option<&Path> {
+    Some(Path::new(folder)).filter(|f| {
         f.components()
             .all(|c| matches!(c, std::path::Component::Normal(_)))
     })
+}
+
+/// `/api/history`'s body: the history's points, oldest first, each variable's control
+/// limits and the capability against the recipe's tolerances (null until the history
+/// holds enough samples), and the tolerances.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct HistoryBody {
+    /// The points.
+    pub points: Vec<Point>,
+    /// Control limits by variable.
+    pub limits: std::collections::BTreeMap<&'static str, Option<Limits>>,
+    /// Cpk and Ppk of the mean thickness and of the index.
+    pub capability: std::collections::BTreeMap<&'static str, Option<Capability>>,
+    /// The recipe's tolerances (none on an empty board).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub spec: Option<SpecLimits>,
+}
+
+/// The recipe's tolerances on the trend charts.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct SpecLimits {
+    /// Lower thickness limit, nm.
+    pub lsl: f64,
+    /// Upper thickness limit, nm.
+    pub usl: f64,
+    /// Lower index limit.
+    pub index_lsl: f64,
+    /// Upper index limit.
+    pub index_usl: f64,
+}
+
+impl HistoryBody {
+    /// The body of `history` against `recipe`'s tolerances and SPC settings.
+    pub fn new(history: &History, recipe: &Recipe) -> Self {
+        let s = &recipe.spc;
+        let [lsl, usl] = recipe.thickness.limits();
+        let ix = &recipe.index;
+        let (index_lsl, index_usl) = (ix.nominal - ix.tolerance, ix.nominal + ix.tolerance);
+        let limits = Variable::ALL
+            .iter()
+            .map(|&v| {
+                (
+                    v.name(),
+                    spc::limits_of(history, v, s.baseline, s.min_points),
+                )
+            })
+            .collect();
+        let capability = [
+            (Variable::ThicknessMeanNm, lsl, usl),
+            (Variable::RefractiveIndex, index_lsl, index_usl),
+        ]
+        .into_iter()
+        .map(|(v, lo, hi)| (v.name(), spc::capability(&history.series(v), lo, hi)))
+        .collect();
+        Self {
+            points: history.points().cloned().collect(),
+            limits,
+            capability,
+            spec: Some(SpecLimits {
+                lsl,
+                usl,
+                index_lsl,
+                index_usl,
+            }),
+        }
+    }
+
+    /// As JSON, the keys of every object in alphabetical order.
+    pub fn to_value(&self) -> Value {
+        serde_json::to_value(self).unwrap_or_default()
+    }
 }
 
 /// A running status server; stops when dropped. It shows a [`StatusBoard`] (its methods
@@ -492,7 +562,7 @@ fn route(url: &str, st: &Mutex<StatusState>) -> (Vec<u8>, &'static str, u16) {
             s.page_hits += 1;
             (page(&s).into_bytes(), "text/html; charset=utf-8", 200)
         }
-        "/api/latest" => (latest(&s).to_string().into_bytes(), "application/json", 200),
+        "/api/latest" => (latest(&s).into_bytes(), "application/json", 200),
         "/api/history" => (s.history.to_string().into_bytes(), "application/json", 200),
         "/metrics" => (metrics(&s).into_bytes(), "text/plain; version=0.0.4", 200),
         "/latest.png" => match &s.latest_png {
@@ -503,14 +573,25 @@ fn route(url: &str, st: &Mutex<StatusState>) -> (Vec<u8>, &'static str, u16) {
     }
 }
 
-fn latest(s: &StatusState) -> Value {
-    json!({
-        "sample": s.latest,
-        "alarms": s.alarms.iter().rev().take(10).collect::<Vec<_>>(),
-        "counts": s.counts,
-        "reference": s.reference,
-        "stale_after_s": s.stale_after_s,
-    })
+/// `/api/latest`'s body.
+#[derive(Serialize)]
+struct Latest<'a> {
+    sample: &'a Option<SampleRecord>,
+    alarms: Vec<&'a AlarmRecord>,
+    counts: Counts,
+    reference: &'a Option<ReferenceRecord>,
+    stale_after_s: f64,
+}
+
+fn latest(s: &StatusState) -> String {
+    let body = Latest {
+        sample: &s.latest,
+        alarms: s.alarms.iter().rev().take(10).collect(),
+        counts: s.counts,
+        reference: &s.reference,
+        stale_after_s: s.stale_after_s,
+    };
+    crate::record::to_json(&body).unwrap_or_default()
 }
 
 /// Prometheus text exposition of the counters and the latest sample.
@@ -582,42 +663,42 @@ fn metrics(s: &StatusState) -> String {
         c.alarms as f64,
     );
     if let Some(l) = &s.latest {
-        let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+        let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
         put(
             "filmscope_last_pass",
             "gauge",
             "1 if the latest sample passed.",
-            if l["verdict"] == "PASS" { 1.0 } else { 0.0 },
+            if l.verdict.passed() { 1.0 } else { 0.0 },
         );
         put(
             "filmscope_last_refractive_index",
             "gauge",
             "Index of the latest sample.",
-            f(&l["refractive_index"]),
+            f(l.refractive_index),
         );
         put(
             "filmscope_last_thickness_mean_nm",
             "gauge",
             "Mean thickness of the latest sample, nm.",
-            f(&l["thickness_nm"]["mean"]),
+            f(l.thickness_nm.mean),
         );
         put(
             "filmscope_last_thickness_std_nm",
             "gauge",
             "Thickness spread of the latest sample, nm.",
-            f(&l["thickness_nm"]["std"]),
+            f(l.thickness_nm.std),
         );
         put(
             "filmscope_last_valid_fraction",
             "gauge",
             "Valid share of the latest sample.",
-            f(&l["valid_fraction"]),
+            l.valid_fraction,
         );
         put(
             "filmscope_last_latency_seconds",
             "gauge",
             "Last row to verdict published, latest sample.",
-            f(&l["latency_ms"]) / 1000.0,
+            l.latency_ms / 1000.0,
         );
     }
     let cap = &s.history["capability"]["thickness_mean_nm"];
@@ -651,8 +732,7 @@ fn page(s: &StatusState) -> String {
     let id = s
         .latest
         .as_ref()
-        .and_then(|l| l["sample_id"].as_str())
-        .unwrap_or("none yet");
+        .map_or("none yet", |l| l.sample_id.as_str());
     PAGE.replace("{FILM}", &esc(&s.film))
         .replace("{SAMPLE_ID}", &esc(id))
 }

@@ -13,9 +13,10 @@ use rumqttc::{
     AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Packet, QoS,
     TlsConfiguration, Transport,
 };
-use serde_json::Value;
+use serde::Deserialize;
 
 use super::recipe::MqttSpec;
+use crate::record::line::Record;
 
 /// A stream that cannot be written or published to.
 #[derive(Debug, thiserror::Error)]
@@ -92,7 +93,7 @@ pub struct ResultsLog {
 pub struct Recovered {
     /// The newest readable records, up to the number of sample records asked for, oldest
     /// first (the alarms among them included).
-    pub records: std::collections::VecDeque<Value>,
+    pub records: std::collections::VecDeque<Record>,
     /// Records read back.
     pub read: usize,
     /// The highest `counter` of the records read back.
@@ -108,7 +109,8 @@ pub struct Recovered {
     pub torn_bytes: u64,
     /// Bytes read back from the results files (their tails, not the whole files).
     pub bytes_read: u64,
-    /// Lines that were not JSON (skipped).
+    /// Lines that were not records (skipped; the numbering of those that were JSON taken
+    /// into account all the same).
     pub bad_lines: usize,
 }
 
@@ -191,12 +193,12 @@ impl ResultsLog {
     /// Appends one record as one line and fsyncs it; rotates first if the line would take
     /// the file past its size. An append that fails (a short write, a full disk) is cut
     /// back to the last whole line, so the next record starts a line of its own.
-    pub fn append(&mut self, record: &Value) -> Result<(), StreamError> {
+    pub fn append(&mut self, record: &Record) -> Result<(), StreamError> {
         if self.dirty {
             self.file.set_len(self.size).map_err(io(&self.path))?;
             self.dirty = false;
         }
-        let mut line = record.to_string();
+        let mut line = record.to_line();
         line.push('\n');
         if self.size > 0 && self.size + line.len() as u64 > self.rotate_bytes {
             self.rotate()?;
@@ -343,7 +345,7 @@ pub fn records_after(
     keep: usize,
     after: u64,
     max: usize,
-) -> Result<(std::collections::VecDeque<Value>, bool), StreamError> {
+) -> Result<(std::collections::VecDeque<Record>, bool), StreamError> {
     let path = ResultsLog::path_in(dir);
     let mut out = std::collections::VecDeque::new();
     let mut left_out = false;
@@ -360,11 +362,11 @@ pub fn records_after(
             if line.iter().all(u8::is_ascii_whitespace) {
                 return true;
             }
-            let Ok(v) = serde_json::from_slice::<Value>(line) else {
+            let Ok(head) = serde_json::from_slice::<Head>(line) else {
                 return true;
             };
             // Records written before sequence numbers: older than any spool.
-            let Some(seq) = v["seq"].as_u64() else {
+            let Some(seq) = head.seq else {
                 return false;
             };
             if seq <= after {
@@ -374,7 +376,10 @@ pub fn records_after(
                 left_out = true;
                 return false;
             }
-            out.push_front(v);
+            // A line this version cannot read whole is not sent.
+            if let Ok(r) = serde_json::from_slice::<Record>(line) {
+                out.push_front(r);
+            }
             true
         })
         .map_err(io(&p))?;
@@ -385,27 +390,74 @@ pub fn records_after(
     Ok((out, left_out))
 }
 
-/// One line read back (newest first).
+/// What numbers a line of the log, read from any line that is a JSON object: a line that
+/// is not a whole record (written by a later version, or damaged) still moves the
+/// numbering on.
+#[derive(Debug, Default, Deserialize)]
+struct Head {
+    /// The record's kind.
+    #[serde(default)]
+    kind: Option<HeadKind>,
+    /// Its place in the log.
+    #[serde(default)]
+    seq: Option<u64>,
+    /// Its sample counter.
+    #[serde(default)]
+    counter: Option<u64>,
+}
+
+/// A record's kind as [`Head`] reads it: samples are told from everything else.
+#[derive(Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum HeadKind {
+    Sample,
+    #[serde(other)]
+    Other,
+}
+
+impl From<&Record> for Head {
+    fn from(r: &Record) -> Self {
+        Self {
+            kind: Some(match r {
+                Record::Sample(_) => HeadKind::Sample,
+                _ => HeadKind::Other,
+            }),
+            seq: r.seq(),
+            counter: r.counter(),
+        }
+    }
+}
+
+/// One line read back (newest first): a record, or a JSON object that is not one (counted
+/// as a bad line, its numbering kept), or neither (a bad line).
 fn take_line(line: &[u8], rec: &mut Recovered) {
     if line.iter().all(u8::is_ascii_whitespace) {
         return;
     }
-    match serde_json::from_slice::<Value>(line) {
-        Ok(v) => {
-            rec.read += 1;
-            if let Some(q) = v["seq"].as_u64() {
-                rec.max_seq = rec.max_seq.max(q);
+    let record = serde_json::from_slice::<Record>(line).ok();
+    let head = match &record {
+        Some(r) => Head::from(r),
+        None => {
+            rec.bad_lines += 1;
+            match serde_json::from_slice::<Head>(line) {
+                Ok(h) => h,
+                Err(_) => return,
             }
-            if let Some(c) = v["counter"].as_u64() {
-                rec.max_counter = rec.max_counter.max(c);
-                rec.oldest_counter = Some(rec.oldest_counter.map_or(c, |o| o.min(c)));
-                if v["kind"] == "sample" {
-                    rec.sample_counters.insert(c);
-                }
-            }
-            rec.records.push_front(v);
         }
-        Err(_) => rec.bad_lines += 1,
+    };
+    if let Some(q) = head.seq {
+        rec.max_seq = rec.max_seq.max(q);
+    }
+    if let Some(c) = head.counter {
+        rec.max_counter = rec.max_counter.max(c);
+        rec.oldest_counter = Some(rec.oldest_counter.map_or(c, |o| o.min(c)));
+        if head.kind == Some(HeadKind::Sample) {
+            rec.sample_counters.insert(c);
+        }
+    }
+    if let Some(r) = record {
+        rec.read += 1;
+        rec.records.push_front(r);
     }
 }
 
@@ -611,15 +663,11 @@ impl MqttPublisher {
 
     /// Queues one record of `results.jsonl` (with its `seq`) on the topic of its kind
     /// (never blocks). A full spool drops its oldest record, which the next start sends.
-    pub fn publish(&self, record: &Value) {
-        let Some(seq) = record["seq"].as_u64() else {
+    pub fn publish(&self, record: &Record) {
+        let Some(seq) = record.seq() else {
             return;
         };
-        let kind = match record["kind"].as_str() {
-            Some("sample") => "sample",
-            Some("reference") => "reference",
-            _ => "alarm",
-        };
+        let kind = record.kind();
         let mut s = Spool::lock(&self.spool);
         if seq <= s.acked_seq || s.entries.back().is_some_and(|e| e.seq >= seq) {
             return;
@@ -635,7 +683,7 @@ impl MqttPublisher {
         s.entries.push_back(Entry {
             seq,
             topic: topic(&self.prefix, kind),
-            payload: record.to_string().into_bytes(),
+            payload: record.to_line().into_bytes(),
             retain: kind == "sample",
             sent: None,
             acked: false,
@@ -893,20 +941,56 @@ impl Worker {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use serde_json::json;
+    use crate::record::line::{AlarmRecord, SampleRecord};
     use std::sync::atomic::AtomicU64;
+
+    /// The record of sample `counter`, not numbered.
+    fn sample(counter: u64) -> Record {
+        Record::Sample(Box::new(SampleRecord::example(counter)))
+    }
+
+    /// The record of sample `counter` at place `seq` in the log.
+    fn numbered(counter: u64, seq: u64) -> Record {
+        let mut r = sample(counter);
+        r.set_seq(seq);
+        r
+    }
+
+    fn counters(records: &std::collections::VecDeque<Record>) -> Vec<u64> {
+        records.iter().filter_map(Record::counter).collect()
+    }
 
     #[test]
     fn torn_last_line_is_cut_and_appending_goes_on() {
         let dir = tempfile::tempdir().expect("dir");
         let p = ResultsLog::path_in(dir.path());
-        std::fs::write(&p, "{\"a\":1}\n{\"a\":2}\n{\"a\":").expect("write");
+        let (one, two) = (sample(1).to_line(), sample(2).to_line());
+        std::fs::write(&p, format!("{one}\n{two}\n{{\"kind\":")).expect("write");
         let (mut log, rec) = ResultsLog::open(dir.path(), 1 << 20, 2, 100).expect("open");
-        assert_eq!(rec.records.len(), 2);
-        assert_eq!(rec.torn_bytes, 5);
-        log.append(&json!({"a": 3})).expect("append");
+        assert_eq!(counters(&rec.records), vec![1, 2]);
+        assert_eq!(rec.torn_bytes, 8);
+        log.append(&sample(3)).expect("append");
         let text = std::fs::read_to_string(&p).expect("read");
-        assert_eq!(text, "{\"a\":1}\n{\"a\":2}\n{\"a\":3}\n");
+        assert_eq!(text, format!("{one}\n{two}\n{}\n", sample(3).to_line()));
+    }
+
+    /// A line that is JSON but no record this version reads is skipped and counted, its
+    /// numbering kept; a line that is not JSON is skipped and counted.
+    #[test]
+    fn a_line_that_is_not_a_record_is_skipped_and_its_numbering_kept() {
+        let dir = tempfile::tempdir().expect("dir");
+        let p = ResultsLog::path_in(dir.path());
+        let lines = [
+            numbered(1, 1).to_line(),
+            r#"{"kind":"sample","seq":2,"counter":2,"from":"a later version"}"#.to_owned(),
+            "not json".to_owned(),
+            numbered(3, 4).to_line(),
+        ];
+        std::fs::write(&p, lines.join("\n") + "\n").expect("write");
+        let (_, rec) = ResultsLog::open(dir.path(), 1 << 20, 2, 100).expect("open");
+        assert_eq!(counters(&rec.records), vec![1, 3]);
+        assert_eq!((rec.read, rec.bad_lines, rec.max_seq), (2, 2, 4));
+        assert!(rec.sample_counters.contains(&2), "numbered though not read");
     }
 
     /// A file on a disk with `room` bytes left: a write past it is cut short, the next one
@@ -957,7 +1041,7 @@ mod tests {
         });
         let (mut log, _) =
             ResultsLog::open_with(dir.path(), 1 << 20, 2, 100, opener).expect("open");
-        let rec = |c: u64| json!({"kind": "sample", "counter": c, "pad": "x".repeat(40)});
+        let rec = sample;
         log.append(&rec(1)).expect("append");
         // The disk fills half-way through the second record.
         room.store(20, Ordering::SeqCst);
@@ -969,7 +1053,7 @@ mod tests {
         let text = std::fs::read_to_string(&p).expect("read");
         assert_eq!(
             text,
-            format!("{}\n", rec(1)),
+            format!("{}\n", rec(1).to_line()),
             "rolled back to the last whole line"
         );
         room.store(1 << 20, Ordering::SeqCst);
@@ -977,12 +1061,7 @@ mod tests {
         log.append(&rec(3)).expect("append");
         let (_, back) = ResultsLog::open(dir.path(), 1 << 20, 2, 100).expect("reopen");
         assert_eq!((back.read, back.bad_lines, back.torn_bytes), (3, 0, 0));
-        let counters: Vec<u64> = back
-            .records
-            .iter()
-            .filter_map(|r| r["counter"].as_u64())
-            .collect();
-        assert_eq!(counters, vec![1, 2, 3]);
+        assert_eq!(counters(&back.records), vec![1, 2, 3]);
     }
 
     #[test]
@@ -990,10 +1069,9 @@ mod tests {
         let dir = tempfile::tempdir().expect("dir");
         let (mut log, _) = ResultsLog::open(dir.path(), 200_000, 3, 100).expect("open");
         for c in 1..=1000u64 {
-            log.append(&json!({"kind": "sample", "counter": c, "pad": "y".repeat(300)}))
-                .expect("append");
+            log.append(&sample(c)).expect("append");
             if c % 10 == 0 {
-                log.append(&json!({"kind": "alarm", "counter": c}))
+                log.append(&Record::Alarm(AlarmRecord::example(c)))
                     .expect("append");
             }
         }
@@ -1003,8 +1081,8 @@ mod tests {
         let samples: Vec<u64> = back
             .records
             .iter()
-            .filter(|r| r["kind"] == "sample")
-            .filter_map(|r| r["counter"].as_u64())
+            .filter_map(Record::as_sample)
+            .map(|r| r.counter)
             .collect();
         assert_eq!(samples, (301..=1000).collect::<Vec<_>>());
         assert_eq!((back.max_counter, back.bad_lines), (1000, 0));
@@ -1017,8 +1095,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("dir");
         let (mut log, _) = ResultsLog::open(dir.path(), 1 << 30, 2, 10).expect("open");
         for c in 1..=3000u64 {
-            log.append(&json!({"kind": "sample", "counter": c, "pad": "z".repeat(300)}))
-                .expect("append");
+            log.append(&sample(c)).expect("append");
         }
         let len = std::fs::metadata(ResultsLog::path_in(dir.path()))
             .expect("size")
@@ -1037,17 +1114,15 @@ mod tests {
     #[test]
     fn records_after_a_seq_come_back_oldest_first_across_rotations_and_bounded() {
         let dir = tempfile::tempdir().expect("dir");
-        let (mut log, _) = ResultsLog::open(dir.path(), 4096, 4, 10).expect("open");
+        let (mut log, _) = ResultsLog::open(dir.path(), 8192, 4, 10).expect("open");
         // Records of a log written before sequence numbers, then numbered ones.
-        log.append(&json!({"kind": "sample", "counter": 0}))
-            .expect("append");
+        log.append(&sample(0)).expect("append");
         for q in 1..=50u64 {
-            log.append(&json!({"kind": "sample", "seq": q, "pad": "p".repeat(100)}))
-                .expect("append");
+            log.append(&numbered(q, q)).expect("append");
         }
         assert!(rotated(&ResultsLog::path_in(dir.path()), 1).exists());
-        let seqs = |v: &std::collections::VecDeque<Value>| -> Vec<u64> {
-            v.iter().filter_map(|r| r["seq"].as_u64()).collect()
+        let seqs = |v: &std::collections::VecDeque<Record>| -> Vec<u64> {
+            v.iter().filter_map(Record::seq).collect()
         };
         let (after, left_out) = records_after(dir.path(), 4, 40, 100).expect("read");
         assert_eq!((seqs(&after), left_out), ((41..=50).collect(), false));
@@ -1071,14 +1146,12 @@ mod tests {
             .and_then(|l| l.local_addr())
             .map(|a| a.port())
             .expect("port");
-        let spec: MqttSpec = serde_json::from_value(json!({
-            "port": port,
-            "spool_records": 3,
-        }))
-        .expect("spec");
+        let spec: MqttSpec =
+            serde_json::from_str(&format!(r#"{{"port": {port}, "spool_records": 3}}"#))
+                .expect("spec");
         let m = MqttPublisher::connect(&spec, dir.path(), 10).expect("client");
         for seq in 9..=15u64 {
-            m.publish(&json!({"kind": "sample", "seq": seq}));
+            m.publish(&numbered(seq, seq));
         }
         // 9 and 10 were acknowledged before; 11 and 12 dropped from the full spool.
         let left = m.flush(Duration::ZERO).expect("unsent");
@@ -1102,16 +1175,14 @@ mod tests {
     fn rotation_keeps_k_files_and_reads_back_in_order() {
         let dir = tempfile::tempdir().expect("dir");
         let (mut log, _) = ResultsLog::open(dir.path(), 40, 2, 100).expect("open");
-        for i in 0..10 {
-            log.append(&json!({"i": i, "pad": "xxxxxxxxxx"}))
-                .expect("append");
+        for c in 0..10 {
+            log.append(&sample(c)).expect("append");
         }
         let p = ResultsLog::path_in(dir.path());
         assert!(rotated(&p, 1).exists() && rotated(&p, 2).exists());
         assert!(!rotated(&p, 3).exists());
         let (_, rec) = ResultsLog::open(dir.path(), 40, 2, 100).expect("reopen");
-        let ids: Vec<i64> = rec.records.iter().filter_map(|r| r["i"].as_i64()).collect();
-        assert_eq!(ids, vec![7, 8, 9]);
+        assert_eq!(counters(&rec.records), vec![7, 8, 9]);
         assert_eq!(rec.read, 3);
     }
 }

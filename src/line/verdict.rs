@@ -4,6 +4,8 @@
 use serde::Serialize;
 
 use super::recipe::Recipe;
+use crate::record::finite;
+use crate::record::line::{PassFail, ThicknessSummary, VerdictRecord};
 
 /// Mask value: judged and within tolerance.
 pub const MASK_OK: u8 = 0;
@@ -27,20 +29,7 @@ pub struct ThicknessStats {
     pub max: f64,
 }
 
-/// A connected out-of-tolerance region (4-connected).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-pub struct Region {
-    /// Bounding box: first column.
-    pub x: usize,
-    /// Bounding box: first row.
-    pub y: usize,
-    /// Bounding box width.
-    pub width: usize,
-    /// Bounding box height.
-    pub height: usize,
-    /// Pixels in the region.
-    pub area_px: usize,
-}
+pub use crate::record::line::Region;
 
 /// The verdict on one sample.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -67,10 +56,39 @@ pub struct Verdict {
 impl Verdict {
     /// `PASS` or `FAIL`.
     pub fn word(&self) -> &'static str {
-        if self.pass {
-            "PASS"
-        } else {
-            "FAIL"
+        self.pass_fail().word()
+    }
+
+    /// PASS or FAIL, as records give it.
+    pub fn pass_fail(&self) -> PassFail {
+        PassFail::of(self.pass)
+    }
+
+    /// The record a sample's `summary.json` carries: the verdict with every region, and
+    /// the mask's and overlay's files.
+    pub fn record(&self) -> VerdictRecord {
+        VerdictRecord {
+            verdict: self.pass_fail(),
+            reasons: self.reasons.clone(),
+            thickness_nm: self.thickness.summary(),
+            valid_fraction: self.valid_fraction,
+            judged_px: self.judged_px,
+            out_of_tolerance_px: self.out_of_tolerance_px,
+            regions: self.regions.clone(),
+            mask: "oot_mask.hdr".into(),
+            overlay: "overlay.png".into(),
+        }
+    }
+}
+
+impl ThicknessStats {
+    /// As records give them: null where NaN (no pixel has a thickness).
+    pub fn summary(&self) -> ThicknessSummary {
+        ThicknessSummary {
+            mean: finite(self.mean),
+            std: finite(self.std),
+            min: finite(self.min),
+            max: finite(self.max),
         }
     }
 }

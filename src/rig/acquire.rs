@@ -24,15 +24,15 @@ use filmscope_core::hw::{
     FilterWheel, FrameKind, FrameRequest, LineCamera, LineEvent, RowLoss, Stage, TunableFilter,
 };
 use filmscope_core::solve::SweepSpec;
-use serde_json::json;
 
 use super::camlink::LinkStats;
 use super::config::RigConfig;
 use super::error::RigError;
 use crate::io::{
-    write_atomic, Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave, Lens, Sample,
-    Search,
+    Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave, Lens, Sample, Search,
 };
+use crate::record::acquisition::AcquisitionFile;
+pub use crate::record::acquisition::{AcquisitionLog, LostRows};
 use crate::source::{
     sweep_spec, CaptureSource, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
 };
@@ -76,42 +76,6 @@ pub struct Rig {
     pub camera: DynCamera,
     /// Reads the camera link's fault counters (the camera is boxed).
     pub link_stats: Box<dyn Fn() -> LinkStats + Send>,
-}
-
-/// A row that did not arrive intact.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct LostRows {
-    /// Incidence angle, degrees.
-    pub incidence_deg: f64,
-    /// Band index.
-    pub band: usize,
-    /// `sample`, `dark` or `white`.
-    pub frame: &'static str,
-    /// First row.
-    pub first_row: u32,
-    /// Rows.
-    pub rows: u32,
-    /// `missing` or `partial`.
-    pub cause: &'static str,
-}
-
-/// What the sweep did, for `acquisition.json` and the report.
-#[derive(Clone, Debug, Default, serde::Serialize)]
-pub struct AcquisitionLog {
-    /// Whether every angle was taken.
-    pub complete: bool,
-    /// Why it stopped early.
-    pub error: Option<String>,
-    /// Measured incidence angles of the complete angles, degrees.
-    pub angles_done_deg: Vec<f64>,
-    /// Planned angles not (completely) taken, degrees.
-    pub angles_missing_deg: Vec<f64>,
-    /// Wavelengths read back, per complete angle, nm.
-    pub wavelengths_read_nm: Vec<Vec<f64>>,
-    /// Rows lost on the link.
-    pub lost_rows: Vec<LostRows>,
-    /// The link's fault counters.
-    pub link: LinkStats,
 }
 
 /// The live sweep as a [`Source`].
@@ -254,17 +218,10 @@ impl Acquisition {
         self.log.lost_rows.push(LostRows {
             incidence_deg: deg,
             band: usize::from(req.band),
-            frame: match req.kind {
-                FrameKind::Sample => "sample",
-                FrameKind::Dark => "dark",
-                FrameKind::White => "white",
-            },
+            frame: req.kind.into(),
             first_row: first,
             rows: count,
-            cause: match cause {
-                RowLoss::Missing => "missing",
-                RowLoss::Partial => "partial",
-            },
+            cause: cause.into(),
         });
     }
 
@@ -429,20 +386,7 @@ impl Acquisition {
 
     /// Writes `acquisition.json`.
     pub fn write_log(&self) -> Result<(), String> {
-        let path = self.out.join("acquisition.json");
-        let mut v = serde_json::to_value(&self.log).map_err(|x| io_err(&path, &x))?;
-        if let Some(o) = v.as_object_mut() {
-            o.insert(
-                "re_estimate".into(),
-                json!(if self.log.angles_done_deg.is_empty() {
-                    "no complete angle: the capture cannot be estimated"
-                } else {
-                    "filmscope estimate on capture.toml uses the complete angles"
-                }),
-            );
-        }
-        let text = serde_json::to_string_pretty(&v).map_err(|x| io_err(&path, &x))?;
-        write_atomic(&path, text.as_bytes()).map_err(|x| io_err(&path, &x))
+        AcquisitionFile::new(self.log.clone()).write(&self.out)
     }
 }
 
@@ -563,7 +507,7 @@ pub fn run_rig(
         &final_capture.display().to_string(),
     )
     .map_err(|e| e.to_string())?;
-    summary.acquisition = serde_json::to_value(&acq.log).ok();
+    summary.acquisition = Some(acq.log.clone());
     summary.timestamp = Some(crate::io::utc_iso(std::time::SystemTime::now()));
     summary.version = Some(env!("CARGO_PKG_VERSION").to_owned());
     summary.write(out_dir.path())?;

@@ -22,34 +22,7 @@ use filmscope_core::proto::fscl::{
 
 use super::error::RigError;
 
-/// Transport faults seen, for the acquisition log.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-pub struct LinkStats {
-    /// Frames triggered.
-    pub frames: u64,
-    /// Rows delivered.
-    pub rows: u64,
-    /// Rows reported lost.
-    pub rows_lost: u64,
-    /// Messages missing according to the sequence numbers.
-    pub sequence_gaps: u64,
-    /// Messages that failed their CRC.
-    pub crc_errors: u64,
-    /// Rows received twice (the copy dropped).
-    pub duplicate_rows: u64,
-    /// Rows received after a later row of the same frame.
-    pub out_of_order_rows: u64,
-    /// Frames whose trailer said fewer rows were sent.
-    pub partial_frames: u64,
-    /// Frames that stopped without a trailer.
-    pub stalled_frames: u64,
-    /// Bytes skipped to find the next message.
-    pub garbage_bytes: u64,
-    /// Messages of an earlier frame, skipped.
-    pub stale_messages: u64,
-    /// Triggers sent again because no leader came.
-    pub trigger_retries: u64,
-}
+pub use crate::record::acquisition::LinkStats;
 
 struct Frame {
     id: u64,
