@@ -29,9 +29,10 @@ use super::spc::{self, History, Point};
 use super::status::{HistoryBody, StatusBoard, StatusServer, DEFAULT_STALE_AFTER_S, SNAPSHOT_FILE};
 use super::stream::{AckState, MqttPublisher, Recovered, ResultsLog, Unsent};
 use super::verdict::{self, Verdict};
-use crate::estimate::{run_method, write_outputs_into, Run, RunConfig};
+use crate::estimate::{write_outputs_into, Run};
 use crate::io::{counter_of, sample_id, utc_iso};
 use crate::io::{write_atomic, Capture};
+use crate::jobs::{self, Observer, Quiet, Settings};
 use crate::record::acquisition::AcquisitionLog;
 use crate::record::finite;
 use crate::record::line::{
@@ -1101,25 +1102,26 @@ impl Line {
             * cfg.camera.height as usize) as u64;
         let capture_dir = tmp.join("capture");
         let mut acq = Acquisition::new(rig, cfg, &capture_dir).map_err(InspectError)?;
-        let seen = AtomicU64::new(0);
-        let last_row: Mutex<Option<Instant>> = Mutex::new(None);
-        let on_rows = |n: u64| {
-            if seen.fetch_add(n, Ordering::SeqCst) + n >= total {
-                let mut l = last_row.lock().unwrap_or_else(|p| p.into_inner());
-                l.get_or_insert_with(Instant::now);
-            }
-        };
-        let run = run_method(&mut acq, &RunConfig::default(), &on_rows).map_err(|e| {
+        let last_row = LastRow::new(total);
+        let run = jobs::estimate::run(
+            &mut acq,
+            &Settings::default(),
+            None,
+            "acquisition",
+            &last_row,
+        )
+        .map_err(|e| {
+            let cause = match e {
+                jobs::EstimateError::Run { source, .. } => source.to_string(),
+                e => e.to_string(),
+            };
             InspectError(format!(
-                "acquisition stopped: {e}; {} complete angle(s)",
+                "acquisition stopped: {cause}; {} complete angle(s)",
                 acq.log.angles_done_deg.len()
             ))
         })?;
         drop(_sim);
-        let last = last_row
-            .into_inner()
-            .unwrap_or_else(|p| p.into_inner())
-            .unwrap_or_else(Instant::now);
+        let last = last_row.at();
         let log = std::mem::take(&mut acq.log);
         drop(acq);
         let n = run.result.index.at(550.0);
@@ -1138,7 +1140,8 @@ impl Line {
         let mut cap = Capture::load(&capture_dir).map_err(|e| InspectError(e.to_string()))?;
         cap.search.index_range = Some(full);
         let mut src = CaptureSource::new(cap).map_err(|e| InspectError(e.to_string()))?;
-        swept.run = run_method(&mut src, &RunConfig::default(), &|_| {})
+        let label = capture_dir.display().to_string();
+        swept.run = jobs::estimate::run(&mut src, &Settings::default(), None, &label, &Quiet)
             .map_err(|e| InspectError(format!("re-solve: {e}")))?;
         swept.resolved = true;
         Ok(swept)
@@ -1172,5 +1175,38 @@ fn fmt4(v: f64) -> String {
 fn sync_dir(dir: &Path) {
     if let Ok(d) = File::open(dir) {
         let _ = d.sync_all();
+    }
+}
+
+/// The estimator's observer in a sample's sweep: when the last row of the sweep went
+/// through (the sample's latency runs from then).
+struct LastRow {
+    total: u64,
+    seen: AtomicU64,
+    at: Mutex<Option<Instant>>,
+}
+
+impl LastRow {
+    fn new(total: u64) -> Self {
+        Self {
+            total,
+            seen: AtomicU64::new(0),
+            at: Mutex::new(None),
+        }
+    }
+
+    /// When the last row went through (now, if it has not).
+    fn at(&self) -> Instant {
+        let at = self.at.lock().unwrap_or_else(|p| p.into_inner());
+        at.unwrap_or_else(Instant::now)
+    }
+}
+
+impl Observer for LastRow {
+    fn rows(&self, n: u64) {
+        if self.seen.fetch_add(n, Ordering::SeqCst) + n >= self.total {
+            let mut at = self.at.lock().unwrap_or_else(|p| p.into_inner());
+            at.get_or_insert_with(Instant::now);
+        }
     }
 }
