@@ -1,7 +1,8 @@
 //! The crates' module layout: imports point one way, no file imports another that imports
 //! it back (directly or round a longer loop), in the std crate and in the core; and in the
 //! std crate the command line (`cli`) is imported by no other module, the lab (`lab`) by
-//! none but the command line.
+//! none but the command line, the jobs (`jobs`) by none but the applications, and the
+//! device drivers (`rig`) import none of the estimator, the sources, the jobs or the line.
 //!
 //! A file's imports are the `crate::`, `super::` and `self::` paths in its code (test
 //! modules and comments left out), each resolved to the deepest file module it names.
@@ -271,21 +272,38 @@ fn graph(root: &Path) -> BTreeMap<Vec<String>, BTreeSet<Vec<String>>> {
 }
 
 /// Top-level modules of the std crate and the only other top-level modules that may import
-/// them: nothing imports the command line (`main.rs` calls it by the library's name), and
-/// only the command line imports the lab.
-const ONLY_IMPORTED_BY: [(&str, &[&str]); 2] = [("cli", &[]), ("lab", &["cli"])];
+/// them: nothing imports the command line (`main.rs` calls it by the library's name), only
+/// the command line imports the lab, and only the applications (the command line, the lab
+/// and the production line) import the jobs.
+const ONLY_IMPORTED_BY: [(&str, &[&str]); 3] = [
+    ("cli", &[]),
+    ("lab", &["cli"]),
+    ("jobs", &["cli", "lab", "line"]),
+];
 
-/// Each import in `edges` of a module of [`ONLY_IMPORTED_BY`] by a file outside it and
-/// outside the modules allowed to, as `importer -> imported`.
+/// Top-level modules of the std crate and the only other top-level modules they may
+/// import: the device drivers (`rig`) stand below the estimator, its sources and the jobs,
+/// using only the files, limits and records every layer shares.
+const ONLY_IMPORTS: [(&str, &[&str]); 1] = [("rig", &["io", "limits", "record"])];
+
+/// Each import in `edges` that breaks [`ONLY_IMPORTED_BY`] or [`ONLY_IMPORTS`], as
+/// `importer -> imported`.
 fn forbidden(edges: &BTreeMap<Vec<String>, BTreeSet<Vec<String>>>) -> Vec<String> {
     let top = |m: &[String]| m.first().cloned().unwrap_or_default();
     let mut out = Vec::new();
     for (from, targets) in edges {
         for to in targets {
-            let Some((_, allowed)) = ONLY_IMPORTED_BY.iter().find(|(g, _)| *g == top(to)) else {
+            let (f, t) = (top(from), top(to));
+            if f == t {
                 continue;
-            };
-            if top(from) != top(to) && !allowed.contains(&top(from).as_str()) {
+            }
+            let importer_barred = ONLY_IMPORTED_BY
+                .iter()
+                .any(|(g, allowed)| *g == t && !allowed.contains(&f.as_str()));
+            let import_barred = ONLY_IMPORTS
+                .iter()
+                .any(|(g, allowed)| *g == f && !allowed.contains(&t.as_str()));
+            if importer_barred || import_barred {
                 out.push(format!("{} -> {}", from.join("::"), to.join("::")));
             }
         }
@@ -316,10 +334,14 @@ fn the_std_crate_has_no_import_cycle() {
 }
 
 #[test]
-fn only_the_command_line_imports_the_command_line_and_the_lab() {
+fn the_layers_import_only_what_they_may() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     let edges = graph(&root);
-    for (module, _) in ONLY_IMPORTED_BY {
+    for module in ONLY_IMPORTED_BY
+        .iter()
+        .chain(&ONLY_IMPORTS)
+        .map(|(m, _)| *m)
+    {
         assert!(
             edges.keys().any(|m| m.first().is_some_and(|t| t == module)),
             "{}: no module {module}",
@@ -329,7 +351,7 @@ fn only_the_command_line_imports_the_command_line_and_the_lab() {
     let found = forbidden(&edges);
     assert!(
         found.is_empty(),
-        "{}: imports of cli outside cli, or of lab outside cli and lab: {found:?}",
+        "{}: imports across the layers' rules (ONLY_IMPORTED_BY, ONLY_IMPORTS): {found:?}",
         root.display()
     );
 }
@@ -367,29 +389,37 @@ fn a_cycle_is_found() {
     );
 }
 
-/// The checker names an import of the command line or the lab from where it is not allowed,
-/// and lets the command line import the lab and each module import its own files.
+/// The checker names an import of the command line, the lab or the jobs from where it is
+/// not allowed and an import by the drivers of what they may not use, and lets the command
+/// line import the lab and each module import its own files.
 #[test]
 fn a_forbidden_import_is_found() {
     let p = |s: &str| s.split("::").map(str::to_owned).collect::<Vec<_>>();
     let mut edges = BTreeMap::new();
     edges.insert(
         p("cli::commands"),
-        BTreeSet::from([p("cli"), p("lab::eval")]),
+        BTreeSet::from([p("cli"), p("lab::eval"), p("jobs::estimate")]),
     );
     edges.insert(
         p("lab::bench"),
         BTreeSet::from([p("lab::chart"), p("line::inspect")]),
     );
     edges.insert(p("estimate"), BTreeSet::from([p("lab::eval"), p("io")]));
-    edges.insert(p("line::inspect"), BTreeSet::from([p("cli")]));
+    edges.insert(p("line::inspect"), BTreeSet::from([p("cli"), p("jobs")]));
     edges.insert(p("lab"), BTreeSet::from([p("cli::progress")]));
+    edges.insert(p("source::live"), BTreeSet::from([p("jobs::estimate")]));
+    edges.insert(
+        p("rig::camlink"),
+        BTreeSet::from([p("rig::error"), p("record::acquisition"), p("source")]),
+    );
     assert_eq!(
         forbidden(&edges),
         vec![
             "estimate -> lab::eval".to_owned(),
             "lab -> cli::progress".into(),
             "line::inspect -> cli".into(),
+            "rig::camlink -> source".into(),
+            "source::live -> jobs::estimate".into(),
         ]
     );
 }

@@ -9,8 +9,10 @@ use std::path::Path;
 use filmscope::estimate::{run_method, RunConfig};
 use filmscope::hw::{ErrorKind, FilterWheel, Stage, TunableFilter};
 use filmscope::io::Capture;
+use filmscope::jobs::acquire::run_rig;
+use filmscope::jobs::{Quiet, Settings};
 use filmscope::record::acquisition::{AcquisitionFile, LossCause};
-use filmscope::rig::acquire::{open_sim_with, run_rig, sim_options};
+use filmscope::rig::sim::{open_sim_with, sim_options};
 use filmscope::rig::wheel::SimWheelTransport;
 use filmscope::rig::{Kurios, KuriosConfig, RigConfig, SxWheel, Zaber, ZaberConfig};
 use filmscope::solve::flags;
@@ -269,7 +271,7 @@ fn acquire_with(
 ) -> (Result<Summary, String>, firmware_sim::serve::SimRig) {
     let (sim, rig) = open_sim_with(&mut c, opts).expect("sim rig");
     // The summary as `summary.json` has it.
-    let summary = run_rig(rig, c, out, &RunConfig::default(), &|_| {})
+    let summary = run_rig(rig, c, out, &Settings::default(), &Quiet)
         .map(|_| Summary::read(out).expect("summary.json"));
     (summary, sim)
 }
@@ -474,7 +476,7 @@ fn hardware_sweep() {
     }
     let dir = common::tempdir();
     let summary =
-        filmscope::rig::acquire::run(&c, dir.path(), false, &RunConfig::default(), &|_| {})
+        filmscope::jobs::acquire::run(&c, dir.path(), false, &Settings::default(), &Quiet)
             .expect("hardware sweep");
     println!("{summary:#?}");
     same_maps(dir.path());

@@ -424,13 +424,15 @@ pub fn acquire(rig: Option<&Path>, out: &Path, sim: bool, max_memory: Option<&st
         budget,
     )
     .map_err(|e| anyhow!(e))?;
-    crate::rig::acquire::stop_on_ctrl_c();
-    let total = (s.angles_deg.len() * s.bands().len() * config.camera.height as usize) as u64;
-    let bar = rows_bar(total, if sim { "acquire (sim)" } else { "acquire" });
-    let summary =
-        crate::rig::acquire::run(&config, out, sim, &RunConfig::default(), &|n| bar.inc(n))
-            .map_err(|e| anyhow!(e))?;
-    bar.finish_and_clear();
+    crate::source::live::stop_on_ctrl_c();
+    let summary = jobs::acquire::run(
+        &config,
+        out,
+        sim,
+        &jobs::Settings::default(),
+        &Progress::new(),
+    )
+    .map_err(|e| anyhow!(e))?;
     let lost = summary.acquisition.as_ref().map_or(0, |a| a.link.rows_lost);
     println!(
         "acquired {} angles x {} bands into {}: n = {:.4}, thickness median {:.1} nm, valid {:.1}%, {} row(s) lost on the link",

@@ -1,4 +1,5 @@
-//! The use cases, a request in and a typed outcome out. Every application (the command
+//! The use cases, a request in and a typed outcome out: estimating ([`estimate`]) and
+//! acquiring ([`acquire`]) a sample. Every application (the command
 //! line, the Python package, the lab's evaluation and the production line) runs the
 //! estimator through [`estimate`], so whatever the estimate learns to do reaches all of
 //! them; and it is here that an estimate's output folder is opened and its summary written.
@@ -7,6 +8,7 @@
 //! nothing below it imports `jobs`. A job tells its caller how it is going through an
 //! [`Observer`], not through closures threaded through its callees.
 
+pub mod acquire;
 pub mod estimate;
 
 pub use estimate::{EstimateError, EstimateRequest, GivenIndex, Outcome, Settings};

@@ -38,9 +38,10 @@ use crate::record::finite;
 use crate::record::line::{
     AlarmRecord, AlarmVariable, LineFault, Reading, Record, ReferenceRecord, SampleRecord,
 };
-use crate::rig::acquire::{open_sim_with, sim_options, Acquisition};
 use crate::rig::config::SearchConfig;
+use crate::rig::sim::{open_sim_with, sim_options};
 use crate::rig::RigConfig;
+use crate::source::live::Acquisition;
 use crate::source::{CaptureSource, DEFAULT_INDEX_RANGE};
 use firmware_sim::line::{SampleKind, SampleSequence};
 

@@ -1,4 +1,6 @@
-//! The rig: device drivers over real transports and live acquisition.
+//! The rig: device drivers over real transports, below the estimator: the live sweep that
+//! reads them is a source ([`crate::source::live`]), its use case a job
+//! ([`crate::jobs::acquire`]).
 //!
 //! - [`error`]: [`RigError`], one line naming the port, with its [`ErrorKind`].
 //! - [`line`](mod@line): line reading over any `Read + Write`.
@@ -6,20 +8,20 @@
 //! - [`wheel`]: the Starlight Xpress HID wheel behind [`wheel::HidTransport`].
 //! - [`camlink`]: the camera-link receiver (any byte stream).
 //! - [`config`]: the rig file, `rig.toml`.
-//! - [`acquire`]: the sweep as a pipeline source that records a capture.
+//! - [`sim`]: `firmware-sim` started for a rig file, and the rig opened on it.
 //!
 //! [`open`] connects to a rig described by `rig.toml` (or to `firmware-sim`, whose ports
 //! look the same).
 //!
 //! [`ErrorKind`]: filmscope_core::hw::ErrorKind
 
-pub mod acquire;
 pub mod camlink;
 pub mod clock;
 pub mod config;
 pub mod error;
 pub mod kurios;
 pub mod line;
+pub mod sim;
 pub mod wheel;
 pub mod zaber;
 
@@ -29,9 +31,11 @@ use std::os::unix::net::UnixStream;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use filmscope_core::hw::{ErrorKind, ErrorType, FrameInfo, FrameRequest, LineCamera, LineEvent};
+use filmscope_core::hw::{
+    ErrorKind, ErrorType, FilterWheel, FrameInfo, FrameRequest, LineCamera, LineEvent, Stage,
+    TunableFilter,
+};
 
-pub use acquire::{Acquisition, AcquisitionLog, Rig};
 pub use camlink::{CamLink, LinkStats};
 pub use clock::SystemClock;
 pub use config::RigConfig;
@@ -39,6 +43,29 @@ pub use error::RigError;
 pub use kurios::{Kurios, KuriosConfig};
 pub use wheel::{HidTransport, SxWheel};
 pub use zaber::{Zaber, ZaberConfig};
+
+/// A stage as the sweep uses it.
+pub type DynStage = Box<dyn Stage<Error = RigError> + Send>;
+/// A tunable filter as the sweep uses it.
+pub type DynFilter = Box<dyn TunableFilter<Error = RigError> + Send>;
+/// A filter wheel as the sweep uses it.
+pub type DynWheel = Box<dyn FilterWheel<Error = RigError> + Send>;
+/// A camera as the sweep uses it.
+pub type DynCamera = Box<dyn LineCamera<Error = RigError> + Send>;
+
+/// The devices of a rig.
+pub struct Rig {
+    /// Rotation stage.
+    pub stage: DynStage,
+    /// LCTF.
+    pub filter: DynFilter,
+    /// Filter wheel, if any.
+    pub wheel: Option<DynWheel>,
+    /// Camera.
+    pub camera: DynCamera,
+    /// Reads the camera link's fault counters (the camera is boxed).
+    pub link_stats: Box<dyn Fn() -> LinkStats + Send>,
+}
 
 /// A camera whose link counters can be read while it is boxed.
 struct CountedCamera<S> {
@@ -87,7 +114,7 @@ pub fn connect_camera(
     address: &str,
     width: u32,
     timeout_ms: u64,
-) -> Result<(acquire::DynCamera, Arc<Mutex<LinkStats>>), RigError> {
+) -> Result<(DynCamera, Arc<Mutex<LinkStats>>), RigError> {
     let timeout = Some(Duration::from_millis(timeout_ms.max(1)));
     let stats = Arc::new(Mutex::new(LinkStats::default()));
     let fail = |e: std::io::Error| {
@@ -97,7 +124,7 @@ pub fn connect_camera(
             format!("cannot connect: {e}"),
         )
     };
-    let camera: acquire::DynCamera = if let Some(a) = address.strip_prefix("tcp:") {
+    let camera: DynCamera = if let Some(a) = address.strip_prefix("tcp:") {
         // The connect has its own deadline (a host that drops packets would hold it for
         // minutes): the link timeout per address the name resolves to.
         let connect_timeout = Duration::from_millis(timeout_ms.max(1));
@@ -198,7 +225,7 @@ pub fn open_with_clock<C: filmscope_core::hw::Clock + Clone + Send + 'static>(
     );
     let c = &config.camera;
     let (camera, stats) = connect_camera(&c.address, c.width, c.timeout_ms)?;
-    let wheel: Option<acquire::DynWheel> = match (wheel, &config.wheel) {
+    let wheel: Option<DynWheel> = match (wheel, &config.wheel) {
         (Some(t), Some(_)) => Some(Box::new(SxWheel::new(t, "filter wheel", clock))),
         _ => None,
     };

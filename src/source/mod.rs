@@ -1,8 +1,10 @@
-//! Where band frames come from: the software camera and ENVI captures replayed row by row,
-//! the messages they stream (`msg`) and a sweep held whole ([`SweepCube`]).
+//! Where band frames come from: the software camera, ENVI captures replayed row by row and
+//! a rig's live sweep ([`live`]), the messages they stream (`msg`) and a sweep held whole
+//! ([`SweepCube`]).
 
 mod capture;
 mod cube;
+pub mod live;
 mod msg;
 mod replay;
 mod sim;

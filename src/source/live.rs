@@ -20,22 +20,15 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use crossbeam_channel::Sender;
-use filmscope_core::hw::{
-    FilterWheel, FrameKind, FrameRequest, LineCamera, LineEvent, RowLoss, Stage, TunableFilter,
-};
+use filmscope_core::hw::{FrameKind, FrameRequest, LineEvent, RowLoss};
 use filmscope_core::solve::SweepSpec;
 
-use super::camlink::LinkStats;
-use super::config::RigConfig;
-use super::error::RigError;
+use super::{sweep_spec, CaptureSource, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE};
 use crate::io::{
     Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave, Lens, Sample, Search,
 };
-use crate::record::acquisition::AcquisitionFile;
-pub use crate::record::acquisition::{AcquisitionLog, LostRows};
-use crate::source::{
-    sweep_spec, CaptureSource, RowBlock, Samples, Source, StreamMsg, DEFAULT_INDEX_RANGE,
-};
+use crate::record::acquisition::{AcquisitionFile, AcquisitionLog, LostRows};
+use crate::rig::{Rig, RigConfig, RigError};
 
 /// Set by Ctrl-C: the sweep stops at the next band.
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
@@ -53,29 +46,6 @@ pub fn stop_on_ctrl_c() {
 
 fn interrupted() -> bool {
     INTERRUPTED.load(Ordering::SeqCst)
-}
-
-/// A stage as the sweep uses it.
-pub type DynStage = Box<dyn Stage<Error = RigError> + Send>;
-/// A tunable filter as the sweep uses it.
-pub type DynFilter = Box<dyn TunableFilter<Error = RigError> + Send>;
-/// A filter wheel as the sweep uses it.
-pub type DynWheel = Box<dyn FilterWheel<Error = RigError> + Send>;
-/// A camera as the sweep uses it.
-pub type DynCamera = Box<dyn LineCamera<Error = RigError> + Send>;
-
-/// The devices of a rig.
-pub struct Rig {
-    /// Rotation stage.
-    pub stage: DynStage,
-    /// LCTF.
-    pub filter: DynFilter,
-    /// Filter wheel, if any.
-    pub wheel: Option<DynWheel>,
-    /// Camera.
-    pub camera: DynCamera,
-    /// Reads the camera link's fault counters (the camera is boxed).
-    pub link_stats: Box<dyn Fn() -> LinkStats + Send>,
 }
 
 /// The live sweep as a [`Source`].
@@ -439,144 +409,4 @@ impl Source for Acquisition {
             self.log.error.get_or_insert(x);
         }
     }
-}
-
-/// Runs `filmscope acquire`: opens the rig of `config` (or, with `sim`, starts
-/// `firmware-sim` on ptys and a socket and opens that), records the sweep into
-/// `out/capture`, estimates while it streams and writes the maps into `out`. Returns the
-/// summary; on a failed sweep, the error names what stopped it and what was kept.
-pub fn run(
-    config: &RigConfig,
-    out: &Path,
-    sim: bool,
-    run_config: &crate::estimate::RunConfig,
-    on_rows: &(dyn Fn(u64) + Sync),
-) -> Result<crate::summary::Summary, String> {
-    let mut config = config.clone();
-    let mut _sim_rig = None;
-    let rig = if sim {
-        let (sim_rig, rig) = open_sim(&mut config)?;
-        _sim_rig = Some(sim_rig);
-        rig
-    } else {
-        let wheel: Option<Box<dyn super::HidTransport + Send>> = match &config.wheel {
-            Some(_) => Some(Box::new(
-                super::wheel::HidapiTransport::open().map_err(|e| e.to_string())?,
-            )),
-            None => None,
-        };
-        super::open(&config, wheel).map_err(|e| e.to_string())?
-    };
-    run_rig(rig, config, out, run_config, on_rows)
-}
-
-/// Sweeps an open `rig`, recording into `out/capture` and writing the maps into `out`,
-/// all as one unit ([`crate::io::OutputDir`]): locked and checked for writability before
-/// any device moves, swapped in whole when complete. A sweep that stops early keeps its
-/// capture and `acquisition.json`: in `out` when `out` held no result, else in
-/// `out.partial`, never over a complete result.
-pub fn run_rig(
-    rig: Rig,
-    config: RigConfig,
-    out: &Path,
-    run_config: &crate::estimate::RunConfig,
-    on_rows: &(dyn Fn(u64) + Sync),
-) -> Result<crate::summary::Summary, String> {
-    let out_dir = crate::io::OutputDir::begin(out).map_err(|e| e.to_string())?;
-    let capture_dir = out_dir.path().join("capture");
-    let final_capture = out_dir.target().join("capture");
-    let mut acq = Acquisition::new(rig, config, &capture_dir)?;
-    let result = crate::estimate::run_method(&mut acq, run_config, on_rows);
-    let run = match result {
-        Ok(run) => run,
-        Err(e) => {
-            let kept = acq.log.angles_done_deg.len();
-            drop(acq);
-            let place = out_dir.commit_partial().map_err(|x| {
-                format!("acquisition stopped: {e}; the partial capture could not be kept: {x}")
-            })?;
-            return Err(format!(
-                "acquisition stopped: {e}; {kept} complete angle(s) kept in {} (see acquisition.json)",
-                place.join("capture").display()
-            ));
-        }
-    };
-    let mut summary = crate::estimate::write_outputs_into(
-        out_dir.path(),
-        &run,
-        &final_capture.display().to_string(),
-    )
-    .map_err(|e| e.to_string())?;
-    summary.acquisition = Some(acq.log.clone());
-    summary.timestamp = Some(crate::io::utc_iso(std::time::SystemTime::now()));
-    summary.version = Some(env!("CARGO_PKG_VERSION").to_owned());
-    summary.write(out_dir.path())?;
-    drop(acq);
-    out_dir.commit().map_err(|e| e.to_string())?;
-    Ok(summary)
-}
-
-/// Starts `firmware-sim` for `config` (its `[sim]` scene, re-gridded to the sweep's angles
-/// and bands) and points `config` at its ptys and socket.
-pub fn open_sim(config: &mut RigConfig) -> Result<(firmware_sim::serve::SimRig, Rig), String> {
-    let sim = config
-        .sim
-        .clone()
-        .ok_or("--sim needs a [sim] table with the scene to look at")?;
-    let options = sim_options(config, &sim.scene, sim.speed)?;
-    open_sim_with(config, options)
-}
-
-/// Starts `firmware-sim` with `options` and points `config` at it.
-pub fn open_sim_with(
-    config: &mut RigConfig,
-    options: firmware_sim::serve::RigOptions,
-) -> Result<(firmware_sim::serve::SimRig, Rig), String> {
-    let sim_rig = firmware_sim::serve::start(options).map_err(|e| format!("firmware-sim: {e}"))?;
-    config.stage.port = sim_rig.stage_port.clone();
-    config.filter.port = sim_rig.filter_port.clone();
-    config.camera.address = sim_rig.camera.to_string();
-    let wheel: Option<Box<dyn super::HidTransport + Send>> = Some(Box::new(
-        super::wheel::SimWheelTransport::new(sim_rig.wheel.clone(), sim_rig.clock),
-    ));
-    let rig = super::open_with_clock(config, wheel, sim_rig.clock).map_err(|e| e.to_string())?;
-    Ok((sim_rig, rig))
-}
-
-/// The simulator options for `config`, looking at `scene_path`.
-pub fn sim_options(
-    config: &RigConfig,
-    scene_path: &Path,
-    speed: f64,
-) -> Result<firmware_sim::serve::RigOptions, String> {
-    let mut scene = if config.builtin && !scene_path.exists() {
-        firmware_sim::Scene::from_toml(super::config::BUILTIN_SIM_SCENE, "rig-tiny")
-    } else {
-        firmware_sim::Scene::load(scene_path)
-    }
-    .map_err(|e| e.to_string())?;
-    let s = &config.sweep;
-    scene.angles_deg = s
-        .angles_deg
-        .iter()
-        .map(|a| a + s.stage_offset_deg)
-        .collect();
-    scene.bands_nm = s.bands();
-    scene.fwhm_nm = s.fwhm_nm;
-    let c = &config.camera;
-    if scene.sensor.width != c.width as usize || scene.sensor.height != c.height as usize {
-        return Err(format!(
-            "{}: sensor {} x {} but rig.toml's camera is {} x {}",
-            scene_path.display(),
-            scene.sensor.width,
-            scene.sensor.height,
-            c.width,
-            c.height
-        ));
-    }
-    let mut o = firmware_sim::serve::RigOptions::new(scene);
-    o.speed = speed;
-    o.steps_per_deg = config.stage.steps_per_deg;
-    o.stage_limits_deg = config.stage.limits_deg;
-    Ok(o)
 }
