@@ -566,7 +566,7 @@ pub fn write_capture(
         horizontal_fov_deg: scene.field_of_view.map(|f| f.horizontal_deg()),
     }
     .write(out_dir)
-    .map_err(SimulateError)?;
+    .map_err(|e| SimulateError(e.to_string()))?;
     Ok(toml_path)
 }
 

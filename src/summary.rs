@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 pub use crate::material::DispersionRecord;
 use crate::record::acquisition::AcquisitionLog;
 use crate::record::line::{RecipeRecord, VerdictRecord};
+use crate::record::{RecordError, RecordProblem};
 
 /// The file name.
 pub const FILE: &str = "summary.json";
@@ -90,30 +91,20 @@ pub struct Summary {
 
 impl Summary {
     /// Reads `dir/summary.json`; the error names the file and the problem.
-    pub fn read(dir: &Path) -> Result<Self, String> {
+    pub fn read(dir: &Path) -> Result<Self, RecordError> {
         let path = dir.join(FILE);
-        let text = std::fs::read_to_string(&path).map_err(|e| {
-            if e.kind() == std::io::ErrorKind::NotFound && dir.join("capture.toml").exists() {
-                format!(
-                    "{}: no such file: {} is a capture, not an estimate's output (run `filmscope estimate {} --out MAPS` first)",
-                    path.display(),
-                    dir.display(),
-                    dir.display()
-                )
-            } else {
-                format!("{}: {e}", path.display())
-            }
-        })?;
-        serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+        if !path.exists() && dir.join("capture.toml").exists() {
+            let problem = RecordProblem::ACapture(dir.display().to_string());
+            return Err(RecordError::new(&path, problem));
+        }
+        crate::record::read(&path)
     }
 
-    /// Writes `dir/summary.json` atomically.
-    pub fn write(&self, dir: &Path) -> Result<(), String> {
+    /// Writes `dir/summary.json` atomically (its keys in the order of this type).
+    pub fn write(&self, dir: &Path) -> Result<(), RecordError> {
         let path = dir.join(FILE);
-        let text =
-            serde_json::to_string_pretty(self).map_err(|e| format!("{}: {e}", path.display()))?;
-        crate::io::write_atomic(&path, text.as_bytes())
-            .map_err(|e| format!("{}: {e}", path.display()))
+        let text = serde_json::to_string_pretty(self).map_err(|e| RecordError::new(&path, e))?;
+        crate::record::write_text(&path, &text)
     }
 }
 

@@ -272,7 +272,8 @@ fn acquire_with(
     let (sim, rig) = open_sim_with(&mut c, opts).expect("sim rig");
     // The summary as `summary.json` has it.
     let summary = run_rig(rig, c, out, &Settings::default(), &Quiet)
-        .map(|_| Summary::read(out).expect("summary.json"));
+        .map(|_| Summary::read(out).expect("summary.json"))
+        .map_err(|e| e.to_string());
     (summary, sim)
 }
 

@@ -46,7 +46,7 @@ impl SampleFilm {
     pub fn load(maps_dir: &Path, capture: Option<&Path>) -> Result<Self, AppearanceError> {
         let summary_path = maps_dir.join(crate::summary::FILE);
         let bad = |what: String| AppearanceError::new(&summary_path, what);
-        let summary = Summary::read(maps_dir).map_err(AppearanceError)?;
+        let summary = Summary::read(maps_dir).map_err(|e| AppearanceError(e.to_string()))?;
         let n = summary
             .refractive_index
             .filter(|n| n.is_finite() && *n > 0.0)

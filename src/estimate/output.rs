@@ -192,6 +192,6 @@ pub fn write_outputs_into(
         version: None,
         line: None,
     };
-    summary.write(dir).map_err(OutputError)?;
+    summary.write(dir).map_err(|e| OutputError(e.to_string()))?;
     Ok(summary)
 }

@@ -1,12 +1,58 @@
 //! Acquiring a sample: a rig's live sweep ([`crate::source::live`]) recorded as a capture
 //! while the estimator reads it, the capture, maps and summary written as one unit.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use super::estimate::{EstimateError, Settings};
 use super::Observer;
-use crate::rig::{Rig, RigConfig};
-use crate::source::live::Acquisition;
+use crate::estimate::OutputError;
+use crate::io::OutputDirError;
+use crate::record::RecordError;
+use crate::rig::sim::SimError;
+use crate::rig::{Rig, RigConfig, RigError};
+use crate::source::live::{Acquisition, LiveError};
+use crate::summary::Summary;
+
+/// Why an acquisition did not finish, one line naming what stopped it and what was kept.
+#[derive(Debug, thiserror::Error)]
+pub enum AcquireError {
+    /// The software rig could not be started.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// A device could not be opened.
+    #[error(transparent)]
+    Rig(#[from] RigError),
+    /// The output folder cannot be used.
+    #[error(transparent)]
+    OutputDir(#[from] OutputDirError),
+    /// The sweep cannot start.
+    #[error(transparent)]
+    Live(#[from] LiveError),
+    /// The sweep stopped; the complete angles were kept.
+    #[error("acquisition stopped: {cause}; {kept} complete angle(s) kept in {} (see acquisition.json)", .capture.display())]
+    Stopped {
+        /// What stopped it.
+        cause: String,
+        /// Complete angles kept.
+        kept: usize,
+        /// Where the capture was kept.
+        capture: PathBuf,
+    },
+    /// The sweep stopped and its partial capture could not be kept.
+    #[error("acquisition stopped: {cause}; the partial capture could not be kept: {problem}")]
+    NotKept {
+        /// What stopped it.
+        cause: String,
+        /// Why it could not be kept.
+        problem: OutputDirError,
+    },
+    /// The maps cannot be written.
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    /// The summary cannot be written.
+    #[error(transparent)]
+    Record(#[from] RecordError),
+}
 
 /// Runs `filmscope acquire`: opens the rig of `config` (or, with `sim`, starts
 /// `firmware-sim` on ptys and a socket and opens that), records the sweep into
@@ -18,7 +64,7 @@ pub fn run(
     sim: bool,
     settings: &Settings,
     observer: &dyn Observer,
-) -> Result<crate::summary::Summary, String> {
+) -> Result<Summary, AcquireError> {
     let mut config = config.clone();
     let mut _sim_rig = None;
     let rig = if sim {
@@ -27,12 +73,10 @@ pub fn run(
         rig
     } else {
         let wheel: Option<Box<dyn crate::rig::HidTransport + Send>> = match &config.wheel {
-            Some(_) => Some(Box::new(
-                crate::rig::wheel::HidapiTransport::open().map_err(|e| e.to_string())?,
-            )),
+            Some(_) => Some(Box::new(crate::rig::wheel::HidapiTransport::open()?)),
             None => None,
         };
-        crate::rig::open(&config, wheel).map_err(|e| e.to_string())?
+        crate::rig::open(&config, wheel)?
     };
     run_rig(rig, config, out, settings, observer)
 }
@@ -48,8 +92,8 @@ pub fn run_rig(
     out: &Path,
     settings: &Settings,
     observer: &dyn Observer,
-) -> Result<crate::summary::Summary, String> {
-    let out_dir = crate::io::OutputDir::begin(out).map_err(|e| e.to_string())?;
+) -> Result<Summary, AcquireError> {
+    let out_dir = crate::io::OutputDir::begin(out)?;
     let capture_dir = out_dir.path().join("capture");
     let final_capture = out_dir.target().join("capture");
     let mut acq = Acquisition::new(rig, config, &capture_dir)?;
@@ -58,28 +102,28 @@ pub fn run_rig(
     let run = match result {
         Ok(run) => run,
         Err(e) => {
-            let e = match e {
+            let cause = match e {
                 EstimateError::Run { source, .. } => source.to_string(),
                 e => e.to_string(),
             };
             let kept = acq.log.angles_done_deg.len();
             drop(acq);
-            let place = out_dir.commit_partial().map_err(|x| {
-                format!("acquisition stopped: {e}; the partial capture could not be kept: {x}")
-            })?;
-            return Err(format!(
-                "acquisition stopped: {e}; {kept} complete angle(s) kept in {} (see acquisition.json)",
-                place.join("capture").display()
-            ));
+            return Err(match out_dir.commit_partial() {
+                Ok(place) => AcquireError::Stopped {
+                    cause,
+                    kept,
+                    capture: place.join("capture"),
+                },
+                Err(problem) => AcquireError::NotKept { cause, problem },
+            });
         }
     };
-    let mut summary = crate::estimate::write_outputs_into(out_dir.path(), &run, &label)
-        .map_err(|e| e.to_string())?;
+    let mut summary = crate::estimate::write_outputs_into(out_dir.path(), &run, &label)?;
     summary.acquisition = Some(acq.log.clone());
     summary.timestamp = Some(crate::io::utc_iso(std::time::SystemTime::now()));
     summary.version = Some(env!("CARGO_PKG_VERSION").to_owned());
     summary.write(out_dir.path())?;
     drop(acq);
-    out_dir.commit().map_err(|e| e.to_string())?;
+    out_dir.commit()?;
     Ok(summary)
 }

@@ -327,7 +327,8 @@ impl Line {
             .sim
             .clone()
             .ok_or_else(|| InspectError("--sim needs a [sim] table in the rig file".into()))?;
-        let o = sim_options(&self.opts.rig, &sim.scene, sim.speed).map_err(InspectError)?;
+        let o = sim_options(&self.opts.rig, &sim.scene, sim.speed)
+            .map_err(|e| InspectError(e.to_string()))?;
         let s = &self.opts.recipe.sim;
         let mut seq = SampleSequence::new(o.scene, s.seed);
         seq.drift_nm_per_sample = s.drift_nm_per_sample;
@@ -924,7 +925,9 @@ impl Line {
         let png_path = tmp.join("overlay.png");
         write_atomic(&png_path, &png).map_err(|e| ie(&png_path.display().to_string())(&e))?;
         self.complete_summary(&mut summary, record, v, swept.log.clone());
-        summary.write(tmp).map_err(InspectError)?;
+        summary
+            .write(tmp)
+            .map_err(|e| InspectError(e.to_string()))?;
         let capture = tmp.join("capture");
         if record.raw_kept {
             retention::references_to_u16(&capture).map_err(InspectError)?;
@@ -1086,7 +1089,8 @@ impl Line {
             o.speed = sim.speed;
             o.steps_per_deg = cfg.stage.steps_per_deg;
             o.stage_limits_deg = cfg.stage.limits_deg;
-            let (sim_rig, rig) = open_sim_with(&mut cfg, o).map_err(InspectError)?;
+            let (sim_rig, rig) =
+                open_sim_with(&mut cfg, o).map_err(|e| InspectError(e.to_string()))?;
             _sim = Some(sim_rig);
             rig
         } else {
@@ -1102,7 +1106,8 @@ impl Line {
             * cfg.sweep.bands().len()
             * cfg.camera.height as usize) as u64;
         let capture_dir = tmp.join("capture");
-        let mut acq = Acquisition::new(rig, cfg, &capture_dir).map_err(InspectError)?;
+        let mut acq =
+            Acquisition::new(rig, cfg, &capture_dir).map_err(|e| InspectError(e.to_string()))?;
         let last_row = LastRow::new(total);
         let run = jobs::estimate::run(
             &mut acq,

@@ -83,26 +83,9 @@ pub(super) fn calibrate_stage(
                         *v = (*v - offset) / scale;
                     }
                 }
-                // Split the block at strip boundaries, each part to its strip's worker.
-                let mut k = 0;
-                while k < rows {
-                    let strip = strips.of_row(first + k);
-                    let (s_first, s_rows) = strips.span(strip);
-                    let n = (s_first + s_rows - (first + k)).min(rows - k);
-                    let mut part = vec![0; n * width];
-                    pack_samples(&values[k * width..(k + n) * width], &mut part, wide);
-                    if workers[strips.worker(strip)]
-                        .send(WorkerMsg::Rows(WorkerRows {
-                            band: block.band,
-                            first_row: (first + k) as u32,
-                            rows: n as u32,
-                            samples: part,
-                        }))
-                        .is_err()
-                    {
-                        return;
-                    }
-                    k += n;
+                let rows_at = (block.band, first, rows);
+                if !deal(&values, rows_at, width, (strips, wide), &workers) {
+                    return;
                 }
                 on_rows(rows as u64);
             }
@@ -134,6 +117,40 @@ pub(super) fn calibrate_stage(
     let _ = control.send(Control::Abort(
         "the source stopped without ending the sweep".into(),
     ));
+}
+
+/// Rows `first..first + rows` of band `band` (`values`, `width` a row) split at strip
+/// boundaries, each part packed (for AVX2 if `wide`) and sent to its strip's worker;
+/// `false` when a worker has stopped.
+fn deal(
+    values: &[f32],
+    (band, first, rows): (u16, usize, usize),
+    width: usize,
+    (strips, wide): (Strips, bool),
+    workers: &[Sender<WorkerMsg>],
+) -> bool {
+    // Split the block at strip boundaries, each part to its strip's worker.
+    let mut k = 0;
+    while k < rows {
+        let strip = strips.of_row(first + k);
+        let (s_first, s_rows) = strips.span(strip);
+        let n = (s_first + s_rows - (first + k)).min(rows - k);
+        let mut part = vec![0; n * width];
+        pack_samples(&values[k * width..(k + n) * width], &mut part, wide);
+        if workers[strips.worker(strip)]
+            .send(WorkerMsg::Rows(WorkerRows {
+                band,
+                first_row: (first + k) as u32,
+                rows: n as u32,
+                samples: part,
+            }))
+            .is_err()
+        {
+            return false;
+        }
+        k += n;
+    }
+    true
 }
 
 /// What [`for_each_calibrated`] hands on.

@@ -18,7 +18,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use crossbeam_channel::bounded;
+use crossbeam_channel::{bounded, Receiver, Sender};
 use filmscope_core::solve::fit_row::thickness_span;
 use filmscope_core::solve::index::{RatioHistogram, RatioSums};
 use filmscope_core::solve::sweep::SolverOptions;
@@ -259,6 +259,9 @@ pub fn run_sweep_sampled(
     sweep(source, config, None, Some(hook), on_rows)
 }
 
+/// [`run_sweep`] and [`run_sweep_sampled`]: the sweep set up, its stages started, each
+/// angle's beginning and end coordinated as the calibrate stage reports them, and the
+/// output made once the stream has ended.
 fn sweep(
     source: &mut dyn Source,
     config: PipelineConfig,
@@ -267,36 +270,14 @@ fn sweep(
     on_rows: &(dyn Fn(u64) + Sync),
 ) -> Result<SweepOutput, PipelineError> {
     let tap = hook.as_ref().map(|h| h.tap);
-    let mut spec = source.spec().clone();
-    spec.options = config.solver;
-    let correction = prior
-        .as_ref()
-        .map(|p| p.correction.clone())
-        .unwrap_or_default();
-    for b in spec.bands_nm.iter_mut() {
-        *b += correction.band_shift_nm;
-    }
+    let (spec, correction, untracked) = sweep_spec(source, config, prior.as_ref());
     let (w, h) = (spec.width, spec.height);
-    let untracked = prior.as_ref().and_then(|p| p.untracked_noise(w * h));
-    if untracked.is_some() {
-        spec.options.extrema = false;
-    }
     let strips = Strips::new(h, config.strip_rows, config.workers);
     let order = source.row_order();
     let workers = strips.workers();
     let cap = config.channel_capacity.max(1);
     let start = Instant::now();
-    let mut solver = SweepSolver::new(spec.clone(), prior.as_ref().map(|p| p.index))
-        .with_film_terms(correction.film);
-    match prior.as_ref().map(|p| p.update) {
-        Some(PriorUpdate::FullSpectra) => solver = solver.with_spectral_index(),
-        Some(PriorUpdate::Hold) => solver = solver.with_held_index(),
-        _ => {}
-    }
-    if let Some(sigma) = untracked {
-        solver = solver.with_noise(sigma);
-    }
-    let mut solver = Box::new(solver);
+    let solver = sweep_solver(&spec, prior.as_ref(), &correction, untracked);
     let seed = prior
         .as_ref()
         .and_then(|p| Some((p.seed.clone()?, p.index)));
@@ -305,32 +286,8 @@ fn sweep(
             "the thickness seed map does not have {w} x {h} pixels"
         )));
     }
-    // Each worker's state made on a thread of its own (zeroing and seeding the state took
-    // 2.4-6.4 ms of a 256 x 192 sweep's 150-200 on one).
-    let mut ids: Vec<usize> = (0..workers).collect();
-    // The first angle's tables cover the seeded thicknesses (none without a seed: no
-    // pixel has one yet).
-    let (mut states, spans): (Vec<Option<ShardState>>, Vec<[f32; 2]>) =
-        each(&mut ids, workers, |&mut i| {
-            let seed = seed.as_ref().map(|(map, index)| (map.as_slice(), *index));
-            let st = ShardState::for_worker(strips, i, &spec, seed);
-            let span = thickness_span(&st.fits);
-            (Some(st), span)
-        })
-        .into_iter()
-        .unzip();
-    let mut table_span = spans.into_iter().fold(EMPTY_SPAN, widen);
-    let mut reports = Vec::new();
-    let mut tables = Vec::new();
-    let mut samples = 0u64;
-    let mut last_row_at = Instant::now();
-    let mut latency_parts = LatencyParts::default();
-    // The results are made by the last angle's update pass (the angles announced tell which
-    // is last), else by a pass of their own once the sweep has ended. They are allocated
-    // then, once the trackers are released (the sweep's peak memory does not hold both).
     let angles = source.angles_deg().len();
-    let mut results = Vec::new();
-    let mut results_at = None;
+    let mut co = Coordinator::new(solver, &spec, strips, seed.as_ref(), angles);
 
     std::thread::scope(|scope| -> Result<(), PipelineError> {
         let (src_tx, src_rx) = bounded::<StreamMsg>(cap);
@@ -373,110 +330,20 @@ fn sweep(
         for msg in ctl_rx.iter() {
             match msg {
                 Control::Angle(deg) => {
-                    solver.begin_angle(deg);
-                    // The tables cover the thicknesses the pixels read this angle, no more
-                    // (those of a seeded 400 nm film are a third of the search range's).
-                    solver.set_table_span(Some(table_span.map(f64::from)));
-                    let snapshot = Arc::new(BandModels::of(&solver, workers));
-                    tables.push(AngleTables {
-                        span_nm: table_span,
-                        knots: snapshot.knots(),
-                    });
-                    let began = Arc::new(solver.context().clone());
-                    let left = angles.saturating_sub(solver.angles_done()).max(1);
-                    for (i, tx) in start_txs.iter().enumerate() {
-                        let mut st = states[i].take().unwrap_or_default();
-                        st.restore_trackers();
-                        if tx
-                            .send(Start {
-                                state: st,
-                                models: snapshot.clone(),
-                                began: began.clone(),
-                                angles_left: left,
-                            })
-                            .is_err()
-                        {
-                            abort = Some("a worker stopped".to_owned());
-                        }
+                    if !co.begin_angle(deg, &start_txs) {
+                        abort = Some("a worker stopped".to_owned());
                     }
                 }
                 Control::AngleEnd(at) => {
-                    last_row_at = at;
-                    let mut tallies: Vec<Option<ShardTally>> = (0..workers).map(|_| None).collect();
-                    for _ in 0..workers {
-                        match done_rx.recv() {
-                            Ok(Done {
-                                worker: i,
-                                state,
-                                tally,
-                            }) => {
-                                states[i] = Some(state);
-                                tallies[i] = Some(tally);
-                            }
-                            Err(_) => abort = Some("a worker stopped".to_owned()),
-                        }
+                    co.last_row_at = at;
+                    let (tallies, stopped) = co.hand_back(&done_rx);
+                    if stopped {
+                        abort = Some("a worker stopped".to_owned());
                     }
                     if abort.is_some() {
                         break;
                     }
-                    let mut owned: Vec<ShardState> = states
-                        .iter_mut()
-                        .map(|s| s.take().unwrap_or_default())
-                        .collect();
-                    let mut shards = image_shards(&mut owned, strips, w);
-                    let last = solver.angles_done() + 1 == angles;
-                    if let Some(hook) = hook.as_mut() {
-                        let complete = solver.angles_done() + 1;
-                        if let Some(m) = (hook.refit)(complete) {
-                            solver.set_external_index(m);
-                        }
-                    }
-                    let mut parts = LatencyParts {
-                        drain: at.elapsed(),
-                        ..LatencyParts::default()
-                    };
-                    // A worker that handed back no tally leaves all its rows.
-                    let tallies = tallies
-                        .into_iter()
-                        .enumerate()
-                        .map(|(i, t)| {
-                            t.unwrap_or_else(|| ShardTally {
-                                tally: Box::default(),
-                                untallied: strips
-                                    .of_worker(i)
-                                    .flat_map(|k| {
-                                        let (first, n) = strips.span(k);
-                                        first..first + n
-                                    })
-                                    .collect(),
-                            })
-                        })
-                        .collect();
-                    tally_parallel(&mut solver, &mut shards, tallies, workers, &mut parts);
-                    let releasing = Instant::now();
-                    if last {
-                        // The trackers are read no more: the results take their memory,
-                        // not memory of their own on top of the state.
-                        drop(shards);
-                        owned.iter_mut().for_each(ShardState::release_trackers);
-                        results = vec![PixelResult::UNSOLVED; w * h];
-                        shards = image_shards(&mut owned, strips, w);
-                    }
-                    parts.results = releasing.elapsed();
-                    let out = last.then_some(results.as_mut_slice());
-                    let (report, span) =
-                        update_parallel(&mut solver, &mut shards, out, workers, &mut parts);
-                    table_span = span;
-                    reports.push(report);
-                    latency_parts = parts;
-                    if last {
-                        results_at = Some(solver.angles_done());
-                    }
-                    samples += (w * h * spec.bands_nm.len()) as u64;
-                    drop(shards);
-                    for (i, st) in owned.into_iter().enumerate() {
-                        states[i] = Some(st);
-                    }
+                    co.end_angle(at, tallies, hook.as_mut());
                 }
                 Control::SweepEnd => break,
                 Control::Abort(e) => {
@@ -493,49 +360,326 @@ fn sweep(
             None => Ok(()),
         }
     })?;
+    co.finish(spec, start)
+}
 
-    if solver.angles_done() < 1 {
-        return Err(PipelineError(format!(
-            "the stream ended after {} angle(s); at least one is needed",
-            solver.angles_done()
-        )));
+/// The sweep as the pipeline solves it: `source`'s, with `config`'s solver options and its
+/// bands shifted by the prior's correction; the correction, and the noise of a sweep that
+/// tracks no extrema ([`Prior::untracked_noise`]; then the spec's options say so).
+fn sweep_spec(
+    source: &dyn Source,
+    config: PipelineConfig,
+    prior: Option<&Prior>,
+) -> (SweepSpec, Correction, Option<f32>) {
+    let mut spec = source.spec().clone();
+    spec.options = config.solver;
+    let correction = prior.map(|p| p.correction.clone()).unwrap_or_default();
+    for b in spec.bands_nm.iter_mut() {
+        *b += correction.band_shift_nm;
     }
-    if results_at != Some(solver.angles_done()) {
-        let mut owned: Vec<ShardState> =
-            states.into_iter().map(Option::unwrap_or_default).collect();
-        owned.iter_mut().for_each(ShardState::release_trackers);
-        if results.len() != w * h {
-            results = vec![PixelResult::UNSOLVED; w * h];
+    let (w, h) = (spec.width, spec.height);
+    let untracked = prior.and_then(|p| p.untracked_noise(w * h));
+    if untracked.is_some() {
+        spec.options.extrema = false;
+    }
+    (spec, correction, untracked)
+}
+
+/// The sweep's solver: from the prior's index, moved as the prior says, with the film terms
+/// of `correction` and the noise `untracked` when the sweep tracks no extrema.
+fn sweep_solver(
+    spec: &SweepSpec,
+    prior: Option<&Prior>,
+    correction: &Correction,
+    untracked: Option<f32>,
+) -> Box<SweepSolver> {
+    let mut solver =
+        SweepSolver::new(spec.clone(), prior.map(|p| p.index)).with_film_terms(correction.film);
+    match prior.map(|p| p.update) {
+        Some(PriorUpdate::FullSpectra) => solver = solver.with_spectral_index(),
+        Some(PriorUpdate::Hold) => solver = solver.with_held_index(),
+        _ => {}
+    }
+    if let Some(sigma) = untracked {
+        solver = solver.with_noise(sigma);
+    }
+    Box::new(solver)
+}
+
+/// Each worker's state for the first angle (seeded from `seed`'s thickness map under its
+/// index where given), each made on a thread of its own (zeroing and seeding the state took
+/// 2.4-6.4 ms of a 256 x 192 sweep's 150-200 on one); and the thicknesses the first angle's
+/// tables cover: the seeded ones (none without a seed: no pixel has one yet).
+fn first_states(
+    spec: &SweepSpec,
+    strips: Strips,
+    seed: Option<&(Arc<Vec<f32>>, IndexModel)>,
+) -> (Vec<Option<ShardState>>, [f32; 2]) {
+    let workers = strips.workers();
+    let mut ids: Vec<usize> = (0..workers).collect();
+    let (states, spans): (Vec<Option<ShardState>>, Vec<[f32; 2]>) =
+        each(&mut ids, workers, |&mut i| {
+            let seed = seed.map(|(map, index)| (map.as_slice(), *index));
+            let st = ShardState::for_worker(strips, i, spec, seed);
+            let span = thickness_span(&st.fits);
+            (Some(st), span)
+        })
+        .into_iter()
+        .unzip();
+    (states, spans.into_iter().fold(EMPTY_SPAN, widen))
+}
+
+/// The coordinator's part of a sweep: the solver, the workers' states between angles, and
+/// what the output gathers as the angles end.
+struct Coordinator {
+    solver: Box<SweepSolver>,
+    /// Worker `i`'s state while the coordinator holds it.
+    states: Vec<Option<ShardState>>,
+    strips: Strips,
+    width: usize,
+    height: usize,
+    workers: usize,
+    /// Angles the source announced.
+    angles: usize,
+    /// Bands an angle.
+    bands: usize,
+    /// The thicknesses the next angle's tables cover.
+    table_span: [f32; 2],
+    reports: Vec<AngleReport>,
+    tables: Vec<AngleTables>,
+    samples: u64,
+    /// When the last angle's last row arrived.
+    last_row_at: Instant,
+    latency_parts: LatencyParts,
+    results: Vec<PixelResult>,
+    /// The angles done when the last angle's update made the results.
+    results_at: Option<usize>,
+}
+
+impl Coordinator {
+    /// The coordinator of a sweep of `spec` over `angles` angles with `solver`, its workers'
+    /// first states made ([`first_states`]). The results are made by the last angle's
+    /// update pass (the angles announced tell which is last), else by a pass of their own
+    /// once the sweep has ended. They are allocated then, once the trackers are released
+    /// (the sweep's peak memory does not hold both).
+    fn new(
+        solver: Box<SweepSolver>,
+        spec: &SweepSpec,
+        strips: Strips,
+        seed: Option<&(Arc<Vec<f32>>, IndexModel)>,
+        angles: usize,
+    ) -> Self {
+        let (states, table_span) = first_states(spec, strips, seed);
+        Self {
+            solver,
+            states,
+            strips,
+            width: spec.width,
+            height: spec.height,
+            workers: strips.workers(),
+            angles,
+            bands: spec.bands_nm.len(),
+            table_span,
+            reports: Vec::new(),
+            tables: Vec::new(),
+            samples: 0,
+            last_row_at: Instant::now(),
+            latency_parts: LatencyParts::default(),
+            results: Vec::new(),
+            results_at: None,
         }
-        let mut jobs: Vec<_> = image_shards(&mut owned, strips, w)
-            .into_iter()
-            .zip(results.chunks_mut(strips.span(0).1 * w))
-            .collect();
-        each(&mut jobs, workers, |(sh, mine)| sh.finish(&solver, mine));
     }
-    let done = Instant::now();
-    let state_bytes_per_pixel =
-        filmscope_core::solve::state_bytes_per_pixel(spec.index_sampling(), spec.width);
-    Ok(SweepOutput {
-        spec,
-        results,
-        index: solver.index(),
-        index_sigma: solver.index_sigma(),
-        index_fit: solver.index_fit(),
-        model_mismatch: solver.model_mismatch(),
-        spectral_index: solver.spectral_index(),
-        spectral_gains: solver.spectral_gains(),
-        spectral_candidate: solver.spectral_candidate(),
-        residual_sigma: solver.residual_sigma(),
-        noise_sigma: solver.noise_sigma(),
-        angles: reports,
-        stream_time: done - start,
-        solve_latency: done - last_row_at,
-        latency_parts,
-        samples,
-        state_bytes_per_pixel,
-        tables,
-    })
+
+    /// Angle `deg` begins: the solver's tables made over the thicknesses the pixels read,
+    /// and each worker sent its state, the band models and the solver's context on `start`;
+    /// `false` when a worker has stopped.
+    fn begin_angle(&mut self, deg: f64, start: &[Sender<Start>]) -> bool {
+        self.solver.begin_angle(deg);
+        // The tables cover the thicknesses the pixels read this angle, no more
+        // (those of a seeded 400 nm film are a third of the search range's).
+        self.solver
+            .set_table_span(Some(self.table_span.map(f64::from)));
+        let snapshot = Arc::new(BandModels::of(&self.solver, self.workers));
+        self.tables.push(AngleTables {
+            span_nm: self.table_span,
+            knots: snapshot.knots(),
+        });
+        let began = Arc::new(self.solver.context().clone());
+        let left = self.angles.saturating_sub(self.solver.angles_done()).max(1);
+        let mut sent = true;
+        for (i, tx) in start.iter().enumerate() {
+            let mut st = self.states[i].take().unwrap_or_default();
+            st.restore_trackers();
+            if tx
+                .send(Start {
+                    state: st,
+                    models: snapshot.clone(),
+                    began: began.clone(),
+                    angles_left: left,
+                })
+                .is_err()
+            {
+                sent = false;
+            }
+        }
+        sent
+    }
+
+    /// Every worker's state and tally as it hands them back on `done` at an angle's end
+    /// (a tally `None` where a worker stopped); whether one stopped.
+    fn hand_back(&mut self, done: &Receiver<Done>) -> (Vec<Option<ShardTally>>, bool) {
+        let mut tallies: Vec<Option<ShardTally>> = (0..self.workers).map(|_| None).collect();
+        let mut stopped = false;
+        for _ in 0..self.workers {
+            match done.recv() {
+                Ok(Done {
+                    worker: i,
+                    state,
+                    tally,
+                }) => {
+                    self.states[i] = Some(state);
+                    tallies[i] = Some(tally);
+                }
+                Err(_) => stopped = true,
+            }
+        }
+        (tallies, stopped)
+    }
+
+    /// The angle whose last row arrived `at` ends, the workers' `tallies` in hand: the
+    /// hook's index taken, the angle-end passes run on all shards ([`tally_parallel`],
+    /// [`update_parallel`]), and after the last angle the results made by its update.
+    fn end_angle(
+        &mut self,
+        at: Instant,
+        tallies: Vec<Option<ShardTally>>,
+        hook: Option<&mut SampleHook<'_>>,
+    ) {
+        let (w, h, strips, workers) = (self.width, self.height, self.strips, self.workers);
+        let mut owned: Vec<ShardState> = self
+            .states
+            .iter_mut()
+            .map(|s| s.take().unwrap_or_default())
+            .collect();
+        let mut shards = image_shards(&mut owned, strips, w);
+        let last = self.solver.angles_done() + 1 == self.angles;
+        if let Some(hook) = hook {
+            let complete = self.solver.angles_done() + 1;
+            if let Some(m) = (hook.refit)(complete) {
+                self.solver.set_external_index(m);
+            }
+        }
+        let mut parts = LatencyParts {
+            drain: at.elapsed(),
+            ..LatencyParts::default()
+        };
+        // A worker that handed back no tally leaves all its rows.
+        let tallies = tallies
+            .into_iter()
+            .enumerate()
+            .map(|(i, t)| {
+                t.unwrap_or_else(|| ShardTally {
+                    tally: Box::default(),
+                    untallied: strips
+                        .of_worker(i)
+                        .flat_map(|k| {
+                            let (first, n) = strips.span(k);
+                            first..first + n
+                        })
+                        .collect(),
+                })
+            })
+            .collect();
+        tally_parallel(&mut self.solver, &mut shards, tallies, workers, &mut parts);
+        let releasing = Instant::now();
+        if last {
+            // The trackers are read no more: the results take their memory,
+            // not memory of their own on top of the state.
+            drop(shards);
+            owned.iter_mut().for_each(ShardState::release_trackers);
+            self.results = vec![PixelResult::UNSOLVED; w * h];
+            shards = image_shards(&mut owned, strips, w);
+        }
+        parts.results = releasing.elapsed();
+        let out = last.then_some(self.results.as_mut_slice());
+        let (report, span) =
+            update_parallel(&mut self.solver, &mut shards, out, workers, &mut parts);
+        self.table_span = span;
+        self.reports.push(report);
+        self.latency_parts = parts;
+        if last {
+            self.results_at = Some(self.solver.angles_done());
+        }
+        self.samples += (w * h * self.bands) as u64;
+        drop(shards);
+        for (i, st) in owned.into_iter().enumerate() {
+            self.states[i] = Some(st);
+        }
+    }
+
+    /// The sweep's output once the stream has ended (started at `start`): every pixel's
+    /// result, made here when the last angle's update did not make them (the stream ended
+    /// before the angles announced); an error when not one angle completed.
+    fn finish(self, spec: SweepSpec, start: Instant) -> Result<SweepOutput, PipelineError> {
+        let Coordinator {
+            solver,
+            states,
+            strips,
+            width: w,
+            height: h,
+            workers,
+            reports,
+            tables,
+            samples,
+            last_row_at,
+            latency_parts,
+            mut results,
+            results_at,
+            ..
+        } = self;
+        if solver.angles_done() < 1 {
+            return Err(PipelineError(format!(
+                "the stream ended after {} angle(s); at least one is needed",
+                solver.angles_done()
+            )));
+        }
+        if results_at != Some(solver.angles_done()) {
+            let mut owned: Vec<ShardState> =
+                states.into_iter().map(Option::unwrap_or_default).collect();
+            owned.iter_mut().for_each(ShardState::release_trackers);
+            if results.len() != w * h {
+                results = vec![PixelResult::UNSOLVED; w * h];
+            }
+            let mut jobs: Vec<_> = image_shards(&mut owned, strips, w)
+                .into_iter()
+                .zip(results.chunks_mut(strips.span(0).1 * w))
+                .collect();
+            each(&mut jobs, workers, |(sh, mine)| sh.finish(&solver, mine));
+        }
+        let done = Instant::now();
+        let state_bytes_per_pixel =
+            filmscope_core::solve::state_bytes_per_pixel(spec.index_sampling(), spec.width);
+        Ok(SweepOutput {
+            spec,
+            results,
+            index: solver.index(),
+            index_sigma: solver.index_sigma(),
+            index_fit: solver.index_fit(),
+            model_mismatch: solver.model_mismatch(),
+            spectral_index: solver.spectral_index(),
+            spectral_gains: solver.spectral_gains(),
+            spectral_candidate: solver.spectral_candidate(),
+            residual_sigma: solver.residual_sigma(),
+            noise_sigma: solver.noise_sigma(),
+            angles: reports,
+            stream_time: done - start,
+            solve_latency: done - last_row_at,
+            latency_parts,
+            samples,
+            state_bytes_per_pixel,
+            tables,
+        })
+    }
 }
 
 /// Every strip's shard over the workers' states (`states[i]` worker `i`'s), in image order.

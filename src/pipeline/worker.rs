@@ -88,14 +88,54 @@ pub(super) fn worker(
     done: Sender<Done>,
 ) {
     let [band_block, bands] = block;
-    let mut held = HeldBlock::default();
-    for Start {
-        state: mut st,
-        models,
-        began,
-        angles_left,
-    } in start.iter()
-    {
+    let mut feeder = Feeder {
+        index,
+        strips,
+        width,
+        options,
+        band_block,
+        bands,
+        order,
+        held: HeldBlock::default(),
+    };
+    for begun in start.iter() {
+        let back = feeder.angle(begun, &rows);
+        if done.send(back).is_err() {
+            return;
+        }
+    }
+}
+
+/// What a worker keeps from angle to angle: which rows are its, how it feeds them, and the
+/// block of rows it holds.
+struct Feeder {
+    /// The worker's number ([`Strips::of_worker`]).
+    index: usize,
+    strips: Strips,
+    width: usize,
+    options: SolverOptions,
+    /// Bands a block holds at most.
+    band_block: usize,
+    /// Bands an angle.
+    bands: usize,
+    order: RowOrder,
+    held: HeldBlock,
+}
+
+impl Feeder {
+    /// One angle: its rows from `rows` fed to the state `begun` hands over, held in blocks
+    /// of bands (a line-major source's lines until the block is full), until the angle (or
+    /// the calibrate stage) ends; the state and its tally handed back.
+    fn angle(&mut self, begun: Start, rows: &Receiver<WorkerMsg>) -> Done {
+        let Start {
+            state: mut st,
+            models,
+            began,
+            angles_left,
+        } = begun;
+        let (index, strips, width, options) = (self.index, self.strips, self.width, self.options);
+        let (band_block, bands, order) = (self.band_block, self.bands, self.order);
+        let held = &mut self.held;
         let mut owned = Owned::new(&mut st, strips, index, width);
         owned.shards.iter_mut().for_each(Shard::begin_angle);
         let shard_rows = strips.rows_of(index);
@@ -123,8 +163,7 @@ pub(super) fn worker(
                         // block would walk it once every few bands).
                         if !held.fits(values.len()) {
                             feed_rest(
-                                &mut owned, options, &models, &mut held, first_row, &mut tally,
-                                behind,
+                                &mut owned, options, &models, held, first_row, &mut tally, behind,
                             );
                         }
                         held.push(band, row, n, &values);
@@ -133,14 +172,14 @@ pub(super) fn worker(
                     if !held.fits(values.len()) {
                         // Only rows sent twice overfill a block: feed what it holds.
                         feed_rest(
-                            &mut owned, options, &models, &mut held, fed_to, &mut tally, behind,
+                            &mut owned, options, &models, held, fed_to, &mut tally, behind,
                         );
                         bands_held = 0;
                     }
                     if held.last_band().is_none_or(|b| b != band) {
                         if bands_held == limit {
                             feed_rest(
-                                &mut owned, options, &models, &mut held, fed_to, &mut tally, behind,
+                                &mut owned, options, &models, held, fed_to, &mut tally, behind,
                             );
                             bands_held = 0;
                         }
@@ -162,7 +201,7 @@ pub(super) fn worker(
                         // of one band as its rows arrive): the rows still held when the angle
                         // ends are latency.
                         feed_rest(
-                            &mut owned, options, &models, &mut held, fed_to, &mut tally, behind,
+                            &mut owned, options, &models, held, fed_to, &mut tally, behind,
                         );
                         bands_held = 0;
                     } else if bands_held == limit
@@ -170,9 +209,7 @@ pub(super) fn worker(
                         && streams_rows(first_band, limit, bands)
                     {
                         let part = fed_to..rows_in.end;
-                        feed_held(
-                            &mut owned, options, &models, &held, part, &mut tally, behind,
-                        );
+                        feed_held(&mut owned, options, &models, held, part, &mut tally, behind);
                         fed_to = rows_in.end;
                     }
                 }
@@ -181,9 +218,7 @@ pub(super) fn worker(
                 Err(_) => break,
             }
         }
-        feed_rest(
-            &mut owned, options, &models, &mut held, fed_to, &mut tally, true,
-        );
+        feed_rest(&mut owned, options, &models, held, fed_to, &mut tally, true);
         // After the last angle, given back before the state is: the coordinator allocates
         // the results then.
         if angles_left <= 1 {
@@ -191,13 +226,10 @@ pub(super) fn worker(
         }
         let tally = tally.finish(&owned);
         drop(owned);
-        let back = Done {
+        Done {
             worker: index,
             state: st,
             tally,
-        };
-        if done.send(back).is_err() {
-            return;
         }
     }
 }

@@ -9,6 +9,8 @@ use std::path::Path;
 use filmscope_core::hw::{FrameKind, RowLoss};
 use serde::{Deserialize, Serialize};
 
+use super::RecordError;
+
 /// The file name.
 pub const FILE: &str = "acquisition.json";
 
@@ -38,19 +40,13 @@ impl AcquisitionFile {
     }
 
     /// Reads `dir/acquisition.json`; the error names the file and the problem.
-    pub fn read(dir: &Path) -> Result<Self, String> {
-        let path = dir.join(FILE);
-        let text =
-            std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-        serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+    pub fn read(dir: &Path) -> Result<Self, RecordError> {
+        super::read(&dir.join(FILE))
     }
 
     /// Writes `dir/acquisition.json` atomically.
-    pub fn write(&self, dir: &Path) -> Result<(), String> {
-        let path = dir.join(FILE);
-        let text = super::to_json_pretty(self).map_err(|e| format!("{}: {e}", path.display()))?;
-        crate::io::write_atomic(&path, text.as_bytes())
-            .map_err(|e| format!("{}: {e}", path.display()))
+    pub fn write(&self, dir: &Path) -> Result<(), RecordError> {
+        super::write(&dir.join(FILE), self)
     }
 }
 

@@ -14,6 +14,9 @@
 //! order its type declares them in: the same record is the same bytes in every file and
 //! message that carries it.
 
+use std::path::{Path, PathBuf};
+
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 pub mod acquisition;
@@ -23,6 +26,63 @@ pub mod truth;
 pub use acquisition::{AcquisitionFile, AcquisitionLog, LinkStats, LostRows};
 pub use line::{AlarmRecord, LineSummary, Record, ReferenceRecord, SampleRecord};
 pub use truth::TruthRecord;
+
+/// A record file that cannot be read or written, one line: `PATH: problem`.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {problem}", .path.display())]
+pub struct RecordError {
+    /// The file.
+    pub path: PathBuf,
+    /// What went wrong.
+    pub problem: RecordProblem,
+}
+
+/// What went wrong with a record file.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordProblem {
+    /// It cannot be read or written.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+    /// It is not the record's JSON.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// An estimate's output was looked for in the capture folder it names.
+    #[error("no such file: {0} is a capture, not an estimate's output (run `filmscope estimate {0} --out MAPS` first)")]
+    ACapture(String),
+}
+
+impl RecordError {
+    /// `problem` of the file `path`.
+    pub fn new(path: &Path, problem: impl Into<RecordProblem>) -> Self {
+        Self {
+            path: path.to_path_buf(),
+            problem: problem.into(),
+        }
+    }
+}
+
+impl From<RecordError> for String {
+    fn from(e: RecordError) -> Self {
+        e.to_string()
+    }
+}
+
+/// Reads the record in the JSON file `path`.
+pub fn read<T: DeserializeOwned>(path: &Path) -> Result<T, RecordError> {
+    let text = std::fs::read_to_string(path).map_err(|e| RecordError::new(path, e))?;
+    serde_json::from_str(&text).map_err(|e| RecordError::new(path, e))
+}
+
+/// Writes `text` (a record's JSON) to `path` atomically.
+pub fn write_text(path: &Path, text: &str) -> Result<(), RecordError> {
+    crate::io::write_atomic(path, text.as_bytes()).map_err(|e| RecordError::new(path, e))
+}
+
+/// Writes `record` to `path` atomically as indented JSON, its keys in alphabetical order.
+pub fn write<T: Serialize + ?Sized>(path: &Path, record: &T) -> Result<(), RecordError> {
+    let text = to_json_pretty(record).map_err(|e| RecordError::new(path, e))?;
+    write_text(path, &text)
+}
 
 /// `record` as one line of JSON, the keys of every object in alphabetical order.
 pub fn to_json<T: Serialize + ?Sized>(record: &T) -> serde_json::Result<String> {

@@ -7,6 +7,8 @@ use std::path::Path;
 use filmscope_core::optics::{BackFace, Polarization};
 use serde::{Deserialize, Serialize};
 
+use super::RecordError;
+
 use crate::material::DispersionRecord;
 
 /// The file name.
@@ -70,19 +72,13 @@ fn thickness_map() -> String {
 
 impl TruthRecord {
     /// Reads `dir/truth.json`; the error names the file and the problem.
-    pub fn read(dir: &Path) -> Result<Self, String> {
-        let path = dir.join(FILE);
-        let text =
-            std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-        serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+    pub fn read(dir: &Path) -> Result<Self, RecordError> {
+        super::read(&dir.join(FILE))
     }
 
     /// Writes `dir/truth.json` atomically.
-    pub fn write(&self, dir: &Path) -> Result<(), String> {
-        let path = dir.join(FILE);
-        let text = super::to_json_pretty(self).map_err(|e| format!("{}: {e}", path.display()))?;
-        crate::io::write_atomic(&path, text.as_bytes())
-            .map_err(|e| format!("{}: {e}", path.display()))
+    pub fn write(&self, dir: &Path) -> Result<(), RecordError> {
+        super::write(&dir.join(FILE), self)
     }
 }
 

@@ -60,15 +60,20 @@ pub struct SampleConfig {
 }
 
 impl SampleConfig {
-    /// The back face, or one line naming the key and the problem.
-    pub fn back_face(&self) -> Result<filmscope_core::optics::BackFace, String> {
+    /// The back face, or the name given when it names none.
+    pub fn back_face(&self) -> Result<filmscope_core::optics::BackFace, UnknownBackFace> {
         match self.back_face.as_deref() {
             None => Ok(filmscope_core::optics::BackFace::None),
             Some(name) => filmscope_core::optics::BackFace::from_name(name)
-                .ok_or_else(|| format!("sample.back_face = {name:?}: \"none\" or \"bare\"")),
+                .ok_or_else(|| UnknownBackFace(name.to_owned())),
         }
     }
 }
+
+/// A `sample.back_face` that names no back face.
+#[derive(Debug, thiserror::Error)]
+#[error("sample.back_face = {0:?}: \"none\" or \"bare\"")]
+pub struct UnknownBackFace(pub String);
 
 fn one() -> f64 {
     1.0

@@ -28,6 +28,7 @@ use crate::io::{
     Angle, Capture, DataType, EnviHeader, EnviWriter, Interleave, Lens, Sample, Search,
 };
 use crate::record::acquisition::{AcquisitionFile, AcquisitionLog, LostRows};
+use crate::record::RecordError;
 use crate::rig::{Rig, RigConfig, RigError};
 
 /// Set by Ctrl-C: the sweep stops at the next band.
@@ -60,14 +61,32 @@ pub struct Acquisition {
     acquired: bool,
 }
 
-fn io_err(p: &Path, e: &dyn std::fmt::Display) -> String {
-    format!("{}: {e}", p.display())
+/// Why a live sweep cannot start.
+#[derive(Debug, thiserror::Error)]
+pub enum LiveError {
+    /// The capture's folder cannot be created.
+    #[error("{}: {source}", .path.display())]
+    Folder {
+        /// The folder.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The rig file's sweep is not one the estimator takes.
+    #[error(transparent)]
+    Spec(#[from] super::SourceError),
+    /// The rig file's back face is unknown.
+    #[error(transparent)]
+    BackFace(#[from] crate::rig::config::UnknownBackFace),
 }
 
 impl Acquisition {
     /// A sweep of `rig` per `config`, recording into `out` (created).
-    pub fn new(rig: Rig, config: RigConfig, out: &Path) -> Result<Self, String> {
-        std::fs::create_dir_all(out).map_err(|e| io_err(out, &e))?;
+    pub fn new(rig: Rig, config: RigConfig, out: &Path) -> Result<Self, LiveError> {
+        std::fs::create_dir_all(out).map_err(|source| LiveError::Folder {
+            path: out.to_path_buf(),
+            source,
+        })?;
         let bands_nm = config.sweep.bands();
         let search = config.search.clone();
         let spec = sweep_spec(
@@ -355,7 +374,7 @@ impl Acquisition {
     }
 
     /// Writes `acquisition.json`.
-    pub fn write_log(&self) -> Result<(), String> {
+    pub fn write_log(&self) -> Result<(), RecordError> {
         AcquisitionFile::new(self.log.clone()).write(&self.out)
     }
 }
@@ -406,7 +425,7 @@ impl Source for Acquisition {
             }
         }
         if let Err(x) = self.write_log() {
-            self.log.error.get_or_insert(x);
+            self.log.error.get_or_insert(x.to_string());
         }
     }
 }
