@@ -33,6 +33,27 @@ use crate::source::{CaptureSource, SimSource};
 /// Thickness errors above this are failures (nm).
 pub const SILENT_FAILURE_NM: f64 = 20.0;
 
+/// Why a capture's truth cannot be read, one line naming the file.
+#[derive(Debug, thiserror::Error)]
+pub enum TruthError {
+    /// `truth.json` cannot be read.
+    #[error(transparent)]
+    Record(#[from] crate::record::RecordError),
+    /// One of its indices is not one filmscope takes.
+    #[error("{}: {what}: {problem}", .path.display())]
+    Dispersion {
+        /// `truth.json`.
+        path: PathBuf,
+        /// The key.
+        what: &'static str,
+        /// Its problem.
+        problem: crate::material::MaterialError,
+    },
+    /// The true thickness map cannot be read.
+    #[error(transparent)]
+    Map(#[from] crate::io::EnviError),
+}
+
 /// What is true about a sweep.
 #[derive(Clone, Debug)]
 pub struct Truth {
@@ -68,14 +89,16 @@ impl Truth {
     }
 
     /// The truth written beside a simulated capture (`truth.json`, `truth/thickness_nm.hdr`).
-    pub fn of_capture_dir(dir: &Path) -> Result<Self, String> {
+    pub fn of_capture_dir(dir: &Path) -> Result<Self, TruthError> {
         let t = TruthRecord::read(dir)?;
         let path = dir.join(crate::record::truth::FILE);
-        let model = |d: &Option<DispersionRecord>, n: f64, what: &str| match d {
+        let model = |d: &Option<DispersionRecord>, n: f64, what: &'static str| match d {
             None => Ok(Dispersion::constant(n)),
-            Some(d) => d
-                .dispersion()
-                .map_err(|e| format!("{}: {what}: {e}", path.display())),
+            Some(d) => d.dispersion().map_err(|problem| TruthError::Dispersion {
+                path: path.clone(),
+                what,
+                problem,
+            }),
         };
         let film = model(&t.dispersion, t.refractive_index, "dispersion")?;
         // A dispersive substrate is `substrate_dispersion`; a constant one (null there, or
@@ -86,7 +109,7 @@ impl Truth {
             "substrate_dispersion",
         )?;
         let map = dir.join("truth").join("thickness_nm.hdr");
-        let cube = read_cube(&map).map_err(|e| e.to_string())?;
+        let cube = read_cube(&map)?;
         Ok(Self {
             film,
             substrate,

@@ -441,7 +441,7 @@ impl Line {
     /// not acknowledged (after the last stored acknowledgement).
     fn start_mqtt(&mut self, m: &super::recipe::MqttSpec) -> Result<(), InspectError> {
         let out = self.opts.out.clone();
-        let acked = match AckState::load(&out).map_err(InspectError)? {
+        let acked = match AckState::load(&out).map_err(|e| InspectError(e.to_string()))? {
             Some(a) => a.acked_seq.min(self.seq),
             None => {
                 // MQTT newly configured: the records before it are not sent.

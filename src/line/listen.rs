@@ -15,28 +15,45 @@ pub struct ServerThread {
     thread: Option<JoinHandle<()>>,
 }
 
+/// Why a server could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ListenError {
+    /// The address cannot be listened on.
+    #[error("cannot listen: {0}")]
+    Bind(std::io::Error),
+    /// No runtime for it.
+    #[error("no runtime: {0}")]
+    Runtime(std::io::Error),
+    /// No thread for it.
+    #[error("no thread: {0}")]
+    Thread(std::io::Error),
+}
+
 impl ServerThread {
     /// Listens on `bind` and runs `serve(listener, stopped)` on a current-thread runtime on
-    /// a thread called `name` until `stopped` fires. The problem in words when it cannot
-    /// listen there or start.
-    pub fn start<F, Fut>(bind: impl ToSocketAddrs, name: &str, serve: F) -> Result<Self, String>
+    /// a thread called `name` until `stopped` fires.
+    pub fn start<F, Fut>(
+        bind: impl ToSocketAddrs,
+        name: &str,
+        serve: F,
+    ) -> Result<Self, ListenError>
     where
         F: FnOnce(TcpListener, oneshot::Receiver<()>) -> Fut + Send + 'static,
         Fut: Future<Output = ()>,
     {
-        let listener = TcpListener::bind(bind).map_err(|e| format!("cannot listen: {e}"))?;
-        listener.set_nonblocking(true).map_err(|e| e.to_string())?;
-        let addr = listener.local_addr().map_err(|e| e.to_string())?;
+        let listener = TcpListener::bind(bind).map_err(ListenError::Bind)?;
+        listener.set_nonblocking(true).map_err(ListenError::Bind)?;
+        let addr = listener.local_addr().map_err(ListenError::Bind)?;
         let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_io()
             .enable_time()
             .build()
-            .map_err(|e| format!("no runtime: {e}"))?;
+            .map_err(ListenError::Runtime)?;
         let (shutdown, stopped) = oneshot::channel();
         let thread = std::thread::Builder::new()
             .name(name.into())
             .spawn(move || runtime.block_on(serve(listener, stopped)))
-            .map_err(|e| e.to_string())?;
+            .map_err(ListenError::Thread)?;
         Ok(Self {
             addr,
             shutdown: Some(shutdown),

@@ -167,7 +167,7 @@ pub struct PlcError {
     /// Where it was to listen.
     pub addr: String,
     /// Why it cannot.
-    pub problem: String,
+    pub problem: super::listen::ListenError,
 }
 
 /// What the server and the line share.

@@ -850,17 +850,30 @@ impl Recipe {
     }
 
     /// Checks the recipe against a sensor of `width` x `height` pixels.
-    pub fn check_sensor(&self, width: usize, height: usize) -> Result<(), String> {
-        for (i, r) in self.roi.iter().enumerate() {
+    pub fn check_sensor(&self, width: usize, height: usize) -> Result<(), RoiOutside> {
+        for (index, r) in self.roi.iter().enumerate() {
             if r.x.saturating_add(r.width) > width || r.y.saturating_add(r.height) > height {
-                return Err(format!(
-                    "roi[{i}] = {{ x = {}, y = {}, width = {}, height = {} }}: outside the {width} x {height} sensor",
-                    r.x, r.y, r.width, r.height
-                ));
+                return Err(RoiOutside {
+                    index,
+                    roi: [r.x, r.y, r.width, r.height],
+                    sensor: [width, height],
+                });
             }
         }
         Ok(())
     }
+}
+
+/// A region of interest outside the sensor.
+#[derive(Debug, thiserror::Error)]
+#[error("roi[{index}] = {{ x = {}, y = {}, width = {}, height = {} }}: outside the {} x {} sensor", roi[0], roi[1], roi[2], roi[3], sensor[0], sensor[1])]
+pub struct RoiOutside {
+    /// Which region.
+    pub index: usize,
+    /// Its x, y, width and height, pixels.
+    pub roi: [usize; 4],
+    /// The sensor's width and height, pixels.
+    pub sensor: [usize; 2],
 }
 
 /// A TOML error in one line: the key path and the problem, with the line number.
@@ -1031,7 +1044,7 @@ mod tests {
             "{MIN}[[roi]]\nx = 30\ny = 0\nwidth = 4\nheight = 3\n"
         ))
         .expect("roi");
-        let e = r.check_sensor(32, 24).expect_err("an error");
+        let e = r.check_sensor(32, 24).expect_err("an error").to_string();
         assert!(e.contains("outside the 32 x 24 sensor"), "{e}");
     }
 }

@@ -58,7 +58,7 @@ pub struct StatusError {
     /// Where it was to listen.
     pub addr: String,
     /// Why it could not.
-    pub problem: String,
+    pub problem: super::listen::ListenError,
 }
 
 /// What the page shows; also what `inspect` leaves in its output folder

@@ -480,14 +480,15 @@ impl AckState {
     }
 
     /// Reads it (none: no such file; an unreadable one is an error naming it).
-    pub fn load(dir: &Path) -> Result<Option<Self>, String> {
+    pub fn load(dir: &Path) -> Result<Option<Self>, crate::record::RecordError> {
+        use crate::record::RecordError;
         let p = Self::path_in(dir);
         match crate::limits::read_small(&p, 4096) {
             Ok(t) => serde_json::from_str(&t)
                 .map(Some)
-                .map_err(|e| format!("{}: {e}", p.display())),
+                .map_err(|e| RecordError::new(&p, e)),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(format!("{}: {e}", p.display())),
+            Err(e) => Err(RecordError::new(&p, e)),
         }
     }
 
