@@ -476,3 +476,30 @@ fn every_application_estimates_through_one_path() {
         }
     }
 }
+
+/// `--quiet` leaves standard error empty on success (no notes, no bars); `-v` adds the
+/// steps of the job; the default prints neither the steps nor anything else here.
+#[test]
+fn quiet_and_verbose_set_what_standard_error_carries() {
+    let dir = tempdir();
+    let (cap, _) = common::estimated_tiny(dir.path(), false);
+    let run = |flag: Option<&str>, out: &str| {
+        let mut c = filmscope();
+        c.arg("estimate").arg(s(&cap)).args(["--out", out]);
+        c.args(flag);
+        let o = c.output().expect("runs");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let out = |n: &str| dir.path().join(n).display().to_string();
+    let quiet = run(Some("--quiet"), &out("q"));
+    assert!(quiet.is_empty(), "{quiet}");
+    let plain = run(None, &out("p"));
+    assert!(!plain.contains("px,"), "{plain}");
+    let verbose = run(Some("-v"), &out("v"));
+    assert!(
+        verbose.contains("32 x 24 px, 101 bands, 4 angles; method filmscope")
+            && verbose.contains("maps and summary in"),
+        "{verbose}"
+    );
+}

@@ -195,7 +195,7 @@ pub fn estimate(
     let jobs::Outcome { run, summary } =
         jobs::estimate::estimate_capture(&request, &Progress::new())?;
     for note in &run.result.notes {
-        eprintln!("filmscope: note: {note}");
+        log::info!("filmscope: note: {note}");
     }
     if let Some(line) = field_line(&run) {
         println!("{line}");
@@ -533,7 +533,7 @@ pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
 pub fn bench(scene: &SceneFile, quick: bool, json: bool, out: Option<&Path>) -> Result<()> {
     let report = crate::lab::bench::run_bench(scene, quick, &|what| {
         if !json {
-            eprintln!("bench: {what}");
+            log::info!("bench: {what}");
         }
     })?;
     let table = crate::lab::bench::format_table(&report);
@@ -545,7 +545,7 @@ pub fn bench(scene: &SceneFile, quick: bool, json: bool, out: Option<&Path>) -> 
     }
     if let Some(dir) = out {
         let (md, js) = crate::lab::bench::write_dated(dir, quick, &table, &text)?;
-        eprintln!("bench: wrote {} and {}", md.display(), js.display());
+        log::info!("bench: wrote {} and {}", md.display(), js.display());
     }
     Ok(())
 }
@@ -812,7 +812,7 @@ pub fn report(run: &Path, out: Option<&Path>, capture: Option<&Path>) -> Result<
     let path = out.map_or_else(|| run.join("report.html"), Path::to_path_buf);
     let made = crate::report::write_report(run, &path, capture)?;
     for note in &made.notes {
-        eprintln!("filmscope: note: {note}");
+        log::info!("filmscope: note: {note}");
     }
     println!(
         "report: {} images, {} bytes in {}",
@@ -832,7 +832,7 @@ pub fn results(out: &Path, alarms: bool) -> Result<()> {
         crate::line::results::write_csv(out, alarms, &mut w).map_err(anyhow::Error::msg)?;
     std::io::Write::flush(&mut w).context("writing the CSV")?;
     if skipped > 0 {
-        eprintln!("filmscope: {skipped} lines of the log are not records (skipped)");
+        log::warn!("{skipped} lines of the log are not records (skipped)");
     }
     Ok(())
 }

@@ -55,10 +55,10 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
         return Ok(());
     };
     if let Some(url) = line.status_url() {
-        eprintln!("status page: {url}");
+        log::info!("status page: {url}");
     }
     if let Some(addr) = line.modbus_addr() {
-        eprintln!("modbus: listening on {addr}");
+        log::info!("modbus: listening on {addr}");
     }
     if a.reference {
         let r = line.check_reference().map_err(|e| anyhow!(e))?;
@@ -91,7 +91,7 @@ fn open_line(a: &Args<'_>, stop: &Arc<AtomicBool>) -> Result<Option<Line>> {
     match line {
         Ok(line) => Ok(Some(line)),
         Err(e) if e.is_interrupted() => {
-            eprintln!("filmscope: {e}");
+            log::error!("{e}");
             Ok(None)
         }
         Err(e) => Err(anyhow!(e)),
@@ -128,7 +128,7 @@ fn measure_until_stopped(a: &Args<'_>, line: &mut Line, stop: &AtomicBool) -> Re
             }
             Err(e) => {
                 errors_in_a_row += 1;
-                eprintln!("filmscope: {e}");
+                log::error!("{e}");
                 if errors_in_a_row >= 3 {
                     return Err(anyhow!(
                         "three samples in a row failed; stopping (last: {e})"

@@ -4,6 +4,7 @@
 
 mod commands;
 mod inspect;
+mod logging;
 mod progress;
 
 use std::path::PathBuf;
@@ -79,6 +80,12 @@ pub struct MethodArgs {
 pub struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Only errors on standard error: no notes, warnings or progress bars.
+    #[arg(short, long, global = true)]
+    quiet: bool,
+    /// More on standard error: -v the steps of a job, -vv everything.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
 }
 
 #[derive(Debug, Subcommand)]
@@ -457,6 +464,7 @@ pub fn main() -> std::process::ExitCode {
             return std::process::ExitCode::from(2);
         }
     };
+    logging::init(cli.quiet, cli.verbose);
     let result = match cli.command {
         Command::Demo { out, with_paper } => commands::demo(&out, with_paper),
         Command::Simulate {
@@ -629,7 +637,7 @@ pub fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("filmscope: {}", one_line(&format!("{e:#}")));
+            log::error!("{}", one_line(&format!("{e:#}")));
             std::process::ExitCode::FAILURE
         }
     }

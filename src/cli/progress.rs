@@ -4,17 +4,16 @@ use std::io::IsTerminal;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
-/// A bar of `total` rows titled `what`, hidden when stderr is not a terminal.
+/// A bar of `total` rows titled `what`, hidden when stderr is not a terminal or `--quiet`.
 pub fn rows_bar(total: u64, what: &str) -> ProgressBar {
-    if !std::io::stderr().is_terminal() {
+    if !std::io::stderr().is_terminal() || log::max_level() < log::LevelFilter::Info {
         return ProgressBar::hidden();
     }
     let bar = ProgressBar::new(total);
-    let style = ProgressStyle::with_template(
-        "{msg:>24} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
-    )
-    .unwrap_or_else(|_| ProgressStyle::default_bar())
-    .progress_chars("=> ");
+    let style =
+        ProgressStyle::with_template("{msg:>24} [{bar:40}] {percent:>3}% {elapsed_precise}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> ");
     bar.set_style(style);
     bar.set_message(what.to_owned());
     bar
@@ -47,7 +46,6 @@ impl crate::jobs::Observer for Progress {
     }
 
     fn warning(&self, message: &str) {
-        self.0
-            .suspend(|| eprintln!("filmscope: warning: {message}"));
+        self.0.suspend(|| log::warn!("{message}"));
     }
 }

@@ -358,7 +358,7 @@ impl OutputDir {
             let _ = fs::remove_dir_all(&old);
         }
         if let Some(note) = replaced.note(&self.target) {
-            eprintln!("filmscope: note: {note}");
+            log::info!("filmscope: note: {note}");
         }
         Ok(replaced)
     }

@@ -122,10 +122,19 @@ pub fn run(
     observer: &dyn Observer,
 ) -> Result<Run, EstimateError> {
     let spec = source.spec();
-    observer.begin(
-        label,
-        (spec.height * spec.bands_nm.len() * source.angles_deg().len()) as u64,
+    let angles = source.angles_deg().len();
+    log::debug!(
+        "{label}: {} x {} px, {} bands, {angles} angles; method {}{}",
+        spec.width,
+        spec.height,
+        spec.bands_nm.len(),
+        settings.config.method.name(),
+        settings
+            .film
+            .as_ref()
+            .map_or(String::new(), |f| format!(", index held at {}", f.name))
     );
+    observer.begin(label, (spec.height * spec.bands_nm.len() * angles) as u64);
     let on_rows = |n: u64| observer.rows(n);
     let config = &settings.config;
     let result = match &settings.film {
@@ -144,6 +153,11 @@ pub fn run(
         source,
     })?;
     run.result.notes.extend(source.notes());
+    log::debug!(
+        "{label}: estimated in {:.2} s, n(550 nm) = {:.4}",
+        run.seconds,
+        run.result.index.at(550.0)
+    );
     Ok(run)
 }
 
@@ -153,6 +167,7 @@ pub fn write(dir: &Path, run: &Run, label: &str) -> Result<Summary, EstimateErro
     let out = OutputDir::begin(dir)?;
     let summary = crate::estimate::write_outputs_into(out.path(), run, label)?;
     out.commit()?;
+    log::debug!("{label}: maps and summary in {}", dir.display());
     Ok(summary)
 }
 
@@ -210,5 +225,6 @@ pub fn estimate_capture(
     let run = run(&mut source, settings, fov, &label, observer)?;
     let summary = crate::estimate::write_outputs_into(out_dir.path(), &run, &label)?;
     out_dir.commit()?;
+    log::debug!("{label}: maps and summary in {}", request.out.display());
     Ok(Outcome { run, summary })
 }

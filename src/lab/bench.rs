@@ -578,7 +578,7 @@ pub fn run_bench(
     if std::env::var_os("FILMSCOPE_BENCH_STREAM_ROWS").is_some() {
         let rows: usize = std::env::var("FILMSCOPE_BENCH_STREAM_ROWS")?.parse()?;
         let (big, _) = sweep_rates(&kernel, rows, true);
-        eprintln!("stream 256x{rows}: {:.1} M samples/s", big / 1e6);
+        log::info!("stream 256x{rows}: {:.1} M samples/s", big / 1e6);
     }
 
     // Pipeline: a wide sensor, rows replayed.
