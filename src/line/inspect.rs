@@ -574,7 +574,7 @@ impl Line {
         self.counter
     }
 
-    /// Appends a UTC-stamped line to `inspect.log` (and standard error).
+    /// Appends a UTC-stamped line to `inspect.log`.
     pub fn say(&mut self, text: &str) {
         let line = format!("{} {text}\n", utc_iso(SystemTime::now()));
         let _ = self.logfile.write_all(line.as_bytes());
