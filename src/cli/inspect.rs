@@ -74,9 +74,7 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
 /// The line of `a`'s rig, recipe and folder; none when a signal stopped its start-up.
 fn open_line(a: &Args<'_>, stop: &Arc<AtomicBool>) -> Result<Option<Line>> {
     let rig = crate::rig::RigConfig::load_or_builtin(a.rig)?;
-    let recipe = Recipe::load(a.recipe)?
-        .with_labels(a.lot.clone(), a.operator.clone())
-        .map_err(|e| anyhow!("--lot/--operator: {e}"))?;
+    let recipe = Recipe::load(a.recipe)?.with_labels(a.lot.clone(), a.operator.clone())?;
     let line = Line::open(InspectOptions {
         rig,
         recipe,

@@ -460,7 +460,8 @@ impl Line {
             if m.ca_file.is_some() { " over TLS" } else { "" },
             m.prefix
         ));
-        let publisher = MqttPublisher::connect(m, &out, acked).map_err(InspectError)?;
+        let publisher =
+            MqttPublisher::connect(m, &out, acked).map_err(|e| InspectError(e.to_string()))?;
         let r = &self.opts.recipe.retention;
         let (backlog, left_out) =
             super::stream::records_after(&out, r.results_keep, acked, m.spool_records)
@@ -930,7 +931,7 @@ impl Line {
             .map_err(|e| InspectError(e.to_string()))?;
         let capture = tmp.join("capture");
         if record.raw_kept {
-            retention::references_to_u16(&capture).map_err(InspectError)?;
+            retention::references_to_u16(&capture).map_err(|e| InspectError(e.to_string()))?;
         } else {
             let _ = std::fs::remove_dir_all(&capture);
         }

@@ -12,8 +12,10 @@
 //! - [`listen`]: the thread and runtime each of those servers runs on.
 //! - [`retention`]: which raw sweeps are kept, uint16 references, the disk budget.
 //! - [`results`]: the results log as CSV (`filmscope results OUT --csv`).
+//! - [`folder`]: the error naming a file of the folder that cannot be read or written.
 //! - [`inspect`]: the loop that ties them to the rig and the estimator.
 
+pub mod folder;
 pub mod inspect;
 pub mod listen;
 pub mod plc;

@@ -554,7 +554,7 @@ impl Recipe {
                     .client_cert_file
                     .as_deref()
                     .zip(m.client_key_file.as_deref());
-                super::tls::client_config(ca, client)?;
+                super::tls::client_config(ca, client).map_err(|e| e.to_string())?;
             }
         }
         Ok(())
@@ -577,10 +577,10 @@ impl Recipe {
         mut self,
         lot: Option<String>,
         operator: Option<String>,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, BadLabel> {
         self.lot = lot.or(self.lot);
         self.operator = operator.or(self.operator);
-        self.check_ranges()?;
+        self.check_ranges().map_err(BadLabel)?;
         Ok(self)
     }
 
@@ -863,6 +863,11 @@ impl Recipe {
         Ok(())
     }
 }
+
+/// A lot or operator given on the command line that the recipe's checks refuse.
+#[derive(Debug, thiserror::Error)]
+#[error("--lot/--operator: {0}")]
+pub struct BadLabel(pub String);
 
 /// A region of interest outside the sensor.
 #[derive(Debug, thiserror::Error)]

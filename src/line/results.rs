@@ -6,6 +6,7 @@
 //! and the alarms after them when asked. A line that is not a record (a torn line a crash
 //! left before recovery) is skipped and counted on stderr.
 
+use super::folder::{FolderError, FolderProblem};
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 
@@ -48,10 +49,21 @@ const ALARM_COLUMNS: [&str; 9] = [
     "ucl",
 ];
 
+/// Why the results log could not be written as CSV.
+#[derive(Debug, thiserror::Error)]
+pub enum CsvError {
+    /// The log cannot be read.
+    #[error(transparent)]
+    Read(#[from] FolderError),
+    /// The CSV cannot be written.
+    #[error("writing the CSV: {0}")]
+    Write(std::io::Error),
+}
+
 /// Writes the results log of the `inspect --out` folder `out` as CSV into `w`: the samples'
 /// rows, then (with `alarms`) a blank line, the alarms' header and their rows. Returns how
 /// many lines were skipped as not records. An error names the file.
-pub fn write_csv(out: &Path, alarms: bool, w: &mut dyn Write) -> Result<usize, String> {
+pub fn write_csv(out: &Path, alarms: bool, w: &mut dyn Write) -> Result<usize, CsvError> {
     let log = out.join("results.jsonl");
     let mut files = Vec::new();
     for k in 1.. {
@@ -66,19 +78,16 @@ pub fn write_csv(out: &Path, alarms: bool, w: &mut dyn Write) -> Result<usize, S
         files.push(log.clone());
     }
     if files.is_empty() {
-        return Err(format!(
-            "{}: no results log (is this an `inspect --out` folder?)",
-            log.display()
-        ));
+        return Err(FolderError::new(&log, FolderProblem::NoResultsLog).into());
     }
-    let wr = |e: std::io::Error| format!("writing the CSV: {e}");
+    let wr = CsvError::Write;
     writeln!(w, "{}", SAMPLE_COLUMNS.join(",")).map_err(wr)?;
     let mut skipped = 0;
     let mut alarm_rows = Vec::new();
     for f in &files {
-        let file = std::fs::File::open(f).map_err(|e| format!("{}: {e}", f.display()))?;
+        let file = std::fs::File::open(f).map_err(|e| FolderError::new(f, e))?;
         for line in BufReader::new(file).lines() {
-            let line = line.map_err(|e| format!("{}: {e}", f.display()))?;
+            let line = line.map_err(|e| FolderError::new(f, e))?;
             let Ok(record) = serde_json::from_str::<Record>(&line) else {
                 skipped += usize::from(!line.trim().is_empty());
                 continue;

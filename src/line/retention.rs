@@ -1,6 +1,7 @@
 //! Bounded disk: which raw sweeps are kept, their references as uint16 counts, and a byte
 //! budget over the kept sweeps, the oldest deleted first.
 
+use super::folder::FolderError;
 use std::path::{Path, PathBuf};
 
 use super::recipe::{RawPolicy, RetentionSpec};
@@ -80,10 +81,10 @@ pub fn enforce_budget(samples: &Path, budget: u64) -> std::io::Result<Vec<String
 /// uint16 counts, in place (each file written to a temporary, renamed over the old one). A pixel whose white is not
 /// finite (a row the link lost) gets 0 in both, so it still calibrates to NaN. Returns the
 /// files rewritten.
-pub fn references_to_u16(capture: &Path) -> Result<Vec<PathBuf>, String> {
+pub fn references_to_u16(capture: &Path) -> Result<Vec<PathBuf>, FolderError> {
     let mut done = Vec::new();
     let mut names: Vec<PathBuf> = std::fs::read_dir(capture)
-        .map_err(|e| format!("{}: {e}", capture.display()))?
+        .map_err(|e| FolderError::new(capture, e))?
         .flatten()
         .map(|e| e.path())
         .filter(|p| {
@@ -107,8 +108,8 @@ pub fn references_to_u16(capture: &Path) -> Result<Vec<PathBuf>, String> {
             .trim_start_matches("white")
             .trim_start_matches("dark")
             .to_owned();
-        let e = |x: &dyn std::fmt::Display| format!("{}: {x}", hdr.display());
-        let mut r = EnviReader::open(&hdr).map_err(|x| e(&x))?;
+        let e = |x: crate::io::EnviError| FolderError::new(&hdr, x);
+        let mut r = EnviReader::open(&hdr).map_err(e)?;
         if r.header().data_type == DataType::U16 {
             continue;
         }
@@ -116,7 +117,7 @@ pub fn references_to_u16(capture: &Path) -> Result<Vec<PathBuf>, String> {
         let mut h = h0.clone();
         h.data_type = DataType::U16;
         // The writer writes to temporaries and renames them over the old files at the end.
-        let mut w = EnviWriter::create(&hdr, &h).map_err(|x| e(&x))?;
+        let mut w = EnviWriter::create(&hdr, &h).map_err(e)?;
         let is_white = name.starts_with("white");
         let mut row = vec![0f32; h0.samples];
         let mut mask = if is_white {
@@ -125,7 +126,7 @@ pub fn references_to_u16(capture: &Path) -> Result<Vec<PathBuf>, String> {
             lost.remove(&tag).unwrap_or_default()
         };
         let mut k = 0usize;
-        while let Some(at) = r.next_band_row(&mut row).map_err(|x| e(&x))? {
+        while let Some(at) = r.next_band_row(&mut row).map_err(e)? {
             for v in row.iter_mut() {
                 let bad = if is_white {
                     let b = !v.is_finite();
@@ -141,10 +142,9 @@ pub fn references_to_u16(capture: &Path) -> Result<Vec<PathBuf>, String> {
                     v.round().clamp(0.0, 65535.0)
                 };
             }
-            w.write_band_row(at.band, at.line, &row)
-                .map_err(|x| e(&x))?;
+            w.write_band_row(at.band, at.line, &row).map_err(e)?;
         }
-        w.finish().map_err(|x| e(&x))?;
+        w.finish().map_err(e)?;
         if is_white {
             lost.insert(tag, mask);
         }

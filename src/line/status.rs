@@ -16,6 +16,7 @@
 //! ([`SNAPSHOT_FILE`]) after every sample, and `filmscope status` serves it from there
 //! ([`StatusState::load`]) once `inspect` has stopped.
 
+use super::folder::{FolderError, FolderProblem};
 use std::collections::VecDeque;
 use std::convert::Infallible;
 use std::net::SocketAddr;
@@ -263,30 +264,29 @@ impl StatusState {
     /// snapshot; a folder without a snapshot shows its newest [`CATCH_UP_RECORDS`]), and
     /// the latest sample's overlay PNG read from its folder. The problem in one line when
     /// `dir` has neither a snapshot nor a results log, or they cannot be read.
-    pub fn load(dir: &Path) -> Result<Self, String> {
+    pub fn load(dir: &Path) -> Result<Self, FolderError> {
         let path = dir.join(SNAPSHOT_FILE);
-        let e = |x: &dyn std::fmt::Display| format!("{}: {x}", path.display());
+        let e = |x: FolderProblem| FolderError::new(&path, x);
         let mut state = match std::fs::File::open(&path) {
             Ok(file) => {
-                let len = file.metadata().map_err(|x| e(&x))?.len();
+                let len = file.metadata().map_err(|x| e(x.into()))?.len();
                 if len > MAX_SNAPSHOT_BYTES {
-                    return Err(e(&format!(
-                        "{len} bytes, more than a snapshot holds ({MAX_SNAPSHOT_BYTES})"
-                    )));
+                    return Err(e(FolderProblem::TooLarge {
+                        len,
+                        max: MAX_SNAPSHOT_BYTES,
+                    }));
                 }
-                serde_json::from_reader(std::io::BufReader::new(file)).map_err(|x| e(&x))?
+                serde_json::from_reader(std::io::BufReader::new(file)).map_err(|x| e(x.into()))?
             }
             Err(x) if x.kind() == std::io::ErrorKind::NotFound => {
                 let log = super::stream::ResultsLog::path_in(dir);
                 if !log.is_file() {
-                    return Err(format!(
-                        "{}: no {SNAPSHOT_FILE} nor results.jsonl (not a `filmscope inspect --out` folder)",
-                        dir.display()
-                    ));
+                    let problem = FolderProblem::NotALineFolder(SNAPSHOT_FILE);
+                    return Err(FolderError::new(dir, problem));
                 }
                 StatusState::empty("")
             }
-            Err(x) => return Err(e(&x)),
+            Err(x) => return Err(e(x.into())),
         };
         let seen = [
             state.latest.as_ref().and_then(|r| r.seq),
@@ -298,8 +298,7 @@ impl StatusState {
         .max()
         .unwrap_or(0);
         let keep = usize::try_from(super::recipe::MAX_RESULTS_KEEP).unwrap_or(usize::MAX);
-        let (newer, _) = super::stream::records_after(dir, keep, seen, CATCH_UP_RECORDS)
-            .map_err(|x| x.to_string())?;
+        let (newer, _) = super::stream::records_after(dir, keep, seen, CATCH_UP_RECORDS)?;
         for r in &newer {
             state.catch_up(r);
         }

@@ -592,12 +592,23 @@ pub struct MqttPublisher {
     prefix: String,
 }
 
+/// Why the MQTT client could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ConnectError {
+    /// Its TLS settings cannot be used.
+    #[error(transparent)]
+    Tls(#[from] super::tls::TlsError),
+    /// No thread for it.
+    #[error("mqtt: no thread: {0}")]
+    Thread(std::io::Error),
+}
+
 impl MqttPublisher {
     /// Connects in the background to the broker of `spec` (TLS, credentials, last will),
     /// `dir` holding the acknowledgement state; publishing starts at once (records wait in
     /// the spool until the broker is reached). `acked_seq` is where the stored
     /// acknowledgements reached.
-    pub fn connect(spec: &MqttSpec, dir: &Path, acked_seq: u64) -> Result<Self, String> {
+    pub fn connect(spec: &MqttSpec, dir: &Path, acked_seq: u64) -> Result<Self, ConnectError> {
         let mut o = MqttOptions::new(spec.client_id.clone(), spec.host.clone(), spec.port);
         o.set_keep_alive(Duration::from_secs(15));
         o.set_max_packet_size(1 << 20, 1 << 20);
@@ -651,7 +662,7 @@ impl MqttPublisher {
         let thread = std::thread::Builder::new()
             .name("mqtt".into())
             .spawn(move || worker.run(events))
-            .map_err(|e| format!("mqtt: no thread: {e}"))?;
+            .map_err(ConnectError::Thread)?;
         Ok(Self {
             spool,
             stop,
