@@ -296,53 +296,9 @@ impl Acquisition {
                 }
                 let request = req(FrameKind::Sample);
                 self.trigger(request)?;
-                let mut px = vec![0u16; w];
-                loop {
-                    let (first, rows, counts, lost) =
-                        match self.rig.camera.read_line(&mut px).map_err(e)? {
-                            LineEvent::Row { row } => {
-                                (row, 1, px.iter().map(|&v| f32::from(v)).collect(), false)
-                            }
-                            LineEvent::Lost {
-                                first,
-                                count,
-                                cause,
-                            } => {
-                                self.note_lost(deg, request, first, count, cause);
-                                let count = count.min(h as u32 - first.min(h as u32));
-                                (first, count, vec![0f32; count as usize * w], true)
-                            }
-                            LineEvent::End => break,
-                        };
-                    let (a, z) = (first as usize * w, (first + rows) as usize * w);
-                    let mut wv = white[a..z].to_vec();
-                    if lost {
-                        // No usable reference: NaN after calibration, live and on replay.
-                        wv.fill(f32::NAN);
-                    }
-                    for k in 0..rows as usize {
-                        let r = first as usize + k;
-                        let row = &counts[k * w..(k + 1) * w];
-                        cube.write_band_row(b, r, row).map_err(|x| x.to_string())?;
-                        white_w
-                            .write_band_row(b, r, &wv[k * w..(k + 1) * w])
-                            .map_err(|x| x.to_string())?;
-                    }
-                    let msg = StreamMsg::Rows(RowBlock {
-                        band: b as u16,
-                        first_row: first,
-                        rows,
-                        samples: Samples::Raw {
-                            counts,
-                            dark: Some(dark[a..z].to_vec()),
-                            white: wv,
-                            white_reflectance: 1.0,
-                            saturation_counts: sat as f32,
-                        },
-                    });
-                    if tx.send(msg).is_err() {
-                        return Ok(false);
-                    }
+                let refs = [&dark[..], &white[..]];
+                if !self.sample_rows(tx, request, deg, refs, [&mut cube, &mut white_w])? {
+                    return Ok(false);
                 }
                 if tx.send(StreamMsg::BandEnd { band: b as u16 }).is_err() {
                     return Ok(false);
@@ -371,6 +327,78 @@ impl Acquisition {
             wheel.select(wc.block_slot).map_err(e)?;
         }
         Ok(true)
+    }
+
+    /// Reads the sample frame `request` row by row (a lost row recorded, its pixels given
+    /// no usable reference), writes each row into `files` (the cube and the white
+    /// reference) and sends it downstream with its `refs` (dark, white); false when
+    /// nothing downstream listens any more.
+    fn sample_rows(
+        &mut self,
+        tx: &Sender<StreamMsg>,
+        request: FrameRequest,
+        deg: f64,
+        [dark, white]: [&[f32]; 2],
+        [cube, white_w]: [&mut EnviWriter; 2],
+    ) -> Result<bool, String> {
+        let (w, h) = (
+            self.config.camera.width as usize,
+            self.config.camera.height as usize,
+        );
+        let sat = self.config.camera.saturation_counts;
+        let b = usize::from(request.band);
+        let mut px = vec![0u16; w];
+        loop {
+            let (first, rows, counts, lost) = match self
+                .rig
+                .camera
+                .read_line(&mut px)
+                .map_err(|e| e.to_string())?
+            {
+                LineEvent::Row { row } => {
+                    (row, 1, px.iter().map(|&v| f32::from(v)).collect(), false)
+                }
+                LineEvent::Lost {
+                    first,
+                    count,
+                    cause,
+                } => {
+                    self.note_lost(deg, request, first, count, cause);
+                    let count = count.min(h as u32 - first.min(h as u32));
+                    (first, count, vec![0f32; count as usize * w], true)
+                }
+                LineEvent::End => return Ok(true),
+            };
+            let (a, z) = (first as usize * w, (first + rows) as usize * w);
+            let mut wv = white[a..z].to_vec();
+            if lost {
+                // No usable reference: NaN after calibration, live and on replay.
+                wv.fill(f32::NAN);
+            }
+            for k in 0..rows as usize {
+                let r = first as usize + k;
+                let row = &counts[k * w..(k + 1) * w];
+                cube.write_band_row(b, r, row).map_err(|x| x.to_string())?;
+                white_w
+                    .write_band_row(b, r, &wv[k * w..(k + 1) * w])
+                    .map_err(|x| x.to_string())?;
+            }
+            let msg = StreamMsg::Rows(RowBlock {
+                band: request.band,
+                first_row: first,
+                rows,
+                samples: Samples::Raw {
+                    counts,
+                    dark: Some(dark[a..z].to_vec()),
+                    white: wv,
+                    white_reflectance: 1.0,
+                    saturation_counts: sat as f32,
+                },
+            });
+            if tx.send(msg).is_err() {
+                return Ok(false);
+            }
+        }
     }
 
     /// Writes `acquisition.json`.
