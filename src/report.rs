@@ -167,7 +167,7 @@ fn summary_rows(film: &SampleFilm) -> Vec<Vec<String>> {
     let s = &film.summary;
     let num = |x: Option<f64>| x.map_or("-".into(), |x| format!("{x:.2}"));
     let mut rows = vec![
-        vec!["method".into(), s.method.clone()],
+        vec!["method".into(), s.method.name().into()],
         vec!["source".into(), s.source.clone()],
         vec![
             "refractive index at 550 nm".into(),

@@ -3,8 +3,9 @@
 //! The estimator fills it ([`crate::estimate::write_outputs_into`]), the rig and the line
 //! add their records, and the appearance, report and command line read it back. Its two
 //! `*_choice` members are the evidence behind the index and field models, for people: the
-//! field model's is typed (the command line prints from it); the index model's differs by
-//! method and is kept as JSON, read by no code.
+//! field model's is typed here (the command line prints from it); the index model's, whose
+//! shape differs by how the index came, in [`crate::record::index_choice`] (the appearance
+//! reads its nuisance terms).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -12,8 +13,11 @@ use std::path::Path;
 use filmscope_core::optics::Dispersion;
 use serde::{Deserialize, Serialize};
 
+use crate::estimate::method::Method;
+use crate::estimate::run::FieldModel;
 pub use crate::material::DispersionRecord;
 use crate::record::acquisition::AcquisitionLog;
+use crate::record::index_choice::IndexModelChoice;
 use crate::record::line::{RecipeRecord, VerdictRecord};
 use crate::record::{RecordError, RecordProblem};
 
@@ -31,10 +35,12 @@ pub struct Summary {
     pub dispersion: Option<IndexRecord>,
     /// `constant`, `cauchy`, `cauchy3`, `sellmeier` or `sellmeier_constant`.
     pub index_model: String,
-    /// How the index model was chosen: candidates, criterion, timings (JSON, for people).
-    pub index_model_choice: serde_json::Value,
+    /// How the index model was chosen: candidates, criterion, timings (for people); null
+    /// for the baselines. Its keys in alphabetical order.
+    #[serde(serialize_with = "crate::record::sorted")]
+    pub index_model_choice: Option<IndexModelChoice>,
     /// `narrow` or `wide`, for the streaming method.
-    pub field_model: Option<String>,
+    pub field_model: Option<FieldModel>,
     /// How the field model was chosen (streaming method).
     pub field_model_choice: Option<FieldModelChoice>,
     /// Statistics of the valid thicknesses, nm.
@@ -52,7 +58,7 @@ pub struct Summary {
     #[serde(default)]
     pub sample: Option<SampleRecord>,
     /// `filmscope`, `paper` or `brute`.
-    pub method: String,
+    pub method: Method,
     /// The capture (path) or scene the maps come from.
     pub source: String,
     /// Incidence angles in streaming order, degrees.

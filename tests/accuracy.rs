@@ -111,7 +111,7 @@ height = 24
         check_valid(&r, 0.005, 0.98);
         // A constant film: whatever model is chosen bends by less than the 0.005 claimed.
         let bend = run.result.index.at(420.0) - run.result.index.at(720.0);
-        assert!(bend.abs() < 0.005, "{name}: {}", run.model_choice);
+        assert!(bend.abs() < 0.005, "{name}: {:?}", run.model_choice);
         let seeded = run
             .result
             .flags
@@ -243,9 +243,14 @@ fn the_index_model_is_no_richer_than_the_scene_needs() {
             let scene = common::scene(name);
             let mut source = SimSource::new(SoftwareCamera::new(scene), false, 8).expect("source");
             let run = run_method(&mut source, &RunConfig::default(), &|_| {}).expect("run");
-            eprintln!("{name}: {}", run.model_choice);
-            let mut passes = run.model_choice["passes"].as_u64().unwrap_or(0);
-            if let Some(searched) = run.model_choice["pixels_searched"].as_u64() {
+            let choice = run.model_choice.as_ref();
+            eprintln!(
+                "{name}: {}",
+                filmscope::record::to_json(&choice).expect("json")
+            );
+            let mut passes = choice.and_then(|c| c.passes()).unwrap_or(0) as u64;
+            if let Some(searched) = choice.and_then(|c| c.pixels_searched()) {
+                let searched = searched as u64;
                 let pixels = run.result.thickness_nm.len() as u64;
                 assert!(
                     searched * 100 < pixels,
@@ -288,7 +293,7 @@ fn a_thin_film_keeps_a_constant_index_and_its_accuracy() {
         assert_eq!(
             run.result.index.terms(),
             1,
-            "seed {seed}: {}",
+            "seed {seed}: {:?}",
             run.model_choice
         );
         assert_bounds(&r, &format!("seed {seed}"), 0.002, 1.0, 0.98);
@@ -313,11 +318,8 @@ fn a_thick_high_index_film_is_not_taken_for_one_without_fringe_pairs() {
         let scene = grid.scene().expect("grid scene");
         let (r, run) = run_scene("thick", scene, &RunConfig::default());
         eprintln!("n {index}: {}", serde_json::to_string(&r).expect("json"));
-        assert!(
-            !run.model_choice.to_string().contains("spectrum search"),
-            "n {index}: {}",
-            run.model_choice
-        );
+        let choice = filmscope::record::to_json(&run.model_choice).expect("json");
+        assert!(!choice.contains("spectrum search"), "n {index}: {choice}");
         assert_bounds(&r, &format!("n {index}"), 0.003, 2.0, 0.98);
     }
 }

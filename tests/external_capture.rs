@@ -32,7 +32,7 @@ fn eval(name: &str) -> EvalReport {
     eprintln!("{}", serde_json::to_string(&r).expect("json"));
     // What the solver decided, to read a failure without rerunning anything.
     eprintln!(
-        "{name}: model {} | flags {:?} | notes {:?}\n{name}: angles {:?}",
+        "{name}: model {:?} | flags {:?} | notes {:?}\n{name}: angles {:?}",
         run.model_choice,
         flag_counts(&run.result.flags),
         run.result.notes,

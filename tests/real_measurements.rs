@@ -557,8 +557,10 @@ fn side_lobes_are_taken_out_by_evidence() {
             through_side_lobes(lobes),
             &RunConfig::default(),
         );
-        let taken = run.model_choice["nuisance_terms"]["side_lobes"]["value"]
-            .as_f64()
+        let taken = run
+            .model_choice
+            .as_ref()
+            .and_then(|c| c.nuisance_terms()?.side_lobes?.value)
             .unwrap_or(0.0);
         eprintln!(
             "side lobes {lobes}: index error {:+.4}, MAE {:.2} nm, valid {:.3}, side lobes taken {taken:.4}",

@@ -722,9 +722,10 @@ fn pixel_fit<'py>(
     y: usize,
     nuisance_terms: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let terms: serde_json::Value = serde_json::from_str(nuisance_terms)
-        .map_err(|e| fail(format!("pixel_fit: nuisance_terms: {e}")))?;
-    let correction = filmscope::estimate::index_fit::correction_from_json(&terms);
+    let terms: Option<filmscope::record::index_choice::NuisanceTerms> =
+        serde_json::from_str(nuisance_terms)
+            .map_err(|e| fail(format!("pixel_fit: nuisance_terms: {e}")))?;
+    let correction = filmscope::estimate::index_fit::correction_from(terms.as_ref());
     let stack = FilmStack {
         back_face: back_face(back_face_name).map_err(fail)?,
         ambient_index,

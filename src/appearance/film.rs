@@ -128,8 +128,11 @@ impl SampleFilm {
                 )
             }
         };
-        let found = crate::estimate::index_fit::correction_from_json(
-            &summary.index_model_choice["nuisance_terms"],
+        let found = crate::estimate::index_fit::correction_from(
+            summary
+                .index_model_choice
+                .as_ref()
+                .and_then(|c| c.nuisance_terms()),
         );
         let terms = FilmTerms {
             film_k: found.film.film_k,

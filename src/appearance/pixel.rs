@@ -458,8 +458,11 @@ pub fn pixel_fit(
     let (angles, measured) = measured_spectra(source, x, y)?;
     let d = film.thickness_at(y * film.width + x).unwrap_or(f64::NAN);
     let fallback = film.median_thickness_nm().unwrap_or(f64::NAN);
-    let correction = crate::estimate::index_fit::correction_from_json(
-        &film.summary.index_model_choice["nuisance_terms"],
+    let correction = crate::estimate::index_fit::correction_from(
+        film.summary
+            .index_model_choice
+            .as_ref()
+            .and_then(|c| c.nuisance_terms()),
     );
     Ok(fit_pixel(
         (x, y),

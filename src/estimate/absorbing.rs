@@ -17,10 +17,11 @@
 
 use std::time::Instant;
 
+use crate::record::finite;
+use crate::record::index_choice::{AbsorbingChoice, IndexModelChoice};
 use filmscope_core::optics::{Dispersion, Indices, LossyFilm};
 use filmscope_core::solve::refine::{passband_phase_span, passband_rule, MAX_BAND_NODES};
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
-use serde_json::json;
 
 use crate::estimate::baseline::defect_flags;
 use crate::estimate::method::{Method, MethodResult};
@@ -354,15 +355,15 @@ pub fn run_absorbing(
         state_bytes_per_pixel: None,
         samples,
         angle_reports: Vec::new(),
-        model_choice: json!({
-            "given": name,
-            "reason": "the film's n and k were given (--film-index, an absorbing material): each pixel's thickness fitted on the whole sweep with the absorbing film's exact reflectance",
-            "absorbing": true,
-            "k_550nm": film.extinction_at(550.0),
-            "grid_step_nm": step,
-            "typical_rms": typical,
-            "noise_sigma": noise,
-        }),
+        model_choice: Some(IndexModelChoice::Absorbing(AbsorbingChoice {
+            given: name.to_owned(),
+            reason: "the film's n and k were given (--film-index, an absorbing material): each pixel's thickness fitted on the whole sweep with the absorbing film's exact reflectance".to_owned(),
+            absorbing: true,
+            k_550nm: finite(film.extinction_at(550.0)),
+            grid_step_nm: finite(step),
+            typical_rms: finite(typical),
+            noise_sigma: finite(noise),
+        })),
         field_model: None,
         field_model_choice: None,
         spec,

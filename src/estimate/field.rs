@@ -26,10 +26,10 @@
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
+use crate::record::index_choice::{IndexModelChoice, WideChoice};
 use crossbeam_channel::{bounded, Sender};
 use filmscope_core::optics::FieldOfView;
 use filmscope_core::solve::{flags, IndexModel, PixelResult, SweepSpec};
-use serde_json::json;
 
 use crate::estimate::method::{Method, MethodResult};
 use crate::estimate::passes::{angle_reports, filmscope_passes, result_from_sweep, Passes};
@@ -936,7 +936,7 @@ fn narrow_run(source: &dyn Source, p: &Passes, t0: Instant) -> Run {
         state_bytes_per_pixel: Some(p.out.state_bytes_per_pixel),
         samples: p.out.samples,
         angle_reports: angle_reports(&p.out),
-        model_choice: p.choice.clone(),
+        model_choice: Some(IndexModelChoice::Fitted(Box::new(p.choice.clone()))),
         field_model: Some(FieldModel::Narrow),
         field_model_choice: None,
     }
@@ -995,11 +995,11 @@ fn wide_run(source: &dyn Source, wide: &WideRun, t0: Instant) -> Run {
         state_bytes_per_pixel: Some(wide.last(0).state_bytes_per_pixel),
         samples: (0..wide.strips.len()).map(|k| wide.last(k).samples).sum(),
         angle_reports: angle_reports(wide.last(k_mid)),
-        model_choice: json!({
-            "chosen": chosen,
-            "combination": format!("inverse-variance mean of the strips' indices at 550 nm (sigmas floored at {STRIP_INDEX_FLOOR}; a strip more than {} sigma from the others left out; the number of Cauchy terms most strips chose, each coefficient averaged over the strips that have it), then every strip passes from it, seeded by the last maps, with the index from its full spectra (the strips' indices combined again), then with the combination held", filmscope_core::solve::index::OUTLIER_SIGMA),
-            "strips": strips,
-        }),
+        model_choice: Some(IndexModelChoice::Wide(WideChoice {
+            chosen: chosen.map(str::to_owned),
+            combination: format!("inverse-variance mean of the strips' indices at 550 nm (sigmas floored at {STRIP_INDEX_FLOOR}; a strip more than {} sigma from the others left out; the number of Cauchy terms most strips chose, each coefficient averaged over the strips that have it), then every strip passes from it, seeded by the last maps, with the index from its full spectra (the strips' indices combined again), then with the combination held", filmscope_core::solve::index::OUTLIER_SIGMA),
+            strips,
+        })),
         field_model: Some(FieldModel::Wide),
         field_model_choice: None,
     }

@@ -10,7 +10,12 @@ use filmscope_core::solve::sample::{
     RUN, TOLERANCE,
 };
 use filmscope_core::solve::{IndexModel, SweepSpec};
-use serde_json::{json, Value};
+
+use crate::record::finite;
+use crate::record::index_choice::{
+    AngleResidualRecord, Candidate, FittedChoice, NuisanceTerms, OneSigma, ReflectanceTerm,
+    ResidualRecord, RigTolerance, TermRecord,
+};
 
 use crate::pipeline::Tap;
 
@@ -423,142 +428,151 @@ pub fn index_model(fit: &SampleFit) -> Option<IndexModel> {
     IndexModel::from_dispersion(c.kind.dispersion(&c.params))
 }
 
-/// How the index model was chosen, for `summary.json` `index_model_choice`.
-pub fn choice_json(fit: &SampleFit, tap: &SampleTap, passes: usize) -> serde_json::Value {
-    let finite = |x: f64| x.is_finite().then_some(x);
-    let candidates: Vec<_> = fit
+/// How the index model was chosen, for `summary.json` `index_model_choice`: the fit's
+/// evidence, the per-pixel passes' checks left for them to fill (`fit_seconds` none, no
+/// search, no site disagreeing).
+pub fn choice(fit: &SampleFit, tap: &SampleTap, passes: usize) -> FittedChoice {
+    let candidates = fit
         .candidates
         .iter()
-        .map(|c| {
-            json!({
-                "model": c.kind.name(),
-                "parameters": c.kind.params(),
-                "chi2": finite(c.chi2),
-                "chi2_nu": finite(c.chi2_nu),
-                "score": finite(c.score),
-                "n_550": c.kind.dispersion(&c.params).index_at(550.0),
-                "n_550_sigma": finite(c.n550_sigma),
-                "physical": c.physical,
-            })
+        .map(|c| Candidate {
+            model: c.kind.name().to_owned(),
+            parameters: c.kind.params(),
+            chi2: finite(c.chi2),
+            chi2_nu: finite(c.chi2_nu),
+            score: finite(c.score),
+            n_550: finite(c.kind.dispersion(&c.params).index_at(550.0)),
+            n_550_sigma: finite(c.n550_sigma),
+            physical: c.physical,
         })
         .collect();
-    json!({
-        "index_source": "full spectra of a pixel sample",
-        "chosen": fit.best.map(|c| c.kind.name()),
-        "failure": fit.failure.map(Failure::message),
-        "chi2_nu": fit.best.and_then(|c| finite(c.chi2_nu)),
-        "n_550_sigma": fit.best.and_then(|c| finite(c.n550_sigma)),
-        "noise_sigma": finite(fit.noise_sigma),
-        "model_error": finite(fit.model_error),
-        "nuisance_terms": {
-            "film_k_450nm": term_json(fit.film_k),
-            "absorption_tail_nm": ABSORPTION_TAIL_NM,
-            "polariser_leak": term_json(fit.polariser_leak),
-            "stage_offset_deg": term_json(fit.stage_offset_deg),
-            "wavelength_shift_nm": term_json(fit.wavelength_shift_nm),
-            "flare": term_json(fit.flare),
-            "side_lobes": term_json(fit.side_lobes),
-            "side_lobe_width_fwhm": filmscope_core::solve::sample::SIDE_LOBE_WIDTH,
-            "reflectance_terms": fit
+    FittedChoice {
+        index_source: "full spectra of a pixel sample".to_owned(),
+        chosen: fit.best.map(|c| c.kind.name().to_owned()),
+        failure: fit.failure.map(Failure::message).map(str::to_owned),
+        chi2_nu: fit.best.and_then(|c| finite(c.chi2_nu)),
+        n_550_sigma: fit.best.and_then(|c| finite(c.n550_sigma)),
+        noise_sigma: finite(fit.noise_sigma),
+        model_error: finite(fit.model_error),
+        nuisance_terms: NuisanceTerms {
+            film_k_450nm: term_record(fit.film_k),
+            absorption_tail_nm: ABSORPTION_TAIL_NM,
+            polariser_leak: term_record(fit.polariser_leak),
+            stage_offset_deg: term_record(fit.stage_offset_deg),
+            wavelength_shift_nm: term_record(fit.wavelength_shift_nm),
+            flare: term_record(fit.flare),
+            side_lobes: term_record(fit.side_lobes),
+            side_lobe_width_fwhm: filmscope_core::solve::sample::SIDE_LOBE_WIDTH,
+            reflectance_terms: fit
                 .reflectance_terms
                 .iter()
-                .map(|&(scale, offset)| json!({"scale": scale, "offset": offset}))
-                .collect::<Vec<_>>(),
+                .map(|&(scale, offset)| ReflectanceTerm {
+                    scale: finite(scale),
+                    offset: finite(offset),
+                })
+                .collect(),
         },
-        "residual": residual_json(fit),
-        "sites_set_aside": tap
+        residual: residual_record(fit),
+        sites_set_aside: tap
             .centres()
             .zip(&fit.set_aside)
             .filter(|(_, &aside)| aside)
             .map(|((r, c), _)| [c, r])
-            .collect::<Vec<_>>(),
-        "sampled_sites": tap.sites.len(),
-        "sites_used": fit.sites_used,
-        "site_run_pixels": RUN,
-        "sample_bytes": tap.bytes(),
-        "searched": fit.searched,
-        "starts": fit.starts,
-        "passes": passes,
-        "candidates": candidates,
-        "criterion": format!(
+            .collect(),
+        sampled_sites: tap.sites.len(),
+        sites_used: fit.sites_used,
+        site_run_pixels: RUN,
+        sample_bytes: tap.bytes(),
+        searched: fit.searched,
+        starts: fit.starts,
+        passes,
+        candidates,
+        criterion: format!(
             "lowest chi2 + {MODEL_PENALTY} x parameters (a constant index counted as two, the Cauchy model with its slope held at zero, preferred unless the slope gains {CONSTANT_PREFERENCE}) among physical models (index inside the search range and falling with wavelength, a Sellmeier pole below the band), chi2 in units of the noise measured from each site's run of {RUN} pixels (per site, band and angle) plus the model error; a fit that misses the noise alone is fitted again with its misfit beyond the noise as the model error (sites fitting {OUTLIER_SITE_RATIO}x worse than the median set aside) and fails when that misfit exceeds the tolerated model error (model_error_tolerated) or its reduced chi-square exceeds {GATE_CHI2_NU}"
         ),
-        "model_error_tolerated": fit.tolerated_model_error,
-        "rig_tolerance": {
-            "multiple": finite(fit.rig_tolerance),
-            "one_sigma": {
-                "reflectance_scale": TOLERANCE.scale,
-                "reflectance_offset": TOLERANCE.offset,
-                "film_k_450nm": TOLERANCE.terms[0],
-                "polariser_leak": TOLERANCE.terms[1],
-                "stage_offset_deg": TOLERANCE.terms[2],
-                "wavelength_shift_nm": TOLERANCE.terms[3],
-                "flare": TOLERANCE.terms[4],
-                "side_lobes": TOLERANCE.terms[5],
+        model_error_tolerated: finite(fit.tolerated_model_error),
+        rig_tolerance: RigTolerance {
+            multiple: finite(fit.rig_tolerance),
+            one_sigma: OneSigma {
+                reflectance_scale: TOLERANCE.scale,
+                reflectance_offset: TOLERANCE.offset,
+                film_k_450nm: TOLERANCE.terms[0],
+                polariser_leak: TOLERANCE.terms[1],
+                stage_offset_deg: TOLERANCE.terms[2],
+                wavelength_shift_nm: TOLERANCE.terms[3],
+                flare: TOLERANCE.terms[4],
+                side_lobes: TOLERANCE.terms[5],
             },
         },
-        "models": ModelKind::ALL.iter().map(|k| k.name()).collect::<Vec<_>>(),
-    })
+        models: ModelKind::ALL.iter().map(|k| k.name().to_owned()).collect(),
+        fit_seconds: None,
+        pixels_searched: None,
+        pixels_solved_by_search: None,
+        sites_disagreeing: 0.0,
+        per_pixel_failure: None,
+    }
 }
 
 /// The correction the per-pixel passes applied, read back from `summary.json`'s
-/// `index_model_choice.nuisance_terms` ([`choice_json`] writes it): the stage offset, the
+/// `index_model_choice.nuisance_terms` ([`choice`] writes it): the stage offset, the
 /// wavelength shift, the flare, each angle's reflectance scale and offset, the film's
-/// absorption and the polariser's leak. Null or absent terms are none; the side lobes, which
-/// the passes do not take out, are not read.
-pub fn correction_from_json(terms: &Value) -> crate::pipeline::Correction {
-    let value = |key: &str| terms[key]["value"].as_f64().unwrap_or(0.0);
+/// absorption and the polariser's leak. No terms, or null ones, are none; the side lobes,
+/// which the passes do not take out, are not read.
+pub fn correction_from(terms: Option<&NuisanceTerms>) -> crate::pipeline::Correction {
+    let value = |t: Option<&Option<TermRecord>>| t.and_then(|t| t.as_ref()?.value).unwrap_or(0.0);
     crate::pipeline::Correction {
-        angle_offset_deg: value("stage_offset_deg"),
-        band_shift_nm: value("wavelength_shift_nm"),
-        terms: terms["reflectance_terms"]
-            .as_array()
-            .map(|list| {
-                list.iter()
+        angle_offset_deg: value(terms.map(|t| &t.stage_offset_deg)),
+        band_shift_nm: value(terms.map(|t| &t.wavelength_shift_nm)),
+        terms: terms
+            .map(|t| {
+                t.reflectance_terms
+                    .iter()
                     .map(|t| {
-                        let (s, o) = (t["scale"].as_f64(), t["offset"].as_f64());
+                        let (s, o) = (t.scale, t.offset);
                         (s.unwrap_or(1.0) as f32, o.unwrap_or(0.0) as f32)
                     })
                     .collect()
             })
             .unwrap_or_default(),
-        flare: value("flare") as f32,
+        flare: value(terms.map(|t| &t.flare)) as f32,
         film: filmscope_core::solve::refine::FilmTerms {
-            film_k: value("film_k_450nm"),
-            leak: value("polariser_leak"),
+            film_k: value(terms.map(|t| &t.film_k_450nm)),
+            leak: value(terms.map(|t| &t.polariser_leak)),
         },
     }
 }
 
-/// A nuisance term as `summary.json` gives it: `{"value", "sigma"}`, null when not taken.
-fn term_json(t: Term) -> Value {
-    if t.taken() {
-        json!({"value": t.value, "sigma": t.sigma.is_finite().then_some(t.sigma)})
-    } else {
-        Value::Null
-    }
+/// A nuisance term as `summary.json` gives it: `{"value", "sigma"}`, none when not taken.
+fn term_record(t: Term) -> Option<TermRecord> {
+    t.taken().then(|| TermRecord {
+        value: finite(t.value),
+        sigma: finite(t.sigma),
+    })
 }
 
 /// `summary.json`'s `index_model_choice.residual`: what the chosen fit leaves on the sampled
 /// sites, its size against the noise and its shape, with a one-line reading.
-fn residual_json(fit: &SampleFit) -> serde_json::Value {
+fn residual_record(fit: &SampleFit) -> ResidualRecord {
     let r = &fit.residual;
-    let finite = |x: f64| x.is_finite().then_some(x);
-    json!({
-        "rms": finite(r.rms),
-        "noise_rms": finite(r.noise_rms),
-        "model_rms": finite(r.model_rms),
-        "band_correlation": finite(r.band_correlation),
-        "site_correlation": finite(r.site_correlation),
-        "blue_rms": finite(r.blue_rms),
-        "red_rms": finite(r.red_rms),
-        "per_angle": r.per_angle.iter().map(|a| json!({
-            "rms": finite(a.rms),
-            "mean": finite(a.mean),
-            "noise_rms": finite(a.noise_rms),
-        })).collect::<Vec<_>>(),
-        "shape": residual_shape(r),
-    })
+    ResidualRecord {
+        rms: finite(r.rms),
+        noise_rms: finite(r.noise_rms),
+        model_rms: finite(r.model_rms),
+        band_correlation: finite(r.band_correlation),
+        site_correlation: finite(r.site_correlation),
+        blue_rms: finite(r.blue_rms),
+        red_rms: finite(r.red_rms),
+        per_angle: r
+            .per_angle
+            .iter()
+            .map(|a| AngleResidualRecord {
+                rms: finite(a.rms),
+                mean: finite(a.mean),
+                noise_rms: finite(a.noise_rms),
+            })
+            .collect(),
+        shape: residual_shape(r),
+    }
 }
 
 /// One line reading a fit's residual: noise, or a misfit and where it lies.

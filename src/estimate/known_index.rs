@@ -13,12 +13,13 @@ use std::time::Instant;
 use filmscope_core::optics::Dispersion;
 use filmscope_core::solve::sample::ModelKind;
 use filmscope_core::solve::IndexModel;
-use serde_json::json;
 
 use crate::estimate::index_fit::SampleTap;
 use crate::estimate::passes::{angle_reports, fill, passes_under, result_from_sweep};
 use crate::estimate::run::{Run, RunConfig};
 use crate::pipeline::{run_sweep, PipelineError, Prior, PriorUpdate};
+use crate::record::finite;
+use crate::record::index_choice::{GivenChoice, HeldEvidence, IndexModelChoice};
 use crate::source::Source;
 
 /// The index model that holds `film`'s real index over `bands_nm`: itself when the model
@@ -101,31 +102,14 @@ pub fn run_with_index(
         // `result_from_sweep` notes no index: there is one, it does not fit.
         result.notes = vec![format!("{}: every pixel is NaN", why.message())];
     }
-    let mut model_choice = json!({
-        "given": name,
-        "reason": "the film's index was given (--film-index): held, not fitted",
-        "largest_difference_from_given": max_err,
-        "passes": sample.as_ref().map_or(1, |p| p.passes),
+    // The sample's evidence under the given index: how well it fits, and the checks.
+    let model_choice = IndexModelChoice::Given(GivenChoice {
+        given: name.to_owned(),
+        reason: "the film's index was given (--film-index): held, not fitted".to_owned(),
+        largest_difference_from_given: finite(max_err),
+        passes: sample.as_ref().map_or(1, |p| p.passes),
+        sample: sample.as_ref().map(|p| HeldEvidence::of(&p.choice)),
     });
-    if let Some(p) = &sample {
-        // The sample's evidence under the given index: how well it fits, and the checks.
-        for key in [
-            "chi2_nu",
-            "noise_sigma",
-            "sampled_sites",
-            "sites_used",
-            "fit_seconds",
-            "failure",
-            "sites_disagreeing",
-            "per_pixel_failure",
-            "pixels_searched",
-            "pixels_solved_by_search",
-        ] {
-            if let Some(v) = p.choice.get(key) {
-                model_choice[key] = v.clone();
-            }
-        }
-    }
     Ok(Run {
         result,
         spec,
@@ -135,7 +119,7 @@ pub fn run_with_index(
         state_bytes_per_pixel: Some(out.state_bytes_per_pixel),
         samples,
         angle_reports: angle_reports(out),
-        model_choice,
+        model_choice: Some(model_choice),
         field_model: None,
         field_model_choice: None,
     })

@@ -2,8 +2,11 @@
 
 use filmscope_core::solve::IndexModel;
 
-/// Which estimator to run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+/// Which estimator to run; `summary.json`'s `method` by its name.
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum Method {
     /// The streaming estimator (default).
     Filmscope,

@@ -79,7 +79,7 @@ pub fn run_method_in_field(
                 state_bytes_per_pixel: None,
                 samples,
                 angle_reports: Vec::new(),
-                model_choice: serde_json::Value::Null,
+                model_choice: None,
                 field_model: None,
                 field_model_choice: None,
             })

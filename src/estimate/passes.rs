@@ -10,15 +10,16 @@ use filmscope_core::solve::refine::FilmTerms;
 use filmscope_core::solve::sample::{Failure, SampleFit};
 use filmscope_core::solve::shard::MAX_THICKNESS_SIGMA_NM;
 use filmscope_core::solve::{flags, IndexModel, SweepSpec};
-use serde_json::json;
 
 use crate::estimate::index_fit::{
-    choice_json, fringes_across_band, index_model, PixelTap, SampleTap, SEEDED_BELOW_FRINGES,
+    choice, fringes_across_band, index_model, PixelTap, SampleTap, SEEDED_BELOW_FRINGES,
 };
 use crate::pipeline::{
     for_each_calibrated_rows, run_sweep, run_sweep_sampled, Calibrated, Correction, PipelineError,
     Prior, PriorUpdate, SampleHook, SweepOutput, Tap,
 };
+use crate::record::finite;
+use crate::record::index_choice::FittedChoice;
 use crate::source::Source;
 
 use crate::estimate::method::{Method, MethodResult};
@@ -46,8 +47,8 @@ pub struct Passes {
     pub passes: usize,
     /// The index fit on the sample's full spectra (`None`: a live source's one pass).
     pub fit: Option<SampleFit>,
-    /// How the index model was chosen, as JSON (`summary.json` `index_model_choice`).
-    pub choice: serde_json::Value,
+    /// How the index model was chosen (`summary.json` `index_model_choice`).
+    pub choice: FittedChoice,
     /// What the sample's evidence says beyond the fit (a refused fit's likely cause).
     pub notes: Vec<String>,
 }
@@ -97,7 +98,7 @@ pub fn filmscope_passes(
         let tap = tap.into_inner().unwrap_or_else(|e| e.into_inner());
         let fit = last.unwrap_or_else(|| tap.fit(&spec, None, true));
         let (out, fit, mut choice) = finish(out, fit, &tap, 1);
-        choice["fit_seconds"] = json!(fit_seconds.is_finite().then_some(fit_seconds));
+        choice.fit_seconds = finite(fit_seconds);
         let out = flag_if_disagreeing(&tap, &fit, out, &mut choice)?;
         return Ok(Passes {
             out,
@@ -201,9 +202,9 @@ pub fn passes_under(
         passes += 1;
     }
     let (out, fit, mut choice) = finish(out, fit, tap, passes);
-    choice["fit_seconds"] = json!(fit_seconds);
-    choice["pixels_searched"] = json!(repaired.map(|r| r.0));
-    choice["pixels_solved_by_search"] = json!(repaired.map(|r| r.1));
+    choice.fit_seconds = finite(fit_seconds);
+    choice.pixels_searched = Some(repaired.map(|r| r.0));
+    choice.pixels_solved_by_search = Some(repaired.map(|r| r.1));
     flag_if_disagreeing(tap, &fit, out, &mut choice).map(|out| Passes {
         out,
         passes,
@@ -380,17 +381,17 @@ fn flag_if_disagreeing(
     tap: &SampleTap,
     fit: &SampleFit,
     mut out: SweepOutput,
-    choice: &mut serde_json::Value,
+    choice: &mut FittedChoice,
 ) -> Result<SweepOutput, PipelineError> {
     let share = sites_disagree(tap, fit, &out, false);
-    choice["sites_disagreeing"] = json!(share);
+    choice.sites_disagreeing = share;
     if share > MAX_DISAGREEING_SITES {
         for r in &mut out.results {
             r.flags |= flags::ORDER_REJECTED;
             r.thickness_nm = f32::NAN;
             r.confidence = 0.0;
         }
-        choice["per_pixel_failure"] = json!(format!(
+        choice.per_pixel_failure = Some(format!(
             "{:.0} % of the sampled sites' per-pixel thicknesses are more than {SITE_AGREEMENT_NM} nm from the sample fit's: every pixel flagged",
             share * 100.0
         ));
@@ -405,8 +406,8 @@ fn finish(
     fit: SampleFit,
     tap: &SampleTap,
     passes: usize,
-) -> (SweepOutput, SampleFit, serde_json::Value) {
-    let choice = choice_json(&fit, tap, passes);
+) -> (SweepOutput, SampleFit, FittedChoice) {
+    let choice = choice(&fit, tap, passes);
     if fit.index().is_none() {
         out.index = None;
         out.model_mismatch = true;

@@ -4,6 +4,7 @@ use filmscope_core::solve::SweepSpec;
 
 use crate::estimate::baseline::BruteGrid;
 use crate::pipeline::PipelineConfig;
+use crate::record::IndexModelChoice;
 
 use crate::estimate::method::{Method, MethodResult};
 use crate::summary::{AngleReport, FieldModelChoice};
@@ -82,8 +83,8 @@ pub struct Run {
     pub samples: u64,
     /// Per-angle progress of the streaming solver.
     pub angle_reports: Vec<AngleReport>,
-    /// How the index model was chosen (streaming method), as JSON.
-    pub model_choice: serde_json::Value,
+    /// How the index model was chosen (streaming method; none for the baselines).
+    pub model_choice: Option<IndexModelChoice>,
     /// The field model used (streaming method).
     pub field_model: Option<FieldModel>,
     /// How the field model was chosen and its evidence (streaming method).
@@ -122,8 +123,9 @@ impl FieldChoice {
     }
 }
 
-/// The field model a run used.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The field model a run used; `summary.json`'s `field_model` by its name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum FieldModel {
     /// One incidence angle per frame: the stage angle.
     Narrow,

@@ -5,7 +5,9 @@
 //!   records of `results.jsonl` (and `record.json`, MQTT and the status page), the verdict
 //!   and recipe a sample's `summary.json` carries, and the closing summary of a run;
 //! - [`truth`]: `truth.json`, what `simulate` put into a capture, read by `eval`;
-//! - [`acquisition`]: `acquisition.json`, what a rig's sweep did.
+//! - [`acquisition`]: `acquisition.json`, what a rig's sweep did;
+//! - [`index_choice`]: how an estimate chose its index model, the evidence `summary.json`
+//!   carries as `index_model_choice`.
 //!
 //! `summary.json` has its own module, [`crate::summary`].
 //!
@@ -20,10 +22,12 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 pub mod acquisition;
+pub mod index_choice;
 pub mod line;
 pub mod truth;
 
 pub use acquisition::{AcquisitionFile, AcquisitionLog, LinkStats, LostRows};
+pub use index_choice::IndexModelChoice;
 pub use line::{AlarmRecord, LineSummary, Record, ReferenceRecord, SampleRecord};
 pub use truth::TruthRecord;
 
