@@ -223,28 +223,9 @@ impl Problem<'_> {
         for (d, &t) in tt.iter_mut().zip(&fit.thickness_nm) {
             *d = f64::from(t);
         }
-        let mut sums = [SiteSums::default(); MAX_SITES];
-        if self
-            .normal::<false>(best.kind, &best.params, &tt, &mut sums)
-            .is_none()
-        {
+        let Some(aside) = self.outlying_sites(&best, &tt) else {
             return fit;
-        }
-        let chi2_of = |k: usize| sums[k].sse / sums[k].n.max(1) as f64;
-        let mut v: heapless::Vec<f32, MAX_SITES> = (0..sites)
-            .filter(|&k| self.usable[k] && sums[k].n > 0)
-            .map(|k| chi2_of(k) as f32)
-            .collect();
-        let typical = median(&mut v);
-        let mut aside = [false; MAX_SITES];
-        for k in (0..sites).filter(|&k| self.usable[k]) {
-            let c = chi2_of(k);
-            aside[k] = c > OUTLIER_SITE_RATIO * typical && c > GATE_CHI2_NU;
-        }
-        let used = self.usable.iter().filter(|&&u| u).count();
-        if aside.iter().filter(|&&a| a).count() * 4 > used {
-            aside = [false; MAX_SITES];
-        }
+        };
         let mut usable = [false; MAX_SITES];
         for k in 0..sites {
             usable[k] = self.usable[k] && !aside[k];
@@ -266,57 +247,11 @@ impl Problem<'_> {
             wide,
             ..*self
         };
-        // Forward stepwise: each round every term not yet taken is fitted with the index and
-        // thicknesses, and the one whose chi-square falls furthest is taken (when it pays its
-        // BIC penalty, [`Problem::with_nuisance`]); a fixed order let the first term mop up
-        // another's misfit and bend the index. The terms, as [`SampleFit`] reports them:
-        // film absorption, polariser leak, stage offset, wavelength shift, flare, side lobes.
-        let mut found = [Term::NONE; 6];
-        if held.is_none() {
-            let offered = |t: usize| match t {
-                // At one angle the film's loss, which dims the back face's return twice over,
-                // trades with the index's reflectance level (a measured HfO2 film over its
-                // back face took k 0.016 and an index 0.014 high).
-                0 => self.geo.back_face == BackFace::None || self.geo.angles_deg.len() > 1,
-                1 => self.geo.polarization != Polarization::Unpolarized,
-                // One angle cannot tell an angle offset or a flare from the index.
-                2 | 4 => self.geo.angles_deg.len() > 1,
-                _ => true,
-            };
-            let mut remaining: heapless::Vec<usize, 6> = (0..6).filter(|&t| offered(t)).collect();
-            loop {
-                let mut pick: Option<(usize, Candidate, [f64; MAX_SITES], Term)> = None;
-                for (i, &t) in remaining.iter().enumerate() {
-                    let (mut b, mut d) = (best, tt);
-                    let (b_, d_) = (&mut b, &mut d);
-                    let got = match t {
-                        0 => kept.with_nuisance(b_, d_, &ABSORPTION_GRID, |p, v| p.film_k = v),
-                        1 => kept.with_nuisance(b_, d_, &LEAK_GRID, |p, v| p.leak = v),
-                        2 => kept.with_nuisance(b_, d_, &STAGE_GRID, |p, v| p.stage_deg = v),
-                        3 => kept.with_nuisance(b_, d_, &SHIFT_GRID, |p, v| p.shift_nm = v),
-                        4 => kept.with_nuisance(b_, d_, &FLARE_GRID, |p, v| p.flare = v),
-                        _ => kept.with_nuisance(b_, d_, &SIDE_LOBE_GRID, |p, v| p.side_lobes = v),
-                    };
-                    if let Some(term) = got {
-                        if pick.as_ref().is_none_or(|p| b.chi2 < p.1.chi2) {
-                            pick = Some((i, b, d, term));
-                        }
-                    }
-                }
-                let Some((i, b, d, term)) = pick else { break };
-                let t = remaining.remove(i);
-                match t {
-                    0 => kept.film_k = term.value,
-                    1 => kept.leak = term.value,
-                    2 => kept.stage_deg = term.value,
-                    3 => kept.shift_nm = term.value,
-                    4 => kept.flare = term.value,
-                    _ => kept.side_lobes = term.value,
-                }
-                found[t] = term;
-                (best, tt) = (b, d);
-            }
-        }
+        let found = if held.is_none() {
+            kept.take_nuisance(&mut best, &mut tt)
+        } else {
+            [Term::NONE; 6]
+        };
         let fitted_terms = if held.is_none() {
             kept.with_terms(&mut best, &mut tt)
         } else {
@@ -372,6 +307,80 @@ impl Problem<'_> {
         again.starts = fit.starts;
         again.searched = fit.searched;
         again
+    }
+
+    /// The sites that fit far worse than the rest under `best` ([`OUTLIER_SITE_RATIO`] times the
+    /// median, at most a quarter), to be set aside (`None` when the model cannot be evaluated).
+    fn outlying_sites(&self, best: &Candidate, tt: &[f64; MAX_SITES]) -> Option<[bool; MAX_SITES]> {
+        let sites = self.usable.len();
+        let mut sums = [SiteSums::default(); MAX_SITES];
+        self.normal::<false>(best.kind, &best.params, tt, &mut sums)?;
+        let chi2_of = |k: usize| sums[k].sse / sums[k].n.max(1) as f64;
+        let mut v: heapless::Vec<f32, MAX_SITES> = (0..sites)
+            .filter(|&k| self.usable[k] && sums[k].n > 0)
+            .map(|k| chi2_of(k) as f32)
+            .collect();
+        let typical = median(&mut v);
+        let mut aside = [false; MAX_SITES];
+        for k in (0..sites).filter(|&k| self.usable[k]) {
+            let c = chi2_of(k);
+            aside[k] = c > OUTLIER_SITE_RATIO * typical && c > GATE_CHI2_NU;
+        }
+        let used = self.usable.iter().filter(|&&u| u).count();
+        if aside.iter().filter(|&&a| a).count() * 4 > used {
+            aside = [false; MAX_SITES];
+        }
+        Some(aside)
+    }
+
+    /// The nuisance terms taken forward stepwise (each round the one whose chi-square falls
+    /// furthest, so none mops up another's misfit), set on this problem; `best`, `tt` updated.
+    fn take_nuisance(&mut self, best: &mut Candidate, tt: &mut [f64; MAX_SITES]) -> [Term; 6] {
+        let mut found = [Term::NONE; 6];
+        let offered = |t: usize| match t {
+            // At one angle the film's loss, which dims the back face's return twice over,
+            // trades with the index's reflectance level (a measured HfO2 film over its
+            // back face took k 0.016 and an index 0.014 high).
+            0 => self.geo.back_face == BackFace::None || self.geo.angles_deg.len() > 1,
+            1 => self.geo.polarization != Polarization::Unpolarized,
+            // One angle cannot tell an angle offset or a flare from the index.
+            2 | 4 => self.geo.angles_deg.len() > 1,
+            _ => true,
+        };
+        let mut remaining: heapless::Vec<usize, 6> = (0..6).filter(|&t| offered(t)).collect();
+        loop {
+            let mut pick: Option<(usize, Candidate, [f64; MAX_SITES], Term)> = None;
+            for (i, &t) in remaining.iter().enumerate() {
+                let (mut b, mut d) = (*best, *tt);
+                let (b_, d_) = (&mut b, &mut d);
+                let got = match t {
+                    0 => self.with_nuisance(b_, d_, &ABSORPTION_GRID, |p, v| p.film_k = v),
+                    1 => self.with_nuisance(b_, d_, &LEAK_GRID, |p, v| p.leak = v),
+                    2 => self.with_nuisance(b_, d_, &STAGE_GRID, |p, v| p.stage_deg = v),
+                    3 => self.with_nuisance(b_, d_, &SHIFT_GRID, |p, v| p.shift_nm = v),
+                    4 => self.with_nuisance(b_, d_, &FLARE_GRID, |p, v| p.flare = v),
+                    _ => self.with_nuisance(b_, d_, &SIDE_LOBE_GRID, |p, v| p.side_lobes = v),
+                };
+                if let Some(term) = got {
+                    if pick.as_ref().is_none_or(|p| b.chi2 < p.1.chi2) {
+                        pick = Some((i, b, d, term));
+                    }
+                }
+            }
+            let Some((i, b, d, term)) = pick else { break };
+            let t = remaining.remove(i);
+            match t {
+                0 => self.film_k = term.value,
+                1 => self.leak = term.value,
+                2 => self.stage_deg = term.value,
+                3 => self.shift_nm = term.value,
+                4 => self.flare = term.value,
+                _ => self.side_lobes = term.value,
+            }
+            found[t] = term;
+            (*best, *tt) = (b, d);
+        }
+        found
     }
 
     /// Each angle's reflectance scale and offset fitted with the index `best` and the sites'

@@ -262,33 +262,8 @@ impl Problem<'_> {
         let mut sites = [SiteSums::default(); MAX_SITES];
         let (mut hpp, mut gp, mut chi2, mut n) = self.normal::<true>(kind, &p, t, &mut sites)?;
         let mut lambda = 1e-3;
-        let mut cov = Matrix3::zeros();
         for _ in 0..steps {
-            // Reduce to the index parameters (Schur complement of the thickness block).
-            let mut h = hpp;
-            let mut g = gp;
-            for (k, s) in sites.iter().enumerate().take(self.usable.len()) {
-                if !self.usable[k] || s.jdd <= 0.0 {
-                    continue;
-                }
-                let jdd = s.jdd * (1.0 + lambda);
-                let jdp = Vector3::from(s.jdp);
-                h -= jdp * jdp.transpose() / jdd;
-                g -= jdp * (s.gd / jdd);
-            }
-            let mut hd = Matrix3::identity();
-            for i in 0..np {
-                for j in 0..np {
-                    hd[(i, j)] = h[(i, j)];
-                }
-                hd[(i, i)] = h[(i, i)] * (1.0 + lambda) + 1e-12;
-            }
-            let gr = Vector3::new(
-                g[0],
-                if np > 1 { g[1] } else { 0.0 },
-                if np > 2 { g[2] } else { 0.0 },
-            );
-            let Some(dp) = hd.cholesky().map(|c| c.solve(&gr)) else {
+            let Some(dp) = self.damped_step(np, &sites, (&hpp, &gp), lambda) else {
                 lambda *= 10.0;
                 continue;
             };
@@ -296,29 +271,16 @@ impl Problem<'_> {
             for q in 0..np {
                 p_new[q] += dp[q];
             }
-            let mut t_new = *t;
-            let mut ok = true;
-            for (k, s) in sites.iter().enumerate().take(self.usable.len()) {
-                if !self.usable[k] || s.jdd <= 0.0 {
-                    continue;
+            let trial = match self.stepped_thicknesses(&sites, &dp, lambda, t) {
+                Some(t_new) => {
+                    let mut trial_sites = [SiteSums::default(); MAX_SITES];
+                    self.normal::<true>(kind, &p_new, &t_new, &mut trial_sites)
+                        .map(|r| (r, trial_sites, t_new))
                 }
-                let jdd = s.jdd * (1.0 + lambda);
-                let jdp = Vector3::from(s.jdp);
-                let step = (s.gd - jdp.dot(&dp)) / jdd;
-                t_new[k] = t[k] + step;
-                if t_new[k].is_nan() || t_new[k] <= 0.0 {
-                    ok = false;
-                }
-            }
-            let trial = if ok {
-                let mut trial_sites = [SiteSums::default(); MAX_SITES];
-                self.normal::<true>(kind, &p_new, &t_new, &mut trial_sites)
-                    .map(|r| (r, trial_sites))
-            } else {
-                None
+                None => None,
             };
             match trial {
-                Some(((h2, g2, c2, n2), s2)) if c2 < chi2 => {
+                Some(((h2, g2, c2, n2), s2, t_new)) if c2 < chi2 => {
                     let gain = chi2 - c2;
                     p = p_new;
                     *t = t_new;
@@ -338,8 +300,85 @@ impl Problem<'_> {
                 }
             }
         }
+        Some(self.candidate(kind, p, &hpp, &sites, (chi2, n)))
+    }
+
+    /// The index parameters' step damped by `lambda`: the normal equations reduced to them (Schur
+    /// complement of the thicknesses) and solved (`None` when not positive definite).
+    fn damped_step(
+        &self,
+        np: usize,
+        sites: &[SiteSums; MAX_SITES],
+        (hpp, gp): (&Matrix3<f64>, &Vector3<f64>),
+        lambda: f64,
+    ) -> Option<Vector3<f64>> {
+        // Reduce to the index parameters (Schur complement of the thickness block).
+        let mut h = *hpp;
+        let mut g = *gp;
+        for (k, s) in sites.iter().enumerate().take(self.usable.len()) {
+            if !self.usable[k] || s.jdd <= 0.0 {
+                continue;
+            }
+            let jdd = s.jdd * (1.0 + lambda);
+            let jdp = Vector3::from(s.jdp);
+            h -= jdp * jdp.transpose() / jdd;
+            g -= jdp * (s.gd / jdd);
+        }
+        let mut hd = Matrix3::identity();
+        for i in 0..np {
+            for j in 0..np {
+                hd[(i, j)] = h[(i, j)];
+            }
+            hd[(i, i)] = h[(i, i)] * (1.0 + lambda) + 1e-12;
+        }
+        let gr = Vector3::new(
+            g[0],
+            if np > 1 { g[1] } else { 0.0 },
+            if np > 2 { g[2] } else { 0.0 },
+        );
+        hd.cholesky().map(|c| c.solve(&gr))
+    }
+
+    /// Each usable site's thickness moved by its damped step given the index step `dp` (`None`
+    /// when a thickness is no longer positive).
+    fn stepped_thicknesses(
+        &self,
+        sites: &[SiteSums; MAX_SITES],
+        dp: &Vector3<f64>,
+        lambda: f64,
+        t: &[f64; MAX_SITES],
+    ) -> Option<[f64; MAX_SITES]> {
+        let mut t_new = *t;
+        let mut ok = true;
+        for (k, s) in sites.iter().enumerate().take(self.usable.len()) {
+            if !self.usable[k] || s.jdd <= 0.0 {
+                continue;
+            }
+            let jdd = s.jdd * (1.0 + lambda);
+            let jdp = Vector3::from(s.jdp);
+            let step = (s.gd - jdp.dot(dp)) / jdd;
+            t_new[k] = t[k] + step;
+            if t_new[k].is_nan() || t_new[k] <= 0.0 {
+                ok = false;
+            }
+        }
+        ok.then_some(t_new)
+    }
+
+    /// The refined `(kind, p)` as a candidate: its chi-square, score, physicality and index sigma
+    /// at 550 nm from the undamped Schur complement at the solution.
+    fn candidate(
+        &self,
+        kind: ModelKind,
+        p: [f64; 3],
+        hpp: &Matrix3<f64>,
+        sites: &[SiteSums; MAX_SITES],
+        (chi2, n): (f64, usize),
+    ) -> Candidate {
+        let np = kind.params();
+        let mut cov = Matrix3::zeros();
         // Covariance of the index parameters at the solution (undamped Schur complement).
-        let mut h = hpp;
+        let mut h = *hpp;
         for (k, s) in sites.iter().enumerate().take(self.usable.len()) {
             if !self.usable[k] || s.jdd <= 0.0 {
                 continue;
@@ -370,7 +409,7 @@ impl Problem<'_> {
         // Scale by the reduced chi-square when the fit is worse than the noise.
         let n550_sigma = libm::sqrt(var.max(0.0) * chi2_nu.max(1.0));
         let (lo, hi) = self.band_span();
-        Some(Candidate {
+        Candidate {
             kind,
             params: p,
             chi2,
@@ -383,6 +422,6 @@ impl Problem<'_> {
                 - if np == 1 { CONSTANT_PREFERENCE } else { 0.0 },
             n550_sigma,
             physical: kind.physical(&p, lo, hi, self.geo.index_range),
-        })
+        }
     }
 }

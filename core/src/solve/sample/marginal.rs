@@ -52,6 +52,41 @@ pub const TOLERANCE: Tolerance = Tolerance {
     terms: [0.004, 0.01, 0.25, 0.3, 0.002, 0.02],
 };
 
+/// The information matrix over the marginal's parameters.
+type M = nalgebra::SMatrix<f64, MARGINAL, MARGINAL>;
+
+/// The parameters the marginal keeps and the samples it is made on
+/// ([`Problem::marginal_layout`]).
+struct Layout {
+    /// Whether each angle's reflectance scale and offset are in play.
+    per_angle: bool,
+    /// Which of the [`TERMS`] are in play.
+    on: [bool; TERMS],
+    /// The parameters in play, each a slot and its tolerance (0: none).
+    keep: heapless::Vec<(usize, f64), MARGINAL>,
+    /// Each slot's place among the kept (`usize::MAX`: not kept).
+    pos: [usize; MARGINAL],
+    /// The usable sites the information is made on.
+    chosen: heapless::Vec<usize, MAX_SITES>,
+    /// The information is made on every `band_stride`-th band.
+    band_stride: usize,
+    /// The factor that scales the information up to every usable site and band.
+    up: f64,
+}
+
+/// The information over the kept parameters (upper triangle), each site's thickness
+/// diagonal and its row against the kept parameters ([`Problem::information`]).
+struct Information {
+    h: [[f64; MARGINAL]; MARGINAL],
+    jdd: [f64; MAX_SITES],
+    cross: [[f64; MARGINAL]; MAX_SITES],
+}
+
+/// The slot of nuisance term `term` (after the index parameters and each angle's two).
+fn slot(term: usize) -> usize {
+    MARGINAL - TERMS + term
+}
+
 impl Problem<'_> {
     /// The standard error of the index at 550 nm of `(kind, p)` at the sites' thicknesses
     /// `t` with the nuisance terms free: the information matrix over the index parameters,
@@ -71,17 +106,40 @@ impl Problem<'_> {
         t: &[f64; MAX_SITES],
         tolerance: bool,
     ) -> Option<Marginal> {
-        type M = nalgebra::SMatrix<f64, MARGINAL, MARGINAL>;
-        let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        let na = self.geo.angles_deg.len();
         let fitted = self.terms.fitted();
         let per_angle = (fitted || tolerance) && na <= TERM_MAX_ANGLES;
         if fitted && !per_angle {
             return None;
         }
-        let sites = self.usable.len();
-        let d_max = self.thickest(t);
         let np = kind.params();
-        let slot = |term: usize| MARGINAL - TERMS + term;
+        let layout = self.marginal_layout(np, per_angle, tolerance);
+        let mut info = Information {
+            h: [[0.0f64; MARGINAL]; MARGINAL],
+            jdd: [0.0; MAX_SITES],
+            cross: [[0.0f64; MARGINAL]; MAX_SITES],
+        };
+        self.information(kind, p, t, &layout, &mut info)?;
+        let inv = self.reduced(&layout, &info, tolerance).try_inverse()?;
+        let (_, g550) = kind.eval(p, L0_UM);
+        let mut var = 0.0;
+        for i in 0..np {
+            for j in 0..np {
+                var += g550[i] * inv[(i, j)] * g550[j];
+            }
+        }
+        let share = thickness_share(&layout, &info, &inv, t);
+        (var > 0.0).then(|| Marginal {
+            n550_sigma: libm::sqrt(var),
+            thickness_share: share,
+        })
+    }
+
+    /// The marginal's parameters in play (index, each angle's scale and offset, the terms) and the
+    /// sites and bands it is made on.
+    fn marginal_layout(&self, np: usize, per_angle: bool, tolerance: bool) -> Layout {
+        let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        let sites = self.usable.len();
         let polarised = self.geo.polarization != Polarization::Unpolarized;
         // Which of the six terms are in play (absorption, leak, stage, shift, flare, side
         // lobes); the flare's share is each angle's offset when those are.
@@ -100,22 +158,6 @@ impl Problem<'_> {
             2 | 3 => tolerance,
             4 => !per_angle && (taken[4] || tolerance),
             _ => taken[i] || tolerance,
-        });
-        // The problem a step along each stepped term (absorption, leak, stage, shift).
-        let stepped: [Option<Problem<'_>>; 4] = core::array::from_fn(|i| {
-            on[i].then(|| {
-                let mut q = Problem {
-                    noise: self.noise.clone(),
-                    ..*self
-                };
-                match i {
-                    0 => q.film_k += TERM_STEPS[0],
-                    1 => q.leak += TERM_STEPS[1],
-                    2 => q.stage_deg += TERM_STEPS[2],
-                    _ => q.shift_nm += TERM_STEPS[3],
-                }
-                q
-            })
         });
         // Only the parameters in play, each term held to its tolerance when asked; `pos`
         // maps a slot to its place among them.
@@ -155,24 +197,67 @@ impl Problem<'_> {
         };
         let up = usable.len() as f64 / chosen.len().max(1) as f64 * nb as f64
             / nb.div_ceil(band_stride) as f64;
-        // The information over the kept parameters (upper triangle) and each site's
-        // thickness row, accumulated over each sample's few nonzero slopes (an angle's
-        // reflectance terms touch its own samples only).
-        let mut h = [[0.0f64; MARGINAL]; MARGINAL];
-        let mut jdd = [0.0; MAX_SITES];
-        let mut cross = [[0.0f64; MARGINAL]; MAX_SITES];
+        Layout {
+            per_angle,
+            on,
+            keep,
+            pos,
+            chosen,
+            band_stride,
+            up,
+        }
+    }
+
+    /// The information over `layout`'s parameters and its sites' thicknesses at `(kind, p)` and
+    /// `t`, accumulated into `info` (`None` where a model cannot be evaluated).
+    fn information(
+        &self,
+        kind: ModelKind,
+        p: &[f64; 3],
+        t: &[f64; MAX_SITES],
+        layout: &Layout,
+        info: &mut Information,
+    ) -> Option<()> {
+        let (na, nb) = (self.geo.angles_deg.len(), self.geo.bands_nm.len());
+        let d_max = self.thickest(t);
+        let np = kind.params();
+        let Layout {
+            per_angle,
+            on,
+            pos,
+            chosen,
+            band_stride,
+            ..
+        } = layout;
+        let Information { h, jdd, cross } = info;
+        // The problem a step along each stepped term (absorption, leak, stage, shift).
+        let stepped: [Option<Problem<'_>>; 4] = core::array::from_fn(|i| {
+            on[i].then(|| {
+                let mut q = Problem {
+                    noise: self.noise.clone(),
+                    ..*self
+                };
+                match i {
+                    0 => q.film_k += TERM_STEPS[0],
+                    1 => q.leak += TERM_STEPS[1],
+                    2 => q.stage_deg += TERM_STEPS[2],
+                    _ => q.shift_nm += TERM_STEPS[3],
+                }
+                q
+            })
+        });
         let mut buf = Nodes::new();
         let mut stepped_nodes: [Nodes; 4] = Default::default();
         for a in 0..na {
             let g = self.terms.scale[a.min(NOISE_ANGLES - 1)];
-            for b in (0..nb).step_by(band_stride) {
+            for b in (0..nb).step_by(*band_stride) {
                 let nodes = self.nodes(kind, p, a, b, d_max, &mut buf)?;
                 for (out, q) in stepped_nodes.iter_mut().zip(&stepped) {
                     if let Some(q) = q {
                         q.nodes(kind, p, a, b, d_max, out)?;
                     }
                 }
-                for &k in &chosen {
+                for &k in chosen {
                     if !self.spectra.centre_at(nb, k, a, b).is_finite() {
                         continue;
                     }
@@ -189,7 +274,7 @@ impl Problem<'_> {
                     for q in 0..np {
                         put(q, g * fit.dm_dp[q]);
                     }
-                    if per_angle {
+                    if *per_angle {
                         put(3 + 2 * a, fit.m);
                         put(3 + 2 * a + 1, 1.0);
                     }
@@ -222,54 +307,57 @@ impl Problem<'_> {
                 }
             }
         }
-        let dim = keep.len();
+        Some(())
+    }
+
+    /// The information with the thicknesses eliminated (Schur complement), scaled up to every site
+    /// and band, each parameter held to its tolerance when `tolerance` is asked.
+    fn reduced(&self, layout: &Layout, info: &Information, tolerance: bool) -> M {
+        let Information { h, jdd, cross } = info;
+        let dim = layout.keep.len();
         let mut sub = M::identity();
         for i in 0..dim {
             for j in i..dim {
                 let mut v = h[i][j];
-                for &k in &chosen {
+                for &k in &layout.chosen {
                     if jdd[k] > 0.0 {
                         v -= cross[k][i] * cross[k][j] / jdd[k];
                     }
                 }
-                sub[(i, j)] = v * up;
-                sub[(j, i)] = v * up;
+                sub[(i, j)] = v * layout.up;
+                sub[(j, i)] = v * layout.up;
             }
-            let held = keep[i].1 * self.geo.rig_tolerance;
+            let held = layout.keep[i].1 * self.geo.rig_tolerance;
             if tolerance && held > 0.0 {
                 sub[(i, i)] += 1.0 / (held * held);
             }
         }
-        let inv = sub.try_inverse()?;
-        let (_, g550) = kind.eval(p, L0_UM);
-        let mut var = 0.0;
-        for i in 0..np {
-            for j in 0..np {
-                var += g550[i] * inv[(i, j)] * g550[j];
-            }
-        }
-        // A site's thickness moves with the parameters by `-cross / jdd` each: its variance
-        // from them (a ratio the bands' subsampling leaves alone), relative to the thickness.
-        let mut shares: heapless::Vec<f32, MAX_SITES> = heapless::Vec::new();
-        for &k in &chosen {
-            if jdd[k] > 0.0 && t[k] > 0.0 {
-                let mut v = 0.0;
-                for i in 0..dim {
-                    for j in 0..dim {
-                        v += cross[k][i] * inv[(i, j)] * cross[k][j];
-                    }
+        sub
+    }
+}
+
+/// The median site's thickness error from the parameters' covariance `inv`, relative to its
+/// thickness (NaN without a site): the share of a thickness's error common to the map.
+fn thickness_share(layout: &Layout, info: &Information, inv: &M, t: &[f64; MAX_SITES]) -> f64 {
+    let Information { jdd, cross, .. } = info;
+    let dim = layout.keep.len();
+    // A site's thickness moves with the parameters by `-cross / jdd` each: its variance
+    // from them (a ratio the bands' subsampling leaves alone), relative to the thickness.
+    let mut shares: heapless::Vec<f32, MAX_SITES> = heapless::Vec::new();
+    for &k in &layout.chosen {
+        if jdd[k] > 0.0 && t[k] > 0.0 {
+            let mut v = 0.0;
+            for i in 0..dim {
+                for j in 0..dim {
+                    v += cross[k][i] * inv[(i, j)] * cross[k][j];
                 }
-                let _ = shares.push((libm::sqrt(v.max(0.0)) / jdd[k] / t[k]) as f32);
             }
+            let _ = shares.push((libm::sqrt(v.max(0.0)) / jdd[k] / t[k]) as f32);
         }
-        let share = if shares.is_empty() {
-            f64::NAN
-        } else {
-            median(&mut shares)
-        };
-        (var > 0.0).then(|| Marginal {
-            n550_sigma: libm::sqrt(var),
-            thickness_share: share,
-        })
+    }
+    if shares.is_empty() {
+        f64::NAN
+    } else {
+        median(&mut shares)
     }
 }
