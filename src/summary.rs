@@ -13,12 +13,11 @@ use std::path::Path;
 use filmscope_core::optics::Dispersion;
 use serde::{Deserialize, Serialize};
 
-use crate::estimate::method::Method;
-use crate::estimate::run::FieldModel;
 pub use crate::material::DispersionRecord;
 use crate::record::acquisition::AcquisitionLog;
 use crate::record::index_choice::IndexModelChoice;
 use crate::record::line::{RecipeRecord, VerdictRecord};
+use crate::record::method::{FieldModel, Method};
 use crate::record::{RecordError, RecordProblem};
 
 /// The file name.

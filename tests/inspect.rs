@@ -760,8 +760,8 @@ fn below_the_free_space_floor_the_line_stops_with_an_alarm() {
 }
 
 /// Without `--sim` and without the devices, each sample's sweep fails: the log gets a
-/// device error line a sample, no record or folder is written, and three in a row stop the
-/// run with an error.
+/// device error line a sample, `results.jsonl` a `sample_failed` alarm for each counter and
+/// no sample record, no folder is written, and three in a row stop the run with an error.
 #[test]
 fn device_errors_are_logged_and_three_in_a_row_stop() {
     let dir = tempdir();
@@ -785,6 +785,16 @@ fn device_errors_are_logged_and_three_in_a_row_stop() {
     let log = std::fs::read_to_string(out.join("inspect.log")).expect("log");
     assert_eq!(log.matches(" device error: sample S").count(), 3, "{log}");
     assert!(samples(&out).is_empty());
+    let failed: Vec<(u64, bool)> = records(&out)
+        .into_iter()
+        .filter_map(|r| match r {
+            Record::Alarm(a) if a.rule.to_string() == "sample_failed" => {
+                Some((a.counter, a.sample_id.is_some_and(|i| i.starts_with('S'))))
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(failed, [(1, true), (2, true), (3, true)]);
     assert!(folders(&out).is_empty(), "no half-written folder left");
 }
 

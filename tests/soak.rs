@@ -25,7 +25,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::{filmscope, s, tempdir};
-use filmscope::record::line::{AlarmVariable, Record, SampleRecord};
+use filmscope::record::line::{AlarmRule, AlarmVariable, LineFault, Record, SampleRecord};
 use rumqttc::{Client, Event, MqttOptions, Packet, QoS};
 
 /// Samples of the CI run.
@@ -554,12 +554,30 @@ fn soak_broker_restart_disk_floor_slowloris() {
     let opened = opened + slow.detach();
     drop(broker);
 
-    // Zero lost: counters 1..=n, each once, each with its folder.
+    // Zero lost: n sample records, each counter once, each with its folder; a counter the
+    // rig could not measure (a device error on a loaded machine) has its `sample_failed`
+    // alarm instead, so the counters of both are 1..=n + failed.
     let recs = records(&out);
     let samples: Vec<&SampleRecord> = recs.iter().filter_map(Record::as_sample).collect();
     let counters: BTreeSet<u64> = samples.iter().map(|r| r.counter).collect();
+    let failed: BTreeSet<u64> = recs
+        .iter()
+        .filter_map(|r| match r {
+            Record::Alarm(a) if a.rule == AlarmRule::Fault(LineFault::SampleFailed) => {
+                Some(a.counter)
+            }
+            _ => None,
+        })
+        .collect();
     assert_eq!(samples.len() as u64, n, "sample records");
-    assert_eq!(counters, (1..=n).collect(), "each counter once");
+    assert_eq!(counters.len() as u64, n, "each sample's counter once");
+    let both: BTreeSet<u64> = counters.union(&failed).copied().collect();
+    let all: BTreeSet<u64> = (1..=n + failed.len() as u64).collect();
+    assert!(
+        counters.is_disjoint(&failed) && both == all,
+        "counters without a record: {:?}; failed samples: {failed:?}",
+        all.difference(&both).collect::<Vec<_>>()
+    );
     let folders = std::fs::read_dir(out.join("samples"))
         .expect("samples")
         .flatten()
@@ -616,8 +634,9 @@ fn soak_broker_restart_disk_floor_slowloris() {
         "slowloris connections opened: {opened}"
     );
     eprintln!(
-        "soak: {n} samples ({} records) in {:.0} s, disk {}: none lost; {} sample ids received once each after {duplicates} duplicate(s) removed; RSS run 1 {rss1:.1} -> {rss1_end:.1} MB, run 2 {rss2:.1} -> {rss2_end:.1} MB; slowloris: {opened} connections opened ({SLOW_CONNECTIONS} held at a time)",
+        "soak: {n} samples ({} records, {} sample(s) the rig failed to measure, each with its alarm) in {:.0} s, disk {}: none lost; {} sample ids received once each after {duplicates} duplicate(s) removed; RSS run 1 {rss1:.1} -> {rss1_end:.1} MB, run 2 {rss2:.1} -> {rss2_end:.1} MB; slowloris: {opened} connections opened ({SLOW_CONNECTIONS} held at a time)",
         recs.len(),
+        failed.len(),
         t0.elapsed().as_secs_f64(),
         if disk.mounted { "a tmpfs filled to its floor" } else { "a floor above the free space" },
         ids_received.len()

@@ -4,6 +4,7 @@ use filmscope_core::solve::SweepSpec;
 
 use crate::estimate::baseline::BruteGrid;
 use crate::pipeline::PipelineConfig;
+pub use crate::record::method::FieldModel;
 use crate::record::IndexModelChoice;
 
 use crate::estimate::method::{Method, MethodResult};
@@ -117,26 +118,6 @@ impl FieldChoice {
     pub fn name(self) -> &'static str {
         match self {
             Self::Auto => "auto",
-            Self::Narrow => "narrow",
-            Self::Wide => "wide",
-        }
-    }
-}
-
-/// The field model a run used; `summary.json`'s `field_model` by its name.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FieldModel {
-    /// One incidence angle per frame: the stage angle.
-    Narrow,
-    /// The angle varies with the column: strips of columns, each with its own angles.
-    Wide,
-}
-
-impl FieldModel {
-    /// The model's name.
-    pub fn name(self) -> &'static str {
-        match self {
             Self::Narrow => "narrow",
             Self::Wide => "wide",
         }

@@ -868,7 +868,13 @@ impl Line {
             Ok(x) => x,
             Err(e) => {
                 let _ = std::fs::remove_dir_all(&tmp);
-                self.say(&format!("device error: sample {id}: {e}"));
+                // Every counter is accounted for in the log: this one by its alarm.
+                let text = format!("device error: sample {id}: {e}; not measured");
+                let alarm = AlarmRecord {
+                    sample_id: Some(id),
+                    ..self.fault_alarm(AlarmVariable::Device, LineFault::SampleFailed, text, None)
+                };
+                self.raise_alarm(alarm);
                 return Err(e);
             }
         };

@@ -281,6 +281,8 @@ pub enum AlarmVariable {
     Mqtt,
     /// The reference sample's drift.
     Reference,
+    /// The rig: a sample it could not measure.
+    Device,
 }
 
 impl AlarmVariable {
@@ -293,6 +295,7 @@ impl AlarmVariable {
             Self::DiskFreeBytes => "disk_free_bytes",
             Self::Mqtt => "mqtt",
             Self::Reference => "reference",
+            Self::Device => "device",
         }
     }
 }
@@ -307,6 +310,9 @@ pub enum LineFault {
     NoAcknowledgement,
     /// The reference sample drifted beyond its tolerance.
     ReferenceDrift,
+    /// A sample could not be measured (a device error): its counter has this alarm and no
+    /// sample record.
+    SampleFailed,
 }
 
 impl LineFault {
@@ -316,6 +322,7 @@ impl LineFault {
             Self::FreeSpaceFloor => "free_space_floor",
             Self::NoAcknowledgement => "no_acknowledgement",
             Self::ReferenceDrift => "reference_drift",
+            Self::SampleFailed => "sample_failed",
         }
     }
 }

@@ -6,6 +6,7 @@
 //!   and recipe a sample's `summary.json` carries, and the closing summary of a run;
 //! - [`truth`]: `truth.json`, what `simulate` put into a capture, read by `eval`;
 //! - [`acquisition`]: `acquisition.json`, what a rig's sweep did;
+//! - [`method`]: the method and field model a run used, by their names;
 //! - [`index_choice`]: how an estimate chose its index model, the evidence `summary.json`
 //!   carries as `index_model_choice`.
 //!
@@ -24,6 +25,7 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 pub mod acquisition;
 pub mod index_choice;
 pub mod line;
+pub mod method;
 pub mod truth;
 
 pub use acquisition::{AcquisitionFile, AcquisitionLog, LinkStats, LostRows};
