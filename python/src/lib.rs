@@ -6,7 +6,7 @@
 //! `filmscope.FilmscopeError` (a `ValueError`) with one line naming the file, key or value
 //! at fault. The estimator and the forward model run with the GIL released.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use crossbeam_channel::Sender;
 use filmscope::estimate::method::Method;
@@ -135,16 +135,22 @@ impl Drop for Scratch {
     }
 }
 
-/// Writes the run's outputs into `out` (or a scratch folder) and returns the summary.
-fn outputs(run: &Run, out: Option<&Path>, label: &str) -> Result<Summary, String> {
-    let written = match out {
-        Some(dir) => jobs::estimate::write(dir, run, label),
+/// `out`, or a folder in a new scratch folder (returned too: removed when dropped) for
+/// outputs nobody asked to keep.
+fn out_or_scratch(out: Option<PathBuf>) -> Result<(PathBuf, Option<Scratch>), String> {
+    match out {
+        Some(out) => Ok((out, None)),
         None => {
             let scratch = Scratch::new()?;
-            jobs::estimate::write(&scratch.0.join("estimate"), run, label)
+            Ok((scratch.0.join("estimate"), Some(scratch)))
         }
-    };
-    written.map_err(|e| e.to_string())
+    }
+}
+
+/// Writes the run's outputs into `out` (or a scratch folder) and returns the summary.
+fn outputs(run: &Run, out: Option<PathBuf>, label: &str) -> Result<Summary, String> {
+    let (dir, _scratch) = out_or_scratch(out)?;
+    jobs::estimate::write(&dir, run, label).map_err(|e| e.to_string())
 }
 
 fn f32_bytes(v: &[f32]) -> Vec<u8> {
@@ -209,14 +215,7 @@ fn estimate_capture<'py>(
     let film = given_index(film_index, &config)?;
     let (run, summary) = py
         .detach(|| -> Result<(Run, Summary), String> {
-            // Outputs nobody asked to keep go to a scratch folder, removed on return.
-            let (out, _scratch) = match out {
-                Some(out) => (out, None),
-                None => {
-                    let scratch = Scratch::new()?;
-                    (scratch.0.join("estimate"), Some(scratch))
-                }
-            };
+            let (out, _scratch) = out_or_scratch(out)?;
             let request = jobs::EstimateRequest {
                 capture: path,
                 out,
@@ -427,7 +426,7 @@ fn estimate_array<'py>(
             let settings = Settings { config, film };
             let run = jobs::estimate::run(&mut source, &settings, None, "array", &Quiet)
                 .map_err(|e| e.to_string())?;
-            let summary = outputs(&run, out.as_deref(), "array")?;
+            let summary = outputs(&run, out, "array")?;
             Ok((run, summary))
         })
         .map_err(fail)?;

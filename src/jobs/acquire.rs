@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::estimate::{EstimateError, Settings};
+use super::estimate::Settings;
 use super::Observer;
 use crate::estimate::OutputError;
 use crate::io::OutputDirError;
@@ -102,10 +102,7 @@ pub fn run_rig(
     let run = match result {
         Ok(run) => run,
         Err(e) => {
-            let cause = match e {
-                EstimateError::Run { source, .. } => source.to_string(),
-                e => e.to_string(),
-            };
+            let cause = e.cause();
             let kept = acq.log.angles_done_deg.len();
             drop(acq);
             return Err(match out_dir.commit_partial() {

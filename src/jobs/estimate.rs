@@ -111,6 +111,17 @@ pub enum EstimateError {
     },
 }
 
+impl EstimateError {
+    /// The error without the source's name in front, for a caller that names the source
+    /// its own way.
+    pub fn cause(&self) -> String {
+        match self {
+            Self::Run { source, .. } => source.to_string(),
+            e => e.to_string(),
+        }
+    }
+}
+
 /// Runs the estimator on `source`, seen through a lens of field of view `field_of_view`
 /// (`None`: unknown): the index fitted, or held at `settings.film`; the source's own notes
 /// (a clipped reference, say) added to the result's. `label` names the source in errors.

@@ -1124,10 +1124,7 @@ impl Line {
             &last_row,
         )
         .map_err(|e| {
-            let cause = match e {
-                jobs::EstimateError::Run { source, .. } => source.to_string(),
-                e => e.to_string(),
-            };
+            let cause = e.cause();
             InspectError(format!(
                 "acquisition stopped: {cause}; {} complete angle(s)",
                 acq.log.angles_done_deg.len()
