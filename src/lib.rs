@@ -24,18 +24,17 @@
 //! - [`rig`]: the devices of a real rig and the acquisition; [`line`](mod@line): inspection on a
 //!   production line;
 //! - [`lab`]: the measuring lab: accuracy against the truth, speed and memory, speed against
-//!   accuracy, stability maps, the Python peers;
-//! - [`cli`]: the `filmscope` command line: arguments, printing and progress, calling into
-//!   the modules above (`eval`, `bench`, `chart` and `stability` print what [`lab`]
-//!   measures). No module imports it; only it imports [`lab`].
+//!   accuracy, stability maps, the Python peers. No module of the library imports it.
+//!
+//! The `filmscope` command line (arguments, printing, progress, one-line errors) is the
+//! binary's own (`src/main.rs`, `src/cli/`): the library's errors are typed, `anyhow` is the
+//! binary's only.
 #![cfg_attr(not(feature = "std"), no_std)]
 
 pub use filmscope_core::*;
 
 #[cfg(feature = "std")]
 pub mod appearance;
-#[cfg(feature = "std")]
-pub mod cli;
 #[cfg(feature = "std")]
 pub mod estimate;
 #[cfg(feature = "std")]

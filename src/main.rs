@@ -1,5 +1,7 @@
 //! The `filmscope` command line: parse, run, print a one-line error, set the exit code.
 
+mod cli;
+
 fn main() -> std::process::ExitCode {
-    filmscope::cli::main()
+    cli::main()
 }

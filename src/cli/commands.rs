@@ -8,23 +8,23 @@ use firmware_sim::random::Draw;
 use firmware_sim::{Scene, SoftwareCamera};
 
 use super::progress::{rows_bar, Progress};
-use crate::appearance::gltf;
-use crate::appearance::{
+use filmscope::appearance::gltf;
+use filmscope::appearance::{
     compare::{compare_stream, open_capture},
     render::{render_png, RenderOptions},
     SampleFilm,
 };
-use crate::estimate::baseline::BruteGrid;
-use crate::estimate::method::Method;
-use crate::estimate::FieldConfig;
-use crate::estimate::{Run, RunConfig};
-use crate::io::{write_atomic, ByteOrder, Interleave};
-use crate::jobs;
-use crate::lab::eval::{evaluate, Ablation, Truth};
-use crate::lab::scene::{SceneFile, PAPER_SCENES};
-use crate::pipeline::PipelineConfig;
-use crate::simulate::{write_capture, SimulateOptions};
-use crate::source::{SimSource, Source};
+use filmscope::estimate::baseline::BruteGrid;
+use filmscope::estimate::method::Method;
+use filmscope::estimate::FieldConfig;
+use filmscope::estimate::{Run, RunConfig};
+use filmscope::io::{write_atomic, ByteOrder, Interleave};
+use filmscope::jobs;
+use filmscope::lab::eval::{evaluate, Ablation, Truth};
+use filmscope::lab::scene::{SceneFile, PAPER_SCENES};
+use filmscope::pipeline::PipelineConfig;
+use filmscope::simulate::{write_capture, SimulateOptions};
+use filmscope::source::{SimSource, Source};
 use filmscope_core::colour::Illuminant;
 use filmscope_core::optics::{FieldOfView, Polarization};
 use filmscope_core::solve::sweep::SolverOptions;
@@ -42,16 +42,16 @@ impl super::MethodArgs {
     fn run_config(&self, pipeline: PipelineConfig, wide: FieldConfig) -> Result<RunConfig> {
         check_index_args(self.index)?;
         if let Some(m) = self.index.model_error {
-            if let Some(p) = crate::io::capture::model_error_problem(m) {
+            if let Some(p) = filmscope::io::capture::model_error_problem(m) {
                 bail!("--model-error {m}: {p}");
             }
         }
         if let Some(t) = self.index.rig_tolerance {
-            if let Some(p) = crate::io::capture::rig_tolerance_problem(t) {
+            if let Some(p) = filmscope::io::capture::rig_tolerance_problem(t) {
                 bail!("--rig-tolerance {t}: {p}");
             }
         }
-        crate::limits::check_cli(
+        filmscope::limits::check_cli(
             pipeline.workers,
             pipeline.channel_capacity,
             self.index_pixels,
@@ -154,7 +154,7 @@ fn check_index_args(index: super::IndexArgs) -> Result<()> {
 /// The `--max-memory` budget, if given.
 fn memory_budget(max_memory: Option<&str>) -> Result<Option<u64>> {
     max_memory
-        .map(crate::limits::parse_bytes)
+        .map(filmscope::limits::parse_bytes)
         .transpose()
         .map_err(|e| anyhow!(e))
 }
@@ -176,7 +176,7 @@ pub fn estimate(
     let config = method.run_config(pipeline, FieldConfig::default())?;
     let film = film_index
         .map(|m| {
-            crate::material::from_arg(m)
+            filmscope::material::from_arg(m)
                 .map(|dispersion| jobs::GivenIndex {
                     name: m.to_owned(),
                     dispersion,
@@ -263,7 +263,7 @@ pub fn eval(
     if let (Some(s), None) = (seed, &random) {
         if let Some(cap) = inputs
             .iter()
-            .find(|p| !matches!(crate::lab::eval::input_kind(p), Some(true)))
+            .find(|p| !matches!(filmscope::lab::eval::input_kind(p), Some(true)))
         {
             bail!(
                 "--seed {s}: {} is not a scene file (a capture's noise is recorded; --seed applies to scene files)",
@@ -271,7 +271,7 @@ pub fn eval(
             );
         }
     }
-    let (solver, wide) = crate::lab::eval::ablated(ablate);
+    let (solver, wide) = filmscope::lab::eval::ablated(ablate);
     let pipeline = PipelineConfig {
         solver,
         ..PipelineConfig::default()
@@ -319,7 +319,7 @@ pub fn eval(
         }
     };
     for path in inputs {
-        let (r, run) = crate::lab::eval::eval_one(path, &config, seed, &Progress::new())
+        let (r, run) = filmscope::lab::eval::eval_one(path, &config, seed, &Progress::new())
             .with_context(|| path.display().to_string())?;
         if json {
             println!("{}", serde_json::to_string(&r)?);
@@ -368,18 +368,25 @@ fn eval_random(
     rows: Option<&[usize]>,
 ) -> Result<()> {
     if let Some(dir) = save_scenes {
-        crate::lab::eval::save_random_scenes(dir, count, seed, kind)?;
+        filmscope::lab::eval::save_random_scenes(dir, count, seed, kind)?;
     }
-    let work = crate::lab::eval::random_work_dir(seed)?;
+    let work = filmscope::lab::eval::random_work_dir(seed)?;
     if !json {
-        println!("{}", crate::lab::eval::RandomRow::table_header());
+        println!("{}", filmscope::lab::eval::RandomRow::table_header());
     }
-    let result =
-        crate::lab::eval::random_eval(count, seed, config, work.path(), kind, rows, &mut |row| {
+    let result = filmscope::lab::eval::random_eval(
+        count,
+        seed,
+        config,
+        work.path(),
+        kind,
+        rows,
+        &mut |row| {
             if !json {
                 println!("{}", row.table_row());
             }
-        });
+        },
+    );
     drop(work);
     if json {
         println!("{}", serde_json::to_string(&result)?);
@@ -399,14 +406,14 @@ fn eval_random(
 /// the sweep at the next band and keeps the angles taken.
 pub fn acquire(rig: Option<&Path>, out: &Path, sim: bool, max_memory: Option<&str>) -> Result<()> {
     let budget = memory_budget(max_memory)?;
-    let config = crate::rig::RigConfig::load_or_builtin(rig)?;
+    let config = filmscope::rig::RigConfig::load_or_builtin(rig)?;
     let rig = rig.unwrap_or(Path::new("config/rig.toml"));
     let s = &config.sweep;
     let mut inputs = vec![rig.to_path_buf()];
     inputs.extend(config.sim.as_ref().map(|s| s.scene.clone()));
-    crate::io::check_outside_inputs("--out", out, &inputs, &[])?;
+    filmscope::io::check_outside_inputs("--out", out, &inputs, &[])?;
     let c = &config.camera;
-    crate::limits::check_memory(
+    filmscope::limits::check_memory(
         &format!(
             "{}: camera {} x {} px, {} bands, {} angles",
             rig.display(),
@@ -415,7 +422,7 @@ pub fn acquire(rig: Option<&Path>, out: &Path, sim: bool, max_memory: Option<&st
             s.bands().len(),
             s.angles_deg.len()
         ),
-        crate::limits::run_bytes(
+        filmscope::limits::run_bytes(
             u64::from(c.width) * u64::from(c.height),
             s.bands().len() as u64,
             s.angles_deg.len() as u64,
@@ -424,7 +431,7 @@ pub fn acquire(rig: Option<&Path>, out: &Path, sim: bool, max_memory: Option<&st
         budget,
     )
     .map_err(|e| anyhow!(e))?;
-    crate::source::live::stop_on_ctrl_c();
+    filmscope::source::live::stop_on_ctrl_c();
     let summary = jobs::acquire::run(
         &config,
         out,
@@ -531,12 +538,12 @@ pub fn demo(out: &Path, with_paper: bool) -> Result<()> {
 
 /// `filmscope bench`.
 pub fn bench(scene: &SceneFile, quick: bool, json: bool, out: Option<&Path>) -> Result<()> {
-    let report = crate::lab::bench::run_bench(scene, quick, &|what| {
+    let report = filmscope::lab::bench::run_bench(scene, quick, &|what| {
         if !json {
             log::info!("bench: {what}");
         }
     })?;
-    let table = crate::lab::bench::format_table(&report);
+    let table = filmscope::lab::bench::format_table(&report);
     let text = serde_json::to_string(&report)?;
     if json {
         println!("{text}");
@@ -544,7 +551,7 @@ pub fn bench(scene: &SceneFile, quick: bool, json: bool, out: Option<&Path>) -> 
         print!("{table}");
     }
     if let Some(dir) = out {
-        let (md, js) = crate::lab::bench::write_dated(dir, quick, &table, &text)?;
+        let (md, js) = filmscope::lab::bench::write_dated(dir, quick, &table, &text)?;
         log::info!("bench: wrote {} and {}", md.display(), js.display());
     }
     Ok(())
@@ -564,13 +571,13 @@ pub fn man(out: &Path) -> Result<()> {
 /// `filmscope soak`: prints one line per tenth sweep and a last line of figures.
 pub fn soak(scene: Option<PathBuf>, sweeps: usize) -> Result<()> {
     let scene = scene.map_or(SceneFile::RIG_TINY, SceneFile::Path);
-    let scene = crate::lab::bench::soak_scene(&scene)?;
+    let scene = filmscope::lab::bench::soak_scene(&scene)?;
     let t0 = std::time::Instant::now();
-    let points = crate::lab::bench::soak(
+    let points = filmscope::lab::bench::soak(
         &scene,
         sweeps,
         10,
-        crate::pipeline::PipelineConfig::default(),
+        filmscope::pipeline::PipelineConfig::default(),
         |p| {
             println!(
                 "soak: sweep {}: RSS {:.1} MB (peak {:.1} MB)",
@@ -595,7 +602,7 @@ pub fn soak(scene: Option<PathBuf>, sweeps: usize) -> Result<()> {
 
 /// `filmscope chart`.
 pub fn chart(scene: &SceneFile, out: &Path, quick: bool) -> Result<()> {
-    let png = crate::lab::chart::speed_accuracy(scene, out, quick, &mut |points| {
+    let png = filmscope::lab::chart::speed_accuracy(scene, out, quick, &mut |points| {
         for p in points {
             println!(
                 "{:<10} {:<12} {:>12.2} s/Mpix  MAE {:>8.2} nm  |n err| {:.4}  valid {:>5.1}%",
@@ -614,9 +621,9 @@ pub fn chart(scene: &SceneFile, out: &Path, quick: bool) -> Result<()> {
 
 /// `filmscope stability`.
 pub fn stability(out: &Path, quick: bool, only: &[String]) -> Result<()> {
-    use crate::lab::chart::StabilityStep;
-    let done = crate::lab::chart::stability(out, quick, only, &mut |step| match step {
-        StabilityStep::Measured(run) => print!("{}", crate::lab::chart::summary(run)),
+    use filmscope::lab::chart::StabilityStep;
+    let done = filmscope::lab::chart::stability(out, quick, only, &mut |step| match step {
+        StabilityStep::Measured(run) => print!("{}", filmscope::lab::chart::summary(run)),
         StabilityStep::Wrote(p) => println!("wrote {}", p.display()),
     })?;
     let cells: usize = done
@@ -635,7 +642,7 @@ pub fn stability(out: &Path, quick: bool, only: &[String]) -> Result<()> {
 
 /// `filmscope stability --cell MAP:X:Y`: the cell's scene file, written into `out`.
 pub fn stability_cell(out: &Path, quick: bool, cell: &str, seed: Option<u64>) -> Result<()> {
-    let (path, scene) = crate::lab::chart::write_cell_scene(out, quick, cell, seed)?;
+    let (path, scene) = filmscope::lab::chart::write_cell_scene(out, quick, cell, seed)?;
     println!("wrote {} ({})", path.display(), scene.describe(&[]));
     Ok(())
 }
@@ -785,7 +792,7 @@ pub fn report_pixel(
         )
     })?;
     let mut source = open_capture(&cap)?;
-    let fit = crate::appearance::pixel::pixel_fit(&film, &mut source, x, y)?;
+    let fit = filmscope::appearance::pixel::pixel_fit(&film, &mut source, x, y)?;
     print!("{}", fit.table());
     let dir = match out {
         Some(o) => o
@@ -810,7 +817,7 @@ pub fn report_pixel(
 /// `filmscope report`.
 pub fn report(run: &Path, out: Option<&Path>, capture: Option<&Path>) -> Result<()> {
     let path = out.map_or_else(|| run.join("report.html"), Path::to_path_buf);
-    let made = crate::report::write_report(run, &path, capture)?;
+    let made = filmscope::report::write_report(run, &path, capture)?;
     for note in &made.notes {
         log::info!("filmscope: note: {note}");
     }
@@ -824,12 +831,12 @@ pub fn report(run: &Path, out: Option<&Path>, capture: Option<&Path>) -> Result<
 }
 
 /// `filmscope results OUT --csv`: the line's results log as CSV on stdout
-/// ([`crate::line::results`]).
+/// ([`filmscope::line::results`]).
 pub fn results(out: &Path, alarms: bool) -> Result<()> {
     let stdout = std::io::stdout();
     let mut w = std::io::BufWriter::new(stdout.lock());
     let skipped =
-        crate::line::results::write_csv(out, alarms, &mut w).map_err(anyhow::Error::msg)?;
+        filmscope::line::results::write_csv(out, alarms, &mut w).map_err(anyhow::Error::msg)?;
     std::io::Write::flush(&mut w).context("writing the CSV")?;
     if skipped > 0 {
         log::warn!("{skipped} lines of the log are not records (skipped)");

@@ -1,4 +1,4 @@
-//! `filmscope inspect`: the command-line glue around [`crate::line::inspect::Line`].
+//! `filmscope inspect`: the command-line glue around [`filmscope::line::inspect::Line`].
 
 use std::io::Write;
 use std::path::Path;
@@ -8,10 +8,10 @@ use std::time::Duration;
 
 use anyhow::{anyhow, Context, Result};
 
-use crate::line::inspect::{InspectOptions, Line, SampleOutcome};
-use crate::line::recipe::Recipe;
-use crate::line::status::{StatusBoard, StatusServer, StatusState, SNAPSHOT_FILE};
-use crate::record::line::{LineSummary, ReferenceRecord};
+use filmscope::line::inspect::{InspectOptions, Line, SampleOutcome};
+use filmscope::line::recipe::Recipe;
+use filmscope::line::status::{StatusBoard, StatusServer, StatusState, SNAPSHOT_FILE};
+use filmscope::record::line::{LineSummary, ReferenceRecord};
 
 /// What `inspect` is told on the command line.
 pub struct Args<'a> {
@@ -73,7 +73,7 @@ pub fn inspect(a: &Args<'_>) -> Result<()> {
 
 /// The line of `a`'s rig, recipe and folder; none when a signal stopped its start-up.
 fn open_line(a: &Args<'_>, stop: &Arc<AtomicBool>) -> Result<Option<Line>> {
-    let rig = crate::rig::RigConfig::load_or_builtin(a.rig)?;
+    let rig = filmscope::rig::RigConfig::load_or_builtin(a.rig)?;
     let recipe = Recipe::load(a.recipe)?.with_labels(a.lot.clone(), a.operator.clone())?;
     let line = Line::open(InspectOptions {
         rig,
@@ -148,7 +148,7 @@ fn close(a: &Args<'_>, line: &mut Line, stop: &AtomicBool) -> Result<()> {
         stopped_by_signal: stop.load(Ordering::SeqCst),
         ..line.summary()
     };
-    let json = crate::record::to_json(&summary)?;
+    let json = filmscope::record::to_json(&summary)?;
     line.say(&format!("stop: {json}"));
     if a.json {
         println!("{json}");

@@ -1,5 +1,5 @@
 //! The command line: argument parsing, the commands' printing and progress bars, and the
-//! calls into the library ([`crate::estimate`], [`crate::lab`], ...). `main.rs` only calls
+//! calls into the library ([`filmscope::estimate`], [`filmscope::lab`], ...). `main.rs` only calls
 //! [`main`].
 
 mod commands;
@@ -13,18 +13,18 @@ use clap::{Args, Parser, Subcommand};
 use filmscope_core::colour::Illuminant;
 use filmscope_core::optics::Polarization;
 
-use crate::estimate::method::Method;
-use crate::estimate::FieldChoice;
-use crate::io::{ByteOrder, Interleave};
-use crate::lab::eval::Ablation;
-use crate::lab::scene::SceneFile;
+use filmscope::estimate::method::Method;
+use filmscope::estimate::FieldChoice;
+use filmscope::io::{ByteOrder, Interleave};
+use filmscope::lab::eval::Ablation;
+use filmscope::lab::scene::SceneFile;
 
 /// How the streaming method gets the shared index.
 #[derive(Clone, Copy, Debug, Args)]
 pub struct IndexArgs {
     /// Sites (runs of five pixels spread over the image) whose full spectra give the shared
     /// index.
-    #[arg(long, default_value_t = crate::estimate::index_fit::DEFAULT_SITES)]
+    #[arg(long, default_value_t = filmscope::estimate::index_fit::DEFAULT_SITES)]
     pub sample_sites: usize,
     /// Stream the capture once, as a live camera does: the index refitted on the sample as
     /// each angle completes (default: the sample's stream, then every pixel's).
@@ -632,7 +632,8 @@ pub fn main() -> std::process::ExitCode {
             width,
             height,
             angles,
-        } => crate::lab::bench::rss_child(&SceneFile::from_arg(scene), width, height, angles),
+        } => filmscope::lab::bench::rss_child(&SceneFile::from_arg(scene), width, height, angles)
+            .map_err(anyhow::Error::from),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
@@ -716,5 +717,5 @@ fn quiet_on_broken_pipe() {
 /// One line of text safe for a terminal: whitespace runs joined into single spaces, other
 /// control characters escaped.
 fn one_line(s: &str) -> String {
-    crate::limits::printable(&s.split_whitespace().collect::<Vec<_>>().join(" "))
+    filmscope::limits::printable(&s.split_whitespace().collect::<Vec<_>>().join(" "))
 }

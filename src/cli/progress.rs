@@ -30,7 +30,7 @@ impl Progress {
     }
 }
 
-impl crate::jobs::Observer for Progress {
+impl filmscope::jobs::Observer for Progress {
     fn begin(&self, label: &str, rows: u64) {
         self.0.reset();
         self.0.set_length(rows);

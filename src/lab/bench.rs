@@ -38,7 +38,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use anyhow::{anyhow, Context, Result};
+use super::{LabError, Result};
 use filmscope_core::solve::fit_row::{IndexSampling, INDEX_PIXELS};
 use filmscope_core::solve::shard::PixelResult;
 use filmscope_core::solve::{state_bytes_per_pixel, SweepSolver};
@@ -206,9 +206,9 @@ pub fn soak(
     let mut prior = None;
     for i in 1..=sweeps {
         let mut source = SimSource::new(SoftwareCamera::new(scene.clone()), false, 4)
-            .map_err(|e| anyhow!("{e}"))?;
+            .map_err(LabError::invalid)?;
         let out = run_sweep(&mut source, config, prior.take(), &|_| {})
-            .map_err(|e| anyhow!("sweep {i}: {e}"))?;
+            .map_err(|e| LabError::Invalid(format!("sweep {i}: {e}")))?;
         prior = out
             .index
             .map(|index| Prior::new(index, PriorUpdate::Shifts, None));
@@ -232,12 +232,12 @@ pub fn soak(
 pub fn rss_child(scene_file: &SceneFile, width: usize, height: usize, angles: usize) -> Result<()> {
     let mut scene = scene_with(scene_file, width, 1, Some([400.0, 720.0, 2.0]))?;
     scene.angles_deg.truncate(angles.max(1));
-    let frames = Arc::new(Frames::render(&scene, 1).map_err(|e| anyhow!(e))?);
+    let frames = Arc::new(Frames::render(&scene, 1).map_err(LabError::invalid)?);
     let before = status_mb("VmRSS:").unwrap_or(f64::NAN);
     let mut source = ReplaySource::new(frames.clone(), height, 16);
     let t0 = Instant::now();
     let out = run_sweep(&mut source, PipelineConfig::default(), None, &|_| {})
-        .map_err(|e| anyhow!("{e}"))?;
+        .map_err(LabError::invalid)?;
     let secs = t0.elapsed().as_secs_f64();
     std::hint::black_box(&out.results);
     let fig = RssFigures {
@@ -260,7 +260,7 @@ pub fn rss_child(scene_file: &SceneFile, width: usize, height: usize, angles: us
 /// peers' ratios. The median of three runs (a single half-second run moved by a fifth from
 /// one to the next).
 pub fn measure_index_given(scene: &Scene) -> Result<Point> {
-    let frames = Arc::new(Frames::render(scene, scene.sensor.height).map_err(|e| anyhow!(e))?);
+    let frames = Arc::new(Frames::render(scene, scene.sensor.height).map_err(LabError::invalid)?);
     let truth = crate::lab::eval::Truth::of_scene(scene);
     let mpix = (scene.sensor.width * scene.sensor.height) as f64 / 1e6;
     let once = || -> Result<Point> {
@@ -273,7 +273,7 @@ pub fn measure_index_given(scene: &Scene) -> Result<Point> {
             "scene",
             &|_| {},
         )
-        .map_err(|e| anyhow!("{e}"))?;
+        .map_err(LabError::invalid)?;
         let secs = t0.elapsed().as_secs_f64();
         let r = crate::lab::eval::evaluate(&scene.name, &truth, &run);
         Ok(Point::of(
@@ -333,14 +333,15 @@ fn end_to_end_in(scene: &Scene, dir: &Path) -> Result<EndToEnd> {
         byte_order: ByteOrder::Little,
         float_reflectance: false,
     };
-    crate::simulate::write_capture(scene, &capture, opts, &|_| {}).map_err(|e| anyhow!("{e}"))?;
+    crate::simulate::write_capture(scene, &capture, opts, &|_| {}).map_err(LabError::invalid)?;
     let capture_bytes = std::fs::read_dir(&capture)?
         .filter_map(|e| e.ok()?.metadata().ok())
         .filter(|m| m.is_file())
         .map(|m| m.len())
         .sum();
     let truth = scene.stack.film.index_at(550.0);
-    let exe = std::env::current_exe().context("cannot find the filmscope executable")?;
+    let exe =
+        std::env::current_exe().map_err(LabError::step("cannot find the filmscope executable"))?;
     let run = |method: &str| -> Result<(f64, f64)> {
         let out = dir.join(format!("out-{method}"));
         let t0 = Instant::now();
@@ -351,13 +352,13 @@ fn end_to_end_in(scene: &Scene, dir: &Path) -> Result<EndToEnd> {
             .arg(&out)
             .args(["--method", method])
             .output()
-            .context("cannot start filmscope estimate")?;
+            .map_err(LabError::step("cannot start filmscope estimate"))?;
         let seconds = t0.elapsed().as_secs_f64();
         if !child.status.success() {
-            return Err(anyhow!(
+            return Err(LabError::Invalid(format!(
                 "filmscope estimate --method {method}: {}",
                 String::from_utf8_lossy(&child.stderr).trim()
-            ));
+            )));
         }
         let summary: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("summary.json"))?)?;
@@ -429,7 +430,8 @@ fn rss_in_child(
     height: usize,
     angles: usize,
 ) -> Result<RssFigures> {
-    let exe = std::env::current_exe().context("cannot find the filmscope executable")?;
+    let exe =
+        std::env::current_exe().map_err(LabError::step("cannot find the filmscope executable"))?;
     let mut child = Command::new(exe);
     child.arg("bench-rss-child");
     if let SceneFile::Path(p) = scene_file {
@@ -438,12 +440,12 @@ fn rss_in_child(
     let out = child
         .args([width.to_string(), height.to_string(), angles.to_string()])
         .output()
-        .context("cannot start the memory-measuring child")?;
+        .map_err(LabError::step("cannot start the memory-measuring child"))?;
     if !out.status.success() {
-        return Err(anyhow!(
+        return Err(LabError::Invalid(format!(
             "memory-measuring child failed: {}",
             String::from_utf8_lossy(&out.stderr).trim()
-        ));
+        )));
     }
     let text = String::from_utf8_lossy(&out.stdout);
     let line = text.lines().last().unwrap_or_default();
@@ -568,7 +570,7 @@ pub fn run_bench(
     // Kernels: 256 x 32 pixels, every band and angle.
     progress("rendering spectra");
     let kernel_scene = scene_with(scene_file, 256, 32, None)?;
-    let kernel = Frames::render(&kernel_scene, 32).map_err(|e| anyhow!(e))?;
+    let kernel = Frames::render(&kernel_scene, 32).map_err(LabError::invalid)?;
     progress("tracker");
     let tracker = tracker_rate(&kernel, min, true);
     let tracker_portable = tracker_rate(&kernel, min, false);
@@ -576,7 +578,10 @@ pub fn run_bench(
     let (stream, solve) = sweep_rates(&kernel, kernel.rows, true);
     let (stream_portable, _) = sweep_rates(&kernel, kernel.rows, false);
     if std::env::var_os("FILMSCOPE_BENCH_STREAM_ROWS").is_some() {
-        let rows: usize = std::env::var("FILMSCOPE_BENCH_STREAM_ROWS")?.parse()?;
+        let rows: usize = std::env::var("FILMSCOPE_BENCH_STREAM_ROWS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .ok_or_else(|| LabError::invalid("FILMSCOPE_BENCH_STREAM_ROWS: not a row count"))?;
         let (big, _) = sweep_rates(&kernel, rows, true);
         log::info!("stream 256x{rows}: {:.1} M samples/s", big / 1e6);
     }
@@ -585,13 +590,13 @@ pub fn run_bench(
     let (pw, ph) = if quick { (512, 256) } else { (1024, 1024) };
     progress("pipeline");
     let pipe_scene = scene_with(scene_file, pw, 16, None)?;
-    let frames = Arc::new(Frames::render(&pipe_scene, 16).map_err(|e| anyhow!(e))?);
+    let frames = Arc::new(Frames::render(&pipe_scene, 16).map_err(LabError::invalid)?);
     // One sweep's rate moved by 20 % from run to run on this 2-core machine.
     let pipeline = median_of_three(
         || {
             let mut source = ReplaySource::new(frames.clone(), ph, 16);
             let out = run_sweep(&mut source, PipelineConfig::default(), None, &|_| {})
-                .map_err(|e| anyhow!("{e}"))?;
+                .map_err(LabError::invalid)?;
             Ok(out.samples as f64 / out.stream_time.as_secs_f64())
         },
         |&rate| rate,
@@ -611,7 +616,7 @@ pub fn run_bench(
         || {
             let mut paced = ReplaySource::new(frames.clone(), ph, 16).paced(0.5 * pipeline);
             let out = crate::estimate::filmscope_passes(&mut paced, &live, &|_| {})
-                .map_err(|e| anyhow!("{e}"))?
+                .map_err(LabError::invalid)?
                 .out;
             Ok((out.solve_latency, out.latency_parts))
         },
@@ -624,9 +629,9 @@ pub fn run_bench(
     progress("pipeline from the software camera");
     let cam_scene = scene_with(scene_file, 128, if quick { 32 } else { 96 }, None)?;
     let mut sim =
-        SimSource::new(SoftwareCamera::new(cam_scene), false, 8).map_err(|e| anyhow!("{e}"))?;
-    let cam = run_sweep(&mut sim, PipelineConfig::default(), None, &|_| {})
-        .map_err(|e| anyhow!("{e}"))?;
+        SimSource::new(SoftwareCamera::new(cam_scene), false, 8).map_err(LabError::invalid)?;
+    let cam =
+        run_sweep(&mut sim, PipelineConfig::default(), None, &|_| {}).map_err(LabError::invalid)?;
     let from_camera = cam.samples as f64 / cam.stream_time.as_secs_f64();
     progress("software camera alone");
     let (sim_w, sim_h) = if quick { (512, 32) } else { (1024, 64) };
@@ -983,7 +988,7 @@ pub fn format_table(r: &BenchReport) -> String {
 /// Writes a bench run's table and JSON as `dir/YYYY-MM-DD.md` and `.json` (today's UTC
 /// date; the Markdown titled by the command, `quick` or not); returns both paths.
 pub fn write_dated(dir: &Path, quick: bool, table: &str, json: &str) -> Result<(PathBuf, PathBuf)> {
-    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    std::fs::create_dir_all(dir).map_err(LabError::file(dir, "create"))?;
     let date = utc_date(std::time::SystemTime::now());
     let md = dir.join(format!("{date}.md"));
     let what = if quick {
@@ -992,11 +997,10 @@ pub fn write_dated(dir: &Path, quick: bool, table: &str, json: &str) -> Result<(
         "filmscope bench"
     };
     let body = format!("# {what}, {date}\n\n```text\n{table}```\n");
-    crate::io::write_atomic(&md, body.as_bytes())
-        .with_context(|| format!("{}: cannot write", md.display()))?;
+    crate::io::write_atomic(&md, body.as_bytes()).map_err(LabError::file(&md, "write"))?;
     let js = dir.join(format!("{date}.json"));
     crate::io::write_atomic(&js, format!("{json}\n").as_bytes())
-        .with_context(|| format!("{}: cannot write", js.display()))?;
+        .map_err(LabError::file(&js, "write"))?;
     Ok((md, js))
 }
 

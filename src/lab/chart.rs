@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::{anyhow, bail, Context, Result};
+use super::{LabError, Result};
 use filmscope_core::optics::materials;
 use filmscope_core::solve::sweep::SolverOptions;
 use firmware_sim::Scene;
@@ -127,14 +127,14 @@ pub struct Point {
 
 /// Runs every setting on `scene` (rendered once).
 pub fn measure(scene: &Scene, settings: &[Setting]) -> Result<Vec<Point>> {
-    let frames = Arc::new(Frames::render(scene, scene.sensor.height).map_err(|e| anyhow!(e))?);
+    let frames = Arc::new(Frames::render(scene, scene.sensor.height).map_err(LabError::invalid)?);
     let truth = Truth::of_scene(scene);
     let mpix = (scene.sensor.width * scene.sensor.height) as f64 / 1e6;
     let mut out = Vec::new();
     for s in settings {
         let mut source = ReplaySource::new(frames.clone(), scene.sensor.height, 8);
         let t0 = Instant::now();
-        let run = run_method(&mut source, &s.config, &|_| {}).map_err(|e| anyhow!("{e}"))?;
+        let run = run_method(&mut source, &s.config, &|_| {}).map_err(LabError::invalid)?;
         let secs = t0.elapsed().as_secs_f64();
         let r = evaluate(&scene.name, &truth, &run);
         out.push(Point::of(s.config.method, &s.label, secs / mpix, &r));
@@ -269,7 +269,8 @@ impl GridScene {
 
     /// The scene.
     pub fn scene(&self) -> Result<Scene> {
-        Scene::from_toml(&self.toml(), "grid").map_err(|e| anyhow!("grid scene: {}", e.problem))
+        Scene::from_toml(&self.toml(), "grid")
+            .map_err(|e| LabError::Invalid(format!("grid scene: {}", e.problem)))
     }
 
     /// The scene file (`config/scenes/*.toml` format; `filmscope eval` and `simulate` take it).
@@ -476,20 +477,24 @@ pub fn cell_scene(maps: &[MapSpec], cell: &str, seed: Option<u64>) -> Result<Gri
     let (Some(name), Some(x), Some(y), None) =
         (parts.next(), parts.next(), parts.next(), parts.next())
     else {
-        return Err(anyhow!(
+        return Err(LabError::Invalid(format!(
             "cell {cell:?}: expected MAP:X:Y, e.g. index-thickness:2000:2.8"
-        ));
+        )));
     };
-    let map = maps
-        .iter()
-        .find(|m| m.name == name)
-        .ok_or_else(|| anyhow!("cell {cell:?}: no map {name:?} (maps: {})", names()))?;
+    let map = maps.iter().find(|m| m.name == name).ok_or_else(|| {
+        LabError::Invalid(format!(
+            "cell {cell:?}: no map {name:?} (maps: {})",
+            names()
+        ))
+    })?;
     let value = |v: &str, axis: Axis| {
         v.trim()
             .parse::<f64>()
             .ok()
             .filter(|v| v.is_finite())
-            .ok_or_else(|| anyhow!("cell {cell:?}: {v:?} is not a number ({axis:?})"))
+            .ok_or_else(|| {
+                LabError::Invalid(format!("cell {cell:?}: {v:?} is not a number ({axis:?})"))
+            })
     };
     let mut scene = map.cell_scene(value(x, map.x)?, value(y, map.y)?);
     if let Some(seed) = seed {
@@ -696,7 +701,7 @@ pub fn write_speed_chart(path: &Path, title: &str, points: &[Point]) -> Result<(
             pareto: true,
         },
     ];
-    write_scatter_panels_png(path, title, &panels).map_err(|e| anyhow!("{e}"))
+    write_scatter_panels_png(path, title, &panels).map_err(LabError::invalid)
 }
 
 /// How a setting fares in one cell.
@@ -964,7 +969,7 @@ pub fn write_stability_maps(dir: &Path, run: &MapRun) -> Result<Vec<std::path::P
             spec.name,
             spec.base.describe(&[spec.x, spec.y])
         );
-        write_heatmap_panels_png(&path, &title, &panels).map_err(|e| anyhow!("{e}"))?;
+        write_heatmap_panels_png(&path, &title, &panels).map_err(LabError::invalid)?;
         written.push(path);
     }
     Ok(written)
@@ -981,7 +986,7 @@ pub fn speed_accuracy(
     quick: bool,
     on_points: &mut dyn FnMut(&[Point]),
 ) -> Result<PathBuf> {
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    std::fs::create_dir_all(out).map_err(LabError::file(out, "create"))?;
     let size = if quick { [48, 32] } else { [128, 96] };
     let scene = scene_with(scene, size[0], size[1], None)?;
     let points = measure(&scene, &settings(quick))?;
@@ -1032,12 +1037,12 @@ pub fn stability(
     let maps = stability_maps(quick);
     if let Some(unknown) = only.iter().find(|n| !maps.iter().any(|m| &m.name == *n)) {
         let names: Vec<&str> = maps.iter().map(|m| m.name.as_str()).collect();
-        bail!(
+        return Err(LabError::Invalid(format!(
             "--map {unknown:?}: no such map (maps: {})",
             names.join(", ")
-        );
+        )));
     }
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    std::fs::create_dir_all(out).map_err(LabError::file(out, "create"))?;
     let settings: Vec<_> = settings(true)
         .into_iter()
         .filter(|s| matches!(s.label.as_str(), "filmscope" | "paper" | "19n/8nm"))
@@ -1082,7 +1087,7 @@ pub fn write_cell_scene(
 ) -> Result<(PathBuf, GridScene)> {
     let maps = stability_maps(quick);
     let scene = cell_scene(&maps, cell, seed)?;
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    std::fs::create_dir_all(out).map_err(LabError::file(out, "create"))?;
     let name = format!("cell-{}-s{}.toml", cell.replace(':', "-"), scene.seed);
     let path = out.join(name);
     crate::io::write_atomic(&path, scene.toml().as_bytes())?;

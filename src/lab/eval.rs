@@ -11,7 +11,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{anyhow, bail, Context as _};
+use super::{LabError, Result};
 use filmscope_core::colour::{
     delta_e2000, delta_e76, spectral_rmse, Colorimetry, Illuminant, D65_WHITE_XYZ,
 };
@@ -963,7 +963,7 @@ pub fn input_kind(path: &Path) -> Option<bool> {
 }
 
 /// A scene file (its seed replaced by `seed` when given) or a capture directory.
-pub fn input(path: &Path, seed: Option<u64>) -> anyhow::Result<Input> {
+pub fn input(path: &Path, seed: Option<u64>) -> Result<Input> {
     if path.is_dir() {
         Ok(Input::Capture(path.to_owned()))
     } else if path.extension().is_some_and(|e| e == "toml")
@@ -975,10 +975,10 @@ pub fn input(path: &Path, seed: Option<u64>) -> anyhow::Result<Input> {
             path.parent().unwrap_or(Path::new(".")).to_owned(),
         ))
     } else {
-        bail!(
+        Err(LabError::Invalid(format!(
             "{}: neither a scene file (.toml) nor a capture directory",
             path.display()
-        )
+        )))
     }
 }
 
@@ -991,7 +991,7 @@ pub fn eval_one(
     config: &RunConfig,
     seed: Option<u64>,
     observer: &dyn Observer,
-) -> anyhow::Result<(EvalReport, Run)> {
+) -> Result<(EvalReport, Run)> {
     let settings = Settings {
         config: *config,
         film: None,
@@ -1002,17 +1002,17 @@ pub fn eval_one(
             let name = scene.name.clone();
             let fov = scene.field_of_view;
             let mut source = SimSource::new(SoftwareCamera::new(*scene), false, 1)
-                .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+                .map_err(|e| LabError::Invalid(format!("{}: {e}", path.display())))?;
             let run = crate::jobs::estimate::run(&mut source, &settings, fov, &name, observer)?;
             Ok((evaluate(&name, &truth, &run), run))
         }
         Input::Capture(dir) => {
-            let truth = Truth::of_capture_dir(&dir).map_err(|e| anyhow!(e))?;
+            let truth = Truth::of_capture_dir(&dir).map_err(LabError::invalid)?;
             let cap = Capture::load(&dir)?;
             crate::estimate::check_capture_memory(&cap, config.method, None)
-                .map_err(|e| anyhow!(e))?;
+                .map_err(LabError::invalid)?;
             let fov = cap.lens.field_of_view();
-            let mut source = CaptureSource::new(cap).map_err(|e| anyhow!(e))?;
+            let mut source = CaptureSource::new(cap).map_err(LabError::invalid)?;
             let name = dir.display().to_string();
             let run = crate::jobs::estimate::run(&mut source, &settings, fov, &name, observer)?;
             Ok((evaluate(&name, &truth, &run), run))
@@ -1022,22 +1022,22 @@ pub fn eval_one(
 
 /// Writes each of random set `seed`'s first `count` scenes of draw `kind` into `dir` as
 /// `random-SEED-I.toml`, so a row can be run again with `eval FILE`.
-pub fn save_random_scenes(dir: &Path, count: usize, seed: u64, kind: Draw) -> anyhow::Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+pub fn save_random_scenes(dir: &Path, count: usize, seed: u64, kind: Draw) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(LabError::file(dir, "create"))?;
     for i in 0..count {
         let drawn = firmware_sim::random::draw_kind(kind, seed, i);
         let path = dir.join(format!("{}.toml", drawn.scene.name));
         crate::io::write_atomic(&path, drawn.toml.as_bytes())
-            .with_context(|| format!("{}: cannot write", path.display()))?;
+            .map_err(LabError::file(&path, "write"))?;
     }
     Ok(())
 }
 
 /// A temporary folder for random set `seed`'s captures ([`random_eval`]'s `work_dir`),
 /// removed when dropped.
-pub fn random_work_dir(seed: u64) -> anyhow::Result<tempfile::TempDir> {
+pub fn random_work_dir(seed: u64) -> Result<tempfile::TempDir> {
     tempfile::Builder::new()
         .prefix(&format!("filmscope-random-{seed}-"))
         .tempdir()
-        .context("cannot create a temporary folder")
+        .map_err(LabError::step("cannot create a temporary folder"))
 }

@@ -17,7 +17,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use anyhow::{anyhow, Context, Result};
+use super::{LabError, Result};
 use firmware_sim::Scene;
 use serde::{Deserialize, Serialize};
 
@@ -98,16 +98,19 @@ pub fn run_script(script: &str, capture_dir: &Path, args: &[String]) -> Result<P
         .arg(capture_dir)
         .args(args)
         .output()
-        .with_context(|| format!("cannot start python3 {}", path.display()))?;
+        .map_err(LabError::step(format!(
+            "cannot start python3 {}",
+            path.display()
+        )))?;
     if !out.status.success() {
-        return Err(anyhow!(
+        return Err(LabError::Invalid(format!(
             "{script} failed: {}",
             String::from_utf8_lossy(&out.stderr).trim()
-        ));
+        )));
     }
     let text = String::from_utf8_lossy(&out.stdout);
     let line = text.lines().last().unwrap_or_default();
-    serde_json::from_str(line).with_context(|| format!("{script} printed {line:?}"))
+    serde_json::from_str(line).map_err(LabError::step(format!("{script} printed {line:?}")))
 }
 
 /// Writes `scene` as a raw capture (counts with white and dark references) in a scratch

@@ -4,7 +4,7 @@
 use std::borrow::Cow;
 use std::path::PathBuf;
 
-use anyhow::{anyhow, Context, Result};
+use super::{LabError, Result};
 use firmware_sim::Scene;
 
 /// The paper's samples (name, scene file text), built in so `demo`, `bench` and `chart` run
@@ -86,10 +86,10 @@ pub fn scene_with(
 ) -> Result<Scene> {
     let text = scene
         .text()
-        .with_context(|| format!("{}: cannot read", scene.describe()))?;
+        .map_err(LabError::step(format!("{}: cannot read", scene.describe())))?;
     let mut doc: toml::Table = text
         .parse()
-        .with_context(|| format!("{}: not TOML", scene.describe()))?;
+        .map_err(LabError::step(format!("{}: not TOML", scene.describe())))?;
     let sensor = doc
         .entry("sensor")
         .or_insert_with(|| toml::Value::Table(toml::Table::new()));
@@ -104,7 +104,7 @@ pub fn scene_with(
         );
     }
     Scene::from_toml(&doc.to_string(), &scene.name())
-        .map_err(|e| anyhow!("{}: {}", scene.describe(), e.problem))
+        .map_err(|e| LabError::Invalid(format!("{}: {}", scene.describe(), e.problem)))
 }
 
 #[cfg(test)]
