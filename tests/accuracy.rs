@@ -5,7 +5,7 @@
 //! in comments here predate the software camera's independent noise (rows, bands and angles)
 //! unless they say otherwise.
 
-mod common;
+use crate::common;
 
 use common::run_scene;
 

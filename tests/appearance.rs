@@ -3,7 +3,7 @@
 //! reproduced on simulated captures, and the `render` / `compare` commands' outputs and
 //! errors.
 
-mod common;
+use crate::common;
 
 use common::{colour_fixture_rows, estimated_tiny, filmscope, run_ok, s, tempdir};
 use filmscope::appearance::render::{display_rgb, FLAG_COLOUR};

@@ -1,7 +1,7 @@
 //! `filmscope estimate` per the contract: the outputs it writes, and one-line errors with a
 //! non-zero exit for captures that cannot be read.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

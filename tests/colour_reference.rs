@@ -3,7 +3,7 @@
 //! CIEDE2000 against the 34 published pairs of Sharma, Wu & Dalal (2005),
 //! spectrum -> XYZ -> Lab against colour-science, and XYZ -> sRGB.
 
-mod common;
+use crate::common;
 
 use filmscope::colour::{delta_e2000, reflectance_to_xyz, xyz_to_srgb, Lab, Xyz, D65_WHITE_XYZ};
 

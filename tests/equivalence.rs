@@ -2,7 +2,7 @@
 //! replayed from a capture in any interleave, rows one at a time or in blocks, channels of
 //! capacity 1 or many, one worker or several.
 
-mod common;
+use crate::common;
 
 use filmscope::estimate::method::MethodResult;
 use filmscope::estimate::{run_method, RunConfig};

@@ -3,7 +3,7 @@
 //! camera's columns, the capture's `[lens]` key and its bad values, and the field model
 //! `auto` chooses on a wide and a narrow field, with the other model's figures.
 
-mod common;
+use crate::common;
 
 use common::{filmscope, run_ok, s, tempdir};
 use filmscope::estimate::FieldModel;

@@ -7,7 +7,7 @@
 //! PATH. With `FILMSCOPE_REQUIRE_GLTF_VALIDATOR=1` (set by `.ci/run` once it installed it)
 //! a missing validator is a failure; otherwise the test says why it skipped.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -2,7 +2,7 @@
 //! with one line naming the file, key and value, and every case ends in bounded time. The
 //! device cases (deadlines, escaping, rig.toml, Ctrl-C) are in `tests/rig.rs`.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Output;

@@ -7,7 +7,7 @@
 //! `.ci/run` once it installed it) a missing broker is a failure; otherwise the MQTT checks
 //! say why they skipped.
 
-mod common;
+use crate::common;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};

@@ -7,7 +7,7 @@
 //! Chromium is `FILMSCOPE_CHROMIUM` if set, else `chromium` or `chromium-browser` on the
 //! PATH; with `FILMSCOPE_REQUIRE_CHROMIUM=1` a missing browser is a failure.
 
-mod common;
+use crate::common;
 
 use std::io::{Read, Write};
 use std::path::PathBuf;

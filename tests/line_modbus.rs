@@ -6,7 +6,7 @@
 //! with a message otherwise, a failure with `FILMSCOPE_REQUIRE_PYMODBUS=1` (set by
 //! `.ci/run` once it installed it).
 
-mod common;
+use crate::common;
 
 use std::io::BufRead;
 use std::path::{Path, PathBuf};

@@ -9,7 +9,7 @@
 //! started on free loopback ports; with `FILMSCOPE_REQUIRE_MOSQUITTO=1` a missing broker is
 //! a failure, otherwise the broker tests say why they skipped.
 
-mod common;
+use crate::common;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::io::{Read, Write};

@@ -3,7 +3,7 @@
 //! refractiveindex.info YAML) reaches the estimator, render and glTF export; `simulate
 //! --seed` and `eval --seed`.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -3,7 +3,7 @@
 //! without an error. (Whether today's estimator passes the scenes is the evaluation's own
 //! output, not asserted here.)
 
-mod common;
+use crate::common;
 
 use filmscope::estimate::{run_method, RunConfig};
 use filmscope::io::Capture;

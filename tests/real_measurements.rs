@@ -1,7 +1,7 @@
 //! Real measurements: a measured spectrum (not one our own model made), and captures of one
 //! angle, as a reflectometer or a camera fixed over a web takes them.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

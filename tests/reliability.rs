@@ -6,7 +6,7 @@
 //! faults under load: `rig`; equivalence: `equivalence`; parsers under fuzzing:
 //! `fuzz/tests/regressions.rs`.)
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -6,7 +6,7 @@
 //! missing browser is a failure; otherwise the test says why it skipped. The page-only
 //! checks (self-contained, every image inline) always run.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

@@ -2,7 +2,7 @@
 //! real ptys and a loopback socket; the acquired maps against `estimate` on the recorded
 //! capture; transcripts; and every fault the rig must survive or report.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
