@@ -457,7 +457,7 @@ fn a_stage_refusing_mid_sweep_stops_with_one_line_naming_the_port() {
     );
 }
 
-/// The real rig: `FILMSCOPE_RIG=path/to/rig.toml cargo test --release --test rig -- --ignored`
+/// The real rig: `FILMSCOPE_RIG=path/to/rig.toml cargo test --release --test integration -- --ignored rig::`
 /// (ports in the file, or FILMSCOPE_STAGE_PORT / FILMSCOPE_FILTER_PORT / FILMSCOPE_CAMERA).
 #[test]
 #[ignore = "needs the real devices: set FILMSCOPE_RIG"]

@@ -431,7 +431,7 @@ pub fn acquire(rig: Option<&Path>, out: &Path, sim: bool, max_memory: Option<&st
         budget,
     )
     .map_err(|e| anyhow!(e))?;
-    filmscope::source::live::stop_on_ctrl_c();
+    filmscope::source::live::stop_on_ctrl_c().context("signal handler")?;
     let summary = jobs::acquire::run(
         &config,
         out,

@@ -44,13 +44,8 @@ pub struct Args<'a> {
 /// Runs `filmscope inspect` until `samples` are done or SIGINT/SIGTERM (the sample under
 /// way is finished first).
 pub fn inspect(a: &Args<'_>) -> Result<()> {
-    let stop = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        // A second signal ends the process at once (exit 130), the first stops it cleanly.
-        signal_hook::flag::register_conditional_shutdown(sig, 130, stop.clone())
-            .context("signal handler")?;
-        signal_hook::flag::register(sig, stop.clone()).context("signal handler")?;
-    }
+    // The first signal stops the line cleanly, a second ends the process at once.
+    let stop = filmscope::io::signals::stop_flag(true).context("signal handler")?;
     let Some(mut line) = open_line(a, &stop)? else {
         return Ok(());
     };
@@ -266,10 +261,7 @@ fn folder_stamp(out: &Path) -> Vec<Option<(u64, std::time::SystemTime)>> {
 /// state `inspect` left in `out`, read again whenever the folder changes.
 pub fn status(out: &Path, listen: &str) -> Result<()> {
     let (host, port) = host_port(listen)?;
-    let stop = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, stop.clone()).context("signal handler")?;
-    }
+    let stop = filmscope::io::signals::stop_flag(false).context("signal handler")?;
     let mut stamp = folder_stamp(out);
     let state = StatusState::load(out).map_err(|e| anyhow!(e))?;
     let server = StatusServer::serve(&host, port, StatusBoard::from_state(state))?;

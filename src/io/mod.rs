@@ -13,6 +13,8 @@
 //!   old file or the new one, never a torn one. Used for every single-file output.
 //! - [`output`]: a result folder (maps, summary, recorded capture) as one unit: written
 //!   beside its target, swapped in whole, one writer at a time ([`output::OutputDir`]).
+//! - [`time`]: UTC timestamps; [`signals`]: the stop flag SIGINT and SIGTERM set, so work
+//!   under way finishes and is kept.
 //!
 //! Errors ([`envi::EnviError`], [`capture::CaptureError`]) display as one line that names
 //! the file at fault and the problem, ready for the CLI to print as is. No function here
@@ -24,6 +26,7 @@ pub mod atomic;
 pub mod capture;
 pub mod envi;
 pub mod output;
+pub mod signals;
 pub mod time;
 
 pub use atomic::{write_atomic, TempFile};
@@ -36,4 +39,4 @@ pub use envi::{
     EnviHeader, EnviReader, EnviWriter, Interleave,
 };
 pub use output::{check_outside_inputs, OutputDir, OutputDirError, Replaced};
-pub use time::{counter_of, sample_id, utc_iso};
+pub use time::{counter_of, sample_id, utc_date, utc_iso};

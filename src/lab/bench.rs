@@ -989,7 +989,7 @@ pub fn format_table(r: &BenchReport) -> String {
 /// date; the Markdown titled by the command, `quick` or not); returns both paths.
 pub fn write_dated(dir: &Path, quick: bool, table: &str, json: &str) -> Result<(PathBuf, PathBuf)> {
     std::fs::create_dir_all(dir).map_err(LabError::file(dir, "create"))?;
-    let date = utc_date(std::time::SystemTime::now());
+    let date = crate::io::utc_date(std::time::SystemTime::now());
     let md = dir.join(format!("{date}.md"));
     let what = if quick {
         "filmscope bench --quick"
@@ -1002,42 +1002,4 @@ pub fn write_dated(dir: &Path, quick: bool, table: &str, json: &str) -> Result<(
     crate::io::write_atomic(&js, format!("{json}\n").as_bytes())
         .map_err(LabError::file(&js, "write"))?;
     Ok((md, js))
-}
-
-/// `YYYY-MM-DD` of `t` in UTC (the proleptic Gregorian calendar; days from the civil-from-days
-/// algorithm).
-pub fn utc_date(t: std::time::SystemTime) -> String {
-    let secs = t
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    let z = (secs / 86_400) as i64 + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!("{year:04}-{month:02}-{day:02}")
-}
-
-#[cfg(test)]
-mod date_tests {
-    use super::utc_date;
-    use std::time::{Duration, UNIX_EPOCH};
-
-    #[test]
-    fn utc_dates() {
-        assert_eq!(utc_date(UNIX_EPOCH), "1970-01-01");
-        // 2000-02-29 12:00 UTC and 2026-11-26 04:18 UTC.
-        assert_eq!(
-            utc_date(UNIX_EPOCH + Duration::from_secs(951_825_600)),
-            "2000-02-29"
-        );
-        assert_eq!(
-            utc_date(UNIX_EPOCH + Duration::from_secs(1_795_666_680)),
-            "2026-11-26"
-        );
-    }
 }

@@ -18,6 +18,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
 
 use crossbeam_channel::Sender;
 use filmscope_core::hw::{FrameKind, FrameRequest, LineEvent, RowLoss};
@@ -31,22 +32,23 @@ use crate::record::acquisition::{AcquisitionFile, AcquisitionLog, LostRows};
 use crate::record::RecordError;
 use crate::rig::{Rig, RigConfig, RigError};
 
-/// Set by Ctrl-C: the sweep stops at the next band.
-static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+/// Set by Ctrl-C once [`stop_on_ctrl_c`] ran: the sweep stops at the next band.
+static INTERRUPTED: OnceLock<Arc<AtomicBool>> = OnceLock::new();
 
 /// Makes Ctrl-C (SIGINT, SIGTERM) stop the sweep at the next band, keeping the angles
 /// taken and writing `acquisition.json`; a second one ends the process at once (its
 /// staging folder is removed by the next run into the same output).
-pub fn stop_on_ctrl_c() {
-    let _ = ctrlc::set_handler(|| {
-        if INTERRUPTED.swap(true, Ordering::SeqCst) {
-            std::process::exit(130);
-        }
-    });
+pub fn stop_on_ctrl_c() -> std::io::Result<()> {
+    if INTERRUPTED.get().is_none() {
+        let _ = INTERRUPTED.set(crate::io::signals::stop_flag(true)?);
+    }
+    Ok(())
 }
 
 fn interrupted() -> bool {
-    INTERRUPTED.load(Ordering::SeqCst)
+    INTERRUPTED
+        .get()
+        .is_some_and(|stop| stop.load(Ordering::SeqCst))
 }
 
 /// The live sweep as a [`Source`].
