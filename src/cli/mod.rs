@@ -466,6 +466,38 @@ pub fn main() -> std::process::ExitCode {
     };
     logging::init(cli.quiet, cli.verbose);
     let result = match cli.command {
+        c @ (Command::Demo { .. }
+        | Command::Simulate { .. }
+        | Command::Estimate { .. }
+        | Command::Acquire { .. }
+        | Command::Inspect { .. }
+        | Command::Status { .. }
+        | Command::Results { .. }) => run_measure(c),
+        c @ (Command::Render { .. }
+        | Command::Compare { .. }
+        | Command::ExportGltf { .. }
+        | Command::Report { .. }) => run_colour(c),
+        c @ (Command::Eval { .. }
+        | Command::Bench { .. }
+        | Command::Soak { .. }
+        | Command::Chart { .. }
+        | Command::Stability { .. }
+        | Command::BenchRssChild { .. }) => run_lab(c),
+        c @ (Command::Completions { .. } | Command::Man { .. }) => run_docs(c),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            log::error!("{}", one_line(&format!("{e:#}")));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// The commands that measure: simulate, estimate, acquire, the production line, its
+/// records.
+fn run_measure(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Demo { out, with_paper } => commands::demo(&out, with_paper),
         Command::Simulate {
             scene,
@@ -530,61 +562,13 @@ pub fn main() -> std::process::ExitCode {
             csv: _,
             alarms,
         } => commands::results(&out, alarms),
-        Command::Eval {
-            inputs,
-            random,
-            seed,
-            save_scenes,
-            rows,
-            realistic,
-            thick,
-            method,
-            json,
-            ablate,
-        } => commands::eval(
-            &inputs,
-            random.map(|count| commands::RandomSet {
-                count,
-                seed: seed.unwrap_or(1),
-                save_scenes,
-                rows,
-            }),
-            match (realistic, thick) {
-                (true, _) => firmware_sim::random::Draw::Realistic,
-                (_, true) => firmware_sim::random::Draw::Thick,
-                _ => firmware_sim::random::Draw::Plain,
-            },
-            seed,
-            &method,
-            json,
-            &ablate,
-        ),
-        Command::Bench {
-            quick,
-            json,
-            scene,
-            out,
-        } => commands::bench(&SceneFile::from_arg(scene), quick, json, out.as_deref()),
-        Command::Soak { sweeps, scene } => commands::soak(scene, sweeps),
-        Command::Completions { shell } => {
-            let mut cmd = <Cli as clap::CommandFactory>::command();
-            clap_complete::generate(shell, &mut cmd, "filmscope", &mut std::io::stdout());
-            Ok(())
-        }
-        Command::Man { out } => commands::man(&out),
-        Command::Chart { scene, out, quick } => {
-            commands::chart(&SceneFile::from_arg(scene), &out, quick)
-        }
-        Command::Stability {
-            out,
-            quick,
-            cell: Some(cell),
-            seed,
-            ..
-        } => commands::stability_cell(&out, quick, &cell, seed),
-        Command::Stability {
-            out, quick, map, ..
-        } => commands::stability(&out, quick, &map),
+        _ => unreachable!("dispatched by main"),
+    }
+}
+
+/// The commands on an estimate's colour: renders, the comparison, glTF, the report.
+fn run_colour(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Render {
             maps,
             out,
@@ -627,6 +611,62 @@ pub fn main() -> std::process::ExitCode {
             capture,
             pixel: Some(xy),
         } => commands::report_pixel(&run, out.as_deref(), capture.as_deref(), &xy),
+        _ => unreachable!("dispatched by main"),
+    }
+}
+
+/// The lab's commands: accuracy, speed, charts, stability maps, the soak.
+fn run_lab(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Eval {
+            inputs,
+            random,
+            seed,
+            save_scenes,
+            rows,
+            realistic,
+            thick,
+            method,
+            json,
+            ablate,
+        } => commands::eval(
+            &inputs,
+            random.map(|count| commands::RandomSet {
+                count,
+                seed: seed.unwrap_or(1),
+                save_scenes,
+                rows,
+            }),
+            match (realistic, thick) {
+                (true, _) => firmware_sim::random::Draw::Realistic,
+                (_, true) => firmware_sim::random::Draw::Thick,
+                _ => firmware_sim::random::Draw::Plain,
+            },
+            seed,
+            &method,
+            json,
+            &ablate,
+        ),
+        Command::Bench {
+            quick,
+            json,
+            scene,
+            out,
+        } => commands::bench(&SceneFile::from_arg(scene), quick, json, out.as_deref()),
+        Command::Soak { sweeps, scene } => commands::soak(scene, sweeps),
+        Command::Chart { scene, out, quick } => {
+            commands::chart(&SceneFile::from_arg(scene), &out, quick)
+        }
+        Command::Stability {
+            out,
+            quick,
+            cell: Some(cell),
+            seed,
+            ..
+        } => commands::stability_cell(&out, quick, &cell, seed),
+        Command::Stability {
+            out, quick, map, ..
+        } => commands::stability(&out, quick, &map),
         Command::BenchRssChild {
             scene,
             width,
@@ -634,13 +674,20 @@ pub fn main() -> std::process::ExitCode {
             angles,
         } => filmscope::lab::bench::rss_child(&SceneFile::from_arg(scene), width, height, angles)
             .map_err(anyhow::Error::from),
-    };
-    match result {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            log::error!("{}", one_line(&format!("{e:#}")));
-            std::process::ExitCode::FAILURE
+        _ => unreachable!("dispatched by main"),
+    }
+}
+
+/// Shell completions and the manual page.
+fn run_docs(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Completions { shell } => {
+            let mut cmd = <Cli as clap::CommandFactory>::command();
+            clap_complete::generate(shell, &mut cmd, "filmscope", &mut std::io::stdout());
+            Ok(())
         }
+        Command::Man { out } => commands::man(&out),
+        _ => unreachable!("dispatched by main"),
     }
 }
 
