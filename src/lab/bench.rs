@@ -287,7 +287,7 @@ pub fn measure_index_given(scene: &Scene) -> Result<Point> {
 }
 
 /// `filmscope estimate` from an ENVI capture on disk, as a user runs it.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct EndToEnd {
     /// Sensor width.
     pub width: usize,
@@ -453,7 +453,7 @@ fn rss_in_child(
 }
 
 /// Everything `filmscope bench` measures.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct BenchReport {
     /// Quick mode (smaller sweeps).
     pub quick: bool,
@@ -560,14 +560,21 @@ fn median_of_three<T>(
     Ok(runs.swap_remove(1))
 }
 
-/// Runs every measurement. `scene_file` gives the spectra (the paper's MgF2 sample by default).
-pub fn run_bench(
+/// The kernels' rates on 256 x 32 pixels, every band and angle.
+struct Kernels {
+    scene: String,
+    tracker: f64,
+    tracker_portable: f64,
+    stream: f64,
+    stream_portable: f64,
+    solve: f64,
+}
+
+fn bench_kernels(
     scene_file: &SceneFile,
-    quick: bool,
+    min: Duration,
     progress: &dyn Fn(&str),
-) -> Result<BenchReport> {
-    let min = Duration::from_millis(if quick { 300 } else { 1500 });
-    // Kernels: 256 x 32 pixels, every band and angle.
+) -> Result<Kernels> {
     progress("rendering spectra");
     let kernel_scene = scene_with(scene_file, 256, 32, None)?;
     let kernel = Frames::render(&kernel_scene, 32).map_err(LabError::invalid)?;
@@ -585,7 +592,33 @@ pub fn run_bench(
         let (big, _) = sweep_rates(&kernel, rows, true);
         log::info!("stream 256x{rows}: {:.1} M samples/s", big / 1e6);
     }
+    Ok(Kernels {
+        scene: kernel_scene.name,
+        tracker,
+        tracker_portable,
+        stream,
+        stream_portable,
+        solve,
+    })
+}
 
+/// The pipeline's throughput and latency on a wide sensor, from replayed rows and from the
+/// software camera, and the software camera's own rate.
+struct Throughput {
+    pipeline: f64,
+    latency: f64,
+    latency_parts: [f64; 6],
+    sensor: [usize; 2],
+    from_camera: f64,
+    simulate: f64,
+    simulate_sensor: [usize; 2],
+}
+
+fn bench_pipeline(
+    scene_file: &SceneFile,
+    quick: bool,
+    progress: &dyn Fn(&str),
+) -> Result<Throughput> {
     // Pipeline: a wide sensor, rows replayed.
     let (pw, ph) = if quick { (512, 256) } else { (1024, 1024) };
     progress("pipeline");
@@ -623,8 +656,6 @@ pub fn run_bench(
         |s| s.0.as_secs_f64(),
     )?;
     let per_mpix = |d: Duration| d.as_secs_f64() * 1e3 / ((pw * ph) as f64 / 1e6);
-    let latency = per_mpix(median);
-    let latency_parts = [lp.drain, lp.tally, lp.results, lp.sums, lp.update, lp.ties].map(per_mpix);
 
     progress("pipeline from the software camera");
     let cam_scene = scene_with(scene_file, 128, if quick { 32 } else { 96 }, None)?;
@@ -632,12 +663,45 @@ pub fn run_bench(
         SimSource::new(SoftwareCamera::new(cam_scene), false, 8).map_err(LabError::invalid)?;
     let cam =
         run_sweep(&mut sim, PipelineConfig::default(), None, &|_| {}).map_err(LabError::invalid)?;
-    let from_camera = cam.samples as f64 / cam.stream_time.as_secs_f64();
     progress("software camera alone");
     let (sim_w, sim_h) = if quick { (512, 32) } else { (1024, 64) };
     let simulate =
         crate::simulate::camera_samples_per_s(&scene_with(scene_file, sim_w, sim_h, None)?, sim_h);
+    Ok(Throughput {
+        pipeline,
+        latency: per_mpix(median),
+        latency_parts: [lp.drain, lp.tally, lp.results, lp.sums, lp.update, lp.ties].map(per_mpix),
+        sensor: [pw, ph],
+        from_camera: cam.samples as f64 / cam.stream_time.as_secs_f64(),
+        simulate,
+        simulate_sensor: [sim_w, sim_h],
+    })
+}
 
+/// The methods' times per megapixel (filmscope and the paper's on one sensor, brute force
+/// on a smaller one), and the scene the peers are measured on.
+struct MethodTimes {
+    methods: Vec<Point>,
+    scene: Scene,
+    sensor: [usize; 2],
+    brute_sensor: [usize; 2],
+}
+
+impl MethodTimes {
+    /// Seconds per megapixel of the method labelled `m` (NaN if not measured).
+    fn time(&self, m: &str) -> f64 {
+        self.methods
+            .iter()
+            .find(|f| f.label == m)
+            .map_or(f64::NAN, |f| f.seconds_per_mpix)
+    }
+}
+
+fn bench_methods(
+    scene_file: &SceneFile,
+    quick: bool,
+    progress: &dyn Fn(&str),
+) -> Result<MethodTimes> {
     progress("methods");
     // Large enough that per-megapixel times are the methods' own, not their fixed costs (the
     // sample fit, the band models' tables, thread start-up: at 128 x 96 filmscope's sample
@@ -669,20 +733,42 @@ pub fn run_bench(
         &[setting(Method::Filmscope), setting(Method::Paper)],
     )?;
     methods.extend(measure(&methods_scene(bw, bh)?, &[setting(Method::Brute)])?);
-    let time = |m: &str| {
-        methods
-            .iter()
-            .find(|f| f.label == m)
-            .map_or(f64::NAN, |f| f.seconds_per_mpix)
-    };
+    Ok(MethodTimes {
+        methods,
+        scene: m_scene,
+        sensor: [mw, mh],
+        brute_sensor: [bw, bh],
+    })
+}
+
+/// A measurement made in a child process: its figures, or why there are none.
+fn either<T, E: std::fmt::Display>(r: std::result::Result<T, E>) -> (Option<T>, Option<String>) {
+    match r {
+        Ok(v) => (Some(v), None),
+        Err(e) => (None, Some(e.to_string())),
+    }
+}
+
+/// Runs every measurement. `scene_file` gives the spectra (the paper's MgF2 sample by default).
+pub fn run_bench(
+    scene_file: &SceneFile,
+    quick: bool,
+    progress: &dyn Fn(&str),
+) -> Result<BenchReport> {
+    let min = Duration::from_millis(if quick { 300 } else { 1500 });
+    let kernels = bench_kernels(scene_file, min, progress)?;
+    let through = bench_pipeline(scene_file, quick, progress)?;
+    let times = bench_methods(scene_file, quick, progress)?;
+    let [pw, ph] = through.sensor;
+    let [mw, mh] = times.sensor;
 
     progress("peers: NumPy look-up table and SciPy least_squares (Python)");
-    let peers = crate::lab::peers::run(&m_scene, if quick { 100 } else { 1000 });
+    let peers = crate::lab::peers::run(&times.scene, if quick { 100 } else { 1000 });
     // The peers are given the index: so is filmscope for their ratios.
     progress("filmscope with the index given, on the peers' sweep");
-    let given = measure_index_given(&m_scene)?;
+    let given = measure_index_given(&times.scene)?;
     let given_s = given.seconds_per_mpix;
-    let filmscope_s = time("filmscope");
+    let filmscope_s = times.time("filmscope");
     let speedup_vs_numpy_lut = crate::lab::peers::speedup(peers.numpy_lut.as_ref(), given_s);
     let speedup_vs_scipy = crate::lab::peers::speedup(peers.scipy.as_ref(), given_s);
     let speedup_vs_numpy_lut_index_fitted =
@@ -694,25 +780,16 @@ pub fn run_bench(
     } else {
         (2048, 2048, 5)
     };
-    let (rss, rss_error) = match rss_in_child(scene_file, rw, rh, ra) {
-        Ok(r) => (Some(r), None),
-        Err(e) => (None, Some(e.to_string())),
-    };
+    let (rss, rss_error) = either(rss_in_child(scene_file, rw, rh, ra));
     let (rss_12mp, rss_12mp_error) = if quick {
         (None, None)
     } else {
         progress("peak memory of a 12 MP sweep (child process)");
-        match rss_in_child(scene_file, 4096, 3000, 5) {
-            Ok(r) => (Some(r), None),
-            Err(e) => (None, Some(e.to_string())),
-        }
+        either(rss_in_child(scene_file, 4096, 3000, 5))
     };
     let (ew, eh) = if quick { (256, 256) } else { (1024, 1024) };
     progress("end to end: filmscope estimate on a raw capture on disk (child processes)");
-    let (end_to_end, end_to_end_error) = match end_to_end(scene_file, ew, eh) {
-        Ok(e) => (Some(e), None),
-        Err(e) => (None, Some(e.to_string())),
-    };
+    let (end_to_end, end_to_end_error) = either(end_to_end(scene_file, ew, eh));
     let mpix = (ew * eh) as f64 / 1e6;
     let mut notes = Vec::new();
     if quick {
@@ -721,32 +798,30 @@ pub fn run_bench(
         ));
     }
     let (speedup_vs_brute, speedup_vs_paper) = (
-        time("brute") / time("filmscope"),
-        time("paper") / time("filmscope"),
+        times.time("brute") / filmscope_s,
+        times.time("paper") / filmscope_s,
     );
+    let mut methods = times.methods;
     methods.push(given);
     progress("inspect: last row to verdict published (firmware-sim, demo recipe)");
     let (inspect_latency_ms, inspect_latency_error) =
-        match inspect_latency(None, if quick { 3 } else { 10 }) {
-            Ok(l) => (Some(l), None),
-            Err(e) => (None, Some(e.to_string())),
-        };
+        either(inspect_latency(None, if quick { 3 } else { 10 }));
     Ok(BenchReport {
         quick,
-        scene: kernel_scene.name.clone(),
-        tracker_samples_per_s_per_core: tracker,
-        stream_samples_per_s_per_core: stream,
+        scene: kernels.scene,
+        tracker_samples_per_s_per_core: kernels.tracker,
+        stream_samples_per_s_per_core: kernels.stream,
         wide_simd: filmscope_core::simd::has_avx2_fma(),
-        tracker_portable_samples_per_s_per_core: tracker_portable,
-        stream_portable_samples_per_s_per_core: stream_portable,
-        pipeline_samples_per_s: pipeline,
-        pipeline_from_camera_samples_per_s: from_camera,
-        simulate_samples_per_s: simulate,
-        simulate_sensor: [sim_w, sim_h],
-        solve_pixels_per_s_per_core: solve,
-        latency_ms_per_mpix: latency,
-        latency_parts_ms_per_mpix: latency_parts,
-        pipeline_sensor: [pw, ph],
+        tracker_portable_samples_per_s_per_core: kernels.tracker_portable,
+        stream_portable_samples_per_s_per_core: kernels.stream_portable,
+        pipeline_samples_per_s: through.pipeline,
+        pipeline_from_camera_samples_per_s: through.from_camera,
+        simulate_samples_per_s: through.simulate,
+        simulate_sensor: through.simulate_sensor,
+        solve_pixels_per_s_per_core: kernels.solve,
+        latency_ms_per_mpix: through.latency,
+        latency_parts_ms_per_mpix: through.latency_parts,
+        pipeline_sensor: through.sensor,
         state_bytes_per_pixel: state_bytes_per_pixel(
             IndexSampling::for_sensor(rw, rh, INDEX_PIXELS),
             rw,
@@ -767,8 +842,8 @@ pub fn run_bench(
         rss_12mp_error,
         notes,
         methods,
-        methods_sensor: [mw, mh],
-        brute_sensor: [bw, bh],
+        methods_sensor: times.sensor,
+        brute_sensor: times.brute_sensor,
         speedup_vs_brute,
         speedup_vs_paper,
         speedup_vs_numpy_lut,
@@ -780,26 +855,34 @@ pub fn run_bench(
     })
 }
 
-/// The report as a table.
-pub fn format_table(r: &BenchReport) -> String {
-    let m = |x: f64| format!("{:.1} M", x / 1e6);
-    let k = |x: f64| format!("{:.0} k", x / 1e3);
-    let mut s = String::new();
-    let mut row = |name: &str, value: String, target: &str| {
-        s.push_str(&format!("{name:<44} {value:>14}   {target}\n"));
-    };
-    row("figure", "measured".into(), "target");
-    row(
+/// The bench table's rows: name, measured value, target.
+struct Table(String);
+
+impl Table {
+    fn row(&mut self, name: &str, value: String, target: &str) {
+        self.0
+            .push_str(&format!("{name:<44} {value:>14}   {target}\n"));
+    }
+}
+
+fn mega(x: f64) -> String {
+    format!("{:.1} M", x / 1e6)
+}
+
+/// The kernels', the pipeline's and the software camera's rates, the latency, the state.
+fn rate_rows(t: &mut Table, r: &BenchReport) {
+    let (m, k) = (mega, |x: f64| format!("{:.0} k", x / 1e3));
+    t.row(
         "tracker, samples/s per core",
         m(r.tracker_samples_per_s_per_core),
         ">= 200 M",
     );
-    row(
+    t.row(
         "tracker + sums, samples/s per core",
         m(r.stream_samples_per_s_per_core),
         "",
     );
-    row(
+    t.row(
         "  both, portable build (no AVX2), per core",
         format!(
             "{:.0} / {:.0} M",
@@ -812,7 +895,7 @@ pub fn format_table(r: &BenchReport) -> String {
             "(CPU without AVX2: same)"
         },
     );
-    row(
+    t.row(
         &format!(
             "pipeline, 2 workers, samples/s ({}x{})",
             r.pipeline_sensor[0], r.pipeline_sensor[1]
@@ -820,12 +903,12 @@ pub fn format_table(r: &BenchReport) -> String {
         m(r.pipeline_samples_per_s),
         ">= 150 M",
     );
-    row(
+    t.row(
         "pipeline from the software camera, samples/s",
         m(r.pipeline_from_camera_samples_per_s),
         "(camera-bound)",
     );
-    row(
+    t.row(
         &format!(
             "software camera alone, samples/s ({}x{})",
             r.simulate_sensor[0], r.simulate_sensor[1]
@@ -833,30 +916,34 @@ pub fn format_table(r: &BenchReport) -> String {
         m(r.simulate_samples_per_s),
         ">= 50 M",
     );
-    row(
+    t.row(
         "solve, pixels/s per core (whole sweep)",
         k(r.solve_pixels_per_s_per_core),
         ">= 200 k",
     );
-    row(
+    t.row(
         "latency last row -> maps (paced), ms per Mpix",
         format!("{:.1}", r.latency_ms_per_mpix),
         "<= 50",
     );
     let [drain, tally, results, sums, update, ties] = r.latency_parts_ms_per_mpix;
-    row(
+    t.row(
         "  drain/tally/results/sums/update/ties",
         format!("{drain:.0}/{tally:.0}/{results:.0}/{sums:.0}/{update:.0}/{ties:.0}"),
         "",
     );
     let [sw, sh] = r.state_sensor;
-    row(
+    t.row(
         &format!("state, bytes per pixel ({sw}x{sh})"),
         r.state_bytes_per_pixel.to_string(),
         "(fixed in bands, angles, sweeps)",
     );
+}
+
+/// Peak resident memory of the child sweeps.
+fn memory_rows(t: &mut Table, r: &BenchReport) {
     match (&r.rss, &r.rss_error) {
-        (Some(x), _) => row(
+        (Some(x), _) => t.row(
             &format!(
                 "peak RSS, {}x{} x {} bands x {} angles, MB",
                 x.width, x.height, x.bands, x.angles
@@ -868,11 +955,11 @@ pub fn format_table(r: &BenchReport) -> String {
                 "<= 450 (4 MP, 161 x 5)"
             },
         ),
-        (None, Some(e)) => row("peak RSS", "failed".into(), e),
+        (None, Some(e)) => t.row("peak RSS", "failed".into(), e),
         _ => {}
     }
     match (&r.rss_12mp, &r.rss_12mp_error) {
-        (Some(x), _) => row(
+        (Some(x), _) => t.row(
             &format!(
                 "peak RSS, {}x{} x {} bands x {} angles, MB",
                 x.width, x.height, x.bands, x.angles
@@ -880,9 +967,13 @@ pub fn format_table(r: &BenchReport) -> String {
             format!("{:.0}", x.peak_rss_mb),
             "<= 1536 (12 MP, 161 x 5)",
         ),
-        (None, Some(e)) => row("peak RSS, 12 MP", "failed".into(), e),
-        _ => row("peak RSS, 12 MP", "-".into(), "(not measured with --quick)"),
+        (None, Some(e)) => t.row("peak RSS, 12 MP", "failed".into(), e),
+        _ => t.row("peak RSS, 12 MP", "-".into(), "(not measured with --quick)"),
     }
+}
+
+/// End to end from a capture on disk, filmscope and the paper's method.
+fn end_to_end_rows(t: &mut Table, r: &BenchReport) {
     match (&r.end_to_end, &r.end_to_end_error) {
         (Some(e), _) => {
             let mpix = (e.width * e.height) as f64 / 1e6;
@@ -894,12 +985,12 @@ pub fn format_table(r: &BenchReport) -> String {
                 e.angles,
                 if r.quick { "; --quick: not 1 MP" } else { "" }
             );
-            row(
+            t.row(
                 "end to end from disk, s per Mpix",
                 format!("{:.2}", e.filmscope_seconds / mpix),
                 &target,
             );
-            row(
+            t.row(
                 "  paper method, same capture, s per Mpix",
                 e.paper_seconds
                     .map_or_else(|| "failed".into(), |s| format!("{:.2}", s / mpix)),
@@ -908,21 +999,25 @@ pub fn format_table(r: &BenchReport) -> String {
                     .unwrap_or("(slower than filmscope's)"),
             );
         }
-        (None, Some(e)) => row("end to end from disk", "failed".into(), e),
+        (None, Some(e)) => t.row("end to end from disk", "failed".into(), e),
         _ => {}
     }
-    row(
+}
+
+/// Speed-ups over the baselines and the peers, and the line's inspect latency.
+fn speedup_rows(t: &mut Table, r: &BenchReport) {
+    t.row(
         "speedup vs brute (s per Mpix)",
         format!("{:.0}x", r.speedup_vs_brute),
         ">= 100x",
     );
-    row(
+    t.row(
         "speedup vs paper (s per Mpix)",
         format!("{:.1}x", r.speedup_vs_paper),
         "",
     );
     let times = |x: Option<f64>| x.map_or_else(|| "-".into(), |x| format!("{x:.0}x"));
-    row(
+    t.row(
         "speedup vs NumPy LUT / SciPy (n given to all)",
         format!(
             "{} / {}",
@@ -931,7 +1026,7 @@ pub fn format_table(r: &BenchReport) -> String {
         ),
         ">= 20x / 200x",
     );
-    row(
+    t.row(
         "  vs NumPy LUT, filmscope fitting n itself",
         times(r.speedup_vs_numpy_lut_index_fitted),
         "",
@@ -941,16 +1036,19 @@ pub fn format_table(r: &BenchReport) -> String {
             let mut v = l.clone();
             v.sort_by(f64::total_cmp);
             let target = format!("(median / max of {}; 32x24 sim)", v.len());
-            row(
+            t.row(
                 "inspect, last row -> verdict published, ms",
                 format!("{:.0} / {:.0}", v[v.len() / 2], v[v.len() - 1]),
                 &target,
             );
         }
-        (_, Some(e)) => row("inspect latency", "failed".into(), e),
+        (_, Some(e)) => t.row("inspect latency", "failed".into(), e),
         _ => {}
     }
-    s.push('\n');
+}
+
+/// The methods' table (time, index and thickness errors, valid pixels), the peers', notes.
+fn methods_table(s: &mut String, r: &BenchReport) {
     s.push_str(&format!(
         "{:<18} {:>12} {:>10} {:>10} {:>7} {:>9}\n",
         "method", "s per Mpix", "|n err|", "MAE nm", "valid", "sensor"
@@ -982,6 +1080,19 @@ pub fn format_table(r: &BenchReport) -> String {
     for n in &r.notes {
         s.push_str(&format!("note: {n}\n"));
     }
+}
+
+/// The report as a table.
+pub fn format_table(r: &BenchReport) -> String {
+    let mut t = Table(String::new());
+    t.row("figure", "measured".into(), "target");
+    rate_rows(&mut t, r);
+    memory_rows(&mut t, r);
+    end_to_end_rows(&mut t, r);
+    speedup_rows(&mut t, r);
+    let mut s = t.0;
+    s.push('\n');
+    methods_table(&mut s, r);
     s
 }
 
@@ -1002,4 +1113,18 @@ pub fn write_dated(dir: &Path, quick: bool, table: &str, json: &str) -> Result<(
     crate::io::write_atomic(&js, format!("{json}\n").as_bytes())
         .map_err(LabError::file(&js, "write"))?;
     Ok((md, js))
+}
+
+#[cfg(test)]
+mod tests {
+    /// The dated bench file's table is the table of its JSON, as `format_table` writes it.
+    #[test]
+    fn the_dated_table_is_its_jsons() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/bench");
+        let json = std::fs::read_to_string(dir.join("2026-11-28.json")).expect("bench JSON");
+        let md = std::fs::read_to_string(dir.join("2026-11-28.md")).expect("bench table");
+        let report: super::BenchReport = serde_json::from_str(&json).expect("a bench report");
+        let table = super::format_table(&report);
+        assert!(md.contains(&table), "{table}");
+    }
 }

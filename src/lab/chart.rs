@@ -107,7 +107,7 @@ pub fn settings(quick: bool) -> Vec<Setting> {
 }
 
 /// One run's cost and accuracy.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct Point {
     /// The method.
     pub method: String,

@@ -46,7 +46,7 @@ impl PeerRun {
 }
 
 /// Both peers on one capture, or why they did not run.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 pub struct Peers {
     /// `numpy_lut.py`.
     pub numpy_lut: Option<PeerRun>,
