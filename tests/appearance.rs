@@ -6,6 +6,7 @@
 use crate::common;
 
 use common::{colour_fixture_rows, estimated_tiny, filmscope, run_ok, s, tempdir};
+use filmscope::appearance::compare::CompareRecord;
 use filmscope::appearance::render::{display_rgb, FLAG_COLOUR};
 use filmscope::appearance::spectral::FilmColour;
 use filmscope::colour::{srgb_to_u8, xyz_to_srgb_balanced, Colorimetry, Illuminant};
@@ -107,17 +108,19 @@ fn white_balance_makes_white_white_under_every_illuminant() {
     assert_eq!(display_rgb(nan, Illuminant::A.white(), 3.0), FLAG_COLOUR);
 }
 
-fn compare_json(est: &std::path::Path) -> serde_json::Value {
+/// Runs `compare` on `est` and reads its `compare.json` back as the record it is.
+fn compare_json(est: &std::path::Path) -> CompareRecord {
     run_ok(&["compare", s(est)]);
-    let text = std::fs::read_to_string(est.join("compare.json")).expect("compare.json");
-    serde_json::from_str(&text).expect("json")
+    read_compare(est)
 }
 
-fn overall(v: &serde_json::Value) -> (f64, f64) {
-    (
-        v["overall"]["mean"].as_f64().expect("mean"),
-        v["overall"]["p95"].as_f64().expect("p95"),
-    )
+fn read_compare(est: &std::path::Path) -> CompareRecord {
+    let text = std::fs::read_to_string(est.join("compare.json")).expect("compare.json");
+    serde_json::from_str(&text).expect("compare.json is a CompareRecord")
+}
+
+fn overall(v: &CompareRecord) -> (f64, f64) {
+    (v.overall.mean, v.overall.p95)
 }
 
 #[test]
@@ -128,8 +131,8 @@ fn noise_free_capture_is_reproduced_to_a_hundredth_of_a_unit() {
     let (mean, p95) = overall(&v);
     // Measured 0.008 / 0.012: only the estimate's own error is left.
     assert!(mean < 0.05 && p95 < 0.1, "mean {mean}, p95 {p95}");
-    assert_eq!(v["band_limited_nm"], serde_json::json!([420.0, 720.0]));
-    assert_eq!(v["per_angle"].as_array().map(Vec::len), Some(4));
+    assert_eq!(v.band_limited_nm, [420.0, 720.0]);
+    assert_eq!(v.per_angle.len(), 4);
     let png = image::open(est.join("compare.png")).expect("compare.png decodes");
     assert!(png.width() > 500 && png.height() > 300);
 }
@@ -188,12 +191,8 @@ fn compare_writes_lab_and_ciede2000_rasters() {
     let dir = tempdir();
     let (_, est) = estimated_tiny(dir.path(), false);
     run_ok(&["compare", s(&est), "--envi"]);
-    let v: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(est.join("compare.json")).expect("compare.json"),
-    )
-    .expect("json");
-    for a in v["per_angle"].as_array().expect("angles") {
-        let deg = a["incidence_deg"].as_f64().expect("angle");
+    for a in &read_compare(&est).per_angle {
+        let deg = a.incidence_deg;
         let cube =
             filmscope::io::read_cube(est.join(format!("lab-{deg:02.0}.hdr"))).expect("raster");
         assert_eq!(cube.bands, 7);
@@ -206,7 +205,7 @@ fn compare_writes_lab_and_ciede2000_rasters() {
             .map(|&x| f64::from(x))
             .collect();
         let mean = de.iter().sum::<f64>() / de.len() as f64;
-        let printed = a["mean"].as_f64().expect("mean");
+        let printed = a.stats.mean;
         assert!((mean - printed).abs() < 1e-4, "{deg}: {mean} vs {printed}");
         for b in [0, 3] {
             assert!(plane(b)

@@ -27,7 +27,6 @@ use std::path::{Path, PathBuf};
 use crossbeam_channel::bounded;
 use filmscope_core::colour::{delta_e2000, Colorimetry, Illuminant, Xyz};
 use filmscope_core::optics::{FilmStack, Passband};
-use serde_json::json;
 
 use super::film::SampleFilm;
 use super::render::{auto_exposure, blit, display_rgb, sample_grid, swatch_note, upscale};
@@ -54,8 +53,46 @@ pub struct AngleComparison {
     pub stats: DeltaStats,
 }
 
+/// How `compare` sets the measured colour beside the reproduced one, as `compare.json`
+/// states it.
+const APPROACH: &str = "measured reflectance at the capture's bands and the film model averaged over the same passbands, both interpolated onto the CIE 5 nm grid and summed only within the bands (white = perfect reflector over the same range); pixels with a reliable thickness and a fully usable measured spectrum";
+
+/// `compare.json`: what was compared and how, then the CIEDE2000 figures over all angles
+/// and per angle.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CompareRecord {
+    /// The colour difference, `CIEDE2000`.
+    pub metric: String,
+    /// The illuminant's name.
+    pub illuminant: String,
+    /// The standard observer.
+    pub observer: String,
+    /// The band the colours are summed over, nm.
+    pub band_limited_nm: [f64; 2],
+    /// How measured and reproduced colours are formed, in words.
+    pub approach: String,
+    /// Map width, pixels.
+    pub width: usize,
+    /// Map height, pixels.
+    pub height: usize,
+    /// Over every angle.
+    pub overall: DeltaStats,
+    /// Per incidence angle, in the capture's order.
+    pub per_angle: Vec<AngleRecord>,
+}
+
+/// One angle's figures in `compare.json`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct AngleRecord {
+    /// Incidence angle, degrees.
+    pub incidence_deg: f64,
+    /// Its CIEDE2000 figures.
+    #[serde(flatten)]
+    pub stats: DeltaStats,
+}
+
 /// Mean, median and 95th percentile of a set of colour differences.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct DeltaStats {
     /// Number of pixels compared.
     pub pixels: usize,
@@ -457,27 +494,27 @@ impl Comparison {
         Ok(written)
     }
 
-    /// The figures as JSON (`compare.json`): the approach, then per angle and overall
-    /// mean / median / p95 CIEDE2000.
-    pub fn to_json(&self) -> serde_json::Value {
+    /// The figures as `compare.json` records them.
+    pub fn record(&self) -> CompareRecord {
         let (lo, hi) = self.colorimetry.range_nm();
-        json!({
-            "metric": "CIEDE2000",
-            "illuminant": self.colorimetry.illuminant().name(),
-            "observer": "CIE 1931 2 degree",
-            "band_limited_nm": [lo, hi],
-            "approach": "measured reflectance at the capture's bands and the film model averaged over the same passbands, both interpolated onto the CIE 5 nm grid and summed only within the bands (white = perfect reflector over the same range); pixels with a reliable thickness and a fully usable measured spectrum",
-            "width": self.width,
-            "height": self.height,
-            "overall": self.overall,
-            "per_angle": self.angles.iter().map(|a| json!({
-                "incidence_deg": a.incidence_deg,
-                "pixels": a.stats.pixels,
-                "mean": a.stats.mean,
-                "median": a.stats.median,
-                "p95": a.stats.p95,
-            })).collect::<Vec<_>>(),
-        })
+        CompareRecord {
+            metric: "CIEDE2000".into(),
+            illuminant: self.colorimetry.illuminant().name().into(),
+            observer: "CIE 1931 2 degree".into(),
+            band_limited_nm: [lo, hi],
+            approach: APPROACH.into(),
+            width: self.width,
+            height: self.height,
+            overall: self.overall,
+            per_angle: self
+                .angles
+                .iter()
+                .map(|a| AngleRecord {
+                    incidence_deg: a.incidence_deg,
+                    stats: a.stats,
+                })
+                .collect(),
+        }
     }
 
     /// The figure: per angle (rows), measured | reproduced | CIEDE2000 map, with one

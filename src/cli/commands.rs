@@ -728,7 +728,7 @@ pub fn compare(
         }
     }
     let json_path = dir.join("compare.json");
-    let text = serde_json::to_string_pretty(&cmp.to_json())?;
+    let text = serde_json::to_string_pretty(&cmp.record())?;
     write_atomic(&json_path, text.as_bytes())
         .with_context(|| format!("{}: cannot write", json_path.display()))?;
     let (lo, hi) = cmp.colorimetry.range_nm();
