@@ -392,15 +392,15 @@ fn end_to_end_in(scene: &Scene, dir: &Path) -> Result<EndToEnd> {
 pub fn inspect_latency(rig: Option<&Path>, samples: u64) -> Result<Vec<f64>, InspectError> {
     let path = Path::new("config/recipes/demo.toml");
     let mut recipe = Recipe::parse(include_str!("../../config/recipes/demo.toml"), path)
-        .map_err(|e| InspectError(e.to_string()))?;
+        .map_err(|e| InspectError::Stopped(e.to_string()))?;
     recipe.mqtt = None;
     recipe.status = None;
     recipe.modbus = None;
-    let rig = RigConfig::load_or_builtin(rig).map_err(|e| InspectError(e.to_string()))?;
+    let rig = RigConfig::load_or_builtin(rig).map_err(|e| InspectError::Stopped(e.to_string()))?;
     let tmp = tempfile::Builder::new()
         .prefix("filmscope-bench-inspect-")
         .tempdir()
-        .map_err(|e| InspectError(format!("cannot create a temporary folder: {e}")))?;
+        .map_err(|e| InspectError::Stopped(format!("cannot create a temporary folder: {e}")))?;
     let out = tmp.path().join("out");
     let result = (|| {
         let mut line = Line::open(InspectOptions {

@@ -55,13 +55,18 @@ use lock::{take_lock, DirLock};
 
 /// An inspection that cannot go on: one line.
 #[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct InspectError(pub String);
-
-/// How a disk-full error begins.
-const DISK_FULL: &str = "disk full";
-/// The error of a start-up a signal stopped.
-const INTERRUPTED: &str = "stopped by a signal during start-up; nothing measured";
+pub enum InspectError {
+    /// SIGINT or SIGTERM stopped the start-up.
+    #[error("stopped by a signal during start-up; nothing measured")]
+    Interrupted,
+    /// The disk is full or below the recipe's free-space floor: measuring stops, no record
+    /// is lost (those not appended wait in memory).
+    #[error("disk full: {0}")]
+    DiskFull(String),
+    /// Anything else that stops the line (a recipe, a device, a file, a port), named.
+    #[error("{0}")]
+    Stopped(String),
+}
 
 /// Samples whose latencies the closing summary's median and p95 are taken over (8 bytes
 /// each: the window, not the run's length, bounds the memory).
@@ -70,12 +75,12 @@ const LATENCY_WINDOW: usize = 4096;
 impl InspectError {
     /// Whether start-up was stopped by SIGINT/SIGTERM.
     pub fn is_interrupted(&self) -> bool {
-        self.0 == INTERRUPTED
+        matches!(self, Self::Interrupted)
     }
 
     /// Whether the line stopped because its disk is full or below its free-space floor.
     pub fn is_disk_full(&self) -> bool {
-        self.0.starts_with(DISK_FULL)
+        matches!(self, Self::DiskFull(_))
     }
 }
 
@@ -86,7 +91,7 @@ pub fn available_bytes(path: &Path) -> std::io::Result<u64> {
 }
 
 fn ie(what: &str) -> impl FnOnce(&dyn std::fmt::Display) -> InspectError + '_ {
-    move |e| InspectError(format!("{what}: {e}"))
+    move |e| InspectError::Stopped(format!("{what}: {e}"))
 }
 
 /// What `inspect` is told.
@@ -188,7 +193,7 @@ struct Opened {
 /// Fails with the interrupted start-up's error once `stop` is set.
 fn go_on(stop: &AtomicBool) -> Result<(), InspectError> {
     if stop.load(Ordering::SeqCst) {
-        Err(InspectError(INTERRUPTED.into()))
+        Err(InspectError::Interrupted)
     } else {
         Ok(())
     }
@@ -215,7 +220,7 @@ impl Opened {
                 opts.rig.camera.width as usize,
                 opts.rig.camera.height as usize,
             )
-            .map_err(|e| InspectError(format!("{}: {e}", opts.recipe_path.display())))?;
+            .map_err(|e| InspectError::Stopped(format!("{}: {e}", opts.recipe_path.display())))?;
         let r = &opts.recipe.retention;
         let (log, recovered) = ResultsLog::open(
             out,
@@ -223,7 +228,7 @@ impl Opened {
             r.results_keep,
             opts.recipe.spc.history,
         )
-        .map_err(|e| InspectError(e.to_string()))?;
+        .map_err(|e| InspectError::Stopped(e.to_string()))?;
         Ok(Self {
             samples_dir,
             lock,
@@ -321,14 +326,11 @@ impl Line {
         if !self.opts.sim {
             return Ok(None);
         }
-        let sim = self
-            .opts
-            .rig
-            .sim
-            .clone()
-            .ok_or_else(|| InspectError("--sim needs a [sim] table in the rig file".into()))?;
+        let sim = self.opts.rig.sim.clone().ok_or_else(|| {
+            InspectError::Stopped("--sim needs a [sim] table in the rig file".into())
+        })?;
         let o = sim_options(&self.opts.rig, &sim.scene, sim.speed)
-            .map_err(|e| InspectError(e.to_string()))?;
+            .map_err(|e| InspectError::Stopped(e.to_string()))?;
         let s = &self.opts.recipe.sim;
         let mut seq = SampleSequence::new(o.scene, s.seed);
         seq.drift_nm_per_sample = s.drift_nm_per_sample;
@@ -351,7 +353,7 @@ impl Line {
             }
             Err(e) => {
                 self.say(&format!("stop: {e}"));
-                Err(InspectError(e.to_string()))
+                Err(InspectError::Stopped(e.to_string()))
             }
         }
     }
@@ -386,7 +388,7 @@ impl Line {
             // A page the recipe asks for and nobody could reach would go unnoticed.
             Err(e) => {
                 self.say(&format!("stop: {e}"));
-                Err(InspectError(e.to_string()))
+                Err(InspectError::Stopped(e.to_string()))
             }
         }
     }
@@ -441,7 +443,7 @@ impl Line {
     /// not acknowledged (after the last stored acknowledgement).
     fn start_mqtt(&mut self, m: &super::recipe::MqttSpec) -> Result<(), InspectError> {
         let out = self.opts.out.clone();
-        let acked = match AckState::load(&out).map_err(|e| InspectError(e.to_string()))? {
+        let acked = match AckState::load(&out).map_err(|e| InspectError::Stopped(e.to_string()))? {
             Some(a) => a.acked_seq.min(self.seq),
             None => {
                 // MQTT newly configured: the records before it are not sent.
@@ -460,12 +462,12 @@ impl Line {
             if m.ca_file.is_some() { " over TLS" } else { "" },
             m.prefix
         ));
-        let publisher =
-            MqttPublisher::connect(m, &out, acked).map_err(|e| InspectError(e.to_string()))?;
+        let publisher = MqttPublisher::connect(m, &out, acked)
+            .map_err(|e| InspectError::Stopped(e.to_string()))?;
         let r = &self.opts.recipe.retention;
         let (backlog, left_out) =
             super::stream::records_after(&out, r.results_keep, acked, m.spool_records)
-                .map_err(|e| InspectError(e.to_string()))?;
+                .map_err(|e| InspectError::Stopped(e.to_string()))?;
         if !backlog.is_empty() {
             self.say(&format!(
                 "mqtt: {} record(s) not acknowledged before the last stop queued again (seq {} to {}){}",
@@ -595,7 +597,7 @@ impl Line {
         names.sort();
         for n in names {
             if self.opts.stop.load(Ordering::SeqCst) {
-                return Err(InspectError(INTERRUPTED.into()));
+                return Err(InspectError::Interrupted);
             }
             let p = self.samples_dir.join(&n);
             if n.starts_with(".tmp-") {
@@ -615,7 +617,7 @@ impl Line {
             {
                 Some(mut r) => {
                     self.log_append(&mut r)
-                        .map_err(|e| InspectError(e.to_string()))?;
+                        .map_err(|e| InspectError::Stopped(e.to_string()))?;
                     self.say(&format!("recovered: record of {n} appended"));
                     records.push_back(r);
                 }
@@ -703,10 +705,11 @@ impl Line {
         if free >= floor {
             return Ok(());
         }
-        let text = format!(
-            "{DISK_FULL}: {} has {free} bytes free, below retention.min_free_bytes = {floor}; measuring stopped (free space, then restart)",
+        let reason = format!(
+            "{} has {free} bytes free, below retention.min_free_bytes = {floor}; measuring stopped (free space, then restart)",
             self.opts.out.display()
         );
+        let text = InspectError::DiskFull(reason.clone()).to_string();
         let alarm = AlarmRecord {
             floor: Some(floor),
             ..self.fault_alarm(
@@ -721,14 +724,14 @@ impl Line {
             s.last_error = plc::ErrorCode::DiskFull;
         });
         self.raise_alarm(alarm);
-        Err(InspectError(text))
+        Err(InspectError::DiskFull(reason))
     }
 
     /// Appends the records a full disk held back, oldest first.
     fn append_unlogged(&mut self) -> Result<(), InspectError> {
         while let Some(mut r) = self.unlogged.front().cloned() {
             self.log_append(&mut r)
-                .map_err(|e| InspectError(format!("records wait to be appended: {e}")))?;
+                .map_err(|e| InspectError::Stopped(format!("records wait to be appended: {e}")))?;
             self.unlogged.pop_front();
             self.say(&format!(
                 "recovered: record of {} appended",
@@ -753,13 +756,13 @@ impl Line {
     fn append_record(&mut self, record: &mut Record) -> Result<(), InspectError> {
         if !self.unlogged.is_empty() {
             self.unlogged.push_back(record.clone());
-            return Err(InspectError(
+            return Err(InspectError::Stopped(
                 "records wait to be appended before this one".into(),
             ));
         }
         self.log_append(record).map_err(|e| {
             self.unlogged.push_back(record.clone());
-            InspectError(e.to_string())
+            InspectError::Stopped(e.to_string())
         })
     }
 
@@ -770,11 +773,12 @@ impl Line {
         }
         let floor = self.opts.recipe.retention.min_free_bytes;
         let free = available_bytes(&self.opts.out).ok();
-        let enospc = e.0.contains("os error 28") || e.0.contains("No space left");
+        let message = e.to_string();
+        let enospc = message.contains("os error 28") || message.contains("No space left");
         if enospc || free.is_some_and(|f| f < floor) {
             let free = free.map_or("an unknown number of".into(), |f| f.to_string());
-            InspectError(format!(
-                "{DISK_FULL}: {} has {free} bytes free (floor {floor}): {e}",
+            InspectError::DiskFull(format!(
+                "{} has {free} bytes free (floor {floor}): {e}",
                 self.opts.out.display()
             ))
         } else {
@@ -789,7 +793,7 @@ impl Line {
     /// over the rig's whole index range, not held to the line's.
     pub fn check_reference(&mut self) -> Result<ReferenceRecord, InspectError> {
         let spec = self.opts.recipe.reference.clone().ok_or_else(|| {
-            InspectError(format!(
+            InspectError::Stopped(format!(
                 "{}: --reference needs a [reference] table (name, thickness_nm, index, tolerance_nm, tolerance_index)",
                 self.opts.recipe_path.display()
             ))
@@ -807,7 +811,7 @@ impl Line {
             self.say(&format!("device error: reference {}: {e}", spec.name));
         })?;
         write_outputs_into(&tmp, &run, &format!("inspect reference {}", spec.name))
-            .map_err(|e| InspectError(e.to_string()))?;
+            .map_err(|e| InspectError::Stopped(e.to_string()))?;
         let _ = std::fs::remove_dir_all(tmp.join("capture"));
         let folder = dir.join(&id);
         let _ = std::fs::remove_dir_all(&folder);
@@ -925,8 +929,8 @@ impl Line {
         let run = &swept.run;
         let (w, h) = (run.spec.width, run.spec.height);
         let label = format!("inspect sample {}", record.sample_id);
-        let mut summary =
-            write_outputs_into(tmp, run, &label).map_err(|e| InspectError(e.to_string()))?;
+        let mut summary = write_outputs_into(tmp, run, &label)
+            .map_err(|e| InspectError::Stopped(e.to_string()))?;
         write_mask(tmp, w, h, v)?;
         let png = overlay_png(&self.opts.recipe, w, h, &run.result.thickness_nm, v)?;
         let png_path = tmp.join("overlay.png");
@@ -934,10 +938,11 @@ impl Line {
         self.complete_summary(&mut summary, record, v, swept.log.clone());
         summary
             .write(tmp)
-            .map_err(|e| InspectError(e.to_string()))?;
+            .map_err(|e| InspectError::Stopped(e.to_string()))?;
         let capture = tmp.join("capture");
         if record.raw_kept {
-            retention::references_to_u16(&capture).map_err(|e| InspectError(e.to_string()))?;
+            retention::references_to_u16(&capture)
+                .map_err(|e| InspectError::Stopped(e.to_string()))?;
         } else {
             let _ = std::fs::remove_dir_all(&capture);
         }
@@ -1091,13 +1096,13 @@ impl Line {
             let sim = cfg
                 .sim
                 .clone()
-                .ok_or_else(|| InspectError("no [sim]".into()))?;
+                .ok_or_else(|| InspectError::Stopped("no [sim]".into()))?;
             let mut o = firmware_sim::serve::RigOptions::new(scene);
             o.speed = sim.speed;
             o.steps_per_deg = cfg.stage.steps_per_deg;
             o.stage_limits_deg = cfg.stage.limits_deg;
             let (sim_rig, rig) =
-                open_sim_with(&mut cfg, o).map_err(|e| InspectError(e.to_string()))?;
+                open_sim_with(&mut cfg, o).map_err(|e| InspectError::Stopped(e.to_string()))?;
             _sim = Some(sim_rig);
             rig
         } else {
@@ -1107,14 +1112,14 @@ impl Line {
                 )),
                 None => None,
             };
-            crate::rig::open(&cfg, wheel).map_err(|e| InspectError(e.to_string()))?
+            crate::rig::open(&cfg, wheel).map_err(|e| InspectError::Stopped(e.to_string()))?
         };
         let total = (cfg.sweep.angles_deg.len()
             * cfg.sweep.bands().len()
             * cfg.camera.height as usize) as u64;
         let capture_dir = tmp.join("capture");
-        let mut acq =
-            Acquisition::new(rig, cfg, &capture_dir).map_err(|e| InspectError(e.to_string()))?;
+        let mut acq = Acquisition::new(rig, cfg, &capture_dir)
+            .map_err(|e| InspectError::Stopped(e.to_string()))?;
         let last_row = LastRow::new(total);
         let run = jobs::estimate::run(
             &mut acq,
@@ -1125,7 +1130,7 @@ impl Line {
         )
         .map_err(|e| {
             let cause = e.cause();
-            InspectError(format!(
+            InspectError::Stopped(format!(
                 "acquisition stopped: {cause}; {} complete angle(s)",
                 acq.log.angles_done_deg.len()
             ))
@@ -1147,12 +1152,13 @@ impl Line {
         if !disagree {
             return Ok(swept);
         }
-        let mut cap = Capture::load(&capture_dir).map_err(|e| InspectError(e.to_string()))?;
+        let mut cap =
+            Capture::load(&capture_dir).map_err(|e| InspectError::Stopped(e.to_string()))?;
         cap.search.index_range = Some(full);
-        let mut src = CaptureSource::new(cap).map_err(|e| InspectError(e.to_string()))?;
+        let mut src = CaptureSource::new(cap).map_err(|e| InspectError::Stopped(e.to_string()))?;
         let label = capture_dir.display().to_string();
         swept.run = jobs::estimate::run(&mut src, &Settings::default(), None, &label, &Quiet)
-            .map_err(|e| InspectError(format!("re-solve: {e}")))?;
+            .map_err(|e| InspectError::Stopped(format!("re-solve: {e}")))?;
         swept.resolved = true;
         Ok(swept)
     }

@@ -47,5 +47,5 @@ pub fn overlay_png(
         .collect();
     let scale = (320 / w.max(1)).clamp(1, 16);
     crate::export::png::render_rgb_png(w, h, &rgb, scale)
-        .map_err(|e| InspectError(format!("overlay: {e}")))
+        .map_err(|e| InspectError::Stopped(format!("overlay: {e}")))
 }

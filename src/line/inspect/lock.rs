@@ -36,7 +36,7 @@ pub(super) fn take_lock(out: &Path) -> Result<DirLock, InspectError> {
                             .is_ok_and(|c| String::from_utf8_lossy(&c).contains("inspect"))
                 });
                 if alive {
-                    return Err(InspectError(format!(
+                    return Err(InspectError::Stopped(format!(
                         "{}: another inspect (pid {}) writes this folder",
                         path.display(),
                         pid.unwrap_or(0)
@@ -48,7 +48,7 @@ pub(super) fn take_lock(out: &Path) -> Result<DirLock, InspectError> {
             Err(e) => return Err(ie(&path.display().to_string())(&e)),
         }
     }
-    Err(InspectError(format!(
+    Err(InspectError::Stopped(format!(
         "{}: cannot take the lock",
         path.display()
     )))
