@@ -61,11 +61,15 @@ fn px(img: &RgbImage, x: usize, y: usize) -> [u8; 3] {
     img.get_pixel(x as u32, y as u32).0
 }
 
-/// The top-left corner of the map: the first grey pixel in raster order, which is the
-/// NaN block at map pixel (0, 0) (nothing above or left of the map is grey).
+/// The top-left corner of the map: in raster order the first grey pixel that starts a
+/// whole upscaled block of grey, the NaN block at map pixel (0, 0) (the title's
+/// anti-aliased text has grey pixels, never a block of them).
 fn map_origin(img: &RgbImage) -> Option<(usize, usize)> {
+    let grey =
+        |x: u32, y: u32| x < img.width() && y < img.height() && img.get_pixel(x, y).0 == NO_DATA;
+    let k = K as u32;
     img.enumerate_pixels()
-        .find(|(_, _, p)| p.0 == NO_DATA)
+        .find(|&(x, y, _)| (0..k).all(|d| (0..k).all(|e| grey(x + d, y + e))))
         .map(|(x, y, _)| (x as usize, y as usize))
 }
 

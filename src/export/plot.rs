@@ -234,8 +234,8 @@ pub fn write_heatmap_panels_png(
 
 /// The font family every text style names; registered with plotters' `ab_glyph` backend.
 const FAMILY: &str = "sans-serif";
-/// DejaVu Sans 2.37 (Bitstream Vera licence, `fonts/DejaVuSans-LICENSE.txt`).
-const FONT: &[u8] = include_bytes!("fonts/DejaVuSans.ttf");
+/// The one font of every picture ([`super::canvas::FONT`]).
+const FONT: &[u8] = super::canvas::FONT;
 
 /// Registers [`FONT`] under [`FAMILY`] once; every renderer calls this first.
 fn font_registered() -> Result<(), PreviewError> {
