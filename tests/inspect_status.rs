@@ -154,7 +154,7 @@ fn api_and_metrics_answer_over_http() {
         format!("filmscope_samples_failed_total{labels} 1"),
         format!("filmscope_alarms_total{labels} 1"),
         format!("filmscope_last_pass{labels} 0"),
-        format!("filmscope_last_thickness_mean_nm{labels} 640"),
+        format!("filmscope_last_thickness_mean_nm{labels} 640.0"),
         format!("filmscope_thickness_cpk{labels} 1.5"),
         "# TYPE filmscope_samples_total counter".to_owned(),
         "# TYPE filmscope_latency_seconds histogram".to_owned(),

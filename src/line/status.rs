@@ -17,6 +17,7 @@
 //! ([`StatusState::load`]) once `inspect` has stopped.
 
 use super::folder::{FolderError, FolderProblem};
+use std::borrow::Cow;
 use std::collections::VecDeque;
 use std::convert::Infallible;
 use std::net::SocketAddr;
@@ -28,6 +29,11 @@ use http_body_util::Full;
 use hyper::body::{Bytes, Incoming};
 use hyper::{Method, Request, Response, StatusCode};
 use hyper_util::rt::{TokioIo, TokioTimer};
+use prometheus_client::encoding::{EncodeMetric, MetricEncoder, NoLabelSet};
+use prometheus_client::metrics::counter::ConstCounter;
+use prometheus_client::metrics::gauge::ConstGauge;
+use prometheus_client::metrics::MetricType;
+use prometheus_client::registry::Registry;
 use serde::Serialize;
 use serde_json::Value;
 
@@ -563,7 +569,7 @@ fn route(url: &str, st: &Mutex<StatusState>) -> (Vec<u8>, &'static str, u16) {
         }
         "/api/latest" => (latest(&s).into_bytes(), "application/json", 200),
         "/api/history" => (s.history.to_string().into_bytes(), "application/json", 200),
-        "/metrics" => (metrics(&s).into_bytes(), "text/plain; version=0.0.4", 200),
+        "/metrics" => (metrics(&s).into_bytes(), METRICS_CONTENT_TYPE, 200),
         "/latest.png" => match &s.latest_png {
             Some(p) => (p.clone(), "image/png", 200),
             None => (b"no sample yet".to_vec(), "text/plain", 404),
@@ -593,131 +599,149 @@ fn latest(s: &StatusState) -> String {
     crate::record::to_json(&body).unwrap_or_default()
 }
 
-/// Prometheus text exposition of the counters and the latest sample.
+/// Prometheus text exposition (format 0.0.4, [`METRICS_CONTENT_TYPE`]) of the counters, the
+/// latency histogram, the latest sample and the capability, every series labelled `line`
+/// and `recipe` ([`StatusState::labels`]). A registry of constant metrics is built from the
+/// state at each request, as `filmscope status` serves a state read back from a file.
 fn metrics(s: &StatusState) -> String {
-    let mut m = String::new();
-    let label = |v: &str| {
-        v.replace('\\', "\\\\")
-            .replace('"', "\\\"")
-            .replace('\n', "\\n")
-    };
-    let labels = format!(
-        "line=\"{}\",recipe=\"{}\"",
-        label(&s.labels.0),
-        label(&s.labels.1)
+    let (line, recipe) = s.labels.clone();
+    let mut registry = Registry::with_labels(
+        [
+            (Cow::Borrowed("line"), Cow::Owned(line)),
+            (Cow::Borrowed("recipe"), Cow::Owned(recipe)),
+        ]
+        .into_iter(),
     );
-    // The latency histogram: cumulative buckets, +Inf, sum and count.
+    register_counts(&mut registry, s);
+    register_latest(&mut registry, s);
+    let mut text = String::new();
+    // Writing into a String cannot fail.
+    let _ = prometheus_client::encoding::prometheus_text::encode(&mut text, &registry);
+    text
+}
+
+/// `/metrics`' `Content-Type`: the Prometheus text format, version 0.0.4.
+const METRICS_CONTENT_TYPE: &str = prometheus_client::encoding::prometheus_text::CONTENT_TYPE;
+
+/// A gauge of the value `v` (the registry ends `help` with a full stop).
+fn gauge(registry: &mut Registry, name: &str, help: &str, v: f64) {
+    registry.register(name, help, ConstGauge::new(v));
+}
+
+/// The latency histogram, the time of the latest sample and the counters since start
+/// (registered as `filmscope_samples` and so on: the encoder adds `_total`).
+fn register_counts(registry: &mut Registry, s: &StatusState) {
     let (buckets, sum) = s.latency;
-    let count = s.counts.samples.max(buckets.iter().sum());
-    m.push_str("# HELP filmscope_latency_seconds Last row of the sweep to the verdict published.\n# TYPE filmscope_latency_seconds histogram\n");
-    let mut cumulative = 0;
-    for (le, n) in LATENCY_BUCKETS_S.iter().zip(buckets) {
-        cumulative += n;
-        m.push_str(&format!(
-            "filmscope_latency_seconds_bucket{{{labels},le=\"{le}\"}} {cumulative}\n"
-        ));
-    }
-    m.push_str(&format!(
-        "filmscope_latency_seconds_bucket{{{labels},le=\"+Inf\"}} {count}\nfilmscope_latency_seconds_sum{{{labels}}} {sum}\nfilmscope_latency_seconds_count{{{labels}}} {count}\n"
-    ));
-    let mut put = |name: &str, kind: &str, help: &str, v: f64| {
-        m.push_str(&format!(
-            "# HELP {name} {help}\n# TYPE {name} {kind}\n{name}{{{labels}}} {v}\n"
-        ));
-    };
+    registry.register(
+        "filmscope_latency_seconds",
+        "Last row of the sweep to the verdict published",
+        LatencyHistogram {
+            buckets: LATENCY_BUCKETS_S.iter().copied().zip(buckets).collect(),
+            sum,
+            count: s.counts.samples.max(buckets.iter().sum()),
+        },
+    );
     if let Some(t) = s.latest_at {
         let secs = t
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(f64::NAN, |d| d.as_secs_f64());
-        put(
+        gauge(
+            registry,
             "filmscope_last_sample_timestamp_seconds",
-            "gauge",
-            "When the latest sample's verdict was published, Unix time.",
+            "When the latest sample's verdict was published, Unix time",
             secs,
         );
     }
     let c = s.counts;
-    put(
-        "filmscope_samples_total",
-        "counter",
-        "Samples measured.",
-        c.samples as f64,
-    );
-    put(
-        "filmscope_samples_passed_total",
-        "counter",
-        "Samples that passed.",
-        c.passed as f64,
-    );
-    put(
-        "filmscope_samples_failed_total",
-        "counter",
-        "Samples that failed.",
-        c.failed as f64,
-    );
-    put(
-        "filmscope_alarms_total",
-        "counter",
-        "Run-rule alarms raised.",
-        c.alarms as f64,
-    );
+    for (name, help, n) in [
+        ("filmscope_samples", "Samples measured", c.samples),
+        ("filmscope_samples_passed", "Samples that passed", c.passed),
+        ("filmscope_samples_failed", "Samples that failed", c.failed),
+        ("filmscope_alarms", "Run-rule alarms raised", c.alarms),
+    ] {
+        registry.register(name, help, ConstCounter::new(n));
+    }
+}
+
+/// The latest sample's verdict, index, thickness, valid share and latency (when there is
+/// one), and the mean thickness's Cpk and Ppk over the history (when it has them).
+fn register_latest(registry: &mut Registry, s: &StatusState) {
     if let Some(l) = &s.latest {
-        let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
-        put(
+        registry.register(
             "filmscope_last_pass",
-            "gauge",
-            "1 if the latest sample passed.",
-            if l.verdict.passed() { 1.0 } else { 0.0 },
+            "1 if the latest sample passed",
+            ConstGauge::new(i64::from(l.verdict.passed())),
         );
-        put(
-            "filmscope_last_refractive_index",
-            "gauge",
-            "Index of the latest sample.",
-            f(l.refractive_index),
-        );
-        put(
-            "filmscope_last_thickness_mean_nm",
-            "gauge",
-            "Mean thickness of the latest sample, nm.",
-            f(l.thickness_nm.mean),
-        );
-        put(
-            "filmscope_last_thickness_std_nm",
-            "gauge",
-            "Thickness spread of the latest sample, nm.",
-            f(l.thickness_nm.std),
-        );
-        put(
-            "filmscope_last_valid_fraction",
-            "gauge",
-            "Valid share of the latest sample.",
-            l.valid_fraction,
-        );
-        put(
-            "filmscope_last_latency_seconds",
-            "gauge",
-            "Last row to verdict published, latest sample.",
-            l.latency_ms / 1000.0,
-        );
+        let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
+        for (name, help, v) in [
+            (
+                "filmscope_last_refractive_index",
+                "Index of the latest sample",
+                f(l.refractive_index),
+            ),
+            (
+                "filmscope_last_thickness_mean_nm",
+                "Mean thickness of the latest sample, nm",
+                f(l.thickness_nm.mean),
+            ),
+            (
+                "filmscope_last_thickness_std_nm",
+                "Thickness spread of the latest sample, nm",
+                f(l.thickness_nm.std),
+            ),
+            (
+                "filmscope_last_valid_fraction",
+                "Valid share of the latest sample",
+                l.valid_fraction,
+            ),
+            (
+                "filmscope_last_latency_seconds",
+                "Last row to verdict published, latest sample",
+                l.latency_ms / 1000.0,
+            ),
+        ] {
+            gauge(registry, name, help, v);
+        }
     }
     let cap = &s.history["capability"]["thickness_mean_nm"];
-    if let Some(v) = cap["cpk"].as_f64() {
-        put(
+    for (key, name, help) in [
+        (
+            "cpk",
             "filmscope_thickness_cpk",
-            "gauge",
-            "Cpk of the mean thickness over the history.",
-            v,
-        );
-    }
-    if let Some(v) = cap["ppk"].as_f64() {
-        put(
+            "Cpk of the mean thickness over the history",
+        ),
+        (
+            "ppk",
             "filmscope_thickness_ppk",
-            "gauge",
-            "Ppk of the mean thickness over the history.",
-            v,
-        );
+            "Ppk of the mean thickness over the history",
+        ),
+    ] {
+        if let Some(v) = cap[key].as_f64() {
+            gauge(registry, name, help, v);
+        }
     }
-    m
+}
+
+/// The latency histogram as the state holds it (a count per bucket, not cumulative; the
+/// encoder sums them and adds `+Inf` with `count`), for the registry.
+#[derive(Debug)]
+struct LatencyHistogram {
+    /// Each bucket's upper bound, seconds, and its count.
+    buckets: Vec<(f64, u64)>,
+    /// The latencies' sum, seconds.
+    sum: f64,
+    /// Samples, those above the last bound included.
+    count: u64,
+}
+
+impl EncodeMetric for LatencyHistogram {
+    fn encode(&self, mut encoder: MetricEncoder) -> std::fmt::Result {
+        encoder.encode_histogram::<NoLabelSet>(self.sum, self.count, &self.buckets, None)
+    }
+
+    fn metric_type(&self) -> MetricType {
+        MetricType::Histogram
+    }
 }
 
 fn esc(s: &str) -> String {
@@ -837,3 +861,96 @@ tick(); setInterval(tick, 1000);
 </script>
 </body></html>
 "##;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::record::line::{IndexMode, PassFail, ThicknessSummary};
+
+    /// A failed sample of mean thickness `mean` nm, published after `latency_ms`.
+    fn sample(mean: f64, latency_ms: f64) -> SampleRecord {
+        SampleRecord {
+            seq: None,
+            sample_id: "S000001-20261125T230000Z".into(),
+            counter: 1,
+            timestamp: "2026-11-25T23:00:00.000Z".into(),
+            film: "film".into(),
+            recipe: "r.toml".into(),
+            lot: None,
+            operator: None,
+            verdict: PassFail::of(false),
+            reasons: vec!["mean thickness out".into()],
+            refractive_index: None,
+            index_mode: IndexMode::Hold,
+            index_resolved: false,
+            thickness_nm: ThicknessSummary {
+                mean: Some(mean),
+                std: Some(2.5),
+                min: None,
+                max: None,
+            },
+            valid_fraction: 0.75,
+            out_of_tolerance_px: 0,
+            regions: Vec::new(),
+            raw_kept: false,
+            folder: "samples/S000001".into(),
+            latency_ms,
+            version: "0".into(),
+            sim_sample: None,
+        }
+    }
+
+    /// `/metrics` in the Prometheus text format: the labels escaped on every series, the
+    /// counters' `# TYPE` under their `_total` names, the histogram cumulative with a
+    /// latency beyond its last bound counted in `+Inf`, every sample line a name, labels and
+    /// a number.
+    #[test]
+    fn metrics_are_prometheus_text() {
+        let board = StatusBoard::new("film");
+        board.set_labels("line\\7", "zns \"ar\"\n.toml");
+        let history =
+            serde_json::json!({"capability": {"thickness_mean_nm": {"cpk": 1.5, "ppk": 1.25}}});
+        board.publish_sample(&sample(640.0, 12.5), None, history.clone(), &[]);
+        board.publish_sample(&sample(612.25, 30_000.0), None, history, &[]);
+        let m = metrics(&board.lock());
+        let labels = r#"{line="line\\7",recipe="zns \"ar\"\n.toml""#;
+        for line in [
+            "# TYPE filmscope_latency_seconds histogram".to_owned(),
+            "# HELP filmscope_samples_total Samples measured.".to_owned(),
+            "# TYPE filmscope_samples_total counter".to_owned(),
+            "# TYPE filmscope_last_pass gauge".to_owned(),
+            format!("filmscope_latency_seconds_bucket{labels},le=\"0.01\"}} 0"),
+            format!("filmscope_latency_seconds_bucket{labels},le=\"0.025\"}} 1"),
+            format!("filmscope_latency_seconds_bucket{labels},le=\"10\"}} 1"),
+            format!("filmscope_latency_seconds_bucket{labels},le=\"+Inf\"}} 2"),
+            format!("filmscope_latency_seconds_sum{labels}}} 30.0125"),
+            format!("filmscope_latency_seconds_count{labels}}} 2"),
+            format!("filmscope_samples_total{labels}}} 2"),
+            format!("filmscope_samples_failed_total{labels}}} 2"),
+            format!("filmscope_samples_passed_total{labels}}} 0"),
+            format!("filmscope_alarms_total{labels}}} 0"),
+            format!("filmscope_last_pass{labels}}} 0"),
+            format!("filmscope_last_refractive_index{labels}}} NaN"),
+            format!("filmscope_last_thickness_mean_nm{labels}}} 612.25"),
+            format!("filmscope_last_latency_seconds{labels}}} 30.0"),
+            format!("filmscope_thickness_cpk{labels}}} 1.5"),
+            format!("filmscope_thickness_ppk{labels}}} 1.25"),
+        ] {
+            assert!(m.lines().any(|l| l == line), "{line} in\n{m}");
+        }
+        assert!(!m.contains("# EOF") && !m.contains(".."), "{m}");
+        for l in m.lines().filter(|l| !l.starts_with('#')) {
+            let (series, value) = l.rsplit_once("} ").unwrap_or_else(|| panic!("{l}"));
+            assert!(
+                series.starts_with("filmscope_") && series.contains(labels),
+                "{l}"
+            );
+            assert!(value.parse::<f64>().is_ok(), "{l}");
+        }
+        assert_eq!(
+            m.lines().filter(|l| l.starts_with("# TYPE")).count(),
+            14,
+            "{m}"
+        );
+    }
+}
