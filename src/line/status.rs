@@ -744,123 +744,32 @@ impl EncodeMetric for LatencyHistogram {
     }
 }
 
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
+/// The status page (`templates/status.html`): the film and the latest sample's id, which
+/// askama escapes for HTML; its script draws the rest from `/api/latest` and
+/// `/api/history`, escaping the records' text itself.
+#[derive(askama::Template)]
+#[template(path = "status.html")]
+struct Page<'a> {
+    /// The recipe's film, the page's title.
+    film: &'a str,
+    /// The latest sample's id (`none yet`).
+    sample_id: &'a str,
 }
 
+/// The page's HTML for the state `s`.
 fn page(s: &StatusState) -> String {
+    use askama::Template;
     let id = s
         .latest
         .as_ref()
         .map_or("none yet", |l| l.sample_id.as_str());
-    PAGE.replace("{FILM}", &esc(&s.film))
-        .replace("{SAMPLE_ID}", &esc(id))
+    let page = Page {
+        film: &s.film,
+        sample_id: id,
+    };
+    page.render()
+        .unwrap_or_else(|e| format!("status page: {e}"))
 }
-
-const PAGE: &str = r##"<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>filmscope inspect: {FILM}</title>
-<style>
-body{font-family:sans-serif;margin:1em;background:#fafafa;color:#222}
-.v{font-size:2em;font-weight:bold;padding:.1em .4em;border-radius:.2em}
-.PASS{background:#2e7d32;color:#fff}.FAIL{background:#c62828;color:#fff}
-#stale{background:#ff6f00;color:#fff;font-size:1.6em;font-weight:bold;padding:.3em .6em}
-#row,#trends{display:flex;gap:2em;flex-wrap:wrap}img{image-rendering:pixelated;width:320px;border:1px solid #ccc}
-td,th{padding:.1em .6em;text-align:left}#alarms li{color:#b71c1c}.legend{font-size:.85em;color:#555}
-</style></head>
-<body data-polls="0">
-<div id="stale" hidden></div>
-<h1>{FILM}</h1>
-<p>Sample <b id="sample-id">{SAMPLE_ID}</b> <span id="verdict" class="v">&ndash;</span> <span id="time"></span></p>
-<p id="counts"></p>
-<ul id="reasons"></ul>
-<div id="row">
-<div><h2>Thickness, out of tolerance marked</h2><img id="map" alt="latest thickness map" src="/latest.png"></div>
-<div><h2>Latest</h2><table id="stats"></table></div>
-</div>
-<div id="trends">
-<div><h2>Trend: mean thickness (nm)</h2><div id="trend"></div><p id="capability"></p></div>
-<div><h2>Trend: index at 550 nm</h2><div id="trend-index"></div><p id="capability-index"></p></div>
-</div>
-<p class="legend">Points: green passed, red failed, oldest left (sample times under the axis). CL centre line and UCL/LCL
-control limits (dashed) from the history; USL/LSL the recipe's tolerance.</p>
-<p id="reference">Reference check: none since start</p>
-<h2>Alarms</h2><ul id="alarms"></ul>
-<script>
-let polls = 0, shown = null;
-const $ = (id) => document.getElementById(id);
-function fmt(v, d) { return (typeof v === 'number') ? v.toFixed(d) : '-'; }
-function when(id) {
-  const m = /(\d{4})(\d{2})(\d{2})T(\d{2})(\d{2})(\d{2})Z/.exec(id || '');
-  return m ? `${m[4]}:${m[5]}:${m[6]}` : '';
-}
-function drawTrend(h, o) {
-  const pts = (h.points || []).slice(-100).filter(p => typeof p[o.key] === 'number'), W = 520, H = 220, P = 44;
-  if (pts.length === 0) { $(o.el).innerHTML = '<p>no samples yet</p>'; return; }
-  const ys = pts.map(p => p[o.key]);
-  const lim = (h.limits || {})[o.lim], spec = h.spec || {};
-  const lsl = spec[o.lsl], usl = spec[o.usl];
-  const all = ys.concat(lim ? [lim.ucl, lim.lcl] : []).concat([lsl, usl].filter(v => typeof v === 'number'));
-  let lo = Math.min(...all), hi = Math.max(...all); if (hi - lo < 1e-9) { lo -= 1; hi += 1; }
-  const x = (i) => P + i * (W - 2 * P) / Math.max(1, pts.length - 1);
-  const y = (v) => H - P / 2 - 10 - (v - lo) * (H - P - 10) / (hi - lo);
-  let s = `<svg id="${o.svg}" xmlns="http://www.w3.org/2000/svg" width="${W}" height="${H}" style="background:#fff;border:1px solid #ccc">`;
-  const line = (v, c, t, dash) => { s += `<line x1="${P}" x2="${W - P}" y1="${y(v)}" y2="${y(v)}" stroke="${c}" ${dash ? 'stroke-dasharray="4 3"' : ''}/><text x="${W - P + 2}" y="${y(v) + 4}" font-size="10" fill="${c}">${t}</text>`; };
-  if (lim) { line(lim.center, '#1565c0', 'CL', false); line(lim.ucl, '#e65100', 'UCL', true); line(lim.lcl, '#e65100', 'LCL', true); }
-  if (typeof usl === 'number' && typeof lsl === 'number') { line(usl, '#c62828', 'USL', false); line(lsl, '#c62828', 'LSL', false); }
-  s += '<polyline fill="none" stroke="#333" points="' + pts.map((p, i) => `${x(i)},${y(p[o.key])}`).join(' ') + '"/>';
-  pts.forEach((p, i) => { s += `<circle cx="${x(i)}" cy="${y(p[o.key])}" r="3" fill="${p.pass ? '#2e7d32' : '#c62828'}"><title>${p.sample_id}</title></circle>`; });
-  s += `<text x="2" y="12" font-size="10">${fmt(hi, o.d)}</text><text x="2" y="${H - P / 2 - 8}" font-size="10">${fmt(lo, o.d)}</text>`;
-  s += `<line x1="${P}" x2="${W - P}" y1="${H - P / 2}" y2="${H - P / 2}" stroke="#999"/>`;
-  s += `<text x="${P}" y="${H - 6}" font-size="10">${when(pts[0].sample_id)}</text>`;
-  s += `<text x="${W - P}" y="${H - 6}" font-size="10" text-anchor="end">${when(pts[pts.length - 1].sample_id)}</text>`;
-  s += `<text x="${W / 2}" y="${H - 6}" font-size="10" text-anchor="middle">${pts.length} samples (UTC)</text></svg>`;
-  $(o.el).innerHTML = s;
-  const c = (h.capability || {})[o.lim];
-  $(o.cap).textContent = c ? `Cpk ${fmt(c.cpk, 2)}, Ppk ${fmt(c.ppk, 2)} over ${pts.length} samples` : '';
-}
-async function tick() {
-  try {
-    const j = await (await fetch('/api/latest', {cache: 'no-store'})).json();
-    polls += 1; document.body.dataset.polls = String(polls);
-    const r = j.sample, c = j.counts || {};
-    $('counts').textContent = `${c.samples || 0} samples since start: ${c.passed || 0} passed, ${c.failed || 0} failed; ${c.alarms || 0} alarms`;
-    const age = r ? (Date.now() - Date.parse(r.timestamp)) / 1000 : NaN;
-    const stale = r && age > j.stale_after_s;
-    $('stale').hidden = !stale;
-    if (stale) { $('stale').textContent = `STALE: no sample for ${fmt(age / 60, 0)} min (the last at ${r.timestamp})`; }
-    if (r && r.sample_id !== shown) {
-      shown = r.sample_id;
-      $('sample-id').textContent = r.sample_id;
-      $('verdict').textContent = r.verdict; $('verdict').className = 'v ' + r.verdict;
-      $('time').textContent = r.timestamp;
-      $('reasons').innerHTML = (r.reasons || []).map(t => `<li>${t}</li>`).join('');
-      $('map').src = '/latest.png?id=' + encodeURIComponent(r.sample_id);
-      const t = r.thickness_nm || {};
-      $('stats').innerHTML = `<tr><th>index</th><td>${fmt(r.refractive_index, 4)}</td></tr>` +
-        `<tr><th>thickness mean</th><td>${fmt(t.mean, 1)} nm</td></tr><tr><th>std</th><td>${fmt(t.std, 2)} nm</td></tr>` +
-        `<tr><th>min / max</th><td>${fmt(t.min, 1)} / ${fmt(t.max, 1)} nm</td></tr>` +
-        `<tr><th>valid</th><td>${fmt(100 * r.valid_fraction, 1)} %</td></tr><tr><th>latency</th><td>${fmt(r.latency_ms, 0)} ms</td></tr>`;
-      const h = await (await fetch('/api/history', {cache: 'no-store'})).json();
-      drawTrend(h, {key: 'thickness_mean', lim: 'thickness_mean_nm', lsl: 'lsl', usl: 'usl', el: 'trend', svg: 'trend-svg', cap: 'capability', d: 1});
-      drawTrend(h, {key: 'index', lim: 'refractive_index', lsl: 'index_lsl', usl: 'index_usl', el: 'trend-index', svg: 'trend-index-svg', cap: 'capability-index', d: 4});
-    }
-    const ref = j.reference;
-    if (ref) {
-      const hours = (Date.now() - Date.parse(ref.timestamp)) / 3600e3;
-      const d = ref.drift || {};
-      $('reference').textContent = `Reference check (${ref.reference}): ${fmt(hours, 1)} h ago, ` +
-        `drift ${fmt(d.thickness_nm, 2)} nm, index ${fmt(d.index, 4)}: ${ref.within ? 'within tolerance' : 'BEYOND TOLERANCE'}`;
-    }
-    $('alarms').innerHTML = (j.alarms || []).map(a => `<li>${a.sample_id}: ${a.variable} rule ${a.rule} (${a.text}), value ${fmt(a.value, 3)}</li>`).join('');
-  } catch (e) { document.body.dataset.error = String(e); }
-}
-tick(); setInterval(tick, 1000);
-</script>
-</body></html>
-"##;
 
 #[cfg(test)]
 mod tests {
@@ -898,6 +807,32 @@ mod tests {
             version: "0".into(),
             sim_sample: None,
         }
+    }
+
+    /// The page's film and sample id are escaped for HTML (askama writes numeric character
+    /// references); before a sample it says `none yet`.
+    #[test]
+    fn the_page_escapes_the_film_and_the_sample_id() {
+        let board = StatusBoard::new("ZnS <i>\"AR\"</i> & co");
+        let html = page(&board.lock());
+        assert!(
+            html.contains("<h1>ZnS &#60;i&#62;&#34;AR&#34;&#60;/i&#62; &#38; co</h1>"),
+            "{html}"
+        );
+        assert!(html.contains("<b id=\"sample-id\">none yet</b>"), "{html}");
+        let mut hostile = sample(620.0, 10.0);
+        hostile.sample_id = "S1<script>alert(1)</script>".into();
+        board.publish_sample(&hostile, None, Value::Null, &[]);
+        let html = page(&board.lock());
+        assert!(
+            html.contains(">S1&#60;script&#62;alert(1)&#60;/script&#62;</b>"),
+            "{html}"
+        );
+        assert_eq!(
+            html.matches("<script>").count(),
+            1,
+            "only the page's own script"
+        );
     }
 
     /// `/metrics` in the Prometheus text format: the labels escaped on every series, the
