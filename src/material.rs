@@ -280,11 +280,16 @@ pub fn to_csv(d: &Dispersion, wavelengths_nm: &[f64]) -> String {
 /// The model as a refractiveindex.info YAML entry valid over `range_nm`: formula 1 for a
 /// Sellmeier model, formula 5 for a Cauchy one, `tabulated n` (two rows, the range's ends)
 /// for a constant, `tabulated nk` (every row) for a table. `comment` goes into the entry's `COMMENTS`.
+///
+/// Written line by line in the database's own layout (indented lists, `data: |` blocks, a
+/// header comment), which a YAML emitter does not produce; [`from_rii_yaml`] reads it back.
 pub fn to_rii_yaml(d: &Dispersion, range_nm: [f64; 2], comment: &str) -> String {
     let range = format!("{} {}", range_nm[0] * 1e-3, range_nm[1] * 1e-3);
     let mut s = String::from("# refractiveindex.info database entry, written by filmscope\n");
     s.push_str("REFERENCES: \"filmscope estimate\"\n");
-    s.push_str(&format!("COMMENTS: \"{}\"\n", comment.replace('"', "'")));
+    // A JSON string is a YAML double-quoted scalar: backslashes and line breaks escaped.
+    let comment = serde_json::Value::from(comment.replace('"', "'"));
+    s.push_str(&format!("COMMENTS: {comment}\n"));
     s.push_str("DATA:\n");
     match *d {
         Dispersion::Constant { n } => {
@@ -319,71 +324,79 @@ pub fn to_rii_yaml(d: &Dispersion, range_nm: [f64; 2], comment: &str) -> String 
     s
 }
 
+/// A refractiveindex.info material file as filmscope reads it: its `DATA` list. The
+/// database's other keys (`REFERENCES`, `COMMENTS`, `SPECS`, `CONDITIONS`) are accepted and
+/// left unread.
+#[derive(Deserialize)]
+struct RiiFile {
+    /// The entries: formulas and tables of n, tables of k.
+    #[serde(rename = "DATA", default)]
+    data: Vec<Entry>,
+}
+
 /// One `DATA` entry of a refractiveindex.info file: its type and its coefficients or rows.
-#[derive(Default)]
+/// Coefficients, range and rows are YAML text (a single number reads as its text).
+#[derive(Deserialize)]
 struct Entry {
+    /// `formula N`, `tabulated n`, `tabulated nk` or `tabulated k`.
+    #[serde(rename = "type", default)]
     kind: String,
+    /// A formula's coefficients, numbers separated by blanks.
+    #[serde(default)]
     coefficients: Option<String>,
+    /// Where a formula holds, `lo hi` in um.
+    #[serde(default)]
     wavelength_range: Option<String>,
-    data: Vec<String>,
+    /// A table: one row a line, `wavelength_um n`, `wavelength_um k` or `wavelength_um n k`.
+    #[serde(default)]
+    data: Option<String>,
+}
+
+impl Entry {
+    /// The numbers of `text`, one a blank-separated word; an error names the entry's type.
+    fn numbers(&self, text: &str) -> Result<Vec<f64>, String> {
+        text.split_whitespace()
+            .map(|x| {
+                x.parse::<f64>()
+                    .map_err(|_| format!("{:?}: {x:?} is not a number", self.kind))
+            })
+            .collect()
+    }
+
+    /// The formula's coefficients.
+    fn coefficients(&self) -> Result<Vec<f64>, String> {
+        let text = self
+            .coefficients
+            .as_deref()
+            .ok_or_else(|| format!("{:?} has no coefficients", self.kind))?;
+        self.numbers(text)
+    }
+
+    /// The table's rows as text: blank lines and `#` lines left out.
+    fn rows(&self) -> impl Iterator<Item = &str> {
+        let text = self.data.as_deref().unwrap_or("");
+        text.lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty() && !l.starts_with('#'))
+    }
 }
 
 /// The first `n` (not `k`) entry of a refractiveindex.info YAML file as a [`Dispersion`].
 ///
-/// Reads the subset of YAML those files use: a `DATA:` list of entries with `type:`,
-/// `coefficients:` and `data: |` block text. Formulas 1 and 2 with up to three terms and
-/// formula 5 with exponents -2 and -4 (in any order, or absent) are held exactly; a
-/// `tabulated n` or `tabulated nk` table as its least-squares three-term Cauchy fit.
+/// Reads the file with a YAML parser into its `DATA` list of entries (`type`,
+/// `coefficients`, `wavelength_range`, `data`). Formulas 1 and 2 with up to three terms and
+/// formula 5 with exponents -2 and -4 (in any order, or absent) are held exactly, formula 4
+/// as a Sellmeier model when it is one, else as its three-term Cauchy within
+/// [`FORMULA_FIT_TOLERANCE`]; a `tabulated n` or `tabulated nk` table as the table.
 pub fn from_rii_yaml(text: &str) -> Result<Dispersion, MaterialError> {
     rii_entries(text).map_err(MaterialError::Entry)
 }
 
 /// [`from_rii_yaml`], its problem in words.
 fn rii_entries(text: &str) -> Result<Dispersion, String> {
-    let mut entries: Vec<Entry> = Vec::new();
-    let mut in_data = false;
-    let mut in_block = false;
-    for line in text.lines() {
-        let trimmed = line.trim();
-        if line.starts_with(|c: char| !c.is_whitespace()) && !trimmed.starts_with('-') {
-            in_data = trimmed.starts_with("DATA:");
-            in_block = false;
-            continue;
-        }
-        if !in_data || trimmed.is_empty() || trimmed.starts_with('#') {
-            continue;
-        }
-        let item = trimmed.strip_prefix("- ");
-        let kv = item.unwrap_or(trimmed);
-        if item.is_some() {
-            entries.push(Entry::default());
-            in_block = false;
-        }
-        let Some(e) = entries.last_mut() else {
-            continue;
-        };
-        let unquote = |v: &str| v.trim().trim_matches(|c| c == '"' || c == '\'').to_owned();
-        if let Some(v) = kv.strip_prefix("type:") {
-            e.kind = unquote(v);
-            in_block = false;
-        } else if let Some(v) = kv.strip_prefix("coefficients:") {
-            e.coefficients = Some(unquote(v));
-            in_block = false;
-        } else if let Some(v) = kv.strip_prefix("wavelength_range:") {
-            e.wavelength_range = Some(unquote(v));
-            in_block = false;
-        } else if let Some(v) = kv.strip_prefix("data:") {
-            in_block = true;
-            let v = v.trim();
-            if !v.starts_with('|') && !v.is_empty() {
-                e.data.push(unquote(v));
-            }
-        } else if kv.contains(':') && !kv.starts_with(|c: char| c.is_ascii_digit() || c == '.') {
-            in_block = false;
-        } else if in_block {
-            e.data.push(kv.to_owned());
-        }
-    }
+    let file: RiiFile = yaml_serde::from_str(text)
+        .map_err(|e| format!("not a refractiveindex.info YAML file: {e}"))?;
+    let entries = file.data;
     let entry = entries
         .iter()
         .find(|e| e.kind != "tabulated k")
@@ -425,7 +438,7 @@ fn with_extinction(n: Dispersion, k: &Entry) -> Result<Dispersion, String> {
 fn table_rows(entry: &Entry, cols: usize) -> Result<Vec<Vec<f64>>, String> {
     let kind = &entry.kind;
     let mut rows: Vec<Vec<f64>> = Vec::new();
-    for line in &entry.data {
+    for line in entry.rows() {
         let v = line
             .split_whitespace()
             .map(|x| {
@@ -468,165 +481,170 @@ pub fn intern(rows: Vec<[f64; 3]>) -> &'static [[f64; 3]] {
 
 /// The dispersion of one `DATA` entry with n (a formula or a table).
 fn entry_dispersion(entry: &Entry) -> Result<Dispersion, String> {
-    let numbers = |s: &str| -> Result<Vec<f64>, String> {
-        s.split_whitespace()
-            .map(|x| {
-                x.parse::<f64>()
-                    .map_err(|_| format!("{:?}: {x:?} is not a number", entry.kind))
-            })
-            .collect()
-    };
-    let coefficients = || -> Result<Vec<f64>, String> {
-        numbers(
-            entry
-                .coefficients
-                .as_deref()
-                .ok_or_else(|| format!("{:?} has no coefficients", entry.kind))?,
-        )
-    };
     match entry.kind.as_str() {
-        "formula 1" | "formula 2" => {
-            let c = coefficients()?;
-            if c.is_empty() || c.len() % 2 == 0 || c.len() > 7 {
-                return Err(format!(
-                    "{}: expected C1 and one to three (B, C) pairs, got {} coefficients",
-                    entry.kind,
-                    c.len()
-                ));
-            }
-            let pairs: Vec<(f64, f64)> = c[1..].chunks(2).map(|p| (p[0], p[1])).collect();
-            let b: Vec<f64> = pairs.iter().map(|p| p.0).collect();
-            let cc: Vec<f64> = if entry.kind == "formula 1" {
-                pairs.iter().map(|p| p.1).collect()
-            } else {
-                pairs.iter().map(|p| p.1.max(0.0).sqrt()).collect()
-            };
-            sellmeier(1.0 + c[0], &b, &cc).map_err(String::from)
-        }
-        "formula 5" => {
-            let c = coefficients()?;
-            if c.is_empty() || c.len() % 2 == 0 {
-                return Err(format!(
-                    "formula 5: expected C1 and (coefficient, exponent) pairs, got {} coefficients",
-                    c.len()
-                ));
-            }
-            let (mut b, mut cc) = (0.0, 0.0);
-            for p in c[1..].chunks(2) {
-                if p[1] == -2.0 {
-                    b += p[0];
-                } else if p[1] == -4.0 {
-                    cc += p[0];
-                } else {
-                    let e = p[1];
-                    {
-                        return Err(format!(
-                            "formula 5: exponent {e} (filmscope holds Cauchy terms with exponents -2 and -4 only)"
-                        ));
-                    }
-                }
-            }
-            Ok(Dispersion::Cauchy {
-                a: c[0],
-                b_um2: b,
-                c_um4: cc,
-            })
-        }
-        "formula 4" => {
-            // n^2 = C1 + C2 l^C3 / (l^2 - C4^C5) + C6 l^C7 / (l^2 - C8^C9) + sum C_i l^C_{i+1}.
-            let mut c = coefficients()?;
-            if c.is_empty() || c.len() > 17 {
-                return Err(format!(
-                    "formula 4: expected 1 to 17 coefficients, got {}",
-                    c.len()
-                ));
-            }
-            c.resize(17, 0.0);
-            let [lo, hi] = visible_part(entry.wavelength_range.as_deref(), &numbers)?;
-            // Poles with l^0 or l^2 over (l^2 - c^2) and no power terms are a Sellmeier
-            // form, held exactly: C l^0 / (l^2 - c^2) = (C / c^2) l^2 / (l^2 - c^2) - C / c^2.
-            let no_powers = [9, 11, 13, 15].iter().all(|&k| c[k] == 0.0);
-            let poles: Vec<(f64, f64, f64)> = [1, 5]
-                .iter()
-                .filter(|&&k| c[k] != 0.0)
-                .map(|&k| (c[k], c[k + 1], c[k + 2].powf(c[k + 3])))
-                .collect();
-            if no_powers
-                && poles
-                    .iter()
-                    .all(|p| (p.1 == 0.0 || p.1 == 2.0) && p.2 > 0.0)
-            {
-                let mut a = c[0];
-                let (mut b, mut cc) = (Vec::new(), Vec::new());
-                for &(strength, power, c2) in &poles {
-                    let bi = if power == 0.0 {
-                        strength / c2
-                    } else {
-                        strength
-                    };
-                    if power == 0.0 {
-                        a -= bi;
-                    }
-                    b.push(bi);
-                    cc.push(c2.sqrt());
-                }
-                return sellmeier(a, &b, &cc).map_err(String::from);
-            }
-            let n2 = |l: f64| {
-                let pole = |k: usize| {
-                    if c[k] == 0.0 {
-                        0.0
-                    } else {
-                        c[k] * l.powf(c[k + 1]) / (l * l - c[k + 2].powf(c[k + 3]))
-                    }
-                };
-                let power = |k: usize| {
-                    if c[k] == 0.0 {
-                        0.0
-                    } else {
-                        c[k] * l.powf(c[k + 1])
-                    }
-                };
-                c[0] + pole(1) + pole(5) + power(9) + power(11) + power(13) + power(15)
-            };
-            let rows: Vec<(f64, f64)> = (0..=100)
-                .map(|i| {
-                    let l = lo + (hi - lo) * f64::from(i) / 100.0;
-                    (l, n2(l).max(0.0).sqrt())
-                })
-                .collect();
-            held_within(&rows, "formula 4")
-        }
-        "tabulated n" | "tabulated nk" => {
-            let cols = if entry.kind == "tabulated nk" { 3 } else { 2 };
-            let rows = table_rows(entry, cols)?;
-            if let Some(r) = rows.iter().find(|r| r[1] <= 0.0 || r.get(2).is_some_and(|k| *k < 0.0)) {
-                return Err(format!(
-                    "{}: at {} um n must be positive and k not negative",
-                    entry.kind, r[0]
-                ));
-            }
-            let rows = rows
-                .iter()
-                .map(|r| [r[0], r[1], r.get(2).copied().unwrap_or(0.0)])
-                .collect();
-            Ok(Dispersion::Table { rows: intern(rows) })
-        }
+        "formula 1" | "formula 2" => sellmeier_formula(entry),
+        "formula 5" => cauchy_formula(entry),
+        "formula 4" => formula_4(entry),
+        "tabulated n" | "tabulated nk" => tabulated(entry),
         other => Err(format!(
             "DATA type {other:?}: filmscope reads formula 1, 2, 4 and 5, tabulated n and nk (and tabulated k beside a formula)"
         )),
     }
 }
 
+/// Formula 1 (`C1` and `(B, C)` pairs) or formula 2 (`(B, C^2)` pairs) as a Sellmeier model.
+fn sellmeier_formula(entry: &Entry) -> Result<Dispersion, String> {
+    let c = entry.coefficients()?;
+    if c.is_empty() || c.len() % 2 == 0 || c.len() > 7 {
+        return Err(format!(
+            "{}: expected C1 and one to three (B, C) pairs, got {} coefficients",
+            entry.kind,
+            c.len()
+        ));
+    }
+    let pairs: Vec<(f64, f64)> = c[1..].chunks(2).map(|p| (p[0], p[1])).collect();
+    let b: Vec<f64> = pairs.iter().map(|p| p.0).collect();
+    let cc: Vec<f64> = if entry.kind == "formula 1" {
+        pairs.iter().map(|p| p.1).collect()
+    } else {
+        pairs.iter().map(|p| p.1.max(0.0).sqrt()).collect()
+    };
+    sellmeier(1.0 + c[0], &b, &cc).map_err(String::from)
+}
+
+/// Formula 5 (`C1` and `(coefficient, exponent)` pairs) as a Cauchy model: exponents -2 and
+/// -4 only.
+fn cauchy_formula(entry: &Entry) -> Result<Dispersion, String> {
+    let c = entry.coefficients()?;
+    if c.is_empty() || c.len() % 2 == 0 {
+        return Err(format!(
+            "formula 5: expected C1 and (coefficient, exponent) pairs, got {} coefficients",
+            c.len()
+        ));
+    }
+    let (mut b, mut cc) = (0.0, 0.0);
+    for p in c[1..].chunks(2) {
+        if p[1] == -2.0 {
+            b += p[0];
+        } else if p[1] == -4.0 {
+            cc += p[0];
+        } else {
+            let e = p[1];
+            return Err(format!(
+                "formula 5: exponent {e} (filmscope holds Cauchy terms with exponents -2 and -4 only)"
+            ));
+        }
+    }
+    Ok(Dispersion::Cauchy {
+        a: c[0],
+        b_um2: b,
+        c_um4: cc,
+    })
+}
+
+/// Formula 4, `n^2 = C1 + C2 l^C3 / (l^2 - C4^C5) + C6 l^C7 / (l^2 - C8^C9) + sum C_i
+/// l^C_{i+1}`: a Sellmeier model when it is one, else its three-term Cauchy over the
+/// visible part of its range (see [`held_within`]).
+fn formula_4(entry: &Entry) -> Result<Dispersion, String> {
+    let mut c = entry.coefficients()?;
+    if c.is_empty() || c.len() > 17 {
+        return Err(format!(
+            "formula 4: expected 1 to 17 coefficients, got {}",
+            c.len()
+        ));
+    }
+    c.resize(17, 0.0);
+    let [lo, hi] = visible_part(entry)?;
+    if let Some(d) = formula_4_as_sellmeier(&c) {
+        return d;
+    }
+    let rows: Vec<(f64, f64)> = (0..=100)
+        .map(|i| {
+            let l = lo + (hi - lo) * f64::from(i) / 100.0;
+            (l, formula_4_n2(&c, l).max(0.0).sqrt())
+        })
+        .collect();
+    held_within(&rows, "formula 4")
+}
+
+/// Formula 4's 17 coefficients `c` as a Sellmeier model, exactly, when its poles have l^0
+/// or l^2 over (l^2 - c^2) and it has no power terms (`C l^0 / (l^2 - c^2) = (C / c^2) l^2 /
+/// (l^2 - c^2) - C / c^2`); `None` when it is not of that form.
+fn formula_4_as_sellmeier(c: &[f64]) -> Option<Result<Dispersion, String>> {
+    let no_powers = [9, 11, 13, 15].iter().all(|&k| c[k] == 0.0);
+    let poles: Vec<(f64, f64, f64)> = [1, 5]
+        .iter()
+        .filter(|&&k| c[k] != 0.0)
+        .map(|&k| (c[k], c[k + 1], c[k + 2].powf(c[k + 3])))
+        .collect();
+    let sellmeier_form = poles
+        .iter()
+        .all(|p| (p.1 == 0.0 || p.1 == 2.0) && p.2 > 0.0);
+    if !(no_powers && sellmeier_form) {
+        return None;
+    }
+    let mut a = c[0];
+    let (mut b, mut cc) = (Vec::new(), Vec::new());
+    for &(strength, power, c2) in &poles {
+        let bi = if power == 0.0 {
+            strength / c2
+        } else {
+            strength
+        };
+        if power == 0.0 {
+            a -= bi;
+        }
+        b.push(bi);
+        cc.push(c2.sqrt());
+    }
+    Some(sellmeier(a, &b, &cc).map_err(String::from))
+}
+
+/// Formula 4's n^2 at `l` um, its 17 coefficients `c`.
+fn formula_4_n2(c: &[f64], l: f64) -> f64 {
+    let pole = |k: usize| {
+        if c[k] == 0.0 {
+            0.0
+        } else {
+            c[k] * l.powf(c[k + 1]) / (l * l - c[k + 2].powf(c[k + 3]))
+        }
+    };
+    let power = |k: usize| {
+        if c[k] == 0.0 {
+            0.0
+        } else {
+            c[k] * l.powf(c[k + 1])
+        }
+    };
+    c[0] + pole(1) + pole(5) + power(9) + power(11) + power(13) + power(15)
+}
+
+/// A `tabulated n` or `tabulated nk` entry as the table (k 0 where not given).
+fn tabulated(entry: &Entry) -> Result<Dispersion, String> {
+    let cols = if entry.kind == "tabulated nk" { 3 } else { 2 };
+    let rows = table_rows(entry, cols)?;
+    if let Some(r) = rows
+        .iter()
+        .find(|r| r[1] <= 0.0 || r.get(2).is_some_and(|k| *k < 0.0))
+    {
+        return Err(format!(
+            "{}: at {} um n must be positive and k not negative",
+            entry.kind, r[0]
+        ));
+    }
+    let rows = rows
+        .iter()
+        .map(|r| [r[0], r[1], r.get(2).copied().unwrap_or(0.0)])
+        .collect();
+    Ok(Dispersion::Table { rows: intern(rows) })
+}
+
 /// The part of an entry's `wavelength_range` (um; absent: all of it) inside 0.38-0.78 um,
 /// where the camera's bands lie.
-fn visible_part(
-    range: Option<&str>,
-    numbers: &dyn Fn(&str) -> Result<Vec<f64>, String>,
-) -> Result<[f64; 2], String> {
+fn visible_part(entry: &Entry) -> Result<[f64; 2], String> {
     let (mut lo, mut hi) = (0.38f64, 0.78f64);
-    if let Some(r) = range {
-        let v = numbers(r)?;
+    if let Some(r) = entry.wavelength_range.as_deref() {
+        let v = entry.numbers(r)?;
         if v.len() != 2 || v[0].partial_cmp(&v[1]) != Some(std::cmp::Ordering::Less) {
             return Err(format!(
                 "wavelength_range {r:?}: expected two increasing numbers"
@@ -956,6 +974,50 @@ mod tests {
         );
         assert!(matches!(out, Err(e) if e.to_string().contains("visible")));
         assert!(from_rii_yaml("nothing: here\n").is_err());
+    }
+
+    /// A database file with the keys filmscope leaves unread (multi-line `REFERENCES`,
+    /// `SPECS`, `CONDITIONS`) reads; a file that is not YAML, or whose entry has a key of the
+    /// wrong shape, is one line naming the key; a comment with a backslash or a line break
+    /// is written so that it reads back.
+    #[test]
+    fn yaml_is_read_by_a_parser() {
+        let db = "# a comment\nREFERENCES: \"Malitson 1965: <a href=\\\"x\\\">link</a>\"\nCOMMENTS: >\n  folded\n  text\nDATA:\n  - type: formula 1\n    wavelength_range: 0.21 6.7\n    coefficients: 0 0.6961663 0.0684043 0.4079426 0.1162414 0.8974794 9.896161\nCONDITIONS:\n  temperature: 293.15\nSPECS:\n  n_absolute: true\n  wavelength_vacuum: true\n  nd: 1.4585\n";
+        let d = from_rii_yaml(db).expect("fused silica");
+        assert!(
+            (d.index_at(587.6) - 1.4585).abs() < 1e-4,
+            "{}",
+            d.index_at(587.6)
+        );
+        let e = from_rii_yaml("DATA:\n  - type: formula 1\n   coefficients: [1\n")
+            .expect_err("not YAML")
+            .to_string();
+        assert!(
+            e.starts_with("not a refractiveindex.info YAML file: "),
+            "{e}"
+        );
+        assert_eq!(e.lines().count(), 1, "{e}");
+        let e = from_rii_yaml("DATA:\n  - type: formula 1\n    coefficients: {a: 1}\n")
+            .expect_err("a map for coefficients")
+            .to_string();
+        assert!(e.contains("DATA[0].coefficients"), "{e}");
+        let e = from_rii_yaml("DATA: 3\n")
+            .expect_err("DATA not a list")
+            .to_string();
+        assert!(e.contains("DATA"), "{e}");
+        let yaml = to_rii_yaml(
+            &Dispersion::constant(1.5),
+            [400.0, 700.0],
+            "estimate of C:\\caps\\a \"b\"\nsecond line",
+        );
+        assert!(
+            yaml.contains("COMMENTS: \"estimate of C:\\\\caps\\\\a 'b'\\nsecond line\"\n"),
+            "{yaml}"
+        );
+        assert_eq!(
+            from_rii_yaml(&yaml).expect("reads back").index_at(550.0),
+            1.5
+        );
     }
 
     /// JSON forms: numbers, names, summary objects; bad ones name the key.

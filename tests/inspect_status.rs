@@ -154,7 +154,7 @@ fn api_and_metrics_answer_over_http() {
         format!("filmscope_samples_failed_total{labels} 1"),
         format!("filmscope_alarms_total{labels} 1"),
         format!("filmscope_last_pass{labels} 0"),
-        format!("filmscope_last_thickness_mean_nm{labels} 640"),
+        format!("filmscope_last_thickness_mean_nm{labels} 640.0"),
         format!("filmscope_thickness_cpk{labels} 1.5"),
         "# TYPE filmscope_samples_total counter".to_owned(),
         "# TYPE filmscope_latency_seconds histogram".to_owned(),
@@ -233,11 +233,14 @@ fn status_page_shows_a_new_sample_without_reload_in_chromium() {
     }
     let mut means2 = means.to_vec();
     means2.push(650.0);
+    // An alarm whose text is markup: shown as text, not made into elements.
+    let mut hostile = alarm("S000002-SECOND", 650.0);
+    hostile.text = "<i>x</i> & co".into();
     server.publish_sample(
         &record("S000002-SECOND", "FAIL", 650.0),
         None,
         history(&means2),
-        &[],
+        &[hostile],
     );
     let t0 = Instant::now();
     while child.try_wait().expect("wait").is_none() {
@@ -255,6 +258,10 @@ fn status_page_shows_a_new_sample_without_reload_in_chromium() {
     );
     assert!(dom.contains("class=\"v FAIL\""), "verdict shown");
     assert!(dom.contains("mean thickness out"), "reasons shown");
+    assert!(
+        dom.contains("(&lt;i&gt;x&lt;/i&gt; &amp; co)") && !dom.contains("<i>x</i>"),
+        "alarm text escaped:\n{dom}"
+    );
     assert!(dom.contains("id=\"trend-svg\""), "trend drawn");
     for l in ["UCL", "LCL", "CL", "USL", "LSL"] {
         assert!(

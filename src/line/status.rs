@@ -17,6 +17,7 @@
 //! ([`StatusState::load`]) once `inspect` has stopped.
 
 use super::folder::{FolderError, FolderProblem};
+use std::borrow::Cow;
 use std::collections::VecDeque;
 use std::convert::Infallible;
 use std::net::SocketAddr;
@@ -28,6 +29,11 @@ use http_body_util::Full;
 use hyper::body::{Bytes, Incoming};
 use hyper::{Method, Request, Response, StatusCode};
 use hyper_util::rt::{TokioIo, TokioTimer};
+use prometheus_client::encoding::{EncodeMetric, MetricEncoder, NoLabelSet};
+use prometheus_client::metrics::counter::ConstCounter;
+use prometheus_client::metrics::gauge::ConstGauge;
+use prometheus_client::metrics::MetricType;
+use prometheus_client::registry::Registry;
 use serde::Serialize;
 use serde_json::Value;
 
@@ -563,7 +569,7 @@ fn route(url: &str, st: &Mutex<StatusState>) -> (Vec<u8>, &'static str, u16) {
         }
         "/api/latest" => (latest(&s).into_bytes(), "application/json", 200),
         "/api/history" => (s.history.to_string().into_bytes(), "application/json", 200),
-        "/metrics" => (metrics(&s).into_bytes(), "text/plain; version=0.0.4", 200),
+        "/metrics" => (metrics(&s).into_bytes(), METRICS_CONTENT_TYPE, 200),
         "/latest.png" => match &s.latest_png {
             Some(p) => (p.clone(), "image/png", 200),
             None => (b"no sample yet".to_vec(), "text/plain", 404),
@@ -593,247 +599,293 @@ fn latest(s: &StatusState) -> String {
     crate::record::to_json(&body).unwrap_or_default()
 }
 
-/// Prometheus text exposition of the counters and the latest sample.
+/// Prometheus text exposition (format 0.0.4, [`METRICS_CONTENT_TYPE`]) of the counters, the
+/// latency histogram, the latest sample and the capability, every series labelled `line`
+/// and `recipe` ([`StatusState::labels`]). A registry of constant metrics is built from the
+/// state at each request, as `filmscope status` serves a state read back from a file.
 fn metrics(s: &StatusState) -> String {
-    let mut m = String::new();
-    let label = |v: &str| {
-        v.replace('\\', "\\\\")
-            .replace('"', "\\\"")
-            .replace('\n', "\\n")
-    };
-    let labels = format!(
-        "line=\"{}\",recipe=\"{}\"",
-        label(&s.labels.0),
-        label(&s.labels.1)
+    let (line, recipe) = s.labels.clone();
+    let mut registry = Registry::with_labels(
+        [
+            (Cow::Borrowed("line"), Cow::Owned(line)),
+            (Cow::Borrowed("recipe"), Cow::Owned(recipe)),
+        ]
+        .into_iter(),
     );
-    // The latency histogram: cumulative buckets, +Inf, sum and count.
+    register_counts(&mut registry, s);
+    register_latest(&mut registry, s);
+    let mut text = String::new();
+    // Writing into a String cannot fail.
+    let _ = prometheus_client::encoding::prometheus_text::encode(&mut text, &registry);
+    text
+}
+
+/// `/metrics`' `Content-Type`: the Prometheus text format, version 0.0.4.
+const METRICS_CONTENT_TYPE: &str = prometheus_client::encoding::prometheus_text::CONTENT_TYPE;
+
+/// A gauge of the value `v` (the registry ends `help` with a full stop).
+fn gauge(registry: &mut Registry, name: &str, help: &str, v: f64) {
+    registry.register(name, help, ConstGauge::new(v));
+}
+
+/// The latency histogram, the time of the latest sample and the counters since start
+/// (registered as `filmscope_samples` and so on: the encoder adds `_total`).
+fn register_counts(registry: &mut Registry, s: &StatusState) {
     let (buckets, sum) = s.latency;
-    let count = s.counts.samples.max(buckets.iter().sum());
-    m.push_str("# HELP filmscope_latency_seconds Last row of the sweep to the verdict published.\n# TYPE filmscope_latency_seconds histogram\n");
-    let mut cumulative = 0;
-    for (le, n) in LATENCY_BUCKETS_S.iter().zip(buckets) {
-        cumulative += n;
-        m.push_str(&format!(
-            "filmscope_latency_seconds_bucket{{{labels},le=\"{le}\"}} {cumulative}\n"
-        ));
-    }
-    m.push_str(&format!(
-        "filmscope_latency_seconds_bucket{{{labels},le=\"+Inf\"}} {count}\nfilmscope_latency_seconds_sum{{{labels}}} {sum}\nfilmscope_latency_seconds_count{{{labels}}} {count}\n"
-    ));
-    let mut put = |name: &str, kind: &str, help: &str, v: f64| {
-        m.push_str(&format!(
-            "# HELP {name} {help}\n# TYPE {name} {kind}\n{name}{{{labels}}} {v}\n"
-        ));
-    };
+    registry.register(
+        "filmscope_latency_seconds",
+        "Last row of the sweep to the verdict published",
+        LatencyHistogram {
+            buckets: LATENCY_BUCKETS_S.iter().copied().zip(buckets).collect(),
+            sum,
+            count: s.counts.samples.max(buckets.iter().sum()),
+        },
+    );
     if let Some(t) = s.latest_at {
         let secs = t
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(f64::NAN, |d| d.as_secs_f64());
-        put(
+        gauge(
+            registry,
             "filmscope_last_sample_timestamp_seconds",
-            "gauge",
-            "When the latest sample's verdict was published, Unix time.",
+            "When the latest sample's verdict was published, Unix time",
             secs,
         );
     }
     let c = s.counts;
-    put(
-        "filmscope_samples_total",
-        "counter",
-        "Samples measured.",
-        c.samples as f64,
-    );
-    put(
-        "filmscope_samples_passed_total",
-        "counter",
-        "Samples that passed.",
-        c.passed as f64,
-    );
-    put(
-        "filmscope_samples_failed_total",
-        "counter",
-        "Samples that failed.",
-        c.failed as f64,
-    );
-    put(
-        "filmscope_alarms_total",
-        "counter",
-        "Run-rule alarms raised.",
-        c.alarms as f64,
-    );
+    for (name, help, n) in [
+        ("filmscope_samples", "Samples measured", c.samples),
+        ("filmscope_samples_passed", "Samples that passed", c.passed),
+        ("filmscope_samples_failed", "Samples that failed", c.failed),
+        ("filmscope_alarms", "Run-rule alarms raised", c.alarms),
+    ] {
+        registry.register(name, help, ConstCounter::new(n));
+    }
+}
+
+/// The latest sample's verdict, index, thickness, valid share and latency (when there is
+/// one), and the mean thickness's Cpk and Ppk over the history (when it has them).
+fn register_latest(registry: &mut Registry, s: &StatusState) {
     if let Some(l) = &s.latest {
-        let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
-        put(
+        registry.register(
             "filmscope_last_pass",
-            "gauge",
-            "1 if the latest sample passed.",
-            if l.verdict.passed() { 1.0 } else { 0.0 },
+            "1 if the latest sample passed",
+            ConstGauge::new(i64::from(l.verdict.passed())),
         );
-        put(
-            "filmscope_last_refractive_index",
-            "gauge",
-            "Index of the latest sample.",
-            f(l.refractive_index),
-        );
-        put(
-            "filmscope_last_thickness_mean_nm",
-            "gauge",
-            "Mean thickness of the latest sample, nm.",
-            f(l.thickness_nm.mean),
-        );
-        put(
-            "filmscope_last_thickness_std_nm",
-            "gauge",
-            "Thickness spread of the latest sample, nm.",
-            f(l.thickness_nm.std),
-        );
-        put(
-            "filmscope_last_valid_fraction",
-            "gauge",
-            "Valid share of the latest sample.",
-            l.valid_fraction,
-        );
-        put(
-            "filmscope_last_latency_seconds",
-            "gauge",
-            "Last row to verdict published, latest sample.",
-            l.latency_ms / 1000.0,
-        );
+        let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
+        for (name, help, v) in [
+            (
+                "filmscope_last_refractive_index",
+                "Index of the latest sample",
+                f(l.refractive_index),
+            ),
+            (
+                "filmscope_last_thickness_mean_nm",
+                "Mean thickness of the latest sample, nm",
+                f(l.thickness_nm.mean),
+            ),
+            (
+                "filmscope_last_thickness_std_nm",
+                "Thickness spread of the latest sample, nm",
+                f(l.thickness_nm.std),
+            ),
+            (
+                "filmscope_last_valid_fraction",
+                "Valid share of the latest sample",
+                l.valid_fraction,
+            ),
+            (
+                "filmscope_last_latency_seconds",
+                "Last row to verdict published, latest sample",
+                l.latency_ms / 1000.0,
+            ),
+        ] {
+            gauge(registry, name, help, v);
+        }
     }
     let cap = &s.history["capability"]["thickness_mean_nm"];
-    if let Some(v) = cap["cpk"].as_f64() {
-        put(
+    for (key, name, help) in [
+        (
+            "cpk",
             "filmscope_thickness_cpk",
-            "gauge",
-            "Cpk of the mean thickness over the history.",
-            v,
-        );
-    }
-    if let Some(v) = cap["ppk"].as_f64() {
-        put(
+            "Cpk of the mean thickness over the history",
+        ),
+        (
+            "ppk",
             "filmscope_thickness_ppk",
-            "gauge",
-            "Ppk of the mean thickness over the history.",
-            v,
-        );
+            "Ppk of the mean thickness over the history",
+        ),
+    ] {
+        if let Some(v) = cap[key].as_f64() {
+            gauge(registry, name, help, v);
+        }
     }
-    m
 }
 
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
+/// The latency histogram as the state holds it (a count per bucket, not cumulative; the
+/// encoder sums them and adds `+Inf` with `count`), for the registry.
+#[derive(Debug)]
+struct LatencyHistogram {
+    /// Each bucket's upper bound, seconds, and its count.
+    buckets: Vec<(f64, u64)>,
+    /// The latencies' sum, seconds.
+    sum: f64,
+    /// Samples, those above the last bound included.
+    count: u64,
 }
 
+impl EncodeMetric for LatencyHistogram {
+    fn encode(&self, mut encoder: MetricEncoder) -> std::fmt::Result {
+        encoder.encode_histogram::<NoLabelSet>(self.sum, self.count, &self.buckets, None)
+    }
+
+    fn metric_type(&self) -> MetricType {
+        MetricType::Histogram
+    }
+}
+
+/// The status page (`templates/status.html`): the film and the latest sample's id, which
+/// askama escapes for HTML; its script draws the rest from `/api/latest` and
+/// `/api/history`, escaping the records' text itself.
+#[derive(askama::Template)]
+#[template(path = "status.html")]
+struct Page<'a> {
+    /// The recipe's film, the page's title.
+    film: &'a str,
+    /// The latest sample's id (`none yet`).
+    sample_id: &'a str,
+}
+
+/// The page's HTML for the state `s`.
 fn page(s: &StatusState) -> String {
+    use askama::Template;
     let id = s
         .latest
         .as_ref()
         .map_or("none yet", |l| l.sample_id.as_str());
-    PAGE.replace("{FILM}", &esc(&s.film))
-        .replace("{SAMPLE_ID}", &esc(id))
+    let page = Page {
+        film: &s.film,
+        sample_id: id,
+    };
+    page.render()
+        .unwrap_or_else(|e| format!("status page: {e}"))
 }
 
-const PAGE: &str = r##"<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>filmscope inspect: {FILM}</title>
-<style>
-body{font-family:sans-serif;margin:1em;background:#fafafa;color:#222}
-.v{font-size:2em;font-weight:bold;padding:.1em .4em;border-radius:.2em}
-.PASS{background:#2e7d32;color:#fff}.FAIL{background:#c62828;color:#fff}
-#stale{background:#ff6f00;color:#fff;font-size:1.6em;font-weight:bold;padding:.3em .6em}
-#row,#trends{display:flex;gap:2em;flex-wrap:wrap}img{image-rendering:pixelated;width:320px;border:1px solid #ccc}
-td,th{padding:.1em .6em;text-align:left}#alarms li{color:#b71c1c}.legend{font-size:.85em;color:#555}
-</style></head>
-<body data-polls="0">
-<div id="stale" hidden></div>
-<h1>{FILM}</h1>
-<p>Sample <b id="sample-id">{SAMPLE_ID}</b> <span id="verdict" class="v">&ndash;</span> <span id="time"></span></p>
-<p id="counts"></p>
-<ul id="reasons"></ul>
-<div id="row">
-<div><h2>Thickness, out of tolerance marked</h2><img id="map" alt="latest thickness map" src="/latest.png"></div>
-<div><h2>Latest</h2><table id="stats"></table></div>
-</div>
-<div id="trends">
-<div><h2>Trend: mean thickness (nm)</h2><div id="trend"></div><p id="capability"></p></div>
-<div><h2>Trend: index at 550 nm</h2><div id="trend-index"></div><p id="capability-index"></p></div>
-</div>
-<p class="legend">Points: green passed, red failed, oldest left (sample times under the axis). CL centre line and UCL/LCL
-control limits (dashed) from the history; USL/LSL the recipe's tolerance.</p>
-<p id="reference">Reference check: none since start</p>
-<h2>Alarms</h2><ul id="alarms"></ul>
-<script>
-let polls = 0, shown = null;
-const $ = (id) => document.getElementById(id);
-function fmt(v, d) { return (typeof v === 'number') ? v.toFixed(d) : '-'; }
-function when(id) {
-  const m = /(\d{4})(\d{2})(\d{2})T(\d{2})(\d{2})(\d{2})Z/.exec(id || '');
-  return m ? `${m[4]}:${m[5]}:${m[6]}` : '';
-}
-function drawTrend(h, o) {
-  const pts = (h.points || []).slice(-100).filter(p => typeof p[o.key] === 'number'), W = 520, H = 220, P = 44;
-  if (pts.length === 0) { $(o.el).innerHTML = '<p>no samples yet</p>'; return; }
-  const ys = pts.map(p => p[o.key]);
-  const lim = (h.limits || {})[o.lim], spec = h.spec || {};
-  const lsl = spec[o.lsl], usl = spec[o.usl];
-  const all = ys.concat(lim ? [lim.ucl, lim.lcl] : []).concat([lsl, usl].filter(v => typeof v === 'number'));
-  let lo = Math.min(...all), hi = Math.max(...all); if (hi - lo < 1e-9) { lo -= 1; hi += 1; }
-  const x = (i) => P + i * (W - 2 * P) / Math.max(1, pts.length - 1);
-  const y = (v) => H - P / 2 - 10 - (v - lo) * (H - P - 10) / (hi - lo);
-  let s = `<svg id="${o.svg}" xmlns="http://www.w3.org/2000/svg" width="${W}" height="${H}" style="background:#fff;border:1px solid #ccc">`;
-  const line = (v, c, t, dash) => { s += `<line x1="${P}" x2="${W - P}" y1="${y(v)}" y2="${y(v)}" stroke="${c}" ${dash ? 'stroke-dasharray="4 3"' : ''}/><text x="${W - P + 2}" y="${y(v) + 4}" font-size="10" fill="${c}">${t}</text>`; };
-  if (lim) { line(lim.center, '#1565c0', 'CL', false); line(lim.ucl, '#e65100', 'UCL', true); line(lim.lcl, '#e65100', 'LCL', true); }
-  if (typeof usl === 'number' && typeof lsl === 'number') { line(usl, '#c62828', 'USL', false); line(lsl, '#c62828', 'LSL', false); }
-  s += '<polyline fill="none" stroke="#333" points="' + pts.map((p, i) => `${x(i)},${y(p[o.key])}`).join(' ') + '"/>';
-  pts.forEach((p, i) => { s += `<circle cx="${x(i)}" cy="${y(p[o.key])}" r="3" fill="${p.pass ? '#2e7d32' : '#c62828'}"><title>${p.sample_id}</title></circle>`; });
-  s += `<text x="2" y="12" font-size="10">${fmt(hi, o.d)}</text><text x="2" y="${H - P / 2 - 8}" font-size="10">${fmt(lo, o.d)}</text>`;
-  s += `<line x1="${P}" x2="${W - P}" y1="${H - P / 2}" y2="${H - P / 2}" stroke="#999"/>`;
-  s += `<text x="${P}" y="${H - 6}" font-size="10">${when(pts[0].sample_id)}</text>`;
-  s += `<text x="${W - P}" y="${H - 6}" font-size="10" text-anchor="end">${when(pts[pts.length - 1].sample_id)}</text>`;
-  s += `<text x="${W / 2}" y="${H - 6}" font-size="10" text-anchor="middle">${pts.length} samples (UTC)</text></svg>`;
-  $(o.el).innerHTML = s;
-  const c = (h.capability || {})[o.lim];
-  $(o.cap).textContent = c ? `Cpk ${fmt(c.cpk, 2)}, Ppk ${fmt(c.ppk, 2)} over ${pts.length} samples` : '';
-}
-async function tick() {
-  try {
-    const j = await (await fetch('/api/latest', {cache: 'no-store'})).json();
-    polls += 1; document.body.dataset.polls = String(polls);
-    const r = j.sample, c = j.counts || {};
-    $('counts').textContent = `${c.samples || 0} samples since start: ${c.passed || 0} passed, ${c.failed || 0} failed; ${c.alarms || 0} alarms`;
-    const age = r ? (Date.now() - Date.parse(r.timestamp)) / 1000 : NaN;
-    const stale = r && age > j.stale_after_s;
-    $('stale').hidden = !stale;
-    if (stale) { $('stale').textContent = `STALE: no sample for ${fmt(age / 60, 0)} min (the last at ${r.timestamp})`; }
-    if (r && r.sample_id !== shown) {
-      shown = r.sample_id;
-      $('sample-id').textContent = r.sample_id;
-      $('verdict').textContent = r.verdict; $('verdict').className = 'v ' + r.verdict;
-      $('time').textContent = r.timestamp;
-      $('reasons').innerHTML = (r.reasons || []).map(t => `<li>${t}</li>`).join('');
-      $('map').src = '/latest.png?id=' + encodeURIComponent(r.sample_id);
-      const t = r.thickness_nm || {};
-      $('stats').innerHTML = `<tr><th>index</th><td>${fmt(r.refractive_index, 4)}</td></tr>` +
-        `<tr><th>thickness mean</th><td>${fmt(t.mean, 1)} nm</td></tr><tr><th>std</th><td>${fmt(t.std, 2)} nm</td></tr>` +
-        `<tr><th>min / max</th><td>${fmt(t.min, 1)} / ${fmt(t.max, 1)} nm</td></tr>` +
-        `<tr><th>valid</th><td>${fmt(100 * r.valid_fraction, 1)} %</td></tr><tr><th>latency</th><td>${fmt(r.latency_ms, 0)} ms</td></tr>`;
-      const h = await (await fetch('/api/history', {cache: 'no-store'})).json();
-      drawTrend(h, {key: 'thickness_mean', lim: 'thickness_mean_nm', lsl: 'lsl', usl: 'usl', el: 'trend', svg: 'trend-svg', cap: 'capability', d: 1});
-      drawTrend(h, {key: 'index', lim: 'refractive_index', lsl: 'index_lsl', usl: 'index_usl', el: 'trend-index', svg: 'trend-index-svg', cap: 'capability-index', d: 4});
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::record::line::{IndexMode, PassFail, ThicknessSummary};
+
+    /// A failed sample of mean thickness `mean` nm, published after `latency_ms`.
+    fn sample(mean: f64, latency_ms: f64) -> SampleRecord {
+        SampleRecord {
+            seq: None,
+            sample_id: "S000001-20261125T230000Z".into(),
+            counter: 1,
+            timestamp: "2026-11-25T23:00:00.000Z".into(),
+            film: "film".into(),
+            recipe: "r.toml".into(),
+            lot: None,
+            operator: None,
+            verdict: PassFail::of(false),
+            reasons: vec!["mean thickness out".into()],
+            refractive_index: None,
+            index_mode: IndexMode::Hold,
+            index_resolved: false,
+            thickness_nm: ThicknessSummary {
+                mean: Some(mean),
+                std: Some(2.5),
+                min: None,
+                max: None,
+            },
+            valid_fraction: 0.75,
+            out_of_tolerance_px: 0,
+            regions: Vec::new(),
+            raw_kept: false,
+            folder: "samples/S000001".into(),
+            latency_ms,
+            version: "0".into(),
+            sim_sample: None,
+        }
     }
-    const ref = j.reference;
-    if (ref) {
-      const hours = (Date.now() - Date.parse(ref.timestamp)) / 3600e3;
-      const d = ref.drift || {};
-      $('reference').textContent = `Reference check (${ref.reference}): ${fmt(hours, 1)} h ago, ` +
-        `drift ${fmt(d.thickness_nm, 2)} nm, index ${fmt(d.index, 4)}: ${ref.within ? 'within tolerance' : 'BEYOND TOLERANCE'}`;
+
+    /// The page's film and sample id are escaped for HTML (askama writes numeric character
+    /// references); before a sample it says `none yet`.
+    #[test]
+    fn the_page_escapes_the_film_and_the_sample_id() {
+        let board = StatusBoard::new("ZnS <i>\"AR\"</i> & co");
+        let html = page(&board.lock());
+        assert!(
+            html.contains("<h1>ZnS &#60;i&#62;&#34;AR&#34;&#60;/i&#62; &#38; co</h1>"),
+            "{html}"
+        );
+        assert!(html.contains("<b id=\"sample-id\">none yet</b>"), "{html}");
+        let mut hostile = sample(620.0, 10.0);
+        hostile.sample_id = "S1<script>alert(1)</script>".into();
+        board.publish_sample(&hostile, None, Value::Null, &[]);
+        let html = page(&board.lock());
+        assert!(
+            html.contains(">S1&#60;script&#62;alert(1)&#60;/script&#62;</b>"),
+            "{html}"
+        );
+        assert_eq!(
+            html.matches("<script>").count(),
+            1,
+            "only the page's own script"
+        );
     }
-    $('alarms').innerHTML = (j.alarms || []).map(a => `<li>${a.sample_id}: ${a.variable} rule ${a.rule} (${a.text}), value ${fmt(a.value, 3)}</li>`).join('');
-  } catch (e) { document.body.dataset.error = String(e); }
+
+    /// `/metrics` in the Prometheus text format: the labels escaped on every series, the
+    /// counters' `# TYPE` under their `_total` names, the histogram cumulative with a
+    /// latency beyond its last bound counted in `+Inf`, every sample line a name, labels and
+    /// a number.
+    #[test]
+    fn metrics_are_prometheus_text() {
+        let board = StatusBoard::new("film");
+        board.set_labels("line\\7", "zns \"ar\"\n.toml");
+        let history =
+            serde_json::json!({"capability": {"thickness_mean_nm": {"cpk": 1.5, "ppk": 1.25}}});
+        board.publish_sample(&sample(640.0, 12.5), None, history.clone(), &[]);
+        board.publish_sample(&sample(612.25, 30_000.0), None, history, &[]);
+        let m = metrics(&board.lock());
+        let labels = r#"{line="line\\7",recipe="zns \"ar\"\n.toml""#;
+        for line in [
+            "# TYPE filmscope_latency_seconds histogram".to_owned(),
+            "# HELP filmscope_samples_total Samples measured.".to_owned(),
+            "# TYPE filmscope_samples_total counter".to_owned(),
+            "# TYPE filmscope_last_pass gauge".to_owned(),
+            format!("filmscope_latency_seconds_bucket{labels},le=\"0.01\"}} 0"),
+            format!("filmscope_latency_seconds_bucket{labels},le=\"0.025\"}} 1"),
+            format!("filmscope_latency_seconds_bucket{labels},le=\"10\"}} 1"),
+            format!("filmscope_latency_seconds_bucket{labels},le=\"+Inf\"}} 2"),
+            format!("filmscope_latency_seconds_sum{labels}}} 30.0125"),
+            format!("filmscope_latency_seconds_count{labels}}} 2"),
+            format!("filmscope_samples_total{labels}}} 2"),
+            format!("filmscope_samples_failed_total{labels}}} 2"),
+            format!("filmscope_samples_passed_total{labels}}} 0"),
+            format!("filmscope_alarms_total{labels}}} 0"),
+            format!("filmscope_last_pass{labels}}} 0"),
+            format!("filmscope_last_refractive_index{labels}}} NaN"),
+            format!("filmscope_last_thickness_mean_nm{labels}}} 612.25"),
+            format!("filmscope_last_latency_seconds{labels}}} 30.0"),
+            format!("filmscope_thickness_cpk{labels}}} 1.5"),
+            format!("filmscope_thickness_ppk{labels}}} 1.25"),
+        ] {
+            assert!(m.lines().any(|l| l == line), "{line} in\n{m}");
+        }
+        assert!(!m.contains("# EOF") && !m.contains(".."), "{m}");
+        for l in m.lines().filter(|l| !l.starts_with('#')) {
+            let (series, value) = l.rsplit_once("} ").unwrap_or_else(|| panic!("{l}"));
+            assert!(
+                series.starts_with("filmscope_") && series.contains(labels),
+                "{l}"
+            );
+            assert!(value.parse::<f64>().is_ok(), "{l}");
+        }
+        assert_eq!(
+            m.lines().filter(|l| l.starts_with("# TYPE")).count(),
+            14,
+            "{m}"
+        );
+    }
 }
-tick(); setInterval(tick, 1000);
-</script>
-</body></html>
-"##;
