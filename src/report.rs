@@ -344,7 +344,6 @@ pub fn write_report(
         html: String::new(),
         images: 0,
     };
-    let png_err = |e: crate::export::png::PreviewError| AppearanceError::new(run, e);
     let title = format!("filmscope report: {}", run.display());
     let _ = write!(
         page.html,
@@ -355,53 +354,8 @@ pub fn write_report(
 
     page.heading("Summary");
     page.table(&["quantity", "value"], &summary_rows(&film));
-
-    page.heading("Maps");
-    let thickness = render_map_png(&MapPreview {
-        width: film.width,
-        height: film.height,
-        values: &film.thickness_nm,
-        title: &format!("thickness, {}", film.describe()),
-        unit: "nm",
-        range: None,
-    })
-    .map_err(png_err)?;
-    page.image(&thickness, "thickness map (nm; grey: no reliable estimate)");
-    page.map_if_present(
-        &run.join("confidence.hdr"),
-        "confidence",
-        "",
-        Some((0.0, 1.0)),
-        "confidence map (0..1)",
-    )?;
-    let limit = film.summary.thickness_sigma_nm.imprecise_above;
-    page.map_if_present(
-        &run.join("thickness_sigma_nm.hdr"),
-        "thickness 1-sigma from each pixel's fit",
-        "nm",
-        None,
-        &format!(
-            "thickness uncertainty map (nm, 1-sigma of each pixel's own fit and the index's uncertainty; a pixel above {limit} nm is flagged imprecise)"
-        ),
-    )?;
-
-    page.heading("Appearance");
-    let (render, info) = render_png(
-        &film,
-        &RenderOptions {
-            incidence_deg: REPORT_ANGLE_DEG,
-            illuminant: Illuminant::D65,
-            exposure: None,
-        },
-    )?;
-    page.image(
-        &render,
-        &format!(
-            "render at {REPORT_ANGLE_DEG}° under D65 (exposure x{:.1}), angle strip 0-70°",
-            info.exposure
-        ),
-    );
-
+    page.maps(run, &film)?;
+    page.appearance(&film)?;
     page.heading("Measured against reproduced");
     let cmp = match film.capture.as_deref() {
         None => Err("the capture is unknown (pass --capture)".to_owned()),
@@ -418,48 +372,7 @@ pub fn write_report(
             .map_err(|e| e.to_string()),
     };
     match cmp {
-        Ok((cmp, spectra)) => {
-            let (lo, hi) = cmp.colorimetry.range_nm();
-            page.para(&format!(
-                "Both the measured reflectance and the film model averaged over the same passbands are summed to XYZ over {lo:.0}-{hi:.0} nm only (D65, CIE 1931 2°, white = perfect reflector over the same range); CIEDE2000 per pixel. All angles: mean {:.3}, p95 {:.3} over {} pixels.",
-                cmp.overall.mean, cmp.overall.p95, cmp.overall.pixels
-            ));
-            page.image(
-                &cmp.to_png()?,
-                "measured | reproduced | CIEDE2000, per captured angle",
-            );
-            let rows: Vec<Vec<String>> = cmp
-                .angles
-                .iter()
-                .map(|a| {
-                    vec![
-                        format!("{:.1}", a.incidence_deg),
-                        a.stats.pixels.to_string(),
-                        format!("{:.3}", a.stats.mean),
-                        format!("{:.3}", a.stats.median),
-                        format!("{:.3}", a.stats.p95),
-                    ]
-                })
-                .collect();
-            page.table(
-                &[
-                    "angle, deg",
-                    "pixels",
-                    "mean dE00",
-                    "median dE00",
-                    "p95 dE00",
-                ],
-                &rows,
-            );
-            page.heading("Charts");
-            page.image(&comparison_charts(&cmp)?, "CIEDE2000 per captured angle");
-            if let Some(png) = spectra_chart(&film, &spectra)? {
-                page.image(
-                    &png,
-                    "the pixel of median thickness: measured band reflectance and the model, first and last angle",
-                );
-            }
-        }
+        Ok((cmp, spectra)) => page.comparison(&film, &cmp, &spectra)?,
         Err(why) => {
             page.para(&format!("No comparison: {why}."));
             notes.push(format!("no comparison in the report: {why}"));
@@ -473,6 +386,113 @@ pub fn write_report(
         bytes: page.html.len(),
         notes,
     })
+}
+
+impl Page {
+    /// The maps section: the thickness map, and the confidence and thickness uncertainty
+    /// maps the run wrote.
+    fn maps(&mut self, run: &Path, film: &SampleFilm) -> Result<(), AppearanceError> {
+        self.heading("Maps");
+        let thickness = render_map_png(&MapPreview {
+            width: film.width,
+            height: film.height,
+            values: &film.thickness_nm,
+            title: &format!("thickness, {}", film.describe()),
+            unit: "nm",
+            range: None,
+        })
+        .map_err(|e| AppearanceError::new(run, e))?;
+        self.image(&thickness, "thickness map (nm; grey: no reliable estimate)");
+        self.map_if_present(
+            &run.join("confidence.hdr"),
+            "confidence",
+            "",
+            Some((0.0, 1.0)),
+            "confidence map (0..1)",
+        )?;
+        let limit = film.summary.thickness_sigma_nm.imprecise_above;
+        self.map_if_present(
+            &run.join("thickness_sigma_nm.hdr"),
+            "thickness 1-sigma from each pixel's fit",
+            "nm",
+            None,
+            &format!(
+                "thickness uncertainty map (nm, 1-sigma of each pixel's own fit and the index's uncertainty; a pixel above {limit} nm is flagged imprecise)"
+            ),
+        )
+    }
+
+    /// The appearance section: the render at [`REPORT_ANGLE_DEG`] under D65.
+    fn appearance(&mut self, film: &SampleFilm) -> Result<(), AppearanceError> {
+        self.heading("Appearance");
+        let (render, info) = render_png(
+            film,
+            &RenderOptions {
+                incidence_deg: REPORT_ANGLE_DEG,
+                illuminant: Illuminant::D65,
+                exposure: None,
+            },
+        )?;
+        self.image(
+            &render,
+            &format!(
+                "render at {REPORT_ANGLE_DEG}° under D65 (exposure x{:.1}), angle strip 0-70°",
+                info.exposure
+            ),
+        );
+        Ok(())
+    }
+
+    /// The comparison `cmp` (under its heading): how it was made, its image, its table
+    /// per angle, and the charts (with the median pixel's `spectra`).
+    fn comparison(
+        &mut self,
+        film: &SampleFilm,
+        cmp: &Comparison,
+        spectra: &[PixelSpectra],
+    ) -> Result<(), AppearanceError> {
+        let (lo, hi) = cmp.colorimetry.range_nm();
+        self.para(&format!(
+            "Both the measured reflectance and the film model averaged over the same passbands are summed to XYZ over {lo:.0}-{hi:.0} nm only (D65, CIE 1931 2°, white = perfect reflector over the same range); CIEDE2000 per pixel. All angles: mean {:.3}, p95 {:.3} over {} pixels.",
+            cmp.overall.mean, cmp.overall.p95, cmp.overall.pixels
+        ));
+        self.image(
+            &cmp.to_png()?,
+            "measured | reproduced | CIEDE2000, per captured angle",
+        );
+        let rows: Vec<Vec<String>> = cmp
+            .angles
+            .iter()
+            .map(|a| {
+                vec![
+                    format!("{:.1}", a.incidence_deg),
+                    a.stats.pixels.to_string(),
+                    format!("{:.3}", a.stats.mean),
+                    format!("{:.3}", a.stats.median),
+                    format!("{:.3}", a.stats.p95),
+                ]
+            })
+            .collect();
+        self.table(
+            &[
+                "angle, deg",
+                "pixels",
+                "mean dE00",
+                "median dE00",
+                "p95 dE00",
+            ],
+            &rows,
+        );
+        self.heading("Charts");
+        self.image(&comparison_charts(cmp)?, "CIEDE2000 per captured angle");
+        if let Some(png) = spectra_chart(film, spectra)? {
+            self.image(
+                &png,
+                "the pixel of median thickness: measured band reflectance and the model, first and last angle",
+            );
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]

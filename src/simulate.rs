@@ -407,10 +407,64 @@ pub fn write_capture(
     } else {
         RowKind::Raw
     };
-    let sat = format!("{}", scene.sensor.saturation_counts());
     let mut angles = Vec::new();
     let mut files = Vec::new();
     for &deg in &scene.angles_deg {
+        let (angle, angle_files) = AngleFiles::create(scene, out_dir, opts, kind, deg)?;
+        angles.push(angle);
+        files.push(Some(angle_files));
+    }
+    write_cubes(&camera, kind, opts.interleave, files, on_rows)?;
+    let truth_map = out_dir.join("truth").join("thickness_nm.hdr");
+    write_f32_map(
+        &truth_map,
+        w,
+        h,
+        &scene.thickness_nm,
+        Some("true film thickness, nm"),
+        &[],
+    )
+    .map_err(|e| path_err(&truth_map, &e))?;
+    let toml_path = out_dir.join("capture.toml");
+    let capture = Capture {
+        path: toml_path.clone(),
+        sample: Sample {
+            ambient_index: scene.stack.ambient_index,
+            substrate_index: scene.stack.substrate.index_at(550.0),
+            substrate: write_substrate(scene, out_dir)?,
+            polarization: scene.stack.polarization,
+            back_face: scene.stack.back_face,
+        },
+        search: Search {
+            index_range: scene.index_range,
+            thickness_range_nm: scene.thickness_range_nm,
+        },
+        lens: Lens {
+            horizontal_fov_deg: scene.field_of_view.map(|f| f.horizontal_deg()),
+        },
+        angles,
+        fit: Default::default(),
+        unknown_keys: Vec::new(),
+    };
+    capture
+        .write_toml(&toml_path)
+        .map_err(|e| SimulateError(e.to_string()))?;
+    truth_record(scene, opts, w, h)
+        .write(out_dir)
+        .map_err(|e| SimulateError(e.to_string()))?;
+    Ok(toml_path)
+}
+
+impl AngleFiles {
+    /// Creates the files of the angle at `deg` (`aNN.hdr`, and for raw counts `whiteNN.hdr`
+    /// and `darkNN.hdr`) and the capture's entry for it.
+    fn create(
+        scene: &Scene,
+        out_dir: &Path,
+        opts: SimulateOptions,
+        kind: RowKind,
+        deg: f64,
+    ) -> Result<(Angle, Self), SimulateError> {
         let tag = format!("{:02}", deg.round() as i64);
         let cube_path = out_dir.join(format!("a{tag}.hdr"));
         let desc = format!("filmscope simulate: {} at {deg} deg", scene.name);
@@ -420,7 +474,8 @@ pub fn write_capture(
         };
         let mut hd = header(scene, data_type, opts, &desc);
         if kind == RowKind::Raw {
-            hd.extra.push(("saturation counts".into(), sat.clone()));
+            let sat = format!("{}", scene.sensor.saturation_counts());
+            hd.extra.push(("saturation counts".into(), sat));
         }
         let cube = EnviWriter::create(&cube_path, &hd).map_err(|e| path_err(&cube_path, &e))?;
         let reference = |name: &str| {
@@ -436,25 +491,42 @@ pub fn write_capture(
             None
         };
         let ref_path = |k: usize| refs.as_ref().map(|r| r[k].0.clone());
-        angles.push(Angle {
+        let angle = Angle {
             incidence_deg: deg,
             cube: cube_path.clone(),
             white: ref_path(0),
             dark: ref_path(1),
             white_reflectance: 1.0,
-        });
-        files.push(Some(AngleFiles {
-            cube: (cube_path, cube),
-            refs,
-        }));
+        };
+        Ok((
+            angle,
+            Self {
+                cube: (cube_path, cube),
+                refs,
+            },
+        ))
     }
-    let order = row_order(scene, opts.interleave);
-    let capacity = job_rows(w);
+}
+
+/// Renders every angle's rows into `files` (one per angle, in the scene's order), in the
+/// cubes' file order for `interleave`, finishing each angle's files on a thread of its own
+/// once its last row is written. Every angle's files are finished (or, after an error,
+/// their temporary files removed) before this returns.
+fn write_cubes(
+    camera: &SoftwareCamera,
+    kind: RowKind,
+    interleave: Interleave,
+    mut files: Vec<Option<AngleFiles>>,
+    on_rows: &dyn Fn(u64),
+) -> Result<(), SimulateError> {
+    let scene = camera.scene();
+    let order = row_order(scene, interleave);
+    let capacity = job_rows(camera.width());
     let per_angle = order.len().div_ceil(capacity);
     let jobs = angle_jobs(&order, scene.angles_deg.len(), capacity);
     let mut finishing = Vec::new();
     let written = render_in_order(
-        &camera,
+        camera,
         kind,
         &jobs,
         capacity,
@@ -476,8 +548,6 @@ pub fn write_capture(
             Ok(())
         },
     );
-    // Every angle's files are finished (or, after an error, their temporary files removed)
-    // before this returns.
     let finished: Vec<Result<(), SimulateError>> = finishing
         .into_iter()
         .map(|t| t.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
@@ -488,60 +558,37 @@ pub fn write_capture(
     for angle in files.into_iter().flatten() {
         angle.finish()?;
     }
-    let truth_map = out_dir.join("truth").join("thickness_nm.hdr");
-    write_f32_map(
-        &truth_map,
-        w,
-        h,
-        &scene.thickness_nm,
-        Some("true film thickness, nm"),
-        &[],
-    )
-    .map_err(|e| path_err(&truth_map, &e))?;
-    let toml_path = out_dir.join("capture.toml");
-    // A dispersive substrate travels with the capture as a refractiveindex.info entry.
-    let substrate = if scene.stack.substrate.is_constant() {
-        None
-    } else {
-        let name = "substrate.yml";
-        let path = out_dir.join(name);
-        let text = crate::material::to_rii_yaml(
-            &scene.stack.substrate,
-            [
-                scene.bands_nm.first().copied().unwrap_or(380.0),
-                scene.bands_nm.last().copied().unwrap_or(780.0),
-            ],
-            &format!("substrate of scene {}", scene.name),
-        );
-        write_atomic(&path, text.as_bytes()).map_err(|e| path_err(&path, &e))?;
-        Some(crate::io::SubstrateMaterial {
-            name: name.into(),
-            dispersion: scene.stack.substrate,
-        })
-    };
-    let capture = Capture {
-        path: toml_path.clone(),
-        sample: Sample {
-            ambient_index: scene.stack.ambient_index,
-            substrate_index: scene.stack.substrate.index_at(550.0),
-            substrate,
-            polarization: scene.stack.polarization,
-            back_face: scene.stack.back_face,
-        },
-        search: Search {
-            index_range: scene.index_range,
-            thickness_range_nm: scene.thickness_range_nm,
-        },
-        lens: Lens {
-            horizontal_fov_deg: scene.field_of_view.map(|f| f.horizontal_deg()),
-        },
-        angles,
-        fit: Default::default(),
-        unknown_keys: Vec::new(),
-    };
-    capture
-        .write_toml(&toml_path)
-        .map_err(|e| SimulateError(e.to_string()))?;
+    Ok(())
+}
+
+/// A dispersive substrate travels with the capture as a refractiveindex.info entry
+/// (`substrate.yml` in `out_dir`, written here); a constant one needs none.
+fn write_substrate(
+    scene: &Scene,
+    out_dir: &Path,
+) -> Result<Option<crate::io::SubstrateMaterial>, SimulateError> {
+    if scene.stack.substrate.is_constant() {
+        return Ok(None);
+    }
+    let name = "substrate.yml";
+    let path = out_dir.join(name);
+    let text = crate::material::to_rii_yaml(
+        &scene.stack.substrate,
+        [
+            scene.bands_nm.first().copied().unwrap_or(380.0),
+            scene.bands_nm.last().copied().unwrap_or(780.0),
+        ],
+        &format!("substrate of scene {}", scene.name),
+    );
+    write_atomic(&path, text.as_bytes()).map_err(|e| path_err(&path, &e))?;
+    Ok(Some(crate::io::SubstrateMaterial {
+        name: name.into(),
+        dispersion: scene.stack.substrate,
+    }))
+}
+
+/// What `truth.json` says of the scene a `w` x `h` capture was simulated from.
+fn truth_record(scene: &Scene, opts: SimulateOptions, w: usize, h: usize) -> TruthRecord {
     TruthRecord {
         scene: scene.name.clone(),
         description: scene.description.clone(),
@@ -565,9 +612,6 @@ pub fn write_capture(
         // Only a scene with a lens says so.
         horizontal_fov_deg: scene.field_of_view.map(|f| f.horizontal_deg()),
     }
-    .write(out_dir)
-    .map_err(|e| SimulateError(e.to_string()))?;
-    Ok(toml_path)
 }
 
 #[cfg(test)]

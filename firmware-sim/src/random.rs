@@ -285,48 +285,9 @@ fn draw_thick_as(seed: u64, i: usize) -> RandomScene {
 /// [`draw`], or [`draw_realistic`].
 fn draw_as(seed: u64, i: usize, realistic: bool) -> RandomScene {
     let mut rng = Rng::from_words(&[seed, i as u64, 0x7A4D_5CE7]);
-    let names = materials::names();
-    let material = names[integer(&mut rng, [0, names.len() - 1])];
-    let film_n = materials::by_name(material)
-        .map(|d| d.index_at(550.0))
-        .unwrap_or(1.5);
-    let substrate = loop {
-        let n = round_to(uniform(&mut rng, SUBSTRATE_INDEX), 1000.0);
-        if (n - film_n).abs() >= MIN_INDEX_GAP && n < SUBSTRATE_INDEX[1] {
-            break n;
-        }
-    };
-    let (base, gradient) = thickness_draw(&mut rng, BASE_THICKNESS_NM, 0.15);
-    let bumps = integer(&mut rng, [0, 4]);
-    let bump_height = round_to(1.0 + base * uniform(&mut rng, [0.02, 0.06]), 10.0);
-    let bump_sigma = round_to(uniform(&mut rng, [0.08, 0.25]), 100.0);
-    let has_step = rng.uniform() < 1.0 / 3.0;
-    let step = if has_step {
-        let sign = if rng.uniform() < 0.5 { -1.0 } else { 1.0 };
-        let x = round_to(uniform(&mut rng, [0.3, 0.7]), 100.0);
-        let h = round_to(sign * base * uniform(&mut rng, [0.03, 0.12]), 10.0);
-        format!("steps = [{{ x = {x:?}, height_nm = {h:?} }}]\n")
-    } else {
-        String::new()
-    };
-    let n_angles = integer(&mut rng, ANGLE_COUNT);
-    let mut angles: Vec<f64> = Vec::with_capacity(n_angles);
-    while angles.len() < n_angles {
-        let a = round_to(uniform(&mut rng, ANGLE_DEG), 2.0);
-        if angles.iter().all(|b| (a - b).abs() >= MIN_ANGLE_GAP_DEG) {
-            angles.push(a);
-        }
-    }
-    angles.sort_by(f64::total_cmp);
-    if rng.uniform() < 1.0 / 3.0 {
-        for k in (1..angles.len()).rev() {
-            angles.swap(k, integer(&mut rng, [0, k]));
-        }
-    }
-    let start = uniform(&mut rng, BAND_START_NM).round();
-    let stop = uniform(&mut rng, BAND_STOP_NM).round();
-    let step_nm = round_to(uniform(&mut rng, BAND_STEP_NM), 2.0);
-    let fwhm = round_to(uniform(&mut rng, FWHM_NM), 10.0);
+    let (material, substrate) = film_and_substrate(&mut rng);
+    let thickness = ThicknessTable::draw(&mut rng);
+    let rig = rig_table(&mut rng);
     let polarization = ["s", "p", "unpolarized"][integer(&mut rng, [0, 2])];
     let float_reflectance = rng.uniform() < 0.5;
     let noise = round_to(uniform(&mut rng, NOISE_PERCENT), 100.0);
@@ -362,8 +323,8 @@ fn draw_as(seed: u64, i: usize, realistic: bool) -> RandomScene {
     } else {
         String::new()
     };
-    let angle_list: Vec<String> = angles.iter().map(|a| format!("{a:?}")).collect();
-    let mut toml = format!(
+    let base = thickness.base;
+    let toml = format!(
         "name = {name:?}\n\
          description = \"{material} {base:?} nm on n = {substrate:?}\"\n\
          seed = {scene_seed}\n\
@@ -374,30 +335,129 @@ fn draw_as(seed: u64, i: usize, realistic: bool) -> RandomScene {
          name = {material:?}\n\
          \n\
          [film.thickness]\n\
-         base_nm = {base:?}\n\
-         gradient_nm = [{:?}, {:?}]\n\
-         random_bumps = {{ count = {bumps}, height_nm = {bump_height:?}, sigma = {bump_sigma:?} }}\n\
-         {step}\
+         {}\
          \n\
          [substrate]\n\
          index = {substrate:?}\n\
          {back_face_line}\
          \n\
          [rig]\n\
-         angles_deg = [{}]\n\
-         bands_nm = [{start:?}, {stop:?}, {step_nm:?}]\n\
-         fwhm_nm = {fwhm:?}\n\
+         {rig}\
          \n\
          [sensor]\n\
          width = {width}\n\
          height = {height}\n\
          {noise_line}         {imperfections}",
-        gradient[0],
-        gradient[1],
-        angle_list.join(", "),
+        thickness.table,
     );
+    let (scene, toml) = with_search_range(toml, &name);
+    RandomScene {
+        scene,
+        toml,
+        material,
+        base_thickness_nm: base,
+        has_step: thickness.has_step,
+        float_reflectance,
+        interleave,
+        big_endian,
+    }
+}
+
+/// The film's material, uniform from the library, and the substrate's index, redrawn while
+/// within [`MIN_INDEX_GAP`] of the film's n at 550 nm.
+fn film_and_substrate(rng: &mut Rng) -> (&'static str, f64) {
+    let names = materials::names();
+    let material = names[integer(rng, [0, names.len() - 1])];
+    let film_n = materials::by_name(material)
+        .map(|d| d.index_at(550.0))
+        .unwrap_or(1.5);
+    let substrate = loop {
+        let n = round_to(uniform(rng, SUBSTRATE_INDEX), 1000.0);
+        if (n - film_n).abs() >= MIN_INDEX_GAP && n < SUBSTRATE_INDEX[1] {
+            break n;
+        }
+    };
+    (material, substrate)
+}
+
+/// A drawn `[film.thickness]` table and what [`RandomScene`] says of it.
+struct ThicknessTable {
+    /// Base thickness, nm.
+    base: f64,
+    /// True when the map has a step.
+    has_step: bool,
+    /// The table's lines, each ending in a newline.
+    table: String,
+}
+
+impl ThicknessTable {
+    /// A base thickness and gradient ([`thickness_draw`]), up to four random bumps and,
+    /// one time in three, a step.
+    fn draw(rng: &mut Rng) -> Self {
+        let (base, gradient) = thickness_draw(rng, BASE_THICKNESS_NM, 0.15);
+        let bumps = integer(rng, [0, 4]);
+        let bump_height = round_to(1.0 + base * uniform(rng, [0.02, 0.06]), 10.0);
+        let bump_sigma = round_to(uniform(rng, [0.08, 0.25]), 100.0);
+        let has_step = rng.uniform() < 1.0 / 3.0;
+        let step = if has_step {
+            let sign = if rng.uniform() < 0.5 { -1.0 } else { 1.0 };
+            let x = round_to(uniform(rng, [0.3, 0.7]), 100.0);
+            let h = round_to(sign * base * uniform(rng, [0.03, 0.12]), 10.0);
+            format!("steps = [{{ x = {x:?}, height_nm = {h:?} }}]\n")
+        } else {
+            String::new()
+        };
+        let table = format!(
+            "base_nm = {base:?}\n\
+             gradient_nm = [{:?}, {:?}]\n\
+             random_bumps = {{ count = {bumps}, height_nm = {bump_height:?}, sigma = {bump_sigma:?} }}\n\
+             {step}",
+            gradient[0], gradient[1],
+        );
+        Self {
+            base,
+            has_step,
+            table,
+        }
+    }
+}
+
+/// A drawn `[rig]` table's lines: 3 to 7 distinct stage angles at least
+/// [`MIN_ANGLE_GAP_DEG`] apart, rising or (one time in three) shuffled, the bands and the
+/// FWHM.
+fn rig_table(rng: &mut Rng) -> String {
+    let n_angles = integer(rng, ANGLE_COUNT);
+    let mut angles: Vec<f64> = Vec::with_capacity(n_angles);
+    while angles.len() < n_angles {
+        let a = round_to(uniform(rng, ANGLE_DEG), 2.0);
+        if angles.iter().all(|b| (a - b).abs() >= MIN_ANGLE_GAP_DEG) {
+            angles.push(a);
+        }
+    }
+    angles.sort_by(f64::total_cmp);
+    if rng.uniform() < 1.0 / 3.0 {
+        for k in (1..angles.len()).rev() {
+            angles.swap(k, integer(rng, [0, k]));
+        }
+    }
+    let start = uniform(rng, BAND_START_NM).round();
+    let stop = uniform(rng, BAND_STOP_NM).round();
+    let step_nm = round_to(uniform(rng, BAND_STEP_NM), 2.0);
+    let fwhm = round_to(uniform(rng, FWHM_NM), 10.0);
+    let angle_list: Vec<String> = angles.iter().map(|a| format!("{a:?}")).collect();
+    format!(
+        "angles_deg = [{}]\n\
+         bands_nm = [{start:?}, {stop:?}, {step_nm:?}]\n\
+         fwhm_nm = {fwhm:?}\n",
+        angle_list.join(", "),
+    )
+}
+
+/// The scene `toml` describes, loaded as `name`; when its thickness map leaves the
+/// estimator's default search range, with a `[search]` table added to `toml` that covers it.
+fn with_search_range(mut toml: String, name: &str) -> (Scene, String) {
     let parse = |text: &str| {
-        Scene::from_toml(text, &name)
+        Scene::from_toml(text, name)
             .unwrap_or_else(|e| panic!("a drawn scene is always valid: {e}\n{text}"))
     };
     let mut scene = parse(&toml);
@@ -416,16 +476,7 @@ fn draw_as(seed: u64, i: usize, realistic: bool) -> RandomScene {
         ));
         scene = parse(&toml);
     }
-    RandomScene {
-        scene,
-        toml,
-        material,
-        base_thickness_nm: base,
-        has_step,
-        float_reflectance,
-        interleave,
-        big_endian,
-    }
+    (scene, toml)
 }
 
 /// A realistic scene's `[imperfections]` table, each effect drawn with

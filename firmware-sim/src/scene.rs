@@ -307,177 +307,13 @@ impl Scene {
         Self::from_file(file, name.to_owned()).map_err(err)
     }
 
-    fn from_file(f: SceneFile, stem: String) -> Result<Self, String> {
-        let film = match (f.film.index, f.film.dispersion) {
-            (Some(n), None) => Dispersion::constant(n),
-            (None, Some(d)) => dispersion(d, "[film.dispersion]")?,
-            (Some(_), Some(_)) => return Err("[film] gives both `index` and `dispersion`".into()),
-            (None, None) => return Err("[film] needs `index` or `dispersion`".into()),
-        };
-        let polarization = match f.polarization.as_deref() {
-            None => Polarization::S,
-            Some(p) => Polarization::from_name(p).ok_or_else(|| {
-                format!("polarization must be \"s\", \"p\" or \"unpolarized\", not {p:?}")
-            })?,
-        };
-        let substrate = match (f.substrate.index, f.substrate.dispersion) {
-            (Some(n), None) => Dispersion::constant(n),
-            (None, Some(d)) => dispersion(d, "[substrate.dispersion]")?,
-            (Some(_), Some(_)) => {
-                return Err("[substrate] gives both `index` and `dispersion`".into())
-            }
-            (None, None) => return Err("[substrate] needs `index` or `dispersion`".into()),
-        };
-        let back_face = match f.substrate.back_face.as_deref() {
-            None => BackFace::None,
-            Some(name) => BackFace::from_name(name)
-                .ok_or_else(|| format!("[substrate] back_face = {name:?}: \"none\" or \"bare\""))?,
-        };
-        let stack = FilmStack {
-            back_face,
-            ambient_index: f.ambient_index.unwrap_or(1.0),
-            film,
-            substrate,
-            polarization,
-        };
-        for (what, n) in [
-            ("ambient_index", stack.ambient_index),
-            ("substrate index at 550 nm", substrate.index_at(550.0)),
-            ("film index at 550 nm", film.index_at(550.0)),
-        ] {
-            if !(n.is_finite() && (1.0..=5.0).contains(&n)) {
-                return Err(format!("{what} {n} is outside 1..5"));
-            }
-        }
+    fn from_file(mut f: SceneFile, stem: String) -> Result<Self, String> {
+        let stack = film_stack(&mut f)?;
         let rig = f.rig;
-        if rig.angles_deg.is_empty() {
-            return Err(format!(
-                "[rig] angles_deg needs at least one angle, has {}",
-                rig.angles_deg.len()
-            ));
-        }
-        for &a in &rig.angles_deg {
-            if !(a.is_finite() && (0.0..89.0).contains(&a)) {
-                return Err(format!("[rig] angle {a} deg is outside 0..89"));
-            }
-        }
-        let [start, stop, step] = rig.bands_nm;
-        if !(start > 0.0 && stop > start && step > 0.0 && (stop - start) / step <= 4096.0) {
-            return Err(format!(
-                "[rig] bands_nm = [start, stop, step] must be increasing with a positive step and at most 4096 bands, got {:?}",
-                rig.bands_nm
-            ));
-        }
-        let n_bands = ((stop - start) / step + 1e-9).floor() as usize + 1;
-        let bands_nm: Vec<f64> = (0..n_bands).map(|i| start + step * i as f64).collect();
-        // Film and substrate above the ambient, finite, over the whole band (every nm).
-        for (what, d) in [("[film]", &stack.film), ("[substrate]", &stack.substrate)] {
-            let nm = (stop - start).ceil() as usize;
-            for l in (0..=nm).map(|i| (start + i as f64).min(stop)) {
-                let n = d.index_at(l);
-                if !(n.is_finite() && n > stack.ambient_index) {
-                    return Err(format!(
-                        "{what} n({l:.1} nm) = {n:.4} is not a finite index above ambient_index {} over the band {start}-{stop} nm",
-                        stack.ambient_index
-                    ));
-                }
-            }
-        }
-        if !(rig.fwhm_nm.is_finite() && rig.fwhm_nm >= 0.0 && rig.fwhm_nm < 100.0) {
-            return Err(format!("[rig] fwhm_nm {} is outside 0..100", rig.fwhm_nm));
-        }
-        let field_of_view = match rig.horizontal_fov_deg {
-            None => None,
-            Some(f) => Some(
-                FieldOfView::new(f)
-                    .ok_or_else(|| format!("[rig] horizontal_fov_deg {f} is outside (0, 180)"))?,
-            ),
-        };
-        if let Some(fov) = field_of_view {
-            for &a in &rig.angles_deg {
-                let edge = a.abs() + 0.5 * fov.horizontal_deg();
-                if edge >= 89.0 {
-                    return Err(format!(
-                        "[rig] angle {a} deg with a {} deg field of view reaches {edge} deg at the image edge (at most 89)",
-                        fov.horizontal_deg()
-                    ));
-                }
-            }
-        }
-        let s = f.sensor.unwrap_or_default();
-        let sensor = Sensor {
-            width: s.width.unwrap_or(96),
-            height: s.height.unwrap_or(64),
-            bit_depth: s.bit_depth.unwrap_or(12),
-            white_counts: s.white_counts.unwrap_or(3000.0),
-            gain_e_per_count: s.gain_e_per_count.unwrap_or(1.5),
-            read_noise_counts: s.read_noise_counts.unwrap_or(2.0),
-            dark_counts: s.dark_counts.unwrap_or(64.0),
-            white_frames: s.white_frames.unwrap_or(16),
-            vignetting: s.vignetting.unwrap_or(0.15),
-            dead_pixels: s.dead_pixels.unwrap_or(0),
-            hot_pixels: s.hot_pixels.unwrap_or(0),
-            reflectance_noise_percent: s.reflectance_noise_percent,
-            lamp_blue_ratio: s.lamp_blue_ratio.unwrap_or(0.6),
-        };
-        if !(sensor.lamp_blue_ratio > 0.0 && sensor.lamp_blue_ratio <= 1.0) {
-            return Err(format!(
-                "[sensor] lamp_blue_ratio {} is outside (0, 1]",
-                sensor.lamp_blue_ratio
-            ));
-        }
-        if sensor.width == 0 || sensor.height == 0 || sensor.width * sensor.height > 1 << 24 {
-            return Err(format!(
-                "[sensor] {}x{} pixels: need 1..16M",
-                sensor.width, sensor.height
-            ));
-        }
-        if !(8..=16).contains(&sensor.bit_depth) {
-            return Err(format!(
-                "[sensor] bit_depth {} is outside 8..16",
-                sensor.bit_depth
-            ));
-        }
-        if !sensor.white_counts.is_finite() || sensor.white_counts <= 0.0 {
-            return Err(format!(
-                "[sensor] white_counts {} must be positive",
-                sensor.white_counts
-            ));
-        }
-        let peak = sensor.peak_white_counts();
-        if !peak.is_finite() || peak >= sensor.saturation_counts() {
-            return Err(format!(
-                "[sensor] a perfect white reads {} counts at the band's red end (dark_counts {} \
-                 + white_counts {} x {}), at or above saturation ({}): the white reference \
-                 would clip; lower white_counts",
-                peak,
-                sensor.dark_counts,
-                sensor.white_counts,
-                sensor.throughput(1.0),
-                sensor.saturation_counts()
-            ));
-        }
-        if !(sensor.gain_e_per_count > 0.0
-            && sensor.read_noise_counts >= 0.0
-            && sensor.white_frames >= 1)
-        {
-            return Err(
-                "[sensor] gain must be positive, read noise non-negative, white_frames >= 1".into(),
-            );
-        }
-        if let Some(p) = sensor.reflectance_noise_percent {
-            if !(p.is_finite() && (0.0..=100.0).contains(&p)) {
-                return Err(format!(
-                    "[sensor] reflectance_noise_percent {p} is outside 0..100"
-                ));
-            }
-        }
-        if !(0.0..0.9).contains(&sensor.vignetting) {
-            return Err(format!(
-                "[sensor] vignetting {} is outside 0..0.9",
-                sensor.vignetting
-            ));
-        }
+        let bands_nm = rig.bands(&stack)?;
+        let field_of_view = rig.field_of_view()?;
+        let sensor = sensor(f.sensor.unwrap_or_default());
+        check_sensor(&sensor)?;
         let seed = f.seed.unwrap_or(1);
         let thickness_nm = thickness_map(&f.film.thickness, sensor.width, sensor.height, seed)?;
         let (index_range, thickness_range_nm) = match f.search {
@@ -486,37 +322,13 @@ impl Scene {
         };
         let mut imperfections = match f.imperfections {
             None => crate::imperfect::Imperfections::default(),
-            Some(m) => {
-                let bare = match m.back_face.as_deref().map(BackFace::from_name) {
-                    None => false,
-                    Some(Some(b)) => b == BackFace::Bare,
-                    Some(None) => {
-                        return Err(format!(
-                            "[imperfections] back_face = {:?}: \"none\" or \"bare\"",
-                            m.back_face.unwrap_or_default()
-                        ))
-                    }
-                };
-                let imp = crate::imperfect::Imperfections {
-                    film_k: m.film_k.unwrap_or(0.0),
-                    film_k_tail_nm: m.film_k_tail_nm.unwrap_or(0.0),
-                    stage_offset_deg: m.stage_offset_deg.unwrap_or(0.0),
-                    wavelength_shift_nm: m.wavelength_shift_nm.unwrap_or(0.0),
-                    flare: m.flare.unwrap_or(0.0),
-                    polariser_leak: m.polariser_leak.unwrap_or(0.0),
-                    side_lobes: m.side_lobes.unwrap_or(0.0),
-                    bare_back_face: bare,
-                    film_material_k: false,
-                };
-                imp.check().map_err(|e| e.to_string())?;
-                imp
-            }
+            Some(m) => imperfections(m)?,
         };
         // A declared back face is rendered as an undeclared one is, by the rig model's own
         // optics ([`crate::imperfect`]), not by the estimator's.
-        imperfections.bare_back_face |= back_face == BackFace::Bare;
+        imperfections.bare_back_face |= stack.back_face == BackFace::Bare;
         // An absorbing film material (a tabulated nk entry) is rendered the same way.
-        imperfections.film_material_k = bands_nm.iter().any(|&l| film.extinction_at(l) > 0.0);
+        imperfections.film_material_k = bands_nm.iter().any(|&l| stack.film.extinction_at(l) > 0.0);
         if imperfections.any() && field_of_view.is_some() {
             return Err(
                 "[imperfections], a bare back face and an absorbing film cannot go with [rig] horizontal_fov_deg"
@@ -553,6 +365,229 @@ impl Scene {
             None => stage_deg,
         }
     }
+}
+
+/// The scene file's film stack (film, substrate, back face, ambient and polarisation), each
+/// index checked at 550 nm. Takes the film's and the substrate's dispersions out of `f`.
+fn film_stack(f: &mut SceneFile) -> Result<FilmStack, String> {
+    let film = match (f.film.index, f.film.dispersion.take()) {
+        (Some(n), None) => Dispersion::constant(n),
+        (None, Some(d)) => dispersion(d, "[film.dispersion]")?,
+        (Some(_), Some(_)) => return Err("[film] gives both `index` and `dispersion`".into()),
+        (None, None) => return Err("[film] needs `index` or `dispersion`".into()),
+    };
+    let polarization = match f.polarization.as_deref() {
+        None => Polarization::S,
+        Some(p) => Polarization::from_name(p).ok_or_else(|| {
+            format!("polarization must be \"s\", \"p\" or \"unpolarized\", not {p:?}")
+        })?,
+    };
+    let substrate = match (f.substrate.index, f.substrate.dispersion.take()) {
+        (Some(n), None) => Dispersion::constant(n),
+        (None, Some(d)) => dispersion(d, "[substrate.dispersion]")?,
+        (Some(_), Some(_)) => return Err("[substrate] gives both `index` and `dispersion`".into()),
+        (None, None) => return Err("[substrate] needs `index` or `dispersion`".into()),
+    };
+    let back_face = match f.substrate.back_face.as_deref() {
+        None => BackFace::None,
+        Some(name) => BackFace::from_name(name)
+            .ok_or_else(|| format!("[substrate] back_face = {name:?}: \"none\" or \"bare\""))?,
+    };
+    let stack = FilmStack {
+        back_face,
+        ambient_index: f.ambient_index.unwrap_or(1.0),
+        film,
+        substrate,
+        polarization,
+    };
+    for (what, n) in [
+        ("ambient_index", stack.ambient_index),
+        ("substrate index at 550 nm", substrate.index_at(550.0)),
+        ("film index at 550 nm", film.index_at(550.0)),
+    ] {
+        if !(n.is_finite() && (1.0..=5.0).contains(&n)) {
+            return Err(format!("{what} {n} is outside 1..5"));
+        }
+    }
+    Ok(stack)
+}
+
+impl RigFile {
+    /// The band centres, after checking the angles, the band list, the passband and that
+    /// the film and the substrate stay above the ambient index over the whole band.
+    fn bands(&self, stack: &FilmStack) -> Result<Vec<f64>, String> {
+        if self.angles_deg.is_empty() {
+            return Err(format!(
+                "[rig] angles_deg needs at least one angle, has {}",
+                self.angles_deg.len()
+            ));
+        }
+        for &a in &self.angles_deg {
+            if !(a.is_finite() && (0.0..89.0).contains(&a)) {
+                return Err(format!("[rig] angle {a} deg is outside 0..89"));
+            }
+        }
+        let [start, stop, step] = self.bands_nm;
+        if !(start > 0.0 && stop > start && step > 0.0 && (stop - start) / step <= 4096.0) {
+            return Err(format!(
+                "[rig] bands_nm = [start, stop, step] must be increasing with a positive step and at most 4096 bands, got {:?}",
+                self.bands_nm
+            ));
+        }
+        let n_bands = ((stop - start) / step + 1e-9).floor() as usize + 1;
+        let bands_nm: Vec<f64> = (0..n_bands).map(|i| start + step * i as f64).collect();
+        // Film and substrate above the ambient, finite, over the whole band (every nm).
+        for (what, d) in [("[film]", &stack.film), ("[substrate]", &stack.substrate)] {
+            let nm = (stop - start).ceil() as usize;
+            for l in (0..=nm).map(|i| (start + i as f64).min(stop)) {
+                let n = d.index_at(l);
+                if !(n.is_finite() && n > stack.ambient_index) {
+                    return Err(format!(
+                        "{what} n({l:.1} nm) = {n:.4} is not a finite index above ambient_index {} over the band {start}-{stop} nm",
+                        stack.ambient_index
+                    ));
+                }
+            }
+        }
+        if !(self.fwhm_nm.is_finite() && self.fwhm_nm >= 0.0 && self.fwhm_nm < 100.0) {
+            return Err(format!("[rig] fwhm_nm {} is outside 0..100", self.fwhm_nm));
+        }
+        Ok(bands_nm)
+    }
+
+    /// The lens's field of view, if given, checked to keep every angle's image edge below
+    /// 89 degrees.
+    fn field_of_view(&self) -> Result<Option<FieldOfView>, String> {
+        let field_of_view = match self.horizontal_fov_deg {
+            None => None,
+            Some(f) => Some(
+                FieldOfView::new(f)
+                    .ok_or_else(|| format!("[rig] horizontal_fov_deg {f} is outside (0, 180)"))?,
+            ),
+        };
+        if let Some(fov) = field_of_view {
+            for &a in &self.angles_deg {
+                let edge = a.abs() + 0.5 * fov.horizontal_deg();
+                if edge >= 89.0 {
+                    return Err(format!(
+                        "[rig] angle {a} deg with a {} deg field of view reaches {edge} deg at the image edge (at most 89)",
+                        fov.horizontal_deg()
+                    ));
+                }
+            }
+        }
+        Ok(field_of_view)
+    }
+}
+
+/// The sensor a `[sensor]` table describes, with the defaults for what it leaves out.
+fn sensor(s: SensorFile) -> Sensor {
+    Sensor {
+        width: s.width.unwrap_or(96),
+        height: s.height.unwrap_or(64),
+        bit_depth: s.bit_depth.unwrap_or(12),
+        white_counts: s.white_counts.unwrap_or(3000.0),
+        gain_e_per_count: s.gain_e_per_count.unwrap_or(1.5),
+        read_noise_counts: s.read_noise_counts.unwrap_or(2.0),
+        dark_counts: s.dark_counts.unwrap_or(64.0),
+        white_frames: s.white_frames.unwrap_or(16),
+        vignetting: s.vignetting.unwrap_or(0.15),
+        dead_pixels: s.dead_pixels.unwrap_or(0),
+        hot_pixels: s.hot_pixels.unwrap_or(0),
+        reflectance_noise_percent: s.reflectance_noise_percent,
+        lamp_blue_ratio: s.lamp_blue_ratio.unwrap_or(0.6),
+    }
+}
+
+/// Checks that the sensor can be simulated: its size, ADC, noise, vignetting, and a white
+/// reference that does not clip.
+fn check_sensor(sensor: &Sensor) -> Result<(), String> {
+    if !(sensor.lamp_blue_ratio > 0.0 && sensor.lamp_blue_ratio <= 1.0) {
+        return Err(format!(
+            "[sensor] lamp_blue_ratio {} is outside (0, 1]",
+            sensor.lamp_blue_ratio
+        ));
+    }
+    if sensor.width == 0 || sensor.height == 0 || sensor.width * sensor.height > 1 << 24 {
+        return Err(format!(
+            "[sensor] {}x{} pixels: need 1..16M",
+            sensor.width, sensor.height
+        ));
+    }
+    if !(8..=16).contains(&sensor.bit_depth) {
+        return Err(format!(
+            "[sensor] bit_depth {} is outside 8..16",
+            sensor.bit_depth
+        ));
+    }
+    if !sensor.white_counts.is_finite() || sensor.white_counts <= 0.0 {
+        return Err(format!(
+            "[sensor] white_counts {} must be positive",
+            sensor.white_counts
+        ));
+    }
+    let peak = sensor.peak_white_counts();
+    if !peak.is_finite() || peak >= sensor.saturation_counts() {
+        return Err(format!(
+            "[sensor] a perfect white reads {} counts at the band's red end (dark_counts {} \
+             + white_counts {} x {}), at or above saturation ({}): the white reference \
+             would clip; lower white_counts",
+            peak,
+            sensor.dark_counts,
+            sensor.white_counts,
+            sensor.throughput(1.0),
+            sensor.saturation_counts()
+        ));
+    }
+    if !(sensor.gain_e_per_count > 0.0
+        && sensor.read_noise_counts >= 0.0
+        && sensor.white_frames >= 1)
+    {
+        return Err(
+            "[sensor] gain must be positive, read noise non-negative, white_frames >= 1".into(),
+        );
+    }
+    if let Some(p) = sensor.reflectance_noise_percent {
+        if !(p.is_finite() && (0.0..=100.0).contains(&p)) {
+            return Err(format!(
+                "[sensor] reflectance_noise_percent {p} is outside 0..100"
+            ));
+        }
+    }
+    if !(0.0..0.9).contains(&sensor.vignetting) {
+        return Err(format!(
+            "[sensor] vignetting {} is outside 0..0.9",
+            sensor.vignetting
+        ));
+    }
+    Ok(())
+}
+
+/// The imperfections an `[imperfections]` table asks for, checked.
+fn imperfections(m: ImperfectionsFile) -> Result<crate::imperfect::Imperfections, String> {
+    let bare = match m.back_face.as_deref().map(BackFace::from_name) {
+        None => false,
+        Some(Some(b)) => b == BackFace::Bare,
+        Some(None) => {
+            return Err(format!(
+                "[imperfections] back_face = {:?}: \"none\" or \"bare\"",
+                m.back_face.unwrap_or_default()
+            ))
+        }
+    };
+    let imp = crate::imperfect::Imperfections {
+        film_k: m.film_k.unwrap_or(0.0),
+        film_k_tail_nm: m.film_k_tail_nm.unwrap_or(0.0),
+        stage_offset_deg: m.stage_offset_deg.unwrap_or(0.0),
+        wavelength_shift_nm: m.wavelength_shift_nm.unwrap_or(0.0),
+        flare: m.flare.unwrap_or(0.0),
+        polariser_leak: m.polariser_leak.unwrap_or(0.0),
+        side_lobes: m.side_lobes.unwrap_or(0.0),
+        bare_back_face: bare,
+        film_material_k: false,
+    };
+    imp.check().map_err(|e| e.to_string())?;
+    Ok(imp)
 }
 
 fn dispersion(d: DispersionFile, what: &str) -> Result<Dispersion, String> {

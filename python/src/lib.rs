@@ -341,79 +341,27 @@ fn estimate_array<'py>(
     };
     let config = opts.config().map_err(fail)?;
     let film = given_index(film_index, &config)?;
-    let [na, lines, samples, bands] = shape;
-    if data.len() != na * lines * samples * bands * 4 {
-        return Err(fail(format!(
-            "array: {} bytes for shape {shape:?} (expected {})",
-            data.len(),
-            na * lines * samples * bands * 4
-        )));
-    }
-    if wavelengths_nm.len() != bands {
-        return Err(fail(format!(
-            "wavelengths_nm: {} values for {bands} bands (the array's last axis)",
-            wavelengths_nm.len()
-        )));
-    }
-    if angles_deg.len() != na {
-        return Err(fail(format!(
-            "angles_deg: {} values for {na} angles (the array's first axis)",
-            angles_deg.len()
-        )));
-    }
-    if let Some(f) = &fwhm_nm {
-        if f.len() != bands {
-            return Err(fail(format!(
-                "fwhm_nm: {} values for {bands} bands",
-                f.len()
-            )));
-        }
-    }
-    if na < 1 {
-        return Err(fail("array: at least one angle is needed"));
-    }
-    for &a in &angles_deg {
-        if !(a.is_finite() && (0.0..90.0).contains(&a)) {
-            return Err(fail(format!("angles_deg: {a} is outside [0, 90)")));
-        }
-    }
-    let substrate_d = dispersion(substrate, "substrate").map_err(fail)?;
-    let pol = polarization(polarization_name).map_err(fail)?;
-    filmscope::limits::check_sample(
-        "ambient_index",
+    let axes = ArrayAxes {
+        shape,
+        wavelengths_nm: &wavelengths_nm,
+        angles_deg: &angles_deg,
+        fwhm_nm: fwhm_nm.as_deref(),
+    };
+    axes.check(data.len()).map_err(fail)?;
+    let sample = ArraySample {
         ambient_index,
-        "substrate",
-        substrate_d.index_at(550.0),
-    )
-    .map_err(fail)?;
-    let spec = sweep_spec(
-        samples,
-        lines,
-        &wavelengths_nm,
-        fwhm_nm.as_deref(),
-        ambient_index,
-        substrate_d.index_at(550.0),
-        pol,
-        index_range.unwrap_or(DEFAULT_INDEX_RANGE),
+        substrate,
+        polarization_name,
+        back_face_name,
+        index_range,
         thickness_range_nm,
-    )
-    .map_err(fail)?
-    .with_substrate(substrate_d)
-    .with_back_face(back_face(back_face_name).map_err(fail)?);
+    };
+    let spec = sample.spec(&axes).map_err(fail)?;
     let values: Vec<f32> = data
         .chunks_exact(4)
         .map(|c| f32::from_ne_bytes([c[0], c[1], c[2], c[3]]))
         .collect();
-    let mut order: Vec<usize> = (0..na).collect();
-    order.sort_by(|&a, &b| angles_deg[a].total_cmp(&angles_deg[b]));
-    for w in order.windows(2) {
-        if (angles_deg[w[0]] - angles_deg[w[1]]).abs() < 1e-6 {
-            return Err(fail(format!(
-                "angles_deg: {} appears twice",
-                angles_deg[w[0]]
-            )));
-        }
-    }
+    let order = axes.order().map_err(fail)?;
     let mut source = ArraySource {
         data: values,
         shape,
@@ -431,6 +379,114 @@ fn estimate_array<'py>(
         })
         .map_err(fail)?;
     result_dict(py, &run, &summary)
+}
+
+/// The shape and axes `filmscope.estimate` gives with a reflectance array.
+struct ArrayAxes<'a> {
+    /// `(angles, lines, samples, bands)`.
+    shape: [usize; 4],
+    wavelengths_nm: &'a [f64],
+    angles_deg: &'a [f64],
+    fwhm_nm: Option<&'a [f64]>,
+}
+
+impl ArrayAxes<'_> {
+    /// Checks that an array of `bytes` bytes has the shape, that every axis has a value per
+    /// index of its dimension, and that there is an angle and every angle is in [0, 90).
+    fn check(&self, bytes: usize) -> Result<(), String> {
+        let shape = self.shape;
+        let [na, lines, samples, bands] = shape;
+        if bytes != na * lines * samples * bands * 4 {
+            return Err(format!(
+                "array: {} bytes for shape {shape:?} (expected {})",
+                bytes,
+                na * lines * samples * bands * 4
+            ));
+        }
+        if self.wavelengths_nm.len() != bands {
+            return Err(format!(
+                "wavelengths_nm: {} values for {bands} bands (the array's last axis)",
+                self.wavelengths_nm.len()
+            ));
+        }
+        if self.angles_deg.len() != na {
+            return Err(format!(
+                "angles_deg: {} values for {na} angles (the array's first axis)",
+                self.angles_deg.len()
+            ));
+        }
+        if let Some(f) = self.fwhm_nm {
+            if f.len() != bands {
+                return Err(format!("fwhm_nm: {} values for {bands} bands", f.len()));
+            }
+        }
+        if na < 1 {
+            return Err("array: at least one angle is needed".to_owned());
+        }
+        for &a in self.angles_deg {
+            if !(a.is_finite() && (0.0..90.0).contains(&a)) {
+                return Err(format!("angles_deg: {a} is outside [0, 90)"));
+            }
+        }
+        Ok(())
+    }
+
+    /// The indices of the angle axis by increasing incidence; an error if an angle appears
+    /// twice.
+    fn order(&self) -> Result<Vec<usize>, String> {
+        let angles_deg = self.angles_deg;
+        let mut order: Vec<usize> = (0..angles_deg.len()).collect();
+        order.sort_by(|&a, &b| angles_deg[a].total_cmp(&angles_deg[b]));
+        for w in order.windows(2) {
+            if (angles_deg[w[0]] - angles_deg[w[1]]).abs() < 1e-6 {
+                return Err(format!("angles_deg: {} appears twice", angles_deg[w[0]]));
+            }
+        }
+        Ok(order)
+    }
+}
+
+/// The sample around the film and the search ranges `filmscope.estimate` gives with a
+/// reflectance array.
+struct ArraySample<'a> {
+    ambient_index: f64,
+    /// The substrate, JSON text as [`dispersion`] reads it.
+    substrate: &'a str,
+    polarization_name: &'a str,
+    back_face_name: &'a str,
+    index_range: Option<[f64; 2]>,
+    thickness_range_nm: Option<[f64; 2]>,
+}
+
+impl ArraySample<'_> {
+    /// The sweep's spec: the array's size and bands with this sample, checked as a
+    /// capture's are.
+    fn spec(&self, axes: &ArrayAxes) -> Result<SweepSpec, String> {
+        let [_, lines, samples, _] = axes.shape;
+        let substrate_d = dispersion(self.substrate, "substrate")?;
+        let pol = polarization(self.polarization_name)?;
+        filmscope::limits::check_sample(
+            "ambient_index",
+            self.ambient_index,
+            "substrate",
+            substrate_d.index_at(550.0),
+        )
+        .map_err(|e| e.to_string())?;
+        Ok(sweep_spec(
+            samples,
+            lines,
+            axes.wavelengths_nm,
+            axes.fwhm_nm,
+            self.ambient_index,
+            substrate_d.index_at(550.0),
+            pol,
+            self.index_range.unwrap_or(DEFAULT_INDEX_RANGE),
+            self.thickness_range_nm,
+        )
+        .map_err(|e| e.to_string())?
+        .with_substrate(substrate_d)
+        .with_back_face(back_face(self.back_face_name)?))
+    }
 }
 
 /// The dispersion given as JSON text (a number, a name or path string, or an object).

@@ -27,6 +27,7 @@ use std::path::{Path, PathBuf};
 use crossbeam_channel::bounded;
 use filmscope_core::colour::{delta_e2000, Colorimetry, Illuminant, Xyz};
 use filmscope_core::optics::{FilmStack, Passband};
+use filmscope_core::solve::SweepSpec;
 
 use super::film::SampleFilm;
 use super::render::{auto_exposure, blit, display_rgb, sample_grid, swatch_note, upscale};
@@ -36,7 +37,7 @@ use crate::export::canvas::{text_width, Canvas, BACKGROUND, CAP_ROWS, INK};
 use crate::export::colormap::{viridis, NO_DATA};
 use crate::io::{Capture, DataType, EnviHeader, EnviWriter, Interleave};
 use crate::source::calibrate_block;
-use crate::source::{CaptureSource, Source, StreamMsg};
+use crate::source::{CaptureSource, RowBlock, Source, StreamMsg};
 
 /// One captured angle, measured against reproduced.
 #[derive(Clone, Debug)]
@@ -200,169 +201,266 @@ pub fn compare_stream(
     trace: Option<usize>,
     cubes: Option<&Path>,
 ) -> Result<(Comparison, Vec<PixelSpectra>), AppearanceError> {
-    let at = |what: String| AppearanceError::new(&film.maps_dir, what);
-    let spec = source.spec().clone();
-    let (w, h) = (spec.width, spec.height);
-    if (w, h) != (film.width, film.height) {
-        return Err(at(format!(
-            "the maps are {}x{} but the capture is {w}x{h}",
-            film.width, film.height
-        )));
-    }
-    let bands_nm = spec.bands_nm.to_vec();
-    let (first, last) = (
-        bands_nm.first().copied().unwrap_or(f64::NAN),
-        bands_nm.last().copied().unwrap_or(f64::NAN),
-    );
-    let colorimetry = Colorimetry::within(illuminant, first, last).ok_or_else(|| {
-        at(format!(
-            "the capture's bands {first}..{last} nm hold no 5 nm CIE grid wavelength"
-        ))
-    })?;
-    let nb = bands_nm.len();
-    let weights: Vec<[f64; 3]> = (0..nb)
-        .map(|b| {
-            let unit: Vec<f64> = (0..nb).map(|k| if k == b { 1.0 } else { 0.0 }).collect();
-            let x = colorimetry.xyz_sampled(&bands_nm, &unit);
-            [x.x, x.y, x.z]
-        })
-        .collect();
-    let bands = capture_passbands(&bands_nm, &spec.fwhm_nm);
-    let mut stack = film.stack;
-    stack.polarization = spec.polarization;
-    let trace = trace.filter(|&p| p < w * h);
-
-    let mut angles = Vec::new();
-    let mut spectra = Vec::new();
-    let mut current: Option<AngleAccumulator> = None;
-    // The model and residual cubes of the current angle, with the angle's band models.
-    let mut writers: Option<(BandSpectrum, EnviWriter, EnviWriter)> = None;
-    let envi = |e: crate::io::EnviError| AppearanceError(e.to_string());
-    let cube_header = |what: &str, deg: f64| {
-        let mut h = EnviHeader::new(w, h, nb, DataType::F32, Interleave::Bsq);
-        h.description = Some(format!(
-            "filmscope compare: {what} reflectance at {deg} deg"
-        ));
-        h.wavelength_nm = Some(bands_nm.clone());
-        h.fwhm_nm = Some(spec.fwhm_nm.to_vec());
-        h
-    };
+    let mut state = StreamedComparison::new(film, source.spec(), illuminant, trace, cubes)?;
     let (tx, rx) = bounded::<StreamMsg>(64);
     std::thread::scope(|scope| -> Result<(), AppearanceError> {
         scope.spawn(move || source.stream(&tx));
         for msg in rx.iter() {
             match msg {
-                StreamMsg::Angle { incidence_deg } => {
-                    if let Some(dir) = cubes {
-                        let name =
-                            |what: &str| dir.join(format!("{what}-{incidence_deg:02.0}.hdr"));
-                        writers = Some((
-                            BandSpectrum::new(stack, incidence_deg, &bands, film.terms),
-                            EnviWriter::create(name("model"), &cube_header("model", incidence_deg))
-                                .map_err(envi)?,
-                            EnviWriter::create(
-                                name("residual"),
-                                &cube_header("measured minus model", incidence_deg),
-                            )
-                            .map_err(envi)?,
-                        ));
-                    }
-                    current = Some(AngleAccumulator {
-                        incidence_deg,
-                        xyz: vec![[0.0; 3]; w * h],
-                        unusable: vec![false; w * h],
-                        traced: vec![f64::NAN; nb],
-                    });
-                }
-                StreamMsg::Rows(block) => {
-                    let acc = current
-                        .as_mut()
-                        .ok_or_else(|| at("the capture sent rows outside an angle".into()))?;
-                    let (band, first_row, rows) = (
-                        usize::from(block.band),
-                        block.first_row as usize,
-                        block.rows as usize,
-                    );
-                    let values = calibrate_block(block.samples, rows, w);
-                    if band >= nb || first_row + rows > h || values.len() != rows * w {
-                        return Err(at(format!(
-                            "the capture sent band {band}, rows {first_row}..{} outside its {w}x{h}x{nb} sweep",
-                            first_row + rows
-                        )));
-                    }
-                    let wb = weights[band];
-                    let start = first_row * w;
-                    for (k, &v) in values.iter().enumerate() {
-                        let px = start + k;
-                        if !v.is_finite() {
-                            acc.unusable[px] = true;
-                            continue;
-                        }
-                        let v = f64::from(v);
-                        for (s, c) in acc.xyz[px].iter_mut().zip(wb) {
-                            *s += c * v;
-                        }
-                    }
-                    if let Some(p) = trace.filter(|p| (start..start + rows * w).contains(p)) {
-                        acc.traced[band] = f64::from(values[p - start]);
-                    }
-                    if let Some((model, m_out, r_out)) = writers.as_mut() {
-                        let (mut m_row, mut r_row) = (vec![f32::NAN; w], vec![f32::NAN; w]);
-                        for (j, row) in values.chunks_exact(w).enumerate() {
-                            for (c, &v) in row.iter().enumerate() {
-                                let d = film.thickness_at(start + j * w + c);
-                                let m = d.map_or(f64::NAN, |d| model.band(band, d));
-                                m_row[c] = m as f32;
-                                r_row[c] = (f64::from(v) - m) as f32;
-                            }
-                            m_out
-                                .write_band_row(band, first_row + j, &m_row)
-                                .map_err(envi)?;
-                            r_out
-                                .write_band_row(band, first_row + j, &r_row)
-                                .map_err(envi)?;
-                        }
-                    }
-                }
-                StreamMsg::AngleEnd => {
-                    if let Some((_, m_out, r_out)) = writers.take() {
-                        m_out.finish().map_err(envi)?;
-                        r_out.finish().map_err(envi)?;
-                    }
-                    let acc = current
-                        .take()
-                        .ok_or_else(|| at("the capture ended an angle it never began".into()))?;
-                    let (angle, traced) =
-                        finish_angle(film, stack, &bands, &weights, &colorimetry, acc, trace);
-                    angles.push(angle);
-                    if let Some(model) = traced.1 {
-                        spectra.push(PixelSpectra {
-                            incidence_deg: angles[angles.len() - 1].incidence_deg,
-                            measured: bands_nm.iter().copied().zip(traced.0).collect(),
-                            model: bands_nm.iter().copied().zip(model).collect(),
-                        });
-                    }
-                }
+                StreamMsg::Angle { incidence_deg } => state.begin_angle(incidence_deg)?,
+                StreamMsg::Rows(block) => state.add_rows(block)?,
+                StreamMsg::AngleEnd => state.end_angle()?,
                 StreamMsg::BandEnd { .. } => {}
                 StreamMsg::SweepEnd => return Ok(()),
                 StreamMsg::Abort(e) => return Err(AppearanceError(e)),
             }
         }
-        Err(at("the capture stopped without ending the sweep".into()))
+        Err(state.at("the capture stopped without ending the sweep".into()))
     })?;
-    angles.sort_by(|a, b| a.incidence_deg.total_cmp(&b.incidence_deg));
-    spectra.sort_by(|a, b| a.incidence_deg.total_cmp(&b.incidence_deg));
-    let overall = DeltaStats::of(angles.iter().flat_map(|a| a.delta_e2000.iter().copied()));
-    Ok((
-        Comparison {
-            width: w,
-            height: h,
+    Ok(state.finish())
+}
+
+/// A comparison while the sweep streams: what each message needs (the sweep's size and
+/// bands, the film, each band's colour weights) and what the angles so far gave.
+struct StreamedComparison<'a> {
+    film: &'a SampleFilm,
+    /// The sweep's size: pixels per row, rows, bands.
+    w: usize,
+    h: usize,
+    nb: usize,
+    bands_nm: Vec<f64>,
+    fwhm_nm: Vec<f64>,
+    /// The film under the capture's polarisation.
+    stack: FilmStack,
+    /// Each band's passband.
+    bands: Vec<Passband>,
+    /// Each band's weights: the band-limited XYZ of the unit spectrum at that band.
+    weights: Vec<[f64; 3]>,
+    colorimetry: Colorimetry,
+    /// The pixel whose spectra are kept.
+    trace: Option<usize>,
+    /// Where the model and residual cubes go, if they are written.
+    cubes: Option<&'a Path>,
+    /// The angles compared so far, and the traced pixel's spectra at them.
+    angles: Vec<AngleComparison>,
+    spectra: Vec<PixelSpectra>,
+    /// The angle being streamed.
+    current: Option<AngleAccumulator>,
+    /// The model and residual cubes of the current angle, with the angle's band models.
+    writers: Option<(BandSpectrum, EnviWriter, EnviWriter)>,
+}
+
+/// An ENVI cube that could not be written.
+fn envi_err(e: crate::io::EnviError) -> AppearanceError {
+    AppearanceError(e.to_string())
+}
+
+impl<'a> StreamedComparison<'a> {
+    /// Ready to compare `film` with a sweep of `spec` under `illuminant`; an error if the
+    /// sizes differ or the bands hold no CIE grid wavelength.
+    fn new(
+        film: &'a SampleFilm,
+        spec: &SweepSpec,
+        illuminant: Illuminant,
+        trace: Option<usize>,
+        cubes: Option<&'a Path>,
+    ) -> Result<Self, AppearanceError> {
+        let at = |what: String| AppearanceError::new(&film.maps_dir, what);
+        let (w, h) = (spec.width, spec.height);
+        if (w, h) != (film.width, film.height) {
+            return Err(at(format!(
+                "the maps are {}x{} but the capture is {w}x{h}",
+                film.width, film.height
+            )));
+        }
+        let bands_nm = spec.bands_nm.to_vec();
+        let (first, last) = (
+            bands_nm.first().copied().unwrap_or(f64::NAN),
+            bands_nm.last().copied().unwrap_or(f64::NAN),
+        );
+        let colorimetry = Colorimetry::within(illuminant, first, last).ok_or_else(|| {
+            at(format!(
+                "the capture's bands {first}..{last} nm hold no 5 nm CIE grid wavelength"
+            ))
+        })?;
+        let nb = bands_nm.len();
+        let weights: Vec<[f64; 3]> = (0..nb)
+            .map(|b| {
+                let unit: Vec<f64> = (0..nb).map(|k| if k == b { 1.0 } else { 0.0 }).collect();
+                let x = colorimetry.xyz_sampled(&bands_nm, &unit);
+                [x.x, x.y, x.z]
+            })
+            .collect();
+        let bands = capture_passbands(&bands_nm, &spec.fwhm_nm);
+        let mut stack = film.stack;
+        stack.polarization = spec.polarization;
+        Ok(Self {
+            film,
+            w,
+            h,
+            nb,
+            bands_nm,
+            fwhm_nm: spec.fwhm_nm.to_vec(),
+            stack,
+            bands,
+            weights,
             colorimetry,
-            angles,
-            overall,
-        },
-        spectra,
-    ))
+            trace: trace.filter(|&p| p < w * h),
+            cubes,
+            angles: Vec::new(),
+            spectra: Vec::new(),
+            current: None,
+            writers: None,
+        })
+    }
+
+    /// `what` went wrong with the maps' capture.
+    fn at(&self, what: String) -> AppearanceError {
+        AppearanceError::new(&self.film.maps_dir, what)
+    }
+
+    /// The header of the `what` reflectance cube at `deg`.
+    fn cube_header(&self, what: &str, deg: f64) -> EnviHeader {
+        let mut h = EnviHeader::new(self.w, self.h, self.nb, DataType::F32, Interleave::Bsq);
+        h.description = Some(format!(
+            "filmscope compare: {what} reflectance at {deg} deg"
+        ));
+        h.wavelength_nm = Some(self.bands_nm.clone());
+        h.fwhm_nm = Some(self.fwhm_nm.clone());
+        h
+    }
+
+    /// An angle begins: its accumulator, and its model and residual cubes if asked for.
+    fn begin_angle(&mut self, incidence_deg: f64) -> Result<(), AppearanceError> {
+        if let Some(dir) = self.cubes {
+            let name = |what: &str| dir.join(format!("{what}-{incidence_deg:02.0}.hdr"));
+            self.writers = Some((
+                BandSpectrum::new(self.stack, incidence_deg, &self.bands, self.film.terms),
+                EnviWriter::create(name("model"), &self.cube_header("model", incidence_deg))
+                    .map_err(envi_err)?,
+                EnviWriter::create(
+                    name("residual"),
+                    &self.cube_header("measured minus model", incidence_deg),
+                )
+                .map_err(envi_err)?,
+            ));
+        }
+        let (w, h) = (self.w, self.h);
+        self.current = Some(AngleAccumulator {
+            incidence_deg,
+            xyz: vec![[0.0; 3]; w * h],
+            unusable: vec![false; w * h],
+            traced: vec![f64::NAN; self.nb],
+        });
+        Ok(())
+    }
+
+    /// A block of rows of one band: its calibrated reflectance added to each pixel's
+    /// colour (and the traced pixel's spectrum), and the model and residual rows written.
+    fn add_rows(&mut self, block: RowBlock) -> Result<(), AppearanceError> {
+        let (w, h, nb) = (self.w, self.h, self.nb);
+        let Some(acc) = self.current.as_mut() else {
+            return Err(self.at("the capture sent rows outside an angle".into()));
+        };
+        let (band, first_row, rows) = (
+            usize::from(block.band),
+            block.first_row as usize,
+            block.rows as usize,
+        );
+        let values = calibrate_block(block.samples, rows, w);
+        if band >= nb || first_row + rows > h || values.len() != rows * w {
+            return Err(AppearanceError::new(
+                &self.film.maps_dir,
+                format!(
+                    "the capture sent band {band}, rows {first_row}..{} outside its {w}x{h}x{nb} sweep",
+                    first_row + rows
+                ),
+            ));
+        }
+        let wb = self.weights[band];
+        let start = first_row * w;
+        for (k, &v) in values.iter().enumerate() {
+            let px = start + k;
+            if !v.is_finite() {
+                acc.unusable[px] = true;
+                continue;
+            }
+            let v = f64::from(v);
+            for (s, c) in acc.xyz[px].iter_mut().zip(wb) {
+                *s += c * v;
+            }
+        }
+        if let Some(p) = self.trace.filter(|p| (start..start + rows * w).contains(p)) {
+            acc.traced[band] = f64::from(values[p - start]);
+        }
+        if let Some((model, m_out, r_out)) = self.writers.as_mut() {
+            let (mut m_row, mut r_row) = (vec![f32::NAN; w], vec![f32::NAN; w]);
+            for (j, row) in values.chunks_exact(w).enumerate() {
+                for (c, &v) in row.iter().enumerate() {
+                    let d = self.film.thickness_at(start + j * w + c);
+                    let m = d.map_or(f64::NAN, |d| model.band(band, d));
+                    m_row[c] = m as f32;
+                    r_row[c] = (f64::from(v) - m) as f32;
+                }
+                m_out
+                    .write_band_row(band, first_row + j, &m_row)
+                    .map_err(envi_err)?;
+                r_out
+                    .write_band_row(band, first_row + j, &r_row)
+                    .map_err(envi_err)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The angle ends: its cubes finished, its comparison (and the traced pixel's spectra)
+    /// kept.
+    fn end_angle(&mut self) -> Result<(), AppearanceError> {
+        if let Some((_, m_out, r_out)) = self.writers.take() {
+            m_out.finish().map_err(envi_err)?;
+            r_out.finish().map_err(envi_err)?;
+        }
+        let Some(acc) = self.current.take() else {
+            return Err(self.at("the capture ended an angle it never began".into()));
+        };
+        let (angle, traced) = finish_angle(
+            self.film,
+            self.stack,
+            &self.bands,
+            &self.weights,
+            &self.colorimetry,
+            acc,
+            self.trace,
+        );
+        let incidence_deg = angle.incidence_deg;
+        self.angles.push(angle);
+        if let Some(model) = traced.1 {
+            self.spectra.push(PixelSpectra {
+                incidence_deg,
+                measured: self.bands_nm.iter().copied().zip(traced.0).collect(),
+                model: self.bands_nm.iter().copied().zip(model).collect(),
+            });
+        }
+        Ok(())
+    }
+
+    /// The comparison of every angle, and the traced pixel's spectra, in ascending angle.
+    fn finish(self) -> (Comparison, Vec<PixelSpectra>) {
+        let (mut angles, mut spectra) = (self.angles, self.spectra);
+        angles.sort_by(|a, b| a.incidence_deg.total_cmp(&b.incidence_deg));
+        spectra.sort_by(|a, b| a.incidence_deg.total_cmp(&b.incidence_deg));
+        let overall = DeltaStats::of(angles.iter().flat_map(|a| a.delta_e2000.iter().copied()));
+        (
+            Comparison {
+                width: self.w,
+                height: self.h,
+                colorimetry: self.colorimetry,
+                angles,
+                overall,
+            },
+            spectra,
+        )
+    }
 }
 
 /// The model side of one streamed angle, and the differences. Returns the comparison and

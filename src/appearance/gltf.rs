@@ -124,30 +124,8 @@ pub const CHUNK_BIN: u32 = 0x004E_4942;
 /// Builds the GLB of `film`, a quad `width_m` metres wide (see the [module docs](self)).
 pub fn film_glb(film: &SampleFilm, width_m: f64) -> Result<Glb, AppearanceError> {
     let (png, min, max) = thickness_texture(film)?;
-    let (hw, hd) = (
-        width_m as f32 / 2.0,
-        (width_m * film.height as f64 / film.width as f64) as f32 / 2.0,
-    );
-    let positions = [-hw, 0.0, -hd, -hw, 0.0, hd, hw, 0.0, hd, hw, 0.0, -hd];
-    let normals = [
-        0.0f32, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0,
-    ];
-    let uvs = [0.0f32, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0];
-    let indices: Vec<u8> = [0u16, 1, 2, 0, 2, 3]
-        .iter()
-        .flat_map(|i| i.to_le_bytes())
-        .collect();
-    let mut bin = Vec::new();
-    let views = vec![
-        push_view(&mut bin, &f32_bytes(&positions), Some(ARRAY_BUFFER)),
-        push_view(&mut bin, &f32_bytes(&normals), Some(ARRAY_BUFFER)),
-        push_view(&mut bin, &f32_bytes(&uvs), Some(ARRAY_BUFFER)),
-        push_view(&mut bin, &indices, Some(ELEMENT_ARRAY_BUFFER)),
-        push_view(&mut bin, &png, None),
-    ];
-    while bin.len() % 4 != 0 {
-        bin.push(0);
-    }
+    let quad = QuadBuffer::new(film, width_m, &png);
+    let (hw, hd) = (quad.half_width, quad.half_depth);
     let ior = film.index_550();
     let substrate = film.substrate_550();
     let doc = json!({
@@ -168,32 +146,7 @@ pub fn film_glb(film: &SampleFilm, width_m: f64) -> Result<Glb, AppearanceError>
                 "mode": 4,
             }],
         }],
-        "materials": [{
-            "name": "thin film",
-            "pbrMetallicRoughness": {
-                "baseColorFactor": BASE_COLOUR,
-                "metallicFactor": 0.0,
-                "roughnessFactor": ROUGHNESS,
-            },
-            "doubleSided": true,
-            "extensions": {
-                "KHR_materials_ior": {"ior": substrate},
-                "KHR_materials_iridescence": {
-                    "iridescenceFactor": 1.0,
-                    "iridescenceIor": ior,
-                    "iridescenceThicknessMinimum": min,
-                    "iridescenceThicknessMaximum": max,
-                    "iridescenceThicknessTexture": {"index": 0},
-                },
-            },
-            "extras": {
-                "film_index_550nm": ior,
-                "film_dispersion": DispersionRecord::dispersive(&film.stack.film),
-                "substrate_index": substrate,
-                "substrate_dispersion": DispersionRecord::dispersive(&film.stack.substrate),
-                "thickness_texture": "G = (d - min) / (max - min); R = 255 where no reliable thickness (G = median there)",
-            },
-        }],
+        "materials": [film_material(film, [min, max])],
         "textures": [{"sampler": 0, "source": 0, "name": "thickness"}],
         "images": [{"name": "thickness", "bufferView": 4, "mimeType": "image/png"}],
         "samplers": [{
@@ -209,10 +162,110 @@ pub fn film_glb(film: &SampleFilm, width_m: f64) -> Result<Glb, AppearanceError>
             {"bufferView": 2, "componentType": FLOAT, "count": 4, "type": "VEC2"},
             {"bufferView": 3, "componentType": UNSIGNED_SHORT, "count": 6, "type": "SCALAR"},
         ],
-        "bufferViews": views,
-        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": quad.views,
+        "buffers": [{"byteLength": quad.bin.len()}],
     });
-    let mut text = serde_json::to_vec(&doc).map_err(|e| AppearanceError(e.to_string()))?;
+    let bytes = glb_container(film, &doc, &quad.bin)?;
+    Ok(Glb {
+        bytes,
+        iridescence_ior: ior,
+        thickness_min_nm: min,
+        thickness_max_nm: max,
+        substrate_ior: substrate,
+    })
+}
+
+/// The binary chunk of the quad: its positions, normals, uvs, indices and the thickness
+/// texture, each a 4-byte aligned bufferView.
+struct QuadBuffer {
+    /// The chunk's bytes, padded to a multiple of 4.
+    bin: Vec<u8>,
+    /// The bufferViews, in the order above.
+    views: Vec<serde_json::Value>,
+    /// Half the quad's width (x) and depth (z), metres.
+    half_width: f32,
+    half_depth: f32,
+}
+
+impl QuadBuffer {
+    /// The quad of `film`, `width_m` metres wide and as deep as the map's aspect asks,
+    /// textured with the PNG `png`.
+    fn new(film: &SampleFilm, width_m: f64, png: &[u8]) -> Self {
+        let (hw, hd) = (
+            width_m as f32 / 2.0,
+            (width_m * film.height as f64 / film.width as f64) as f32 / 2.0,
+        );
+        let positions = [-hw, 0.0, -hd, -hw, 0.0, hd, hw, 0.0, hd, hw, 0.0, -hd];
+        let normals = [
+            0.0f32, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0,
+        ];
+        let uvs = [0.0f32, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0];
+        let indices: Vec<u8> = [0u16, 1, 2, 0, 2, 3]
+            .iter()
+            .flat_map(|i| i.to_le_bytes())
+            .collect();
+        let mut bin = Vec::new();
+        let views = vec![
+            push_view(&mut bin, &f32_bytes(&positions), Some(ARRAY_BUFFER)),
+            push_view(&mut bin, &f32_bytes(&normals), Some(ARRAY_BUFFER)),
+            push_view(&mut bin, &f32_bytes(&uvs), Some(ARRAY_BUFFER)),
+            push_view(&mut bin, &indices, Some(ELEMENT_ARRAY_BUFFER)),
+            push_view(&mut bin, png, None),
+        ];
+        while bin.len() % 4 != 0 {
+            bin.push(0);
+        }
+        Self {
+            bin,
+            views,
+            half_width: hw,
+            half_depth: hd,
+        }
+    }
+}
+
+/// The film's material: iridescence at the film's index over the thickness range
+/// `[min, max]` (nm) of the texture, the substrate's index, a smooth black base, and the
+/// dispersions glTF cannot hold in `extras`.
+fn film_material(film: &SampleFilm, [min, max]: [f64; 2]) -> serde_json::Value {
+    let ior = film.index_550();
+    let substrate = film.substrate_550();
+    json!({
+        "name": "thin film",
+        "pbrMetallicRoughness": {
+            "baseColorFactor": BASE_COLOUR,
+            "metallicFactor": 0.0,
+            "roughnessFactor": ROUGHNESS,
+        },
+        "doubleSided": true,
+        "extensions": {
+            "KHR_materials_ior": {"ior": substrate},
+            "KHR_materials_iridescence": {
+                "iridescenceFactor": 1.0,
+                "iridescenceIor": ior,
+                "iridescenceThicknessMinimum": min,
+                "iridescenceThicknessMaximum": max,
+                "iridescenceThicknessTexture": {"index": 0},
+            },
+        },
+        "extras": {
+            "film_index_550nm": ior,
+            "film_dispersion": DispersionRecord::dispersive(&film.stack.film),
+            "substrate_index": substrate,
+            "substrate_dispersion": DispersionRecord::dispersive(&film.stack.substrate),
+            "thickness_texture": "G = (d - min) / (max - min); R = 255 where no reliable thickness (G = median there)",
+        },
+    })
+}
+
+/// The GLB container: its header, the JSON chunk `doc` (space-padded) and the binary chunk
+/// `bin`; an error if it would exceed 4 GiB.
+fn glb_container(
+    film: &SampleFilm,
+    doc: &serde_json::Value,
+    bin: &[u8],
+) -> Result<Vec<u8>, AppearanceError> {
+    let mut text = serde_json::to_vec(doc).map_err(|e| AppearanceError(e.to_string()))?;
     while text.len() % 4 != 0 {
         text.push(b' ');
     }
@@ -234,12 +287,6 @@ pub fn film_glb(film: &SampleFilm, width_m: f64) -> Result<Glb, AppearanceError>
     bytes.extend_from_slice(&text);
     bytes.extend_from_slice(&len32(bin.len())?.to_le_bytes());
     bytes.extend_from_slice(&CHUNK_BIN.to_le_bytes());
-    bytes.extend_from_slice(&bin);
-    Ok(Glb {
-        bytes,
-        iridescence_ior: ior,
-        thickness_min_nm: min,
-        thickness_max_nm: max,
-        substrate_ior: substrate,
-    })
+    bytes.extend_from_slice(bin);
+    Ok(bytes)
 }

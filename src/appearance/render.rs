@@ -177,33 +177,15 @@ pub fn render_png(
     let (mw, mh, main_idx) = sample_grid(film.width, film.height, MAIN_MAX_WIDTH);
     let main_xyz = film_xyz(film, opts.incidence_deg, colorimetry, &main_idx);
     let exposure = opts.exposure.unwrap_or_else(|| auto_exposure(&main_xyz));
-    let to_rgb = |v: &[Xyz]| -> Vec<[u8; 3]> {
-        v.iter().map(|&x| display_rgb(x, white, exposure)).collect()
-    };
-    let main_rgb = to_rgb(&main_xyz);
-    let main_scale = upscale(mw, MAIN_MIN_WIDTH);
-
-    let (tw, th, tile_idx) = sample_grid(film.width, film.height, TILE_MAX_WIDTH);
-    let tile_scale = upscale(tw, TILE_MIN_WIDTH);
-    let tiles: Vec<Vec<[u8; 3]>> = STRIP_ANGLES_DEG
+    let main_rgb: Vec<[u8; 3]> = main_xyz
         .iter()
-        .map(|&deg| to_rgb(&film_xyz(film, deg, colorimetry, &tile_idx)))
+        .map(|&x| display_rgb(x, white, exposure))
         .collect();
-    let (tile_w, tile_h) = (tw * tile_scale, th * tile_scale);
-    let strip_w = STRIP_ANGLES_DEG.len() * (tile_w + GAP) - GAP;
-
+    let main_scale = upscale(mw, MAIN_MIN_WIDTH);
+    let strip = AngleStrip::new(film, colorimetry, exposure);
     let median = film.median_thickness_nm();
-    let steps = (STRIP_ANGLES_DEG[STRIP_ANGLES_DEG.len() - 1] / BAND_STEP_DEG).round() as usize;
-    let band: Vec<[u8; 3]> = (0..=steps)
-        .map(|k| {
-            let deg = k as f64 * BAND_STEP_DEG;
-            let xyz = median.map_or(Xyz::NAN, |d| {
-                FilmColour::new(film.stack, deg, colorimetry, film.terms).xyz(d)
-            });
-            display_rgb(xyz, white, exposure)
-        })
-        .collect();
-    let band_px = (strip_w / band.len()).max(1);
+    let band = median_band(film, median, colorimetry, exposure);
+    let band_px = (strip.width() / band.len()).max(1);
 
     let title = format!(
         "{} at {:.0}°, {}, exposure x{:.1}",
@@ -212,14 +194,16 @@ pub fn render_png(
         opts.illuminant.name(),
         exposure
     );
-    let content_w = (mw * main_scale).max(strip_w).max(text_width(&title, TEXT));
+    let content_w = (mw * main_scale)
+        .max(strip.width())
+        .max(text_width(&title, TEXT));
     let width = content_w + 2 * MARGIN;
     let height = MARGIN
         + LINE
         + mh * main_scale
         + GAP
         + LINE
-        + tile_h
+        + strip.tile_h()
         + 4
         + LINE
         + GAP
@@ -240,21 +224,128 @@ pub fn render_png(
     y += LINE;
     blit(&mut c, MARGIN, y, mw, &main_rgb, main_scale);
     y += mh * main_scale + GAP;
-    c.text(MARGIN, y, "angle strip, 0-70°, same exposure", TEXT, INK);
-    y += LINE;
-    for (k, (tile, deg)) in tiles.iter().zip(STRIP_ANGLES_DEG).enumerate() {
-        let x = MARGIN + k * (tile_w + GAP);
-        blit(&mut c, x, y, tw, tile, tile_scale);
-        let label = format!("{deg:.0}°");
-        c.text(
-            x + tile_w.saturating_sub(text_width(&label, TEXT)) / 2,
-            y + tile_h + 4,
-            &label,
-            TEXT,
-            INK,
-        );
+    y = strip.draw(&mut c, y);
+    y = draw_band(&mut c, y, &band, band_px, median);
+    swatch_note(
+        &mut c,
+        MARGIN,
+        y,
+        FLAG_COLOUR,
+        "grey = no reliable thickness (NaN or flagged)",
+    );
+    let png = c
+        .encode()
+        .map_err(|e| super::AppearanceError(e.to_string()))?;
+    Ok((
+        png,
+        RenderInfo {
+            exposure,
+            width,
+            height,
+        },
+    ))
+}
+
+/// The angle strip: a thumbnail of the sample at each of [`STRIP_ANGLES_DEG`], under the
+/// main image's exposure.
+struct AngleStrip {
+    /// A thumbnail's sampled columns and rows, and its enlargement.
+    w: usize,
+    h: usize,
+    scale: usize,
+    /// Each thumbnail's colours, row-major.
+    tiles: Vec<Vec<[u8; 3]>>,
+}
+
+impl AngleStrip {
+    /// The thumbnails of `film` under `colorimetry` at `exposure`.
+    fn new(film: &SampleFilm, colorimetry: Colorimetry, exposure: f64) -> Self {
+        let white = colorimetry.white();
+        let (w, h, idx) = sample_grid(film.width, film.height, TILE_MAX_WIDTH);
+        let tiles = STRIP_ANGLES_DEG
+            .iter()
+            .map(|&deg| {
+                film_xyz(film, deg, colorimetry, &idx)
+                    .iter()
+                    .map(|&x| display_rgb(x, white, exposure))
+                    .collect()
+            })
+            .collect();
+        Self {
+            w,
+            h,
+            scale: upscale(w, TILE_MIN_WIDTH),
+            tiles,
+        }
     }
-    y += tile_h + 4 + LINE + GAP;
+
+    /// A thumbnail's width on the canvas.
+    fn tile_w(&self) -> usize {
+        self.w * self.scale
+    }
+
+    /// A thumbnail's height on the canvas.
+    fn tile_h(&self) -> usize {
+        self.h * self.scale
+    }
+
+    /// The strip's width on the canvas.
+    fn width(&self) -> usize {
+        STRIP_ANGLES_DEG.len() * (self.tile_w() + GAP) - GAP
+    }
+
+    /// Draws the caption and the thumbnails, each labelled with its angle, from `y` down;
+    /// returns the `y` below them.
+    fn draw(&self, c: &mut Canvas, mut y: usize) -> usize {
+        let (tile_w, tile_h) = (self.tile_w(), self.tile_h());
+        c.text(MARGIN, y, "angle strip, 0-70°, same exposure", TEXT, INK);
+        y += LINE;
+        for (k, (tile, deg)) in self.tiles.iter().zip(STRIP_ANGLES_DEG).enumerate() {
+            let x = MARGIN + k * (tile_w + GAP);
+            blit(c, x, y, self.w, tile, self.scale);
+            let label = format!("{deg:.0}°");
+            c.text(
+                x + tile_w.saturating_sub(text_width(&label, TEXT)) / 2,
+                y + tile_h + 4,
+                &label,
+                TEXT,
+                INK,
+            );
+        }
+        y + tile_h + 4 + LINE + GAP
+    }
+}
+
+/// The colour of the `median` thickness every [`BAND_STEP_DEG`] from 0 to the strip's
+/// last angle (no data without a median).
+fn median_band(
+    film: &SampleFilm,
+    median: Option<f64>,
+    colorimetry: Colorimetry,
+    exposure: f64,
+) -> Vec<[u8; 3]> {
+    let white = colorimetry.white();
+    let steps = (STRIP_ANGLES_DEG[STRIP_ANGLES_DEG.len() - 1] / BAND_STEP_DEG).round() as usize;
+    (0..=steps)
+        .map(|k| {
+            let deg = k as f64 * BAND_STEP_DEG;
+            let xyz = median.map_or(Xyz::NAN, |d| {
+                FilmColour::new(film.stack, deg, colorimetry, film.terms).xyz(d)
+            });
+            display_rgb(xyz, white, exposure)
+        })
+        .collect()
+}
+
+/// Draws the median thickness's caption, its colour `band` (`band_px` wide per step) and
+/// the strip's angles under it, from `y` down; returns the `y` below them.
+fn draw_band(
+    c: &mut Canvas,
+    mut y: usize,
+    band: &[[u8; 3]],
+    band_px: usize,
+    median: Option<f64>,
+) -> usize {
     let band_label = match median {
         Some(d) => format!("median thickness {d:.1} nm, 0-70°"),
         None => "no reliable thickness".to_owned(),
@@ -283,25 +374,7 @@ pub fn render_png(
             INK,
         );
     }
-    y += LINE;
-    swatch_note(
-        &mut c,
-        MARGIN,
-        y,
-        FLAG_COLOUR,
-        "grey = no reliable thickness (NaN or flagged)",
-    );
-    let png = c
-        .encode()
-        .map_err(|e| super::AppearanceError(e.to_string()))?;
-    Ok((
-        png,
-        RenderInfo {
-            exposure,
-            width,
-            height,
-        },
-    ))
+    y + LINE
 }
 
 #[cfg(test)]

@@ -254,54 +254,8 @@ pub fn run_absorbing(
     let spec = config.fitted_spec(source.spec());
     let angles_deg = source.angles_deg();
     let cube = collect_sweep(source)?;
-    let [lo, hi] = spec.thickness_range_nm;
-    let n_max = cube
-        .bands_nm
-        .iter()
-        .map(|&l| film.index_at(l))
-        .fold(1.0, f64::max);
-    let l_min = cube.bands_nm.iter().copied().fold(f64::INFINITY, f64::min);
-    // A fringe's period in thickness at normal incidence, the shortest over the band.
-    let period = l_min / (2.0 * n_max);
-    let step = (period / POINTS_PER_FRINGE).max((hi - lo) / (MAX_GRID - 1) as f64);
-    let grid: Vec<f64> = (0..)
-        .map(|i| lo + step * f64::from(i))
-        .take_while(|&d| d <= hi)
-        .collect();
-    let columns = columns(&spec, &cube, film, hi).ok_or_else(|| {
-        PipelineError(format!(
-            "the film {name:?} does not pass light at every angle and band (an evanescent wave)"
-        ))
-    })?;
-    let nc = columns.len();
-    let mut table = vec![0f32; grid.len() * nc];
-    for (row, &d) in table.chunks_mut(nc).zip(&grid) {
-        for (v, c) in row.iter_mut().zip(&columns) {
-            *v = c.model(d).0 as f32;
-        }
-    }
-    let (w, h, nb) = (cube.width, cube.height, cube.bands_nm.len());
-    let workers = config.pipeline.workers.max(1);
-    let rows_per = h.div_ceil(workers).max(1);
-    let mut fits = vec![PixelFit::NONE; w * h];
-    std::thread::scope(|scope| {
-        for (chunk_index, chunk) in fits.chunks_mut(rows_per * w).enumerate() {
-            let (cube, grid, table, columns) = (&cube, &grid, &table, &columns);
-            scope.spawn(move || {
-                let mut y = vec![f32::NAN; nc];
-                for (i, out) in chunk.iter_mut().enumerate() {
-                    let p = chunk_index * rows_per * w + i;
-                    let (row, col) = (p / w, p % w);
-                    for (a, data) in cube.data.iter().enumerate() {
-                        for b in 0..nb {
-                            y[a * nb + b] = data[(b * h + row) * w + col];
-                        }
-                    }
-                    *out = fit_pixel(&y, grid, table, columns, 0.5 * period);
-                }
-            });
-        }
-    });
+    let model = Tabulated::new(&spec, &cube, film, name)?;
+    let fits = model.fit_pixels(&cube, config.pipeline.workers.max(1));
     let mut rms: Vec<f64> = fits
         .iter()
         .map(|f| f.rms)
@@ -309,20 +263,150 @@ pub fn run_absorbing(
         .collect();
     rms.sort_by(f64::total_cmp);
     let typical = rms.get(rms.len() / 2).copied().unwrap_or(f64::NAN);
-    let noise = noise_of(&cube, &fits, &columns);
+    let noise = noise_of(&cube, &fits, &model.columns);
     let tolerated = (2.0 * noise * noise + spec.model_error * spec.model_error).sqrt();
     let mismatch = typical.is_nan() || typical > tolerated;
+    let mut result = judged(index, &fits, typical, mismatch);
+    if mismatch {
+        result.notes.push(format!(
+            "the given film {name:?} (n and k) does not explain the spectra: the typical pixel misses by {typical:.1e} RMS, beyond its noise {noise:.1e} and the tolerated model error {:.1e} ([fit] model_error); every pixel is NaN",
+            spec.model_error
+        ));
+    }
+    let (w, h, nb) = (cube.width, cube.height, cube.bands_nm.len());
+    let samples = (w * h * nb * cube.angles_deg.len()) as u64;
+    Ok(Run {
+        result,
+        angles_deg,
+        seconds: t0.elapsed().as_secs_f64(),
+        solve_latency_ms: None,
+        state_bytes_per_pixel: None,
+        samples,
+        angle_reports: Vec::new(),
+        model_choice: Some(IndexModelChoice::Absorbing(AbsorbingChoice {
+            given: name.to_owned(),
+            reason: "the film's n and k were given (--film-index, an absorbing material): each pixel's thickness fitted on the whole sweep with the absorbing film's exact reflectance".to_owned(),
+            absorbing: true,
+            k_550nm: finite(film.extinction_at(550.0)),
+            grid_step_nm: finite(model.step),
+            typical_rms: finite(typical),
+            noise_sigma: finite(noise),
+        })),
+        field_model: None,
+        field_model_choice: None,
+        spec,
+    })
+}
+
+/// The absorbing film's model over the sweep: every `(angle, band)`'s reflectance tabulated
+/// on a thickness grid an eighth of the shortest fringe period apart.
+struct Tabulated {
+    /// The grid's thicknesses, nm, over the spec's thickness range.
+    grid: Vec<f64>,
+    /// The grid's step, nm.
+    step: f64,
+    /// The shortest fringe period in thickness over the band, nm.
+    period: f64,
+    /// Every `(angle, band)`'s passband, angle-major.
+    columns: Vec<Column>,
+    /// `grid.len()` rows of `columns.len()` reflectances.
+    table: Vec<f32>,
+}
+
+impl Tabulated {
+    /// The model of `film` (named `name`) for `cube`'s angles and bands; an error if the
+    /// film does not pass light at some angle and band.
+    fn new(
+        spec: &SweepSpec,
+        cube: &SweepCube,
+        film: &Dispersion,
+        name: &str,
+    ) -> Result<Self, PipelineError> {
+        let [lo, hi] = spec.thickness_range_nm;
+        let n_max = cube
+            .bands_nm
+            .iter()
+            .map(|&l| film.index_at(l))
+            .fold(1.0, f64::max);
+        let l_min = cube.bands_nm.iter().copied().fold(f64::INFINITY, f64::min);
+        // A fringe's period in thickness at normal incidence, the shortest over the band.
+        let period = l_min / (2.0 * n_max);
+        let step = (period / POINTS_PER_FRINGE).max((hi - lo) / (MAX_GRID - 1) as f64);
+        let grid: Vec<f64> = (0..)
+            .map(|i| lo + step * f64::from(i))
+            .take_while(|&d| d <= hi)
+            .collect();
+        let columns = columns(spec, cube, film, hi).ok_or_else(|| {
+            PipelineError(format!(
+                "the film {name:?} does not pass light at every angle and band (an evanescent wave)"
+            ))
+        })?;
+        let nc = columns.len();
+        let mut table = vec![0f32; grid.len() * nc];
+        for (row, &d) in table.chunks_mut(nc).zip(&grid) {
+            for (v, c) in row.iter_mut().zip(&columns) {
+                *v = c.model(d).0 as f32;
+            }
+        }
+        Ok(Self {
+            grid,
+            step,
+            period,
+            columns,
+            table,
+        })
+    }
+
+    /// Every pixel of `cube` fitted alone ([`fit_pixel`]), the rows shared between
+    /// `workers` threads.
+    fn fit_pixels(&self, cube: &SweepCube, workers: usize) -> Vec<PixelFit> {
+        let (w, h, nb) = (cube.width, cube.height, cube.bands_nm.len());
+        let nc = self.columns.len();
+        let rows_per = h.div_ceil(workers).max(1);
+        let mut fits = vec![PixelFit::NONE; w * h];
+        std::thread::scope(|scope| {
+            for (chunk_index, chunk) in fits.chunks_mut(rows_per * w).enumerate() {
+                scope.spawn(move || {
+                    let mut y = vec![f32::NAN; nc];
+                    for (i, out) in chunk.iter_mut().enumerate() {
+                        let p = chunk_index * rows_per * w + i;
+                        let (row, col) = (p / w, p % w);
+                        for (a, data) in cube.data.iter().enumerate() {
+                            for b in 0..nb {
+                                y[a * nb + b] = data[(b * h + row) * w + col];
+                            }
+                        }
+                        *out = fit_pixel(
+                            &y,
+                            &self.grid,
+                            &self.table,
+                            &self.columns,
+                            0.5 * self.period,
+                        );
+                    }
+                });
+            }
+        });
+        fits
+    }
+}
+
+/// The maps of the pixel fits `fits`, each pixel NaN with a flag when its own fit says so,
+/// when it misses by more than [`POOR_FIT_RATIO`] times the `typical` fit, or (`mismatch`)
+/// when the typical fit misses by more than the tolerated model error.
+fn judged(index: IndexModel, fits: &[PixelFit], typical: f64, mismatch: bool) -> MethodResult {
+    let n = fits.len();
     let mut result = MethodResult {
         method: Method::Filmscope,
         index,
         index_sigma: None,
-        thickness_nm: Vec::with_capacity(w * h),
-        confidence: Vec::with_capacity(w * h),
-        thickness_sigma_nm: Vec::with_capacity(w * h),
-        flags: Vec::with_capacity(w * h),
+        thickness_nm: Vec::with_capacity(n),
+        confidence: Vec::with_capacity(n),
+        thickness_sigma_nm: Vec::with_capacity(n),
+        flags: Vec::with_capacity(n),
         notes: Vec::new(),
     };
-    for f in &fits {
+    for f in fits {
         let mut fl = f.flags;
         if f.rms > POOR_FIT_RATIO * typical {
             fl |= flags::POOR_FIT;
@@ -340,32 +424,5 @@ pub fn run_absorbing(
         result.confidence.push(if ok { 1.0 } else { 0.0 });
         result.flags.push(fl);
     }
-    if mismatch {
-        result.notes.push(format!(
-            "the given film {name:?} (n and k) does not explain the spectra: the typical pixel misses by {typical:.1e} RMS, beyond its noise {noise:.1e} and the tolerated model error {:.1e} ([fit] model_error); every pixel is NaN",
-            spec.model_error
-        ));
-    }
-    let samples = (w * h * nb * cube.angles_deg.len()) as u64;
-    Ok(Run {
-        result,
-        angles_deg,
-        seconds: t0.elapsed().as_secs_f64(),
-        solve_latency_ms: None,
-        state_bytes_per_pixel: None,
-        samples,
-        angle_reports: Vec::new(),
-        model_choice: Some(IndexModelChoice::Absorbing(AbsorbingChoice {
-            given: name.to_owned(),
-            reason: "the film's n and k were given (--film-index, an absorbing material): each pixel's thickness fitted on the whole sweep with the absorbing film's exact reflectance".to_owned(),
-            absorbing: true,
-            k_550nm: finite(film.extinction_at(550.0)),
-            grid_step_nm: finite(step),
-            typical_rms: finite(typical),
-            noise_sigma: finite(noise),
-        })),
-        field_model: None,
-        field_model_choice: None,
-        spec,
-    })
+    result
 }

@@ -614,10 +614,8 @@ pub fn run_wide(
     on_rows: &(dyn Fn(u64) + Sync),
 ) -> Result<WideRun, PipelineError> {
     let spec = source.spec().clone();
-    let (w, h) = (spec.width, spec.height);
     let angles = source.angles_deg();
     let replayable = source.replayable();
-    let capacity = config.pipeline.channel_capacity;
     // The strips run side by side: one worker each.
     let pipeline = PipelineConfig {
         workers: 1,
@@ -630,32 +628,99 @@ pub fn run_wide(
         rig_tolerance: Some(0.0),
         ..*config
     };
-    let views: Vec<(SweepSpec, Vec<f64>)> = strips
-        .iter()
-        .map(|s| {
-            let mut sp = spec.clone();
-            sp.width = s.cols;
-            let a = angles.iter().map(|a| (a + s.offset_deg).abs()).collect();
-            (sp, a)
-        })
-        .collect();
+    let rounds = StripRounds::new(&spec, &angles, strips, config.pipeline.channel_capacity);
     let quiet = |_: u64| {};
-    let own = in_rounds(source, strips, &views, capacity, |k, src| {
+    let own = rounds.run(source, |k, src| {
         let rows: &(dyn Fn(u64) + Sync) = if k == 0 { on_rows } else { &quiet };
         filmscope_passes(src, &strip_config, rows)
     })?;
 
     let mut combined = combine(&own.iter().map(|p| &p.out).collect::<Vec<_>>());
-    let mut held: Vec<Option<SweepOutput>> = vec![None; strips.len()];
     let can_hold = replayable && config.pipeline.solver.refine && config.field.shared_rounds;
-    if let (Some(c0), true) = (combined.clone(), can_hold && strips.len() > 1) {
+    let held = if can_hold && strips.len() > 1 {
+        rounds.shared(source, pipeline, &own, &mut combined)?
+    } else {
+        vec![None; strips.len()]
+    };
+
+    let mut run = WideRun {
+        strips: strips.to_vec(),
+        own,
+        held,
+        combined,
+        results: Vec::new(),
+        residual_sigma: None,
+        noise_sigma: None,
+    };
+    run.merge(fov, &spec, &angles, config.field.column_map);
+    Ok(run)
+}
+
+/// The strips of one sweep, each seen as a sweep of its own, for the rounds that stream the
+/// source once to all of them ([`in_rounds`]).
+struct StripRounds<'a> {
+    strips: &'a [Strip],
+    /// Each strip's spec and incidence angles.
+    views: Vec<(SweepSpec, Vec<f64>)>,
+    /// Capacity of each pipeline channel, in messages.
+    capacity: usize,
+    /// The whole image's size.
+    width: usize,
+    height: usize,
+}
+
+impl<'a> StripRounds<'a> {
+    /// The strips of a sweep of `spec` at the stage angles `angles`.
+    fn new(spec: &SweepSpec, angles: &[f64], strips: &'a [Strip], capacity: usize) -> Self {
+        let views = strips
+            .iter()
+            .map(|s| {
+                let mut sp = spec.clone();
+                sp.width = s.cols;
+                let a = angles.iter().map(|a| (a + s.offset_deg).abs()).collect();
+                (sp, a)
+            })
+            .collect();
+        Self {
+            strips,
+            views,
+            capacity,
+            width: spec.width,
+            height: spec.height,
+        }
+    }
+
+    /// One round: `job` on every strip's source, the source streamed once.
+    fn run<T: Send>(
+        &self,
+        source: &mut dyn Source,
+        job: impl Fn(usize, &mut StripSource<'_>) -> Result<T, PipelineError> + Sync,
+    ) -> Result<Vec<T>, PipelineError> {
+        in_rounds(source, self.strips, &self.views, self.capacity, job)
+    }
+
+    /// The [`SHARED_ROUNDS`] after the strips' own passes `own`, from the `combined` index
+    /// (updated after the full-spectra round): each strip's last kept pass.
+    fn shared(
+        &self,
+        source: &mut dyn Source,
+        pipeline: PipelineConfig,
+        own: &[Passes],
+        combined: &mut Option<Combined>,
+    ) -> Result<Vec<Option<SweepOutput>>, PipelineError> {
+        let strips = self.strips;
+        let mut held: Vec<Option<SweepOutput>> = vec![None; strips.len()];
+        let Some(c0) = combined.clone() else {
+            return Ok(held);
+        };
+        let quiet = |_: u64| {};
         let (mut index, mut used) = (c0.index, c0.used.clone());
         for update in SHARED_ROUNDS {
             let last: Vec<&SweepOutput> = (0..strips.len())
                 .map(|k| held[k].as_ref().unwrap_or(&own[k].out))
                 .collect();
-            let seeds = shared_seeds(strips, &last, &used, w, h);
-            let outs = in_rounds(source, strips, &views, capacity, |k, src| {
+            let seeds = shared_seeds(strips, &last, &used, self.width, self.height);
+            let outs = self.run(source, |k, src| {
                 let prior = Prior::new(index, update, Some(Arc::new(seeds[k].clone())));
                 run_sweep(src, pipeline, Some(prior), &quiet)
             })?;
@@ -676,60 +741,60 @@ pub fn run_wide(
                 if let Some(c) = combine(&outs) {
                     index = c.index;
                     used = c.used.clone();
-                    combined = Some(c);
+                    *combined = Some(c);
                 }
             }
         }
+        Ok(held)
     }
+}
 
-    let mut run = WideRun {
-        strips: strips.to_vec(),
-        own,
-        held,
-        combined,
-        results: Vec::new(),
-        residual_sigma: None,
-        noise_sigma: None,
-    };
-    let n550 = run.combined.as_ref().map(|c| c.index.at(550.0));
-    let mut results = vec![PixelResult::UNSOLVED; w * h];
-    let (mut sse, mut n_px) = (0.0, 0usize);
-    let mut noises = Vec::new();
-    for (k, s) in strips.iter().enumerate() {
-        let factors: Vec<f64> = (0..s.cols)
-            .map(|c| match (n550, config.field.column_map) {
-                (Some(n), true) => {
-                    let column_deg = fov.column_offset_deg(s.first_col + c, w);
-                    column_factor(n, spec.ambient_index, &angles, s.offset_deg, column_deg)
+impl WideRun {
+    /// Merges the strips' final passes into [`WideRun::results`] over the whole image of
+    /// `spec` (each pixel's thickness mapped to its column's angle through `fov` when
+    /// `column_map` and there is a combined index), with the residual and noise over all
+    /// strips.
+    fn merge(&mut self, fov: FieldOfView, spec: &SweepSpec, angles: &[f64], column_map: bool) {
+        let (w, h) = (spec.width, spec.height);
+        let n550 = self.combined.as_ref().map(|c| c.index.at(550.0));
+        let mut results = vec![PixelResult::UNSOLVED; w * h];
+        let (mut sse, mut n_px) = (0.0, 0usize);
+        let mut noises = Vec::new();
+        for (k, s) in self.strips.iter().enumerate() {
+            let factors: Vec<f64> = (0..s.cols)
+                .map(|c| match (n550, column_map) {
+                    (Some(n), true) => {
+                        let column_deg = fov.column_offset_deg(s.first_col + c, w);
+                        column_factor(n, spec.ambient_index, angles, s.offset_deg, column_deg)
+                    }
+                    _ => 1.0,
+                })
+                .collect();
+            let out = self.last(k);
+            for row in 0..h {
+                let from = &out.results[row * s.cols..(row + 1) * s.cols];
+                let own = &self.own[k].out.results[row * s.cols..(row + 1) * s.cols];
+                let at = row * w + s.first_col;
+                let to = &mut results[at..at + s.cols];
+                for (((t, f), o), factor) in to.iter_mut().zip(from).zip(own).zip(&factors) {
+                    *t = *f;
+                    t.thickness_nm = (f64::from(f.thickness_nm) * factor) as f32;
+                    t.thickness_sigma_nm = (f64::from(f.thickness_sigma_nm) * factor) as f32;
+                    // A held pass's seed is the strips' own map, not the spectrum search's.
+                    t.flags &= !flags::FROM_SPECTRUM_SEARCH | o.flags;
                 }
-                _ => 1.0,
-            })
-            .collect();
-        let out = run.last(k);
-        for row in 0..h {
-            let from = &out.results[row * s.cols..(row + 1) * s.cols];
-            let own = &run.own[k].out.results[row * s.cols..(row + 1) * s.cols];
-            let at = row * w + s.first_col;
-            let to = &mut results[at..at + s.cols];
-            for (((t, f), o), factor) in to.iter_mut().zip(from).zip(own).zip(&factors) {
-                *t = *f;
-                t.thickness_nm = (f64::from(f.thickness_nm) * factor) as f32;
-                t.thickness_sigma_nm = (f64::from(f.thickness_sigma_nm) * factor) as f32;
-                // A held pass's seed is the strips' own map, not the spectrum search's.
-                t.flags &= !flags::FROM_SPECTRUM_SEARCH | o.flags;
             }
+            if let Some(r) = out.residual_sigma {
+                sse += r * r * (s.cols * h) as f64;
+                n_px += s.cols * h;
+            }
+            noises.extend(out.noise_sigma);
         }
-        if let Some(r) = out.residual_sigma {
-            sse += r * r * (s.cols * h) as f64;
-            n_px += s.cols * h;
-        }
-        noises.extend(out.noise_sigma);
+        noises.sort_by(f32::total_cmp);
+        self.results = results;
+        self.residual_sigma = (n_px > 0).then(|| (sse / n_px as f64).sqrt());
+        self.noise_sigma = noises.get(noises.len() / 2).copied();
     }
-    noises.sort_by(f32::total_cmp);
-    run.results = results;
-    run.residual_sigma = (n_px > 0).then(|| (sse / n_px as f64).sqrt());
-    run.noise_sigma = noises.get(noises.len() / 2).copied();
-    Ok(run)
 }
 
 /// Whether a fit explains the spectra, as the auto choice asks: an index, no model
@@ -792,34 +857,15 @@ pub fn run_filmscope(
             .unwrap_or_else(|| strips_for(fov, width));
         (fov, plan_strips(fov, width, k))
     });
-    let geometry = FieldGeometry {
-        horizontal_fov_deg: field_of_view.map(|f| f.horizontal_deg()),
-        angle_spread_deg: field_of_view.map(|f| angle_spread_deg(f, width)),
-        strips: plan.as_ref().map(|(_, s)| s.len()),
-        strip_spread_deg: plan
-            .as_ref()
-            .map(|(_, s)| s.iter().map(|x| x.spread_deg).fold(0.0, f64::max)),
-        strip_spread_tolerance_deg: STRIP_SPREAD_DEG,
-        column_map: config.field.column_map,
-    };
+    let geometry = field_geometry(
+        config,
+        field_of_view,
+        width,
+        plan.as_ref().map(|(_, s)| s.as_slice()),
+    );
     let choice = config.field.choice;
     let Some((fov, strips)) = plan else {
-        if choice == FieldChoice::Wide {
-            return Err(PipelineError(
-                "--field wide needs the lens's field of view (capture.toml [lens] horizontal_fov_deg)"
-                    .into(),
-            ));
-        }
-        let passes = filmscope_passes(source, config, on_rows)?;
-        let mut run = narrow_run(source, &passes, t0);
-        let reason = if choice == FieldChoice::Narrow {
-            "forced (--field narrow)"
-        } else {
-            "the capture gives no field of view ([lens] horizontal_fov_deg): one incidence angle per frame"
-        };
-        let evidence = Evidence::new(source, None, Some((&passes, run.seconds)), None);
-        run.field_model_choice = evidence.record(config, FieldModel::Narrow, reason, &geometry);
-        return Ok(run);
+        return run_without_lens(source, config, &geometry, on_rows, t0);
     };
     if choice == FieldChoice::Wide {
         let wide = run_wide(source, config, fov, &strips, on_rows)?;
@@ -839,24 +885,8 @@ pub fn run_filmscope(
         o.residual_sigma,
         o.noise_sigma,
     );
-    if choice == FieldChoice::Narrow || fits {
-        let reason = if choice == FieldChoice::Narrow {
-            "forced (--field narrow)".to_owned()
-        } else {
-            format!("the narrow fit explains the spectra: {narrow_fig}")
-        };
-        let evidence = Evidence::new(source, Some(fov), Some((&passes, narrow_s)), None);
-        run.field_model_choice = evidence.record(config, FieldModel::Narrow, &reason, &geometry);
-        return Ok(run);
-    }
-    if !source.replayable() {
-        let reason = format!("the narrow fit does not explain the spectra ({narrow_fig}), but a live source streams once: no second model can be fitted (force --field wide to fit the wide one alone)");
-        let evidence = Evidence::new(source, Some(fov), Some((&passes, narrow_s)), None);
-        run.field_model_choice = evidence.record(config, FieldModel::Narrow, &reason, &geometry);
-        return Ok(run);
-    }
-    if strips.len() < 2 {
-        let reason = format!("the narrow fit does not explain the spectra ({narrow_fig}), but the field's angle spread is within one strip's {STRIP_SPREAD_DEG} deg: the wide model would fit this same sweep");
+    let kept = narrow_kept(choice, fits, &narrow_fig, source.replayable(), strips.len());
+    if let Some(reason) = kept {
         let evidence = Evidence::new(source, Some(fov), Some((&passes, narrow_s)), None);
         run.field_model_choice = evidence.record(config, FieldModel::Narrow, &reason, &geometry);
         return Ok(run);
@@ -870,18 +900,7 @@ pub fn run_filmscope(
         wide.residual_sigma,
         wide.noise_sigma,
     );
-    let better = rank(
-        !wide.no_index(),
-        wide.model_mismatch(),
-        wide.residual_sigma,
-        wide.noise_sigma,
-    ) < rank(
-        o.index.is_some(),
-        o.model_mismatch,
-        o.residual_sigma,
-        o.noise_sigma,
-    );
-    let (model, reason) = if better {
+    let (model, reason) = if wide_ranks_higher(&wide, o) {
         run = wide_run(source, &wide, t0);
         (
             FieldModel::Wide,
@@ -902,6 +921,92 @@ pub fn run_filmscope(
     );
     run.field_model_choice = evidence.record(config, model, &reason, &geometry);
     Ok(run)
+}
+
+/// Whether the wide fit `wide` ranks above the narrow fit `narrow` ([`rank`]).
+fn wide_ranks_higher(wide: &WideRun, narrow: &SweepOutput) -> bool {
+    rank(
+        !wide.no_index(),
+        wide.model_mismatch(),
+        wide.residual_sigma,
+        wide.noise_sigma,
+    ) < rank(
+        narrow.index.is_some(),
+        narrow.model_mismatch,
+        narrow.residual_sigma,
+        narrow.noise_sigma,
+    )
+}
+
+/// The field's geometry for `summary.json`: the lens's field of view and angle spread over
+/// `width` columns, and the planned `strips` with their widest spread.
+fn field_geometry(
+    config: &RunConfig,
+    field_of_view: Option<FieldOfView>,
+    width: usize,
+    strips: Option<&[Strip]>,
+) -> FieldGeometry {
+    FieldGeometry {
+        horizontal_fov_deg: field_of_view.map(|f| f.horizontal_deg()),
+        angle_spread_deg: field_of_view.map(|f| angle_spread_deg(f, width)),
+        strips: strips.map(<[Strip]>::len),
+        strip_spread_deg: strips.map(|s| s.iter().map(|x| x.spread_deg).fold(0.0, f64::max)),
+        strip_spread_tolerance_deg: STRIP_SPREAD_DEG,
+        column_map: config.field.column_map,
+    }
+}
+
+/// The narrow model on a capture that gives no field of view (an error if the wide one is
+/// forced).
+fn run_without_lens(
+    source: &mut dyn Source,
+    config: &RunConfig,
+    geometry: &FieldGeometry,
+    on_rows: &(dyn Fn(u64) + Sync),
+    t0: Instant,
+) -> Result<Run, PipelineError> {
+    let choice = config.field.choice;
+    if choice == FieldChoice::Wide {
+        return Err(PipelineError(
+            "--field wide needs the lens's field of view (capture.toml [lens] horizontal_fov_deg)"
+                .into(),
+        ));
+    }
+    let passes = filmscope_passes(source, config, on_rows)?;
+    let mut run = narrow_run(source, &passes, t0);
+    let reason = if choice == FieldChoice::Narrow {
+        "forced (--field narrow)"
+    } else {
+        "the capture gives no field of view ([lens] horizontal_fov_deg): one incidence angle per frame"
+    };
+    let evidence = Evidence::new(source, None, Some((&passes, run.seconds)), None);
+    run.field_model_choice = evidence.record(config, FieldModel::Narrow, reason, geometry);
+    Ok(run)
+}
+
+/// Why the narrow model stands without fitting the wide one, if it does: it is forced, it
+/// explains the spectra (`fits`, with `narrow_fig` its figures), a live source streams
+/// once, or the field needs no more than one strip.
+fn narrow_kept(
+    choice: FieldChoice,
+    fits: bool,
+    narrow_fig: &str,
+    replayable: bool,
+    strips: usize,
+) -> Option<String> {
+    if choice == FieldChoice::Narrow || fits {
+        Some(if choice == FieldChoice::Narrow {
+            "forced (--field narrow)".to_owned()
+        } else {
+            format!("the narrow fit explains the spectra: {narrow_fig}")
+        })
+    } else if !replayable {
+        Some(format!("the narrow fit does not explain the spectra ({narrow_fig}), but a live source streams once: no second model can be fitted (force --field wide to fit the wide one alone)"))
+    } else if strips < 2 {
+        Some(format!("the narrow fit does not explain the spectra ({narrow_fig}), but the field's angle spread is within one strip's {STRIP_SPREAD_DEG} deg: the wide model would fit this same sweep"))
+    } else {
+        None
+    }
 }
 
 /// A narrow-model fit residual above this many times the pixels' noise calls for the wide

@@ -61,7 +61,22 @@ pub fn write_outputs_into(
     run: &Run,
     source_label: &str,
 ) -> Result<Summary, OutputError> {
-    let err = |p: &Path, e: &dyn std::fmt::Display| OutputError(format!("{}: {e}", p.display()));
+    write_maps(dir, run)?;
+    write_flags(dir, run)?;
+    write_preview(dir, run)?;
+    let index_files = write_index_files(dir, run, source_label)?;
+    let summary = summary_of(run, source_label, index_files);
+    summary.write(dir).map_err(|e| OutputError(e.to_string()))?;
+    Ok(summary)
+}
+
+/// The error of writing the file `p`.
+fn path_err(p: &Path, e: &dyn std::fmt::Display) -> OutputError {
+    OutputError(format!("{}: {e}", p.display()))
+}
+
+/// Writes the float maps: thickness, confidence and thickness sigma.
+fn write_maps(dir: &Path, run: &Run) -> Result<(), OutputError> {
     let (w, h) = (run.spec.width, run.spec.height);
     let r = &run.result;
     let thick = dir.join("thickness_nm.hdr");
@@ -73,7 +88,7 @@ pub fn write_outputs_into(
         Some("film thickness, nm (NaN: no reliable estimate)"),
         &[],
     )
-    .map_err(|e| err(&thick, &e))?;
+    .map_err(|e| path_err(&thick, &e))?;
     let conf = dir.join("confidence.hdr");
     write_f32_map(
         &conf,
@@ -83,7 +98,7 @@ pub fn write_outputs_into(
         Some("confidence of the thickness, 0..1"),
         &[],
     )
-    .map_err(|e| err(&conf, &e))?;
+    .map_err(|e| path_err(&conf, &e))?;
     let sigma = dir.join("thickness_sigma_nm.hdr");
     write_f32_map(
         &sigma,
@@ -95,7 +110,13 @@ pub fn write_outputs_into(
         )),
         &[],
     )
-    .map_err(|e| err(&sigma, &e))?;
+    .map_err(|e| path_err(&sigma, &e))?;
+    Ok(())
+}
+
+/// Writes the flag map, `flags.hdr`, its header naming each bit.
+fn write_flags(dir: &Path, run: &Run) -> Result<(), OutputError> {
+    let (w, h) = (run.spec.width, run.spec.height);
     let flags_path = dir.join("flags.hdr");
     let mut fh = EnviHeader::new(w, h, 1, DataType::U16, Interleave::Bsq);
     let names: Vec<String> = flags::NAMES
@@ -103,16 +124,21 @@ pub fn write_outputs_into(
         .map(|(b, n)| format!("{b}={n}"))
         .collect();
     fh.description = Some(format!("filmscope pixel flags (bits): {}", names.join(" ")));
-    let mut fw = EnviWriter::create(&flags_path, &fh).map_err(|e| err(&flags_path, &e))?;
+    let mut fw = EnviWriter::create(&flags_path, &fh).map_err(|e| path_err(&flags_path, &e))?;
     for row in 0..h {
-        let vals: Vec<f32> = r.flags[row * w..(row + 1) * w]
+        let vals: Vec<f32> = run.result.flags[row * w..(row + 1) * w]
             .iter()
             .map(|&f| f32::from(f))
             .collect();
         fw.write_band_row(0, row, &vals)
-            .map_err(|e| err(&flags_path, &e))?;
+            .map_err(|e| path_err(&flags_path, &e))?;
     }
-    fw.finish().map_err(|e| err(&flags_path, &e))?;
+    fw.finish().map_err(|e| path_err(&flags_path, &e))
+}
+
+/// Writes the thickness preview, `thickness_nm.png`, titled with the index and method.
+fn write_preview(dir: &Path, run: &Run) -> Result<(), OutputError> {
+    let r = &run.result;
     let png = dir.join("thickness_nm.png");
     let title = format!(
         "thickness, n = {:.4} ({})",
@@ -122,27 +148,39 @@ pub fn write_outputs_into(
     write_map_png(
         &png,
         &MapPreview {
-            width: w,
-            height: h,
+            width: run.spec.width,
+            height: run.spec.height,
             values: &r.thickness_nm,
             title: &title,
             unit: "nm",
             range: None,
         },
     )
-    .map_err(|e| err(&png, &e))?;
-    let valid = r.thickness_nm.iter().filter(|x| x.is_finite()).count();
+    .map_err(|e| path_err(&png, &e))
+}
+
+/// Writes the index as `index.csv` and `index.yml` when the index model has them; true if
+/// it did.
+fn write_index_files(dir: &Path, run: &Run, source_label: &str) -> Result<bool, OutputError> {
+    let r = &run.result;
     let comment = format!("{} estimate of {source_label}", r.method.name());
     let index_files =
         crate::material::index_files(&r.index.dispersion(), &run.spec.bands_nm, &comment);
     for (name, text) in index_files.iter().flatten() {
         let path = dir.join(name);
-        write_atomic(&path, text.as_bytes()).map_err(|e| err(&path, &e))?;
+        write_atomic(&path, text.as_bytes()).map_err(|e| path_err(&path, &e))?;
     }
-    let index_files = index_files.is_some();
+    Ok(index_files.is_some())
+}
+
+/// The run's `summary.json`; `index_files`: whether the index files were written.
+fn summary_of(run: &Run, source_label: &str, index_files: bool) -> Summary {
+    let (w, h) = (run.spec.width, run.spec.height);
+    let r = &run.result;
+    let valid = r.thickness_nm.iter().filter(|x| x.is_finite()).count();
     let n_550 = r.index.at(550.0);
     let finite = |x: f64| x.is_finite().then_some(x);
-    let summary = Summary {
+    Summary {
         refractive_index: finite(n_550),
         refractive_index_sigma: r.index_sigma.and_then(finite),
         dispersion: n_550
@@ -191,7 +229,5 @@ pub fn write_outputs_into(
         timestamp: None,
         version: None,
         line: None,
-    };
-    summary.write(dir).map_err(|e| OutputError(e.to_string()))?;
-    Ok(summary)
+    }
 }

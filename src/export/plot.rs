@@ -874,26 +874,7 @@ impl Panel for ScatterLayout<'_> {
             ),
         );
         let title = fit(spec.title, PANEL_TITLE_SIZE, PLOT_WIDTH);
-        let (x_axis, y_axis) = self.axes.unwrap_or((
-            Axis {
-                lo: 0.0,
-                hi: 1.0,
-                log: false,
-            },
-            Axis {
-                lo: 0.0,
-                hi: 1.0,
-                log: false,
-            },
-        ));
-        let (x_ticks, y_ticks) = if self.axes.is_some() {
-            (
-                x_axis.thinned_ticks(PLOT_WIDTH, |s| text_size(s, TICK_SIZE).0),
-                y_axis.thinned_ticks(PLOT_HEIGHT, |s| text_size(s, TICK_SIZE).1),
-            )
-        } else {
-            (Vec::new(), Vec::new())
-        };
+        let ((x_axis, y_axis), (x_ticks, y_ticks)) = self.axes_and_ticks();
         let mut chart = ChartBuilder::on(&area)
             .caption(title, font(PANEL_TITLE_SIZE, &INK))
             .margin_right(px(RIGHT))
@@ -929,8 +910,45 @@ impl Panel for ScatterLayout<'_> {
             let (x, y) = drawable(spec, p)?;
             (x_axis.contains(x) && y_axis.contains(y)).then(|| chart.backend_coord(&(x, y)))
         };
+        self.draw_points(root, &to_px)?;
+        self.draw_labels(root, &to_px, plot)?;
+        self.draw_legend(root, ox, oy)
+    }
+}
 
-        // The Pareto front under the points, its rings over them.
+/// Where a point is drawn: its pixel, or `None` when it falls outside the axes.
+type ToPixel<'a> = dyn Fn((f64, f64)) -> Option<(i32, i32)> + 'a;
+
+impl ScatterLayout<'_> {
+    /// The axes (0 to 1 when there is no drawable point) and their thinned ticks (none
+    /// then).
+    fn axes_and_ticks(&self) -> ((Axis, Axis), (Vec<Tick>, Vec<Tick>)) {
+        let (x_axis, y_axis) = self.axes.unwrap_or((
+            Axis {
+                lo: 0.0,
+                hi: 1.0,
+                log: false,
+            },
+            Axis {
+                lo: 0.0,
+                hi: 1.0,
+                log: false,
+            },
+        ));
+        let ticks = if self.axes.is_some() {
+            (
+                x_axis.thinned_ticks(PLOT_WIDTH, |s| text_size(s, TICK_SIZE).0),
+                y_axis.thinned_ticks(PLOT_HEIGHT, |s| text_size(s, TICK_SIZE).1),
+            )
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        ((x_axis, y_axis), ticks)
+    }
+
+    /// Draws the points, the Pareto front under them and its rings over them.
+    fn draw_points(&self, root: &Area, to_px: &ToPixel) -> Result<(), PreviewError> {
+        let spec = self.spec;
         let all: Vec<(f64, f64)> = spec
             .series
             .iter()
@@ -966,10 +984,19 @@ impl Panel for ScatterLayout<'_> {
             root.draw(&Circle::new(c, RING_RADIUS, BLACK.stroke_width(2)))
                 .map_err(draw_err)?;
         }
+        Ok(())
+    }
 
-        // Point labels, each beside its point where it fits.
+    /// Draws the point labels, each beside its point where it fits inside the plot area
+    /// `plot` `(x0, y0, x1, y1)` clear of the others.
+    fn draw_labels(
+        &self,
+        root: &Area,
+        to_px: &ToPixel,
+        plot: (i32, i32, i32, i32),
+    ) -> Result<(), PreviewError> {
         let mut taken: Vec<Rect> = Vec::new();
-        for series in spec.series {
+        for series in self.spec.series {
             let Some(labels) = series.labels else {
                 continue;
             };
@@ -989,11 +1016,9 @@ impl Panel for ScatterLayout<'_> {
                 }
             }
         }
-        self.draw_legend(root, ox, oy)
+        Ok(())
     }
-}
 
-impl ScatterLayout<'_> {
     /// Draws the legend and the note under the panel at `(ox, oy)`.
     fn draw_legend(&self, root: &Area, ox: usize, oy: usize) -> Result<(), PreviewError> {
         let top = px(oy + CAPTION + PLOT_HEIGHT + X_AREA);
@@ -1337,23 +1362,7 @@ impl Panel for HeatLayout<'_> {
             ),
         );
         let title = fit(spec.title, PANEL_TITLE_SIZE, self.left + map_w);
-        // Columns span x in 0..cols; row r spans y in rows-r-1..rows-r (row 0 on top).
-        let centres = |n: usize, stride: usize| -> Vec<f64> {
-            (0..n).step_by(stride).map(|i| i as f64 + 0.5).collect()
-        };
-        let x_keys = if spec.x_ticks.is_empty() {
-            Vec::new()
-        } else {
-            centres(cols, self.stride.0)
-        };
-        let y_keys: Vec<f64> = if spec.y_ticks.is_empty() {
-            Vec::new()
-        } else {
-            centres(rows, self.stride.1)
-                .into_iter()
-                .map(|c| rows as f64 - c)
-                .collect()
-        };
+        let (x_keys, y_keys) = self.tick_keys();
         let label =
             |ticks: &[String], i: f64| ticks.get(i.max(0.0) as usize).cloned().unwrap_or_default();
         let mut chart = ChartBuilder::on(&area)
@@ -1392,19 +1401,7 @@ impl Panel for HeatLayout<'_> {
         });
         chart.draw_series(cells).map_err(draw_err)?;
         if self.cell_font > 0.0 {
-            for (i, &v) in spec.values.iter().enumerate() {
-                if !v.is_finite() {
-                    continue;
-                }
-                let (r, c) = ((i / cols) as f64, (i % cols) as f64);
-                let at = chart.backend_coord(&(c + 0.5, rows as f64 - r - 0.5));
-                let RGBColor(cr, cg, cb) = self.colour(v);
-                let luma = 0.299 * f64::from(cr) + 0.587 * f64::from(cg) + 0.114 * f64::from(cb);
-                let ink = if luma < 128.0 { WHITE } else { INK };
-                let style = font(self.cell_font, &ink).pos(Pos::new(HPos::Center, VPos::Center));
-                root.draw_text(&format_sig(v, 3), &style, at)
-                    .map_err(draw_err)?;
-            }
+            self.draw_cell_text(root, &|x, y| chart.backend_coord(&(x, y)))?;
         }
         let (xr, yr) = chart.plotting_area().get_pixel_range();
         if self.range.is_none() {
@@ -1413,10 +1410,73 @@ impl Panel for HeatLayout<'_> {
             root.draw_text("no data", &style, centre)
                 .map_err(draw_err)?;
         }
+        self.draw_colour_bar(root, xr.end + px(BAR_GAP), (yr.start, yr.end - 1))?;
+        if self.any_missing {
+            self.draw_missing_note(root, ox, px(oy + CAPTION + map_h + X_AREA) + 2)?;
+        }
+        Ok(())
+    }
+}
 
-        // The colour bar, high values at the top, labelled at its ends and middle.
-        let bar_x = xr.end + px(BAR_GAP);
-        let (top, bottom) = (yr.start, yr.end - 1);
+impl HeatLayout<'_> {
+    /// Where the tick labels go: every `stride`-th column's (row's) centre in axis units
+    /// (columns span x in 0..cols; row r spans y in rows-r-1..rows-r, row 0 on top); none
+    /// without labels.
+    fn tick_keys(&self) -> (Vec<f64>, Vec<f64>) {
+        let spec = self.spec;
+        let (cols, rows) = (spec.cols, spec.rows);
+        let centres = |n: usize, stride: usize| -> Vec<f64> {
+            (0..n).step_by(stride).map(|i| i as f64 + 0.5).collect()
+        };
+        let x_keys = if spec.x_ticks.is_empty() {
+            Vec::new()
+        } else {
+            centres(cols, self.stride.0)
+        };
+        let y_keys: Vec<f64> = if spec.y_ticks.is_empty() {
+            Vec::new()
+        } else {
+            centres(rows, self.stride.1)
+                .into_iter()
+                .map(|c| rows as f64 - c)
+                .collect()
+        };
+        (x_keys, y_keys)
+    }
+
+    /// Writes each finite value in its cell, white on dark colours, `at` giving the pixel
+    /// of an axis point.
+    fn draw_cell_text(
+        &self,
+        root: &Area,
+        at: &dyn Fn(f64, f64) -> (i32, i32),
+    ) -> Result<(), PreviewError> {
+        let spec = self.spec;
+        let (cols, rows) = (spec.cols, spec.rows);
+        for (i, &v) in spec.values.iter().enumerate() {
+            if !v.is_finite() {
+                continue;
+            }
+            let (r, c) = ((i / cols) as f64, (i % cols) as f64);
+            let at = at(c + 0.5, rows as f64 - r - 0.5);
+            let RGBColor(cr, cg, cb) = self.colour(v);
+            let luma = 0.299 * f64::from(cr) + 0.587 * f64::from(cg) + 0.114 * f64::from(cb);
+            let ink = if luma < 128.0 { WHITE } else { INK };
+            let style = font(self.cell_font, &ink).pos(Pos::new(HPos::Center, VPos::Center));
+            root.draw_text(&format_sig(v, 3), &style, at)
+                .map_err(draw_err)?;
+        }
+        Ok(())
+    }
+
+    /// Draws the colour bar at `bar_x` from pixel row `top` to `bottom`, high values at the
+    /// top, labelled at its ends and middle, with the unit above it.
+    fn draw_colour_bar(
+        &self,
+        root: &Area,
+        bar_x: i32,
+        (top, bottom): (i32, i32),
+    ) -> Result<(), PreviewError> {
         let span = (bottom - top).max(1);
         for y in top..=bottom {
             let colour = if self.range.is_some() {
@@ -1447,26 +1507,24 @@ impl Panel for HeatLayout<'_> {
                 .map_err(draw_err)?;
         }
         let unit = font(TICK_SIZE, &INK).pos(Pos::new(HPos::Left, VPos::Bottom));
-        root.draw_text(spec.unit, &unit, (bar_x, top - 6))
-            .map_err(draw_err)?;
+        root.draw_text(self.spec.unit, &unit, (bar_x, top - 6))
+            .map_err(draw_err)
+    }
 
-        // "grey = no data", with a grey swatch.
-        if self.any_missing {
-            let y = px(oy + CAPTION + map_h + X_AREA) + 2;
-            let [r, g, b] = NO_DATA;
-            root.draw(&Rectangle::new(
-                [(px(ox), y), (px(ox) + 12, y + 12)],
-                RGBColor(r, g, b).filled(),
-            ))
-            .map_err(draw_err)?;
-            root.draw_text(
-                "grey = no data",
-                &font(SMALL_SIZE, &NOTE_INK),
-                (px(ox) + 18, y),
-            )
-            .map_err(draw_err)?;
-        }
-        Ok(())
+    /// Draws "grey = no data", with a grey swatch, at pixel row `y` from column `ox`.
+    fn draw_missing_note(&self, root: &Area, ox: usize, y: i32) -> Result<(), PreviewError> {
+        let [r, g, b] = NO_DATA;
+        root.draw(&Rectangle::new(
+            [(px(ox), y), (px(ox) + 12, y + 12)],
+            RGBColor(r, g, b).filled(),
+        ))
+        .map_err(draw_err)?;
+        root.draw_text(
+            "grey = no data",
+            &font(SMALL_SIZE, &NOTE_INK),
+            (px(ox) + 18, y),
+        )
+        .map_err(draw_err)
     }
 }
 

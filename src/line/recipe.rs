@@ -594,45 +594,30 @@ impl Recipe {
     /// Every number within a stated range, every text of a sane length: no value can make
     /// start-up, a rotation or a history allocation unbounded.
     fn check_ranges(&self) -> Result<(), String> {
-        fn int_in<T: Into<u64> + Copy + std::fmt::Display>(
-            key: &str,
-            v: T,
-            lo: u64,
-            hi: u64,
-        ) -> Result<(), String> {
-            if (lo..=hi).contains(&v.into()) {
-                Ok(())
-            } else {
-                Err(format!("{key} = {v}: expected {lo} to {hi}"))
-            }
-        }
-        fn num_in(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), String> {
-            if v.is_finite() && (lo..=hi).contains(&v) {
-                Ok(())
-            } else if v.is_finite() && v != 0.0 && !(1e-6..1e9).contains(&v.abs()) {
-                Err(format!("{key} = {v:e}: expected {lo} to {hi}"))
-            } else {
-                Err(format!("{key} = {v}: expected {lo} to {hi}"))
-            }
-        }
-        fn text(key: &str, v: &str, max: usize) -> Result<(), String> {
-            if v.trim().is_empty() || v.chars().count() > max || v.chars().any(char::is_control) {
-                Err(format!(
-                    "{key} = {:?}: expected 1 to {max} characters, no control characters",
-                    v.chars().take(40).collect::<String>()
-                ))
-            } else {
-                Ok(())
-            }
-        }
-        let usize_in = |key: &str, v: usize, lo: u64, hi: u64| int_in(key, v as u64, lo, hi);
-        text("film", &self.film, MAX_NAME)?;
-        text("line", &self.line, MAX_NAME)?;
+        self.check_measurement_ranges()?;
+        self.check_history_ranges()?;
+        self.check_service_ranges()?;
+        num_in(
+            "sim.drift_nm_per_sample",
+            self.sim.drift_nm_per_sample,
+            -100.0,
+            100.0,
+        )?;
+        int_in("sim.defect_every", self.sim.defect_every, 0, 1_000_000)?;
+        Ok(())
+    }
+
+    /// The ranges of what is measured and judged: names and labels, the status page's
+    /// staleness, the reference sample, the index, the thickness, the acceptance and the
+    /// regions of interest.
+    fn check_measurement_ranges(&self) -> Result<(), String> {
+        text_in("film", &self.film, MAX_NAME)?;
+        text_in("line", &self.line, MAX_NAME)?;
         if let Some(st) = &self.status {
             num_in("status.stale_after_s", st.stale_after_s, 1.0, 86_400.0)?;
         }
         if let Some(r) = &self.reference {
-            text("reference.name", &r.name, MAX_NAME)?;
+            text_in("reference.name", &r.name, MAX_NAME)?;
             num_in(
                 "reference.thickness_nm",
                 r.thickness_nm,
@@ -650,7 +635,7 @@ impl Recipe {
         }
         for (key, v) in [("lot", &self.lot), ("operator", &self.operator)] {
             if let Some(v) = v {
-                text(key, v, MAX_NAME)?;
+                text_in(key, v, MAX_NAME)?;
             }
         }
         num_in("index.nominal", self.index.nominal, 1.0, 6.0)?;
@@ -676,6 +661,12 @@ impl Recipe {
                 self.roi.len()
             ));
         }
+        Ok(())
+    }
+
+    /// The ranges of what the line keeps: the SPC history and the retention of raw data and
+    /// results.
+    fn check_history_ranges(&self) -> Result<(), String> {
         let sp = &self.spc;
         usize_in("spc.history", sp.history, 2, MAX_HISTORY)?;
         usize_in("spc.baseline", sp.baseline, 2, sp.history as u64)?;
@@ -700,17 +691,22 @@ impl Recipe {
             1,
             MAX_RESULTS_KEEP,
         )?;
-        int_in("retention.min_free_bytes", r.min_free_bytes, 0, MAX_BYTES)?;
+        int_in("retention.min_free_bytes", r.min_free_bytes, 0, MAX_BYTES)
+    }
+
+    /// The ranges of the services the line talks through: MQTT, the status page and
+    /// Modbus.
+    fn check_service_ranges(&self) -> Result<(), String> {
         if let Some(m) = &self.mqtt {
-            text("mqtt.host", &m.host, 253)?;
+            text_in("mqtt.host", &m.host, 253)?;
             if m.host.contains(char::is_whitespace) {
                 return Err(format!("mqtt.host = {:?}: a host name or address", m.host));
             }
             int_in("mqtt.port", m.port, 1, 65_535)?;
-            text("mqtt.prefix", &m.prefix, MAX_TOPIC)?;
-            text("mqtt.client_id", &m.client_id, MAX_CLIENT_ID)?;
+            text_in("mqtt.prefix", &m.prefix, MAX_TOPIC)?;
+            text_in("mqtt.client_id", &m.client_id, MAX_CLIENT_ID)?;
             if let Some(u) = &m.username {
-                text("mqtt.username", u, MAX_CREDENTIAL)?;
+                text_in("mqtt.username", u, MAX_CREDENTIAL)?;
             }
             if let Some(p) = &m.password {
                 if p.chars().count() > MAX_CREDENTIAL {
@@ -723,10 +719,10 @@ impl Recipe {
             usize_in("mqtt.spool_records", m.spool_records, 1, MAX_SPOOL)?;
         }
         if let Some(st) = &self.status {
-            text("status.bind", &st.bind, 253)?;
+            text_in("status.bind", &st.bind, 253)?;
         }
         if let Some(mb) = &self.modbus {
-            text("modbus.bind", &mb.bind, 253)?;
+            text_in("modbus.bind", &mb.bind, 253)?;
             let port = mb.bind.rsplit_once(':').map(|(_, p)| p.parse::<u16>());
             if !matches!(port, Some(Ok(_))) {
                 return Err(format!(
@@ -735,13 +731,6 @@ impl Recipe {
                 ));
             }
         }
-        num_in(
-            "sim.drift_nm_per_sample",
-            self.sim.drift_nm_per_sample,
-            -100.0,
-            100.0,
-        )?;
-        int_in("sim.defect_every", self.sim.defect_every, 0, 1_000_000)?;
         Ok(())
     }
 
@@ -860,6 +849,50 @@ impl Recipe {
                 });
             }
         }
+        Ok(())
+    }
+}
+
+/// `key = v` within `lo..=hi`, or the error saying so.
+fn int_in<T: Into<u64> + Copy + std::fmt::Display>(
+    key: &str,
+    v: T,
+    lo: u64,
+    hi: u64,
+) -> Result<(), String> {
+    if (lo..=hi).contains(&v.into()) {
+        Ok(())
+    } else {
+        Err(format!("{key} = {v}: expected {lo} to {hi}"))
+    }
+}
+
+/// [`int_in`] for a count.
+fn usize_in(key: &str, v: usize, lo: u64, hi: u64) -> Result<(), String> {
+    int_in(key, v as u64, lo, hi)
+}
+
+/// `key = v` finite and within `lo..=hi`, or the error saying so (a value far from 1 in
+/// exponent notation).
+fn num_in(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), String> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(())
+    } else if v.is_finite() && v != 0.0 && !(1e-6..1e9).contains(&v.abs()) {
+        Err(format!("{key} = {v:e}: expected {lo} to {hi}"))
+    } else {
+        Err(format!("{key} = {v}: expected {lo} to {hi}"))
+    }
+}
+
+/// `key = v` of 1 to `max` characters, not blank and without control characters, or the
+/// error saying so (quoting at most 40 of them).
+fn text_in(key: &str, v: &str, max: usize) -> Result<(), String> {
+    if v.trim().is_empty() || v.chars().count() > max || v.chars().any(char::is_control) {
+        Err(format!(
+            "{key} = {:?}: expected 1 to {max} characters, no control characters",
+            v.chars().take(40).collect::<String>()
+        ))
+    } else {
         Ok(())
     }
 }

@@ -105,42 +105,13 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
         return unusable(Method::Brute, cube, &problem);
     }
     let (w, h) = (cube.width, cube.height);
-    let nb = cube.bands_nm.len();
-    let na = cube.angles_deg.len();
-    let nab = na * nb;
     let indices = grid.index_values(cube.index_range);
     let thicknesses = grid.thickness_values(cube.thickness_range_nm);
     let nd = thicknesses.len();
+    let data = Measured::of(cube);
+    let valid = data.flags.iter().filter(|&&f| f == 0).count();
 
-    // Pixel-major measured spectra with a weight per sample (0 for non-finite samples).
-    let mut measured = vec![0f32; w * h * nab];
-    let mut weight = vec![0f32; w * h * nab];
-    let mut pixel_flags = vec![0u16; w * h];
-    for row in 0..h {
-        for col in 0..w {
-            let p = row * w + col;
-            let spec = &mut measured[p * nab..(p + 1) * nab];
-            pixel_spectra(cube, col, row, spec);
-            pixel_flags[p] = defect_flags(spec);
-            for (m, wt) in spec.iter_mut().zip(&mut weight[p * nab..(p + 1) * nab]) {
-                if m.is_finite() {
-                    *wt = 1.0;
-                } else {
-                    *m = 0.0;
-                }
-            }
-        }
-    }
-    let valid = pixel_flags.iter().filter(|&&f| f == 0).count();
-
-    let band_averaged = {
-        let min_spacing = cube
-            .bands_nm
-            .windows(2)
-            .map(|x| x[1] - x[0])
-            .fold(f64::INFINITY, f64::min);
-        cube.fwhm_nm.iter().any(|&f| f > min_spacing)
-    };
+    let band_averaged = band_averaged(cube);
     let nodes = if band_averaged { BAND_NODES } else { 1 };
     let d_lo = cube.thickness_range_nm[0];
     let d_step = grid.thickness_step_for(cube.thickness_range_nm);
@@ -155,27 +126,18 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
     let mut best = vec![start; w * h];
     for (i, &n) in indices.iter().enumerate() {
         let table = build(n);
-        search_rows(
-            &table,
-            nab,
-            &measured,
-            &weight,
-            &pixel_flags,
-            &mut best,
-            w,
-            i,
-        );
+        data.search(&table, &mut best, i);
     }
     let mut per_pixel: Vec<usize> = best
         .iter()
-        .zip(&pixel_flags)
+        .zip(&data.flags)
         .filter(|(b, &f)| f == 0 && b.sse.is_finite())
         .map(|(b, _)| b.index)
         .collect();
     per_pixel.sort_unstable();
     let Some(&shared) = per_pixel.get(per_pixel.len().saturating_sub(1) / 2) else {
         let mut result = unusable(Method::Brute, cube, "");
-        for (o, &f) in result.flags.iter_mut().zip(&pixel_flags) {
+        for (o, &f) in result.flags.iter_mut().zip(&data.flags) {
             *o = if f == 0 { flags::POOR_FIT } else { f };
         }
         result.notes = vec![format!(
@@ -190,16 +152,8 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
     // Pass 2: every pixel's best thickness at the shared index.
     let table = build(n);
     let mut at_shared = vec![start; w * h];
-    search_rows(
-        &table,
-        nab,
-        &measured,
-        &weight,
-        &pixel_flags,
-        &mut at_shared,
-        w,
-        shared,
-    );
+    data.search(&table, &mut at_shared, shared);
+    let mut pixel_flags = data.flags;
     let mut thickness = vec![f32::NAN; w * h];
     let mut confidence = vec![0f32; w * h];
     for (p, b) in at_shared.iter().enumerate() {
@@ -210,11 +164,6 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
             pixel_flags[p] = flags::POOR_FIT;
         }
     }
-    let n_step = if indices.len() > 1 {
-        indices[1] - indices[0]
-    } else {
-        0.0
-    };
     MethodResult {
         method: Method::Brute,
         index: IndexModel::constant(n),
@@ -224,22 +173,7 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
         confidence,
         flags: pixel_flags,
         notes: vec![
-            format!(
-                "brute: grid {} indices {:.3}..{:.3} (step {n_step:.4}) x {nd} thicknesses \
-                 {:.1}..{:.1} nm (step {d_step:.2} nm) = {} points per pixel, {nab} samples each, \
-                 {} model",
-                indices.len(),
-                indices.first().copied().unwrap_or(f64::NAN),
-                indices.last().copied().unwrap_or(f64::NAN),
-                thicknesses.first().copied().unwrap_or(f64::NAN),
-                thicknesses.last().copied().unwrap_or(f64::NAN),
-                indices.len() * nd,
-                if band_averaged {
-                    "band-averaged (9-node Gaussian passband)"
-                } else {
-                    "monochromatic (band centre)"
-                }
-            ),
+            grid_note(&indices, &thicknesses, d_step, data.row_len, band_averaged),
             format!(
                 "brute: n = {n:.4} = median of the best index of {} pixels; {} pixels skipped \
                  (more than 10 % non-finite samples)",
@@ -250,48 +184,130 @@ pub fn brute(cube: &SweepCube, grid: BruteGrid) -> MethodResult {
     }
 }
 
-/// Updates `best` (one entry per pixel) with the thicknesses of `table` (model spectra of grid
-/// index `index`, one row of `row_len` samples per grid thickness), the rows of the image
-/// shared between two threads. Pixels with flags are skipped.
-#[allow(clippy::too_many_arguments)]
-fn search_rows(
-    table: &[f32],
+/// Whether the model averages over each band's passband: when some band's FWHM exceeds the
+/// smallest band spacing (else the band centre's reflectance serves).
+fn band_averaged(cube: &SweepCube) -> bool {
+    let min_spacing = cube
+        .bands_nm
+        .windows(2)
+        .map(|x| x[1] - x[0])
+        .fold(f64::INFINITY, f64::min);
+    cube.fwhm_nm.iter().any(|&f| f > min_spacing)
+}
+
+/// The note describing the grid searched: its index and thickness values and steps, the
+/// points and samples per pixel, and the model.
+fn grid_note(
+    indices: &[f64],
+    thicknesses: &[f64],
+    d_step: f64,
+    nab: usize,
+    band_averaged: bool,
+) -> String {
+    let nd = thicknesses.len();
+    let n_step = if indices.len() > 1 {
+        indices[1] - indices[0]
+    } else {
+        0.0
+    };
+    format!(
+        "brute: grid {} indices {:.3}..{:.3} (step {n_step:.4}) x {nd} thicknesses \
+         {:.1}..{:.1} nm (step {d_step:.2} nm) = {} points per pixel, {nab} samples each, \
+         {} model",
+        indices.len(),
+        indices.first().copied().unwrap_or(f64::NAN),
+        indices.last().copied().unwrap_or(f64::NAN),
+        thicknesses.first().copied().unwrap_or(f64::NAN),
+        thicknesses.last().copied().unwrap_or(f64::NAN),
+        indices.len() * nd,
+        if band_averaged {
+            "band-averaged (9-node Gaussian passband)"
+        } else {
+            "monochromatic (band centre)"
+        }
+    )
+}
+
+/// Every pixel's measured spectra, pixel-major, with a weight per sample (0 for non-finite
+/// samples, which are stored as 0) and its defect flags.
+struct Measured {
+    values: Vec<f32>,
+    weight: Vec<f32>,
+    /// Per pixel: SATURATED or DEAD, or 0 for a pixel that takes part.
+    flags: Vec<u16>,
+    /// Samples per pixel (angles x bands).
     row_len: usize,
-    measured: &[f32],
-    weight: &[f32],
-    pixel_flags: &[u16],
-    best: &mut [Best],
+    /// Pixels per image row.
     width: usize,
-    index: usize,
-) {
-    let pixels = best.len();
-    let rows = pixels / width.max(1);
-    let half = rows.div_ceil(2).max(1) * width.max(1);
-    std::thread::scope(|s| {
-        for (k, chunk) in best.chunks_mut(half).enumerate() {
-            let first = k * half;
-            s.spawn(move || {
-                for (i, b) in chunk.iter_mut().enumerate() {
-                    let p = first + i;
-                    if pixel_flags[p] != 0 {
-                        continue;
-                    }
-                    let m = &measured[p * row_len..(p + 1) * row_len];
-                    let wt = &weight[p * row_len..(p + 1) * row_len];
-                    for (j, model) in table.chunks_exact(row_len).enumerate() {
-                        let sse = weighted_sse(model, m, wt, b.sse);
-                        if sse < b.sse {
-                            *b = Best {
-                                sse,
-                                index,
-                                thickness: j,
-                            };
-                        }
+}
+
+impl Measured {
+    /// The cube's spectra.
+    fn of(cube: &SweepCube) -> Self {
+        let (w, h) = (cube.width, cube.height);
+        let nab = cube.angles_deg.len() * cube.bands_nm.len();
+        let mut measured = vec![0f32; w * h * nab];
+        let mut weight = vec![0f32; w * h * nab];
+        let mut pixel_flags = vec![0u16; w * h];
+        for row in 0..h {
+            for col in 0..w {
+                let p = row * w + col;
+                let spec = &mut measured[p * nab..(p + 1) * nab];
+                pixel_spectra(cube, col, row, spec);
+                pixel_flags[p] = defect_flags(spec);
+                for (m, wt) in spec.iter_mut().zip(&mut weight[p * nab..(p + 1) * nab]) {
+                    if m.is_finite() {
+                        *wt = 1.0;
+                    } else {
+                        *m = 0.0;
                     }
                 }
-            });
+            }
         }
-    });
+        Self {
+            values: measured,
+            weight,
+            flags: pixel_flags,
+            row_len: nab,
+            width: w,
+        }
+    }
+
+    /// Updates `best` (one entry per pixel) with the thicknesses of `table` (model spectra
+    /// of grid index `index`, one row of [`Measured::row_len`] samples per grid thickness),
+    /// the rows of the image shared between two threads. Pixels with flags are skipped.
+    fn search(&self, table: &[f32], best: &mut [Best], index: usize) {
+        let (row_len, width) = (self.row_len, self.width);
+        let (measured, weight, pixel_flags) = (&self.values, &self.weight, &self.flags);
+        let pixels = best.len();
+        let rows = pixels / width.max(1);
+        let half = rows.div_ceil(2).max(1) * width.max(1);
+        std::thread::scope(|s| {
+            for (k, chunk) in best.chunks_mut(half).enumerate() {
+                let first = k * half;
+                s.spawn(move || {
+                    for (i, b) in chunk.iter_mut().enumerate() {
+                        let p = first + i;
+                        if pixel_flags[p] != 0 {
+                            continue;
+                        }
+                        let m = &measured[p * row_len..(p + 1) * row_len];
+                        let wt = &weight[p * row_len..(p + 1) * row_len];
+                        for (j, model) in table.chunks_exact(row_len).enumerate() {
+                            let sse = weighted_sse(model, m, wt, b.sse);
+                            if sse < b.sse {
+                                *b = Best {
+                                    sse,
+                                    index,
+                                    thickness: j,
+                                };
+                            }
+                        }
+                    }
+                });
+            }
+        });
+    }
 }
 
 /// `sum weight (model - measured)^2`, abandoned (returning a value `>= bound`) once a partial

@@ -61,9 +61,6 @@ pub fn paper(cube: &SweepCube) -> MethodResult {
         return unusable(Method::Paper, cube, &problem);
     }
     let (w, h) = (cube.width, cube.height);
-    let nb = cube.bands_nm.len();
-    let na = cube.angles_deg.len();
-    let nab = na * nb;
     let order = angles_by_incidence(cube);
     let s2: Vec<f64> = cube
         .angles_deg
@@ -75,54 +72,10 @@ pub fn paper(cube: &SweepCube) -> MethodResult {
         .collect();
 
     // Steps 1-3: peaks, pair estimates of the index, and each pixel's thickness anchor.
-    let mut spectra = vec![0f32; nab];
-    let mut smooth = vec![0f32; nb];
-    let mut peaks: Vec<Vec<usize>> = vec![Vec::new(); na];
-    let mut estimates: Vec<f64> = Vec::new();
-    let mut pairs_total = 0usize;
-    // Per pixel: (angle, band) of the peak that anchors the thickness candidates.
-    let mut anchors: Vec<Option<(usize, usize)>> = vec![None; w * h];
-    let mut pixel_flags = vec![0u16; w * h];
-    for row in 0..h {
-        for col in 0..w {
-            let p = row * w + col;
-            pixel_spectra(cube, col, row, &mut spectra);
-            pixel_flags[p] = defect_flags(&spectra);
-            for (a, list) in peaks.iter_mut().enumerate() {
-                smooth3(&spectra[a * nb..(a + 1) * nb], &mut smooth);
-                local_maxima(&smooth, list);
-            }
-            for pair in order.windows(2) {
-                let (a1, a2) = (pair[0], pair[1]);
-                for &b1 in &peaks[a1] {
-                    let l1 = cube.bands_nm[b1];
-                    // Nearest peak at the next angle at a shorter-or-equal wavelength.
-                    let matched = peaks[a2]
-                        .iter()
-                        .map(|&b| cube.bands_nm[b])
-                        .filter(|&l| l <= l1)
-                        .max_by(f64::total_cmp);
-                    let Some(l2) = matched else { continue };
-                    pairs_total += 1;
-                    let n = eq12(l1, l2, s2[a1], s2[a2]);
-                    if n.is_finite() && n >= cube.index_range[0] && n <= cube.index_range[1] {
-                        estimates.push(n);
-                    }
-                }
-            }
-            anchors[p] = order.iter().find_map(|&a| {
-                let spec = &spectra[a * nb..(a + 1) * nb];
-                smooth3(spec, &mut smooth);
-                peaks[a]
-                    .iter()
-                    .copied()
-                    .max_by(|&x, &y| smooth[x].total_cmp(&smooth[y]))
-                    .map(|b| (a, b))
-            });
-        }
-    }
-    let used = estimates.len();
-    let Some(n) = median(&mut estimates) else {
+    let mut scan = PeakScan::run(cube, &order, &s2);
+    let pairs_total = scan.pairs_total;
+    let used = scan.estimates.len();
+    let Some(n) = median(&mut scan.estimates) else {
         let mut result = unusable(Method::Paper, cube, "");
         result.flags = vec![flags::NO_FRINGE; w * h];
         result.notes = vec![format!(
@@ -131,62 +84,19 @@ pub fn paper(cube: &SweepCube) -> MethodResult {
         return result;
     };
     let mad = {
-        let mut dev: Vec<f64> = estimates.iter().map(|e| (e - n).abs()).collect();
+        let mut dev: Vec<f64> = scan.estimates.iter().map(|e| (e - n).abs()).collect();
         median(&mut dev).unwrap_or(f64::NAN)
     };
 
     // Step 4: model spectra on a thickness grid, then the integer order per pixel.
-    let [d_lo, d_hi] = cube.thickness_range_nm;
-    let step = TABLE_STEP_NM.max((d_hi - d_lo) / (TABLE_MAX_ROWS - 1) as f64);
-    let rows = ((d_hi - d_lo) / step).ceil() as usize + 1;
-    let table = model_table(cube, n, d_lo, step, rows, DEFAULT_NODES);
-
-    let mut thickness = vec![f32::NAN; w * h];
-    let mut confidence = vec![0f32; w * h];
-    let (mut solved, mut no_peak, mut out_of_range) = (0usize, 0usize, 0usize);
-    for row in 0..h {
-        for col in 0..w {
-            let p = row * w + col;
-            let Some((a, b)) = anchors[p] else {
-                pixel_flags[p] |= flags::NO_FRINGE;
-                no_peak += 1;
-                continue;
-            };
-            pixel_spectra(cube, col, row, &mut spectra);
-            let kz = (n * n - s2[a]).sqrt();
-            let lambda = cube.bands_nm[b];
-            // Eq. 13 with integer orders m = 1, 2, ...: d = m lambda / (2 kz), inside the range.
-            let per_order = lambda / (2.0 * kz);
-            let m_lo = (d_lo / per_order).ceil().max(1.0);
-            let m_hi = (d_hi / per_order).floor().min(m_lo + MAX_ORDERS);
-            let mut best: Option<(f64, f64)> = None;
-            let mut m = m_lo;
-            while m <= m_hi {
-                let d = m * per_order;
-                m += 1.0;
-                if !(d >= d_lo && d <= d_hi) {
-                    continue;
-                }
-                let bound = best.map_or(f64::INFINITY, |(s, _)| s);
-                let sse = interpolated_sse(&table, nab, (d - d_lo) / step, &spectra, bound);
-                if sse < bound {
-                    best = Some((sse, d));
-                }
-            }
-            match best {
-                Some((_, d)) => {
-                    thickness[p] = d as f32;
-                    confidence[p] = 1.0;
-                    pixel_flags[p] = 0;
-                    solved += 1;
-                }
-                None => {
-                    pixel_flags[p] |= flags::OUT_OF_RANGE;
-                    out_of_range += 1;
-                }
-            }
-        }
-    }
+    let Orders {
+        thickness,
+        confidence,
+        solved,
+        no_peak,
+        out_of_range,
+        step,
+    } = Orders::solve(cube, n, &s2, &scan.anchors, &mut scan.pixel_flags);
 
     MethodResult {
         method: Method::Paper,
@@ -195,7 +105,7 @@ pub fn paper(cube: &SweepCube) -> MethodResult {
         thickness_sigma_nm: vec![f32::NAN; thickness.len()],
         thickness_nm: thickness,
         confidence,
-        flags: pixel_flags,
+        flags: scan.pixel_flags,
         notes: vec![
             format!(
                 "paper: n = {n:.4} = median of {used} eq. 12 pair estimates (of {pairs_total} \
@@ -213,6 +123,176 @@ pub fn paper(cube: &SweepCube) -> MethodResult {
                  {step:.2} nm"
             ),
         ],
+    }
+}
+
+/// Steps 1-3 of [`paper`] over every pixel: the eq. 12 index estimates of its matched
+/// peaks, and the peak anchoring its thickness candidates.
+struct PeakScan {
+    /// The pair estimates that are finite and inside the cube's index range.
+    estimates: Vec<f64>,
+    /// Matched peak pairs, whatever their estimate.
+    pairs_total: usize,
+    /// Per pixel: (angle, band) of the peak that anchors the thickness candidates.
+    anchors: Vec<Option<(usize, usize)>>,
+    /// Per pixel: its defect flags.
+    pixel_flags: Vec<u16>,
+}
+
+impl PeakScan {
+    /// Scans every pixel's spectra; `order` holds the angles by incidence, `s2` their
+    /// squared Snell invariants.
+    fn run(cube: &SweepCube, order: &[usize], s2: &[f64]) -> Self {
+        let (w, h) = (cube.width, cube.height);
+        let nb = cube.bands_nm.len();
+        let na = cube.angles_deg.len();
+        let mut spectra = vec![0f32; na * nb];
+        let mut smooth = vec![0f32; nb];
+        let mut peaks: Vec<Vec<usize>> = vec![Vec::new(); na];
+        let mut scan = Self {
+            estimates: Vec::new(),
+            pairs_total: 0,
+            anchors: vec![None; w * h],
+            pixel_flags: vec![0u16; w * h],
+        };
+        for row in 0..h {
+            for col in 0..w {
+                let p = row * w + col;
+                pixel_spectra(cube, col, row, &mut spectra);
+                scan.pixel_flags[p] = defect_flags(&spectra);
+                for (a, list) in peaks.iter_mut().enumerate() {
+                    smooth3(&spectra[a * nb..(a + 1) * nb], &mut smooth);
+                    local_maxima(&smooth, list);
+                }
+                scan.pair_estimates(cube, order, s2, &peaks);
+                scan.anchors[p] = order.iter().find_map(|&a| {
+                    let spec = &spectra[a * nb..(a + 1) * nb];
+                    smooth3(spec, &mut smooth);
+                    peaks[a]
+                        .iter()
+                        .copied()
+                        .max_by(|&x, &y| smooth[x].total_cmp(&smooth[y]))
+                        .map(|b| (a, b))
+                });
+            }
+        }
+        scan
+    }
+
+    /// Matches each peak of one pixel (`peaks`, per angle) to the nearest peak at the next
+    /// angle by incidence at a shorter-or-equal wavelength, and keeps the eq. 12 index of
+    /// each pair that is finite and inside the cube's index range.
+    fn pair_estimates(
+        &mut self,
+        cube: &SweepCube,
+        order: &[usize],
+        s2: &[f64],
+        peaks: &[Vec<usize>],
+    ) {
+        for pair in order.windows(2) {
+            let (a1, a2) = (pair[0], pair[1]);
+            for &b1 in &peaks[a1] {
+                let l1 = cube.bands_nm[b1];
+                // Nearest peak at the next angle at a shorter-or-equal wavelength.
+                let matched = peaks[a2]
+                    .iter()
+                    .map(|&b| cube.bands_nm[b])
+                    .filter(|&l| l <= l1)
+                    .max_by(f64::total_cmp);
+                let Some(l2) = matched else { continue };
+                self.pairs_total += 1;
+                let n = eq12(l1, l2, s2[a1], s2[a2]);
+                if n.is_finite() && n >= cube.index_range[0] && n <= cube.index_range[1] {
+                    self.estimates.push(n);
+                }
+            }
+        }
+    }
+}
+
+/// Step 4 of [`paper`]: each pixel's thickness, the integer order whose model spectra are
+/// nearest its measured ones, and the counts its notes give.
+struct Orders {
+    thickness: Vec<f32>,
+    confidence: Vec<f32>,
+    solved: usize,
+    no_peak: usize,
+    out_of_range: usize,
+    /// The model table's thickness step, nm.
+    step: f64,
+}
+
+impl Orders {
+    /// Solves every pixel under the index `n` from its anchor peak (`anchors`), flagging
+    /// in `pixel_flags` the pixels without a peak or without an order inside the range.
+    fn solve(
+        cube: &SweepCube,
+        n: f64,
+        s2: &[f64],
+        anchors: &[Option<(usize, usize)>],
+        pixel_flags: &mut [u16],
+    ) -> Self {
+        let (w, h) = (cube.width, cube.height);
+        let nab = cube.angles_deg.len() * cube.bands_nm.len();
+        let [d_lo, d_hi] = cube.thickness_range_nm;
+        let step = TABLE_STEP_NM.max((d_hi - d_lo) / (TABLE_MAX_ROWS - 1) as f64);
+        let rows = ((d_hi - d_lo) / step).ceil() as usize + 1;
+        let table = model_table(cube, n, d_lo, step, rows, DEFAULT_NODES);
+
+        let mut spectra = vec![0f32; nab];
+        let mut orders = Self {
+            thickness: vec![f32::NAN; w * h],
+            confidence: vec![0f32; w * h],
+            solved: 0,
+            no_peak: 0,
+            out_of_range: 0,
+            step,
+        };
+        for row in 0..h {
+            for col in 0..w {
+                let p = row * w + col;
+                let Some((a, b)) = anchors[p] else {
+                    pixel_flags[p] |= flags::NO_FRINGE;
+                    orders.no_peak += 1;
+                    continue;
+                };
+                pixel_spectra(cube, col, row, &mut spectra);
+                let kz = (n * n - s2[a]).sqrt();
+                let lambda = cube.bands_nm[b];
+                // Eq. 13 with integer orders m = 1, 2, ...: d = m lambda / (2 kz), inside the
+                // range.
+                let per_order = lambda / (2.0 * kz);
+                let m_lo = (d_lo / per_order).ceil().max(1.0);
+                let m_hi = (d_hi / per_order).floor().min(m_lo + MAX_ORDERS);
+                let mut best: Option<(f64, f64)> = None;
+                let mut m = m_lo;
+                while m <= m_hi {
+                    let d = m * per_order;
+                    m += 1.0;
+                    if !(d >= d_lo && d <= d_hi) {
+                        continue;
+                    }
+                    let bound = best.map_or(f64::INFINITY, |(s, _)| s);
+                    let sse = interpolated_sse(&table, nab, (d - d_lo) / step, &spectra, bound);
+                    if sse < bound {
+                        best = Some((sse, d));
+                    }
+                }
+                match best {
+                    Some((_, d)) => {
+                        orders.thickness[p] = d as f32;
+                        orders.confidence[p] = 1.0;
+                        pixel_flags[p] = 0;
+                        orders.solved += 1;
+                    }
+                    None => {
+                        pixel_flags[p] |= flags::OUT_OF_RANGE;
+                        orders.out_of_range += 1;
+                    }
+                }
+            }
+        }
+        orders
     }
 }
 
