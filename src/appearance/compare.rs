@@ -205,7 +205,9 @@ pub fn compare_stream(
     let (tx, rx) = bounded::<StreamMsg>(64);
     std::thread::scope(|scope| -> Result<(), AppearanceError> {
         scope.spawn(move || source.stream(&tx));
-        for msg in rx.iter() {
+        // `rx` moves in here: dropped when this returns early, so the source's next send
+        // fails and it stops instead of blocking the scope's join on a full channel.
+        for msg in rx {
             match msg {
                 StreamMsg::Angle { incidence_deg } => state.begin_angle(incidence_deg)?,
                 StreamMsg::Rows(block) => state.add_rows(block)?,

@@ -199,7 +199,9 @@ pub fn for_each_calibrated_rows(
             None => source.stream(&tx),
         });
         let mut angle = None;
-        for msg in rx.iter() {
+        // `rx` moves in here: dropped when this returns early, so the source's next send
+        // fails and it stops instead of blocking the scope's join on a full channel.
+        for msg in rx {
             match msg {
                 StreamMsg::Angle { incidence_deg } => {
                     angle = Some(angle.map_or(0, |a| a + 1));
@@ -280,4 +282,50 @@ pub fn collect_sweep(source: &mut dyn Source) -> Result<crate::source::SweepCube
         thickness_range_nm: spec.thickness_range_nm,
         data,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::source::SimSource;
+    use filmscope_core::solve::SweepSpec;
+    use firmware_sim::{Scene, SoftwareCamera};
+
+    /// A source that aborts, then goes on sending as a broken rig might.
+    struct Babbler(SweepSpec);
+
+    impl Source for Babbler {
+        fn spec(&self) -> &SweepSpec {
+            &self.0
+        }
+        fn angles_deg(&self) -> Vec<f64> {
+            vec![10.0]
+        }
+        fn stream(&mut self, tx: &crossbeam_channel::Sender<StreamMsg>) {
+            let _ = tx.send(StreamMsg::Abort("the rig broke".into()));
+            for _ in 0..1000 {
+                if tx.send(StreamMsg::AngleEnd).is_err() {
+                    return;
+                }
+            }
+        }
+    }
+
+    /// A consumer that stops early lets the source stop too: the error comes back, and no
+    /// thread waits for ever on a full channel.
+    #[test]
+    fn an_early_error_does_not_block_on_the_source() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes/rig-tiny.toml");
+        let scene = Scene::load(std::path::Path::new(path)).expect("scene");
+        let sim = SimSource::new(SoftwareCamera::new(scene), false, 1).expect("source");
+        let mut source = Babbler(sim.spec().clone());
+        let (done_tx, done_rx) = crossbeam_channel::bounded(1);
+        std::thread::spawn(move || {
+            let _ = done_tx.send(for_each_calibrated(&mut source, |_| {}).map_err(|e| e.0));
+        });
+        let result = done_rx
+            .recv_timeout(std::time::Duration::from_secs(30))
+            .expect("the stream ended");
+        assert_eq!(result, Err("the rig broke".to_owned()));
+    }
 }
