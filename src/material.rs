@@ -61,9 +61,10 @@ pub enum MaterialError {
         /// What is wrong with it.
         problem: Box<MaterialError>,
     },
-    /// The operating system refused to read a file.
+    /// The operating system refused to read a file (in the message, not a source: one
+    /// line, said once).
     #[error("cannot read: {0}")]
-    Read(#[from] std::io::Error),
+    Read(std::io::Error),
     /// A FIFO, device or directory where a file was expected.
     #[error("not a regular file")]
     NotAFile,
@@ -75,6 +76,12 @@ pub enum MaterialError {
         /// The most accepted.
         max: u64,
     },
+}
+
+impl From<std::io::Error> for MaterialError {
+    fn from(e: std::io::Error) -> Self {
+        Self::Read(e)
+    }
 }
 
 /// What is wrong with the index `n` against the ambient's `ambient`.

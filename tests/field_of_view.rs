@@ -180,7 +180,8 @@ fn simulate_writes_the_lens_and_estimate_reports_the_field_model() {
     assert!(reason.contains("no field of view"), "{reason}");
 }
 
-fn fails_with_one_line(args: &[&str], must_name: &[&str]) {
+/// Runs `args`, which must fail with one line naming each of `must_name`; the line.
+fn fails_with_one_line(args: &[&str], must_name: &[&str]) -> String {
     let run = filmscope().args(args).output().expect("run");
     assert!(!run.status.success(), "{args:?} succeeded");
     let err = String::from_utf8_lossy(&run.stderr);
@@ -189,6 +190,7 @@ fn fails_with_one_line(args: &[&str], must_name: &[&str]) {
         assert!(err.contains(name), "{args:?}: {err} does not name {name}");
     }
     assert!(!err.contains("panicked"), "{err}");
+    err.into_owned()
 }
 
 #[test]
@@ -199,11 +201,12 @@ fn a_bad_field_of_view_is_one_line_naming_the_file_and_the_problem() {
     let toml = cap.join("capture.toml");
     let good = std::fs::read_to_string(&toml).expect("capture.toml");
     let out = dir.path().join("out");
-    // `--field wide` needs a field of view.
-    fails_with_one_line(
+    // `--field wide` needs a field of view, said once.
+    let err = fails_with_one_line(
         &["estimate", s(&cap), "--out", s(&out), "--field", "wide"],
         &["capture.toml", "horizontal_fov_deg"],
     );
+    assert_eq!(err.matches("horizontal_fov_deg").count(), 1, "{err}");
     fails_with_one_line(
         &["estimate", s(&cap), "--out", s(&out), "--field", "sideways"],
         &["--field", "sideways"],

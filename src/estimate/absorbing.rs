@@ -337,7 +337,7 @@ impl Tabulated {
             .take_while(|&d| d <= hi)
             .collect();
         let columns = columns(spec, cube, film, hi).ok_or_else(|| {
-            PipelineError(format!(
+            PipelineError::Setup(format!(
                 "the film {name:?} does not pass light at every angle and band (an evanescent wave)"
             ))
         })?;

@@ -452,10 +452,7 @@ fn in_rounds<T: Send>(
         hub.serve(source, strips, capacity);
         handles
             .into_iter()
-            .map(|t| {
-                t.join()
-                    .unwrap_or_else(|_| Err(PipelineError("a strip's estimator panicked".into())))
-            })
+            .map(|t| t.join().unwrap_or_else(|_| Err(PipelineError::Panicked)))
             .collect()
     });
     outs.into_iter().collect()
@@ -967,7 +964,7 @@ fn run_without_lens(
 ) -> Result<Run, PipelineError> {
     let choice = config.field.choice;
     if choice == FieldChoice::Wide {
-        return Err(PipelineError(
+        return Err(PipelineError::Setup(
             "--field wide needs the lens's field of view (capture.toml [lens] horizontal_fov_deg)"
                 .into(),
         ));

@@ -56,7 +56,8 @@ pub fn run_with_index(
 ) -> Result<Run, PipelineError> {
     let spec = config.fitted_spec(source.spec());
     let angles_deg = source.angles_deg();
-    let index = held_index(film, &spec.bands_nm).map_err(|e| PipelineError(e.to_string()))?;
+    let index =
+        held_index(film, &spec.bands_nm).map_err(|e| PipelineError::Setup(e.to_string()))?;
     if crate::estimate::absorbing::absorbs(film, &spec.bands_nm) {
         return crate::estimate::absorbing::run_absorbing(source, config, film, index, name);
     }

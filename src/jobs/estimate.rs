@@ -76,14 +76,14 @@ pub enum EstimateError {
     #[error(transparent)]
     Source(#[from] SourceError),
     /// The given film index cannot be used over the capture's band.
-    #[error("{option} {name:?}: {source}")]
+    #[error("{option} {name:?}: {cause}")]
     FilmIndex {
         /// How the caller names the option.
         option: &'static str,
         /// The index as given.
         name: String,
-        /// Its problem.
-        source: MaterialError,
+        /// Its problem (in the message, not a source: one line, said once).
+        cause: MaterialError,
     },
     /// A given index with a method that fits its own.
     #[error("{option}: only the filmscope method takes a given index")]
@@ -92,22 +92,22 @@ pub enum EstimateError {
         option: &'static str,
     },
     /// The capture's substrate cannot be used over its band.
-    #[error("{label}: sample.substrate = {name:?}: {source}")]
+    #[error("{label}: sample.substrate = {name:?}: {cause}")]
     Substrate {
         /// The capture.
         label: String,
         /// The substrate's name.
         name: String,
-        /// Its problem.
-        source: MaterialError,
+        /// Its problem (in the message, not a source: one line, said once).
+        cause: MaterialError,
     },
     /// The sweep could not be estimated.
-    #[error("{label}: {source}")]
+    #[error("{label}: {cause}")]
     Run {
         /// The source.
         label: String,
-        /// What stopped it.
-        source: PipelineError,
+        /// What stopped it (in the message, not a source: one line, said once).
+        cause: PipelineError,
     },
 }
 
@@ -116,7 +116,7 @@ impl EstimateError {
     /// its own way.
     pub fn cause(&self) -> String {
         match self {
-            Self::Run { source, .. } => source.to_string(),
+            Self::Run { cause, .. } => cause.to_string(),
             e => e.to_string(),
         }
     }
@@ -159,9 +159,9 @@ pub fn run(
         ),
     };
     observer.end();
-    let mut run = result.map_err(|source| EstimateError::Run {
+    let mut run = result.map_err(|cause| EstimateError::Run {
         label: label.to_owned(),
-        source,
+        cause,
     })?;
     run.result.notes.extend(source.notes());
     log::debug!(
@@ -190,10 +190,10 @@ pub fn estimate_capture(
     observer: &dyn Observer,
 ) -> Result<Outcome, EstimateError> {
     let settings = &request.settings;
-    let given = |name: &str, source: MaterialError| EstimateError::FilmIndex {
+    let given = |name: &str, cause: MaterialError| EstimateError::FilmIndex {
         option: request.film_option,
         name: name.to_owned(),
-        source,
+        cause,
     };
     if settings.film.is_some() && settings.config.method != Method::Filmscope {
         return Err(EstimateError::IndexNotTaken {
@@ -225,11 +225,11 @@ pub fn estimate_capture(
             .map_err(|e| given(&film.name, e))?;
     }
     if let Some(s) = &substrate {
-        crate::material::check_over_band(&s.dispersion, &bands, ambient).map_err(|source| {
+        crate::material::check_over_band(&s.dispersion, &bands, ambient).map_err(|cause| {
             EstimateError::Substrate {
                 label: label.clone(),
                 name: s.name.clone(),
-                source,
+                cause,
             }
         })?;
     }

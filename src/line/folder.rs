@@ -59,7 +59,7 @@ impl FolderError {
 impl From<super::stream::StreamError> for FolderError {
     fn from(e: super::stream::StreamError) -> Self {
         match e {
-            super::stream::StreamError::Io { path, source } => Self::new(&path, source),
+            super::stream::StreamError::Io { path, cause } => Self::new(&path, cause),
         }
     }
 }

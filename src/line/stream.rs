@@ -22,19 +22,19 @@ use crate::record::line::Record;
 #[derive(Debug, thiserror::Error)]
 pub enum StreamError {
     /// A file.
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Io {
         /// The file.
         path: PathBuf,
-        /// Why.
-        source: std::io::Error,
+        /// Why (in the message, not a source: one line, said once).
+        cause: std::io::Error,
     },
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StreamError + '_ {
-    move |source| StreamError::Io {
+    move |cause| StreamError::Io {
         path: path.to_owned(),
-        source,
+        cause,
     }
 }
 
@@ -1058,8 +1058,8 @@ mod tests {
         // The disk fills half-way through the second record.
         room.store(20, Ordering::SeqCst);
         let e = log.append(&rec(2)).expect_err("disk full");
-        let StreamError::Io { source, .. } = &e;
-        assert!(is_disk_full(source), "{e}");
+        let StreamError::Io { cause, .. } = &e;
+        assert!(is_disk_full(cause), "{e}");
         assert!(e.to_string().contains("No space left on device"), "{e}");
         let p = ResultsLog::path_in(dir.path());
         let text = std::fs::read_to_string(&p).expect("read");

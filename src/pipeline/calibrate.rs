@@ -210,17 +210,18 @@ pub fn for_each_calibrated_rows(
                 StreamMsg::Rows(b) => {
                     let (band, first, rows) =
                         (usize::from(b.band), b.first_row as usize, b.rows as usize);
-                    let a = angle
-                        .ok_or_else(|| PipelineError("rows arrived outside an angle".into()))?;
+                    let a = angle.ok_or_else(|| {
+                        PipelineError::Stream("rows arrived outside an angle".into())
+                    })?;
                     if band >= nb || first + rows > h {
-                        return Err(PipelineError(format!(
+                        return Err(PipelineError::Stream(format!(
                             "band {band}, rows {first}..{} are outside the sweep",
                             first + rows
                         )));
                     }
                     let v = calibrate_block(b.samples, rows, w);
                     if v.len() != rows * w {
-                        return Err(PipelineError(format!(
+                        return Err(PipelineError::Stream(format!(
                             "a block of {rows} rows holds {} samples, not {}",
                             v.len(),
                             rows * w
@@ -236,10 +237,10 @@ pub fn for_each_calibrated_rows(
                 }
                 StreamMsg::AngleEnd | StreamMsg::BandEnd { .. } => {}
                 StreamMsg::SweepEnd => return Ok(()),
-                StreamMsg::Abort(e) => return Err(PipelineError(e)),
+                StreamMsg::Abort(e) => return Err(PipelineError::Source(e)),
             }
         }
-        Err(PipelineError(
+        Err(PipelineError::Stream(
             "the source stopped without ending the sweep".into(),
         ))
     })
@@ -321,7 +322,8 @@ mod tests {
         let mut source = Babbler(sim.spec().clone());
         let (done_tx, done_rx) = crossbeam_channel::bounded(1);
         std::thread::spawn(move || {
-            let _ = done_tx.send(for_each_calibrated(&mut source, |_| {}).map_err(|e| e.0));
+            let _ =
+                done_tx.send(for_each_calibrated(&mut source, |_| {}).map_err(|e| e.to_string()));
         });
         let result = done_rx
             .recv_timeout(std::time::Duration::from_secs(30))

@@ -10,10 +10,27 @@ use filmscope_core::solve::SweepContext;
 
 use super::state::{BandModels, ShardState, ShardTally};
 
-/// A sweep that could not be completed.
+/// A sweep that could not be completed, one line.
 #[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct PipelineError(pub String);
+pub enum PipelineError {
+    /// The source stopped the sweep (a device, a file), with its reason.
+    #[error("{0}")]
+    Source(String),
+    /// The stream broke its contract: rows outside an angle or the sweep, a block of the
+    /// wrong size, no end, too few angles.
+    #[error("{0}")]
+    Stream(String),
+    /// What the run was given cannot be used (a seed map of another size, the wide field
+    /// model without a field of view, a film that does not pass light).
+    #[error("{0}")]
+    Setup(String),
+    /// A pipeline thread could not be started.
+    #[error("cannot start a pipeline thread: {0}")]
+    Thread(std::io::Error),
+    /// A strip's estimator panicked (a defect; the other strips' work is dropped).
+    #[error("a strip's estimator panicked")]
+    Panicked,
+}
 
 /// Rows for a worker, on the data channel (from the calibrate stage).
 pub(super) enum WorkerMsg {

@@ -282,7 +282,7 @@ fn sweep(
         .as_ref()
         .and_then(|p| Some((p.seed.clone()?, p.index)));
     if seed.as_ref().is_some_and(|(map, _)| map.len() != w * h) {
-        return Err(PipelineError(format!(
+        return Err(PipelineError::Setup(format!(
             "the thickness seed map does not have {w} x {h} pixels"
         )));
     }
@@ -356,7 +356,7 @@ fn sweep(
         drop(start_txs);
         drop(ctl_rx);
         match abort {
-            Some(e) => Err(PipelineError(e)),
+            Some(e) => Err(PipelineError::Source(e)),
             None => Ok(()),
         }
     })?;
@@ -638,7 +638,7 @@ impl Coordinator {
             ..
         } = self;
         if solver.angles_done() < 1 {
-            return Err(PipelineError(format!(
+            return Err(PipelineError::Stream(format!(
                 "the stream ended after {} angle(s); at least one is needed",
                 solver.angles_done()
             )));
@@ -703,7 +703,7 @@ fn named<'scope, T: Send + 'scope>(
     std::thread::Builder::new()
         .name(name)
         .spawn_scoped(scope, f)
-        .map_err(|e| PipelineError(format!("cannot start a pipeline thread: {e}")))
+        .map_err(PipelineError::Thread)
 }
 
 /// `f` of every item, in order, on `threads` threads (each a run of the items, the first run

@@ -67,12 +67,12 @@ pub struct Acquisition {
 #[derive(Debug, thiserror::Error)]
 pub enum LiveError {
     /// The capture's folder cannot be created.
-    #[error("{}: {source}", .path.display())]
+    #[error("{}: {cause}", .path.display())]
     Folder {
         /// The folder.
         path: PathBuf,
-        /// Why.
-        source: std::io::Error,
+        /// Why (in the message, not a source: one line, said once).
+        cause: std::io::Error,
     },
     /// The rig file's sweep is not one the estimator takes.
     #[error(transparent)]
@@ -85,9 +85,9 @@ pub enum LiveError {
 impl Acquisition {
     /// A sweep of `rig` per `config`, recording into `out` (created).
     pub fn new(rig: Rig, config: RigConfig, out: &Path) -> Result<Self, LiveError> {
-        std::fs::create_dir_all(out).map_err(|source| LiveError::Folder {
+        std::fs::create_dir_all(out).map_err(|cause| LiveError::Folder {
             path: out.to_path_buf(),
-            source,
+            cause,
         })?;
         let bands_nm = config.sweep.bands();
         let search = config.search.clone();
