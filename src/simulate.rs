@@ -24,8 +24,26 @@ use crate::record::truth::TruthRecord;
 
 /// A capture that could not be written, with the file at fault.
 #[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct SimulateError(pub String);
+pub enum SimulateError {
+    /// A cube, a reference, the truth map or a folder.
+    #[error("{}: {cause}", .path.display())]
+    File {
+        /// The file or folder.
+        path: PathBuf,
+        /// Why (the cube writer's or the system's error; in the message, not a source:
+        /// one line, said once).
+        cause: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// `capture.toml`.
+    #[error(transparent)]
+    Capture(#[from] crate::io::CaptureError),
+    /// `truth.json`.
+    #[error(transparent)]
+    Truth(#[from] crate::record::RecordError),
+    /// Rows of an angle reached the writers after that angle was finished (a defect).
+    #[error("angle {0} written after its end")]
+    AngleAfterEnd(usize),
+}
 
 /// How to write the capture.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -359,13 +377,13 @@ impl AngleFiles {
     ) -> Result<(), SimulateError> {
         let (path, cube) = &mut self.cube;
         cube.write_band_row(band, row, batch.cube_row(k))
-            .map_err(|e| path_err(path, &e))?;
+            .map_err(|e| path_err(path, e))?;
         if let Some([(white_path, white), (dark_path, dark)]) = self.refs.as_mut() {
             white
                 .write_band_row(band, row, batch.white_row(k))
-                .map_err(|e| path_err(white_path, &e))?;
+                .map_err(|e| path_err(white_path, e))?;
             dark.write_band_row(band, row, batch.dark_row(k))
-                .map_err(|e| path_err(dark_path, &e))?;
+                .map_err(|e| path_err(dark_path, e))?;
         }
         Ok(())
     }
@@ -374,16 +392,19 @@ impl AngleFiles {
     /// first).
     fn finish(self) -> Result<(), SimulateError> {
         let (path, cube) = self.cube;
-        cube.finish().map_err(|e| path_err(&path, &e))?;
+        cube.finish().map_err(|e| path_err(&path, e))?;
         for (path, writer) in self.refs.into_iter().flatten() {
-            writer.finish().map_err(|e| path_err(&path, &e))?;
+            writer.finish().map_err(|e| path_err(&path, e))?;
         }
         Ok(())
     }
 }
 
-fn path_err(p: &Path, e: &dyn std::fmt::Display) -> SimulateError {
-    SimulateError(format!("{}: {e}", p.display()))
+fn path_err(p: &Path, e: impl Into<Box<dyn std::error::Error + Send + Sync>>) -> SimulateError {
+    SimulateError::File {
+        path: p.to_owned(),
+        cause: e.into(),
+    }
 }
 
 /// Writes `scene` as a capture in `out_dir` (created if needed); returns the capture.toml
@@ -397,7 +418,7 @@ pub fn write_capture(
     opts: SimulateOptions,
     on_rows: &dyn Fn(u64),
 ) -> Result<PathBuf, SimulateError> {
-    std::fs::create_dir_all(out_dir.join("truth")).map_err(|e| path_err(out_dir, &e))?;
+    std::fs::create_dir_all(out_dir.join("truth")).map_err(|e| path_err(out_dir, e))?;
     let camera = SoftwareCamera::new(scene.clone());
     let (w, h) = (camera.width(), camera.height());
     let kind = if opts.noise_free {
@@ -424,7 +445,7 @@ pub fn write_capture(
         Some("true film thickness, nm"),
         &[],
     )
-    .map_err(|e| path_err(&truth_map, &e))?;
+    .map_err(|e| path_err(&truth_map, e))?;
     let toml_path = out_dir.join("capture.toml");
     let capture = Capture {
         path: toml_path.clone(),
@@ -446,12 +467,8 @@ pub fn write_capture(
         fit: Default::default(),
         unknown_keys: Vec::new(),
     };
-    capture
-        .write_toml(&toml_path)
-        .map_err(|e| SimulateError(e.to_string()))?;
-    truth_record(scene, opts, w, h)
-        .write(out_dir)
-        .map_err(|e| SimulateError(e.to_string()))?;
+    capture.write_toml(&toml_path)?;
+    truth_record(scene, opts, w, h).write(out_dir)?;
     Ok(toml_path)
 }
 
@@ -477,12 +494,12 @@ impl AngleFiles {
             let sat = format!("{}", scene.sensor.saturation_counts());
             hd.extra.push(("saturation counts".into(), sat));
         }
-        let cube = EnviWriter::create(&cube_path, &hd).map_err(|e| path_err(&cube_path, &e))?;
+        let cube = EnviWriter::create(&cube_path, &hd).map_err(|e| path_err(&cube_path, e))?;
         let reference = |name: &str| {
             let path = out_dir.join(format!("{name}{tag}.hdr"));
             let desc = format!("{name} reference (averaged counts)");
             let href = header(scene, DataType::F32, opts, &desc);
-            let writer = EnviWriter::create(&path, &href).map_err(|e| path_err(&path, &e))?;
+            let writer = EnviWriter::create(&path, &href).map_err(|e| path_err(&path, e))?;
             Ok::<_, SimulateError>((path, writer))
         };
         let refs = if kind == RowKind::Raw {
@@ -525,7 +542,7 @@ fn write_cubes(
     let per_angle = order.len().div_ceil(capacity);
     let jobs = angle_jobs(&order, scene.angles_deg.len(), capacity);
     let mut finishing = Vec::new();
-    let written = render_in_order(
+    let written: Result<(), SimulateError> = render_in_order(
         camera,
         kind,
         &jobs,
@@ -533,9 +550,7 @@ fn write_cubes(
         render_threads(),
         |j, batch| {
             let (a, rows) = jobs[j];
-            let angle = files[a]
-                .as_mut()
-                .ok_or_else(|| SimulateError(format!("angle {a} written after its end")))?;
+            let angle = files[a].as_mut().ok_or(SimulateError::AngleAfterEnd(a))?;
             for (k, &(b, r)) in rows.iter().enumerate() {
                 angle.write(b, r, batch, k)?;
             }
@@ -580,7 +595,7 @@ fn write_substrate(
         ],
         &format!("substrate of scene {}", scene.name),
     );
-    write_atomic(&path, text.as_bytes()).map_err(|e| path_err(&path, &e))?;
+    write_atomic(&path, text.as_bytes()).map_err(|e| path_err(&path, e))?;
     Ok(Some(crate::io::SubstrateMaterial {
         name: name.into(),
         dispersion: scene.stack.substrate,

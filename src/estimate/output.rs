@@ -50,8 +50,20 @@ pub fn flag_counts(map: &[u16]) -> BTreeMap<String, u64> {
 
 /// An output that could not be written, naming the file.
 #[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct OutputError(pub String);
+pub enum OutputError {
+    /// A map, preview or index file.
+    #[error("{}: {cause}", .path.display())]
+    File {
+        /// The file.
+        path: std::path::PathBuf,
+        /// Why (a cube writer's, the PNG encoder's or the system's error; in the message,
+        /// not a source: one line, said once).
+        cause: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// `summary.json`.
+    #[error(transparent)]
+    Summary(#[from] crate::record::RecordError),
+}
 
 /// Writes the maps, the preview and `summary.json` into the existing folder `dir` (a
 /// staging folder of [`crate::io::OutputDir`], opened by a job: [`crate::jobs`]). Returns
@@ -66,13 +78,16 @@ pub fn write_outputs_into(
     write_preview(dir, run)?;
     let index_files = write_index_files(dir, run, source_label)?;
     let summary = summary_of(run, source_label, index_files);
-    summary.write(dir).map_err(|e| OutputError(e.to_string()))?;
+    summary.write(dir)?;
     Ok(summary)
 }
 
 /// The error of writing the file `p`.
-fn path_err(p: &Path, e: &dyn std::fmt::Display) -> OutputError {
-    OutputError(format!("{}: {e}", p.display()))
+fn path_err(p: &Path, e: impl Into<Box<dyn std::error::Error + Send + Sync>>) -> OutputError {
+    OutputError::File {
+        path: p.to_owned(),
+        cause: e.into(),
+    }
 }
 
 /// Writes the float maps: thickness, confidence and thickness sigma.
@@ -88,7 +103,7 @@ fn write_maps(dir: &Path, run: &Run) -> Result<(), OutputError> {
         Some("film thickness, nm (NaN: no reliable estimate)"),
         &[],
     )
-    .map_err(|e| path_err(&thick, &e))?;
+    .map_err(|e| path_err(&thick, e))?;
     let conf = dir.join("confidence.hdr");
     write_f32_map(
         &conf,
@@ -98,7 +113,7 @@ fn write_maps(dir: &Path, run: &Run) -> Result<(), OutputError> {
         Some("confidence of the thickness, 0..1"),
         &[],
     )
-    .map_err(|e| path_err(&conf, &e))?;
+    .map_err(|e| path_err(&conf, e))?;
     let sigma = dir.join("thickness_sigma_nm.hdr");
     write_f32_map(
         &sigma,
@@ -110,7 +125,7 @@ fn write_maps(dir: &Path, run: &Run) -> Result<(), OutputError> {
         )),
         &[],
     )
-    .map_err(|e| path_err(&sigma, &e))?;
+    .map_err(|e| path_err(&sigma, e))?;
     Ok(())
 }
 
@@ -124,16 +139,16 @@ fn write_flags(dir: &Path, run: &Run) -> Result<(), OutputError> {
         .map(|(b, n)| format!("{b}={n}"))
         .collect();
     fh.description = Some(format!("filmscope pixel flags (bits): {}", names.join(" ")));
-    let mut fw = EnviWriter::create(&flags_path, &fh).map_err(|e| path_err(&flags_path, &e))?;
+    let mut fw = EnviWriter::create(&flags_path, &fh).map_err(|e| path_err(&flags_path, e))?;
     for row in 0..h {
         let vals: Vec<f32> = run.result.flags[row * w..(row + 1) * w]
             .iter()
             .map(|&f| f32::from(f))
             .collect();
         fw.write_band_row(0, row, &vals)
-            .map_err(|e| path_err(&flags_path, &e))?;
+            .map_err(|e| path_err(&flags_path, e))?;
     }
-    fw.finish().map_err(|e| path_err(&flags_path, &e))
+    fw.finish().map_err(|e| path_err(&flags_path, e))
 }
 
 /// Writes the thickness preview, `thickness_nm.png`, titled with the index and method.
@@ -156,7 +171,7 @@ fn write_preview(dir: &Path, run: &Run) -> Result<(), OutputError> {
             range: None,
         },
     )
-    .map_err(|e| path_err(&png, &e))
+    .map_err(|e| path_err(&png, e))
 }
 
 /// Writes the index as `index.csv` and `index.yml` when the index model has them; true if
@@ -168,7 +183,7 @@ fn write_index_files(dir: &Path, run: &Run, source_label: &str) -> Result<bool, 
         crate::material::index_files(&r.index.dispersion(), &run.spec.bands_nm, &comment);
     for (name, text) in index_files.iter().flatten() {
         let path = dir.join(name);
-        write_atomic(&path, text.as_bytes()).map_err(|e| path_err(&path, &e))?;
+        write_atomic(&path, text.as_bytes()).map_err(|e| path_err(&path, e))?;
     }
     Ok(index_files.is_some())
 }
