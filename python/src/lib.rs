@@ -212,7 +212,7 @@ fn estimate_capture<'py>(
         rig_tolerance,
     };
     let config = opts.config().map_err(fail)?;
-    let film = given_index(film_index, &config)?;
+    let film = given_index(film_index)?;
     let (run, summary) = py
         .detach(|| -> Result<(Run, Summary), String> {
             let (out, _scratch) = out_or_scratch(out)?;
@@ -232,17 +232,12 @@ fn estimate_capture<'py>(
     result_dict(py, &run, &summary)
 }
 
-/// The film's given index (`film_index`, JSON text as [`dispersion`] reads it), refused
-/// with a method other than filmscope.
-fn given_index(film_index: Option<&str>, config: &RunConfig) -> PyResult<Option<GivenIndex>> {
+/// The film's given index (`film_index`, JSON text as [`dispersion`] reads it); the job's
+/// [`Settings::check`] refuses it with a method other than filmscope.
+fn given_index(film_index: Option<&str>) -> PyResult<Option<GivenIndex>> {
     let Some(text) = film_index else {
         return Ok(None);
     };
-    if config.method != Method::Filmscope {
-        return Err(fail(
-            "film_index: only the filmscope method takes a given index",
-        ));
-    }
     let dispersion = dispersion(text, "film_index").map_err(fail)?;
     Ok(Some(GivenIndex {
         name: text.trim_matches('"').to_owned(),
@@ -340,7 +335,7 @@ fn estimate_array<'py>(
         rig_tolerance,
     };
     let config = opts.config().map_err(fail)?;
-    let film = given_index(film_index, &config)?;
+    let film = given_index(film_index)?;
     let axes = ArrayAxes {
         shape,
         wavelengths_nm: &wavelengths_nm,
@@ -372,6 +367,7 @@ fn estimate_array<'py>(
     let (run, summary) = py
         .detach(|| -> Result<(Run, Summary), String> {
             let settings = Settings { config, film };
+            settings.check("film_index").map_err(|e| e.to_string())?;
             let run = jobs::estimate::run(&mut source, &settings, None, "array", &Quiet)
                 .map_err(|e| e.to_string())?;
             let summary = outputs(&run, out, "array")?;

@@ -35,6 +35,19 @@ pub struct Settings {
     pub film: Option<GivenIndex>,
 }
 
+impl Settings {
+    /// Refuses an index given to a method that fits its own (only filmscope holds one);
+    /// `film_option` names the index as the caller does (`--film-index`, `film_index`).
+    pub fn check(&self, film_option: &'static str) -> Result<(), EstimateError> {
+        if self.film.is_some() && self.config.method != Method::Filmscope {
+            return Err(EstimateError::IndexNotTaken {
+                option: film_option,
+            });
+        }
+        Ok(())
+    }
+}
+
 /// `filmscope estimate`'s request: a capture on disk, where to write, how.
 #[derive(Clone, Debug)]
 pub struct EstimateRequest {
@@ -195,11 +208,7 @@ pub fn estimate_capture(
         name: name.to_owned(),
         cause,
     };
-    if settings.film.is_some() && settings.config.method != Method::Filmscope {
-        return Err(EstimateError::IndexNotTaken {
-            option: request.film_option,
-        });
-    }
+    settings.check(request.film_option)?;
     let cap = Capture::load(&request.capture)?;
     for key in &cap.unknown_keys {
         observer.warning(&format!(
