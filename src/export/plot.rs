@@ -1960,6 +1960,13 @@ mod tests {
             .map_or_else(|| std::env::temp_dir().join("plot-check"), Into::into);
         std::fs::create_dir_all(&dir).expect("can create the output directory");
 
+        scatter_examples(&dir);
+        heatmap_examples(&dir);
+        scatter_edge_examples(&dir);
+    }
+
+    /// Two methods on linear and log axes with a Pareto front, and an empty panel.
+    fn scatter_examples(dir: &std::path::Path) {
         let (a, b, labels) = demo_scatter();
         let methods = [
             Series {
@@ -2038,7 +2045,10 @@ mod tests {
         };
         write_scatter_panels_png(&dir.join("scatter-empty.png"), "No data", &[nothing])
             .expect("writes");
+    }
 
+    /// A parameter sweep with cell text and its log-scaled twin; an all-NaN map and one row.
+    fn heatmap_examples(dir: &std::path::Path) {
         let mut values: Vec<f64> = (0..6 * 5)
             .map(|i| {
                 let (r, c) = (f64::from(i / 6), f64::from(i % 6));
@@ -2095,6 +2105,36 @@ mod tests {
         write_heatmap_panels_png(&dir.join("heatmap.png"), "Parameter sweep", &[text, logmap])
             .expect("writes");
 
+        let nan = [f64::NAN; 12];
+        let all_nan = HeatMap {
+            title: "All NaN",
+            x_ticks: &[],
+            y_ticks: &[],
+            cols: 4,
+            rows: 3,
+            values: &nan,
+            cell_text: true,
+            ..text
+        };
+        let strip: Vec<f64> = (0..8).map(|i| f64::from(i) * 1e-5 - 2e-5).collect();
+        let long_ticks: Vec<String> = (0..8).map(|i| format!("config {i}")).collect();
+        let one_row = HeatMap {
+            title: "One row, long labels",
+            x_ticks: &long_ticks,
+            y_ticks: &[],
+            cols: 8,
+            rows: 1,
+            values: &strip,
+            unit: "",
+            cell_text: true,
+            ..text
+        };
+        write_heatmap_panels_png(&dir.join("heatmap-edge.png"), "", &[all_nan, one_row])
+            .expect("writes");
+    }
+
+    /// A narrow log axis, large linear values, one point, many series.
+    fn scatter_edge_examples(dir: &std::path::Path) {
         // Edge cases: a narrow log axis, large linear values, one point, many series.
         let narrow: Vec<(f64, f64)> = (0..8)
             .map(|i| (2.0e6 + f64::from(i) * 1.3e5, 210.0 + f64::from(i * i) * 2.5))
@@ -2144,33 +2184,6 @@ mod tests {
             ..edge
         };
         write_scatter_panels_png(&dir.join("scatter-edge.png"), "Edge cases", &[edge, one])
-            .expect("writes");
-
-        let nan = [f64::NAN; 12];
-        let all_nan = HeatMap {
-            title: "All NaN",
-            x_ticks: &[],
-            y_ticks: &[],
-            cols: 4,
-            rows: 3,
-            values: &nan,
-            cell_text: true,
-            ..text
-        };
-        let strip: Vec<f64> = (0..8).map(|i| f64::from(i) * 1e-5 - 2e-5).collect();
-        let long_ticks: Vec<String> = (0..8).map(|i| format!("config {i}")).collect();
-        let one_row = HeatMap {
-            title: "One row, long labels",
-            x_ticks: &long_ticks,
-            y_ticks: &[],
-            cols: 8,
-            rows: 1,
-            values: &strip,
-            unit: "",
-            cell_text: true,
-            ..text
-        };
-        write_heatmap_panels_png(&dir.join("heatmap-edge.png"), "", &[all_nan, one_row])
             .expect("writes");
     }
 }
