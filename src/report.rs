@@ -267,8 +267,7 @@ fn comparison_charts(cmp: &Comparison) -> Result<Vec<u8>, AppearanceError> {
         series: &series,
         pareto: false,
     }];
-    render_scatter_panels_png("colour difference per angle", &panels)
-        .map_err(|e| AppearanceError(e.to_string()))
+    render_scatter_panels_png("colour difference per angle", &panels).map_err(AppearanceError::from)
 }
 
 /// Reflectance against wavelength of the pixel of median thickness, measured and
@@ -329,7 +328,7 @@ fn spectra_chart(
     }];
     render_scatter_panels_png("measured and modelled spectra", &panels)
         .map(Some)
-        .map_err(|e| AppearanceError(e.to_string()))
+        .map_err(AppearanceError::from)
 }
 
 /// Writes the report of the maps directory `run` to `out` (atomically).

@@ -145,8 +145,8 @@ pub struct Comparison {
 
 /// Opens a capture (`capture.toml` or its directory) as a stream of calibrated rows.
 pub fn open_capture(capture: &Path) -> Result<CaptureSource, AppearanceError> {
-    let cap = Capture::load(capture).map_err(|e| AppearanceError(e.to_string()))?;
-    CaptureSource::new(cap).map_err(|e| AppearanceError(e.to_string()))
+    let cap = Capture::load(capture).map_err(AppearanceError::from)?;
+    CaptureSource::new(cap).map_err(AppearanceError::from)
 }
 
 /// One pixel's band reflectance at one angle, measured and modelled: `(nm, R)` pairs.
@@ -214,7 +214,7 @@ pub fn compare_stream(
                 StreamMsg::AngleEnd => state.end_angle()?,
                 StreamMsg::BandEnd { .. } => {}
                 StreamMsg::SweepEnd => return Ok(()),
-                StreamMsg::Abort(e) => return Err(AppearanceError(e)),
+                StreamMsg::Abort(e) => return Err(AppearanceError::Stream(e)),
             }
         }
         Err(state.at("the capture stopped without ending the sweep".into()))
@@ -254,7 +254,7 @@ struct StreamedComparison<'a> {
 
 /// An ENVI cube that could not be written.
 fn envi_err(e: crate::io::EnviError) -> AppearanceError {
-    AppearanceError(e.to_string())
+    AppearanceError::Cube(e)
 }
 
 impl<'a> StreamedComparison<'a> {
@@ -570,7 +570,7 @@ impl Comparison {
                 "{L measured, a measured, b measured, L reproduced, a reproduced, b reproduced, CIEDE2000}"
                     .to_owned(),
             )];
-            let err = |e: crate::io::EnviError| AppearanceError(e.to_string());
+            let err = AppearanceError::Cube;
             let mut writer = EnviWriter::create(&path, &header).map_err(err)?;
             let lab = |v: &Xyz| {
                 let l = v.to_lab(white);
@@ -656,7 +656,7 @@ impl Comparison {
         let width = width.max(2 * MARGIN + text_width(&title, TEXT));
         let height = MARGIN + 2 * LINE + self.angles.len() * (ph + GAP) + LINE + MARGIN;
         if width.saturating_mul(height) > crate::export::png::MAX_PIXELS {
-            return Err(AppearanceError(format!(
+            return Err(AppearanceError::Mismatch(format!(
                 "a {width}x{height} comparison is too large"
             )));
         }
@@ -725,7 +725,7 @@ impl Comparison {
             NO_DATA,
             "grey = not compared (no reliable thickness, or a saturated/dead band)",
         );
-        c.encode().map_err(|e| AppearanceError(e.to_string()))
+        c.encode().map_err(AppearanceError::from)
     }
 }
 

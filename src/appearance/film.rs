@@ -46,7 +46,7 @@ impl SampleFilm {
     pub fn load(maps_dir: &Path, capture: Option<&Path>) -> Result<Self, AppearanceError> {
         let summary_path = maps_dir.join(crate::summary::FILE);
         let bad = |what: String| AppearanceError::new(&summary_path, what);
-        let summary = Summary::read(maps_dir).map_err(|e| AppearanceError(e.to_string()))?;
+        let summary = Summary::read(maps_dir).map_err(AppearanceError::from)?;
         let n = summary
             .refractive_index
             .filter(|n| n.is_finite() && *n > 0.0)
@@ -119,7 +119,7 @@ impl SampleFilm {
                 let path = capture_path.as_deref().ok_or_else(|| {
                     bad("no substrate index: the summary has no `sample` and its `source` capture is gone (pass --capture)".into())
                 })?;
-                let cap = Capture::load(path).map_err(|e| AppearanceError(e.to_string()))?;
+                let cap = Capture::load(path).map_err(AppearanceError::from)?;
                 (
                     cap.sample.ambient_index,
                     cap.sample.substrate_dispersion(),

@@ -265,7 +265,7 @@ fn glb_container(
     doc: &serde_json::Value,
     bin: &[u8],
 ) -> Result<Vec<u8>, AppearanceError> {
-    let mut text = serde_json::to_vec(doc).map_err(|e| AppearanceError(e.to_string()))?;
+    let mut text = serde_json::to_vec(doc).map_err(AppearanceError::from)?;
     while text.len() % 4 != 0 {
         text.push(b' ');
     }

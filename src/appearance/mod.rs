@@ -26,12 +26,51 @@ pub use film::SampleFilm;
 
 /// Why an appearance output could not be made: one line naming the file and the problem.
 #[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct AppearanceError(pub String);
+pub enum AppearanceError {
+    /// A file or folder of the estimate, the capture or the output, with its problem.
+    #[error("{}: {problem}", .path.display())]
+    File {
+        /// The file or folder.
+        path: std::path::PathBuf,
+        /// What is wrong, in a line.
+        problem: String,
+    },
+    /// The capture cannot be read.
+    #[error(transparent)]
+    Capture(#[from] crate::io::CaptureError),
+    /// The capture cannot be streamed.
+    #[error(transparent)]
+    Source(#[from] crate::source::SourceError),
+    /// `summary.json` cannot be read.
+    #[error(transparent)]
+    Summary(#[from] crate::record::RecordError),
+    /// A cube cannot be read or written.
+    #[error(transparent)]
+    Cube(#[from] crate::io::EnviError),
+    /// A picture cannot be drawn or encoded.
+    #[error(transparent)]
+    Picture(#[from] crate::export::png::PreviewError),
+    /// The glTF document cannot be encoded.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// The capture's calibrated stream stopped.
+    #[error(transparent)]
+    Pipeline(#[from] crate::pipeline::PipelineError),
+    /// The capture's stream broke off or did not fit the estimate.
+    #[error("{0}")]
+    Stream(String),
+    /// What was asked does not fit the estimate (a pixel outside the map, a capture of
+    /// another sweep).
+    #[error("{0}")]
+    Mismatch(String),
+}
 
 impl AppearanceError {
     /// `path: what`.
     pub fn new(path: &Path, what: impl Display) -> Self {
-        Self(format!("{}: {what}", path.display()))
+        Self::File {
+            path: path.to_owned(),
+            problem: what.to_string(),
+        }
     }
 }

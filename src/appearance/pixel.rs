@@ -225,7 +225,7 @@ impl PixelFit {
             self.y,
             fmt_nm(self.thickness_nm)
         );
-        render_scatter_panels_png(&title, &panels).map_err(|e| AppearanceError(e.to_string()))
+        render_scatter_panels_png(&title, &panels).map_err(AppearanceError::from)
     }
 }
 
@@ -266,7 +266,7 @@ pub fn measured_spectra(
     let spec = source.spec().clone();
     let (w, h, nb) = (spec.width, spec.height, spec.bands_nm.len());
     if x >= w || y >= h {
-        return Err(AppearanceError(format!(
+        return Err(AppearanceError::Mismatch(format!(
             "pixel ({x}, {y}) is outside the {w}x{h} capture"
         )));
     }
@@ -292,7 +292,7 @@ pub fn measured_spectra(
             }
         }
     })
-    .map_err(|e| AppearanceError(e.to_string()))?;
+    .map_err(AppearanceError::from)?;
     Ok(angles.into_iter().unzip())
 }
 
@@ -437,14 +437,14 @@ pub fn pixel_fit(
     y: usize,
 ) -> Result<PixelFit, AppearanceError> {
     if x >= film.width || y >= film.height {
-        return Err(AppearanceError(format!(
+        return Err(AppearanceError::Mismatch(format!(
             "pixel ({x}, {y}) is outside the {}x{} maps",
             film.width, film.height
         )));
     }
     let spec = source.spec().clone();
     if (spec.width, spec.height) != (film.width, film.height) {
-        return Err(AppearanceError(format!(
+        return Err(AppearanceError::Mismatch(format!(
             "the maps are {}x{} but the capture is {}x{}",
             film.width, film.height, spec.width, spec.height
         )));

@@ -214,7 +214,7 @@ pub fn render_png(
         + LINE
         + MARGIN;
     if width.saturating_mul(height) > crate::export::png::MAX_PIXELS {
-        return Err(super::AppearanceError(format!(
+        return Err(super::AppearanceError::Mismatch(format!(
             "a {width}x{height} render is too large"
         )));
     }
@@ -233,9 +233,7 @@ pub fn render_png(
         FLAG_COLOUR,
         "grey = no reliable thickness (NaN or flagged)",
     );
-    let png = c
-        .encode()
-        .map_err(|e| super::AppearanceError(e.to_string()))?;
+    let png = c.encode().map_err(super::AppearanceError::from)?;
     Ok((
         png,
         RenderInfo {
