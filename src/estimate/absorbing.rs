@@ -273,8 +273,7 @@ pub fn run_absorbing(
             spec.model_error
         ));
     }
-    let (w, h, nb) = (cube.width, cube.height, cube.bands_nm.len());
-    let samples = (w * h * nb * cube.angles_deg.len()) as u64;
+    let samples = cube.samples();
     Ok(Run {
         result,
         angles_deg,

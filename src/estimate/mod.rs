@@ -68,8 +68,7 @@ pub fn run_method_in_field(
             } else {
                 brute(&cube, config.brute_grid)
             };
-            let samples =
-                (cube.width * cube.height * cube.bands_nm.len() * cube.angles_deg.len()) as u64;
+            let samples = cube.samples();
             Ok(Run {
                 result,
                 spec,

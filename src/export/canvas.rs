@@ -178,10 +178,10 @@ impl Canvas {
     /// Draws `text` with its top-left corner (the top of a capital) at `(x, y)`, capitals
     /// [`CAP_ROWS`] x `scale` pixels high.
     pub(crate) fn text(&mut self, x: usize, y: usize, text: &str, scale: usize, colour: [u8; 3]) {
-        let Some(font) = font() else {
+        let Some((font, per_cap_px)) = font() else {
             return;
         };
-        let px = font_px(font, scale);
+        let px = font_px(*per_cap_px, scale);
         let font = font.as_scaled(px);
         let baseline = y as f32 + CAP_ROWS.saturating_mul(scale) as f32;
         let mut pen = x as f32;
@@ -320,31 +320,35 @@ pub(crate) const FONT: &[u8] = include_bytes!("fonts/DejaVuSans.ttf");
 pub(crate) const GLYPH_ROWS: usize = 9;
 /// Height of capitals and digits in units of `scale`, pixels.
 pub(crate) const CAP_ROWS: usize = 7;
-/// The font's size at which capitals (the height of `H`) are [`CAP_ROWS`] x `scale`
-/// pixels high; `ab_glyph` sizes a font by its ascent less its descent.
-fn font_px(font: &FontRef<'_>, scale: usize) -> PxScale {
-    let cap = font
-        .outline(font.glyph_id('H'))
-        .map_or(0.7 * font.height_unscaled(), |o| o.bounds.height().abs());
-    let cap_px = CAP_ROWS.saturating_mul(scale.max(1)) as f32;
-    PxScale::from(cap_px * font.height_unscaled() / cap.max(1.0))
+/// [`FONT`], parsed once, with its size per pixel of capital height (`ab_glyph` sizes a
+/// font by its ascent less its descent; a capital is the height of `H`). `None` only if
+/// the embedded file were broken (a build defect the canvas tests catch): text is then
+/// left out rather than the process stopped.
+fn font() -> Option<&'static (FontRef<'static>, f32)> {
+    static PARSED: OnceLock<Option<(FontRef<'static>, f32)>> = OnceLock::new();
+    PARSED
+        .get_or_init(|| {
+            let font = FontRef::try_from_slice(FONT).ok()?;
+            let cap = font
+                .outline(font.glyph_id('H'))
+                .map_or(0.7 * font.height_unscaled(), |o| o.bounds.height().abs());
+            let per_cap_px = font.height_unscaled() / cap.max(1.0);
+            Some((font, per_cap_px))
+        })
+        .as_ref()
 }
 
-/// [`FONT`], parsed once; `None` only if the embedded file were broken (a build defect the
-/// canvas tests catch): text is then left out rather than the process stopped.
-fn font() -> Option<&'static FontRef<'static>> {
-    static PARSED: OnceLock<Option<FontRef<'static>>> = OnceLock::new();
-    PARSED
-        .get_or_init(|| FontRef::try_from_slice(FONT).ok())
-        .as_ref()
+/// The font's size at which capitals are [`CAP_ROWS`] x `scale` pixels high.
+fn font_px(per_cap_px: f32, scale: usize) -> PxScale {
+    PxScale::from(CAP_ROWS.saturating_mul(scale.max(1)) as f32 * per_cap_px)
 }
 
 /// Width in pixels of `text` drawn at `scale`: its advances and kerning.
 pub(crate) fn text_width(text: &str, scale: usize) -> usize {
-    let Some(font) = font() else {
+    let Some((font, per_cap_px)) = font() else {
         return 0;
     };
-    let font = font.as_scaled(font_px(font, scale));
+    let font = font.as_scaled(font_px(*per_cap_px, scale));
     let mut width = 0.0;
     let mut last = None;
     for ch in text.chars() {

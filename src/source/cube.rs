@@ -36,6 +36,11 @@ pub struct SweepCube {
 }
 
 impl SweepCube {
+    /// Samples held: pixels x bands x angles.
+    pub fn samples(&self) -> u64 {
+        (self.width * self.height * self.bands_nm.len() * self.angles_deg.len()) as u64
+    }
+
     /// The spectrum of pixel `(col, row)` at angle `angle`, into `out` (one value per band).
     pub fn spectrum_into(&self, angle: usize, col: usize, row: usize, out: &mut [f32]) {
         let plane = self.width * self.height;
